@@ -1,0 +1,89 @@
+"""Checks of user input, run in plain Python before anything is traced or compiled.
+
+Traced values (inside ``jit``/``vmap``/``grad``) cannot be inspected and are passed through.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import numpy as np
+
+__all__ = ["check_positive", "check_rho", "check_mesh", "check_y0", "check_choice", "is_concrete"]
+
+
+def is_concrete(value) -> bool:
+    return not isinstance(value, jax.core.Tracer)
+
+
+def _finite_array(name: str, value) -> np.ndarray:
+    try:
+        array = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a real number, got {value!r}") from None
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    return array
+
+
+def check_positive(name: str, value) -> None:
+    """``name`` must be finite and > 0 (every entry, if an array)."""
+    if not is_concrete(value):
+        return
+    array = _finite_array(name, value)
+    if np.any(array <= 0):
+        raise ValueError(f"{name} must be > 0 (allowed range: (0, inf)), got {value!r}")
+
+
+def check_rho(rho) -> None:
+    """ρ ∈ [0, 1)."""
+    if not is_concrete(rho):
+        return
+    array = _finite_array("rho", rho)
+    if np.any((array < 0) | (array >= 1)):
+        raise ValueError(f"rho must lie in [0, 1), got {rho!r}")
+
+
+def check_mesh(dt, t_final) -> int:
+    """dt and t_final (Python numbers: they set the mesh's shape); returns N = round(t_final/dt) ≥ 1."""
+    for name, value in (("dt", dt), ("t_final", t_final)):
+        if not is_concrete(value) or np.ndim(value) != 0:
+            raise ValueError(f"{name} sets the number of steps and must be a concrete scalar, got {value!r}")
+        check_positive(name, value)
+    dt, t_final = float(dt), float(t_final)
+    if dt > t_final:
+        raise ValueError(f"dt must be <= t_final (allowed range: (0, {t_final}]), got dt={dt}")
+    n_steps = max(1, round(t_final / dt))
+    if n_steps > 100_000_000:
+        raise ValueError(f"dt={dt} gives {n_steps} steps over t_final={t_final}; the limit is 1e8 steps")
+    return n_steps
+
+
+def check_y0(y0) -> None:
+    """y0 = (α, ω, u, v): four finite numbers with v > 0 (φ is defined for v > 0)."""
+    if y0 is None or not is_concrete(y0):
+        return
+    array = _finite_array("y0", y0)
+    if array.shape[-1:] != (4,):
+        raise ValueError(f"y0 must hold four numbers (alpha, omega, u, v), got shape {array.shape}")
+    if np.any(array[..., 3] <= 0):
+        raise ValueError(f"y0: the peeling velocity v must be > 0 (allowed range: (0, inf)), got {array[..., 3]}")
+
+
+def check_choice(name: str, value, allowed) -> None:
+    if value not in allowed:
+        raise ValueError(f"{name} must be one of {', '.join(map(str, allowed))}; got {value!r}")
+
+
+def check_truncation(truncation) -> None:
+    if truncation is None:
+        return
+    if isinstance(truncation, bool) or not isinstance(truncation, int) or truncation < 0:
+        raise ValueError(f"truncation must be None or an integer >= 0, got {truncation!r}")
+
+
+def check_finite_scalar(name: str, value) -> float:
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+        raise ValueError(f"{name} must be a finite number, got {value!r}")
+    return float(value)

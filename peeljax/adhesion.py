@@ -1,0 +1,154 @@
+"""The adhesion law φ(v, V) of the shear-adhesion constraint (eq. ``sac``).
+
+The paper's family (its numerical example, after de Cicco et al.) is
+
+    φ(v, V) = c1·v^p1 + c2·v^p2 + c3·exp(v/c4) − c5·V^p5 − (c6 − c7·V^p7 − c8·V^p8)·v^p9,
+
+with a maximum and a minimum in v between which the tape sticks and slips.
+
+Policy at v ≤ 0
+---------------
+φ has fractional powers of v and is defined for v > 0 only. peeljax extends every
+power to v ≤ 0 by its limit from the right, ``v^p := 0`` (p > 0), with zero derivative,
+through a "double where" so that neither the value nor any derivative is ever NaN.
+The integrators never rely on this extension: the α-method solves for log v, so v stays
+positive, and initial states with v ≤ 0 are rejected before compilation.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from pathlib import Path
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
+
+__all__ = ["AdhesionLaw", "COEFFICIENT_NAMES", "PAPER_COEFFICIENTS", "safe_pow", "as_adhesion"]
+
+COEFFICIENT_NAMES: tuple[str, ...] = (
+    "c1", "p1", "c2", "p2", "c3", "c4", "c5", "p5", "c6", "c7", "p7", "c8", "p8", "p9",
+)
+PAPER_COEFFICIENTS: dict[str, float] = dict(
+    zip(COEFFICIENT_NAMES, (400.0, 0.35, 110.0, 0.15, 130.0, 11.0, 2.0, 1.5, 415.0, 45.0, 0.4, 0.35, 2.15, 0.5))
+)
+
+
+def safe_pow(x: ArrayLike, p: ArrayLike) -> Array:
+    """``x**p`` for x > 0, and 0 (its limit from the right, p > 0) for x ≤ 0.
+
+    The inner ``where`` keeps the untaken branch finite, so gradients with respect to
+    x and p are finite everywhere (zero where x ≤ 0).
+    """
+    x = jnp.asarray(x)
+    positive = x > 0
+    x_safe = jnp.where(positive, x, 1.0)
+    return jnp.where(positive, x_safe**p, 0.0)
+
+
+def _coefficient():
+    return eqx.field(converter=lambda a: jnp.asarray(a, dtype=float))
+
+
+class AdhesionLaw(eqx.Module):
+    """φ(v, V) of the paper's family with its 14 coefficients as array leaves.
+
+    All coefficients are traced values: ``jax.grad`` with respect to an ``AdhesionLaw``
+    differentiates through them, and changing them never recompiles.
+    """
+
+    c1: Float[Array, ""] = _coefficient()
+    p1: Float[Array, ""] = _coefficient()
+    c2: Float[Array, ""] = _coefficient()
+    p2: Float[Array, ""] = _coefficient()
+    c3: Float[Array, ""] = _coefficient()
+    c4: Float[Array, ""] = _coefficient()
+    c5: Float[Array, ""] = _coefficient()
+    p5: Float[Array, ""] = _coefficient()
+    c6: Float[Array, ""] = _coefficient()
+    c7: Float[Array, ""] = _coefficient()
+    p7: Float[Array, ""] = _coefficient()
+    c8: Float[Array, ""] = _coefficient()
+    p8: Float[Array, ""] = _coefficient()
+    p9: Float[Array, ""] = _coefficient()
+
+    def __init__(self, **coefficients: ArrayLike):
+        unknown = set(coefficients) - set(COEFFICIENT_NAMES)
+        if unknown:
+            raise ValueError(
+                f"AdhesionLaw: unknown coefficient(s) {sorted(unknown)}; the names are {list(COEFFICIENT_NAMES)}"
+            )
+        for name in COEFFICIENT_NAMES:
+            setattr(self, name, coefficients.get(name, PAPER_COEFFICIENTS[name]))
+
+    def __call__(self, v: ArrayLike, V: ArrayLike) -> Array:
+        """φ(v, V) (eq. ``sac``); v^p is 0 for v ≤ 0 (see the module docstring)."""
+        v = jnp.asarray(v)
+        return (
+            self.c1 * safe_pow(v, self.p1)
+            + self.c2 * safe_pow(v, self.p2)
+            + self.c3 * jnp.exp(v / self.c4)
+            - self.c5 * safe_pow(V, self.p5)
+            - (self.c6 - self.c7 * safe_pow(V, self.p7) - self.c8 * safe_pow(V, self.p8)) * safe_pow(v, self.p9)
+        )
+
+    # ------------------------------------------------------------------ coefficients
+    def coefficients(self) -> dict[str, float]:
+        """The 14 coefficients as plain floats, keyed by name (host values)."""
+        return {name: float(getattr(self, name)) for name in COEFFICIENT_NAMES}
+
+    def to_json(self, path: str | Path | None = None, **extra) -> str:
+        """The coefficients as a JSON object (keys ``c1, p1, …, p9``), plus ``extra`` keys."""
+        text = json.dumps({**self.coefficients(), **extra}, indent=2)
+        if path is not None:
+            Path(path).write_text(text + "\n")
+        return text
+
+    @classmethod
+    def from_dict(cls, data: dict, *, source: str = "coefficients") -> "AdhesionLaw":
+        """Coefficients from a mapping; keys other than the 14 names are ignored.
+
+        Missing names keep the paper's values; every present value must be a finite number.
+        """
+        if not isinstance(data, dict):
+            raise ValueError(f"{source}: expected a JSON object of coefficients, got {type(data).__name__}")
+        values = {}
+        for name in COEFFICIENT_NAMES:
+            if name not in data:
+                continue
+            value = data[name]
+            try:
+                number = float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else None
+            except OverflowError:  # a huge JSON integer
+                number = None
+            if number is None or not math.isfinite(number):
+                raise ValueError(f"{source}: coefficient {name!r} must be a finite number, got {str(value)[:40]!r}")
+            values[name] = number
+        if not values:
+            raise ValueError(f"{source}: none of the coefficient names {list(COEFFICIENT_NAMES)} is present")
+        if "c4" in values and values["c4"] == 0.0:
+            raise ValueError(f"{source}: coefficient 'c4' divides v and must be non-zero")
+        return cls(**values)
+
+    @classmethod
+    def from_json(cls, path: str | Path) -> "AdhesionLaw":
+        """Coefficients from a JSON file written by :meth:`to_json` (data, never code)."""
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+        except FileNotFoundError:
+            raise ValueError(f"--phi: file {str(path)!r} does not exist") from None
+        except json.JSONDecodeError as error:
+            raise ValueError(f"--phi: {str(path)!r} is not valid JSON ({error})") from None
+        return cls.from_dict(data, source=str(path))
+
+
+def as_adhesion(phi: AdhesionLaw | Callable | None) -> AdhesionLaw | Callable:
+    """The paper's law for ``None``; any callable φ(v, V) is used as it is."""
+    if phi is None:
+        return AdhesionLaw()
+    if not callable(phi):
+        raise TypeError(f"adhesion: expected an AdhesionLaw or a callable phi(v, V), got {type(phi).__name__}")
+    return phi

@@ -1,0 +1,125 @@
+"""The public entry points: validate once, then run a compiled integrator."""
+
+from __future__ import annotations
+
+import diffrax
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import ArrayLike
+
+from ._validation import check_mesh, check_positive, check_rho, check_truncation, check_y0
+from .homogenized import HomogenizedODE
+from .integrators.alpha import AlphaMethod, integrate_alpha
+from .integrators.reference import integrate_reference
+from .model import PeelingModel
+from .solution import Solution
+
+__all__ = ["simulate", "simulate_reference"]
+
+
+def _prepare(model, V, tau, y0, truncation):
+    model = PeelingModel() if model is None else model
+    if not isinstance(model, PeelingModel):
+        raise TypeError(f"model must be a PeelingModel, got {type(model).__name__}")
+    check_positive("V", V)
+    check_positive("tau", tau)
+    check_y0(y0)
+    check_truncation(truncation)
+    for name in ("R", "I", "k", "l"):
+        check_positive(f"model.{name}", getattr(model, name))
+    ode = HomogenizedODE(model, V, tau, truncation)
+    y0 = model.initial_state(ode.V) if y0 is None else jnp.asarray(y0, float)
+    return ode, y0
+
+
+@eqx.filter_jit
+def _run_alpha(ode, solver, y0, t_final, n_steps):
+    return integrate_alpha(ode, solver, y0, 0.0, t_final, n_steps)
+
+
+def simulate(
+    model: PeelingModel | None = None,
+    V: ArrayLike = 1.1,
+    tau: ArrayLike = 0.01,
+    dt: float = 1 / 82,
+    t_final: float = 3.0,
+    rho: ArrayLike = 0.0,
+    y0: ArrayLike | None = None,
+    *,
+    solver: AlphaMethod | None = None,
+    truncation: int | None = None,
+) -> Solution:
+    """Integrate the homogenized peeling ODE (eq. ``hv``) with the α-method.
+
+    Args:
+        model: spool, tape and adhesion law (default: the paper's, ``PeelingModel()``).
+        V: pull velocity [m/s], > 0.
+        tau: homogenization time scale τ [s], > 0.
+        dt: requested step [s]; the mesh has N = round(t_final/dt) steps of t_final/N
+            (``result.stats["step_size"]``), so it ends exactly at t_final.
+        t_final: end time [s], ≥ dt.
+        rho: the α-method's ρ ∈ [0, 1) (ignored when ``solver`` is given).
+        y0: initial (α, ω, u, v) with v > 0 (default: the paper's consistent data,
+            :meth:`PeelingModel.initial_state`).
+        solver: an :class:`AlphaMethod` to set Newton tolerances and safeguards.
+        truncation: ``None`` for the exact J_t, m ≥ 1 for the m-term eq. ``hvex``, 0 for the
+            τ → 0 index-1 ODE.
+
+    Returns:
+        A :class:`Solution` with N + 1 time points. A run that cannot continue has
+        ``status != 0``, ``t_stop`` and ``reason``; its later states are NaN.
+
+    V, tau, rho, y0, the model's parameters and the adhesion coefficients are traced: ``jit``,
+    ``vmap`` and ``grad`` work over them without recompiling. ``dt`` and ``t_final`` set the
+    mesh's shape and must be Python numbers. Input is checked before compilation.
+    """
+    n_steps = check_mesh(dt, t_final)
+    if solver is None:
+        check_rho(rho)
+        solver = AlphaMethod(rho=rho)
+    elif not isinstance(solver, AlphaMethod):
+        raise TypeError(f"solver must be an AlphaMethod, got {type(solver).__name__}")
+    else:
+        check_rho(solver.rho)
+    ode, y0 = _prepare(model, V, tau, y0, truncation)
+    return _run_alpha(ode, solver, y0, jnp.asarray(t_final, float), n_steps)
+
+
+@eqx.filter_jit
+def _run_reference(ode, y0, ts, solver, rtol, atol, dtmin, max_steps):
+    return integrate_reference(ode, y0, ts, solver=solver, rtol=rtol, atol=atol, dtmin=dtmin, max_steps=max_steps)
+
+
+def simulate_reference(
+    model: PeelingModel | None = None,
+    V: ArrayLike = 1.1,
+    tau: ArrayLike = 0.01,
+    dt: float = 1 / 82,
+    t_final: float = 3.0,
+    y0: ArrayLike | None = None,
+    *,
+    solver: diffrax.AbstractSolver | None = None,
+    rtol: float = 1e-8,
+    atol: float = 1e-10,
+    dtmin: float | None = None,
+    max_steps: int = 200_000,
+    truncation: int | None = None,
+) -> Solution:
+    """The same problem with diffrax (Kvaerno5 by default), output on the α-method's grid.
+
+    ``dt`` sets only the output grid (N = round(t_final/dt) intervals); the steps are adaptive
+    with a PID controller at ``rtol``/``atol``. A collapsing step (< ``dtmin``, default
+    1e-12·t_final) stops the run with status ``STALLED``.
+    """
+    n_steps = check_mesh(dt, t_final)
+    check_positive("rtol", rtol)
+    check_positive("atol", atol)
+    if dtmin is not None:
+        check_positive("dtmin", dtmin)
+    if not isinstance(max_steps, int) or max_steps < 1:
+        raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+    ode, y0 = _prepare(model, V, tau, y0, truncation)
+    ts = jnp.linspace(0.0, float(t_final), n_steps + 1)
+    solver = diffrax.Kvaerno5() if solver is None else solver
+    dtmin = 1e-12 * float(t_final) if dtmin is None else dtmin
+    return _run_reference(ode, y0, ts, solver, jnp.asarray(rtol), jnp.asarray(atol), jnp.asarray(dtmin), max_steps)

@@ -1,0 +1,114 @@
+"""The DAE's structure near the maximum of φ (Lemmas 1–3), every derivative by autodiff.
+
+For the DAE (``peel``) with x = (α, ω, u) and constraint G(x) = φ(v, V), G = (1 + l·sinα/L)·F:
+
+* ∂f/∂x (3×3), ∂f/∂v (3), F̃ = ∂G/∂x (1×3) and ∂φ/∂v, by ``jax.jacfwd`` / ``jax.grad``;
+* the Schur complement of the Jacobian 𝒟_t of Lemma 1,
+      J_t(τ) = −∂φ/∂v + τ·F̃·(𝐈 − τ·∂f/∂x)⁻¹·∂f/∂v;
+* its Neumann expansion (Lemma 2, eq. ``hvex``), J_t = −∂φ/∂v + Σ_{p≥1} τ^p·F̃·(∂f/∂x)^{p−1}·∂f/∂v,
+  which converges only for τ·ρ(∂f/∂x) < 1 (ρ the spectral radius);
+* the local differential index of Lemma 2, ⌈log_τ|J_t|⌉ + 1, and the slow/fast scale.
+
+Conventions (measured, see ``docs/theory.md``): the index formula compares |J_t| (units
+N·s/m) with powers of τ (s), so it is not unit-invariant; it is meaningful for 0 < τ < 1.
+Where |J_t| ≥ 1, log_τ|J_t| ≤ 0 and the formula would give ≤ 1: we report 1 (index-1
+regime, the *slow scale*). Where |J_t| < 1 the index is ≥ 2 (the *fast scale*). For
+τ ≥ 1 we report 1. The estimate is capped at ``MAX_INDEX`` (J_t = 0 gives the cap).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
+
+from ._linalg import solve_small
+from .model import PeelingModel
+
+__all__ = [
+    "Jacobians",
+    "jacobians",
+    "schur_complement",
+    "local_index",
+    "neumann_terms",
+    "truncated_schur_complement",
+    "neumann_radius",
+    "is_fast_scale",
+    "MAX_INDEX",
+]
+
+MAX_INDEX = 99
+
+
+class Jacobians(eqx.Module):
+    """The derivatives of the DAE at one point (x, v), all by autodiff."""
+
+    f: Float[Array, "3"]  # f(x, v)
+    f_x: Float[Array, "3 3"]  # ∂f/∂x
+    f_v: Float[Array, "3"]  # ∂f/∂v
+    F_tilde: Float[Array, "3"]  # F̃ = ∂[(1 + l·sinα/L)·F]/∂x
+    phi_v: Float[Array, ""]  # ∂φ/∂v
+
+
+def jacobians(model: PeelingModel, x: Float[Array, "3"], v: ArrayLike, V: ArrayLike) -> Jacobians:
+    """f, ∂f/∂x, ∂f/∂v, F̃ and ∂φ/∂v at (x, v) by forward-mode autodiff."""
+    v = jnp.asarray(v, float)
+    f_val = model.f(x, v, V)
+    f_x = jax.jacfwd(model.f, argnums=0)(x, v, V)
+    f_v = jax.jacfwd(model.f, argnums=1)(x, v, V)
+    F_tilde = jax.grad(model.shear_force)(x)
+    phi_v = jax.grad(model.phi, argnums=0)(v, V)
+    return Jacobians(f=f_val, f_x=f_x, f_v=f_v, F_tilde=F_tilde, phi_v=phi_v)
+
+
+def schur_complement(jac: Jacobians, tau: ArrayLike) -> Array:
+    """J_t(τ) = −∂φ/∂v + τ·F̃·(𝐈 − τ·∂f/∂x)⁻¹·∂f/∂v (Lemma 1)."""
+    w = solve_small(jnp.eye(3) - tau * jac.f_x, jac.f_v)
+    return -jac.phi_v + tau * jnp.dot(jac.F_tilde, w)
+
+
+def neumann_terms(jac: Jacobians, tau: ArrayLike, m: int) -> Float[Array, " m"]:
+    """The first m terms τ^p·F̃·(∂f/∂x)^{p−1}·∂f/∂v, p = 1…m, of J_t's expansion (eq. ``hvex``)."""
+    terms = []
+    w = jac.f_v
+    for p in range(1, m + 1):
+        terms.append(tau**p * jnp.dot(jac.F_tilde, w))
+        w = jac.f_x @ w
+    return jnp.stack(terms)
+
+
+def truncated_schur_complement(jac: Jacobians, tau: ArrayLike, m: int) -> Array:
+    """J̃_t = −∂φ/∂v + Σ_{p=1}^{m} τ^p·F̃·(∂f/∂x)^{p−1}·∂f/∂v, the m-term truncation of eq. ``hvex``.
+
+    ``m = 0`` gives −∂φ/∂v, the Schur complement of the τ → 0 (index-1) limit.
+    """
+    if m == 0:
+        return -jac.phi_v
+    return -jac.phi_v + jnp.sum(neumann_terms(jac, tau, m))
+
+
+def neumann_radius(jac: Jacobians) -> Array:
+    """1/ρ(∂f/∂x): the Neumann series of J_t converges for τ below this value."""
+    return 1.0 / jnp.max(jnp.abs(jnp.linalg.eigvals(jac.f_x)))
+
+
+def local_index(J: ArrayLike, tau: ArrayLike) -> Int[Array, "..."]:
+    """Local differential index ⌈log_τ|J_t|⌉ + 1 of Lemma 2, with the conventions of the module doc.
+
+    Returns 1 where |J_t| ≥ 1 or τ ≥ 1, and at most ``MAX_INDEX``.
+    """
+    J = jnp.asarray(J)
+    tau = jnp.asarray(tau)
+    absJ = jnp.abs(J)
+    regular = (absJ > 0) & (absJ < 1) & (tau < 1)
+    # log_τ|J| > 0 on the regular set; guard both logs so no branch sees log(0) or log(1).
+    log_ratio = jnp.log(jnp.where(regular, absJ, 0.5)) / jnp.log(jnp.where(tau < 1, tau, 0.5))
+    index = jnp.ceil(jnp.minimum(log_ratio, MAX_INDEX - 1)) + 1
+    index = jnp.where(regular, index, jnp.where((absJ == 0) & (tau < 1), MAX_INDEX, 1))
+    return jnp.clip(index, 1, MAX_INDEX).astype(jnp.int32)
+
+
+def is_fast_scale(J: ArrayLike, tau: ArrayLike) -> Bool[Array, "..."]:
+    """The *fast scale* (stick-slip) of the paper: local index > 1, i.e. |J_t| < 1 = τ⁰."""
+    return local_index(J, tau) > 1

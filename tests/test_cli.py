@@ -1,0 +1,248 @@
+"""The ``peeljax`` command line: outputs of a short run, and bad input rejected before compiling.
+
+A compile costs several seconds, so the runs are few and short (0.2 s of 20 steps) and one
+run's outputs serve several tests.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+import io
+import json
+import math
+import subprocess
+import sys
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from peeljax import AdhesionLaw, PeelingModel, Solution, StopReason, cli
+from peeljax.cli import build_parser, main, summarize, validate_run, write_npz
+
+SHORT = ["--t-final", "0.2", "--dt", "0.01"]
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+REQUIRED_JSON_KEYS = {
+    "status", "reason", "t_stop", "steps", "v_final", "v_min", "v_max", "wall_time_s",
+    "V", "tau", "dt", "method", "stats",
+}  # fmt: skip
+
+
+def run_main(argv: list[str]) -> tuple[int, str, str]:
+    """``main(argv)`` in-process with its stdout and stderr captured (usable in module fixtures)."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(argv)
+    return code, out.getvalue(), err.getvalue()
+
+
+@pytest.fixture(scope="module")
+def alpha_run(tmp_path_factory):
+    """One short α-method run writing every output."""
+    folder = tmp_path_factory.mktemp("alpha_run")
+    npz, png = folder / "run.npz", folder / "run.png"
+    code, out, err = run_main(["simulate", *SHORT, "--out", str(npz), "--plot", str(png), "--json"])
+    return {"code": code, "stdout": out, "stderr": err, "npz": npz, "png": png}
+
+
+# ---------------------------------------------------------------------------- a good run
+def test_exit_code_zero(alpha_run):
+    assert alpha_run["code"] == 0, alpha_run["stderr"]
+
+
+def test_npz_loads_without_pickle(alpha_run):
+    with np.load(alpha_run["npz"], allow_pickle=False) as data:
+        arrays = {key: data[key] for key in data.files}
+    series = ("t", "alpha", "omega", "u", "v", "F")
+    for key in series:
+        assert arrays[key].ndim == 1 and arrays[key].dtype == np.float64, key
+    assert len({arrays[key].shape for key in (*series, "valid")}) == 1
+    assert arrays["t"].shape == (21,)
+    assert arrays["t"][0] == 0.0
+    assert str(arrays["status"]) in {"completed", "stopped"}
+    assert arrays["status"].ndim == 0 and arrays["status"].dtype.kind == "U"
+    assert str(arrays["geometry"]) == "paper" and str(arrays["method"]) == "alpha"
+    for key in ("V", "tau", "dt", "t_final", "rho", "t_stop"):
+        assert arrays[key].ndim == 0, key
+    assert float(arrays["V"]) == 1.1 and float(arrays["tau"]) == 0.01 and float(arrays["rho"]) == 0.0
+    assert float(arrays["dt"]) == pytest.approx(0.01) and float(arrays["t_final"]) == 0.2
+    assert arrays["v"][0] == pytest.approx(1.1e-10)  # the initial state is included
+
+
+def test_npz_tension_and_phi(alpha_run):
+    with np.load(alpha_run["npz"], allow_pickle=False) as data:
+        valid, u, F = data["valid"], data["u"], data["F"]
+        phi = json.loads(str(data["phi_json"]))
+    model = PeelingModel()
+    np.testing.assert_allclose(F[valid], float(model.k / model.l) * u[valid])
+    assert np.all(np.isnan(F[~valid]))
+    assert phi == AdhesionLaw().coefficients()
+
+
+def test_json_output(alpha_run):
+    lines = alpha_run["stdout"].strip().splitlines()
+    assert len(lines) == 1, "--json must print exactly one JSON object and nothing else"
+    record = json.loads(lines[0])
+    assert REQUIRED_JSON_KEYS <= record.keys()
+    assert record["status"] in {"completed", "stopped"}
+    assert record["method"] == "alpha" and record["V"] == 1.1 and record["tau"] == 0.01
+    assert record["dt"] == pytest.approx(0.01)
+    assert record["wall_time_s"] > 0
+    assert record["v_min"] <= record["v_final"] <= record["v_max"]
+    assert "newton_iterations" in record["stats"]
+
+
+def test_png_written(alpha_run):
+    assert alpha_run["png"].read_bytes()[:8] == PNG_MAGIC
+
+
+def test_human_summary(alpha_run, capsys):
+    # Same mesh and model as alpha_run: JAX's cache serves it without recompiling.
+    assert main(["simulate", *SHORT]) == 0
+    out = capsys.readouterr().out
+    assert "V = 1.1 m/s" in out and ("completed" in out or "stopped" in out)
+    assert not out.lstrip().startswith("{")
+
+
+def test_diffrax_method(tmp_path):
+    npz = tmp_path / "ref.npz"
+    code, out, err = run_main(
+        ["simulate", "--method", "diffrax", *SHORT, "--rtol", "1e-6", "--out", str(npz), "--json"]
+    )
+    assert code == 0, err
+    record = json.loads(out)
+    assert record["method"] == "diffrax" and record["status"] in {"completed", "stopped"}
+    assert record["rtol"] == 1e-6 and record["atol"] == 1e-10
+    with np.load(npz, allow_pickle=False) as data:
+        assert str(data["method"]) == "diffrax"
+        assert data["t"].shape == data["v"].shape == (21,)
+        assert float(data["dt"]) == pytest.approx(0.01)
+        assert math.isnan(float(data["rho"]))
+
+
+@pytest.mark.slow
+def test_module_entry_point_prints_one_json_object():
+    result = subprocess.run(
+        [sys.executable, "-m", "peeljax.cli", "simulate", "--json", *SHORT],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr
+    record = json.loads(result.stdout)  # fails on anything besides one JSON document
+    assert isinstance(record, dict) and REQUIRED_JSON_KEYS <= record.keys()
+
+
+# ---------------------------------------------------------------------------- bad input
+@pytest.fixture
+def no_compilation(monkeypatch):
+    """Any attempt to integrate (and so to compile) fails the test."""
+
+    def forbidden(*args, **kwargs):
+        raise AssertionError("bad input reached the integrator: it must be rejected before compilation")
+
+    simulate_module = importlib.import_module("peeljax.simulate")  # peeljax.simulate is the function
+    monkeypatch.setattr(simulate_module, "_run_alpha", forbidden)
+    monkeypatch.setattr(simulate_module, "_run_reference", forbidden)
+    monkeypatch.setattr(cli, "simulate", forbidden)
+    monkeypatch.setattr(cli, "simulate_reference", forbidden)
+
+
+@pytest.fixture
+def malformed_phi(tmp_path):
+    path = tmp_path / "phi.json"
+    path.write_text('{"c1": 400.0, "p1": ')
+    return str(path)
+
+
+# (options, the parameter the message must name, the allowed range or choices it must state)
+BAD_INPUT = [
+    (["--tau", "0"], "tau", "(0, inf)"),
+    (["--tau=-1"], "tau", "(0, inf)"),
+    (["--V", "0"], "V", "(0, inf)"),
+    (["--dt", "0"], "dt", "(0, inf)"),
+    (["--t-final", "0"], "t_final", "(0, inf)"),
+    (["--dt", "1", "--t-final", "0.5"], "dt", "(0, 0.5]"),
+    (["--rho", "1"], "rho", "[0, 1)"),
+    (["--rho=-0.1"], "rho", "[0, 1)"),
+    (["--V", "nan"], "V", "(0, inf)"),
+    (["--tau", "inf"], "tau", "(0, inf)"),
+    (["--geometry", "foo"], "geometry", "paper, full"),
+    (["--method", "foo"], "method", "alpha, diffrax"),
+    (["--y0", "0", "0", "0.001", "0"], "y0", "(0, inf)"),
+    (["--phi", "MALFORMED"], "--phi", "not valid JSON"),
+    (["--rtol", "1e-6"], "--rtol", "--method diffrax only"),  # a diffrax option with the α-method
+    (["--method", "diffrax", "--atol", "0"], "atol", "(0, inf)"),
+    (["--out", "/nonexistent-folder/run.npz"], "--out", "does not exist"),
+]
+
+
+@pytest.mark.parametrize(("options", "name", "allowed"), BAD_INPUT, ids=[" ".join(o) for o, *_ in BAD_INPUT])
+def test_bad_input_exits_2_before_compiling(options, name, allowed, no_compilation, malformed_phi, capsys):
+    options = [malformed_phi if option == "MALFORMED" else option for option in options]
+    assert main(["simulate", *SHORT, *options]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    message = captured.err.strip().splitlines()[-1]
+    assert message.startswith("peeljax: error: ")
+    assert name in message and allowed in message, message
+
+
+@pytest.mark.parametrize("argv", [[], ["simulate", "--nope"], ["simulate", "--tau", "abc"], ["frobnicate"]])
+def test_argparse_errors_exit_2(argv, no_compilation, capsys):
+    assert main(argv) == 2
+    assert "error" in capsys.readouterr().err
+
+
+def test_help_exits_0(capsys):
+    assert main(["simulate", "--help"]) == 0
+    assert "--t-final" in capsys.readouterr().out
+
+
+def test_valid_phi_file_is_used(tmp_path):
+    path = tmp_path / "phi.json"
+    AdhesionLaw(c1=420.0).to_json(path)
+    config = validate_run(build_parser().parse_args(["simulate", "--phi", str(path), "--geometry", "full"]))
+    assert config.model.adhesion.coefficients()["c1"] == 420.0
+    assert config.model.geometry == "full" and config.rho == 0.0 and config.rtol is None
+
+
+# ---------------------------------------------------------------------------- a stopped run's outputs
+def _stopped_solution(all_invalid: bool = False) -> Solution:
+    """A hand-made stopped trajectory: the writers need no integration to be tested."""
+    ts = jnp.linspace(0.0, 1.0, 11)
+    valid = jnp.zeros(11, bool) if all_invalid else jnp.arange(11) <= 5
+    ys = jnp.stack([0.01 * ts, ts, 0.3 + 0.01 * ts, 1e-10 + ts], axis=1)
+    return Solution(
+        ts=ts,
+        ys=jnp.where(valid[:, None], ys, jnp.nan),
+        valid=valid,
+        status=jnp.asarray(int(StopReason.IMPASSE)),
+        t_stop=jnp.asarray(0.0 if all_invalid else 0.5),
+        stats={"steps": jnp.asarray(0 if all_invalid else 5), "step_size": jnp.asarray(0.1)},
+        diagnostics=None,
+    )
+
+
+def test_stopped_run_outputs(tmp_path):
+    from peeljax.plots import plot_run
+
+    solution = _stopped_solution()
+    config = validate_run(build_parser().parse_args(["simulate", "--t-final", "1", "--dt", "0.1"]))
+    write_npz(str(tmp_path / "stopped.npz"), solution, config)
+    with np.load(tmp_path / "stopped.npz", allow_pickle=False) as data:
+        assert str(data["status"]) == "stopped" and "impasse" in str(data["reason"])
+        assert float(data["t_stop"]) == 0.5
+        assert np.all(np.isnan(data["v"][6:])) and np.all(np.isnan(data["F"][6:]))
+        assert np.all(np.isfinite(data["F"][:6]))
+    figure = plot_run(solution, config.model, V=1.1, path=tmp_path / "stopped.png")
+    assert (tmp_path / "stopped.png").read_bytes()[:8] == PNG_MAGIC
+    assert any("stopped at t = 0.5" in text.get_text() for text in figure.axes[0].texts)
+
+
+def test_summary_of_a_run_rejected_at_the_start():
+    record = summarize(_stopped_solution(all_invalid=True))
+    assert record["status"] == "stopped" and record["steps"] == 0 and math.isnan(record["v_final"])
+    json.dumps(cli._json_safe(record), allow_nan=False)  # strict JSON: NaN became null
