@@ -428,14 +428,18 @@ def check_jacobian(n_points=20, seed=0):
     return worst
 
 
-def compare_with_peeljax(V=1.1, tau=0.01, h=1 / 820, t_final=3.0):
-    """(max |Δv|/|v| over the grid, peeljax iterations, numba iterations, max per-step iteration difference)."""
+def compare_with_peeljax(V=1.1, tau=0.01, h=1 / 820, t_final=3.0, solver=None):
+    """Run ``peeljax.simulate`` and the compiled loop with the same settings and compare them.
+
+    Returns max |Δv|/|v| over the grid, the Newton iteration totals and per-step differences,
+    statuses and subdivided-step counts of both.
+    """
     import jax
 
     import peeljax
 
     n = round(t_final / h)
-    solver = peeljax.AlphaMethod()
+    solver = peeljax.AlphaMethod() if solver is None else solver
     sol = peeljax.simulate(V=V, tau=tau, dt=h, t_final=t_final, solver=solver)
     jax.block_until_ready(sol.ys)
     p = parameters(V, tau)
@@ -458,5 +462,14 @@ def compare_with_peeljax(V=1.1, tau=0.01, h=1 / 820, t_final=3.0):
 
 if __name__ == "__main__":
     print("max rel. difference of ψ, ψ' vs jax autodiff:", check_jacobian())
+    import peeljax
+
+    print("AlphaMethod() defaults:", options_of(peeljax.AlphaMethod()))
     for h in (1 / 82, 1 / 820, 1 / 8200):
         print(f"h = 1/{round(1 / h)}:", compare_with_peeljax(h=h))
+    try:  # the scheme on y as printed in the paper, Newton on log v, no log-change subdivision
+        paper = peeljax.AlphaMethod(log_discretization=False, max_log_change=math.inf)
+    except TypeError:
+        paper = None
+    if paper is not None:
+        print("log_discretization=False, max_log_change=inf, h = 1/820:", compare_with_peeljax(solver=paper))

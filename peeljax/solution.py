@@ -32,7 +32,7 @@ _MESSAGES = {
     StopReason.COMPLETED: "completed",
     StopReason.NEWTON_FAILED: (
         "Newton's method did not converge within its iteration cap, even on the smallest "
-        "subdivided step (the iteration matrix is near-singular: J_t is close to zero)"
+        "subdivided step (near J_t = 0 the iteration matrix is near-singular: see diagnostics.schur)"
     ),
     StopReason.IMPASSE: (
         "impasse point: J_t changed sign within a step while F~·f did not, so dv/dt blows up "
