@@ -39,6 +39,7 @@ def variants(quick):
         Variant(),
         Variant(predictor=True),
         Variant(reuse=True),
+        Variant(predictor=True, reuse=True),
         Variant(psi="semi"),
         Variant(psi="analytic"),
         Variant(psi="analytic", predictor=True),
@@ -48,7 +49,7 @@ def variants(quick):
         Variant(psi="analytic", predictor=True, reuse=True, unroll=4),
     ]
     if quick:
-        return [full[0], full[4], full[7]]
+        return [full[0], full[5], full[8]]
     return full
 
 
