@@ -45,12 +45,24 @@ NEWTON_FAILED, IMPASSE, NONFINITE = 1, 2, 3
 _P_NAMES = ("R", "I", "K", "V", "tau", "c1", "p1", "c2", "p2", "c3", "c4", "C6", "p9")
 
 
-def parameters(V=1.1, tau=0.01, R=0.1, I=1e-2, k=1000.0, l=1.0, adhesion=None):  # noqa: E741
+def parameters(V=1.1, tau=0.01, R=0.1, I=1e-2, k=1000.0, l=1.0, adhesion=None):
     """The parameter vector of the compiled loop (paper geometry, the paper's φ family)."""
-    c = dict(
-        c1=400.0, p1=0.35, c2=110.0, p2=0.15, c3=130.0, c4=11.0, c5=2.0, p5=1.5,
-        c6=415.0, c7=45.0, p7=0.4, c8=0.35, p8=2.15, p9=0.5,
-    )
+    c = {
+        "c1": 400.0,
+        "p1": 0.35,
+        "c2": 110.0,
+        "p2": 0.15,
+        "c3": 130.0,
+        "c4": 11.0,
+        "c5": 2.0,
+        "p5": 1.5,
+        "c6": 415.0,
+        "c7": 45.0,
+        "p7": 0.4,
+        "c8": 0.35,
+        "p8": 2.15,
+        "p9": 0.5,
+    }
     if adhesion is not None:
         c.update(adhesion)
     C6 = c["c6"] - c["c7"] * V ** c["p7"] - c["c8"] * V ** c["p8"]  # the V-dependent factor of v^p9
@@ -131,7 +143,7 @@ def evaluate(y, p, psi, jac, want_jac):
             - C6 * p9 * (p9 - 1.0) * vp9 / v
         )
         # λ = M⁻ᵀ F̃
-        l0, l1, l2 = _solve3(m00, m10, m20, m01, m11, m21, m02, m12, m22, Ft0, 0.0, Ft2)
+        _l0, l1, l2 = _solve3(m00, m10, m20, m01, m11, m21, m02, m12, m22, Ft0, 0.0, Ft2)
         # rows 0..2: [f_x | f_v]
         jac[0, 0] = 0.0
         jac[0, 1] = 1.0
@@ -222,8 +234,9 @@ def evaluate_carried(c, logd, p, psi, jac, yy, want_jac):
 
 
 @njit(cache=True, error_model="numpy")
-def _substep(y, psi, a, J, drive, h, p, coef, tol, max_it, logd, max_log_change, accept_unresolved,
-             out_y, out_psi, out_a, ws):
+def _substep(
+    y, psi, a, J, drive, h, p, coef, tol, max_it, logd, max_log_change, accept_unresolved, out_y, out_psi, out_a, ws
+):
     """One α-step of size h from (y, ψ, a) in the carried coordinates; writes the candidate.
 
     Returns (status, iterations, J, drive). Without ``logd`` the Newton unknown is (α, ω, u, log v)
@@ -292,8 +305,19 @@ def _substep(y, psi, a, J, drive, h, p, coef, tol, max_it, logd, max_log_change,
 
 
 @njit(cache=True, error_model="numpy")
-def integrate(y0, p, h, n_steps, rho=0.0, rtol=1e-10, atol=1e-12, max_it=25, max_subdivisions=4,
-              log_discretization=False, max_log_change=math.inf):
+def integrate(
+    y0,
+    p,
+    h,
+    n_steps,
+    rho=0.0,
+    rtol=1e-10,
+    atol=1e-12,
+    max_it=25,
+    max_subdivisions=4,
+    log_discretization=False,
+    max_log_change=math.inf,
+):
     """The α-method on n_steps uniform steps of size h from y0.
 
     ``log_discretization`` and ``max_log_change`` as in ``peeljax.AlphaMethod`` (False and inf
@@ -307,8 +331,15 @@ def integrate(y0, p, h, n_steps, rho=0.0, rtol=1e-10, atol=1e-12, max_it=25, max
     coef = np.array([gamma, beta / gamma])
     tol = np.array([rtol, atol])
     ws = (
-        np.empty(4), np.empty(4), np.empty(4), np.empty(4), np.empty((4, 4)),
-        np.empty((4, 4)), np.empty(4), np.empty(4), np.empty((4, 5)),
+        np.empty(4),
+        np.empty(4),
+        np.empty(4),
+        np.empty(4),
+        np.empty((4, 4)),
+        np.empty((4, 4)),
+        np.empty(4),
+        np.empty(4),
+        np.empty((4, 5)),
     )
     ys = np.full((n_steps + 1, 4), np.nan)
     iters = np.zeros(n_steps, np.int64)
@@ -341,8 +372,9 @@ def integrate(y0, p, h, n_steps, rho=0.0, rtol=1e-10, atol=1e-12, max_it=25, max
     for n in range(n_steps):
         if status != 0:
             break
-        st, it, nJ, nd = _substep(y, psi, a, J, drive, h, p, coef, tol, max_it, logd, max_log_change,
-                                  max_subdivisions == 0, ny, npsi, na, ws)
+        st, it, nJ, nd = _substep(
+            y, psi, a, J, drive, h, p, coef, tol, max_it, logd, max_log_change, max_subdivisions == 0, ny, npsi, na, ws
+        )
         total = it
         level = 0
         if st == NEWTON_FAILED:
@@ -358,8 +390,25 @@ def integrate(y0, p, h, n_steps, rho=0.0, rtol=1e-10, atol=1e-12, max_it=25, max
             st = 0
             k = 0
             while k < n_sub and st == 0:
-                st, it, nJ2, nd2 = _substep(cy, cpsi, ca, cJ, cd, hs, p, coef, tol, max_it, logd, max_log_change,
-                                            level >= max_subdivisions, ny, npsi, na, ws)
+                st, it, nJ2, nd2 = _substep(
+                    cy,
+                    cpsi,
+                    ca,
+                    cJ,
+                    cd,
+                    hs,
+                    p,
+                    coef,
+                    tol,
+                    max_it,
+                    logd,
+                    max_log_change,
+                    level >= max_subdivisions,
+                    ny,
+                    npsi,
+                    na,
+                    ws,
+                )
                 total += it
                 if st == 0:
                     cy[:] = ny
@@ -388,15 +437,16 @@ def integrate(y0, p, h, n_steps, rho=0.0, rtol=1e-10, atol=1e-12, max_it=25, max
 
 def options_of(solver):
     """The keyword arguments of :func:`integrate` that reproduce a ``peeljax.AlphaMethod``."""
-    return dict(
-        rho=float(solver.rho),
-        rtol=float(solver.newton_rtol),
-        atol=float(solver.newton_atol),
-        max_it=int(solver.max_newton_iterations),
-        max_subdivisions=int(solver.max_subdivisions),
-        log_discretization=bool(getattr(solver, "log_discretization", False)) and 3 in getattr(solver, "log_components", (3,)),
-        max_log_change=float(getattr(solver, "max_log_change", math.inf)),
-    )
+    return {
+        "rho": float(solver.rho),
+        "rtol": float(solver.newton_rtol),
+        "atol": float(solver.newton_atol),
+        "max_it": int(solver.max_newton_iterations),
+        "max_subdivisions": int(solver.max_subdivisions),
+        "log_discretization": bool(getattr(solver, "log_discretization", False))
+        and 3 in getattr(solver, "log_components", (3,)),
+        "max_log_change": float(getattr(solver, "max_log_change", math.inf)),
+    }
 
 
 # --------------------------------------------------------------------------- checks
@@ -447,17 +497,17 @@ def compare_with_peeljax(V=1.1, tau=0.01, h=1 / 820, t_final=3.0, solver=None):
     v_ref = np.asarray(sol.ys)[:, 3]
     rel = np.max(np.abs(ys[:, 3] - v_ref) / np.abs(v_ref))
     it_ref = np.asarray(sol.diagnostics.newton_iterations)[1:]
-    return dict(
-        max_rel_dv=float(rel),
-        max_abs_dy=float(np.max(np.abs(ys - np.asarray(sol.ys)))),
-        newton_peeljax=int(it_ref.sum()),
-        newton_numba=int(iters.sum()),
-        max_step_iteration_difference=int(np.max(np.abs(it_ref - iters))),
-        steps_with_different_iterations=int(np.sum(it_ref != iters)),
-        status=(int(sol.status), int(status)),
-        subdivided=(int(sol.stats["subdivided_steps"]), int(np.sum(levels > 0))),
-        failures=int(failures),
-    )
+    return {
+        "max_rel_dv": float(rel),
+        "max_abs_dy": float(np.max(np.abs(ys - np.asarray(sol.ys)))),
+        "newton_peeljax": int(it_ref.sum()),
+        "newton_numba": int(iters.sum()),
+        "max_step_iteration_difference": int(np.max(np.abs(it_ref - iters))),
+        "steps_with_different_iterations": int(np.sum(it_ref != iters)),
+        "status": (int(sol.status), int(status)),
+        "subdivided": (int(sol.stats["subdivided_steps"]), int(np.sum(levels > 0))),
+        "failures": int(failures),
+    }
 
 
 if __name__ == "__main__":

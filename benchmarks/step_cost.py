@@ -81,9 +81,9 @@ def main():
     import jaxlib
     import numba
     import numpy as np
+    from compiled_loop import check_jacobian, compare_with_peeljax, initial_state, integrate, options_of, parameters
 
     import peeljax
-    from compiled_loop import check_jacobian, compare_with_peeljax, initial_state, integrate, options_of, parameters
 
     out = []
 
@@ -95,11 +95,15 @@ def main():
     emit("# Cost per α-method step: peeljax vs a compiled loop (numba) vs diffrax Kvaerno5")
     emit()
     emit(f"- CPU: {cpu_model()}, {os.cpu_count()} logical cores; load average at start {load[0]:.2f}")
-    emit(f"- python {platform.python_version()}, jax {jax.__version__}, jaxlib {jaxlib.__version__}"
-         f", diffrax {diffrax.__version__}, equinox {eqx.__version__}, numba {numba.__version__}, numpy {np.__version__}")
+    emit(
+        f"- python {platform.python_version()}, jax {jax.__version__}, jaxlib {jaxlib.__version__}"
+        f", diffrax {diffrax.__version__}, equinox {eqx.__version__}, numba {numba.__version__}, numpy {np.__version__}"
+    )
     emit(f"- XLA_FLAGS: `{os.environ.get('XLA_FLAGS', '')}`")
-    emit(f"- problem: V = {V}, τ = {TAU}, t ∈ [0, {T_FINAL}], paper geometry; mode: {'quick' if args.quick else 'full'}, "
-         f"{repeats} timed runs per median")
+    emit(
+        f"- problem: V = {V}, τ = {TAU}, t ∈ [0, {T_FINAL}], paper geometry; mode: {'quick' if args.quick else 'full'}, "
+        f"{repeats} timed runs per median"
+    )
     solver = peeljax.AlphaMethod()
     options = options_of(solver)
     emit(f"- AlphaMethod() defaults used by both: {options}")
@@ -110,11 +114,17 @@ def main():
     check = compare_with_peeljax(V, TAU, 1 / 820, T_FINAL, solver=solver)
     emit("## Correctness check (h = 1/820): compiled loop vs `peeljax.simulate`")
     emit()
-    emit(f"- ψ and ψ' of the compiled loop vs `jax.jacfwd` of `HomogenizedODE` at 20 random states: max rel. difference {jac_err:.1e}")
-    emit(f"- max over the grid of |v_numba − v_peeljax|/|v_peeljax|: {check['max_rel_dv']:.2e} (limit {CHECK_LIMIT:g}); "
-         f"max |Δy| {check['max_abs_dy']:.1e}")
-    emit(f"- Newton iterations: peeljax {check['newton_peeljax']}, numba {check['newton_numba']}; steps that differ: "
-         f"{check['steps_with_different_iterations']} (max difference {check['max_step_iteration_difference']})")
+    emit(
+        f"- ψ and ψ' of the compiled loop vs `jax.jacfwd` of `HomogenizedODE` at 20 random states: max rel. difference {jac_err:.1e}"
+    )
+    emit(
+        f"- max over the grid of |v_numba − v_peeljax|/|v_peeljax|: {check['max_rel_dv']:.2e} (limit {CHECK_LIMIT:g}); "
+        f"max |Δy| {check['max_abs_dy']:.1e}"
+    )
+    emit(
+        f"- Newton iterations: peeljax {check['newton_peeljax']}, numba {check['newton_numba']}; steps that differ: "
+        f"{check['steps_with_different_iterations']} (max difference {check['max_step_iteration_difference']})"
+    )
     emit(f"- status (peeljax, numba): {check['status']}; subdivided steps: {check['subdivided']}")
     emit()
     if not check["max_rel_dv"] <= CHECK_LIMIT:
@@ -146,18 +156,21 @@ def main():
             t = time.perf_counter()
             integrate(y0n, p, T_FINAL / n, n, **options)
             t_nb.append(time.perf_counter() - t)
-        rows[den] = dict(
-            n=n,
-            compile=first - median(t_pj),
-            its=int(sol.stats["newton_iterations"]) / n,
-            subdivided=int(sol.stats["subdivided_steps"]),
-            status=int(sol.status),
-            pj_run=median(t_pj),
-            nb_run=median(t_nb),
-            v=np.asarray(sol.ys)[:, 3],
+        rows[den] = {
+            "n": n,
+            "compile": first - median(t_pj),
+            "its": int(sol.stats["newton_iterations"]) / n,
+            "subdivided": int(sol.stats["subdivided_steps"]),
+            "status": int(sol.status),
+            "pj_run": median(t_pj),
+            "nb_run": median(t_nb),
+            "v": np.asarray(sol.ys)[:, 3],
+        }
+        print(
+            f"  [h = 1/{den}: peeljax {rows[den]['pj_run'] / n * 1e6:.2f} µs/step, numba "
+            f"{rows[den]['nb_run'] / n * 1e6:.2f} µs/step, compile {rows[den]['compile']:.1f} s]",
+            flush=True,
         )
-        print(f"  [h = 1/{den}: peeljax {rows[den]['pj_run'] / n * 1e6:.2f} µs/step, numba "
-              f"{rows[den]['nb_run'] / n * 1e6:.2f} µs/step, compile {rows[den]['compile']:.1f} s]", flush=True)
 
     # simulate() end to end (validation + dispatch + the same compiled integrator) at h = 1/820
     jax.block_until_ready(peeljax.simulate(V=V, tau=TAU, dt=1 / 820, t_final=T_FINAL).ys)
@@ -203,7 +216,7 @@ def main():
             ok = int(s.status) == 0
             sweep[gden, rtol] = (int(s.stats["steps"]), np.asarray(s.ys)[:, 3] if ok else None, elapsed)
         print(f"  [diffrax grid 1/{gden}: compile {diffrax_compile:.1f} s, sweep done]", flush=True)
-    n_fine = round(T_FINAL * grid_dens[-1])
+    round(T_FINAL * grid_dens[-1])
 
     def on_grid(values_fine_or_own, den, own_den):
         """Values at the points of grid 1/den from values on grid 1/own_den (a refinement)."""
@@ -236,14 +249,16 @@ def main():
             t = time.perf_counter()
             jax.block_until_ready(fn(ode, jnp.asarray(chosen), jnp.asarray(chosen * 1e-2)))
             times.append(time.perf_counter() - t)
-        r["diffrax"] = dict(rtol=chosen, steps=errs[chosen][0], err=errs[chosen][1], run=median(times))
+        r["diffrax"] = {"rtol": chosen, "steps": errs[chosen][0], "err": errs[chosen][1], "run": median(times)}
 
     # ------------------------------------------------------------------ tables
     emit("## Cost per step")
     emit()
-    emit("| h | steps | peeljax compile s | Newton it/step | subdivided steps | peeljax µs/step | numba µs/step | "
-         "peeljax/numba | peeljax max\\|Δv\\| | diffrax rtol | diffrax steps | diffrax max\\|Δv\\| | diffrax ms/run | "
-         "diffrax µs per α-step | diffrax/peeljax per run |")
+    emit(
+        "| h | steps | peeljax compile s | Newton it/step | subdivided steps | peeljax µs/step | numba µs/step | "
+        "peeljax/numba | peeljax max\\|Δv\\| | diffrax rtol | diffrax steps | diffrax max\\|Δv\\| | diffrax ms/run | "
+        "diffrax µs per α-step | diffrax/peeljax per run |"
+    )
     emit("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for den in denominators:
         r = rows[den]
@@ -253,22 +268,32 @@ def main():
         if d is None:
             dcols = "none ≤ 1e-12 | – | – | – | – | –"
         else:
-            dcols = (f"{d['rtol']:.0e} | {d['steps']} | {d['err']:.1e} | {d['run'] * 1e3:.1f} | {d['run'] / n * 1e6:.2f} | "
-                     f"{d['run'] / r['pj_run']:.1f}")
-        emit(f"| 1/{den} | {n} | {r['compile']:.1f} | {r['its']:.2f} | {r['subdivided']} | {pj:.2f} | {nb:.2f} | "
-             f"{pj / nb:.1f} | {r['err']:.1e} | {dcols} |")
+            dcols = (
+                f"{d['rtol']:.0e} | {d['steps']} | {d['err']:.1e} | {d['run'] * 1e3:.1f} | {d['run'] / n * 1e6:.2f} | "
+                f"{d['run'] / r['pj_run']:.1f}"
+            )
+        emit(
+            f"| 1/{den} | {n} | {r['compile']:.1f} | {r['its']:.2f} | {r['subdivided']} | {pj:.2f} | {nb:.2f} | "
+            f"{pj / nb:.1f} | {r['err']:.1e} | {dcols} |"
+        )
     emit()
-    emit("Columns: compile = first call minus the median steady call; µs/step = median run time / steps (one "
-         "trajectory, after compilation, dispatch included); max|Δv| = max over the grid of |v − v_ref|, v_ref = "
-         f"Kvaerno5 at rtol {REF_RTOL:g}, atol {REF_ATOL:g}; diffrax rtol = loosest of 1e-1 … 1e-12 (atol = 1e-2·rtol) "
-         "with max|Δv| ≤ peeljax's; diffrax steps = accepted + rejected; diffrax µs per α-step = its run time / the "
-         "α-method's number of steps.")
+    emit(
+        "Columns: compile = first call minus the median steady call; µs/step = median run time / steps (one "
+        "trajectory, after compilation, dispatch included); max|Δv| = max over the grid of |v − v_ref|, v_ref = "
+        f"Kvaerno5 at rtol {REF_RTOL:g}, atol {REF_ATOL:g}; diffrax rtol = loosest of 1e-1 … 1e-12 (atol = 1e-2·rtol) "
+        "with max|Δv| ≤ peeljax's; diffrax steps = accepted + rejected; diffrax µs per α-step = its run time / the "
+        "α-method's number of steps."
+    )
     sim_us = median(t_sim) / round(T_FINAL * 820) * 1e6
-    emit(f"`peeljax.simulate(dt=1/820)` end to end (input checks, `filter_jit` dispatch, same compiled integrator): "
-         f"{median(t_sim) * 1e3:.2f} ms per call = {sim_us:.2f} µs/step.")
+    emit(
+        f"`peeljax.simulate(dt=1/820)` end to end (input checks, `filter_jit` dispatch, same compiled integrator): "
+        f"{median(t_sim) * 1e3:.2f} ms per call = {sim_us:.2f} µs/step."
+    )
     if args.quick:
-        emit(f"Quick mode: diffrax saved on the 1/{grid_dens[-1]} grid for every row (its error on a coarser grid "
-             "is read at that grid's points, its run time includes saving on the finer grid).")
+        emit(
+            f"Quick mode: diffrax saved on the 1/{grid_dens[-1]} grid for every row (its error on a coarser grid "
+            "is read at that grid's points, its run time includes saving on the finer grid)."
+        )
     statuses = {den: rows[den]["status"] for den in denominators}
     if any(statuses.values()):
         emit(f"WARNING: peeljax status not 0: {statuses}")
@@ -284,13 +309,20 @@ def main():
             cells.append(f"{e:.1e} ({steps})")
         emit(f"| {rtol:.0e} | " + " | ".join(cells) + f" | {sweep[grid_dens[-1], rtol][2]:.3f} |")
     emit()
-    emit("diffrax compile time (first call, at rtol 1e-1, which runs in milliseconds) per output grid: "
-         + ", ".join(f"1/{g}: {diffrax_runs[g][1]:.1f} s" for g in grid_dens))
+    emit(
+        "diffrax compile time (first call, at rtol 1e-1, which runs in milliseconds) per output grid: "
+        + ", ".join(f"1/{g}: {diffrax_runs[g][1]:.1f} s" for g in grid_dens)
+    )
     emit(f"Total benchmark time: {time.perf_counter() - started:.0f} s.")
 
     results = HERE / "results"
     results.mkdir(exist_ok=True)
-    name = "step_cost" + ("_quick" if args.quick else "") + ("_small_while_loops" if args.small_while_loops else "") + ".md"
+    name = (
+        "step_cost"
+        + ("_quick" if args.quick else "")
+        + ("_small_while_loops" if args.small_while_loops else "")
+        + ".md"
+    )
     (results / name).write_text("\n".join(out) + "\n")
     print(f"(written to {results / name})")
 

@@ -26,7 +26,6 @@ Switches (``Variant``):
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import equinox as eqx
 import jax
@@ -127,13 +126,14 @@ def _analytic_eval(ode, y, want_jac):
         - C6 * ad.p9 * (ad.p9 - 1.0) * vp9 / v
     )
     MT = tuple(zip(*M))
-    l0, l1, l2 = _solve3(MT, (Ft0, 0.0, Ft2))
+    _l0, l1, l2 = _solve3(MT, (Ft0, 0.0, Ft2))
     dd_a = (-K * u * sa) * f0 + (K * ca) * f2 + Ft2 * fx20
     dd_o = Ft0 + Ft2 * fx21
     dd_u = (K * ca) * f0
     dd_v = Ft0 * fv0 + Ft2 * fv2
     dJ_a = tau * ((-K * u * sa) * w0 + (K * ca) * w2) + tau * (
-        l1 * (tau * (R * K * u * sa / I * w0 - R * K * ca / I * w2)) + l2 * (-ca + tau * (-R * sa * s * w0 + R * ca * w1))
+        l1 * (tau * (R * K * u * sa / I * w0 - R * K * ca / I * w2))
+        + l2 * (-ca + tau * (-R * sa * s * w0 + R * ca * w1))
     )
     dJ_o = tau * l2 * (tau * R * ca * w0)
     dJ_u = tau * (K * ca) * w0 + tau * l1 * (tau * (-R * K * ca / I) * w0)
@@ -293,7 +293,14 @@ def make_integrate(variant: Variant, n_steps: int, max_it: int, max_subdivisions
         psi0, J0, drive0, _ = evaluate_c(ode, c0, False)
         a0 = jax.jvp(lambda c: evaluate_c(ode, c, False)[0], (c0,), (psi0,))[1]
         ok0 = jnp.all(jnp.isfinite(psi0)) & jnp.all(jnp.isfinite(a0)) & (y0[3] > 0)
-        carry0 = (c0, psi0, jnp.where(jnp.isfinite(a0), a0, 0.0), J0, drive0, jnp.where(ok0, 0, NONFINITE).astype(jnp.int32))
+        carry0 = (
+            c0,
+            psi0,
+            jnp.where(jnp.isfinite(a0), a0, 0.0),
+            J0,
+            drive0,
+            jnp.where(ok0, 0, NONFINITE).astype(jnp.int32),
+        )
         zero = jnp.asarray(0, jnp.int32)
 
         def advance(carry):
@@ -338,7 +345,7 @@ def build(variant: Variant, n_steps: int, options: dict, V=1.1, tau=0.01):
         max_it=options["max_it"],
         max_subdivisions=options["max_subdivisions"],
         log_discretization=options["log_discretization"],
-        max_log_change=jnp.asarray(min(options["max_log_change"], 1e300) if math.isfinite(options["max_log_change"]) else jnp.inf),
+        max_log_change=jnp.asarray(options["max_log_change"]),
     )
     fn = make_integrate(variant, n_steps, options["max_it"], options["max_subdivisions"], options["log_discretization"])
     jitted = jax.jit(fn)
