@@ -21,12 +21,14 @@ the largest relative difference in v exceeds 1e-6). Speed is reported, never ass
 
     python benchmarks/step_cost.py            # ~3-5 min on 2 cores
     python benchmarks/step_cost.py --quick    # ~1 min: h = 1/82 and 1/820, fewer repeats
-    python benchmarks/step_cost.py --small-while-loops   # with the XLA:CPU flag below
+    python benchmarks/step_cost.py --default-xla-flags   # without peeljax's XLA:CPU flag
 
-``--small-while-loops`` sets ``XLA_FLAGS=--xla_backend_extra_options=
-xla_cpu_small_while_loop_byte_threshold=1000000000`` before JAX starts (XLA:CPU then compiles
-each while loop into one function instead of dispatching every kernel of its body separately).
-The table goes to ``benchmarks/results/step_cost[_quick][_small_while_loops].md``.
+Importing peeljax adds ``--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=
+1000000000`` to ``XLA_FLAGS`` (XLA:CPU then compiles each while loop into one function instead
+of dispatching every kernel of its body separately); ``--default-xla-flags`` sets
+``PEELJAX_KEEP_XLA_FLAGS=1`` to measure without it. diffrax runs in the same process, so it
+gets the same flags. The table goes to
+``benchmarks/results/step_cost[_quick][_default_xla_flags].md``.
 """
 
 from __future__ import annotations
@@ -39,7 +41,6 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-SMALL_LOOPS = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000"
 V, TAU, T_FINAL = 1.1, 0.01, 3.0
 REF_RTOL, REF_ATOL = 1e-12, 1e-14
 CHECK_LIMIT = 1e-6
@@ -65,10 +66,12 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="h = 1/82 and 1/820 only, fewer repeats (~1 min)")
     parser.add_argument("--repeats", type=int, default=None, help="timed runs per measurement (default 11, quick 5)")
-    parser.add_argument("--small-while-loops", action="store_true", help="run with the XLA:CPU small-while-loop flag")
+    parser.add_argument(
+        "--default-xla-flags", action="store_true", help="keep XLA_FLAGS as they are (no small-while-loop flag)"
+    )
     args = parser.parse_args()
-    if args.small_while_loops:
-        os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + SMALL_LOOPS).strip()
+    if args.default_xla_flags:
+        os.environ["PEELJAX_KEEP_XLA_FLAGS"] = "1"
     repeats = args.repeats or (5 if args.quick else 11)
     denominators = (82, 820) if args.quick else (82, 820, 8200)
     started = time.perf_counter()
@@ -320,7 +323,7 @@ def main():
     name = (
         "step_cost"
         + ("_quick" if args.quick else "")
-        + ("_small_while_loops" if args.small_while_loops else "")
+        + ("_default_xla_flags" if args.default_xla_flags else "")
         + ".md"
     )
     (results / name).write_text("\n".join(out) + "\n")

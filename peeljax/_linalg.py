@@ -34,3 +34,17 @@ def solve_small(A: Float[Array, "n n"], b: Float[Array, " n"]) -> Float[Array, "
             acc = acc - rows[i][j] * x[j]
         x[i] = acc / rows[i][i]
     return jnp.stack(x)
+
+
+def solve_3x3(A: Float[Array, "3 3"], b: Float[Array, " 3"]) -> Float[Array, " 3"]:
+    """Solve A·x = b for a 3×3 A by its adjugate: x = adj(A)·b / det(A).
+
+    The columns of adj(A) are cross products of A's rows. Branch-free, so forward-mode
+    derivatives of it are about a third of the cost of those of :func:`solve_small`; used
+    for (𝐈 − τ·∂f/∂x)⁻¹·∂f/∂v in the Schur complement, whose matrix is well conditioned on
+    the solution (checked against LAPACK in ``tests/test_structure.py``).
+    """
+    c0 = jnp.cross(A[1], A[2])
+    c1 = jnp.cross(A[2], A[0])
+    c2 = jnp.cross(A[0], A[1])
+    return (c0 * b[0] + c1 * b[1] + c2 * b[2]) / jnp.dot(A[0], c0)

@@ -17,13 +17,16 @@ positive, and initial states with v ≤ 0 are rejected before compilation.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from collections.abc import Callable
 from pathlib import Path
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
+from jax.custom_derivatives import SymbolicZero
 from jaxtyping import Array, ArrayLike, Float
 
 __all__ = ["AdhesionLaw", "COEFFICIENT_NAMES", "PAPER_COEFFICIENTS", "safe_pow", "as_adhesion"]
@@ -36,16 +39,36 @@ PAPER_COEFFICIENTS: dict[str, float] = dict(
 )
 
 
+@jax.custom_jvp
 def safe_pow(x: ArrayLike, p: ArrayLike) -> Array:
     """``x**p`` for x > 0, and 0 (its limit from the right, p > 0) for x ≤ 0.
 
     The inner ``where`` keeps the untaken branch finite, so gradients with respect to
-    x and p are finite everywhere (zero where x ≤ 0).
+    x and p are finite everywhere (zero where x ≤ 0). The derivative rule
+    ∂(x^p) = (p·x^p/x)·dx + (x^p·log x)·dp reuses the primal power, so derivatives of every
+    order (the α-method's Newton matrix is a second derivative of φ) cost no further
+    powers, and a zero tangent costs nothing.
     """
     x = jnp.asarray(x)
     positive = x > 0
     x_safe = jnp.where(positive, x, 1.0)
     return jnp.where(positive, x_safe**p, 0.0)
+
+
+@functools.partial(safe_pow.defjvp, symbolic_zeros=True)
+def _safe_pow_jvp(primals, tangents):
+    x, p = primals
+    dx, dp = tangents
+    x = jnp.asarray(x)
+    y = safe_pow(x, p)
+    positive = x > 0
+    x_safe = jnp.where(positive, x, 1.0)
+    dy = jnp.zeros(jnp.broadcast_shapes(jnp.shape(x), jnp.shape(p)), y.dtype)
+    if not isinstance(dx, SymbolicZero):
+        dy = dy + jnp.where(positive, p * y / x_safe, 0.0) * dx
+    if not isinstance(dp, SymbolicZero):
+        dy = dy + jnp.where(positive, y * jnp.log(x_safe), 0.0) * dp
+    return y, dy
 
 
 def _coefficient():

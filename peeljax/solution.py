@@ -53,8 +53,9 @@ class StepDiagnostics(eqx.Module):
     Attributes:
         newton_iterations: Newton iterations of the step that ended at this time (summed over
             substeps when the step was subdivided; 0 at t = 0 and after a stop).
-        residual: max-norm of the step residual at the accepted state, scaled by
-            ``atol + rtol·|y|`` (≤ 1 ⇔ converged to tolerance).
+        residual: max-norm of the last Newton correction of the step, scaled by
+            ``atol + rtol·|y|`` (relative for v); ≤ 1 ⇔ converged to tolerance (the maximum
+            over substeps when the step was subdivided).
         schur: J_t(τ) at the state (Lemma 1).
         local_index: ⌈log_τ|J_t|⌉ + 1 (Lemma 2, see :func:`peeljax.local_index`).
         condition: 2-norm condition number of the Newton iteration matrix (NaN when not requested).

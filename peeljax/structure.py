@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from ._linalg import solve_small
+from ._linalg import solve_3x3
 from .model import PeelingModel
 
 __all__ = [
@@ -52,19 +52,28 @@ class Jacobians(eqx.Module):
 
 
 def jacobians(model: PeelingModel, x: Float[Array, "3"], v: ArrayLike, V: ArrayLike) -> Jacobians:
-    """f, ∂f/∂x, ∂f/∂v, F̃ and ∂φ/∂v at (x, v) by forward-mode autodiff."""
+    """f, ∂f/∂x, ∂f/∂v, F̃ and ∂φ/∂v at (x, v) by forward-mode autodiff.
+
+    One ``jax.jacfwd`` of the stacked map y ↦ (f, G, φ) over y = (x, v): four tangents in
+    all, pure forward mode, so that the Newton Jacobian of the α-method (a
+    ``jacfwd`` over ψ, which contains these derivatives) is forward-over-forward, which
+    XLA fuses far better than forward-over-reverse.
+    """
     v = jnp.asarray(v, float)
-    f_val = model.f(x, v, V)
-    f_x = jax.jacfwd(model.f, argnums=0)(x, v, V)
-    f_v = jax.jacfwd(model.f, argnums=1)(x, v, V)
-    F_tilde = jax.grad(model.shear_force)(x)
-    phi_v = jax.grad(model.phi, argnums=0)(v, V)
-    return Jacobians(f=f_val, f_x=f_x, f_v=f_v, F_tilde=F_tilde, phi_v=phi_v)
+    y = jnp.concatenate([x, v[None]])
+
+    def stacked(y):
+        x, v = y[:3], y[3]
+        return jnp.concatenate([model.f(x, v, V), model.shear_force(x)[None], jnp.reshape(model.phi(v, V), (1,))])
+
+    values = stacked(y)
+    D = jax.jacfwd(stacked)(y)  # 5×4: rows f (3), G, φ; columns α, ω, u, v
+    return Jacobians(f=values[:3], f_x=D[:3, :3], f_v=D[:3, 3], F_tilde=D[3, :3], phi_v=D[4, 3])
 
 
 def schur_complement(jac: Jacobians, tau: ArrayLike) -> Array:
     """J_t(τ) = −∂φ/∂v + τ·F̃·(𝐈 − τ·∂f/∂x)⁻¹·∂f/∂v (Lemma 1)."""
-    w = solve_small(jnp.eye(3) - tau * jac.f_x, jac.f_v)
+    w = solve_3x3(jnp.eye(3) - tau * jac.f_x, jac.f_v)
     return -jac.phi_v + tau * jnp.dot(jac.F_tilde, w)
 
 

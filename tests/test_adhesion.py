@@ -326,3 +326,22 @@ def test_from_json_reports_missing_file_and_bad_json(tmp_path):
 def test_from_dict_rejects_a_huge_integer_with_value_error():
     with pytest.raises(ValueError, match="'c1'"):
         AdhesionLaw.from_dict({"c1": 10**400})
+
+
+def test_safe_pow_higher_derivatives_match_central_differences():
+    # safe_pow has a custom JVP that reuses x**p; its second and mixed derivatives (the
+    # α-method's Newton matrix differentiates φ_v once more) must still be exact.
+    x, p, eps = 0.7, 0.35, 1e-5
+    d_x = jax.grad(safe_pow, argnums=0)
+    d_xx = jax.grad(d_x, argnums=0)
+    d_xp = jax.grad(d_x, argnums=1)
+    assert float(d_xx(x, p)) == pytest.approx(p * (p - 1) * x ** (p - 2), rel=1e-13)
+    assert float(d_xp(x, p)) == pytest.approx(x ** (p - 1) * (1 + p * np.log(x)), rel=1e-13)
+    fd = (float(d_x(x + eps, p)) - float(d_x(x - eps, p))) / (2 * eps)
+    assert float(d_xx(x, p)) == pytest.approx(fd, rel=1e-7)
+    # forward over reverse and forward over forward agree, and stay finite at x ≤ 0
+    hess = jax.jacfwd(jax.jacfwd(safe_pow, argnums=(0, 1)), argnums=(0, 1))
+    for x0 in (0.7, 0.0, -1.0):
+        h = np.asarray(jax.tree_util.tree_leaves(hess(x0, p)))
+        assert np.all(np.isfinite(h))
+    assert np.all(np.asarray(jax.tree_util.tree_leaves(hess(-1.0, p))) == 0.0)

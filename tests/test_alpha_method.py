@@ -238,3 +238,23 @@ def test_no_recompilation_and_vmap_over_tau():
     batched = jax.vmap(final_v)(taus)
     singles = jnp.array([final_v(t) for t in taus])
     np.testing.assert_allclose(np.asarray(batched), np.asarray(singles), rtol=1e-12)
+
+
+def test_batch_with_a_stopped_lane_equals_single_runs():
+    # No lax.cond: a stopped lane does no Newton iteration, in a batch as alone, and the
+    # running lanes are unaffected by it.
+    taus = jnp.array([1e-3, 0.05])
+
+    def run(tau):
+        sol = pj.simulate(V=1.1, tau=tau, dt=1 / 82, t_final=0.5)
+        return sol.ys, sol.status, sol.diagnostics.newton_iterations
+
+    ys_b, status_b, its_b = jax.vmap(run)(taus)
+    for i, tau in enumerate(taus):
+        ys, status, its = run(tau)
+        np.testing.assert_allclose(np.asarray(ys_b[i]), np.asarray(ys), rtol=1e-10, atol=1e-14, equal_nan=True)
+        assert int(status_b[i]) == int(status)
+        np.testing.assert_array_equal(np.asarray(its_b[i]), np.asarray(its))
+    assert int(status_b[0]) != 0 and int(status_b[1]) == 0
+    stopped_at = int(np.argmax(~np.isfinite(np.asarray(ys_b[0])[:, 3])))
+    assert np.all(np.asarray(its_b[0])[stopped_at + 1 :] == 0)

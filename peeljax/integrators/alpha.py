@@ -34,7 +34,18 @@ from ..homogenized import HomogenizedODE
 from ..solution import Solution, StepDiagnostics, StopReason, mask_after_stop
 from ..structure import local_index
 
-__all__ = ["AlphaMethod", "LogTransformedODE", "alpha_coefficients", "amplification_matrix", "integrate_alpha"]
+__all__ = [
+    "AlphaMethod",
+    "AlphaState",
+    "LogTransformedODE",
+    "StepInfo",
+    "alpha_advance",
+    "alpha_coefficients",
+    "alpha_start",
+    "amplification_matrix",
+    "integrate_alpha",
+    "to_physical",
+]
 
 
 def alpha_coefficients(rho: ArrayLike) -> tuple[Array, Array]:
@@ -59,7 +70,9 @@ def amplification_matrix(rho: ArrayLike, z: ArrayLike) -> Float[Array, "2 2"]:
     return jnp.stack([row_y, row_s])
 
 
-class _Carry(eqx.Module):
+class AlphaState(eqx.Module):
+    """The α-method's state between steps (in the integrator's coordinates, see :func:`alpha_start`)."""
+
     y: Array
     psi: Array
     a: Array
@@ -68,7 +81,9 @@ class _Carry(eqx.Module):
     status: Array
 
 
-class _StepInfo(eqx.Module):
+class StepInfo(eqx.Module):
+    """What one macro step did (for diagnostics and statistics)."""
+
     newton_iterations: Array
     residual: Array
     condition: Array
@@ -160,12 +175,21 @@ class AlphaMethod(eqx.Module):
         return gamma, beta, beta / gamma
 
     # -------------------------------------------------------------- one step
+    def _no_matrix(self, y):
+        """Placeholder for the iteration matrix in loop carries (None unless it is recorded)."""
+        return jnp.eye(y.shape[0]) if self.condition_number else None
+
     def initial_acceleration(self, ode: HomogenizedODE, y0: Array, psi0: Array) -> Array:
         """a_0 = dψ/dt at t = 0 = ψ'(y_0)·ψ(y_0)."""
         return jax.jvp(ode, (y0,), (psi0,))[1]
 
-    def _newton(self, ode, known, hb, z_start):
-        """Solve z: y(z) − known − hb·ψ(y(z)) = 0 by Newton; returns (z, iterations, converged, matrix)."""
+    def _newton(self, ode, known, hb, z_start, active):
+        """Solve z: y(z) − known − hb·ψ(y(z)) = 0 by Newton.
+
+        Returns (z, iterations, norm of the last scaled correction, converged, the last
+        iteration matrix or None). An inactive solve (a stopped trajectory) does no iteration
+        and returns z_start, also as a lane of a ``vmap``ped batch.
+        """
         rtol, atol = self.newton_rtol, self.newton_atol
 
         mask = _log_mask(z_start.shape[0], self.log_components)  # log unknowns, in either mode
@@ -180,38 +204,46 @@ class AlphaMethod(eqx.Module):
             return jnp.where(mask, rtol, atol + rtol * jnp.abs(z))
 
         def body(carry):
-            z, iteration, _, _ = carry
-            matrix, r = jax.jacfwd(residual, has_aux=True)(z)
-            delta = solve_small(matrix, r)
+            z, iteration, _, matrix = carry
+            new_matrix, r = jax.jacfwd(residual, has_aux=True)(z)
+            delta = solve_small(new_matrix, r)
             z_new = z - delta
             norm = jnp.max(jnp.abs(delta) / weights(z_new))
             norm = jnp.where(jnp.all(jnp.isfinite(z_new)), norm, jnp.inf)
-            return z_new, iteration + 1, norm, matrix
+            # The matrix is carried out of the loop only when its condition number is wanted.
+            return z_new, iteration + 1, norm, (new_matrix if self.condition_number else matrix)
 
         def cond(carry):
-            _, iteration, norm, _ = carry
+            _, iteration, norm = carry[:3]
             return (norm > 1.0) & (iteration < self.max_newton_iterations) & jnp.isfinite(norm)
 
         # norm = 2 means "not converged yet"; a non-finite iterate sets it to inf and ends the loop.
-        init = (z_start, jnp.asarray(0, jnp.int32), jnp.asarray(2.0), jnp.eye(z_start.shape[0]))
+        matrix0 = self._no_matrix(z_start)
+        init = (z_start, jnp.asarray(0, jnp.int32), jnp.where(active, 2.0, 0.0), matrix0)
         z, iterations, norm, matrix = jax.lax.while_loop(cond, body, init)
-        return z, iterations, norm <= 1.0, matrix
+        return z, iterations, norm, norm <= 1.0, matrix
 
-    def _substep(self, ode, carry: _Carry, h, accept_unresolved):
-        """One α-method step of size h from carry; returns (new carry candidate, iterations, residual, matrix)."""
+    def _substep(self, ode, carry: AlphaState, h, accept_unresolved):
+        """One α-method step of size h from carry; returns (new carry candidate, iterations, residual, matrix).
+
+        Newton starts from y_n, not from an explicit predictor: near a fold of the step
+        equation (J_t → 0) the predictor overshoots and Newton can land on the root beyond it,
+        stepping over the singularity instead of stopping there (measured: at V = 1.1,
+        τ = 1e-3, h = 1/82 the run then went on to t = 0.33 s, where diffrax stalls at 0.173 s).
+        ψ, J_t and F̃·f are evaluated afresh at the accepted state for the same reason: the
+        impasse test must see the state the step returns.
+        """
         gamma, beta, b = self.coefficients()
         known = carry.y + (1.0 - b) * h * carry.psi + (0.5 - b) * h**2 * carry.a
-        z, iterations, converged, matrix = self._newton(ode, known, b * h, self._to_unknown(carry.y))
+        z, iterations, residual, converged, matrix = self._newton(ode, known, b * h, self._to_unknown(carry.y), carry.status == 0)
         y_new = self._to_state(z)
         evaluation = ode.evaluate(y_new)
-        psi_new = evaluation.psi
+        psi_new, J_new, drive_new = evaluation.psi, evaluation.J, evaluation.drive
         a_new = (psi_new - carry.psi) / (gamma * h) + (1.0 - 1.0 / gamma) * carry.a
-        scale = self.newton_atol + self.newton_rtol * jnp.abs(y_new)
-        residual = jnp.max(jnp.abs(y_new - known - b * h * psi_new) / scale)
 
         finite = jnp.all(jnp.isfinite(y_new)) & jnp.all(jnp.isfinite(psi_new)) & jnp.all(jnp.isfinite(a_new))
-        crossed = (carry.J * evaluation.J) < 0
-        drive_kept_sign = (carry.drive * evaluation.drive) > 0
+        crossed = (carry.J * J_new) < 0
+        drive_kept_sign = (carry.drive * drive_new) > 0
         # A log component changing by more than max_log_change in one step is not resolved by
         # this step size (the paper's start: v grows by decades): subdivide, unless at the last level.
         log_change = jnp.where(_log_mask(z.shape[0], self.log_components), jnp.abs(z - self._to_unknown(carry.y)), 0.0)
@@ -221,10 +253,10 @@ class AlphaMethod(eqx.Module):
             StopReason.NEWTON_FAILED,
             jnp.where(~finite, StopReason.NONFINITE, jnp.where(crossed & drive_kept_sign, StopReason.IMPASSE, 0)),
         ).astype(jnp.int32)
-        new = _Carry(y=y_new, psi=psi_new, a=a_new, J=evaluation.J, drive=evaluation.drive, status=status)
+        new = AlphaState(y=y_new, psi=psi_new, a=a_new, J=J_new, drive=drive_new, status=status)
         return new, iterations, residual, matrix
 
-    def _subdivided(self, ode, carry: _Carry, h, level):
+    def _subdivided(self, ode, carry: AlphaState, h, level):
         """2^level substeps of h/2^level; stops at the first failed substep."""
         n_sub = 2**level
         h_sub = h / n_sub
@@ -241,11 +273,11 @@ class AlphaMethod(eqx.Module):
             i, current = state[0], state[1]
             return (i < n_sub) & (current.status == 0)
 
-        init = (jnp.asarray(0, jnp.int32), carry, jnp.asarray(0, jnp.int32), jnp.asarray(0.0), jnp.eye(carry.y.shape[0]))
+        init = (jnp.asarray(0, jnp.int32), carry, jnp.asarray(0, jnp.int32), jnp.asarray(0.0), self._no_matrix(carry.y))
         _, new, iterations, residual, matrix = jax.lax.while_loop(cond, body, init)
         return new, iterations, residual, matrix
 
-    def step(self, ode: HomogenizedODE, carry: _Carry, h) -> tuple[_Carry, _StepInfo]:
+    def step(self, ode: HomogenizedODE, carry: AlphaState, h) -> tuple[AlphaState, StepInfo]:
         """One macro step of size h with the subdivision safeguard.
 
         Level 0 is the plain step; level k its 2^k substeps, tried only if level k − 1 failed.
@@ -266,13 +298,66 @@ class AlphaMethod(eqx.Module):
                 return level + 1, new, iterations + it, res, mat
 
             failed = eqx.tree_at(lambda c: c.status, carry, jnp.asarray(StopReason.NEWTON_FAILED, jnp.int32))
-            init = (jnp.asarray(-1, jnp.int32), failed, jnp.asarray(0, jnp.int32), jnp.asarray(0.0), jnp.eye(carry.y.shape[0]))
+            init = (jnp.asarray(-1, jnp.int32), failed, jnp.asarray(0, jnp.int32), jnp.asarray(0.0), self._no_matrix(carry.y))
             level, new, iterations, residual, matrix = jax.lax.while_loop(retry_cond, retry_body, init)
         if self.condition_number:
             condition = jnp.linalg.cond(matrix)
         else:
             condition = jnp.asarray(jnp.nan)
-        return new, _StepInfo(newton_iterations=iterations, residual=residual, condition=condition, level=level)
+        return new, StepInfo(newton_iterations=iterations, residual=residual, condition=condition, level=level)
+
+
+def alpha_start(ode, solver: AlphaMethod, y0: Float[Array, " n"]) -> tuple[HomogenizedODE | LogTransformedODE, AlphaState]:
+    """The ODE in the integrator's coordinates and the state at t0.
+
+    With ``solver.log_discretization`` the ODE becomes a :class:`LogTransformedODE` and the
+    state carries log v; :func:`to_physical` maps carried states back. a_0 = ψ'(y_0)·ψ(y_0).
+    A start that is not finite (or not positive in the log components) has status NONFINITE.
+    """
+    y0 = jnp.asarray(y0, float)
+    positive = jnp.all(jnp.where(_log_mask(y0.shape[0], solver.log_components), y0 > 0, True))
+    if solver.log_discretization and solver.log_components:
+        ode = LogTransformedODE(ode, solver.log_components)
+        y0 = _to_log(y0, solver.log_components)
+    evaluation0 = ode.evaluate(y0)
+    a0 = solver.initial_acceleration(ode, y0, evaluation0.psi)
+    start_ok = jnp.all(jnp.isfinite(evaluation0.psi)) & jnp.all(jnp.isfinite(a0)) & positive
+    state = AlphaState(
+        y=y0,
+        psi=evaluation0.psi,
+        a=jnp.where(jnp.isfinite(a0), a0, 0.0),
+        J=evaluation0.J,
+        drive=evaluation0.drive,
+        status=jnp.where(start_ok, 0, StopReason.NONFINITE).astype(jnp.int32),
+    )
+    return ode, state
+
+
+def to_physical(solver: AlphaMethod, y: Float[Array, "... n"]) -> Float[Array, "... n"]:
+    """Carried states (log v with ``log_discretization``) back to y = (α, ω, u, v)."""
+    if solver.log_discretization and solver.log_components:
+        return _from_log(y, solver.log_components)
+    return y
+
+
+def alpha_advance(ode, solver: AlphaMethod, state: AlphaState, h) -> tuple[AlphaState, StepInfo, Array]:
+    """One macro step of size h, or nothing once the state has stopped.
+
+    Returns (state, info, ok): a failed step keeps the previous y (with the new status); ``ok``
+    is True only for an accepted step. After a stop the step does no Newton iteration and
+    changes nothing; there is no ``lax.cond``, which under ``vmap`` would run both branches
+    anyway, so a stopped lane of a batch costs (almost) nothing either.
+    ``ode`` is the one :func:`alpha_start` returned.
+    """
+
+    active = state.status == 0
+    new, info = solver.step(ode, state, h)
+    ok = active & (new.status == 0)
+    kept = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, state)
+    kept = eqx.tree_at(lambda c: c.status, kept, jnp.where(active, new.status, state.status))
+    info = jax.tree_util.tree_map(lambda a: jnp.where(active, a, jnp.zeros_like(a)), info)
+    info = eqx.tree_at(lambda i: i.condition, info, jnp.where(active, info.condition, jnp.nan))
+    return kept, info, ok
 
 
 def integrate_alpha(
@@ -285,56 +370,26 @@ def integrate_alpha(
 ) -> Solution:
     """Integrate y' = ψ(y) with the α-method on a uniform mesh of ``n_steps`` steps (static).
 
-    One ``lax.scan`` over the steps; after a stop the remaining steps are skipped
-    (``lax.cond``) and their states masked. Pure and traceable: ``jit``/``vmap`` over ode,
+    One ``lax.scan`` of :func:`alpha_advance` over the steps; after a stop the remaining steps
+    are skipped and their states masked. Pure and traceable: ``jit``/``vmap`` over ode,
     solver, y0 and the times. Validation is the caller's job (see :func:`peeljax.simulate`).
     """
     t0 = jnp.asarray(t0, float)
     h = (jnp.asarray(t_final, float) - t0) / n_steps
     y0 = jnp.asarray(y0, float)
-    positive = jnp.all(jnp.where(_log_mask(y0.shape[0], solver.log_components), y0 > 0, True))
-    if solver.log_discretization and solver.log_components:
-        ode = LogTransformedODE(ode, solver.log_components)
-        y0 = _to_log(y0, solver.log_components)
-    evaluation0 = ode.evaluate(y0)
-    a0 = solver.initial_acceleration(ode, y0, evaluation0.psi)
-    start_ok = jnp.all(jnp.isfinite(evaluation0.psi)) & jnp.all(jnp.isfinite(a0)) & positive
-    carry0 = _Carry(
-        y=y0,
-        psi=evaluation0.psi,
-        a=jnp.where(jnp.isfinite(a0), a0, 0.0),
-        J=evaluation0.J,
-        drive=evaluation0.drive,
-        status=jnp.where(start_ok, 0, StopReason.NONFINITE).astype(jnp.int32),
-    )
-    no_info = _StepInfo(
-        newton_iterations=jnp.asarray(0, jnp.int32),
-        residual=jnp.asarray(0.0),
-        condition=jnp.asarray(jnp.nan),
-        level=jnp.asarray(0, jnp.int32),
-    )
+    ode, state0 = alpha_start(ode, solver, y0)
+    start_ok = state0.status == 0
 
-    def advance(carry):
-        new, info = solver.step(ode, carry, h)
-        ok = new.status == 0
-        kept = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, carry)
-        return eqx.tree_at(lambda c: c.status, kept, new.status), info, ok
+    def body(state, _):
+        state, info, ok = alpha_advance(ode, solver, state, h)
+        return state, (state.y, state.J, ok, info)
 
-    def skip(carry):
-        return carry, no_info, jnp.asarray(False)
-
-    def body(carry, _):
-        carry, info, ok = jax.lax.cond(carry.status == 0, advance, skip, carry)
-        return carry, (carry.y, carry.J, ok, info)
-
-    final, (ys, Js, oks, infos) = jax.lax.scan(body, carry0, None, length=n_steps)
+    final, (ys, Js, oks, infos) = jax.lax.scan(body, state0, None, length=n_steps)
 
     ts = t0 + h * jnp.arange(n_steps + 1)
     valid = jnp.concatenate([start_ok[None], oks])
-    ys = jnp.concatenate([y0[None], ys])
-    if solver.log_discretization and solver.log_components:
-        ys = _from_log(ys, solver.log_components)
-    Js = jnp.concatenate([evaluation0.J[None], Js])
+    ys = to_physical(solver, jnp.concatenate([state0.y[None], ys]))
+    Js = jnp.concatenate([state0.J[None], Js])
     n_valid = jnp.sum(valid)
     t_stop = jnp.where(start_ok, ts[jnp.maximum(n_valid - 1, 0)], t0)
     diagnostics = StepDiagnostics(

@@ -1,0 +1,43 @@
+"""peeljax's XLA:CPU flag (small while loops compiled as one call): set, merged, or left alone."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+import peeljax
+
+OPTION = "xla_cpu_small_while_loop_byte_threshold=1000000000"
+
+
+@pytest.mark.parametrize(
+    "before, expected",
+    [
+        ("", f"--xla_backend_extra_options={OPTION}"),
+        ("--xla_force_host_platform_device_count=4", f"--xla_force_host_platform_device_count=4 --xla_backend_extra_options={OPTION}"),
+        ("--xla_backend_extra_options=foo=1", f"--xla_backend_extra_options=foo=1,{OPTION}"),
+        (f"--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=5", "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=5"),
+    ],
+)
+def test_flag_is_added_or_merged(monkeypatch, before, expected):
+    monkeypatch.delenv("PEELJAX_KEEP_XLA_FLAGS", raising=False)
+    monkeypatch.setenv("XLA_FLAGS", before)
+    peeljax._small_while_loop_flag()
+    assert os.environ["XLA_FLAGS"] == expected
+
+
+def test_opt_out_keeps_flags(monkeypatch):
+    monkeypatch.setenv("PEELJAX_KEEP_XLA_FLAGS", "1")
+    monkeypatch.setenv("XLA_FLAGS", "--xla_dump_to=/nowhere")
+    peeljax._small_while_loop_flag()
+    assert os.environ["XLA_FLAGS"] == "--xla_dump_to=/nowhere"
+
+
+def test_import_sets_the_flag_in_a_fresh_process():
+    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "PEELJAX_KEEP_XLA_FLAGS")}
+    code = "import os, peeljax; print(os.environ['XLA_FLAGS'])"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    assert OPTION in out
