@@ -146,8 +146,9 @@ def no_compilation(monkeypatch):
     simulate_module = importlib.import_module("peeljax.simulate")  # peeljax.simulate is the function
     monkeypatch.setattr(simulate_module, "_run_alpha", forbidden)
     monkeypatch.setattr(simulate_module, "_run_reference", forbidden)
-    monkeypatch.setattr(cli, "simulate", forbidden)
-    monkeypatch.setattr(cli, "simulate_reference", forbidden)
+    cli_simulate = importlib.import_module("peeljax.cli.simulate")
+    monkeypatch.setattr(cli_simulate, "simulate", forbidden)
+    monkeypatch.setattr(cli_simulate, "simulate_reference", forbidden)
 
 
 @pytest.fixture
@@ -245,4 +246,4 @@ def test_stopped_run_outputs(tmp_path):
 def test_summary_of_a_run_rejected_at_the_start():
     record = summarize(_stopped_solution(all_invalid=True))
     assert record["status"] == "stopped" and record["steps"] == 0 and math.isnan(record["v_final"])
-    json.dumps(cli._json_safe(record), allow_nan=False)  # strict JSON: NaN became null
+    json.dumps(cli.json_safe(record), allow_nan=False)  # strict JSON: NaN became null

@@ -19,7 +19,7 @@ OPTION = "xla_cpu_small_while_loop_byte_threshold=1000000000"
         ("", f"--xla_backend_extra_options={OPTION}"),
         ("--xla_force_host_platform_device_count=4", f"--xla_force_host_platform_device_count=4 --xla_backend_extra_options={OPTION}"),
         ("--xla_backend_extra_options=foo=1", f"--xla_backend_extra_options=foo=1,{OPTION}"),
-        (f"--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=5", "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=5"),
+        ("--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=5", "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=5"),
     ],
 )
 def test_flag_is_added_or_merged(monkeypatch, before, expected):

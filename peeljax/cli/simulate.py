@@ -1,13 +1,4 @@
-"""The ``peeljax`` command line: ``peeljax simulate ...`` (``sweep``, ``fit``, ``figures`` to come).
-
-Every input is checked with the Python API's own checks (:mod:`peeljax._validation`) before
-anything is compiled: bad input prints ``peeljax: error: <message>`` on stderr and exits with
-status 2, as argparse's own usage errors do. A run that completes or stops early (an impasse
-point, a failed Newton iteration, …) exits with status 0: stopping is a result, reported in
-the summary, the ``--json`` object and the ``--out`` file.
-
-With ``--json`` stdout carries exactly one JSON object; progress notes always go to stderr.
-"""
+"""``peeljax simulate``: one run, its summary, an .npz of the trajectory and a plot."""
 
 from __future__ import annotations
 
@@ -17,35 +8,22 @@ import math
 import sys
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from ._validation import check_choice, check_mesh, check_positive, check_rho, check_y0
-from .adhesion import AdhesionLaw
-from .model import GEOMETRIES, PeelingModel
-from .simulate import simulate, simulate_reference
-from .solution import Solution
+from .._validation import check_choice, check_mesh, check_positive, check_rho, check_y0
+from ..adhesion import AdhesionLaw
+from ..model import GEOMETRIES, PeelingModel
+from ..simulate import simulate, simulate_reference
+from ..solution import Solution
+from ._common import PROG, check_output_path, checked, fail, json_safe, load_phi, plot_formats
 
-__all__ = ["build_parser", "main"]
+__all__ = ["add_command", "run", "summarize", "validate_run", "write_npz"]
 
-PROG = "peeljax"
 METHODS = ("alpha", "diffrax")
 _METHOD_TITLES = {"alpha": "alpha-method", "diffrax": "diffrax Kvaerno5 reference"}
 _PLOT_METHODS = {"alpha": "α-method", "diffrax": "diffrax Kvaerno5 reference"}
 _DEFAULT_RTOL, _DEFAULT_ATOL = 1e-8, 1e-10
-
-
-# ---------------------------------------------------------------------------- parser
-def build_parser() -> argparse.ArgumentParser:
-    """The top-level parser with one subparser per command (each sets ``handler``)."""
-    parser = argparse.ArgumentParser(
-        prog=PROG,
-        description="Stick-slip peeling of an adhesive tape off a rotating spool (homogenized DAE, in JAX).",
-    )
-    subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    _add_simulate_command(subparsers)
-    return parser
 
 
 def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
@@ -97,7 +75,7 @@ def _add_output_arguments(parser: argparse.ArgumentParser) -> None:
     output.add_argument("--json", action="store_true", help="print one JSON object on stdout instead of a summary")
 
 
-def _add_simulate_command(subparsers) -> None:
+def add_command(subparsers) -> None:
     parser = subparsers.add_parser(
         "simulate",
         help="integrate one run",
@@ -127,50 +105,6 @@ class RunConfig:
     phi: str | None
 
 
-def _load_phi(path: str) -> AdhesionLaw:
-    """The adhesion law from a JSON file; every failure becomes a ValueError naming --phi."""
-    try:
-        law = AdhesionLaw.from_json(path)
-    except OSError as error:  # a directory, no permission, …: from_json handles only a missing file
-        raise ValueError(f"--phi: cannot read {path!r} ({error.strerror or error})") from None
-    except ValueError as error:
-        message = str(error)
-        raise ValueError(message if message.startswith("--phi") else f"--phi: {message}") from None
-    return law
-
-
-def _check_output_path(option: str, path: str | None, suffixes: set[str] | None = None) -> None:
-    """Fail now rather than after a long run: the folder must exist, the suffix be writable."""
-    if path is None:
-        return
-    target = Path(path)
-    if target.is_dir():
-        raise ValueError(f"{option}: {path!r} is a directory, expected a file name")
-    if not target.parent.is_dir():
-        raise ValueError(f"{option}: the folder {str(target.parent)!r} does not exist")
-    suffix = target.suffix.lstrip(".").lower()
-    if suffixes is not None and suffix and suffix not in suffixes:
-        raise ValueError(f"{option}: unknown image format {suffix!r}; use one of {', '.join(sorted(suffixes))}")
-
-
-def _plot_formats() -> set[str]:
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    return set(FigureCanvasAgg(Figure()).get_supported_filetypes())
-
-
-def _checked(allowed: str, check, *args):
-    """Run a library check; add the allowed range where its message lacks one (e.g. "must be finite")."""
-    try:
-        return check(*args)
-    except ValueError as error:
-        message = str(error)
-        if "allowed range" in message or allowed in message:
-            raise
-        raise ValueError(f"{message} (allowed range: {allowed})") from None
-
-
 def validate_run(args: argparse.Namespace) -> RunConfig:
     """Check every option as the Python API would, without compiling anything.
 
@@ -180,28 +114,28 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
     check_choice("geometry", args.geometry, GEOMETRIES)
     check_choice("method", args.method, METHODS)
     positive = "(0, inf)"
-    _checked(positive, check_positive, "V", args.V)
-    _checked(positive, check_positive, "tau", args.tau)
-    n_steps = _checked("dt in (0, t_final], t_final in (0, inf)", check_mesh, args.dt, args.t_final)
+    checked(positive, check_positive, "V", args.V)
+    checked(positive, check_positive, "tau", args.tau)
+    n_steps = checked("dt in (0, t_final], t_final in (0, inf)", check_mesh, args.dt, args.t_final)
     rho = rtol = atol = None
     if args.method == "alpha":
         rho = 0.0 if args.rho is None else args.rho
-        _checked("[0, 1)", check_rho, rho)
+        checked("[0, 1)", check_rho, rho)
         if args.rtol is not None or args.atol is not None:
             raise ValueError("--rtol/--atol are the diffrax solver's tolerances: they apply with --method diffrax only")
     else:
         if args.rho is not None:
-            _checked("[0, 1)", check_rho, args.rho)
+            checked("[0, 1)", check_rho, args.rho)
             raise ValueError("rho is the alpha-method's parameter: --rho applies with --method alpha only")
         rtol = _DEFAULT_RTOL if args.rtol is None else args.rtol
         atol = _DEFAULT_ATOL if args.atol is None else args.atol
-        _checked(positive, check_positive, "rtol", rtol)
-        _checked(positive, check_positive, "atol", atol)
-    _checked("finite (alpha, omega, u, v) with v > 0", check_y0, args.y0)
-    adhesion = AdhesionLaw() if args.phi is None else _load_phi(args.phi)
-    _check_output_path("--out", args.out)
+        checked(positive, check_positive, "rtol", rtol)
+        checked(positive, check_positive, "atol", atol)
+    checked("finite (alpha, omega, u, v) with v > 0", check_y0, args.y0)
+    adhesion = AdhesionLaw() if args.phi is None else load_phi(args.phi)
+    check_output_path("--out", args.out)
     if args.plot is not None:
-        _check_output_path("--plot", args.plot, _plot_formats())
+        check_output_path("--plot", args.plot, plot_formats())
     model = PeelingModel(adhesion=adhesion, geometry=args.geometry)
     return RunConfig(
         model=model,
@@ -257,17 +191,6 @@ def summarize(solution: Solution) -> dict:
     }
     out.update({key: np.asarray(value).tolist() for key, value in solution.stats.items()})
     return out
-
-
-def _json_safe(value):
-    """NaN/inf → null, so the output is strict JSON."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {key: _json_safe(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(item) for item in value]
-    return value
 
 
 def _tension(solution: Solution, model: PeelingModel) -> np.ndarray:
@@ -351,7 +274,7 @@ def _simulate_command(args: argparse.Namespace) -> int:
     try:
         config = validate_run(args)
     except (ValueError, TypeError) as error:
-        return _fail(error)
+        return fail(error)
     print(
         f"{PROG}: {config.method} run with {config.n_steps} steps to t = {config.t_final:g} s "
         "(compiling first: a few seconds) ...",
@@ -384,35 +307,11 @@ def _simulate_command(args: argparse.Namespace) -> int:
     if args.out is not None:
         write_npz(args.out, solution, config)
     if args.plot is not None:
-        from .plots import plot_run  # matplotlib only when a plot is asked for
+        from ..plots import plot_run  # matplotlib only when a plot is asked for
 
         plot_run(solution, config.model, V=config.V, title=_plot_title(config, dt), path=args.plot)
     if args.json:
-        print(json.dumps(_json_safe(record), allow_nan=False))
+        print(json.dumps(json_safe(record), allow_nan=False))
     else:
         _print_summary(record, config, stats)
     return 0
-
-
-def _fail(error: Exception) -> int:
-    print(f"{PROG}: error: {error}", file=sys.stderr)
-    return 2
-
-
-# ---------------------------------------------------------------------------- entry point
-def main(argv: list[str] | None = None) -> int:
-    """Run the command line ``argv`` (default ``sys.argv[1:]``); returns the exit status.
-
-    0: the run completed or stopped early (see its status); 2: bad input (nothing was run).
-    """
-    parser = build_parser()
-    try:
-        args = parser.parse_args(argv)
-    except SystemExit as exit_:  # argparse has printed its usage error (2) or --help (0)
-        code = exit_.code
-        return code if isinstance(code, int) else (0 if code is None else 2)
-    return args.handler(args)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

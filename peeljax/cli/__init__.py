@@ -1,0 +1,53 @@
+"""The ``peeljax`` command line: ``peeljax simulate ...`` (one module per subcommand).
+
+Every input is checked with the Python API's own checks (:mod:`peeljax._validation`) before
+anything is compiled: bad input prints ``peeljax: error: <message>`` on stderr and exits with
+status 2, as argparse's own usage errors do. A run that completes or stops early (an impasse
+point, a failed Newton iteration, …) exits with status 0: stopping is a result, reported in
+the summary, the ``--json`` object and the ``--out`` file.
+
+With ``--json`` stdout carries exactly one JSON object; progress notes always go to stderr.
+Each subcommand module has ``add_command(subparsers)``, which sets the parser's ``handler``.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from . import simulate as _simulate
+from ._common import PROG, json_safe
+from .simulate import summarize, validate_run, write_npz
+
+__all__ = ["build_parser", "json_safe", "main", "summarize", "validate_run", "write_npz"]
+
+COMMANDS = (_simulate,)
+
+
+# ---------------------------------------------------------------------------- parser
+def build_parser() -> argparse.ArgumentParser:
+    """The top-level parser with one subparser per command (each sets ``handler``)."""
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="Stick-slip peeling of an adhesive tape off a rotating spool (homogenized DAE, in JAX).",
+    )
+    subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for command in COMMANDS:
+        command.add_command(subparsers)
+    return parser
+
+
+# ---------------------------------------------------------------------------- entry point
+def main(argv: list[str] | None = None) -> int:
+    """Run the command line ``argv`` (default ``sys.argv[1:]``); returns the exit status.
+
+    0: the run completed or stopped early (see its status); 2: bad input (nothing was run).
+    """
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exit_:  # argparse has printed its usage error (2) or --help (0)
+        code = exit_.code
+        return code if isinstance(code, int) else (0 if code is None else 2)
+    return args.handler(args)
+
+

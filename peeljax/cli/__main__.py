@@ -1,0 +1,5 @@
+"""``python -m peeljax.cli``: the same as the ``peeljax`` command."""
+
+from . import main
+
+raise SystemExit(main())
