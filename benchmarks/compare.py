@@ -1,4 +1,4 @@
-"""peeljax against the solvers people would use instead, on this very problem (issue 6).
+"""peeljax against the solvers people would use instead, on this very problem.
 
 Problems (V = 1.1, paper geometry and initial data, t ∈ [0, 3 s]):
 
@@ -20,7 +20,12 @@ by more than max(1e3·rtol, 1e-4)·max|v|, is reported as a wrong answer and not
   numba (``compiled_loop.evaluate``);
 * ``CVODE``: SUNDIALS CVODE (BDF, dense) through scikit-sundae, same compiled ψ and Jacobian;
 * ``CasADi cvodes``: CasADi's CVODES integrator on ψ built from CasADi symbols, with its own
-  automatic Jacobian.
+  automatic Jacobian;
+* the SUNDIALS, scipy BDF and CasADi peers also run on z = (α, ω, u, log v) ("(log v)"), the
+  coordinates peeljax discretises: on y they stumble over the non-Lipschitz start v0 = 1e-10·V.
+
+(P5) the direct DAE at V = 1.1, 2, 4: where SUNDIALS IDA, CasADi idas (v algebraic), scipy
+Radau and diffrax Kvaerno5 on the index-1 ODE (eq. ``hv`` at τ = 0) stop, per tolerance.
 
 All peers integrate the homogenized ODE (eq. ``hv``) in the physical state (α, ω, u, v);
 peeljax and the numba loop discretise (α, ω, u, log v) (``AlphaMethod.log_discretization``).
@@ -286,6 +291,147 @@ class CasadiPeer(_MaybeLog):
         return _physical_v(np.concatenate([[self._y0[3]], xf[3]]), self.log_v)
 
 
+# --------------------------------------------------------------------------- (P5) the direct DAE
+def _dae_functions(Vp):
+    """f(x, v), G(x) − φ(v, V) of the DAE (paper geometry, the paper's φ) in plain Python."""
+    from compiled_loop import parameters
+
+    R, I, K, _, _, c1, p1, c2, p2, c3, c4, C6, p9 = parameters(Vp, 0.0)
+    c5, p5 = 2.0, 1.5
+
+    def phi(v):
+        w = max(v, 0.0)  # peeljax's policy: v^p := 0 for v ≤ 0
+        return c1 * w**p1 + c2 * w**p2 + c3 * math.exp(v / c4) - c5 * Vp**p5 - C6 * w**p9
+
+    def f(al, om, u, v):
+        slip = om - v / R
+        return slip, -R * K * u * math.sin(al) / I, R * math.sin(al) * slip + Vp - v
+
+    def g(al, u, v):
+        return (1 + math.sin(al)) * K * u - phi(v)
+
+    return f, g
+
+
+def dae_ida(Vp, rtol):
+    """SUNDIALS IDA on the semi-explicit index-1 DAE (x' = f, 0 = G − φ); returns (t_stop, v there, message)."""
+    from compiled_loop import initial_state, parameters
+    from sksundae.ida import IDA
+
+    f, g = _dae_functions(Vp)
+    y0 = initial_state(parameters(Vp, 0.0))
+    yp0 = np.array([*f(*y0), 0.0])
+
+    def resfn(t, y, yp, res):
+        fx = f(y[0], y[1], y[2], y[3])
+        res[0], res[1], res[2] = yp[0] - fx[0], yp[1] - fx[1], yp[2] - fx[2]
+        res[3] = g(y[0], y[2], y[3])
+
+    solver = IDA(resfn, algebraic_idx=[3], rtol=rtol, atol=1e-2 * rtol, max_num_steps=100_000)
+    sol = solver.solve(np.array([0.0, T_FINAL]), y0, yp0)
+    t = np.asarray(sol.t)
+    y = np.asarray(sol.y)
+    return float(t[-1]), float(y[-1, 3]), " ".join(str(getattr(sol, "message", "")).split())[:60]
+
+
+def dae_casadi_idas(Vp, rtol):
+    """CasADi's IDAS on the same DAE with v algebraic; returns (t_stop, v there, message)."""
+    import casadi as ca
+    from compiled_loop import initial_state, parameters
+
+    R, I, K, _, _, c1, p1, c2, p2, c3, c4, C6, p9 = parameters(Vp, 0.0)
+    x = ca.SX.sym("x", 3)
+    v = ca.SX.sym("v")
+    al, om, u = x[0], x[1], x[2]
+    slip = om - v / R
+    ode = ca.vertcat(slip, -R * K * u * ca.sin(al) / I, R * ca.sin(al) * slip + Vp - v)
+    w = ca.fmax(v, 1e-300)
+    phi = c1 * w**p1 + c2 * w**p2 + c3 * ca.exp(v / c4) - 2.0 * Vp**1.5 - C6 * w**p9
+    alg = (1 + ca.sin(al)) * K * u - phi
+    y0 = initial_state(parameters(Vp, 0.0))
+    grid = np.linspace(0.0, T_FINAL, 3001)[1:]
+    options = {"abstol": 1e-2 * rtol, "reltol": rtol, "max_num_steps": 100_000}
+    integrator = ca.integrator("F", "idas", {"x": x, "z": v, "ode": ode, "alg": alg}, 0.0, grid, options)
+    # Integrate output interval by output interval so that a failure tells where it happened.
+    t_last, v_last, message = 0.0, float(y0[3]), "completed"
+    x0, z0 = y0[:3], y0[3]
+    for t_end in np.linspace(0.0, T_FINAL, 61)[1:]:
+        step = ca.integrator("F", "idas", {"x": x, "z": v, "ode": ode, "alg": alg}, t_last, [t_end], options)
+        try:
+            out = step(x0=x0, z0=z0)
+        except RuntimeError as error:
+            message = " ".join(str(error).split()[-12:])[:60]
+            break
+        x0, z0 = np.asarray(out["xf"]).ravel(), float(np.asarray(out["zf"]).ravel()[0])
+        t_last, v_last = float(t_end), z0
+    del integrator, grid
+    return t_last, v_last, message
+
+
+def dae_index1_ode(Vp, rtol, method="Radau"):
+    """scipy ``method`` on the index-1 ODE v' = F̃·f/∂φ/∂v (eq. ``hv`` at τ = 0)."""
+    from compiled_loop import evaluate, initial_state, parameters
+    from scipy.integrate import solve_ivp
+
+    p = parameters(Vp, 0.0)
+    psi, jac = np.empty(4), np.empty((4, 4))
+
+    def rhs(t, y):
+        evaluate(np.asarray(y, dtype=float), p, psi, jac, False)
+        return psi.copy()
+
+    def jacobian(t, y):
+        evaluate(np.asarray(y, dtype=float), p, psi, jac, True)
+        return jac.copy()
+
+    sol = solve_ivp(rhs, (0.0, T_FINAL), initial_state(p), method=method, rtol=rtol, atol=1e-2 * rtol, jac=jacobian)
+    finite = np.all(np.isfinite(sol.y), axis=0)
+    last = int(np.argmin(finite)) - 1 if not finite.all() else sol.t.size - 1
+    return float(sol.t[last]), float(sol.y[3, last]), " ".join(str(sol.message).split())[:60]
+
+
+def dae_diffrax_index1(Vp, rtol):
+    """diffrax Kvaerno5 on the index-1 ODE (``truncation=0``), as ``peeljax.simulate_reference``."""
+    import peeljax
+
+    sol = peeljax.simulate_reference(
+        V=Vp, tau=1.0, dt=T_FINAL / 3000, t_final=T_FINAL, rtol=rtol, atol=1e-2 * rtol, truncation=0
+    )
+    v = np.asarray(sol.ys)[:, 3]
+    last = int(np.sum(np.asarray(sol.valid))) - 1
+    return float(sol.t_stop), float(v[max(last, 0)]), sol.status_name
+
+
+def direct_dae_table(emit, velocities, rtols):
+    emit("## (P5) the direct DAE: where each solver stops")
+    emit()
+    emit("t_stop [s] (v there [m/s]) per tolerance; t_final = 3 s means it completed. The paper")
+    emit("claims that direct DAE solvers fail at the stick-slip points (J_t → 0 at the maximum of φ).")
+    emit("IDA and scipy report their last internal step; CasADi idas runs output interval by output interval")
+    emit("(every 0.05 s) and reports the last one reached; diffrax reports its last output time (every 1 ms).")
+    emit("φ at V = 1.1 has its maximum at v = 0.524 and its minimum at v = 8.49.")
+    emit()
+    solvers = [
+        ("SUNDIALS IDA (scikit-sundae)", dae_ida),
+        ("CasADi idas", dae_casadi_idas),
+        ("scipy Radau, index-1 ODE", dae_index1_ode),
+        ("diffrax Kvaerno5, index-1 ODE", dae_diffrax_index1),
+    ]
+    emit("| solver | V | " + " | ".join(f"rtol {r:g}" for r in rtols) + " |")
+    emit("|---|---:|" + "---:|" * len(rtols))
+    for name, run in solvers:
+        for Vp in velocities:
+            cells = []
+            for rtol in rtols:
+                try:
+                    t_stop, v_stop, message = run(Vp, rtol)
+                    cells.append(f"{t_stop:.4g} ({v_stop:.3g})")
+                except Exception as error:
+                    cells.append(f"error: {_one_line(error)[:40]}")
+            emit(f"| {name} | {Vp:g} | " + " | ".join(cells) + " |")
+    emit()
+
+
 # --------------------------------------------------------------------------- measuring
 def reference(tau):
     import jax
@@ -476,6 +622,8 @@ def main(argv=None):
                 first = f"{r['first_s']:.2f}" if "first_s" in r else "–"
                 emit(f"| {peer.name} | {setting} | {r['status']} | {error} | {median} | {first} |")
         emit()
+
+    direct_dae_table(emit, (1.1,) if args.smoke else (1.1, 2.0, 4.0), (1e-6,) if args.smoke else (1e-4, 1e-6, 1e-8))
 
     results_dir = HERE / "results"
     results_dir.mkdir(exist_ok=True)
