@@ -445,8 +445,8 @@ def reference(tau):
     return v
 
 
-def measure(peer: Peer, v_ref: np.ndarray, repeats: int):
-    """Per setting: error (or failure) and the median time of ``repeats`` runs after a warm-up."""
+def check(peer: Peer, v_ref: np.ndarray):
+    """Prepare the peer and run each setting once (warm-up, compilation), checking its answer."""
     rows = []
     try:
         peer.prepare()
@@ -456,7 +456,7 @@ def measure(peer: Peer, v_ref: np.ndarray, repeats: int):
     for setting in peer.settings:
         try:
             started = time.perf_counter()
-            v = peer.run(setting)  # warm-up (compilation for the JAX peers)
+            v = peer.run(setting)
             first = time.perf_counter() - started
         except Exception as error:
             rows.append({"setting": setting, "status": f"failed: {_one_line(error)}"})
@@ -470,18 +470,23 @@ def measure(peer: Peer, v_ref: np.ndarray, repeats: int):
         # Wrong: off by 10 % of max|v|, or (adaptive peers) far above what the tolerance asks.
         limit = 0.1 if peer.setting_name != "rtol" else min(0.1, max(1e3 * setting, 1e-4))
         status = "ok" if error <= limit * scale else f"wrong answer (max/Δv/ = {error:.2g})"
-        if status != "ok":
-            rows.append({"setting": setting, "status": status, "error": error, "first_s": first})
-            continue
-        times = []
-        for _ in range(repeats):
-            started = time.perf_counter()
-            peer.run(setting)
-            times.append(time.perf_counter() - started)
-        rows.append(
-            {"setting": setting, "status": status, "error": error, "median_s": float(np.median(times)), "first_s": first}
-        )
+        rows.append({"setting": setting, "status": status, "error": error, "first_s": first, "times": []})
     return rows
+
+
+def time_round_robin(peers, rows_of, repeats):
+    """``repeats`` rounds, each running every checked (peer, setting) once: load hits all alike."""
+    for _ in range(repeats):
+        for peer in peers:
+            for row in rows_of[peer.name]:
+                if row.get("status") == "ok":
+                    started = time.perf_counter()
+                    peer.run(row["setting"])
+                    row["times"].append(time.perf_counter() - started)
+    for rows in rows_of.values():
+        for row in rows:
+            if row.get("times"):
+                row["median_s"] = float(np.median(row["times"]))
 
 
 def _one_line(error: Exception) -> str:
@@ -587,9 +592,9 @@ def main(argv=None):
         ]
         results[tau] = {}
         for peer in peers:
-            rows = measure(peer, v_ref, repeats)
-            results[tau][peer.name] = rows
-            print(f"  [τ = {tau}: {peer.name} done]", file=sys.stderr, flush=True)
+            results[tau][peer.name] = check(peer, v_ref)
+            print(f"  [τ = {tau}: {peer.name} checked]", file=sys.stderr, flush=True)
+        time_round_robin(peers, results[tau], repeats)
 
         emit(f"## τ = {tau}")
         emit()
