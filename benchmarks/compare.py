@@ -54,6 +54,7 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
+from machine import cpu_model  # noqa: E402
 
 V = 1.1
 T_FINAL = 3.0
@@ -507,16 +508,6 @@ def versions():
         except Exception:
             out.append(f"{module} missing")
     return ", ".join(out)
-
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def work_precision_plot(results, path):

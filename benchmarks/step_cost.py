@@ -46,16 +46,6 @@ REF_RTOL, REF_ATOL = 1e-12, 1e-14
 CHECK_LIMIT = 1e-6
 
 
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
-
-
 def median(values):
     import numpy as np
 
@@ -77,6 +67,7 @@ def main():
     started = time.perf_counter()
 
     sys.path.insert(0, str(HERE))
+    from machine import cpu_model
     import diffrax
     import equinox as eqx
     import jax
