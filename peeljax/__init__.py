@@ -38,6 +38,8 @@ import jax as _jax  # noqa: E402
 _jax.config.update("jax_enable_x64", True)
 
 from .adhesion import COEFFICIENT_NAMES, PAPER_COEFFICIENTS, AdhesionLaw, safe_pow  # noqa: E402
+from .analysis import StickSlipAnalysis, analyze, bifurcation_diagram, phi_extrema, trajectory_structure  # noqa: E402
+from .fit import FitResult, Observation, fit_adhesion, fit_adhesion_steady, phi_relative_error  # noqa: E402
 from .homogenized import HomogenizedODE  # noqa: E402
 from .integrators import (  # noqa: E402
     AlphaMethod,
@@ -59,6 +61,7 @@ from .structure import (  # noqa: E402
     schur_complement,
     truncated_schur_complement,
 )
+from .sweeps import LeastTau, SweepResult, least_tau, sweep  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -66,25 +69,39 @@ __all__ = [
     "AdhesionLaw",
     "AlphaMethod",
     "COEFFICIENT_NAMES",
+    "FitResult",
     "HomogenizedODE",
     "Jacobians",
+    "LeastTau",
+    "Observation",
     "PAPER_COEFFICIENTS",
     "PeelingModel",
     "Solution",
     "StepDiagnostics",
+    "StickSlipAnalysis",
     "StopReason",
+    "SweepResult",
     "alpha_coefficients",
     "amplification_matrix",
+    "analyze",
+    "bifurcation_diagram",
+    "fit_adhesion",
+    "fit_adhesion_steady",
     "integrate_alpha",
     "integrate_reference",
     "is_fast_scale",
     "jacobians",
+    "least_tau",
     "local_index",
     "neumann_radius",
     "neumann_terms",
+    "phi_extrema",
+    "phi_relative_error",
     "safe_pow",
     "schur_complement",
     "simulate",
     "simulate_reference",
+    "sweep",
+    "trajectory_structure",
     "truncated_schur_complement",
 ]

@@ -18,7 +18,7 @@ from matplotlib.figure import Figure
 from .model import PeelingModel
 from .solution import Solution, StopReason
 
-__all__ = ["plot_run", "plot_runs", "short_reason"]
+__all__ = ["plot_fit", "plot_run", "plot_runs", "plot_sweep_map", "short_reason"]
 
 _SHORT_REASONS = {
     StopReason.COMPLETED: "completed",
@@ -155,3 +155,91 @@ def plot_run(
     solution's method).
     """
     return plot_runs([solution], None if label is None else [label], model, V=V, title=title, path=path)
+
+
+def plot_sweep_map(result, *, title: str | None = None, path: str | Path | None = None) -> Figure:
+    """The stick-slip map of a :class:`peeljax.SweepResult` over (τ, V) (cf. the paper's Figs. 2, 5–7).
+
+    Left: completion (filled: completed [0, t_final]; cross: stopped, coloured by t_stop).
+    Right: the spread of v over the window, v_std/V (log colour scale): large where the
+    trajectory sticks and slips, ~0 where τ has smoothed v to V. τ on a log axis.
+    """
+    tau, V = np.asarray(result.tau, float), np.asarray(result.V, float)
+    completed = np.asarray(result.completed, bool)
+    t_final = float(result.settings.get("t_final", np.nanmax(result.t_stop)))
+    fig = Figure(figsize=(11, 4.2), layout="constrained")
+    FigureCanvasAgg(fig)
+    left, right = fig.subplots(1, 2, sharey=True)
+    size = 60 if V.size <= 200 else 20
+    left.scatter(tau[completed], V[completed], s=size, marker="s", color="tab:green", label="completed")
+    stopped = left.scatter(
+        tau[~completed], V[~completed], s=size, marker="X", c=np.asarray(result.t_stop)[~completed],
+        cmap="autumn", vmin=0.0, vmax=t_final, label="stopped",
+    )  # fmt: skip
+    if (~completed).any():
+        fig.colorbar(stopped, ax=left, label="t_stop [s] of stopped runs")
+    left.set_title("completion of [0, t_final]")
+    left.legend(loc="best", fontsize=8)
+    spread = np.asarray(result.v_std, float) / V
+    ok = completed & np.isfinite(spread)
+    floor = max(np.nanmin(spread[ok]) if ok.any() else 1e-12, 1e-12)
+    from matplotlib.colors import LogNorm
+
+    image = right.scatter(
+        tau[ok], V[ok], s=size, marker="s", c=np.maximum(spread[ok], floor),
+        norm=LogNorm(vmin=floor, vmax=max(floor * 10, np.nanmax(spread[ok]) if ok.any() else 1.0)), cmap="viridis",
+    )  # fmt: skip
+    right.scatter(tau[~completed], V[~completed], s=size, marker="x", color="0.6")
+    fig.colorbar(image, ax=right, label="spread of v: std(v)/V over the window")
+    right.set_title("stick-slip map")
+    for ax in (left, right):
+        ax.set_xscale("log")
+        ax.set_xlabel("homogenization scale τ [s]")
+        ax.grid(True, alpha=0.3)
+    left.set_ylabel("pull velocity V [m/s]")
+    if title:
+        fig.suptitle(title)
+    if path is not None:
+        fig.savefig(path, dpi=150)
+    return fig
+
+
+def plot_fit(result, observations, *, model: PeelingModel | None = None, title: str | None = None, path: str | Path | None = None) -> Figure:
+    """A fit (:func:`peeljax.fit_adhesion`): observed v(t) (and F(t)) against the fitted
+    model's run at each V, and the fitted φ(v, V) against the start over the visited v range."""
+    import jax.numpy as jnp
+
+    from .simulate import simulate
+
+    model = PeelingModel() if model is None else model
+    settings = result.settings
+    n = len(observations)
+    fig = Figure(figsize=(4.2 * (n + 1), 3.4), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, n + 1, squeeze=False)[0]
+    for ax, obs in zip(axes, observations):
+        fitted = PeelingModel(R=model.R, I=model.I, k=model.k, l=model.l, adhesion=result.adhesion, geometry=model.geometry)
+        run = simulate(fitted, V=obs.V, tau=settings["tau"], dt=settings["dt"], t_final=settings["t_final"])
+        t, v = obs.series("v")
+        ax.plot(t, v, ".", ms=2, color="0.5", label="data v")
+        ax.plot(np.asarray(run.ts), np.asarray(run.v), "-", color="C0", label="fitted model v")
+        ax.set_xlabel("t [s]")
+        ax.set_ylabel("v [m/s]")
+        ax.set_title(f"V = {obs.V:g} m/s")
+        ax.legend(fontsize=7)
+    ax = axes[-1]
+    lo, hi = result.v_range
+    lo = max(lo, 1e-12)
+    v = np.geomspace(lo, max(hi, lo * 10), 300)
+    for i, obs in enumerate(observations):
+        ax.plot(v, np.asarray(result.adhesion(jnp.asarray(v), obs.V)), "-", color=f"C{i}", label=f"fitted, V = {obs.V:g}")
+        ax.plot(v, np.asarray(result.start(jnp.asarray(v), obs.V)), "--", color=f"C{i}", alpha=0.6, label=f"start, V = {obs.V:g}")
+    ax.set_xscale("log")
+    ax.set_xlabel("v [m/s] (visited range)")
+    ax.set_ylabel("φ(v, V) [N]")
+    ax.set_title("adhesion law: fitted vs start")
+    ax.legend(fontsize=7)
+    fig.suptitle(title or f"fit: loss {result.initial_loss:.3g} → {result.final_loss:.3g} in {result.steps} iterations")
+    if path is not None:
+        fig.savefig(path, dpi=150)
+    return fig

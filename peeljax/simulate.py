@@ -38,8 +38,10 @@ def _initial_state(ode, y0):
 
 
 @eqx.filter_jit
-def _run_alpha(ode, solver, y0, t_final, n_steps):
-    return integrate_alpha(ode, solver, _initial_state(ode, y0), 0.0, t_final, n_steps)
+def _run_alpha(ode, solver, y0, t_final, n_steps, checkpoint_every=None):
+    return integrate_alpha(
+        ode, solver, _initial_state(ode, y0), 0.0, t_final, n_steps, checkpoint_every=checkpoint_every
+    )
 
 
 def simulate(
@@ -53,6 +55,7 @@ def simulate(
     *,
     solver: AlphaMethod | None = None,
     truncation: int | None = None,
+    checkpoint_every: int | str | None = None,
 ) -> Solution:
     """Integrate the homogenized peeling ODE (eq. ``hv``) with the α-method.
 
@@ -69,6 +72,9 @@ def simulate(
         solver: an :class:`AlphaMethod` to set Newton tolerances and safeguards.
         truncation: ``None`` for the exact J_t, m ≥ 1 for the m-term eq. ``hvex``, 0 for the
             τ → 0 index-1 ODE.
+        checkpoint_every: for reverse-mode gradients of long runs: chunks of this many steps
+            under ``jax.checkpoint`` (``"sqrt"``: ≈ √N), memory ∝ √N (see
+            :func:`peeljax.integrate_alpha`); values are unchanged.
 
     Returns:
         A :class:`Solution` with N + 1 time points. A run that cannot continue has
@@ -87,7 +93,7 @@ def simulate(
     else:
         check_rho(solver.rho)
     ode, y0 = _prepare(model, V, tau, y0, truncation)
-    return _run_alpha(ode, solver, y0, jnp.asarray(t_final, float), n_steps)
+    return _run_alpha(ode, solver, y0, jnp.asarray(t_final, float), n_steps, checkpoint_every)
 
 
 @eqx.filter_jit

@@ -14,13 +14,16 @@ from __future__ import annotations
 
 import argparse
 
+from . import figures as _figures
+from . import fit as _fit
 from . import simulate as _simulate
+from . import sweep as _sweep
 from ._common import PROG, json_safe
 from .simulate import summarize, validate_run, write_npz
 
 __all__ = ["build_parser", "json_safe", "main", "summarize", "validate_run", "write_npz"]
 
-COMMANDS = (_simulate,)
+COMMANDS = (_simulate, _sweep, _figures, _fit)
 
 
 # ---------------------------------------------------------------------------- parser

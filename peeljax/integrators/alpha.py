@@ -20,6 +20,26 @@ run through the non-Lipschitz start v0 = 1e-10·V (φ has v^0.15). A step whose 
 iteration fails is retried on 2, 4, … substeps (``max_subdivisions`` levels), counted in the
 statistics. A step across which J_t changes sign while F̃·f does not is an impasse point:
 the run stops there with that reason.
+
+Derivatives (forward and reverse mode)
+--------------------------------------
+Newton's iterations are never differentiated. The step residual
+F(z; θ) = y(z) − known(θ) − h·b·ψ(y(z); θ) = 0 defines the solution z*(θ); by the implicit
+function theorem
+
+    dz* = −(∂F/∂z)⁻¹·(∂F/∂θ)·dθ        at z = z*,
+
+one linear 4×4 solve with the iteration matrix per step (:func:`_implicit_root`). A whole
+step, with its subdivision safeguard, is a ``custom_jvp``: the primal is the fast
+``while_loop`` step (bit-identical forward results), and the tangent replays only the path
+that the primal took, at the Newton solutions the primal recorded (no Newton iteration is
+re-run): the plain step (level 0) or its 2^k substeps (a bounded ``lax.scan`` over
+2^max_subdivisions slots, masked).
+The tangent program is linear and has no ``while_loop``, so JAX transposes it for reverse
+mode (``jax.grad``). A step that fails (the run stops) passes its incoming tangent through
+unchanged, and singular or non-finite iteration matrices give zero tangents, never NaN.
+Under ``vmap`` the replay's ``lax.cond`` runs both branches: batched gradients cost more
+per step than a ``lax.map`` over the batch.
 """
 
 from __future__ import annotations
@@ -27,6 +47,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import jax.tree_util as jtu
 from jaxtyping import Array, ArrayLike, Float
 
 from .._linalg import solve_small
@@ -129,6 +150,112 @@ class LogTransformedODE(eqx.Module):
         return self.evaluate(z).psi
 
 
+def _jvp_filtered(fn, primals, tangents):
+    """``jax.jvp(fn, primals, tangents)`` where ``tangents`` has ``None`` (symbolic zero) leaves.
+
+    Only the leaves with a tangent are differentiated; every other leaf (static fields,
+    integer arrays, undifferentiated floats) is closed over.
+    """
+    leaves, treedef = jtu.tree_flatten(primals)
+    t_leaves = treedef.flatten_up_to(tangents)
+    index = [i for i, t in enumerate(t_leaves) if t is not None]
+
+    def partial_fn(*diff):
+        full = list(leaves)
+        for i, d in zip(index, diff):
+            full[i] = d
+        return fn(*treedef.unflatten(full))
+
+    if not index:
+        out = fn(*primals)
+        return out, jtu.tree_map(lambda a: None, out)
+    return jax.jvp(partial_fn, tuple(leaves[i] for i in index), tuple(t_leaves[i] for i in index))
+
+
+def _stop_gradient(tree):
+    """``lax.stop_gradient`` on the inexact arrays of a pytree (other leaves untouched)."""
+    return jtu.tree_map(lambda x: jax.lax.stop_gradient(x) if eqx.is_inexact_array(x) else x, tree)
+
+
+def _step_residual(z, args):
+    """F(z) = y(z) − known − h·b·ψ(y(z)), the α-method's step equation in Newton's unknown z."""
+    solver, ode, known, hb = args
+    y = solver._to_state(z)
+    return y - known - hb * ode(y)
+
+
+@eqx.filter_custom_jvp
+def _implicit_root(z_star, active, residual, args):
+    """z* (a root of ``residual(z, args)``, found without derivatives), made differentiable.
+
+    The primal is z* itself; the tangent is the implicit function theorem's
+    dz* = −(∂F/∂z)⁻¹·(∂F/∂args)·d(args) at z*, with F = ``residual``. An inactive solve
+    (stopped trajectory) or a singular/non-finite iteration matrix gives a zero tangent:
+    the matrix is replaced by 𝐈 before the solve (a "double where"), so no NaN reaches a
+    reverse pass either.
+    """
+    return z_star
+
+
+@_implicit_root.def_jvp
+def _implicit_root_jvp(primals, tangents):
+    z_star, active, residual, args = primals
+    _, _, _, t_args = tangents
+    if t_args is None or not jtu.tree_leaves(t_args):
+        return z_star, None
+    matrix = jax.jacfwd(lambda z: residual(z, args))(z_star)
+    _, rhs = _jvp_filtered(lambda a: residual(z_star, a), (args,), (t_args,))
+    n = z_star.shape[0]
+    usable = active & jnp.all(jnp.isfinite(matrix)) & jnp.all(jnp.isfinite(z_star))
+    safe = jnp.where(usable, matrix, jnp.eye(n))
+    # A singular matrix shows as a non-finite solve (no LAPACK call: it would not fuse).
+    usable = usable & jnp.all(jnp.isfinite(solve_small(safe, jnp.ones(n, safe.dtype))))
+    safe = jnp.where(usable, safe, jnp.eye(n))
+    dz = -solve_small(safe, rhs)
+    return z_star, jnp.where(usable, dz, 0.0)
+
+
+@eqx.filter_custom_jvp
+def _step_with_tangent(solver, ode, carry, h):
+    """:meth:`AlphaMethod._step_primal` with the replay tangent of :meth:`AlphaMethod._replay`."""
+    return solver._step_primal(ode, carry, h)
+
+
+@_step_with_tangent.def_jvp
+def _step_with_tangent_jvp(primals, tangents):
+    solver, ode, carry, h = primals
+    new, info, zs = solver._step_primal(ode, carry, h, record=True)
+    level = info.level
+    # A failed step's tangent is the incoming one (below): replay it at the incoming state, not
+    # at a diverged Newton iterate, so that its (unused) derivatives stay finite.
+    zs = jnp.where(new.status != 0, solver._to_unknown(carry.y)[None, :], zs)
+
+    def replay(solver_, ode_, carry_, h_):
+        return solver_._replay(ode_, carry_, h_, level, zs)
+
+    _, t_new = _jvp_filtered(replay, primals, tangents)
+    t_carry = tangents[2]
+    ok = new.status == 0
+
+    def pick(t_n, t_c, leaf):
+        if t_n is None and t_c is None:
+            return None
+        t_n = jnp.zeros_like(leaf) if t_n is None else t_n
+        t_c = jnp.zeros_like(leaf) if t_c is None else t_c
+        return jnp.where(ok, t_n, t_c)
+
+    float_fields = ("y", "psi", "a", "J", "drive")
+    t_state = AlphaState(
+        **{
+            name: pick(getattr(t_new, name), None if t_carry is None else getattr(t_carry, name), getattr(new, name))
+            for name in float_fields
+        },
+        status=None,
+    )
+    t_info = jtu.tree_map(lambda _: None, info)
+    return (new, info), (t_state, t_info)
+
+
 class AlphaMethod(eqx.Module):
     """The α-method with a Newton solve per step.
 
@@ -223,7 +350,7 @@ class AlphaMethod(eqx.Module):
         z, iterations, norm, matrix = jax.lax.while_loop(cond, body, init)
         return z, iterations, norm, norm <= 1.0, matrix
 
-    def _substep(self, ode, carry: AlphaState, h, accept_unresolved):
+    def _substep(self, ode, carry: AlphaState, h, accept_unresolved, z_solved=None):
         """One α-method step of size h from carry; returns (new carry candidate, iterations, residual, matrix).
 
         Newton starts from y_n, not from an explicit predictor: near a fold of the step
@@ -235,7 +362,21 @@ class AlphaMethod(eqx.Module):
         """
         gamma, beta, b = self.coefficients()
         known = carry.y + (1.0 - b) * h * carry.psi + (0.5 - b) * h**2 * carry.a
-        z, iterations, residual, converged, matrix = self._newton(ode, known, b * h, self._to_unknown(carry.y), carry.status == 0)
+        active = carry.status == 0
+        if z_solved is None:
+            # Newton sees no tangents: its iterations are never differentiated.
+            z, iterations, residual, converged, matrix = self._newton(
+                _stop_gradient(ode),
+                _stop_gradient(known),
+                _stop_gradient(b * h),
+                _stop_gradient(self._to_unknown(carry.y)),
+                active,
+            )
+        else:  # the replay of an accepted plain step: its solution is known
+            z, iterations, residual, converged = z_solved, jnp.asarray(0, jnp.int32), jnp.asarray(0.0), jnp.asarray(True)
+            matrix = self._no_matrix(carry.y)
+        # Identity on values; the implicit function theorem's tangent under jvp/grad.
+        z = _implicit_root(jax.lax.stop_gradient(z), active, _step_residual, (_stop_gradient(self), ode, known, b * h))
         y_new = self._to_state(z)
         evaluation = ode.evaluate(y_new)
         psi_new, J_new, drive_new = evaluation.psi, evaluation.J, evaluation.drive
@@ -256,36 +397,96 @@ class AlphaMethod(eqx.Module):
         new = AlphaState(y=y_new, psi=psi_new, a=a_new, J=J_new, drive=drive_new, status=status)
         return new, iterations, residual, matrix
 
-    def _subdivided(self, ode, carry: AlphaState, h, level):
-        """2^level substeps of h/2^level; stops at the first failed substep."""
+    def _subdivided(self, ode, carry: AlphaState, h, level, record=False):
+        """2^level substeps of h/2^level; stops at the first failed substep.
+
+        ``record`` (static): also return the Newton solution of every substep, in slots of a
+        (2^max_subdivisions, n) array (for :meth:`_replay`).
+        """
         n_sub = 2**level
         h_sub = h / n_sub
 
         def body(state):
-            i, current, iterations, residual, matrix = state
+            i, current, iterations, residual, matrix = state[:5]
             new, it, res, mat = self._substep(ode, current, h_sub, level >= self.max_subdivisions)
             ok = new.status == 0
             current = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, current)
             current = eqx.tree_at(lambda c: c.status, current, new.status)
-            return i + 1, current, iterations + it, jnp.maximum(residual, res), mat
+            out = (i + 1, current, iterations + it, jnp.maximum(residual, res), mat)
+            if record:
+                out = out + (state[5].at[i].set(self._to_unknown(new.y)),)
+            return out
 
         def cond(state):
             i, current = state[0], state[1]
             return (i < n_sub) & (current.status == 0)
 
         init = (jnp.asarray(0, jnp.int32), carry, jnp.asarray(0, jnp.int32), jnp.asarray(0.0), self._no_matrix(carry.y))
-        _, new, iterations, residual, matrix = jax.lax.while_loop(cond, body, init)
-        return new, iterations, residual, matrix
+        if record:
+            init = init + (jnp.zeros((2**self.max_subdivisions, carry.y.shape[0]), carry.y.dtype),)
+        _, new, iterations, residual, matrix, *zs = jax.lax.while_loop(cond, body, init)
+        return (new, iterations, residual, matrix, *zs)
 
     def step(self, ode: HomogenizedODE, carry: AlphaState, h) -> tuple[AlphaState, StepInfo]:
         """One macro step of size h with the subdivision safeguard.
 
         Level 0 is the plain step; level k its 2^k substeps, tried only if level k − 1 failed.
         The step body is traced once (inside the loop over levels), which halves compile time.
+        Differentiable in forward and reverse mode with respect to ``ode``, ``carry`` and h
+        (see the module docstring): values are those of the ``while_loop`` step, tangents
+        come from :meth:`_replay` of the path taken.
+        """
+        return _step_with_tangent(self, ode, carry, h)
+
+    def _replay(self, ode, carry: AlphaState, h, level, zs) -> AlphaState:
+        """The step along the path the primal took, written without ``while_loop`` over tangents.
+
+        ``zs`` holds the primal's Newton solutions of the accepted level's substeps, so no
+        Newton iteration is re-run: level 0: the plain step at zs[0]; level k > 0: 2^k
+        substeps of h/2^k at zs[i] in a ``lax.scan`` over 2^max_subdivisions slots, the slots
+        beyond 2^k inactive. Only its tangent is used (its value equals the primal's).
+        """
+
+        def plain():
+            new, *_ = self._substep(ode, carry, h, jnp.asarray(self.max_subdivisions == 0), z_solved=zs[0])
+            return new
+
+        if self.max_subdivisions == 0:
+            return plain()
+
+        def subdivided():
+            n_sub = jnp.left_shift(jnp.asarray(1, jnp.int32), level)
+            h_sub = h / n_sub
+            accept = level >= self.max_subdivisions
+
+            def body(current, slot):
+                i, z_i = slot
+                run = (i < n_sub) & (current.status == 0)
+                trial = eqx.tree_at(lambda c: c.status, current, jnp.where(run, 0, 1).astype(jnp.int32))
+                # An idle slot sits at the current state, never at an unrecorded z (zeros): ψ and
+                # its derivatives stay finite there, so 0·(derivative) stays 0 in reverse mode.
+                z_i = jnp.where(run, z_i, self._to_unknown(current.y))
+                new, *_ = self._substep(ode, trial, h_sub, accept, z_solved=z_i)
+                ok = run & (new.status == 0)
+                nxt = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, current)
+                nxt = eqx.tree_at(lambda c: c.status, nxt, jnp.where(run, new.status, current.status))
+                return nxt, None
+
+            final, _ = jax.lax.scan(body, carry, (jnp.arange(2**self.max_subdivisions, dtype=jnp.int32), zs))
+            return final
+
+        return jax.lax.cond(level == 0, plain, subdivided)
+
+    def _step_primal(self, ode, carry: AlphaState, h, record=False):
+        """The step's values: Newton and subdivision levels in ``while_loop``s (see :meth:`step`).
+
+        Returns (state, info), and with ``record`` (static) also the substeps' Newton solutions
+        of the accepted level (see :meth:`_subdivided`).
         """
         if self.max_subdivisions == 0:
             new, iterations, residual, matrix = self._substep(ode, carry, h, jnp.asarray(True))
             level = jnp.asarray(0, jnp.int32)
+            zs = [self._to_unknown(new.y)[None]] if record else []
         else:
 
             def retry_cond(state):
@@ -293,18 +494,21 @@ class AlphaMethod(eqx.Module):
                 return (new.status == StopReason.NEWTON_FAILED) & (level < self.max_subdivisions)
 
             def retry_body(state):
-                level, _, iterations, _, _ = state
-                new, it, res, mat = self._subdivided(ode, carry, h, level + 1)
-                return level + 1, new, iterations + it, res, mat
+                level, iterations = state[0], state[2]
+                new, it, res, mat, *zs = self._subdivided(ode, carry, h, level + 1, record)
+                return (level + 1, new, iterations + it, res, mat, *zs)
 
             failed = eqx.tree_at(lambda c: c.status, carry, jnp.asarray(StopReason.NEWTON_FAILED, jnp.int32))
             init = (jnp.asarray(-1, jnp.int32), failed, jnp.asarray(0, jnp.int32), jnp.asarray(0.0), self._no_matrix(carry.y))
-            level, new, iterations, residual, matrix = jax.lax.while_loop(retry_cond, retry_body, init)
+            if record:
+                init = init + (jnp.zeros((2**self.max_subdivisions, carry.y.shape[0]), carry.y.dtype),)
+            level, new, iterations, residual, matrix, *zs = jax.lax.while_loop(retry_cond, retry_body, init)
         if self.condition_number:
             condition = jnp.linalg.cond(matrix)
         else:
             condition = jnp.asarray(jnp.nan)
-        return new, StepInfo(newton_iterations=iterations, residual=residual, condition=condition, level=level)
+        info = StepInfo(newton_iterations=iterations, residual=residual, condition=condition, level=level)
+        return (new, info, zs[0]) if record else (new, info)
 
 
 def alpha_start(ode, solver: AlphaMethod, y0: Float[Array, " n"]) -> tuple[HomogenizedODE | LogTransformedODE, AlphaState]:
@@ -360,6 +564,33 @@ def alpha_advance(ode, solver: AlphaMethod, state: AlphaState, h) -> tuple[Alpha
     return kept, info, ok
 
 
+def _checkpoint_chunk(checkpoint_every, n_steps: int) -> int | None:
+    if checkpoint_every is None or checkpoint_every is False:
+        return None
+    if checkpoint_every == "sqrt" or checkpoint_every is True:
+        return max(1, round(n_steps**0.5))
+    if isinstance(checkpoint_every, bool) or not isinstance(checkpoint_every, int) or checkpoint_every < 1:
+        raise ValueError(f"checkpoint_every must be None, 'sqrt' or a positive integer, got {checkpoint_every!r}")
+    return min(checkpoint_every, n_steps)
+
+
+def _checkpointed_scan(body, init, n_steps: int, chunk: int):
+    """``lax.scan(body, init, None, length=n_steps)`` as ⌊n/c⌋ chunks of c steps, each under
+    ``jax.checkpoint`` (nothing inside a chunk is stored for the reverse pass), plus a tail."""
+    n_chunks, tail = divmod(n_steps, chunk)
+
+    @jax.checkpoint
+    def run_chunk(state, _):
+        return jax.lax.scan(body, state, None, length=chunk)
+
+    state, outs = jax.lax.scan(run_chunk, init, None, length=n_chunks)
+    outs = jax.tree_util.tree_map(lambda a: a.reshape((n_chunks * chunk,) + a.shape[2:]), outs)
+    if tail:
+        state, tail_outs = jax.lax.scan(body, state, None, length=tail)
+        outs = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), outs, tail_outs)
+    return state, outs
+
+
 def integrate_alpha(
     ode: HomogenizedODE,
     solver: AlphaMethod,
@@ -367,12 +598,22 @@ def integrate_alpha(
     t0: ArrayLike,
     t_final: ArrayLike,
     n_steps: int,
+    *,
+    checkpoint_every: int | None = None,
 ) -> Solution:
     """Integrate y' = ψ(y) with the α-method on a uniform mesh of ``n_steps`` steps (static).
 
     One ``lax.scan`` of :func:`alpha_advance` over the steps; after a stop the remaining steps
     are skipped and their states masked. Pure and traceable: ``jit``/``vmap`` over ode,
     solver, y0 and the times. Validation is the caller's job (see :func:`peeljax.simulate`).
+
+    Differentiable (``jax.grad``/``jax.jvp``) with respect to every float leaf of ``ode``
+    (model parameters, φ's coefficients, V, τ), y0 and the times; see the module docstring.
+    ``checkpoint_every`` = c (static) splits the scan into chunks of c steps under
+    ``jax.checkpoint``: reverse mode then stores one state per chunk and recomputes a chunk's
+    steps when it gets there, so its memory grows like N/c + c (∝ √N for c ≈ √N, the choice
+    ``checkpoint_every="sqrt"`` makes) for about one more forward run of time. Values are
+    unchanged.
     """
     t0 = jnp.asarray(t0, float)
     h = (jnp.asarray(t_final, float) - t0) / n_steps
@@ -384,7 +625,11 @@ def integrate_alpha(
         state, info, ok = alpha_advance(ode, solver, state, h)
         return state, (state.y, state.J, ok, info)
 
-    final, (ys, Js, oks, infos) = jax.lax.scan(body, state0, None, length=n_steps)
+    chunk = _checkpoint_chunk(checkpoint_every, n_steps)
+    if chunk is None:
+        final, (ys, Js, oks, infos) = jax.lax.scan(body, state0, None, length=n_steps)
+    else:
+        final, (ys, Js, oks, infos) = _checkpointed_scan(body, state0, n_steps, chunk)
 
     ts = t0 + h * jnp.arange(n_steps + 1)
     valid = jnp.concatenate([start_ok[None], oks])

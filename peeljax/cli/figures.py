@@ -1,0 +1,63 @@
+"""``peeljax figures``: regenerate the paper's Figs. 2–7 and the structure figures as image files."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from .._validation import check_positive
+from ._common import PROG, checked, fail, json_safe, plot_formats
+
+__all__ = ["add_command"]
+
+
+def add_command(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "figures",
+        help="regenerate the paper's figures",
+        description=(
+            "Run the paper's simulations (V = 1.1, 2, 4 m/s; the tau lists and steps of peeljax.figures.RUNS) "
+            "and write Figs. 2-7, phi with its extrema and |J_t| with the local index, plus captions.md."
+        ),
+    )
+    parser.add_argument("--out", default="figures", metavar="FOLDER", help="output folder (created; default figures/)")
+    parser.add_argument(
+        "--t-final",
+        dest="t_final",
+        type=float,
+        default=3.0,
+        help="end time of every run [s] (default 3, the paper's; shorter for a quick check)",
+    )
+    parser.add_argument("--format", default="png", help="image format (default png)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object (run facts, files) on stdout")
+    parser.set_defaults(handler=_figures_command)
+
+
+def _figures_command(args: argparse.Namespace) -> int:
+    try:
+        checked("(0, inf)", check_positive, "t_final", args.t_final)
+        if args.t_final < 0.05:
+            raise ValueError(f"t_final must be >= 0.05 s (allowed range: [0.05, inf)), got {args.t_final}")
+        fmt = args.format.lower().lstrip(".")
+        if fmt not in plot_formats():
+            raise ValueError(f"--format: unknown image format {fmt!r}; use one of {', '.join(sorted(plot_formats()))}")
+        out = Path(args.out)
+        if out.exists() and not out.is_dir():
+            raise ValueError(f"--out: {args.out!r} exists and is not a folder")
+        if not out.parent.is_dir() and str(out.parent) not in ("", "."):
+            raise ValueError(f"--out: the parent folder {str(out.parent)!r} does not exist")
+    except ValueError as error:
+        return fail(error)
+
+    from ..figures import write_figures
+
+    facts = write_figures(out, t_final=args.t_final, fmt=fmt, log=lambda m: print(f"{PROG}: {m}", file=sys.stderr))
+    if args.json:
+        print(json.dumps(json_safe(facts)))
+    else:
+        for path in facts["files"]:
+            print(path)
+        print(f"{len(facts['files'])} figures in {facts['total_seconds']:.1f} s; captions in {out / 'captions.md'}")
+    return 0

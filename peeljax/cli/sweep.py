@@ -1,0 +1,249 @@
+"""``peeljax sweep`` (a batched sweep over V and τ) and ``peeljax tau-star`` (τ* per V)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+
+import numpy as np
+
+from .._validation import check_choice, check_mesh, check_rho
+from ..adhesion import AdhesionLaw
+from ..model import GEOMETRIES, PeelingModel
+from ._common import PROG, check_output_path, checked, fail, json_safe, load_phi, plot_formats
+
+__all__ = ["add_command", "tau_grid", "validate_sweep", "validate_tau_star"]
+
+
+# ---------------------------------------------------------------------------- parsers
+def _add_model_arguments(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("problem")
+    group.add_argument("--V", type=float, nargs="+", default=[1.1, 2.0, 4.0], help="pull velocities [m/s], > 0")
+    group.add_argument("--dt", type=float, default=1 / 82, help="alpha-method step [s] (default 1/82)")
+    group.add_argument("--t-final", dest="t_final", type=float, default=3.0, help="end time [s] (default 3)")
+    group.add_argument("--rho", type=float, default=0.0, help="alpha-method's rho in [0, 1) (default 0)")
+    group.add_argument("--geometry", default="paper", metavar="{paper,full}", help="'paper' or 'full' (default paper)")
+    group.add_argument(
+        "--phi", metavar="COEFFS.json", help="adhesion coefficients c1..p9 as JSON (default: the paper's)"
+    )
+
+
+def add_command(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "sweep",
+        help="batched runs over a grid of V and tau",
+        description=(
+            "Integrate every (V, tau) of a grid with the alpha-method in compiled batches; write per-trajectory "
+            "summaries (completed, t_stop, v mean/std/min/max over a window, stick-slip events). "
+            "With --out the sweep is written chunk by chunk and a rerun resumes."
+        ),
+    )
+    _add_model_arguments(parser)
+    parser.add_argument(
+        "--tau", type=float, nargs="+", default=[1e-3, 1e-1],
+        help="tau values [s], > 0; with --n-tau, two numbers LO HI give a log-spaced grid",
+    )  # fmt: skip
+    parser.add_argument(
+        "--n-tau", dest="n_tau", type=int, default=None, help="points of the log-spaced tau grid (>= 2)"
+    )
+    parser.add_argument("--window", type=float, nargs=2, default=[0.5, 1.0], metavar=("W0", "W1"),
+                        help="window of the v statistics, fractions of t_final (default 0.5 1)")  # fmt: skip
+    parser.add_argument(
+        "--save-every", dest="save_every", type=int, default=None, help="also save states every N steps"
+    )
+    parser.add_argument("--chunk", type=int, default=256, help="trajectories per compiled batch (default 256)")
+    parser.add_argument("--out", metavar="FILE.npz", help="results (numpy); chunks in FILE.npz.chunks/, resumable")
+    parser.add_argument("--plot", metavar="FILE.png", help="the stick-slip map over (V, tau)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    parser.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
+    parser.set_defaults(handler=_sweep_command)
+
+    star = subparsers.add_parser(
+        "tau-star",
+        help="the least resolvable tau per V",
+        description=(
+            "For each V, tau* = the least tested tau above which every tested tau completes [0, t_final], "
+            "with tau*(1 - rtol) stopping (docs/sweeps.md). All V are searched in parallel."
+        ),
+    )
+    _add_model_arguments(star)
+    star.add_argument("--tau-range", dest="tau_range", type=float, nargs=2, default=[1e-5, 1.0], metavar=("LO", "HI"),
+                      help="search interval, 0 < LO < HI (default 1e-5 1)")  # fmt: skip
+    star.add_argument("--rtol", type=float, default=0.05, help="relative resolution in (0, 1) (default 0.05)")
+    star.add_argument("--n-points", dest="n_points", type=int, default=8, help="tau values per V and round (>= 2)")
+    star.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    star.set_defaults(handler=_tau_star_command)
+
+
+# ---------------------------------------------------------------------------- validation
+def _positive_list(option: str, values: list[float]) -> list[float]:
+    if not values:
+        raise ValueError(f"{option}: give at least one value (allowed range: (0, inf))")
+    bad = [v for v in values if not math.isfinite(v) or v <= 0]
+    if bad:
+        raise ValueError(f"{option} must be finite and > 0 (allowed range: (0, inf)), got {bad[:3]}")
+    return [float(v) for v in values]
+
+
+def tau_grid(tau: list[float], n_tau: int | None) -> list[float]:
+    """--tau values as given, or with --n-tau a log-spaced grid between two values."""
+    tau = _positive_list("--tau", tau)
+    if n_tau is None:
+        return tau
+    if isinstance(n_tau, bool) or n_tau < 2:
+        raise ValueError(f"--n-tau must be an integer >= 2 (allowed range: [2, inf)), got {n_tau}")
+    if len(tau) != 2:
+        raise ValueError(f"--n-tau needs exactly two --tau values LO HI, got {len(tau)}")
+    if tau[0] >= tau[1]:
+        raise ValueError(f"--tau LO HI needs LO < HI, got {tau[0]:g} {tau[1]:g}")
+    return np.geomspace(tau[0], tau[1], n_tau).tolist()
+
+
+def _model(args) -> PeelingModel:
+    check_choice("--geometry", args.geometry, GEOMETRIES)
+    checked("[0, 1)", check_rho, args.rho)
+    adhesion = AdhesionLaw() if args.phi is None else load_phi(args.phi)
+    return PeelingModel(adhesion=adhesion, geometry=args.geometry)
+
+
+def validate_sweep(args: argparse.Namespace) -> dict:
+    """Every option checked, nothing compiled; returns the keyword arguments of :func:`peeljax.sweep`."""
+    V = _positive_list("--V", args.V)
+    tau = tau_grid(args.tau, args.n_tau)
+    checked("dt in (0, t_final], t_final in (0, inf)", check_mesh, args.dt, args.t_final)
+    model = _model(args)
+    w0, w1 = args.window
+    if not (math.isfinite(w0) and math.isfinite(w1) and 0 <= w0 <= w1 <= 1):
+        raise ValueError(f"--window W0 W1 must satisfy 0 <= W0 <= W1 <= 1, got {w0:g} {w1:g}")
+    n_steps = check_mesh(args.dt, args.t_final)
+    if args.save_every is not None and not 1 <= args.save_every <= n_steps:
+        raise ValueError(f"--save-every must lie in [1, {n_steps}] (the number of steps), got {args.save_every}")
+    if args.chunk < 1:
+        raise ValueError(f"--chunk must be a positive integer (allowed range: [1, inf)), got {args.chunk}")
+    if args.out is not None:
+        check_output_path("--out", args.out)
+    if args.plot is not None:
+        check_output_path("--plot", args.plot, plot_formats())
+    return {
+        "model": model, "V": V, "tau": tau, "dt": float(args.dt), "t_final": float(args.t_final), "grid": "outer",
+        "window": (w0, w1), "save_every": args.save_every, "chunk": args.chunk, "out": args.out, "rho": float(args.rho),
+        "progress": args.progress and not args.json,
+    }  # fmt: skip
+
+
+def validate_tau_star(args: argparse.Namespace) -> dict:
+    V = _positive_list("--V", args.V)
+    checked("dt in (0, t_final], t_final in (0, inf)", check_mesh, args.dt, args.t_final)
+    model = _model(args)
+    lo, hi = args.tau_range
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
+        raise ValueError(f"--tau-range LO HI must satisfy 0 < LO < HI (finite), got {lo:g} {hi:g}")
+    if not (math.isfinite(args.rtol) and 0 < args.rtol < 1):
+        raise ValueError(f"--rtol must lie in (0, 1), got {args.rtol:g}")
+    if args.n_points < 2:
+        raise ValueError(f"--n-points must be an integer >= 2 (allowed range: [2, inf)), got {args.n_points}")
+    return {"model": model, "V": V, "dt": float(args.dt), "t_final": float(args.t_final), "tau_range": (lo, hi),
+                "rtol": float(args.rtol), "n_points": args.n_points, "rho": float(args.rho)}  # fmt: skip
+
+
+# ---------------------------------------------------------------------------- commands
+def _run_sweep(kwargs: dict):
+    from ..sweeps import sweep
+
+    return sweep(**kwargs)
+
+
+def _run_tau_star(kwargs: dict):
+    from ..sweeps import least_tau
+
+    return least_tau(**kwargs)
+
+
+def _sweep_command(args: argparse.Namespace) -> int:
+    try:
+        kwargs = validate_sweep(args)
+    except (ValueError, TypeError) as error:
+        return fail(error)
+    n = len(kwargs["V"]) * len(kwargs["tau"])
+    print(f"{PROG}: sweep of {n} trajectories (compiling first: a few seconds) ...", file=sys.stderr)
+    start = time.perf_counter()
+    try:
+        result = _run_sweep(kwargs)
+    except ValueError as error:  # e.g. an --out made with other settings, or too much output
+        return fail(error)
+    wall = time.perf_counter() - start
+    if args.plot is not None:
+        from ..plots import plot_sweep_map
+
+        plot_sweep_map(result, path=args.plot)
+    completed = result.completed
+    record = {
+        "n": len(result),
+        "n_completed": int(completed.sum()),
+        "V": kwargs["V"],
+        "tau": kwargs["tau"],
+        "dt": kwargs["dt"],
+        "t_final": kwargs["t_final"],
+        "window": list(kwargs["window"]),
+        "wall_time_s": wall,
+        "computed_chunks": list(result.computed_chunks),
+        "out": args.out,
+        "plot": args.plot,
+        "trajectories": {
+            key: np.asarray(getattr(result, key)).tolist()
+            for key in ("V", "tau", "completed", "status", "t_stop", "v_mean", "v_std", "v_min", "v_max", "events")
+        },
+    }
+    if args.json:
+        print(json.dumps(json_safe(record), allow_nan=False))
+        return 0
+    print(f"{PROG} sweep: {record['n']} trajectories, {record['n_completed']} completed t = {kwargs['t_final']:g} s, "
+          f"wall time {wall:.3g} s")  # fmt: skip
+    print(f"{'V':>8} {'tau':>10} {'status':>14} {'t_stop':>8} {'v_mean':>10} {'v_std':>10} {'events':>6}")
+    for i in range(len(result)):
+        print(
+            f"{result.V[i]:8.4g} {result.tau[i]:10.4g} {result.reasons[i]:>14} {result.t_stop[i]:8.4g} "
+            f"{result.v_mean[i]:10.4g} {result.v_std[i]:10.4g} {result.events[i]:6d}"
+        )
+    for key in ("out", "plot"):
+        if record[key]:
+            print(f"wrote {record[key]}")
+    return 0
+
+
+def _tau_star_command(args: argparse.Namespace) -> int:
+    try:
+        kwargs = validate_tau_star(args)
+    except (ValueError, TypeError) as error:
+        return fail(error)
+    print(f"{PROG}: searching tau* for V = {kwargs['V']} (compiling first: a few seconds) ...", file=sys.stderr)
+    start = time.perf_counter()
+    result = _run_tau_star(kwargs)
+    wall = time.perf_counter() - start
+    record = {
+        "V": result.V.tolist(),
+        "tau_star": result.tau_star.tolist(),
+        "tau_below": result.tau_below.tolist(),
+        "found": result.found.tolist(),
+        "t_stop_below": result.t_stop_below.tolist(),
+        "rounds": result.rounds,
+        "dt": kwargs["dt"],
+        "t_final": kwargs["t_final"],
+        "tau_range": list(kwargs["tau_range"]),
+        "rtol": kwargs["rtol"],
+        "wall_time_s": wall,
+    }
+    if args.json:
+        print(json.dumps(json_safe(record), allow_nan=False))
+        return 0
+    print(f"{PROG} tau-star: dt = {kwargs['dt']:.6g} s, t_final = {kwargs['t_final']:g} s, rtol = {kwargs['rtol']:g}, "
+          f"{result.rounds} batched runs, {wall:.3g} s")  # fmt: skip
+    for i, V in enumerate(result.V):
+        note = "" if result.found[i] else "  (not bracketed inside --tau-range)"
+        print(
+            f"V = {V:g} m/s: tau* = {result.tau_star[i]:.6g} s (tau*(1-rtol) stops at t = {result.t_stop_below[i]:.4g} s){note}"
+        )
+    return 0

@@ -1,0 +1,334 @@
+"""The paper's Figs. 2–7 and two structure figures, regenerated with peeljax.
+
+Every figure uses the paper's parameters (R = 0.1 m, I = 1e-2 kg·m², k/l = 1000 N/m, the adhesion
+law of de2006dynamics) and initial data (v0 = 1e-10·V, ω0 = v0/R, α0 = (π/4)·1e-8, u0 from
+(sac)), the α-method with ρ = 0 on [0, 3] s. Steps and τ lists are in :data:`RUNS`:
+
+* V = 1.1 m/s: the paper's h = 1/82 s; τ = 1e-3 (the paper's least τ: it stops early here too,
+  at t ≈ 0.171 s), 4.22e-3 (the least τ of the grid below that completes [0, 3] s), 1e-2, 1e-1;
+* V = 2 and 4 m/s: h = 1/164 s (the paper says only that smaller steps work there; 1/164 halves
+  the V = 1.1 step); τ lists from the least τ found to complete [0, 3] s on a log grid of 25 values
+  in [1e-4, 0.1] at that step, rounded to 3 digits and rechecked (``docs/reproduction.md``):
+  2.37e-3 at V = 2, 3.16e-4 at V = 4 (2.37e-4 rounded stops at 1.26 s; completion is not
+  monotone in τ: 7.5e-4 stops at 0.97 s), and larger ones.
+
+Figures (file name → content):
+
+* ``fig2_v_V1.1`` v(t) at V = 1.1 for the τ list (eq. ``hv`` integrated by the α-method);
+* ``fig3_alpha_V1.1`` α(t), same runs;
+* ``fig4_F_vs_v_V1.1`` the tension F(u, α) (eq. ``defF``) against v, same runs;
+* ``fig5_v_V2``, ``fig6_v_V4`` v(t) at V = 2 and 4;
+* ``fig7_v_three_V`` v(t) at the three V, each at its least τ;
+* ``phi_extrema`` φ(v, V) for the three V with its maximum and minimum (∂φ/∂v = 0) marked;
+* ``bifurcation_V`` the late extrema of v against V (17 values in [1, 5] m/s) at τ = 2.37e-3 s,
+  h = 1/164 s (:func:`peeljax.bifurcation_diagram`);
+* ``schur_index_V1.1`` |J_t| (Lemma 1) and the local index ⌈log_τ|J_t|⌉ + 1 (Lemma 2) along the
+  diffrax reference trajectory at V = 1.1, τ = 1e-3, up to where its step collapses, with the
+  stick (∂φ/∂v > 0) and slip (∂φ/∂v < 0) phases shaded.
+
+:func:`make_figures` returns the figures and captions; :func:`write_figures` saves PNGs and a
+``captions.md``. ``t_final`` shortens every run (for tests); it is rounded to a whole number of
+steps so that the step stays exactly as documented (the early stops depend on the step: at
+V = 1.1, τ = 1e-3 the run with h = 0.3/25 s completes where h = 1/82 s stops).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from .analysis import BifurcationDiagram, analyze, bifurcation_diagram, phi_extrema
+from .model import PeelingModel
+from .simulate import simulate, simulate_reference
+from .solution import Solution
+
+__all__ = [
+    "BIFURCATION_RUN",
+    "CAPTIONS",
+    "RUNS",
+    "FigureRuns",
+    "make_figures",
+    "plot_bifurcation_diagram",
+    "plot_phi_extrema",
+    "plot_schur_index",
+    "write_figures",
+]
+
+
+@dataclass(frozen=True)
+class FigureRuns:
+    """The runs behind one pull velocity's figures: step [s] and τ values [s] (least first)."""
+
+    V: float
+    dt: float
+    taus: tuple[float, ...]
+
+
+RUNS = {
+    1.1: FigureRuns(V=1.1, dt=1 / 82, taus=(1e-3, 4.22e-3, 1e-2, 1e-1)),
+    2.0: FigureRuns(V=2.0, dt=1 / 164, taus=(2.37e-3, 1e-2, 1e-1)),
+    4.0: FigureRuns(V=4.0, dt=1 / 164, taus=(3.16e-4, 1e-3, 1e-2, 1e-1)),
+}
+BIFURCATION_RUN = {"Vs": tuple(np.linspace(1.0, 5.0, 17)), "tau": 2.37e-3, "dt": 1 / 164}
+SCHUR_RUN = {"V": 1.1, "tau": 1e-3, "dt": 1 / 1640, "t_final": 0.2}  # diffrax reference, fine output
+
+CAPTIONS = {
+    "fig2_v_V1.1": "Fig. 2: peeling velocity v(t) at V = 1.1 m/s, h = 1/82 s, for τ = 1e-3 (the paper's least τ; stops early), "
+    "4.22e-3 (least τ completing [0, 3] s), 1e-2 and 1e-1 s; as τ grows v is smoothed to the pull velocity V (dashed).",
+    "fig3_alpha_V1.1": "Fig. 3: peel-front angle α(t) at V = 1.1 m/s, same runs as Fig. 2; α settles to its mean, "
+    "slower than v.",
+    "fig4_F_vs_v_V1.1": "Fig. 4: tension F(u, α) = (k/l)·u against v at V = 1.1 m/s, same runs; v moves far while "
+    "F hardly changes near the jump; larger τ spirals into the fixed point v = V.",
+    "fig5_v_V2": "Fig. 5: v(t) at V = 2 m/s, h = 1/164 s, for the τ list of peeljax.figures.RUNS[2.0].",
+    "fig6_v_V4": "Fig. 6: v(t) at V = 4 m/s, h = 1/164 s, for the τ list of peeljax.figures.RUNS[4.0].",
+    "fig7_v_three_V": "Fig. 7: v(t) at V = 1.1, 2 and 4 m/s, each at the least τ of its list (1e-3, 2.37e-3, "
+    "3.16e-4 s); V = 1.1 stops early, as in the paper.",
+    "phi_extrema": "φ(v, V) of de2006dynamics for V = 1.1, 2, 4 m/s with its maximum (▲, end of the stick "
+    "branch) and minimum (▼) marked; ∂φ/∂v < 0 between them (slip).",
+    "bifurcation_V": "Bifurcation diagram: local maxima and minima of v over the second half of each run against V "
+    "(17 values in [1, 5] m/s), τ = 2.37e-3 s, h = 1/164 s (sweep engine); × marks runs that stopped early.",
+    "schur_index_V1.1": "|J_t| (Lemma 1) and the local index ⌈log_τ|J_t|⌉ + 1 (Lemma 2) along the diffrax "
+    "Kvaerno5 trajectory at V = 1.1 m/s, τ = 1e-3, up to where its step collapses; stick (∂φ/∂v > 0) and "
+    "slip (∂φ/∂v < 0) phases shaded.",
+}
+
+
+def _figure(nrows: int = 1, figsize=(8.0, 4.5), sharex: bool = True):
+    fig = Figure(figsize=figsize, layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(nrows, 1, sharex=sharex, squeeze=False)[:, 0]
+    return fig, axes
+
+
+def _series(solution: Solution) -> tuple[np.ndarray, np.ndarray]:
+    valid = np.asarray(solution.valid)
+    return np.asarray(solution.ts), np.where(valid[:, None], np.asarray(solution.ys), np.nan)
+
+
+def _label(tau: float, solution: Solution) -> str:
+    text = f"τ = {tau:g} s"
+    if not bool(solution.completed):
+        text += f" (stopped at t = {float(solution.t_stop):.3f} s)"
+    return text
+
+
+def _plot_against_time(runs: dict[float, Solution], column: int, ylabel: str, title: str, V: float | None):
+    fig, (ax,) = _figure()
+    for i, (tau, solution) in enumerate(runs.items()):
+        ts, ys = _series(solution)
+        ax.plot(ts, ys[:, column], color=f"C{i}", lw=1.1, label=_label(tau, solution))
+        if not bool(solution.completed):
+            ax.axvline(float(solution.t_stop), color=f"C{i}", ls=":", lw=1.0)
+    if V is not None:
+        ax.axhline(V, color="k", ls="--", lw=0.8, label=f"pull velocity V = {V:g} m/s")
+    ax.set_xlabel("time t [s]")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8, loc="best")
+    return fig
+
+
+def plot_phi_extrema(model: PeelingModel | None = None, Vs=(1.1, 2.0, 4.0), v_range=(1e-3, 12.0)) -> Figure:
+    """φ(v, V) on a log v axis for each V with its maximum and minimum marked (∂φ/∂v = 0)."""
+    model = PeelingModel() if model is None else model
+    fig, (ax,) = _figure()
+    vs = np.geomspace(*v_range, 800)
+    for i, V in enumerate(Vs):
+        phi = np.asarray(model.phi(vs, V))
+        ax.plot(vs, phi, color=f"C{i}", label=f"V = {V:g} m/s")
+        v_top, v_bottom = phi_extrema(model, V)
+        for v_ext, marker, word in ((v_top, "^", "max"), (v_bottom, "v", "min")):
+            if np.isfinite(v_ext):
+                ax.plot([v_ext], [float(model.phi(v_ext, V))], marker=marker, color=f"C{i}", ms=8, ls="none")
+                ax.annotate(
+                    f"{word} v = {v_ext:.3g}",
+                    (v_ext, float(model.phi(v_ext, V))),
+                    fontsize=7,
+                    xytext=(4, 6 if word == "max" else -12),
+                    textcoords="offset points",
+                    color=f"C{i}",
+                )
+    ax.plot([], [], "k^", ls="none", label="maximum (stick → slip)")
+    ax.plot([], [], "kv", ls="none", label="minimum")
+    ax.set_xscale("log")
+    ax.set_xlabel("peeling velocity v [m/s]")
+    ax.set_ylabel("adhesion force φ(v, V) [N]")
+    ax.set_title("The adhesion law and its extrema")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    return fig
+
+
+def _shade_phases(ax, ts, stick, slip):
+    """Shade contiguous stick (blue) and slip (orange) intervals."""
+    for mask, color in ((stick, "tab:blue"), (slip, "tab:orange")):
+        edges = np.diff(np.concatenate([[0], mask.astype(int), [0]]))
+        for start, stop in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
+            ax.axvspan(ts[start], ts[min(stop, len(ts) - 1)], color=color, alpha=0.12, lw=0)
+
+
+def plot_schur_index(
+    solution: Solution, model: PeelingModel | None = None, V: float = 1.1, tau: float = 1e-3
+) -> Figure:
+    """v, |J_t| (log) and the local index along a trajectory, stick and slip phases shaded."""
+    model = PeelingModel() if model is None else model
+    a = analyze(solution, model, V, tau)
+    fig, axes = _figure(3, figsize=(8.0, 8.0))
+    ts = a.ts
+    for ax in axes:
+        _shade_phases(ax, ts, a.stick, a.slip)
+    axes[0].plot(ts, a.v, color="k", lw=1.1, label="v")
+    axes[0].set_yscale("log")
+    axes[0].set_ylabel("peeling velocity v [m/s]")
+    axes[1].plot(ts, np.abs(a.schur), color="C3", lw=1.1, label="|J_t|")
+    axes[1].axhline(1.0, color="k", ls="--", lw=0.8, label="|J_t| = 1 (index 2 below)")
+    axes[1].set_yscale("log")
+    axes[1].set_ylabel("|J_t| [N·s/m]")
+    axes[2].step(ts, np.where(a.valid, a.local_index, np.nan), where="mid", color="C2", label="local index")
+    axes[2].set_ylabel("local index ⌈log_τ|J_t|⌉ + 1")
+    axes[2].set_xlabel("time t [s]")
+    for t in a.bifurcation_times:
+        for ax in axes:
+            ax.axvline(t, color="C3", ls=":", lw=0.9)
+    if not bool(solution.completed):
+        for ax in axes:
+            ax.axvline(float(solution.t_stop), color="k", ls=":", lw=1.0)
+    from matplotlib.patches import Patch
+
+    for ax in axes:
+        handles, labels = ax.get_legend_handles_labels()
+        handles += [Patch(color="tab:blue", alpha=0.3), Patch(color="tab:orange", alpha=0.3)]
+        labels += ["stick (∂φ/∂v > 0)", "slip (∂φ/∂v < 0)"]
+        ax.legend(handles, labels, fontsize=7, loc="best")
+        ax.grid(True, alpha=0.3)
+    axes[0].set_title(f"Structure along the trajectory, V = {V:g} m/s, τ = {tau:g} s ({solution.method})")
+    return fig
+
+
+def plot_bifurcation_diagram(diagram: BifurcationDiagram) -> Figure:
+    """Late local maxima (▲) and minima (▼) of v against V; runs that stopped early marked ×."""
+    fig, (ax,) = _figure()
+    for V, v_max, v_min in zip(diagram.V, diagram.v_max, diagram.v_min):
+        ax.plot(np.full(v_max.shape, V), v_max, "^", color="C3", ms=4)
+        ax.plot(np.full(v_min.shape, V), v_min, "v", color="C0", ms=4)
+    stopped = ~diagram.completed
+    ax.plot(diagram.V[stopped], np.zeros(stopped.sum()), "kx", ms=7)
+    ax.plot(diagram.V, diagram.V, "k--", lw=0.8, label="v = V")
+    ax.plot([], [], "^", color="C3", label="local maxima of v")
+    ax.plot([], [], "v", color="C0", label="local minima of v")
+    ax.plot([], [], "kx", label=f"stopped before t = {diagram.t_transient * 2:g} s")
+    ax.set_xlabel("pull velocity V [m/s]")
+    ax.set_ylabel("late extrema of v [m/s]")
+    ax.set_title(f"Bifurcation diagram, τ = {diagram.tau:g} s (t ≥ {diagram.t_transient:g} s)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    return fig
+
+
+def make_figures(t_final: float = 3.0, model: PeelingModel | None = None, log=None) -> tuple[dict[str, Figure], dict]:
+    """Run every simulation and build every figure; returns (figures by name, timings and run facts)."""
+    model = PeelingModel() if model is None else model
+    say = log or (lambda message: None)
+    facts: dict = {"runs": {}}
+    start = time.perf_counter()
+    runs: dict[float, dict[float, Solution]] = {}
+    for V, spec in RUNS.items():
+        runs[V] = {}
+        for tau in spec.taus:
+            # a whole number of steps, so that the step is exactly spec.dt (the stops depend on it)
+            t_run = max(1, round(t_final / spec.dt)) * spec.dt
+            solution = simulate(model, V, tau, spec.dt, t_run)
+            runs[V][tau] = solution
+            facts["runs"][f"V={V:g},tau={tau:g}"] = {
+                "dt": spec.dt,
+                "completed": bool(solution.completed),
+                "t_stop": float(solution.t_stop),
+            }
+        say(f"ran V = {V:g} ({len(spec.taus)} values of tau)")
+    figures = {}
+    r11 = runs[1.1]
+    figures["fig2_v_V1.1"] = _plot_against_time(r11, 3, "peeling velocity v [m/s]", "Fig. 2: v(t), V = 1.1 m/s", 1.1)
+    figures["fig3_alpha_V1.1"] = _plot_against_time(
+        r11, 0, "peel-front angle α [rad]", "Fig. 3: α(t), V = 1.1 m/s", None
+    )
+    fig, (ax,) = _figure()
+    for i, (tau, solution) in enumerate(r11.items()):
+        _, ys = _series(solution)
+        ax.plot(
+            ys[:, 3], np.asarray(model.tension(ys[:, 2], ys[:, 0])), color=f"C{i}", lw=1.0, label=_label(tau, solution)
+        )
+    ax.axvline(1.1, color="k", ls="--", lw=0.8, label="v = V")
+    ax.set_xlabel("peeling velocity v [m/s]")
+    ax.set_ylabel("tension F(u, α) [N]")
+    ax.set_title("Fig. 4: F(u, α) against v, V = 1.1 m/s")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    figures["fig4_F_vs_v_V1.1"] = fig
+    figures["fig5_v_V2"] = _plot_against_time(runs[2.0], 3, "peeling velocity v [m/s]", "Fig. 5: v(t), V = 2 m/s", 2.0)
+    figures["fig6_v_V4"] = _plot_against_time(runs[4.0], 3, "peeling velocity v [m/s]", "Fig. 6: v(t), V = 4 m/s", 4.0)
+    fig, (ax,) = _figure()
+    for i, (V, spec) in enumerate(RUNS.items()):
+        tau = spec.taus[0]
+        ts, ys = _series(runs[V][tau])
+        ax.plot(ts, ys[:, 3], color=f"C{i}", lw=1.0, label=f"V = {V:g} m/s, " + _label(tau, runs[V][tau]))
+        ax.axhline(V, color=f"C{i}", ls="--", lw=0.6)
+    ax.set_xlabel("time t [s]")
+    ax.set_ylabel("peeling velocity v [m/s]")
+    ax.set_title("Fig. 7: v(t) at the three pull velocities (dashed: V)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    figures["fig7_v_three_V"] = fig
+    figures["phi_extrema"] = plot_phi_extrema(model)
+    b_dt = BIFURCATION_RUN["dt"]
+    diagram = bifurcation_diagram(
+        BIFURCATION_RUN["Vs"],
+        BIFURCATION_RUN["tau"],
+        model=model,
+        dt=b_dt,
+        t_final=max(1, round(t_final / b_dt)) * b_dt,
+    )
+    facts["bifurcation"] = {
+        "V": [float(V) for V in diagram.V],
+        "completed": [bool(c) for c in diagram.completed],
+        "spread": [
+            float(a.max() - b.min()) if a.size and b.size else None for a, b in zip(diagram.v_max, diagram.v_min)
+        ],
+    }
+    figures["bifurcation_V"] = plot_bifurcation_diagram(diagram)
+    say("ran the bifurcation diagram")
+    ref_t = min(SCHUR_RUN["t_final"], t_final)
+    reference = simulate_reference(
+        model, SCHUR_RUN["V"], SCHUR_RUN["tau"], SCHUR_RUN["dt"], ref_t, rtol=1e-10, atol=1e-12
+    )
+    facts["schur_reference"] = {"completed": bool(reference.completed), "t_stop": float(reference.t_stop)}
+    figures["schur_index_V1.1"] = plot_schur_index(reference, model, SCHUR_RUN["V"], SCHUR_RUN["tau"])
+    facts["compute_seconds"] = time.perf_counter() - start
+    return figures, facts
+
+
+def write_figures(out: str | Path, t_final: float = 3.0, fmt: str = "png", log=None) -> dict:
+    """Build every figure and save ``<name>.<fmt>`` and ``captions.md`` in the folder ``out``.
+
+    Returns the run facts (completion, stop times, timings) and the written paths.
+    """
+    start = time.perf_counter()
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    figures, facts = make_figures(t_final=t_final, log=log)
+    paths = []
+    for name, fig in figures.items():
+        path = out / f"{name}.{fmt}"
+        fig.savefig(path, dpi=130)
+        paths.append(str(path))
+    lines = ["# peeljax figures", "", f"Generated by `peeljax figures` (t_final = {t_final:g} s).", ""]
+    lines += [f"- `{name}.{fmt}`: {CAPTIONS[name]}" for name in figures]
+    (out / "captions.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    facts["files"] = paths
+    facts["total_seconds"] = time.perf_counter() - start
+    return facts

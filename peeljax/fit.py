@@ -1,0 +1,553 @@
+"""Fitting the adhesion law φ(v, V) to observed peeling runs with exact gradients and optax.
+
+The loss (:func:`trajectory_loss`) compares the α-method's trajectory at each pull velocity V_j
+with observations on their own time grids:
+
+    L(θ) = Σ_q w_q · (1/n_V) Σ_j  mean_{i: t_ij ≤ t_stop,j} ((q_model(t_ij; V_j, θ) − q_ij) / s_qj)²
+
+for the observed quantities q ∈ {v, F, alpha} (F = the tension (k/l)·u), the model
+interpolated linearly onto the observation times (``jnp.interp``), s_qj the RMS of the data
+q_ij, and only observation times the model run reached (t ≤ t_stop) counted. Its gradient is
+exact (implicit differentiation of every Newton solve, see :mod:`peeljax.integrators.alpha`).
+
+Parametrisation (positivity): every free coefficient is c = c_start·exp(θ), θ = 0 at the
+start. A coefficient keeps the sign of its start value: the paper's 14 coefficients are all
+positive (the powers p1, p2, p5, p7, p8, p9 must be > 0 for φ's v → 0 limit, c4 must be
+non-zero), and the log parametrisation also puts coefficients of very different sizes
+(0.15 … 415) on one scale for the optimizer.
+
+Identifiability: the data fix φ only along the visited v range (:attr:`FitResult.v_range`)
+and at the observed V; see ``docs/fitting.md``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from jaxtyping import Array, ArrayLike, Float
+
+from ._validation import check_mesh, check_positive
+from .adhesion import COEFFICIENT_NAMES, AdhesionLaw
+from .homogenized import HomogenizedODE
+from .integrators.alpha import AlphaMethod, integrate_alpha
+from .model import PeelingModel
+
+__all__ = [
+    "FitResult",
+    "Observation",
+    "fit_adhesion",
+    "fit_adhesion_steady",
+    "phi_relative_error",
+    "trajectory_loss",
+]
+
+QUANTITIES = ("v", "F", "alpha")
+
+
+@dataclasses.dataclass(frozen=True)
+class Observation:
+    """One observed run at pull velocity ``V``: ``v`` (and optionally ``F``, ``alpha``) on times ``t``.
+
+    Each quantity may have its own time grid: pass ``t_F``/``t_alpha`` (default: ``t``).
+    NaN entries (e.g. after a stop in a ``peeljax simulate --out`` file) are ignored.
+    """
+
+    V: float
+    t: np.ndarray
+    v: np.ndarray
+    F: np.ndarray | None = None
+    alpha: np.ndarray | None = None
+    t_F: np.ndarray | None = None
+    t_alpha: np.ndarray | None = None
+
+    def series(self, quantity: str) -> tuple[np.ndarray, np.ndarray] | None:
+        values = getattr(self, quantity)
+        if values is None:
+            return None
+        times = (
+            self.t
+            if quantity == "v"
+            else (getattr(self, f"t_{quantity}") if getattr(self, f"t_{quantity}") is not None else self.t)
+        )
+        times, values = np.asarray(times, float), np.asarray(values, float)
+        if times.shape != values.shape or times.ndim != 1:
+            raise ValueError(
+                f"observation at V = {self.V:g}: {quantity} and its times must be 1-D arrays of one length"
+            )
+        keep = np.isfinite(times) & np.isfinite(values)
+        return times[keep], values[keep]
+
+
+class _Data(eqx.Module):
+    """Observations padded to one length per quantity: times, values, scale and mask, by V."""
+
+    V: Float[Array, " nV"]
+    t: dict
+    values: dict
+    scale: dict
+    mask: dict
+
+
+def _pack(observations: Sequence[Observation]) -> tuple[_Data, float]:
+    quantities = [q for q in QUANTITIES if any(o.series(q) is not None for o in observations)]
+    t, values, scale, mask = {}, {}, {}, {}
+    t_max = 0.0
+    for q in quantities:
+        series = [o.series(q) for o in observations]
+        n = max(1, max(len(s[0]) for s in series if s is not None))
+        T = np.zeros((len(observations), n))
+        X = np.zeros((len(observations), n))
+        M = np.zeros((len(observations), n), bool)
+        S = np.ones(len(observations))
+        for j, s in enumerate(series):
+            if s is None or len(s[0]) == 0:
+                continue
+            k = len(s[0])
+            T[j, :k], X[j, :k], M[j, :k] = s[0], s[1], True
+            rms = float(np.sqrt(np.mean(s[1] ** 2)))
+            S[j] = rms if rms > 0 else 1.0
+            t_max = max(t_max, float(s[0].max()))
+        t[q], values[q], scale[q], mask[q] = jnp.asarray(T), jnp.asarray(X), jnp.asarray(S), jnp.asarray(M)
+    V = jnp.asarray([float(o.V) for o in observations])
+    return _Data(V=V, t=t, values=values, scale=scale, mask=mask), t_max
+
+
+def _model_quantities(model: PeelingModel, ys: Array) -> dict[str, Array]:
+    return {"v": ys[:, 3], "alpha": ys[:, 0], "F": model.tension(ys[:, 2], ys[:, 0])}
+
+
+def _run_loss(model, V, tau, solver, n_steps, t_final, t, values, scale, mask, weights, checkpoint_every):
+    """Loss terms of one pull velocity (see the module docstring) and the visited v range."""
+    ode = HomogenizedODE(model, V, tau)
+    sol = integrate_alpha(ode, solver, model.initial_state(V), 0.0, t_final, n_steps, checkpoint_every=checkpoint_every)
+    ys = jnp.where(sol.valid[:, None], sol.ys, 0.0)  # the double where: no NaN reaches the gradient
+    quantities = _model_quantities(model, ys)
+    t_stop = jax.lax.stop_gradient(sol.t_stop)
+    total = jnp.asarray(0.0)
+    for q in values:
+        reached = mask[q] & (t[q] <= t_stop)
+        modelled = jnp.interp(t[q], sol.ts, jnp.where(sol.valid, quantities[q], 0.0))
+        r = jnp.where(reached, (modelled - values[q]) / scale[q], 0.0)
+        total = total + weights[q] * jnp.sum(r**2) / jnp.maximum(jnp.sum(reached), 1)
+    v = jax.lax.stop_gradient(ys[:, 3])
+    v_min = jnp.min(jnp.where(sol.valid, v, jnp.inf))
+    v_max = jnp.max(jnp.where(sol.valid, v, -jnp.inf))
+    return total, (v_min, v_max, t_stop)
+
+
+def trajectory_loss(
+    adhesion: AdhesionLaw,
+    data: _Data,
+    *,
+    model: PeelingModel,
+    tau: ArrayLike,
+    solver: AlphaMethod,
+    n_steps: int,
+    t_final: float,
+    weights: dict[str, float],
+    checkpoint_every=None,
+    batch: str = "map",
+) -> tuple[Array, tuple[Array, Array, Array]]:
+    """The fit's loss L (module docstring) for φ = ``adhesion``, and (v_min, v_max, t_stop) per V.
+
+    ``batch="map"`` runs the pull velocities one after another (``lax.map``: a gradient costs
+    the sum of the runs); ``"vmap"`` batches them (one run's wall time on many cores, but the
+    replayed subdivision branch of every step is then always evaluated).
+    """
+    model = eqx.tree_at(lambda m: m.adhesion, model, adhesion)
+    w = {q: jnp.asarray(weights.get(q, 1.0), float) for q in data.values}
+
+    def one(args):
+        V, t, values, scale, mask = args
+        return _run_loss(model, V, tau, solver, n_steps, t_final, t, values, scale, mask, w, checkpoint_every)
+
+    args = (data.V, data.t, data.values, data.scale, data.mask)
+    if batch == "vmap":
+        terms, extra = jax.vmap(one)(args)
+    else:
+        terms, extra = jax.lax.map(one, args)
+    return jnp.mean(terms), extra
+
+
+# ---------------------------------------------------------------------------- parametrisation
+def _to_law(theta: dict[str, Array], start: AdhesionLaw) -> AdhesionLaw:
+    """c = c_start·exp(θ) for the free coefficients; the others stay at their start values."""
+    names = tuple(theta)
+    return eqx.tree_at(
+        lambda law: tuple(getattr(law, n) for n in names),
+        start,
+        tuple(getattr(start, n) * jnp.exp(theta[n]) for n in names),
+    )
+
+
+def _check_free(free) -> tuple[str, ...]:
+    if free is None:
+        return COEFFICIENT_NAMES
+    if isinstance(free, str):
+        free = (free,)
+    free = tuple(free)
+    unknown = [n for n in free if n not in COEFFICIENT_NAMES]
+    if unknown or not free:
+        raise ValueError(f"free: unknown coefficient(s) {unknown}; choose from {list(COEFFICIENT_NAMES)}")
+    return tuple(n for n in COEFFICIENT_NAMES if n in free)  # canonical order, no duplicates
+
+
+@dataclasses.dataclass
+class FitResult:
+    """The outcome of :func:`fit_adhesion` / :func:`fit_adhesion_steady`.
+
+    Attributes:
+        adhesion: the fitted law (the best iterate).
+        start: the law the fit started from.
+        loss_history: the loss at every iteration (before its update).
+        initial_loss, final_loss: L at the start and at the fitted law.
+        gradient_norm: ‖∂L/∂θ‖₂ at the fitted law (θ the log parameters of the free coefficients).
+        steps: iterations done; stopped_early: early stopping (patience/tolerance) fired.
+        v_range: (min, max) of v visited by the fitted model's runs (or of the data's v,
+            steady case): φ is determined by the data only there.
+        free: the fitted coefficients' names; settings: the fit's options.
+    """
+
+    adhesion: AdhesionLaw
+    start: AdhesionLaw
+    loss_history: np.ndarray
+    initial_loss: float
+    final_loss: float
+    gradient_norm: float
+    steps: int
+    stopped_early: bool
+    v_range: tuple[float, float]
+    free: tuple[str, ...]
+    settings: dict
+    t_stop: list[float] = dataclasses.field(default_factory=list)
+    wall_time_s: float = math.nan
+
+    @property
+    def loss_reduction(self) -> float:
+        return self.initial_loss / self.final_loss if self.final_loss > 0 else math.inf
+
+    def to_dict(self) -> dict:
+        """The 14 coefficients at top level (``AdhesionLaw.from_dict`` reads them) and the rest."""
+        return {
+            **self.adhesion.coefficients(),
+            "start": self.start.coefficients(),
+            "free": list(self.free),
+            "loss_history": [float(x) for x in self.loss_history],
+            "initial_loss": self.initial_loss,
+            "final_loss": self.final_loss,
+            "loss_reduction": self.loss_reduction,
+            "gradient_norm": self.gradient_norm,
+            "steps": self.steps,
+            "stopped_early": self.stopped_early,
+            "v_range": list(self.v_range),
+            "t_stop": list(self.t_stop),
+            "wall_time_s": self.wall_time_s,
+            "settings": self.settings,
+        }
+
+    def to_json(self, path: str | Path | None = None) -> str:
+        def finite(x):
+            if isinstance(x, float) and not math.isfinite(x):
+                return None
+            if isinstance(x, dict):
+                return {k: finite(v) for k, v in x.items()}
+            if isinstance(x, list):
+                return [finite(v) for v in x]
+            return x
+
+        text = json.dumps(finite(self.to_dict()), indent=2, allow_nan=False)
+        if path is not None:
+            Path(path).write_text(text + "\n")
+        return text
+
+
+def _make_optimizer(optimizer: str, learning_rate: float | None):
+    if optimizer == "adam":
+        return optax.adam(0.02 if learning_rate is None else learning_rate), False
+    if optimizer == "lbfgs":
+        # A backtracking (Armijo) line search needs only loss values: the compiled update then
+        # holds one gradient program, not a second one for the zoom line search's gradients.
+        linesearch = optax.scale_by_backtracking_linesearch(max_backtracking_steps=20, store_grad=False)
+        return optax.lbfgs(learning_rate=learning_rate, linesearch=linesearch), True
+    raise ValueError(f"optimizer must be 'adam' or 'lbfgs', got {optimizer!r}")
+
+
+def _optimize(loss_fn, theta0, *, optimizer, learning_rate, steps, patience, tolerance, progress, description):
+    """Minimise loss_fn(θ) → (L, aux); returns (best θ, history, best L, ‖∇L‖ at best, steps, early, aux)."""
+    opt, is_lbfgs = _make_optimizer(optimizer, learning_rate)
+
+    def value_only(th):
+        return loss_fn(th)[0]
+
+    @jax.jit
+    def update(theta, state):
+        (value, aux), grad = jax.value_and_grad(loss_fn, has_aux=True)(theta)
+        if is_lbfgs:
+            updates, state = opt.update(grad, state, theta, value=value, grad=grad, value_fn=value_only)
+        else:
+            updates, state = opt.update(grad, state, theta)
+        return optax.apply_updates(theta, updates), state, value, grad, aux
+
+    state = opt.init(theta0)
+    theta = theta0
+    history = []
+    best = (math.inf, theta0, math.nan, None)
+    since_best = 0
+    early = False
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=steps, desc=description, leave=False)
+    for _ in range(steps):
+        new_theta, state, value, grad, aux = update(theta, state)
+        value = float(value)
+        if not math.isfinite(value):
+            break
+        history.append(value)
+        gnorm = float(optax.tree.norm(grad))
+        if value < best[0] * (1.0 - tolerance):
+            best = (value, theta, gnorm, aux)
+            since_best = 0
+        else:
+            if value < best[0]:
+                best = (value, theta, gnorm, aux)
+            since_best += 1
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(loss=f"{value:.3e}")
+        theta = new_theta
+        if since_best >= patience:
+            early = True
+            break
+    if bar is not None:
+        bar.close()
+    value, theta_best, gnorm, aux = best
+    if aux is None:  # no finite step: evaluate the start
+        (value, aux), grad = jax.jit(jax.value_and_grad(loss_fn, has_aux=True))(theta0)
+        value, gnorm, theta_best = float(value), float(optax.tree.norm(grad)), theta0
+    return theta_best, np.asarray(history), value, gnorm, len(history), early, aux
+
+
+def fit_adhesion(
+    observations: Observation | Sequence[Observation],
+    model: PeelingModel | None = None,
+    *,
+    tau: float = 0.01,
+    dt: float = 1 / 82,
+    t_final: float | None = None,
+    free: Sequence[str] | None = None,
+    start: AdhesionLaw | None = None,
+    optimizer: str = "adam",
+    steps: int = 500,
+    learning_rate: float | None = None,
+    weights: dict[str, float] | None = None,
+    patience: int = 50,
+    tolerance: float = 1e-4,
+    progress: bool = True,
+    solver: AlphaMethod | None = None,
+    checkpoint_every=None,
+    batch: str = "map",
+) -> FitResult:
+    """Fit φ's coefficients to observed runs (v(t), optionally F(t) and α(t)) at one or more V.
+
+    Minimises the loss of :func:`trajectory_loss` (module docstring) over θ with
+    c = c_start·exp(θ) for each free coefficient, with optax's Adam (default) or L-BFGS
+    (``optimizer="lbfgs"``, with a backtracking line search; ``learning_rate`` caps its step). The model runs
+    with the α-method at step ``dt`` on [0, t_final] (default: the last observation time),
+    starting from the paper's consistent initial data at each V.
+
+    Args:
+        observations: one :class:`Observation` per pull velocity.
+        model: spool and tape (default the paper's); its adhesion law is the start unless
+            ``start`` is given.
+        free: names of the coefficients to fit (default all 14); the rest stay at the start.
+        weights: per observed quantity ``{"v": 1, "F": 1, "alpha": 1}``.
+        patience, tolerance: stop when the loss has not fallen by a relative ``tolerance``
+            for ``patience`` iterations.
+        progress: a tqdm progress bar (on stderr).
+        checkpoint_every: passed to :func:`integrate_alpha` (``"sqrt"`` for long runs).
+        batch: ``"map"`` (default) or ``"vmap"`` over the pull velocities.
+
+    Returns:
+        A :class:`FitResult` with the best iterate, the loss history, the gradient norm and
+        the visited v range.
+    """
+    if isinstance(observations, Observation):
+        observations = [observations]
+    observations = list(observations)
+    if not observations:
+        raise ValueError("fit_adhesion: no observations")
+    for o in observations:
+        check_positive("V", o.V)
+        if o.series("v") is None or len(o.series("v")[0]) == 0:
+            raise ValueError(f"observation at V = {o.V:g}: no finite v data")
+    check_positive("tau", tau)
+    if not isinstance(steps, int) or steps < 1:
+        raise ValueError(f"steps must be a positive integer, got {steps!r}")
+    if batch not in ("map", "vmap"):
+        raise ValueError(f"batch must be 'map' or 'vmap', got {batch!r}")
+    names = _check_free(free)
+    model = PeelingModel() if model is None else model
+    start = model.adhesion if start is None else start
+    if not isinstance(start, AdhesionLaw):
+        raise TypeError("fit_adhesion fits an AdhesionLaw; the model's adhesion is a plain callable")
+    solver = AlphaMethod() if solver is None else solver
+    weights = {q: 1.0 for q in QUANTITIES} | dict(weights or {})
+    data, t_obs_max = _pack(observations)
+    t_final = float(t_obs_max if t_final is None else t_final)
+    n_steps = check_mesh(dt, t_final)
+    _make_optimizer(optimizer, learning_rate)  # check before compiling
+
+    def loss_fn(theta):
+        return trajectory_loss(
+            _to_law(theta, start),
+            data,
+            model=model,
+            tau=tau,
+            solver=solver,
+            n_steps=n_steps,
+            t_final=t_final,
+            weights=weights,
+            checkpoint_every=checkpoint_every,
+            batch=batch,
+        )
+
+    theta0 = {n: jnp.asarray(0.0) for n in names}
+    began = time.perf_counter()
+    theta, history, value, gnorm, n_done, early, aux = _optimize(
+        loss_fn,
+        theta0,
+        optimizer=optimizer,
+        learning_rate=learning_rate,
+        steps=steps,
+        patience=patience,
+        tolerance=tolerance,
+        progress=progress,
+        description="fit_adhesion",
+    )
+    v_min, v_max, t_stop = (np.asarray(a) for a in aux)
+    settings = {
+        "V": [float(o.V) for o in observations],
+        "tau": float(tau),
+        "dt": float(t_final / n_steps),
+        "t_final": t_final,
+        "n_steps": n_steps,
+        "optimizer": optimizer,
+        "learning_rate": learning_rate,
+        "steps": steps,
+        "patience": patience,
+        "tolerance": tolerance,
+        "weights": {q: weights[q] for q in data.values},
+        "batch": batch,
+        "checkpoint_every": checkpoint_every,
+        "parametrisation": "c = c_start*exp(theta)",
+    }
+    return FitResult(
+        adhesion=_to_law(theta, start),
+        start=start,
+        loss_history=history,
+        initial_loss=float(history[0]) if len(history) else value,
+        final_loss=float(value),
+        gradient_norm=float(gnorm),
+        steps=n_done,
+        stopped_early=early,
+        v_range=(float(np.min(v_min)), float(np.max(v_max))),
+        free=names,
+        settings=settings,
+        t_stop=[float(x) for x in np.atleast_1d(t_stop)],
+        wall_time_s=time.perf_counter() - began,
+    )
+
+
+def fit_adhesion_steady(
+    v: ArrayLike,
+    force: ArrayLike,
+    V: ArrayLike | None = None,
+    *,
+    start: AdhesionLaw | None = None,
+    free: Sequence[str] | None = None,
+    optimizer: str = "adam",
+    steps: int = 2000,
+    learning_rate: float | None = None,
+    patience: int = 200,
+    tolerance: float = 1e-6,
+    progress: bool = True,
+) -> FitResult:
+    """Fit φ to steady peeling: measured (v, peel force) pairs, φ(v_i, V_i) = force_i.
+
+    In steady peeling the constraint (sac) holds with α, u constant, so the shear force
+    (1 + l·sinα/L)·F equals φ(v, V) with v = V (default ``V = v``). The loss is
+    mean_i ((φ(v_i, V_i) − force_i)/rms(force))², with the same parametrisation and
+    optimizers as :func:`fit_adhesion`. φ is determined only on the measured v range.
+    """
+    v = jnp.asarray(v, float)
+    force = jnp.asarray(force, float)
+    V = v if V is None else jnp.broadcast_to(jnp.asarray(V, float), v.shape)
+    if v.ndim != 1 or v.shape != force.shape or v.size < 1:
+        raise ValueError("v and force must be 1-D arrays of one length")
+    if not bool(jnp.all(v > 0)) or not bool(jnp.all(jnp.isfinite(force))):
+        raise ValueError("v must be > 0 and force finite")
+    names = _check_free(free)
+    start = AdhesionLaw() if start is None else start
+    scale = jnp.sqrt(jnp.mean(force**2))
+
+    def loss_fn(theta):
+        law = _to_law(theta, start)
+        return jnp.mean(((law(v, V) - force) / scale) ** 2), (jnp.min(v), jnp.max(v), jnp.asarray(0.0))
+
+    theta0 = {n: jnp.asarray(0.0) for n in names}
+    began = time.perf_counter()
+    theta, history, value, gnorm, n_done, early, _ = _optimize(
+        loss_fn,
+        theta0,
+        optimizer=optimizer,
+        learning_rate=learning_rate,
+        steps=steps,
+        patience=patience,
+        tolerance=tolerance,
+        progress=progress,
+        description="fit_adhesion_steady",
+    )
+    return FitResult(
+        adhesion=_to_law(theta, start),
+        start=start,
+        loss_history=history,
+        initial_loss=float(history[0]) if len(history) else value,
+        final_loss=float(value),
+        gradient_norm=float(gnorm),
+        steps=n_done,
+        stopped_early=early,
+        v_range=(float(jnp.min(v)), float(jnp.max(v))),
+        free=names,
+        settings={
+            "kind": "steady",
+            "optimizer": optimizer,
+            "learning_rate": learning_rate,
+            "steps": steps,
+            "patience": patience,
+            "tolerance": tolerance,
+        },
+        wall_time_s=time.perf_counter() - began,
+    )
+
+
+def phi_relative_error(
+    fitted: AdhesionLaw, true: AdhesionLaw, V: ArrayLike, v_range: tuple[float, float], n: int = 400
+) -> float:
+    """max |φ_fit(v, V) − φ_true(v, V)| / |φ_true(v, V)| over log-spaced v in ``v_range`` and the V given."""
+    lo, hi = v_range
+    v = jnp.geomspace(lo, hi, n)
+    Vs = jnp.atleast_1d(jnp.asarray(V, float))
+    err = jax.vmap(lambda V_: jnp.max(jnp.abs(fitted(v, V_) - true(v, V_)) / jnp.abs(true(v, V_))))(Vs)
+    return float(jnp.max(err))

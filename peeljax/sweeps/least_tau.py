@@ -1,0 +1,210 @@
+"""The least resolvable τ (the paper's τ_*, section "Relationship with Bifurcation").
+
+The paper calls τ_* the least τ for which J_t stays invertible along the run, in practice the
+least τ for which the α-method integrates [0, t_final] (Figs. 2 and 5–7: below it Newton fails
+or an impasse point ends the run early). Completion need not be monotone in τ, so peeljax
+defines, for each V and a given mesh and solver:
+
+    τ* = the least tested τ such that every tested τ ≥ τ* completed,
+         and τ*·(1 − rtol) was tested and stopped.
+
+The search (all V in parallel; each round is one batched :func:`peeljax.sweep`-engine run):
+
+1. Scan: ``n_points`` τ log-spaced over ``tau_range`` = [lo, hi]. If τ = hi stops, no τ* in
+   the range (NaN, ``found = False``); if every τ completes, τ* ≤ lo (``tau_star = lo``,
+   ``found = False``). Otherwise the bracket is (largest stopping τ, next tested τ).
+2. Refine: each round tests, for every V not yet done, ``n_points`` τ inside the bracket
+   (lo, hi): top = hi·(1 − rtol) and top·q^j, j = 1 … n_points − 1, with
+   q = min((lo/top)^(1/n_points), 1 − rtol) (those at or below lo are replaced by top). Then
+   lo = the largest stopping τ tested so far, hi = the least completing τ tested above it.
+   Consecutive points are at most a factor (1 − rtol) apart, so the search ends when
+   hi·(1 − rtol) itself was tested: it stopped (τ* = hi found), or, completion being
+   non-monotone there, it completed below a larger stopping τ (reported, ``found = False``).
+   The bracket's log-width shrinks about n_points-fold per round.
+
+Every round has the same batch shape, so the search compiles once.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import ArrayLike, Bool, Float
+
+from .._validation import check_mesh, check_rho, check_truncation
+from ..integrators.alpha import AlphaMethod
+from ..model import PeelingModel
+from . import engine
+from .api import _axis, _check_parameter, _put, _to_host, batch_mesh
+
+__all__ = ["LeastTau", "least_tau"]
+
+
+@dataclasses.dataclass(frozen=True)
+class LeastTau:
+    """τ* per V (see the module docstring for the definition).
+
+    Attributes:
+        V: the pull velocities, shape (m,).
+        tau_star: τ* (NaN where even tau_range's upper end stops; tau_range's lower end where
+            every tested τ completed).
+        tau_below: the largest tested τ that stopped (in [τ*·(1 − rtol), τ*) when found).
+        found: True where τ* lies inside tau_range and is bracketed to rtol.
+        t_stop_below: where the run at tau_below stopped.
+        rounds: batched runs made (the scan included).
+        tested: per V, every tested (τ, (completed, t_stop)) in increasing τ.
+    """
+
+    V: Float[np.ndarray, " m"]
+    tau_star: Float[np.ndarray, " m"]
+    tau_below: Float[np.ndarray, " m"]
+    found: Bool[np.ndarray, " m"]
+    t_stop_below: Float[np.ndarray, " m"]
+    rounds: int
+    tested: list
+    settings: dict
+
+
+def least_tau(
+    model: PeelingModel | None = None,
+    V: ArrayLike = (1.1, 2.0, 4.0),
+    dt: float = 1 / 82,
+    t_final: float = 3.0,
+    tau_range: tuple[float, float] = (1e-4, 1.0),
+    rtol: float = 0.05,
+    *,
+    n_points: int = 8,
+    solver: AlphaMethod | None = None,
+    rho: float = 0.0,
+    truncation: int | None = None,
+    max_rounds: int = 40,
+    devices=None,
+) -> LeastTau:
+    """τ* for every V: the least τ above which every tested τ completes [0, t_final].
+
+    Args:
+        V: pull velocities [m/s] (> 0), searched in parallel.
+        dt, t_final: the α-method's mesh (as in :func:`peeljax.simulate`).
+        tau_range: (lo, hi), 0 < lo < hi: where to search.
+        rtol: relative resolution: τ·(1 − rtol) is tested and stops, 0 < rtol < 1.
+        n_points: τ values per V and round (the scan's and every refinement's).
+
+    Returns:
+        A :class:`LeastTau`.
+    """
+    model = PeelingModel() if model is None else model
+    Vs = _axis("V", V)
+    _check_parameter("V", Vs)
+    n_steps = check_mesh(dt, t_final)
+    try:
+        lo, hi = (float(x) for x in tau_range)
+    except (TypeError, ValueError):
+        raise ValueError(f"tau_range must be two numbers (lo, hi) with 0 < lo < hi, got {tau_range!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
+        raise ValueError(f"tau_range must satisfy 0 < lo < hi (finite), got {tau_range!r}")
+    if not (isinstance(rtol, (int, float)) and 0 < rtol < 1):
+        raise ValueError(f"rtol must lie in (0, 1), got {rtol!r}")
+    if isinstance(n_points, bool) or not isinstance(n_points, int) or n_points < 2:
+        raise ValueError(f"n_points must be an integer >= 2, got {n_points!r}")
+    if solver is None:
+        check_rho(rho)
+        solver = AlphaMethod(rho=rho)
+    check_truncation(truncation)
+    devices = list(jax.devices()) if devices is None else list(devices)
+    m = Vs.size
+    mesh = batch_mesh(devices)
+    width = -(-(m * n_points) // len(devices)) * len(devices)
+    t_final_array, window = jnp.asarray(float(t_final)), jnp.asarray([0.0, 1.0])
+
+    def run(taus: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """taus: (m, n_points) → completed and t_stop of each, in one batched run."""
+        V_lanes = np.repeat(Vs, n_points)
+        tau_lanes = taus.reshape(-1)
+        pad = width - V_lanes.size
+        V_in = np.concatenate([V_lanes, np.full(pad, V_lanes[-1])])
+        tau_in = np.concatenate([tau_lanes, np.full(pad, tau_lanes[-1])])
+        V_dev, tau_dev = _put((V_in, tau_in), devices)
+        summary = engine.run_batch(
+            model, solver, V_dev, tau_dev, {}, t_final_array, window, n_steps, None, truncation, mesh
+        )
+        host = _to_host({"status": summary.status, "t_stop": summary.t_stop})
+        done = (host["status"][: V_lanes.size] == 0).reshape(m, n_points)
+        t_stop = host["t_stop"][: V_lanes.size].reshape(m, n_points)
+        return done, t_stop
+
+    # 1. the scan
+    history: list[dict[float, tuple[bool, float]]] = [{} for _ in range(m)]  # per V: τ → (completed, t_stop)
+
+    def record(points, done, t_stop):
+        for j in range(m):
+            for k in range(n_points):
+                history[j][float(points[j, k])] = (bool(done[j, k]), float(t_stop[j, k]))
+
+    scan = np.broadcast_to(np.geomspace(lo, hi, n_points), (m, n_points)).copy()
+    record(scan, *run(scan))
+    rounds = 1
+    state = [_bracket(h, rtol) for h in history]
+    active = np.array([s[3] is None for s in state])
+
+    # 2. refinement rounds: n_points τ per V from hi·(1 − rtol) down, ratio ≤ 1 − rtol
+    while active.any() and rounds < max_rounds:
+        points = scan.copy()  # placeholders for finished V (results ignored)
+        for j in np.flatnonzero(active):
+            lower, upper = state[j][0], state[j][1]
+            top = upper * (1.0 - rtol)
+            q = min((lower / top) ** (1.0 / n_points), 1.0 - rtol) if top > lower else 1.0
+            candidates = top * q ** np.arange(n_points)
+            points[j] = np.where(candidates > lower, candidates, top)
+        done, t_stop = run(points)
+        rounds += 1
+        for j in np.flatnonzero(active):
+            for k in range(n_points):
+                history[j][float(points[j, k])] = (bool(done[j, k]), float(t_stop[j, k]))
+            state[j] = _bracket(history[j], rtol)
+            active[j] = state[j][3] is None
+    lower = np.array([s[0] for s in state])
+    upper = np.array([s[1] for s in state])
+    t_below = np.array([s[2] for s in state])
+    found = np.array([s[3] is True for s in state])
+    tau_star = upper
+    settings = {"dt": float(dt), "t_final": float(t_final), "n_steps": n_steps, "tau_range": [lo, hi], "rtol": float(rtol),
+                "n_points": n_points, "rho": float(solver.rho), "truncation": truncation}  # fmt: skip
+    return LeastTau(
+        V=Vs,
+        tau_star=tau_star,
+        tau_below=lower,
+        found=found,
+        t_stop_below=t_below,
+        rounds=rounds,
+        tested=[sorted(h.items()) for h in history],
+        settings=settings,
+    )
+
+
+def _bracket(history: dict[float, tuple[bool, float]], rtol: float):
+    """(lower, upper, t_stop at lower, verdict) from the tested τ of one V.
+
+    lower: the largest stopping τ (NaN if none), upper: the least completing τ above it
+    (= τ*; NaN if none; the least tested τ if none stops). verdict: True when
+    upper·(1 − rtol) was tested and stopped (τ* found), False when the search cannot go on
+    (no stop, nothing completes above the largest stop, or upper·(1 − rtol) completed while a
+    larger τ stopped), None to continue.
+    """
+    taus = np.array(sorted(history))
+    done = np.array([history[t][0] for t in taus])
+    if done.all():
+        return math.nan, float(taus[0]), math.nan, False
+    k = int(np.flatnonzero(~done)[-1])
+    lower, t_below = float(taus[k]), history[float(taus[k])][1]
+    if k == taus.size - 1:
+        return lower, math.nan, t_below, False
+    upper = float(taus[k + 1])
+    top = upper * (1.0 - rtol)
+    near = [t for t in history if abs(t - top) <= 1e-12 * top]
+    if near:
+        return lower, upper, t_below, (not history[near[0]][0]) or False
+    return lower, upper, t_below, None

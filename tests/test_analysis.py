@@ -1,0 +1,128 @@
+"""peeljax.analysis: event detection on known series, and the stick-slip picture of real runs.
+
+The real runs are short (≤ 0.3 s of the paper's step 1/82 s) and shared through module fixtures.
+"""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+
+import peeljax as pj
+from peeljax import analysis as A
+
+H = 1 / 82
+T_SHORT = 24 / 82  # 24 steps of exactly the paper's h = 1/82 s
+
+
+@pytest.fixture(scope="module")
+def stopping_run():
+    """V = 1.1, τ = 1e-3 at h = 1/82: the paper's early stop (J_t → 0 near t ≈ 0.17 s)."""
+    solution = pj.simulate(V=1.1, tau=1e-3, dt=H, t_final=T_SHORT)
+    return solution, A.analyze(solution, V=1.1, tau=1e-3)
+
+
+# ---------------------------------------------------------------------------- host helpers
+def test_crossings_and_oscillation_of_a_sinusoid():
+    ts = np.linspace(0.0, 10.0, 4001)
+    x = 2.0 + 0.5 * np.sin(2 * np.pi * ts / 1.25)
+    up = A.crossings(ts, x - 2.0, "up")
+    down = A.crossings(ts, x - 2.0, "down")
+    assert np.allclose(np.diff(up), 1.25, atol=1e-6) and np.allclose(np.diff(down), 1.25, atol=1e-6)
+    osc = A.oscillation(ts, x, t_start=2.0)
+    assert osc["period"] == pytest.approx(1.25, rel=1e-4)
+    assert osc["amplitude"] == pytest.approx(0.5, rel=1e-4)
+    assert osc["mean"] == pytest.approx(2.0, abs=0.05)  # 6.4 cycles in the window
+    assert osc["decay"] == pytest.approx(1.0, abs=1e-3)
+    t_max, x_max, _t_min, x_min = A.local_extrema(ts, x)
+    assert np.allclose(x_max, 2.5, atol=1e-5) and np.allclose(x_min, 1.5, atol=1e-5)
+    assert np.allclose(np.diff(t_max), 1.25, atol=5e-3)
+
+
+def test_damped_oscillation_has_decay_below_one_and_nan_stops_crossings():
+    ts = np.linspace(0.0, 10.0, 2001)
+    x = np.exp(-0.3 * ts) * np.cos(2 * np.pi * ts)
+    assert A.oscillation(ts, x)["decay"] < 0.2
+    x_nan = x.copy()
+    x_nan[1000:] = np.nan
+    assert A.crossings(ts, x_nan).max() < ts[1000]
+    short = A.oscillation(ts[:2], x[:2])
+    assert np.isnan(short["period"]) and np.isnan(short["amplitude"])
+
+
+def test_phi_extrema_match_the_documented_values():
+    v_top, v_bottom = A.phi_extrema(V=1.1)
+    assert v_top == pytest.approx(0.524, abs=1e-3) and v_bottom == pytest.approx(8.49, abs=1e-2)
+    grad = jax.grad(lambda v: pj.PeelingModel().phi(v, 1.1))
+    assert abs(float(grad(v_top))) < 1e-6 and abs(float(grad(v_bottom))) < 1e-6
+    assert all(np.isnan(A.phi_extrema(V=8.0)))  # φ is monotone at V = 8
+
+
+# ---------------------------------------------------------------------------- real runs
+def test_structure_matches_the_integrator_diagnostics(stopping_run):
+    solution, analysis = stopping_run
+    valid = np.asarray(solution.valid)
+    np.testing.assert_allclose(analysis.schur[valid], np.asarray(solution.diagnostics.schur)[valid], rtol=1e-9)
+    np.testing.assert_array_equal(analysis.local_index[valid], np.asarray(solution.diagnostics.local_index)[valid])
+
+
+def test_phases_follow_the_sign_of_dphi_dv(stopping_run):
+    _, a = stopping_run
+    v_top, _ = A.phi_extrema(V=1.1)
+    ok = a.valid
+    assert not np.any(a.stick & a.slip)
+    # below the maximum of φ the tape sticks, above it (up to the minimum) it slips
+    np.testing.assert_array_equal(a.stick[ok], a.v[ok] < v_top)
+    np.testing.assert_array_equal(a.branch[ok], np.where(a.v[ok] < v_top, 0, 1))
+    # the start (v0 = 1e-10·V) is a stick phase; the one stick → slip event is where v passes v_top
+    assert a.stick[0] and a.stick_to_slip.size == 1
+    i = np.searchsorted(a.ts, a.stick_to_slip[0])
+    assert a.v[i - 1] < v_top <= a.v[i]
+
+
+def test_early_stop_is_a_near_singular_point(stopping_run):
+    """Theorem 4 / the paper's Fig. 2 remark: at τ = 1e-3 the run ends where J_t passes through 0."""
+    solution, a = stopping_run
+    assert not bool(solution.completed)
+    assert 0.15 < float(solution.t_stop) < 0.19
+    assert a.schur_sign_changes.size >= 1
+    t_bif = a.bifurcation_times[-1]
+    assert t_bif <= float(solution.t_stop) + 1e-12 and t_bif > a.stick_to_slip[0]
+    assert a.summary()["n_bifurcation_points"] == a.bifurcation_times.size
+
+
+@pytest.mark.slow
+def test_batched_analysis_equals_single_analyses():
+    taus = np.array([0.01, 0.1])
+    batch = jax.vmap(lambda tau: pj.simulate(V=1.1, tau=tau, dt=H, t_final=T_SHORT))(taus)
+    results = A.analyze(batch, V=1.1, tau=taus)
+    assert isinstance(results, list) and len(results) == 2
+    for i, tau in enumerate(taus):
+        single = A.analyze(jax.tree.map(lambda x, i=i: x[i], batch), V=1.1, tau=tau)
+        np.testing.assert_allclose(results[i].schur, single.schur, rtol=1e-12)
+        assert results[i].tau == tau
+    # larger τ: larger |J_t| (Lemma 1 with τ·F̃(𝐈 − τ∂f/∂x)⁻¹∂f/∂v < 0 here), index 1 throughout
+    assert results[1].min_abs_schur > results[0].min_abs_schur
+    assert results[1].max_local_index == 1
+
+
+def test_bad_threshold_is_rejected(stopping_run):
+    solution, _ = stopping_run
+    with pytest.raises(ValueError, match="threshold"):
+        A.analyze(solution, threshold=0.0)
+
+
+@pytest.mark.slow
+def test_bifurcation_diagram_shapes_and_late_extrema():
+    with pytest.raises(ValueError, match="engine"):
+        A.bifurcation_diagram([1.1], engine="gpu")
+    diagram = A.bifurcation_diagram([1.1, 4.0], tau=0.01, dt=H, t_final=T_SHORT, t_transient=0.1)
+    assert diagram.V.shape == (2,) and len(diagram.v_max) == 2 and len(diagram.v_min) == 2
+    assert diagram.completed.all()
+    for v_max, v_min in zip(diagram.v_max, diagram.v_min):
+        if v_max.size and v_min.size:
+            assert v_max.max() >= v_min.min()
+    loop = A.bifurcation_diagram([1.1, 4.0], tau=0.01, dt=H, t_final=T_SHORT, t_transient=0.1, engine="loop")
+    for a, b in zip(diagram.v_max, loop.v_max):
+        np.testing.assert_allclose(a, b, rtol=1e-12)  # the sweep engine and single runs agree

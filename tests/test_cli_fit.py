@@ -1,0 +1,146 @@
+"""``peeljax fit``: a ``simulate --out`` file fitted end to end, data layouts, and bad input
+rejected (exit 2) before anything is compiled."""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+import io
+import json
+
+import numpy as np
+import pytest
+
+from peeljax import AdhesionLaw
+from peeljax.adhesion import COEFFICIENT_NAMES
+from peeljax.cli import main
+from peeljax.cli.fit import load_observations
+
+SHORT = ["--t-final", "0.2", "--dt", "0.01", "--tau", "0.1"]
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def run_main(argv):
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(argv)
+    return code, out.getvalue(), err.getvalue()
+
+
+@pytest.fixture(scope="module")
+def simulated(tmp_path_factory):
+    """A short run with a perturbed φ written by ``peeljax simulate --out``."""
+    folder = tmp_path_factory.mktemp("fit_cli")
+    phi = folder / "true.json"
+    AdhesionLaw(c1=440.0).to_json(phi)
+    npz = folder / "observed.npz"
+    code, _, err = run_main(["simulate", *SHORT, "--V", "1.1", "--phi", str(phi), "--out", str(npz)])
+    assert code == 0, err
+    return folder, npz
+
+
+@pytest.mark.slow
+def test_fit_a_simulate_file_end_to_end(simulated):
+    """simulate --out → fit --data: fitted.json readable by --phi, loss falls, plot written."""
+    folder, npz = simulated
+    out, png = folder / "fitted.json", folder / "fit.png"
+    code, stdout, err = run_main(
+        ["fit", "--data", str(npz), "--out", str(out), "--free", "c1", "--steps", "25", "--optimizer", "lbfgs",
+         "--plot", str(png), "--json", "--no-progress"]
+    )  # fmt: skip
+    assert code == 0, err
+    summary = json.loads(stdout)
+    record = json.loads(out.read_text())
+    assert set(COEFFICIENT_NAMES) <= set(record)
+    assert record["settings"]["tau"] == pytest.approx(0.1)  # taken from the data file
+    assert record["settings"]["dt"] == pytest.approx(0.01)
+    assert len(record["loss_history"]) == summary["steps"] >= 1
+    # Measured: 25 L-BFGS iterations took the loss only from 0.58 to 0.45 here (c1 not yet at
+    # 440): the convergence of this case is still to be investigated (see the issue-4 report).
+    assert record["final_loss"] <= record["initial_loss"]
+    assert record["start"]["c1"] == 400.0
+    law = AdhesionLaw.from_json(out)  # also the --phi layout
+    assert float(law.c1) == record["c1"]
+    assert record["v_range"][0] < record["v_range"][1]
+    assert png.read_bytes().startswith(PNG_MAGIC)
+
+
+def test_data_layouts(tmp_path):
+    """Single-V files (t, v, V, F with own times) and multi-V files (V_0, t_0, v_0, …)."""
+    t = np.linspace(0, 1, 11)
+    single = tmp_path / "one.npz"
+    np.savez(single, t=t, v=t + 1, V=np.float64(2.0), F=t[:5], t_F=t[:5], tau=0.05, dt=0.1)
+    multi = tmp_path / "many.npz"
+    np.savez(multi, V_0=1.1, t_0=t, v_0=t, V_1=4.0, t_1=t[:6], v_1=t[:6], alpha_1=t[:6])
+    observations, defaults = load_observations([str(single), str(multi)])
+    assert [o.V for o in observations] == [2.0, 1.1, 4.0]
+    assert observations[0].series("F")[0].shape == (5,)
+    assert observations[2].series("alpha") is not None and observations[1].series("alpha") is None
+    assert defaults == {"tau": 0.05, "dt": 0.1}
+
+
+@pytest.fixture
+def no_fit(monkeypatch):
+    """Bad input must fail before anything is fitted or compiled."""
+    fit_module = importlib.import_module("peeljax.fit")
+
+    def forbidden(*args, **kwargs):
+        raise AssertionError("fit_adhesion must not run for bad input")
+
+    monkeypatch.setattr(fit_module, "fit_adhesion", forbidden)
+
+
+@pytest.fixture
+def good_npz(tmp_path):
+    path = tmp_path / "good.npz"
+    t = np.linspace(0, 0.2, 21)
+    np.savez(path, t=t, v=t + 0.1, V=1.1)
+    return str(path)
+
+
+def _bad_files(tmp_path):
+    t = np.linspace(0, 1, 5)
+    files = {}
+    files["missing_v"] = tmp_path / "a.npz"
+    np.savez(files["missing_v"], t=t, V=1.0)
+    files["pickled"] = tmp_path / "b.npz"
+    np.savez(files["pickled"], t=t, v=np.array([{"a": 1}] * 5, dtype=object), V=1.0)
+    files["lengths"] = tmp_path / "c.npz"
+    np.savez(files["lengths"], t=t, v=t[:3], V=1.0)
+    files["negative_V"] = tmp_path / "d.npz"
+    np.savez(files["negative_V"], t=t, v=t, V=-1.0)
+    files["text"] = tmp_path / "e.npz"
+    files["text"].write_text("not an npz")
+    return files
+
+
+BAD = [
+    (["--steps", "0"], "--steps", "[1, inf)"),
+    (["--tau", "0"], "tau", "(0, inf)"),
+    (["--dt", "5"], "dt", "(0, 0.2]"),
+    (["--optimizer", "sgd"], "--optimizer", "adam, lbfgs"),
+    (["--free", "c1", "zz"], "--free", "c1, p1"),
+    (["--learning-rate", "-1"], "learning_rate", "(0, inf)"),
+    (["--out", "/nonexistent-folder/x.json"], "--out", "does not exist"),
+    (["--plot", "fit.xyz"], "--plot", "png"),
+    (["--data", "/nonexistent.npz"], "--data", "does not exist"),
+    (["--data", "missing_v"], "--data", "missing 'v'"),
+    (["--data", "pickled"], "--data", "without pickles"),
+    (["--data", "lengths"], "--data", "one length"),
+    (["--data", "negative_V"], "V", "(0, inf)"),
+    (["--data", "text"], "--data", "without pickles"),
+]
+
+
+@pytest.mark.parametrize(("options", "name", "allowed"), BAD, ids=[" ".join(o) for o, *_ in BAD])
+def test_bad_input_exits_2_before_fitting(options, name, allowed, no_fit, good_npz, tmp_path, capsys):
+    files = _bad_files(tmp_path)
+    options = [str(files[o]) if o in files else o for o in options]
+    data = [] if "--data" in options else ["--data", good_npz]
+    out = [] if "--out" in options else ["--out", str(tmp_path / "fitted.json")]
+    assert main(["fit", *data, *out, *options]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    message = captured.err.strip().splitlines()[-1]
+    assert message.startswith("peeljax: error: ")
+    assert name in message and allowed in message, message
