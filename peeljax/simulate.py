@@ -37,6 +37,17 @@ def _initial_state(ode, y0):
     return ode.model.initial_state(ode.V) if y0 is None else y0
 
 
+def checked_solver(solver: AlphaMethod | None, rho: ArrayLike) -> AlphaMethod:
+    """``solver``, or ``AlphaMethod(rho=rho)`` when it is None, with ρ checked (before compiling)."""
+    if solver is None:
+        check_rho(rho)
+        return AlphaMethod(rho=rho)
+    if not isinstance(solver, AlphaMethod):
+        raise TypeError(f"solver must be an AlphaMethod, got {type(solver).__name__}")
+    check_rho(solver.rho)
+    return solver
+
+
 @eqx.filter_jit
 def _run_alpha(ode, solver, y0, t_final, n_steps, checkpoint_every=None):
     return integrate_alpha(
@@ -85,13 +96,7 @@ def simulate(
     mesh's shape and must be Python numbers. Input is checked before compilation.
     """
     n_steps = check_mesh(dt, t_final)
-    if solver is None:
-        check_rho(rho)
-        solver = AlphaMethod(rho=rho)
-    elif not isinstance(solver, AlphaMethod):
-        raise TypeError(f"solver must be an AlphaMethod, got {type(solver).__name__}")
-    else:
-        check_rho(solver.rho)
+    solver = checked_solver(solver, rho)
     ode, y0 = _prepare(model, V, tau, y0, truncation)
     return _run_alpha(ode, solver, y0, jnp.asarray(t_final, float), n_steps, checkpoint_every)
 

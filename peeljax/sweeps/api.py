@@ -12,10 +12,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import ArrayLike, Bool, Float, Int
 
-from .._validation import check_choice, check_mesh, check_rho, check_truncation
+from .._validation import check_choice, check_mesh, check_truncation
 from ..adhesion import AdhesionLaw
 from ..integrators.alpha import AlphaMethod
 from ..model import PeelingModel
+from ..simulate import checked_solver
 from ..solution import StopReason
 from . import engine
 from .storage import ChunkStore
@@ -306,13 +307,7 @@ def sweep(
         raise TypeError(f"model must be a PeelingModel, got {type(model).__name__}")
     check_choice("grid", grid, ("outer", "pairs"))
     n_steps = check_mesh(dt, t_final)
-    if solver is None:
-        check_rho(rho)
-        solver = AlphaMethod(rho=rho)
-    elif not isinstance(solver, AlphaMethod):
-        raise TypeError(f"solver must be an AlphaMethod, got {type(solver).__name__}")
-    else:
-        check_rho(solver.rho)
+    solver = checked_solver(solver, rho)
     check_truncation(truncation)
     params = dict(params or {})
     if not isinstance(model.adhesion, AdhesionLaw) and any(name not in ("R", "I", "k", "l") for name in params):

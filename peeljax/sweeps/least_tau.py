@@ -35,9 +35,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import ArrayLike, Bool, Float
 
-from .._validation import check_mesh, check_rho, check_truncation
+from .._validation import check_mesh, check_truncation
 from ..integrators.alpha import AlphaMethod
 from ..model import PeelingModel
+from ..simulate import checked_solver
 from . import engine
 from .api import _axis, _check_parameter, _put, _to_host, batch_mesh
 
@@ -110,9 +111,7 @@ def least_tau(
         raise ValueError(f"rtol must lie in (0, 1), got {rtol!r}")
     if isinstance(n_points, bool) or not isinstance(n_points, int) or n_points < 2:
         raise ValueError(f"n_points must be an integer >= 2, got {n_points!r}")
-    if solver is None:
-        check_rho(rho)
-        solver = AlphaMethod(rho=rho)
+    solver = checked_solver(solver, rho)
     check_truncation(truncation)
     devices = list(jax.devices()) if devices is None else list(devices)
     m = Vs.size
