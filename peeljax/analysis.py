@@ -9,7 +9,7 @@ Along a trajectory y_t = (α, ω, u, v) at pull velocity V and homogenization ti
   rising branch, ∂φ/∂v > 0 again: counted as stick by the sign rule);
 * the Schur complement J_t(τ) = −∂φ/∂v + τ·F̃·(𝐈 − τ·∂f/∂x)⁻¹·∂f/∂v (Lemma 1) and the local index
   ⌈log_τ|J_t|⌉ + 1 (Lemma 2, :func:`peeljax.local_index`);
-* **near-singular points** — the local bifurcation points of Theorem 4, |J_t| → 0 — as the sign
+* **near-singular points** — the local bifurcation points of Theorem 3 (`bif`), |J_t| → 0 — as the sign
   changes of J_t between output times (interpolated) and the local minima of |J_t| below a
   threshold (default 1 N·s/m: the boundary of the fast scale of Lemma 2, index ≥ 2);
 * **events**: stick → slip (∂φ/∂v crosses zero downwards: the maximum of φ, adhesion yields) and
@@ -82,6 +82,11 @@ def trajectory_structure(
     return {"phi_v": phi_v, "schur": J, "local_index": index, "residual": residual, "drive": drive}
 
 
+@eqx.filter_jit  # module level: compiled once per model structure and grid shape, not per call
+def _dphi_dv(model: PeelingModel, V, v):
+    return jax.vmap(jax.grad(lambda v_: model.phi(v_, V)))(v)
+
+
 def phi_extrema(
     model: PeelingModel | None = None, V: float = 1.1, v_range: tuple[float, float] = (1e-3, 50.0), n: int = 20001
 ) -> tuple[float, float]:
@@ -90,7 +95,10 @@ def phi_extrema(
     Located on a log grid and refined by bisection on ∂φ/∂v.
     """
     model = PeelingModel() if model is None else model
-    grad = jax.jit(jax.vmap(jax.grad(lambda v: model.phi(v, V))))
+
+    def grad(v):
+        return _dphi_dv(model, jnp.asarray(V, float), v)
+
     vs = np.geomspace(*v_range, n)
     dphi = np.asarray(grad(jnp.asarray(vs)))
     roots = {}
@@ -174,7 +182,7 @@ class StickSlipAnalysis:
     ``schur`` (J_t), ``local_index``, ``near_singular`` (|J_t| < threshold), ``residual``.
     Events: ``stick_to_slip`` and ``slip_to_stick`` times, ``schur_sign_changes`` (J_t = 0 crossed
     between samples), ``bifurcation_times`` (those and the local minima of |J_t| below the
-    threshold: Theorem 4's points, as far as the output grid resolves them). Cycle measures of
+    threshold: Theorem 3's points, as far as the output grid resolves them). Cycle measures of
     v after ``t_transient``: ``period``, ``amplitude``, ``v_mean``, ``decay``, and the extrema
     ``v_max_times``/``v_max``/``v_min_times``/``v_min``.
     """

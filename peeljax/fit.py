@@ -3,11 +3,14 @@
 The loss (:func:`trajectory_loss`) compares the α-method's trajectory at each pull velocity V_j
 with observations on their own time grids:
 
-    L(θ) = Σ_q w_q · (1/n_V) Σ_j  mean_{i: t_ij ≤ t_stop,j} ((q_model(t_ij; V_j, θ) − q_ij) / s_qj)²
+    L(θ) = Σ_q w_q · (1/n_V) Σ_j  mean_i r_qij²,   r_qij = (q_model(t_ij; V_j, θ) − q_ij) / s_qj
 
 for the observed quantities q ∈ {v, F, alpha} (F = the tension (k/l)·u), the model
-interpolated linearly onto the observation times (``jnp.interp``), s_qj the RMS of the data
-q_ij, and only observation times the model run reached (t ≤ t_stop) counted. Its gradient is
+interpolated linearly onto the observation times (``jnp.interp``) and s_qj the RMS of the data
+q_ij. An observation time the model run did not reach (t > t_stop, a run that stopped) adds
+the fixed penalty 1 (the squared residual of predicting zero) in place of its residual, so
+that a trial step that stops the run is never mistaken for a better fit; the gradient comes
+from the reached part only. Its gradient is
 exact (implicit differentiation of every Newton solve, see :mod:`peeljax.integrators.alpha`).
 
 Parametrisation (positivity): every free coefficient is c = c_start·exp(θ), θ = 0 at the
@@ -23,6 +26,7 @@ and at the observed V; see ``docs/fitting.md``.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 import time
@@ -52,6 +56,7 @@ __all__ = [
 ]
 
 QUANTITIES = ("v", "F", "alpha")
+UNREACHED_PENALTY = 1.0  # per observation after the run stopped, in units of (data RMS)²
 
 
 @dataclasses.dataclass(frozen=True)
@@ -135,10 +140,14 @@ def _run_loss(model, V, tau, solver, n_steps, t_final, t, values, scale, mask, w
     t_stop = jax.lax.stop_gradient(sol.t_stop)
     total = jnp.asarray(0.0)
     for q in values:
-        reached = mask[q] & (t[q] <= t_stop)
+        # Rounding slack: an observation at the run's last mesh time counts as reached.
+        reached = mask[q] & (t[q] <= t_stop + 1e-9 * t_final)
         modelled = jnp.interp(t[q], sol.ts, jnp.where(sol.valid, quantities[q], 0.0))
         r = jnp.where(reached, (modelled - values[q]) / scale[q], 0.0)
-        total = total + weights[q] * jnp.sum(r**2) / jnp.maximum(jnp.sum(reached), 1)
+        # An observation the run did not reach costs UNREACHED_PENALTY (the loss of predicting
+        # zero): without it, a trial step that stops the run early looks like a better fit.
+        missed = jnp.sum(mask[q] & ~reached)
+        total = total + weights[q] * (jnp.sum(r**2) + UNREACHED_PENALTY * missed) / jnp.maximum(jnp.sum(mask[q]), 1)
     v = jax.lax.stop_gradient(ys[:, 3])
     v_min = jnp.min(jnp.where(sol.valid, v, jnp.inf))
     v_max = jnp.max(jnp.where(sol.valid, v, -jnp.inf))
@@ -202,6 +211,50 @@ def _check_free(free) -> tuple[str, ...]:
     return tuple(n for n in COEFFICIENT_NAMES if n in free)  # canonical order, no duplicates
 
 
+class _TrajectoryLoss(eqx.Module):
+    """θ ↦ (L, aux) of :func:`trajectory_loss` with φ = ``_to_law(θ, start)`` (a pytree, so jit caches on it)."""
+
+    start: AdhesionLaw
+    data: _Data
+    model: PeelingModel
+    tau: Float[Array, ""]
+    solver: AlphaMethod
+    weights: dict
+    n_steps: int = eqx.field(static=True)
+    t_final: float = eqx.field(static=True)
+    checkpoint_every: object = eqx.field(static=True)
+    batch: str = eqx.field(static=True)
+
+    def __call__(self, theta):
+        return trajectory_loss(
+            _to_law(theta, self.start),
+            self.data,
+            model=self.model,
+            tau=self.tau,
+            solver=self.solver,
+            n_steps=self.n_steps,
+            t_final=self.t_final,
+            weights=self.weights,
+            checkpoint_every=self.checkpoint_every,
+            batch=self.batch,
+        )
+
+
+class _SteadyLoss(eqx.Module):
+    """θ ↦ mean_i ((φ(v_i, V_i) − force_i)/rms(force))² with φ = ``_to_law(θ, start)``, and aux."""
+
+    start: AdhesionLaw
+    v: Float[Array, " n"]
+    force: Float[Array, " n"]
+    V: Float[Array, " n"]
+    scale: Float[Array, ""]
+
+    def __call__(self, theta):
+        law = _to_law(theta, self.start)
+        aux = (jnp.min(self.v), jnp.max(self.v), jnp.zeros(()))
+        return jnp.mean(((law(self.v, self.V) - self.force) / self.scale) ** 2), aux
+
+
 @dataclasses.dataclass
 class FitResult:
     """The outcome of :func:`fit_adhesion` / :func:`fit_adhesion_steady`.
@@ -212,7 +265,8 @@ class FitResult:
         loss_history: the loss at every iteration (before its update).
         initial_loss, final_loss: L at the start and at the fitted law.
         gradient_norm: ‖∂L/∂θ‖₂ at the fitted law (θ the log parameters of the free coefficients).
-        steps: iterations done; stopped_early: early stopping (patience/tolerance) fired.
+        steps: loss evaluations done (θ_0 … θ_k: one more than the updates);
+            stopped_early: early stopping (patience/tolerance) fired.
         v_range: (min, max) of v visited by the fitted model's runs (or of the data's v,
             steady case): φ is determined by the data only there.
         free: the fitted coefficients' names; settings: the fit's options.
@@ -271,6 +325,14 @@ class FitResult:
         return text
 
 
+def _check_learning_rate(learning_rate) -> float | None:
+    if learning_rate is None:
+        return None
+    check_positive("learning_rate", learning_rate)
+    return float(learning_rate)
+
+
+@functools.cache  # one object per setting: the jitted update is cached on it
 def _make_optimizer(optimizer: str, learning_rate: float | None):
     if optimizer == "adam":
         return optax.adam(0.02 if learning_rate is None else learning_rate), False
@@ -282,26 +344,45 @@ def _make_optimizer(optimizer: str, learning_rate: float | None):
     raise ValueError(f"optimizer must be 'adam' or 'lbfgs', got {optimizer!r}")
 
 
-def _optimize(loss_fn, theta0, *, optimizer, learning_rate, steps, patience, tolerance, progress, description):
-    """Minimise loss_fn(θ) → (L, aux); returns (best θ, history, best L, ‖∇L‖ at best, steps, early, aux)."""
+@eqx.filter_jit
+def _update(loss_fn, optimizer: str, learning_rate, theta, state):
+    """One optimizer iteration at θ: (new θ, new state, L(θ), ∇L(θ), aux(θ)).
+
+    Module level and keyed on the loss module's structure: fits with new data or new start
+    values but the same shapes reuse the compiled program.
+    """
     opt, is_lbfgs = _make_optimizer(optimizer, learning_rate)
 
     def value_only(th):
         return loss_fn(th)[0]
 
-    @jax.jit
-    def update(theta, state):
-        (value, aux), grad = jax.value_and_grad(loss_fn, has_aux=True)(theta)
-        if is_lbfgs:
-            updates, state = opt.update(grad, state, theta, value=value, grad=grad, value_fn=value_only)
-        else:
-            updates, state = opt.update(grad, state, theta)
-        return optax.apply_updates(theta, updates), state, value, grad, aux
+    (value, aux), grad = jax.value_and_grad(loss_fn, has_aux=True)(theta)
+    if is_lbfgs:
+        updates, new_state = opt.update(grad, state, theta, value=value, grad=grad, value_fn=value_only)
 
-    state = opt.init(theta0)
-    theta = theta0
+        # optax keeps curvature pairs with s·y ≤ 0 (the trajectory loss is not convex far
+        # from its minimum): the L-BFGS direction can then point uphill. Restart the memory
+        # and take a line-searched gradient step instead.
+        def restart(_):
+            return opt.update(grad, opt.init(theta), theta, value=value, grad=grad, value_fn=value_only)
+
+        descent = optax.tree.vdot(grad, updates) < 0
+        updates, state = jax.lax.cond(descent, lambda _: (updates, new_state), restart, None)
+    else:
+        updates, state = opt.update(grad, state, theta)
+    return optax.apply_updates(theta, updates), state, value, grad, aux
+
+
+def _optimize(loss_fn, names, *, optimizer, learning_rate, steps, patience, tolerance, progress, description):
+    """Minimise loss_fn(θ) → (L, aux) from θ = 0; returns (best θ, history, best L, ‖∇L‖ at best, steps, early, aux).
+
+    The best of θ_0 … θ_steps is returned (the last update is evaluated too).
+    """
+    opt, _ = _make_optimizer(optimizer, learning_rate)
+    theta = {n: jnp.zeros((), float) for n in names}  # strongly typed: no recompile after step 1
+    state = opt.init(theta)
     history = []
-    best = (math.inf, theta0, math.nan, None)
+    best = (math.inf, theta, math.nan, None)
     since_best = 0
     early = False
     bar = None
@@ -309,8 +390,8 @@ def _optimize(loss_fn, theta0, *, optimizer, learning_rate, steps, patience, tol
         from tqdm.auto import tqdm
 
         bar = tqdm(total=steps, desc=description, leave=False)
-    for _ in range(steps):
-        new_theta, state, value, grad, aux = update(theta, state)
+    for k in range(steps + 1):
+        new_theta, state, value, grad, aux = _update(loss_fn, optimizer, learning_rate, theta, state)
         value = float(value)
         if not math.isfinite(value):
             break
@@ -323,6 +404,8 @@ def _optimize(loss_fn, theta0, *, optimizer, learning_rate, steps, patience, tol
             if value < best[0]:
                 best = (value, theta, gnorm, aux)
             since_best += 1
+        if k == steps:  # θ_steps evaluated; its update is not taken
+            break
         if bar is not None:
             bar.update(1)
             bar.set_postfix(loss=f"{value:.3e}")
@@ -333,9 +416,8 @@ def _optimize(loss_fn, theta0, *, optimizer, learning_rate, steps, patience, tol
     if bar is not None:
         bar.close()
     value, theta_best, gnorm, aux = best
-    if aux is None:  # no finite step: evaluate the start
-        (value, aux), grad = jax.jit(jax.value_and_grad(loss_fn, has_aux=True))(theta0)
-        value, gnorm, theta_best = float(value), float(optax.tree.norm(grad)), theta0
+    if aux is None:
+        raise FloatingPointError(f"{description}: the loss is not finite at the start; check the data and the start")
     return theta_best, np.asarray(history), value, gnorm, len(history), early, aux
 
 
@@ -407,27 +489,25 @@ def fit_adhesion(
     data, t_obs_max = _pack(observations)
     t_final = float(t_obs_max if t_final is None else t_final)
     n_steps = check_mesh(dt, t_final)
+    learning_rate = _check_learning_rate(learning_rate)
     _make_optimizer(optimizer, learning_rate)  # check before compiling
 
-    def loss_fn(theta):
-        return trajectory_loss(
-            _to_law(theta, start),
-            data,
-            model=model,
-            tau=tau,
-            solver=solver,
-            n_steps=n_steps,
-            t_final=t_final,
-            weights=weights,
-            checkpoint_every=checkpoint_every,
-            batch=batch,
-        )
-
-    theta0 = {n: jnp.asarray(0.0) for n in names}
+    loss_fn = _TrajectoryLoss(
+        start=start,
+        data=data,
+        model=model,
+        tau=jnp.asarray(tau, float),
+        solver=solver,
+        weights={q: jnp.asarray(weights[q], float) for q in data.values},
+        n_steps=n_steps,
+        t_final=t_final,
+        checkpoint_every=checkpoint_every,
+        batch=batch,
+    )
     began = time.perf_counter()
     theta, history, value, gnorm, n_done, early, aux = _optimize(
         loss_fn,
-        theta0,
+        names,
         optimizer=optimizer,
         learning_rate=learning_rate,
         steps=steps,
@@ -499,18 +579,14 @@ def fit_adhesion_steady(
     if not bool(jnp.all(v > 0)) or not bool(jnp.all(jnp.isfinite(force))):
         raise ValueError("v must be > 0 and force finite")
     names = _check_free(free)
+    learning_rate = _check_learning_rate(learning_rate)
+    _make_optimizer(optimizer, learning_rate)  # check before compiling
     start = AdhesionLaw() if start is None else start
-    scale = jnp.sqrt(jnp.mean(force**2))
-
-    def loss_fn(theta):
-        law = _to_law(theta, start)
-        return jnp.mean(((law(v, V) - force) / scale) ** 2), (jnp.min(v), jnp.max(v), jnp.asarray(0.0))
-
-    theta0 = {n: jnp.asarray(0.0) for n in names}
+    loss_fn = _SteadyLoss(start=start, v=v, force=force, V=V, scale=jnp.sqrt(jnp.mean(force**2)))
     began = time.perf_counter()
     theta, history, value, gnorm, n_done, early, _ = _optimize(
         loss_fn,
-        theta0,
+        names,
         optimizer=optimizer,
         learning_rate=learning_rate,
         steps=steps,

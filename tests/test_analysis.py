@@ -82,7 +82,7 @@ def test_phases_follow_the_sign_of_dphi_dv(stopping_run):
 
 
 def test_early_stop_is_a_near_singular_point(stopping_run):
-    """Theorem 4 / the paper's Fig. 2 remark: at τ = 1e-3 the run ends where J_t passes through 0."""
+    """Theorem 3 (`bif`) / the paper's Fig. 2 remark: at τ = 1e-3 the run ends where J_t passes through 0."""
     solution, a = stopping_run
     assert not bool(solution.completed)
     assert 0.15 < float(solution.t_stop) < 0.19

@@ -1,4 +1,4 @@
-"""Inertial regularization (de2005missing; the paper's discussion after Theorem 3).
+"""Inertial regularization (de2005missing; the paper's discussion after Theorem 2, `expv`).
 
 The constraint (sac) is replaced by an equation of motion for the peeling velocity with a small
 mass m [kg]:
