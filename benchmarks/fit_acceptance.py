@@ -1,11 +1,14 @@
 """Fit acceptance, full version (issue 4 §2): all 14 coefficients, or a chosen subset.
 
-Data: the paper's φ at V = 1.1, 2 and 4 m/s, τ (default 0.1 s: the runs complete), t ∈ [0, T],
-dt = 1/82 s, v(t) and F(t) with 1 % multiplicative noise. Start: the coefficients perturbed
-by ±(10–20) %. Criteria: φ(v, V) within 2 % of the paper's over the visited v range at the
-three V, and a loss reduction ≥ 100×. ``tests/test_fit.py`` runs the short CI version.
+Data: the paper's φ at V = 1.1, 2 and 4 m/s, τ = 0.01 s (the runs complete at h = 1/82 s),
+t ∈ [0, T] (default T = 1 s: the rise from v0 = 1e-10·V, the overshoot above V and the return),
+v(t), F(t) and α(t) with 1 % multiplicative noise. Start: the coefficients perturbed by
+±(10–20) %. Criteria: φ(v, V) within 2 % of the paper's over the visited v range at the three V,
+and a loss reduction ≥ 100×. Also printed: the loss of the true φ on the same noisy data (the
+noise floor no fit can go far below) and L(start)/L(true φ), the most any fit can reduce the
+loss by. ``tests/test_fit.py`` runs this fit (T = 1 s, seed 0) and asserts the criteria.
 
-    python benchmarks/fit_acceptance.py [--free c1 c3 ...] [--t-final 0.5] [--tau 0.1] [--steps 200]
+    python benchmarks/fit_acceptance.py [--free c1 c3 ...] [--t-final 1.0] [--tau 0.01] [--steps 500]
 """
 
 from __future__ import annotations
@@ -16,61 +19,94 @@ import numpy as np
 
 import peeljax as pj
 
+VELOCITIES = (1.1, 2.0, 4.0)
+
+
+def noisy_observations(model, tau, t_final, rng, noise=0.01, dt=1 / 82):
+    """v, F and α of the paper's runs at each V with multiplicative Gaussian noise, and the exact v."""
+    observations, visited = [], []
+    for V in VELOCITIES:
+        sol = pj.simulate(model, V=V, tau=tau, dt=dt, t_final=t_final)
+        ok = np.asarray(sol.valid)
+        ys = np.asarray(sol.ys)[ok]
+        exact = {"v": ys[:, 3], "F": np.asarray(model.tension(ys[:, 2], ys[:, 0])), "alpha": ys[:, 0]}
+        noisy = {q: x * (1 + noise * rng.standard_normal(x.size)) for q, x in exact.items()}
+        observations.append(pj.Observation(V=V, t=np.asarray(sol.ts)[ok], **noisy))
+        visited.append(exact["v"])
+    return observations, visited
+
+
+def phi_error_at(law, true, visited):
+    """max |φ_law/φ_true − 1| at the (v, V) the runs visit at the observation times."""
+    return max(
+        float(np.max(np.abs(np.asarray(law(v, V)) / np.asarray(true(v, V)) - 1))) for v, V in zip(visited, VELOCITIES)
+    )
+
+
+def perturbed_start(rng, names):
+    """The paper's coefficients, those in ``names`` moved by ±(10–20) %."""
+    return pj.AdhesionLaw(
+        **{n: pj.PAPER_COEFFICIENTS[n] * (1 + rng.choice([-1.0, 1.0]) * rng.uniform(0.1, 0.2)) for n in names}
+    )
+
+
+def run(*, t_final=1.0, tau=0.01, steps=500, free=None, optimizer="lbfgs", seed=0, progress=True) -> dict:
+    """The acceptance fit; returns the fit result and the measures the criteria are about."""
+    rng = np.random.default_rng(seed)
+    model = pj.PeelingModel()
+    observations, visited = noisy_observations(model, tau, t_final, rng)
+    names = tuple(free or pj.COEFFICIENT_NAMES)
+    true = pj.AdhesionLaw()
+    start = perturbed_start(rng, names)
+    settings = {"tau": tau, "dt": 1 / 82, "t_final": t_final, "free": names, "optimizer": optimizer}
+    # The true φ's loss on the same noisy data: the noise floor (same shapes, same compiled program).
+    floor = pj.fit_adhesion(observations, start=true, steps=0, progress=False, **settings).final_loss
+    result = pj.fit_adhesion(
+        observations, start=start, steps=steps, patience=30, tolerance=1e-6, progress=progress, **settings
+    )
+    return {
+        "result": result,
+        "start": start,
+        "noise_floor": floor,
+        "phi_error_start": pj.phi_relative_error(start, true, VELOCITIES, result.v_range),
+        "phi_error": pj.phi_relative_error(result.adhesion, true, VELOCITIES, result.v_range),
+        "phi_error_start_at_samples": phi_error_at(start, true, visited),
+        "phi_error_at_samples": phi_error_at(result.adhesion, true, visited),
+    }
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--free", nargs="+", default=None, help="coefficients to fit (default all 14)")
-    parser.add_argument("--t-final", type=float, default=0.5)
-    parser.add_argument("--tau", type=float, default=0.1)
-    parser.add_argument("--steps", type=int, default=200)
+    parser.add_argument("--t-final", type=float, default=1.0)
+    parser.add_argument("--tau", type=float, default=0.01)
+    parser.add_argument("--steps", type=int, default=500)
     parser.add_argument("--optimizer", default="lbfgs")
-    parser.add_argument("--seed", type=int, default=4)
+    parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
-    rng = np.random.default_rng(args.seed)
-    model = pj.PeelingModel()
-    observations = []
-    for V in (1.1, 2.0, 4.0):
-        sol = pj.simulate(model, V=V, tau=args.tau, dt=1 / 82, t_final=args.t_final)
-        ok = np.asarray(sol.valid)
-        F = np.asarray(model.tension(sol.ys[:, 2], sol.ys[:, 0]))[ok]
-        v = np.asarray(sol.v)[ok]
-        print(f"V = {V}: {sol.status_name}, t_stop = {float(sol.t_stop):.3g} s, v in [{v.min():.3g}, {v.max():.3g}]")
-        observations.append(
-            pj.Observation(
-                V=V,
-                t=np.asarray(sol.ts)[ok],
-                v=v * (1 + 0.01 * rng.standard_normal(v.size)),
-                F=F * (1 + 0.01 * rng.standard_normal(F.size)),
-            )
-        )
-    names = args.free or pj.COEFFICIENT_NAMES
-    true = pj.AdhesionLaw()
-    start = pj.AdhesionLaw(
-        **{n: pj.PAPER_COEFFICIENTS[n] * (1 + rng.choice([-1.0, 1.0]) * rng.uniform(0.1, 0.2)) for n in names}
+    out = run(
+        t_final=args.t_final, tau=args.tau, steps=args.steps, free=args.free, optimizer=args.optimizer, seed=args.seed
     )
-    result = pj.fit_adhesion(
-        observations,
-        tau=args.tau,
-        dt=1 / 82,
-        free=names,
-        start=start,
-        optimizer=args.optimizer,
-        steps=args.steps,
-        patience=30,
-        tolerance=1e-6,
-    )
-    Vs = (1.1, 2.0, 4.0)
-    print(f"fitted {list(result.free)} in {result.steps} iterations, {result.wall_time_s:.0f} s")
+    result, start, floor = out["result"], out["start"], out["noise_floor"]
+    print(f"fitted {list(result.free)}: {result.steps} loss evaluations, {result.wall_time_s:.0f} s")
+    print(f"loss {result.initial_loss:.3e} -> {result.final_loss:.3e}: {result.loss_reduction:.0f}x (>= 100 required)")
     print(
-        f"loss {result.initial_loss:.3e} -> {result.final_loss:.3e}: {result.loss_reduction:.0f}x (>= 100 required)"
+        f"loss of the true phi on these data (noise floor) {floor:.3e}; L(start)/L(true) = {result.initial_loss / floor:.0f}"
     )
     print(f"visited v range {result.v_range}")
     print(
-        f"max relative phi error over the visited range: start {pj.phi_relative_error(start, true, Vs, result.v_range):.4f}, "
-        f"fitted {pj.phi_relative_error(result.adhesion, true, Vs, result.v_range):.4f} (< 0.02 required)"
+        f"max relative phi error over the visited range: start {out['phi_error_start']:.4f}, "
+        f"fitted {out['phi_error']:.4f} (< 0.02 required)"
     )
-    for n in names:
-        print(f"  {n}: start {float(getattr(start, n)):.5g}, fitted {float(getattr(result.adhesion, n)):.5g}, true {pj.PAPER_COEFFICIENTS[n]:.5g}")
+    print(
+        f"max relative phi error at the (v, V) the runs visit at the observation times: "
+        f"start {out['phi_error_start_at_samples']:.4f}, fitted {out['phi_error_at_samples']:.4f}"
+    )
+    for n in result.free:
+        print(
+            f"  {n}: start {float(getattr(start, n)):.5g}, fitted {float(getattr(result.adhesion, n)):.5g}, "
+            f"true {pj.PAPER_COEFFICIENTS[n]:.5g}"
+        )
 
 
 if __name__ == "__main__":

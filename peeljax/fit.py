@@ -325,6 +325,13 @@ class FitResult:
         return text
 
 
+def _check_steps(steps) -> None:
+    if not isinstance(steps, int) or isinstance(steps, bool) or steps < 0:
+        raise ValueError(
+            f"steps must be an integer >= 0 (allowed range: [0, inf); 0 evaluates the start), got {steps!r}"
+        )
+
+
 def _check_learning_rate(learning_rate) -> float | None:
     if learning_rate is None:
         return None
@@ -380,7 +387,9 @@ def _optimize(loss_fn, names, *, optimizer, learning_rate, steps, patience, tole
     """
     opt, _ = _make_optimizer(optimizer, learning_rate)
     theta = {n: jnp.zeros((), float) for n in names}  # strongly typed: no recompile after step 1
-    state = opt.init(theta)
+    # optax's init leaves weakly typed scalars (L-BFGS' line-search counter) that come back
+    # strongly typed from the first update: make them strong now, or step 2 compiles again.
+    state = jax.tree.map(lambda x: jnp.array(x, dtype=x.dtype), opt.init(theta))
     history = []
     best = (math.inf, theta, math.nan, None)
     since_best = 0
@@ -454,6 +463,7 @@ def fit_adhesion(
         model: spool and tape (default the paper's); its adhesion law is the start unless
             ``start`` is given.
         free: names of the coefficients to fit (default all 14); the rest stay at the start.
+        steps: optimizer iterations (0: only evaluate the loss and its gradient at the start).
         weights: per observed quantity ``{"v": 1, "F": 1, "alpha": 1}``.
         patience, tolerance: stop when the loss has not fallen by a relative ``tolerance``
             for ``patience`` iterations.
@@ -475,8 +485,7 @@ def fit_adhesion(
         if o.series("v") is None or len(o.series("v")[0]) == 0:
             raise ValueError(f"observation at V = {o.V:g}: no finite v data")
     check_positive("tau", tau)
-    if not isinstance(steps, int) or steps < 1:
-        raise ValueError(f"steps must be a positive integer, got {steps!r}")
+    _check_steps(steps)
     if batch not in ("map", "vmap"):
         raise ValueError(f"batch must be 'map' or 'vmap', got {batch!r}")
     names = _check_free(free)
@@ -579,6 +588,7 @@ def fit_adhesion_steady(
     if not bool(jnp.all(v > 0)) or not bool(jnp.all(jnp.isfinite(force))):
         raise ValueError("v must be > 0 and force finite")
     names = _check_free(free)
+    _check_steps(steps)
     learning_rate = _check_learning_rate(learning_rate)
     _make_optimizer(optimizer, learning_rate)  # check before compiling
     start = AdhesionLaw() if start is None else start

@@ -1,16 +1,21 @@
-"""Fitting φ (issue 4 §2): the steady-peeling fit of all 14 coefficients, and input errors.
+"""Fitting φ (issue 4 §2): the trajectory acceptance fit, the steady-peeling fit of all 14
+coefficients, and input errors.
 
-The trajectory acceptance fit (V = 1.1, 2, 4, 1 % noise, 10–20 % perturbed start) is not in
-CI: it took 280 s here and its check of the visited v range failed (the data at τ = 0.1,
-t ≤ 0.5 s only reach v ≈ 1e-3); it lives in ``benchmarks/fit_acceptance.py`` until fixed.
+The acceptance fit's setup is ``benchmarks/fit_acceptance.py`` (the same fit, printed).
 """
 
 from __future__ import annotations
+
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 import peeljax as pj
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+import fit_acceptance
 
 
 def perturbed(rng, names):
@@ -34,6 +39,25 @@ def test_steady_fit_of_all_coefficients():
     assert pj.AdhesionLaw.from_dict(record).coefficients() == result.adhesion.coefficients()
 
 
+@pytest.mark.slow
+def test_trajectory_fit_acceptance():
+    """Issue 4's acceptance: v, F and α at V = 1.1, 2, 4 (τ = 0.01 s, h = 1/82 s, t ≤ 1 s) with
+    1 % noise; all 14 coefficients from a ±(10–20) % start; L-BFGS.
+
+    Measured (seed 0, 261 loss evaluations, ~6 s after a ~1–2 min compilation): loss 0.253 →
+    2.68e-4 (944×), the true φ's loss on the same data 2.71e-4 (the noise floor); φ within 0.49 %
+    over v ∈ [1.1e-10, 4.73] m/s at the three V (the start: 15 %). The coefficients themselves
+    are not all recovered (c1 340 against 400, c6 349 against 415): docs/fitting.md, identifiability.
+    """
+    out = fit_acceptance.run(t_final=1.0, steps=500, progress=False)
+    result = out["result"]
+    assert result.loss_reduction >= 100
+    assert result.final_loss <= 1.05 * out["noise_floor"]  # at the noise floor: nothing left to fit
+    assert result.v_range[0] < 1e-9 and result.v_range[1] > 4.0  # from v0 = 1e-10·V past V = 4
+    assert out["phi_error_start"] > 0.1
+    assert out["phi_error"] < 0.02
+
+
 def test_fit_input_errors():
     obs = pj.Observation(V=1.1, t=np.linspace(0, 1, 5), v=np.ones(5))
     with pytest.raises(ValueError, match="free"):
@@ -44,3 +68,7 @@ def test_fit_input_errors():
         pj.fit_adhesion(pj.Observation(V=-1.0, t=np.linspace(0, 1, 5), v=np.ones(5)))
     with pytest.raises(ValueError, match="no observations"):
         pj.fit_adhesion([])
+    with pytest.raises(ValueError, match="steps"):
+        pj.fit_adhesion(obs, steps=-1)
+    with pytest.raises(ValueError, match="learning_rate"):
+        pj.fit_adhesion(obs, learning_rate=0.0)
