@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax
+import jax.extend.core
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -121,7 +122,7 @@ def test_forward_mode_equals_reverse_mode_and_newton_is_not_unrolled(smooth):
     def walk(jaxpr):
         for eqn in jaxpr.eqns:
             primitives.add(eqn.primitive.name)
-            for sub in jax.core.jaxprs_in_params(eqn.params):
+            for sub in jax.extend.core.jaxprs_in_params(eqn.params):
                 walk(sub)
 
     walk(jax.make_jaxpr(f_jvp)(direction).jaxpr)
