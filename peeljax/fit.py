@@ -325,18 +325,17 @@ class FitResult:
         return text
 
 
-def _check_steps(steps) -> None:
+def _check_options(steps, optimizer, learning_rate) -> float | None:
+    """Checks the optimizer options before anything compiles; returns ``learning_rate`` as a float or None."""
     if not isinstance(steps, int) or isinstance(steps, bool) or steps < 0:
         raise ValueError(
             f"steps must be an integer >= 0 (allowed range: [0, inf); 0 evaluates the start), got {steps!r}"
         )
-
-
-def _check_learning_rate(learning_rate) -> float | None:
-    if learning_rate is None:
-        return None
-    check_positive("learning_rate", learning_rate)
-    return float(learning_rate)
+    if learning_rate is not None:
+        check_positive("learning_rate", learning_rate)
+        learning_rate = float(learning_rate)
+    _make_optimizer(optimizer, learning_rate)
+    return learning_rate
 
 
 @functools.cache  # one object per setting: the jitted update is cached on it
@@ -380,11 +379,15 @@ def _update(loss_fn, optimizer: str, learning_rate, theta, state):
     return optax.apply_updates(theta, updates), state, value, grad, aux
 
 
-def _optimize(loss_fn, names, *, optimizer, learning_rate, steps, patience, tolerance, progress, description):
-    """Minimise loss_fn(θ) → (L, aux) from θ = 0; returns (best θ, history, best L, ‖∇L‖ at best, steps, early, aux).
+def _fit(
+    loss_fn, start, names, settings, *, optimizer, learning_rate, steps, patience, tolerance, progress, description
+):
+    """Minimise loss_fn(θ) → (L, (v_min, v_max, t_stop)) from θ = 0 and report it as a :class:`FitResult`.
 
-    The best of θ_0 … θ_steps is returned (the last update is evaluated too).
+    The best of θ_0 … θ_steps is returned (the last update is evaluated too). ``settings``
+    without a ``"kind"`` are a trajectory fit's: its ``t_stop`` per V is reported.
     """
+    began = time.perf_counter()
     opt, _ = _make_optimizer(optimizer, learning_rate)
     theta = {n: jnp.zeros((), float) for n in names}  # strongly typed: no recompile after step 1
     # optax's init leaves weakly typed scalars (L-BFGS' line-search counter) that come back
@@ -427,7 +430,22 @@ def _optimize(loss_fn, names, *, optimizer, learning_rate, steps, patience, tole
     value, theta_best, gnorm, aux = best
     if aux is None:
         raise FloatingPointError(f"{description}: the loss is not finite at the start; check the data and the start")
-    return theta_best, np.asarray(history), value, gnorm, len(history), early, aux
+    v_min, v_max, t_stop = (np.asarray(a) for a in aux)
+    return FitResult(
+        adhesion=_to_law(theta_best, start),
+        start=start,
+        loss_history=np.asarray(history),
+        initial_loss=float(history[0]),
+        final_loss=float(value),
+        gradient_norm=float(gnorm),
+        steps=len(history),
+        stopped_early=early,
+        v_range=(float(np.min(v_min)), float(np.max(v_max))),
+        free=names,
+        settings=settings,
+        t_stop=[] if "kind" in settings else [float(x) for x in np.atleast_1d(t_stop)],
+        wall_time_s=time.perf_counter() - began,
+    )
 
 
 def fit_adhesion(
@@ -485,7 +503,6 @@ def fit_adhesion(
         if o.series("v") is None or len(o.series("v")[0]) == 0:
             raise ValueError(f"observation at V = {o.V:g}: no finite v data")
     check_positive("tau", tau)
-    _check_steps(steps)
     if batch not in ("map", "vmap"):
         raise ValueError(f"batch must be 'map' or 'vmap', got {batch!r}")
     names = _check_free(free)
@@ -498,9 +515,7 @@ def fit_adhesion(
     data, t_obs_max = _pack(observations)
     t_final = float(t_obs_max if t_final is None else t_final)
     n_steps = check_mesh(dt, t_final)
-    learning_rate = _check_learning_rate(learning_rate)
-    _make_optimizer(optimizer, learning_rate)  # check before compiling
-
+    learning_rate = _check_options(steps, optimizer, learning_rate)
     loss_fn = _TrajectoryLoss(
         start=start,
         data=data,
@@ -513,19 +528,6 @@ def fit_adhesion(
         checkpoint_every=checkpoint_every,
         batch=batch,
     )
-    began = time.perf_counter()
-    theta, history, value, gnorm, n_done, early, aux = _optimize(
-        loss_fn,
-        names,
-        optimizer=optimizer,
-        learning_rate=learning_rate,
-        steps=steps,
-        patience=patience,
-        tolerance=tolerance,
-        progress=progress,
-        description="fit_adhesion",
-    )
-    v_min, v_max, t_stop = (np.asarray(a) for a in aux)
     settings = {
         "V": [float(o.V) for o in observations],
         "tau": float(tau),
@@ -542,20 +544,18 @@ def fit_adhesion(
         "checkpoint_every": checkpoint_every,
         "parametrisation": "c = c_start*exp(theta)",
     }
-    return FitResult(
-        adhesion=_to_law(theta, start),
-        start=start,
-        loss_history=history,
-        initial_loss=float(history[0]) if len(history) else value,
-        final_loss=float(value),
-        gradient_norm=float(gnorm),
-        steps=n_done,
-        stopped_early=early,
-        v_range=(float(np.min(v_min)), float(np.max(v_max))),
-        free=names,
-        settings=settings,
-        t_stop=[float(x) for x in np.atleast_1d(t_stop)],
-        wall_time_s=time.perf_counter() - began,
+    return _fit(
+        loss_fn,
+        start,
+        names,
+        settings,
+        optimizer=optimizer,
+        learning_rate=learning_rate,
+        steps=steps,
+        patience=patience,
+        tolerance=tolerance,
+        progress=progress,
+        description="fit_adhesion",
     )
 
 
@@ -588,15 +588,22 @@ def fit_adhesion_steady(
     if not bool(jnp.all(v > 0)) or not bool(jnp.all(jnp.isfinite(force))):
         raise ValueError("v must be > 0 and force finite")
     names = _check_free(free)
-    _check_steps(steps)
-    learning_rate = _check_learning_rate(learning_rate)
-    _make_optimizer(optimizer, learning_rate)  # check before compiling
+    learning_rate = _check_options(steps, optimizer, learning_rate)
     start = AdhesionLaw() if start is None else start
     loss_fn = _SteadyLoss(start=start, v=v, force=force, V=V, scale=jnp.sqrt(jnp.mean(force**2)))
-    began = time.perf_counter()
-    theta, history, value, gnorm, n_done, early, _ = _optimize(
+    settings = {
+        "kind": "steady",
+        "optimizer": optimizer,
+        "learning_rate": learning_rate,
+        "steps": steps,
+        "patience": patience,
+        "tolerance": tolerance,
+    }
+    return _fit(
         loss_fn,
+        start,
         names,
+        settings,
         optimizer=optimizer,
         learning_rate=learning_rate,
         steps=steps,
@@ -604,27 +611,6 @@ def fit_adhesion_steady(
         tolerance=tolerance,
         progress=progress,
         description="fit_adhesion_steady",
-    )
-    return FitResult(
-        adhesion=_to_law(theta, start),
-        start=start,
-        loss_history=history,
-        initial_loss=float(history[0]) if len(history) else value,
-        final_loss=float(value),
-        gradient_norm=float(gnorm),
-        steps=n_done,
-        stopped_early=early,
-        v_range=(float(jnp.min(v)), float(jnp.max(v))),
-        free=names,
-        settings={
-            "kind": "steady",
-            "optimizer": optimizer,
-            "learning_rate": learning_rate,
-            "steps": steps,
-            "patience": patience,
-            "tolerance": tolerance,
-        },
-        wall_time_s=time.perf_counter() - began,
     )
 
 
