@@ -10,7 +10,17 @@ import math
 import jax
 import numpy as np
 
-__all__ = ["check_positive", "check_rho", "check_mesh", "check_y0", "check_choice", "is_concrete"]
+__all__ = [
+    "check_choice",
+    "check_max_steps",
+    "check_mesh",
+    "check_output_times",
+    "check_positive",
+    "check_rho",
+    "check_tolerance",
+    "check_y0",
+    "is_concrete",
+]
 
 
 def is_concrete(value) -> bool:
@@ -58,6 +68,37 @@ def check_mesh(dt, t_final) -> int:
     if n_steps > 100_000_000:
         raise ValueError(f"dt={dt} gives {n_steps} steps over t_final={t_final}; the limit is 1e8 steps")
     return n_steps
+
+
+def check_tolerance(name: str, value, upper: float = math.inf) -> None:
+    """A tolerance in (0, upper): a finite Python or numpy number (it is not traced)."""
+    if not is_concrete(value) or np.ndim(value) != 0:
+        raise ValueError(f"{name} must be a number in (0, {upper:g}), got {value!r}")
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number in (0, {upper:g}), got {value!r}") from None
+    if not (0.0 < number < upper):  # also refuses NaN
+        raise ValueError(f"{name} must lie in (0, {upper:g}), got {value!r}")
+
+
+def check_max_steps(max_steps) -> None:
+    if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
+        raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+
+
+def check_output_times(ts, t_final) -> np.ndarray:
+    """Output times: a non-empty 1-D array, finite, non-decreasing, within [0, t_final]."""
+    if not is_concrete(ts):
+        raise ValueError("ts sets the output's shape and must be a concrete array, not a traced value")
+    array = _finite_array("ts", ts)
+    if array.ndim != 1 or array.size == 0:
+        raise ValueError(f"ts must be a non-empty 1-D array of times, got shape {array.shape}")
+    if np.any(np.diff(array) < 0):
+        raise ValueError("ts must be non-decreasing")
+    if array[0] < 0 or array[-1] > float(t_final):
+        raise ValueError(f"ts must lie in [0, t_final] = [0, {float(t_final):g}], got [{array[0]:g}, {array[-1]:g}]")
+    return array
 
 
 def check_y0(y0) -> None:

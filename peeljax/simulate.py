@@ -7,9 +7,11 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import ArrayLike
 
-from ._validation import check_mesh, check_positive, check_rho, check_truncation, check_y0
+from ._validation import check_max_steps, check_mesh, check_output_times, check_positive, check_rho, check_tolerance, check_truncation, check_y0
 from .homogenized import HomogenizedODE
+from .integrators.adaptive import integrate_alpha_adaptive
 from .integrators.alpha import AlphaMethod, integrate_alpha
+from .integrators.controller import PIController
 from .integrators.reference import integrate_reference
 from .model import PeelingModel
 from .solution import Solution
@@ -55,50 +57,120 @@ def _run_alpha(ode, solver, y0, t_final, n_steps, checkpoint_every=None):
     )
 
 
+@eqx.filter_jit
+def _run_adaptive(ode, solver, y0, t_final, controller, ts, dtmin, max_steps, adjoint):
+    return integrate_alpha_adaptive(
+        ode,
+        solver,
+        _initial_state(ode, y0),
+        0.0,
+        t_final,
+        controller=controller,
+        ts=ts,
+        dtmin=dtmin,
+        max_steps=max_steps,
+        adjoint=adjoint,
+    )
+
+
+DEFAULT_RTOL, DEFAULT_ATOL = 1e-6, 1e-9
+DEFAULT_MAX_STEPS = 100_000
+
+
 def simulate(
     model: PeelingModel | None = None,
     V: ArrayLike = 1.1,
     tau: ArrayLike = 0.01,
-    dt: float = 1 / 82,
+    dt: float | None = None,
     t_final: float = 3.0,
     rho: ArrayLike = 0.0,
     y0: ArrayLike | None = None,
     *,
+    rtol: float | None = None,
+    atol: float | None = None,
+    ts: ArrayLike | None = None,
+    dtmin: float | None = None,
+    max_steps: int = DEFAULT_MAX_STEPS,
+    adjoint: str = "reverse",
     solver: AlphaMethod | None = None,
     truncation: int | None = None,
     checkpoint_every: int | str | None = None,
 ) -> Solution:
     """Integrate the homogenized peeling ODE (eq. ``hv``) with the α-method.
 
+    Two modes share the α-method's step (:mod:`peeljax.integrators.alpha`):
+
+    * ``dt=None`` (default): error control (:func:`~peeljax.integrators.adaptive.integrate_alpha_adaptive`),
+      a step size chosen by a PI controller so that each step's local error estimate is
+      within ``rtol``/``atol``; output at ``ts`` by cubic Hermite interpolation.
+    * ``dt`` a number: the uniform mesh of the paper (:func:`peeljax.integrate_alpha`).
+
     Args:
         model: spool, tape and adhesion law (default: the paper's, ``PeelingModel()``).
         V: pull velocity [m/s], > 0.
         tau: homogenization time scale τ [s], > 0.
-        dt: requested step [s]; the mesh has N = round(t_final/dt) steps of t_final/N
-            (``result.stats["step_size"]``), so it ends exactly at t_final.
-        t_final: end time [s], ≥ dt.
+        dt: None for error control; else the requested uniform step [s]: the mesh has
+            N = round(t_final/dt) steps of t_final/N (``result.stats["step_size"]``), so it
+            ends exactly at t_final.
+        t_final: end time [s], > 0 (≥ dt).
         rho: the α-method's ρ ∈ [0, 1) (ignored when ``solver`` is given).
         y0: initial (α, ω, u, v) with v > 0 (default: the paper's consistent data,
             :meth:`PeelingModel.initial_state`).
         solver: an :class:`AlphaMethod` to set Newton tolerances and safeguards.
         truncation: ``None`` for the exact J_t, m ≥ 1 for the m-term eq. ``hvex``, 0 for the
             τ → 0 index-1 ODE.
-        checkpoint_every: for reverse-mode gradients of long runs: chunks of this many steps
-            under ``jax.checkpoint`` (``"sqrt"``: ≈ √N), memory ∝ √N (see
+        rtol, atol: error control only (default 1e-6 and 1e-9): relative tolerance in
+            (0, 1) and absolute tolerance > 0 of the weighted RMS error norm; log v is
+            weighted by rtol alone (a relative error of v). Giving either with ``dt`` is an error.
+        ts: error control only: output times in [0, t_final], increasing. None: the
+            accepted step points, in ``max_steps + 1`` rows NaN-padded (``valid`` False).
+        dtmin: error control only: a proposed step below it stops the run with "step size
+            collapsed" (default 1e-12·t_final).
+        max_steps: error control only: most step attempts (accepted + rejected; static).
+            Reaching it stops the run with its own reason.
+        adjoint: error control only: ``"reverse"`` (default; a checkpointed while loop, for
+            ``jax.grad``) or ``"forward"`` (a plain while loop, for ``jax.jvp``/``jacfwd``).
+        checkpoint_every: uniform mesh only, for reverse-mode gradients of long runs: chunks
+            of this many steps under ``jax.checkpoint`` (``"sqrt"``: ≈ √N), memory ∝ √N (see
             :func:`peeljax.integrate_alpha`); values are unchanged.
 
     Returns:
-        A :class:`Solution` with N + 1 time points. A run that cannot continue has
+        A :class:`Solution`. Uniform mesh: N + 1 time points. Error control: the points of
+        ``ts``, or the accepted steps; ``stats`` has ``accepted_steps``, ``rejected_steps``
+        and the smallest, mean and largest step. A run that cannot continue has
         ``status != 0``, ``t_stop`` and ``reason``; its later states are NaN.
 
     V, tau, rho, y0, the model's parameters and the adhesion coefficients are traced: ``jit``,
     ``vmap`` and ``grad`` work over them without recompiling. ``dt`` and ``t_final`` set the
     mesh's shape and must be Python numbers. Input is checked before compilation.
     """
-    n_steps = check_mesh(dt, t_final)
+    if dt is not None:
+        for name, value in (("rtol", rtol), ("atol", atol), ("ts", ts), ("dtmin", dtmin)):
+            if value is not None:
+                raise ValueError(f"{name} applies to error control (dt=None); it cannot be combined with dt={dt!r}")
+        n_steps = check_mesh(dt, t_final)
+        solver = checked_solver(solver, rho)
+        ode, y0 = _prepare(model, V, tau, y0, truncation)
+        return _run_alpha(ode, solver, y0, jnp.asarray(t_final, float), n_steps, checkpoint_every)
+    if checkpoint_every is not None:
+        raise ValueError("checkpoint_every applies to the uniform mesh (dt given); error control checkpoints its loop itself")
+    check_positive("t_final", t_final)
+    rtol = DEFAULT_RTOL if rtol is None else rtol
+    atol = DEFAULT_ATOL if atol is None else atol
+    check_tolerance("rtol", rtol, upper=1.0)
+    check_tolerance("atol", atol)
+    if dtmin is not None:
+        check_positive("dtmin", dtmin)
+    check_max_steps(max_steps)
+    if adjoint not in ("reverse", "forward"):
+        raise ValueError(f"adjoint must be 'reverse' or 'forward', got {adjoint!r}")
+    ts = None if ts is None else jnp.asarray(check_output_times(ts, t_final))
     solver = checked_solver(solver, rho)
     ode, y0 = _prepare(model, V, tau, y0, truncation)
-    return _run_alpha(ode, solver, y0, jnp.asarray(t_final, float), n_steps, checkpoint_every)
+    controller = PIController(rtol=rtol, atol=atol)
+    t_final = jnp.asarray(t_final, float)
+    dtmin = 1e-12 * t_final if dtmin is None else jnp.asarray(dtmin, float)
+    return _run_adaptive(ode, solver, y0, t_final, controller, ts, dtmin, max_steps, adjoint)
 
 
 @eqx.filter_jit
@@ -132,8 +204,7 @@ def simulate_reference(
     check_positive("atol", atol)
     if dtmin is not None:
         check_positive("dtmin", dtmin)
-    if not isinstance(max_steps, int) or max_steps < 1:
-        raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+    check_max_steps(max_steps)
     ode, y0 = _prepare(model, V, tau, y0, truncation)
     ts = jnp.linspace(0.0, float(t_final), n_steps + 1)
     solver = diffrax.Kvaerno5() if solver is None else solver

@@ -1,0 +1,78 @@
+"""Step-size control for the adaptive α-method: the error norm and a PI controller.
+
+The controller follows diffrax's ``PIDController`` (without its derivative term): with the
+scaled error norm ‖e‖ of a step of size h and the norm ‖e‖_prev of the last accepted step,
+
+    h_next = h · clip(safety · ‖e‖^(−β₁) · ‖e‖_prev^(β₂), factormin, factormax),
+    β₁ = (pcoeff + icoeff)/q,   β₂ = pcoeff/q,
+
+with q = 3 the order of the local error estimate (the α-method's local error is O(h³)).
+A step is accepted when ‖e‖ ≤ 1; a rejected step is retried with a factor ≤ ``safety``
+(never grown), and a step whose Newton iteration failed with ``newton_failure_factor``.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
+__all__ = ["PIController", "ERROR_ORDER"]
+
+ERROR_ORDER = 3  # local error of the α-method's step: C·h³·y'''
+
+
+def _float(a):
+    return jnp.asarray(a, dtype=float)
+
+
+class PIController(eqx.Module):
+    """Tolerances and the step-size update of the adaptive α-method.
+
+    Attributes:
+        rtol, atol: the weighted RMS norm of a step's error estimate e is
+            ‖e‖ = sqrt(mean((e_i/s_i)²)) with s_i = atol + rtol·max(|y_n,i|, |y_n+1,i|) for
+            ordinary components and s_i = rtol for components carried as a logarithm (log v):
+            an error δ in log v is a relative error δ of v, weighted as such even where v is
+            tiny (relaxing it by atol/v would let the take-off time of v drift; see
+            ``docs/theory.md``).
+        pcoeff, icoeff: proportional and integral coefficients (diffrax's naming).
+            ``pcoeff = 0, icoeff = 1`` is the classical I controller.
+        safety, factormin, factormax: the usual safety factor and the clip of h_next/h.
+        newton_failure_factor: h_next/h after a step whose Newton iteration failed.
+    """
+
+    rtol: Float[Array, ""] = eqx.field(converter=_float, default=1e-6)
+    atol: Float[Array, ""] = eqx.field(converter=_float, default=1e-9)
+    pcoeff: Float[Array, ""] = eqx.field(converter=_float, default=0.2)
+    icoeff: Float[Array, ""] = eqx.field(converter=_float, default=0.4)
+    safety: Float[Array, ""] = eqx.field(converter=_float, default=0.9)
+    factormin: Float[Array, ""] = eqx.field(converter=_float, default=0.2)
+    factormax: Float[Array, ""] = eqx.field(converter=_float, default=10.0)
+    newton_failure_factor: Float[Array, ""] = eqx.field(converter=_float, default=0.25)
+
+    def error_norm(
+        self,
+        error: Float[Array, " n"],
+        y0: Float[Array, " n"],
+        y1: Float[Array, " n"],
+        log_mask: Bool[Array, " n"],
+    ) -> Float[Array, ""]:
+        """Weighted RMS norm of ``error`` (≤ 1: within tolerance); inf when not finite."""
+        scale = jnp.where(log_mask, self.rtol, self.atol + self.rtol * jnp.maximum(jnp.abs(y0), jnp.abs(y1)))
+        norm = jnp.sqrt(jnp.mean((error / scale) ** 2))
+        return jnp.where(jnp.isfinite(norm), norm, jnp.inf)
+
+    def factor(self, norm: Array, prev_norm: Array, accepted: Array, solved: Array) -> Array:
+        """h_next/h after a step with error ``norm`` (the last accepted step had ``prev_norm``)."""
+        beta1 = (self.pcoeff + self.icoeff) / ERROR_ORDER
+        beta2 = self.pcoeff / ERROR_ORDER
+        # A zero error (a linear stretch of the solution) asks for the largest growth.
+        safe_norm = jnp.where(jnp.isfinite(norm) & (norm > 0), norm, 1.0)
+        raw = self.safety * safe_norm ** (-beta1) * jnp.maximum(prev_norm, 1e-10) ** beta2
+        raw = jnp.where(norm > 0, raw, self.factormax)
+        # As diffrax: an accepted step never shrinks the next one, a rejected one never grows it.
+        upper = jnp.where(accepted, self.factormax, self.safety)
+        lower = jnp.where(accepted, 1.0, self.factormin)
+        factor = jnp.clip(raw, lower, upper)
+        return jnp.where(solved, factor, self.newton_failure_factor)

@@ -1,0 +1,286 @@
+"""The error-controlled α-method (issue 11): its error estimate, order, accuracy, stops and gradients."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import peeljax as pj
+from peeljax.homogenized import Evaluation, HomogenizedODE
+from peeljax.integrators.adaptive import alpha_attempt, error_constant
+from peeljax.integrators.alpha import alpha_start
+from peeljax.integrators.dense import hermite
+from peeljax.solution import StopReason
+
+GRID = np.linspace(0.0, 3.0, 301)
+
+
+class LinearODE(eqx.Module):
+    """y' = λ·y componentwise (J = −1, F̃·f = 0: no impasse)."""
+
+    lam: jax.Array
+    tau: float = 0.5
+
+    def evaluate(self, y):
+        return Evaluation(psi=self.lam * y, J=jnp.asarray(-1.0), drive=jnp.asarray(0.0))
+
+    def __call__(self, y):
+        return self.evaluate(y).psi
+
+
+GENERAL = pj.AlphaMethod(log_components=())
+
+
+def fitted_slope(x, y):
+    return float(np.polyfit(np.log(x), np.log(y), 1)[0])
+
+
+def _constant_steps(ode, solver, y0, h, n):
+    """n α-method steps of size h from y0 (a_0 = ψ'ψ); returns the carried ODE and the last state."""
+    ode_c, state = alpha_start(ode, solver, y0)
+
+    def body(state, _):
+        new, _, _, _ = alpha_attempt(ode_c, solver, state, h)
+        return new, None
+
+    state, _ = jax.lax.scan(body, state, None, length=n)
+    return ode_c, state
+
+
+# ---------------------------------------------------------------- the error estimate
+def test_error_constant():
+    assert float(error_constant(0.0)) == pytest.approx(1 / 3)
+    for rho in (0.0, 0.3, 0.9):
+        gamma, beta = pj.alpha_coefficients(rho)
+        b = beta / gamma
+        assert float(error_constant(rho)) == pytest.approx(b / 2 + (0.5 - b) * (0.5 - gamma) - 1 / 6)
+
+
+@pytest.mark.parametrize("rho", [0.0, 0.5])
+def test_estimate_matches_the_true_local_error_on_a_linear_ode(rho):
+    """From the exact y(t_n) with the a_n the run carries, one step's error against C·h²·(a_{n+1} − a_n).
+
+    Also PETSc TSALPHA's estimate (y_{n+1} − 2y_n + y_{n−1})/2 for comparison: it estimates
+    h²·y''/2, the error of a first-order method, and overestimates the α-method's error by a
+    ratio that grows like 1/h.
+    """
+    lam = jnp.array([-1.0, 0.7])
+    ode = LinearODE(lam)
+    solver = pj.AlphaMethod(rho=rho, log_components=())
+    y0 = jnp.array([1.0, 1.0])
+    ratios, petsc_ratios = [], []
+    for h in (0.1, 0.05, 0.025, 0.0125):
+        n = round(1.0 / h)
+        ode_c, state = _constant_steps(ode, solver, y0, h, n)
+        t_n = n * h
+        exact = lambda t: y0 * jnp.exp(lam * t)  # noqa: E731
+        state = eqx.tree_at(lambda s: (s.y, s.psi), state, (exact(t_n), lam * exact(t_n)))
+        new, estimate, solved, _ = alpha_attempt(ode_c, solver, state, h)
+        assert bool(solved)
+        true_error = new.y - exact(t_n + h)
+        ratios.append(np.asarray(estimate / true_error))
+        petsc = (new.y - 2 * exact(t_n) + exact(t_n - h)) / 2
+        petsc_ratios.append(np.asarray(petsc / true_error))
+    ratios = np.array(ratios)
+    assert np.all((ratios > 0.5) & (ratios < 2.0)), ratios
+    assert np.all(np.abs(ratios[-1] - 1) < np.abs(ratios[0] - 1) + 1e-12)  # tends to 1 as h → 0
+    petsc_ratios = np.abs(np.array(petsc_ratios))
+    assert np.all(petsc_ratios[-1] > 5 * np.abs(ratios[-1]))
+    assert np.all(petsc_ratios[-1] / petsc_ratios[0] > 4)  # ∝ 1/h over an 8-fold refinement
+
+
+@pytest.mark.slow
+def test_estimate_matches_the_true_local_error_on_the_peeling_ode():
+    """The same on the peeling ODE in (α, ω, u, log v) from a state of the V = 1.1, τ = 0.1 run."""
+    model = pj.PeelingModel()
+    V, tau, t_n = 1.1, 0.1, 0.6
+    start = pj.simulate_reference(model, V=V, tau=tau, dt=0.1, t_final=0.5, rtol=1e-12, atol=1e-14)
+    y_start = np.asarray(start.ys[-1])  # the state at t = 0.5
+    solver = pj.AlphaMethod()
+    ode = HomogenizedODE(model, V, tau)
+    ratios = []
+    for h in (4e-3, 2e-3, 1e-3):
+        n = round(0.1 / h)
+        ode_c, state = _constant_steps(ode, solver, jnp.asarray(y_start), h, n)
+        ref = pj.simulate_reference(model, V=V, tau=tau, dt=h, t_final=t_n + h, rtol=1e-13, atol=1e-15)
+        z = np.asarray(ref.ys).copy()
+        z[:, 3] = np.log(z[:, 3])
+        # restart from the exact state at t_n = 0.6 (the reference on a grid of step h)
+        i = round(t_n / h)
+        exact_n = jnp.asarray(z[i])
+        state = eqx.tree_at(lambda s: (s.y, s.psi), state, (exact_n, ode_c(exact_n)))
+        new, estimate, solved, _ = alpha_attempt(ode_c, solver, state, h)
+        assert bool(solved)
+        true_error = np.asarray(new.y) - z[i + 1]
+        big = np.abs(true_error) > 1e-3 * np.max(np.abs(true_error))  # components above round-off
+        ratios.append(np.asarray(estimate)[big] / true_error[big])
+    for r in ratios:
+        assert np.all((r > 0.5) & (r < 2.0)), ratios
+    assert np.max(np.abs(ratios[-1] - 1)) < 0.25
+
+
+# ---------------------------------------------------------------- the variable mesh
+def test_second_order_on_a_variable_mesh_without_correcting_a():
+    """A mesh whose steps alternate h and 2h (ratio 2 at every step), halved three times: slope 2."""
+    lam = jnp.array([-2.0, 1.0])
+    ode = LinearODE(lam)
+    y0 = jnp.array([1.0, 1.0])
+    errors, ns = [], []
+    for k in range(4):
+        base = 1.0 / (30 * 2**k)
+        hs = jnp.asarray(np.tile([base, 2 * base], 10 * 2**k))  # sums to 1
+        ode_c, state = alpha_start(ode, GENERAL, y0)
+
+        def body(state, h):
+            new, _, _, _ = alpha_attempt(ode_c, GENERAL, state, h)
+            return new, None
+
+        state, _ = jax.lax.scan(body, state, hs)
+        errors.append(float(jnp.max(jnp.abs(state.y - y0 * jnp.exp(lam * jnp.sum(hs))))))
+        ns.append(len(hs))
+    assert fitted_slope(ns, errors) == pytest.approx(-2.0, abs=0.15)
+
+
+# ---------------------------------------------------------------- dense output
+def test_hermite_is_exact_on_cubics():
+    p = lambda t: 1 - 2 * t + 0.5 * t**2 + 3 * t**3  # noqa: E731
+    dp = lambda t: -2 + t + 9 * t**2  # noqa: E731
+    t = jnp.linspace(0.2, 0.7, 7)
+    t0, t1 = jnp.asarray(0.2), jnp.asarray(0.7)
+    out = hermite(t0, t1 - t0, p(t0)[None], dp(t0)[None], p(t1)[None], dp(t1)[None], t)
+    np.testing.assert_allclose(out[:, 0], p(t), rtol=1e-13)
+
+
+def test_output_on_a_grid_and_at_the_steps():
+    ts = np.linspace(0.0, 0.5, 51)
+    dense = pj.simulate(V=1.1, tau=0.1, t_final=0.5, rtol=1e-6, ts=ts)
+    steps = pj.simulate(V=1.1, tau=0.1, t_final=0.5, rtol=1e-6, max_steps=5000)
+    assert bool(dense.completed) and bool(steps.completed)
+    assert dense.ys.shape == (51, 4) and bool(jnp.all(dense.valid))
+    np.testing.assert_array_equal(np.asarray(dense.ts), ts)
+    n = int(steps.stats["accepted_steps"])
+    assert steps.ys.shape == (5001, 4) and int(jnp.sum(steps.valid)) == n + 1
+    t = np.asarray(steps.ts)[np.asarray(steps.valid)]
+    assert t[0] == 0.0 and t[-1] == 0.5 and np.all(np.diff(t) > 0)
+    assert np.all(np.isnan(np.asarray(steps.ys)[~np.asarray(steps.valid)]))
+    # The same run: the dense output at the step points is the step's value.
+    v_steps = np.asarray(steps.v)[np.asarray(steps.valid)]
+    np.testing.assert_allclose(np.interp(ts[1:-1], t, v_steps), np.asarray(dense.v)[1:-1], rtol=2e-2)
+    assert float(dense.v[-1]) == pytest.approx(v_steps[-1], rel=1e-12)
+    assert int(dense.stats["steps"]) == int(dense.stats["accepted_steps"]) == n
+    assert float(steps.stats["step_size_min"]) <= float(steps.stats["step_size_mean"]) <= float(steps.stats["step_size_max"])
+
+
+# ---------------------------------------------------------------- accuracy
+@pytest.fixture(scope="module")
+def references():
+    model = pj.PeelingModel()
+    return {
+        (V, tau): pj.simulate_reference(model, V=V, tau=tau, dt=0.01, t_final=3.0, rtol=1e-11, atol=1e-13)
+        for V, tau in ((1.1, 0.01), (1.1, 0.1), (2.0, 0.01), (4.0, 0.01))
+    }
+
+
+@pytest.mark.slow
+def test_error_falls_with_the_tolerance_at_second_order(references):
+    """rtol = 1e-3 … 1e-8 (atol = 1e-3·rtol): max |Δv| on the 301-point grid falls monotonically,
+    as (accepted steps)^−2."""
+    ref = np.asarray(references[(1.1, 0.01)].v)
+    errors, steps = [], []
+    for rtol in (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8):
+        sol = pj.simulate(V=1.1, tau=0.01, t_final=3.0, rtol=rtol, atol=1e-3 * rtol, ts=GRID)
+        assert bool(sol.completed)
+        errors.append(float(np.max(np.abs(np.asarray(sol.v) - ref))))
+        steps.append(int(sol.stats["accepted_steps"]))
+    assert all(b < a for a, b in zip(errors, errors[1:])), errors
+    assert fitted_slope(steps, errors) == pytest.approx(-2.0, abs=0.3)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("V", "tau"), [(1.1, 0.01), (1.1, 0.1), (2.0, 0.01), (4.0, 0.01)])
+def test_accuracy_at_tight_tolerance(references, V, tau):
+    """At rtol = 1e-7 the max |Δv| over [0, 3 s], t = 0 included, is ≤ 1e-4."""
+    sol = pj.simulate(V=V, tau=tau, t_final=3.0, rtol=1e-7, ts=GRID)
+    assert bool(sol.completed)
+    assert float(np.max(np.abs(np.asarray(sol.v) - np.asarray(references[(V, tau)].v)))) <= 1e-4
+
+
+# ---------------------------------------------------------------- stops
+def test_stops_honestly_at_small_tau():
+    """V = 1.1, τ = 1e-3: the run stops in (0.1, 0.3) s at the impasse or with a collapsed step."""
+    sol = pj.simulate(V=1.1, tau=1e-3, t_final=3.0, rtol=1e-4, ts=GRID)
+    assert int(sol.status) in (StopReason.IMPASSE, StopReason.STALLED), sol.reason
+    assert 0.1 < float(sol.t_stop) < 0.3
+    steps = int(sol.stats["accepted_steps"]) + int(sol.stats["rejected_steps"])
+    assert steps < 5000
+    valid = np.asarray(sol.valid)
+    assert np.all(np.asarray(sol.ts)[valid] <= float(sol.t_stop))
+    assert np.all(np.isnan(np.asarray(sol.ys)[~valid])) and np.all(np.isfinite(np.asarray(sol.ys)[valid]))
+    assert "step size collapsed" in StopReason.STALLED.message
+
+
+def test_max_steps_is_its_own_reason():
+    sol = pj.simulate(V=1.1, tau=0.1, t_final=3.0, max_steps=40, ts=GRID)
+    assert int(sol.status) == StopReason.MAX_STEPS
+    assert float(sol.t_stop) < 3.0
+    assert int(sol.stats["accepted_steps"]) + int(sol.stats["rejected_steps"]) == 40
+
+
+# ---------------------------------------------------------------- gradients
+def _loss(V, tau, adjoint, t_final=0.5, rtol=1e-10):
+    ts = np.linspace(0.0, t_final, 26)
+    sol = pj.simulate(V=V, tau=tau, t_final=t_final, rtol=rtol, atol=1e-13, ts=ts, adjoint=adjoint)
+    return jnp.mean(jnp.where(sol.valid, sol.v, 0.0) ** 2)
+
+
+@pytest.mark.slow
+def test_gradients_agree_with_central_differences():
+    V, tau = 1.1, 0.1
+    grad = jax.grad(_loss, argnums=(0, 1))(V, tau, "reverse")
+    tangent_V = jax.jvp(lambda V_: _loss(V_, tau, "forward"), (V,), (1.0,))[1]
+    tangent_tau = jax.jvp(lambda tau_: _loss(V, tau_, "forward"), (tau,), (1.0,))[1]
+    for k, (x, dx) in enumerate(((V, 1e-5), (tau, 1e-6))):
+        args = [V, tau]
+        args[k] = x + dx
+        up = float(_loss(*args, "forward"))
+        args[k] = x - dx
+        down = float(_loss(*args, "forward"))
+        fd = (up - down) / (2 * dx)
+        assert float(grad[k]) == pytest.approx(fd, rel=1e-5)
+        assert float((tangent_V, tangent_tau)[k]) == pytest.approx(fd, rel=1e-5)
+
+
+@pytest.mark.slow
+def test_gradients_are_finite_across_a_stop():
+    loss = lambda tau: _loss(1.1, tau, "reverse", t_final=0.5, rtol=1e-4)  # noqa: E731
+    sol = pj.simulate(V=1.1, tau=1e-3, t_final=0.5, rtol=1e-4, ts=np.linspace(0, 0.5, 26))
+    assert not bool(sol.completed)
+    value, grad = jax.value_and_grad(loss)(1e-3)
+    assert np.isfinite(float(value)) and np.isfinite(float(grad))
+
+
+# ---------------------------------------------------------------- input
+@pytest.mark.parametrize(
+    ("kwargs", "name"),
+    [
+        (dict(rtol=0.0), "rtol"),
+        (dict(rtol=1.0), "rtol"),
+        (dict(rtol=float("nan")), "rtol"),
+        (dict(atol=0.0), "atol"),
+        (dict(atol=float("inf")), "atol"),
+        (dict(dt=0.01, rtol=1e-6), "rtol"),
+        (dict(dt=0.01, atol=1e-6), "atol"),
+        (dict(ts=[0.0, 4.0]), "ts"),
+        (dict(ts=[0.5, 0.1]), "ts"),
+        (dict(dtmin=-1.0), "dtmin"),
+        (dict(max_steps=0), "max_steps"),
+        (dict(adjoint="backward"), "adjoint"),
+        (dict(checkpoint_every=10), "checkpoint_every"),
+    ],
+)
+def test_bad_adaptive_input_is_rejected_before_compilation(no_compilation, kwargs, name):
+    with pytest.raises(ValueError, match=name):
+        pj.simulate(**kwargs)
