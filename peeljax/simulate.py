@@ -182,10 +182,11 @@ def simulate_reference(
     model: PeelingModel | None = None,
     V: ArrayLike = 1.1,
     tau: ArrayLike = 0.01,
-    dt: float = 1 / 82,
+    dt: float | None = 1 / 82,
     t_final: float = 3.0,
     y0: ArrayLike | None = None,
     *,
+    ts: ArrayLike | None = None,
     solver: diffrax.AbstractSolver | None = None,
     rtol: float = 1e-8,
     atol: float = 1e-10,
@@ -195,18 +196,28 @@ def simulate_reference(
 ) -> Solution:
     """The same problem with diffrax (Kvaerno5 by default), output on the α-method's grid.
 
-    ``dt`` sets only the output grid (N = round(t_final/dt) intervals); the steps are adaptive
-    with a PID controller at ``rtol``/``atol``. A collapsing step (< ``dtmin``, default
+    ``dt`` sets only the output grid (N = round(t_final/dt) intervals), or ``ts`` (with
+    ``dt=None``) gives the output times; the steps are adaptive with a PID controller at
+    ``rtol``/``atol``. A collapsing step (< ``dtmin``, default
     1e-12·t_final) stops the run with status ``STALLED``.
     """
-    n_steps = check_mesh(dt, t_final)
+    if (ts is None) == (dt is None):
+        raise ValueError("simulate_reference: give the output grid either as dt or as ts (with dt=None)")
+    if ts is None:
+        n_steps = check_mesh(dt, t_final)
+        ts = jnp.linspace(0.0, float(t_final), n_steps + 1)
+    else:
+        check_positive("t_final", t_final)
+        ts = check_output_times(ts, t_final)
+        if ts[0] != 0.0:
+            raise ValueError("ts must start at 0 for the reference solver (its start time)")
+        ts = jnp.asarray(ts)
     check_positive("rtol", rtol)
     check_positive("atol", atol)
     if dtmin is not None:
         check_positive("dtmin", dtmin)
     check_max_steps(max_steps)
     ode, y0 = _prepare(model, V, tau, y0, truncation)
-    ts = jnp.linspace(0.0, float(t_final), n_steps + 1)
     solver = diffrax.Kvaerno5() if solver is None else solver
     dtmin = 1e-12 * float(t_final) if dtmin is None else dtmin
     return _run_reference(ode, y0, ts, solver, jnp.asarray(rtol), jnp.asarray(atol), jnp.asarray(dtmin), max_steps)

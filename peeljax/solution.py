@@ -40,9 +40,10 @@ _MESSAGES = {
     ),
     StopReason.NONFINITE: "a state or dψ/dt became non-finite",
     StopReason.STALLED: (
-        "the adaptive step size collapsed below dtmin (the reference solver stalls at an impasse point)"
+        "the step size collapsed below dtmin (the solution cannot be continued: typically an impasse "
+        "point, where J_t -> 0 and dv/dt blows up)"
     ),
-    StopReason.MAX_STEPS: "the reference solver reached max_steps",
+    StopReason.MAX_STEPS: "max_steps step attempts were used up before t_final",
     StopReason.SOLVER_FAILED: "the reference solver failed (diffrax reported an error)",
 }
 
@@ -140,12 +141,13 @@ class Solution(eqx.Module):
             "status": self.status_name,
             "reason": self.reason,
             "t_stop": float(self.t_stop),
-            "steps": last,
+            "steps": _to_python(self.stats["steps"]) if "steps" in self.stats else last,
             "v_final": float(v[-1]),
             "v_min": float(v.min()),
             "v_max": float(v.max()),
         }
-        out.update({key: _to_python(value) for key, value in self.stats.items()})
+        # Statistics never overwrite a summary key.
+        out.update({key: _to_python(value) for key, value in self.stats.items() if key not in out})
         return out
 
 

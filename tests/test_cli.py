@@ -121,6 +121,52 @@ def test_diffrax_method(tmp_path):
         assert math.isnan(float(data["rho"]))
 
 
+# Error control (no --dt): bad tolerances exit 2 naming the option.
+BAD_TOLERANCES = [
+    (["--rtol", "0"], "rtol", "(0, 1)"),
+    (["--rtol", "1"], "rtol", "(0, 1)"),
+    (["--rtol", "nan"], "rtol", "(0, 1)"),
+    (["--atol=-1e-9"], "atol", "(0, inf)"),
+    (["--atol", "nan"], "atol", "(0, inf)"),
+    (["--save-dt", "1"], "save-dt", "(0, 0.2]"),
+]
+
+
+@pytest.mark.parametrize(("options", "name", "allowed"), BAD_TOLERANCES, ids=[" ".join(o) for o, *_ in BAD_TOLERANCES])
+def test_bad_tolerances_exit_2_before_compiling(options, name, allowed, no_compilation, capsys):
+    assert main(["simulate", "--t-final", "0.2", *options]) == 2
+    message = capsys.readouterr().err.strip().splitlines()[-1]
+    assert message.startswith("peeljax: error: ") and name in message and allowed in message, message
+
+
+def test_error_control_is_the_default(tmp_path):
+    npz = tmp_path / "run.npz"
+    code, out, err = run_main(["simulate", "--t-final", "0.2", "--rtol", "1e-5", "--out", str(npz), "--json"])
+    assert code == 0, err
+    record = json.loads(out)
+    assert record["rtol"] == 1e-5 and record["atol"] == 1e-9 and record["dt"] is None
+    assert record["steps"] == record["accepted_steps"] > 0 and record["rejected_steps"] >= 0
+    with np.load(npz, allow_pickle=False) as data:
+        # the accepted steps, only the valid rows
+        assert data["t"].shape == (record["accepted_steps"] + 1,) and bool(data["valid"].all())
+        assert data["t"][0] == 0.0 and data["t"][-1] == pytest.approx(0.2) and np.all(np.diff(data["t"]) > 0)
+        assert math.isnan(float(data["dt"])) and float(data["rtol"]) == 1e-5
+
+
+def test_save_dt_gives_the_output_grid(tmp_path):
+    npz = tmp_path / "run.npz"
+    code, out, err = run_main(["simulate", "--t-final", "0.25", "--save-dt", "0.1", "--out", str(npz), "--json"])
+    assert code == 0, err
+    with np.load(npz, allow_pickle=False) as data:
+        np.testing.assert_allclose(data["t"], [0.0, 0.1, 0.2, 0.25])
+    assert "accepted_steps" in json.loads(out) and "rejected_steps" in json.loads(out)
+
+
+def test_uniform_mesh_reports_accepted_and_rejected_steps(alpha_run):
+    record = json.loads(alpha_run["stdout"])
+    assert record["accepted_steps"] == record["steps"] == 20 and record["rejected_steps"] >= 0
+
+
 @pytest.mark.slow
 def test_module_entry_point_prints_one_json_object():
     result = subprocess.run(
@@ -174,8 +220,10 @@ BAD_INPUT = [
     (["--method", "foo"], "method", "alpha, diffrax"),
     (["--y0", "0", "0", "0.001", "0"], "y0", "(0, inf)"),
     (["--phi", "MALFORMED"], "--phi", "not valid JSON"),
-    (["--rtol", "1e-6"], "--rtol", "--method diffrax only"),  # a diffrax option with the α-method
+    (["--rtol", "1e-6"], "--rtol", "uniform mesh"),  # error control with the uniform mesh (SHORT has --dt)
     (["--method", "diffrax", "--atol", "0"], "atol", "(0, inf)"),
+    (["--save-dt", "0.1"], "--save-dt", "uniform mesh"),
+    (["--save-dt", "0"], "save-dt", "(0, 0.2]"),
     (["--out", "/nonexistent-folder/run.npz"], "--out", "does not exist"),
 ]
 
@@ -207,7 +255,7 @@ def test_valid_phi_file_is_used(tmp_path):
     AdhesionLaw(c1=420.0).to_json(path)
     config = validate_run(build_parser().parse_args(["simulate", "--phi", str(path), "--geometry", "full"]))
     assert config.model.adhesion.coefficients()["c1"] == 420.0
-    assert config.model.geometry == "full" and config.rho == 0.0 and config.rtol is None
+    assert config.model.geometry == "full" and config.rho == 0.0 and config.rtol == 1e-6 and config.adaptive
 
 
 # ---------------------------------------------------------------------------- a stopped run's outputs

@@ -11,9 +11,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import check_choice, check_mesh, check_positive, check_rho, check_y0
+from .._validation import check_choice, check_mesh, check_positive, check_rho, check_tolerance, check_y0
 from ..adhesion import AdhesionLaw
 from ..model import GEOMETRIES, PeelingModel
+from ..simulate import DEFAULT_ATOL as _ALPHA_ATOL
+from ..simulate import DEFAULT_RTOL as _ALPHA_RTOL
 from ..simulate import simulate, simulate_reference
 from ..solution import Solution
 from ._common import PROG, check_output_path, checked, fail, json_safe, load_phi, plot_formats
@@ -23,7 +25,8 @@ __all__ = ["add_command", "run", "summarize", "validate_run", "write_npz"]
 METHODS = ("alpha", "diffrax")
 _METHOD_TITLES = {"alpha": "alpha-method", "diffrax": "diffrax Kvaerno5 reference"}
 _PLOT_METHODS = {"alpha": "α-method", "diffrax": "diffrax Kvaerno5 reference"}
-_DEFAULT_RTOL, _DEFAULT_ATOL = 1e-8, 1e-10
+_DEFAULT_RTOL, _DEFAULT_ATOL = 1e-8, 1e-10  # diffrax
+_DIFFRAX_OUTPUT_DT = 1 / 82  # diffrax's output spacing when neither --dt nor --save-dt is given
 
 
 def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
@@ -56,15 +59,30 @@ def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
     solver.add_argument(
         "--dt",
         type=float,
-        default=1 / 82,
-        help="step [s] (alpha) or output spacing (diffrax); N = round(t_final/dt) (default 1/82)",
+        default=None,
+        help="alpha: a uniform mesh of N = round(t_final/dt) steps instead of error control; "
+        "diffrax: the output spacing (default: error control for alpha, 1/82 for diffrax)",
     )
     solver.add_argument("--rho", type=float, default=None, help="alpha-method's rho in [0, 1) (default 0; alpha only)")
     solver.add_argument(
-        "--rtol", type=float, default=None, help=f"relative tolerance, > 0 (default {_DEFAULT_RTOL:g}; diffrax only)"
+        "--rtol",
+        type=float,
+        default=None,
+        help=f"relative tolerance in (0, 1) (default {_ALPHA_RTOL:g} for alpha, {_DEFAULT_RTOL:g} for diffrax)",
     )
     solver.add_argument(
-        "--atol", type=float, default=None, help=f"absolute tolerance, > 0 (default {_DEFAULT_ATOL:g}; diffrax only)"
+        "--atol",
+        type=float,
+        default=None,
+        help=f"absolute tolerance, > 0 (default {_ALPHA_ATOL:g} for alpha, {_DEFAULT_ATOL:g} for diffrax)",
+    )
+    solver.add_argument(
+        "--save-dt",
+        dest="save_dt",
+        type=float,
+        default=None,
+        help="output at t = 0, S, 2S, ... <= t_final (and t_final) [s] (default: alpha with error control "
+        "writes its accepted steps; diffrax uses --dt)",
     )
 
 
@@ -94,15 +112,29 @@ class RunConfig:
     model: PeelingModel
     V: float
     tau: float
-    dt: float
+    dt: float | None  # the α-method's uniform step, or diffrax's output spacing; None: error control
     t_final: float
-    n_steps: int
+    n_steps: int | None  # uniform mesh (or diffrax output) intervals; None with error control
     method: str
     rho: float | None  # α-method only
-    rtol: float | None  # diffrax only
-    atol: float | None  # diffrax only
+    rtol: float | None  # error control (α-method) or diffrax
+    atol: float | None
     y0: tuple[float, ...] | None
     phi: str | None
+    save_ts: tuple[float, ...] | None = None  # output times from --save-dt
+
+    @property
+    def adaptive(self) -> bool:
+        return self.method == "alpha" and self.dt is None
+
+
+def output_times(save_dt: float, t_final: float) -> np.ndarray:
+    """t = k·S for k = 0 … floor(t_final/S + 1e-9), plus t_final when it is not on that grid."""
+    k = np.arange(math.floor(t_final / save_dt + 1e-9) + 1)
+    ts = np.minimum(k * save_dt, t_final)
+    if t_final - ts[-1] > 1e-9 * save_dt:
+        ts = np.append(ts, t_final)
+    return ts
 
 
 def validate_run(args: argparse.Namespace) -> RunConfig:
@@ -116,21 +148,40 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
     positive = "(0, inf)"
     checked(positive, check_positive, "V", args.V)
     checked(positive, check_positive, "tau", args.tau)
-    n_steps = checked("dt in (0, t_final], t_final in (0, inf)", check_mesh, args.dt, args.t_final)
+    checked(positive, check_positive, "t_final", args.t_final)
+    dt = args.dt
+    if args.method == "diffrax" and dt is None and args.save_dt is None:
+        dt = _DIFFRAX_OUTPUT_DT
+    n_steps = None if dt is None else checked("dt in (0, t_final], t_final in (0, inf)", check_mesh, dt, args.t_final)
+    save_ts = None
+    if args.save_dt is not None:
+        if not (math.isfinite(args.save_dt) and 0 < args.save_dt <= args.t_final):
+            raise ValueError(f"--save-dt must lie in (0, t_final] = (0, {args.t_final:g}], got {args.save_dt:g}")
+        if args.method == "alpha" and dt is not None:
+            raise ValueError("--save-dt sets the output of error control; with --dt the output is the uniform mesh")
+        save_ts = tuple(output_times(args.save_dt, args.t_final))
+        if len(save_ts) > 10_000_001:
+            raise ValueError(f"--save-dt {args.save_dt:g} gives {len(save_ts)} output times; the limit is 1e7")
     rho = rtol = atol = None
     if args.method == "alpha":
         rho = 0.0 if args.rho is None else args.rho
         checked("[0, 1)", check_rho, rho)
-        if args.rtol is not None or args.atol is not None:
-            raise ValueError("--rtol/--atol are the diffrax solver's tolerances: they apply with --method diffrax only")
+        if dt is not None and (args.rtol is not None or args.atol is not None):
+            raise ValueError(
+                "--rtol/--atol set the error control of the alpha-method; --dt asks for a uniform mesh: give one or the other"
+            )
+        if dt is None:
+            rtol = _ALPHA_RTOL if args.rtol is None else args.rtol
+            atol = _ALPHA_ATOL if args.atol is None else args.atol
     else:
         if args.rho is not None:
             checked("[0, 1)", check_rho, args.rho)
             raise ValueError("rho is the alpha-method's parameter: --rho applies with --method alpha only")
         rtol = _DEFAULT_RTOL if args.rtol is None else args.rtol
         atol = _DEFAULT_ATOL if args.atol is None else args.atol
-        checked(positive, check_positive, "rtol", rtol)
-        checked(positive, check_positive, "atol", atol)
+    if rtol is not None:
+        checked("(0, 1)", check_tolerance, "rtol", rtol, 1.0)
+        checked(positive, check_tolerance, "atol", atol)
     checked("finite (alpha, omega, u, v) with v > 0", check_y0, args.y0)
     adhesion = AdhesionLaw() if args.phi is None else load_phi(args.phi)
     check_output_path("--out", args.out)
@@ -141,7 +192,7 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
         model=model,
         V=float(args.V),
         tau=float(args.tau),
-        dt=float(args.dt),
+        dt=None if dt is None else float(dt),
         t_final=float(args.t_final),
         n_steps=n_steps,
         method=args.method,
@@ -150,6 +201,7 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
         atol=atol,
         y0=None if args.y0 is None else tuple(args.y0),
         phi=args.phi,
+        save_ts=save_ts,
     )
 
 
@@ -159,20 +211,62 @@ def run(config: RunConfig) -> tuple[Solution, float]:
     import jax
 
     start = time.perf_counter()
-    if config.method == "alpha":
+    ts = None if config.save_ts is None else np.asarray(config.save_ts)
+    if config.adaptive:
+        solution = simulate(
+            config.model, config.V, config.tau, None, config.t_final, config.rho, config.y0, rtol=config.rtol, atol=config.atol, ts=ts
+        )
+        if ts is None:  # the accepted steps: only the valid rows (the rest is padding)
+            solution = _valid_rows(solution)
+    elif config.method == "alpha":
         solution = simulate(config.model, config.V, config.tau, config.dt, config.t_final, config.rho, config.y0)
     else:
         solution = simulate_reference(
-            config.model, config.V, config.tau, config.dt, config.t_final, config.y0, rtol=config.rtol, atol=config.atol
+            config.model,
+            config.V,
+            config.tau,
+            config.dt if ts is None else None,
+            config.t_final,
+            config.y0,
+            rtol=config.rtol,
+            atol=config.atol,
+            ts=ts,
         )
     solution = jax.block_until_ready(solution)  # JAX dispatches asynchronously: time the finished run
     return solution, time.perf_counter() - start
 
 
+def _valid_rows(solution: Solution) -> Solution:
+    """The rows of an accepted-step output that hold states (the rest is NaN padding)."""
+    import jax
+
+    keep = np.asarray(solution.valid).copy()
+    keep[0] = True  # a rejected start still reports its one row
+    return _rows(solution, keep, jax)
+
+
+def _rows(solution: Solution, keep: np.ndarray, jax) -> Solution:
+    rows = lambda a: np.asarray(a)[keep]  # noqa: E731
+    return Solution(
+        ts=rows(solution.ts),
+        ys=rows(solution.ys),
+        valid=rows(solution.valid),
+        status=solution.status,
+        t_stop=solution.t_stop,
+        stats=solution.stats,
+        diagnostics=jax.tree_util.tree_map(rows, solution.diagnostics),
+        method=solution.method,
+    )
+
+
 def step_used(solution: Solution, config: RunConfig) -> float:
-    """The α-method's actual step t_final/N, or the diffrax output grid's spacing."""
+    """The α-method's uniform step t_final/N, the diffrax output grid's spacing, or NaN (error control)."""
+    if config.adaptive:
+        return math.nan
     if config.method == "alpha":
         return float(solution.stats["step_size"])
+    if config.save_ts is not None:
+        return float(config.save_ts[1] - config.save_ts[0]) if len(config.save_ts) > 1 else config.t_final
     return config.t_final / config.n_steps
 
 
@@ -203,9 +297,9 @@ def write_npz(path: str, solution: Solution, config: RunConfig) -> None:
     """The run as plain arrays and scalars (loads with ``np.load(path, allow_pickle=False)``).
 
     Arrays t, alpha, omega, u, v, F (tension) and valid share one length, NaN after a stop.
-    Scalars: status, reason, t_stop, V, tau, dt (the step used), t_final, rho (NaN for diffrax),
-    rtol and atol (NaN for alpha), geometry, method, phi_json (the 14 coefficients, "" for a
-    callable φ) and stats_json.
+    Scalars: status, reason, t_stop, V, tau, dt (the uniform step used; NaN with error
+    control), t_final, rho (NaN for diffrax), rtol and atol (NaN on the uniform mesh),
+    geometry, method, phi_json (the 14 coefficients, "" for a callable φ) and stats_json.
     """
     ys = np.asarray(solution.ys, dtype=float)
     adhesion = config.model.adhesion
@@ -241,7 +335,9 @@ def write_npz(path: str, solution: Solution, config: RunConfig) -> None:
 
 def _plot_title(config: RunConfig, dt: float) -> str:
     parts = [f"V = {config.V:g} m/s", f"τ = {config.tau:g} s", _PLOT_METHODS[config.method]]
-    if config.method == "alpha":
+    if config.adaptive:
+        parts += [f"rtol = {config.rtol:g}", f"atol = {config.atol:g}", f"ρ = {config.rho:g}"]
+    elif config.method == "alpha":
         parts += [f"dt = {dt:.4g} s", f"ρ = {config.rho:g}"]
     else:
         parts += [f"rtol = {config.rtol:g}", f"output every {dt:.4g} s"]
@@ -252,11 +348,18 @@ def _plot_title(config: RunConfig, dt: float) -> str:
 
 def _print_summary(record: dict, config: RunConfig, stats: dict) -> None:
     """A few human-readable lines (ASCII, whatever the terminal's encoding)."""
-    settings = f"rho = {config.rho:g}" if config.rho is not None else f"rtol = {config.rtol:g}, atol = {config.atol:g}"
+    settings = [] if config.rho is None else [f"rho = {config.rho:g}"]
+    if config.rtol is not None:
+        settings.append(f"rtol = {config.rtol:g}, atol = {config.atol:g}")
+    if config.adaptive:
+        mesh = f"error control ({record['accepted_steps']} accepted, {record['rejected_steps']} rejected steps)"
+    elif config.n_steps is None:
+        mesh = f"output at {len(config.save_ts)} times"
+    else:
+        mesh = f"dt = {record['dt']:.6g} s ({config.n_steps} steps)"
     print(
         f"peeljax simulate: {_METHOD_TITLES[config.method]}, V = {config.V:g} m/s, tau = {config.tau:g} s, "
-        f"dt = {record['dt']:.6g} s ({config.n_steps} steps), t_final = {config.t_final:g} s, {settings}, "
-        f"geometry {config.model.geometry}"
+        f"{mesh}, t_final = {config.t_final:g} s, {', '.join(settings)}, geometry {config.model.geometry}"
     )
     if record["status"] == "completed":
         print(f"completed: reached t = {record['t_stop']:.6g} s")
@@ -275,9 +378,14 @@ def _simulate_command(args: argparse.Namespace) -> int:
         config = validate_run(args)
     except (ValueError, TypeError) as error:
         return fail(error)
+    if config.adaptive:
+        mesh = "error control"
+    elif config.n_steps is None:
+        mesh = f"output at {len(config.save_ts)} times"
+    else:
+        mesh = f"{config.n_steps} steps"
     print(
-        f"{PROG}: {config.method} run with {config.n_steps} steps to t = {config.t_final:g} s "
-        "(compiling first: a few seconds) ...",
+        f"{PROG}: {config.method} run with {mesh} to t = {config.t_final:g} s (compiling first: a few seconds) ...",
         file=sys.stderr,
     )
     solution, wall = run(config)
@@ -290,6 +398,7 @@ def _simulate_command(args: argparse.Namespace) -> int:
         "tau": config.tau,
         "dt": dt,
         "dt_requested": config.dt,
+        "save_dt": args.save_dt,
         "t_final": config.t_final,
         "n_steps": config.n_steps,
         "method": config.method,

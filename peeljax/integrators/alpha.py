@@ -645,7 +645,10 @@ def integrate_alpha(
         condition=jnp.concatenate([jnp.full(1, jnp.nan), infos.condition]),
     )
     stats = {
-        "steps": n_valid - 1,
+        "steps": jnp.maximum(n_valid - 1, 0),
+        "accepted_steps": jnp.maximum(n_valid - 1, 0),
+        # a step retried on substeps counts as one rejection (the uniform mesh's retries)
+        "rejected_steps": jnp.sum(infos.level > 0),
         "step_size": h,
         "newton_iterations": jnp.sum(infos.newton_iterations),
         "max_newton_iterations": jnp.max(infos.newton_iterations),
