@@ -43,9 +43,13 @@ from .fit import FitResult, Observation, fit_adhesion, fit_adhesion_steady, phi_
 from .homogenized import HomogenizedODE  # noqa: E402
 from .integrators import (  # noqa: E402
     AlphaMethod,
+    AlphaSolver,
+    LogTransformedODE,
+    PIController,
     alpha_coefficients,
     amplification_matrix,
     integrate_alpha,
+    integrate_alpha_adaptive,
     integrate_reference,
 )
 from .model import PeelingModel  # noqa: E402
@@ -68,13 +72,16 @@ __version__ = "0.1.0"
 __all__ = [
     "AdhesionLaw",
     "AlphaMethod",
+    "AlphaSolver",
     "COEFFICIENT_NAMES",
     "FitResult",
     "HomogenizedODE",
     "Jacobians",
     "LeastTau",
+    "LogTransformedODE",
     "Observation",
     "PAPER_COEFFICIENTS",
+    "PIController",
     "PeelingModel",
     "Solution",
     "StepDiagnostics",
@@ -88,6 +95,7 @@ __all__ = [
     "fit_adhesion",
     "fit_adhesion_steady",
     "integrate_alpha",
+    "integrate_alpha_adaptive",
     "integrate_reference",
     "is_fast_scale",
     "jacobians",
