@@ -12,9 +12,9 @@ auxiliary variable tracks a_n ≈ y'' + (1/2 − γ)·h·y''', and the local err
 costs nothing beyond the step itself. It is measured against the true local error in
 ``tests/test_adaptive.py`` (within a factor of 2 as h → 0, on y' = λy and on the peeling ODE).
 
-Each attempt is one α-method step of size h from (y_n, ψ_n, a_n) solved by Newton's method
-(:meth:`AlphaMethod._newton`, differentiated once by the implicit function theorem,
-:func:`peeljax.integrators.alpha._implicit_root`). The attempt is accepted when Newton converged
+Each attempt is one α-method step of size h from (y_n, ψ_n, a_n), the step the uniform mesh
+takes (:meth:`AlphaMethod.solve_step`: Newton's method, differentiated once by the implicit
+function theorem). The attempt is accepted when Newton converged
 and the weighted RMS norm of e is ≤ 1 (:class:`PIController`); otherwise it is retried with a
 smaller h. The auxiliary variable a needs no correction when h changes: with bounded step
 ratios the local error stays O(h³) (second order on a variable mesh, measured in the tests).
@@ -46,7 +46,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from ..solution import Solution, StepDiagnostics, StopReason
 from ..structure import local_index
-from .alpha import AlphaMethod, AlphaState, _implicit_root, _log_mask, _step_residual, _stop_gradient, alpha_start, to_physical
+from .alpha import AlphaMethod, AlphaState, _log_mask, alpha_start, to_physical
 from .controller import PIController
 from .dense import hermite
 
@@ -64,30 +64,17 @@ def error_constant(rho: ArrayLike) -> Array:
 def alpha_attempt(ode, solver: AlphaMethod, state: AlphaState, h) -> tuple[AlphaState, Array, Array, Array]:
     """One α-method step of size h from ``state`` (carried coordinates) and its error estimate.
 
-    Returns (candidate state, error estimate e = C·h²·(a_{n+1} − a_n), solved, Newton
-    iterations). ``solved`` is False when Newton did not converge or the result is not
-    finite; the candidate is then evaluated at the incoming state (finite values and
-    derivatives, never used). The candidate's status is 0; stop tests are the driver's.
+    The step is :meth:`AlphaMethod.solve_step`, the one the uniform mesh takes. Returns
+    (candidate state, error estimate e = C·h²·(a_{n+1} − a_n), solved, Newton iterations).
+    ``solved`` is False when Newton did not converge or the result is not finite; the
+    candidate then keeps the incoming ψ, a, J and F̃·f (finite, never used). The candidate's
+    status is 0; the stop tests are the driver's.
     """
-    gamma, _, b = solver.coefficients()
-    known = state.y + (1.0 - b) * h * state.psi + (0.5 - b) * h**2 * state.a
-    active = state.status == 0
-    z_start = solver._to_unknown(state.y)
-    # Newton sees no tangents: its iterations are never differentiated.
-    z, iterations, _, converged, _ = solver._newton(
-        _stop_gradient(ode), _stop_gradient(known), _stop_gradient(b * h), _stop_gradient(z_start), active
-    )
-    converged = converged & jnp.all(jnp.isfinite(z))
-    z = jnp.where(converged, z, _stop_gradient(z_start))
-    # Identity on values; the implicit function theorem's tangent under jvp/grad.
-    z = _implicit_root(jax.lax.stop_gradient(z), active & converged, _step_residual, (_stop_gradient(solver), ode, known, b * h))
-    y_new = solver._to_state(z)
-    evaluation = ode.evaluate(y_new)
-    a_new = (evaluation.psi - state.psi) / (gamma * h) + (1.0 - 1.0 / gamma) * state.a
+    z, evaluation, a_new, iterations, _, converged, _ = solver.solve_step(ode, state, h)
     finite = jnp.all(jnp.isfinite(evaluation.psi)) & jnp.all(jnp.isfinite(a_new)) & jnp.isfinite(evaluation.J)
     solved = converged & finite
     new = AlphaState(
-        y=y_new,
+        y=solver._to_state(z),
         psi=jnp.where(solved, evaluation.psi, state.psi),
         a=jnp.where(solved, a_new, state.a),
         J=jnp.where(solved, evaluation.J, state.J),

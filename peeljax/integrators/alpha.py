@@ -350,38 +350,48 @@ class AlphaMethod(eqx.Module):
         z, iterations, norm, matrix = jax.lax.while_loop(cond, body, init)
         return z, iterations, norm, norm <= 1.0, matrix
 
-    def _substep(self, ode, carry: AlphaState, h, accept_unresolved, z_solved=None):
-        """One α-method step of size h from carry; returns (new carry candidate, iterations, residual, matrix).
+    def solve_step(self, ode, carry: AlphaState, h, z_solved=None):
+        """The α-method's step of size h from ``carry``: the one step both drivers use.
+
+        Solves y_{n+1} = y_n + (1 − b)·h·ψ_n + b·h·ψ(y_{n+1}) + (1/2 − b)·h²·a_n by Newton
+        (never differentiated; the implicit function theorem gives the tangent, see
+        :func:`_implicit_root`) and updates a. Returns (z, evaluation at y_{n+1}, a_{n+1},
+        iterations, residual, converged, matrix). A solve that did not converge is evaluated
+        at the incoming state instead (finite values and derivatives; the caller rejects it).
+        ``z_solved``: the replay of an accepted step whose Newton solution is known.
 
         Newton starts from y_n, not from an explicit predictor: near a fold of the step
         equation (J_t → 0) the predictor overshoots and Newton can land on the root beyond it,
         stepping over the singularity instead of stopping there (measured: at V = 1.1,
         τ = 1e-3, h = 1/82 the run then went on to t = 0.33 s, where diffrax stalls at 0.173 s).
-        ψ, J_t and F̃·f are evaluated afresh at the accepted state for the same reason: the
+        ψ, J_t and F̃·f are evaluated afresh at the new state for the same reason: the
         impasse test must see the state the step returns.
         """
         gamma, beta, b = self.coefficients()
         known = carry.y + (1.0 - b) * h * carry.psi + (0.5 - b) * h**2 * carry.a
         active = carry.status == 0
         if z_solved is None:
+            z_start = _stop_gradient(self._to_unknown(carry.y))
             # Newton sees no tangents: its iterations are never differentiated.
             z, iterations, residual, converged, matrix = self._newton(
-                _stop_gradient(ode),
-                _stop_gradient(known),
-                _stop_gradient(b * h),
-                _stop_gradient(self._to_unknown(carry.y)),
-                active,
+                _stop_gradient(ode), _stop_gradient(known), _stop_gradient(b * h), z_start, active
             )
+            z = jnp.where(converged, z, z_start)
         else:  # the replay of an accepted plain step: its solution is known
             z, iterations, residual, converged = z_solved, jnp.asarray(0, jnp.int32), jnp.asarray(0.0), jnp.asarray(True)
             matrix = self._no_matrix(carry.y)
         # Identity on values; the implicit function theorem's tangent under jvp/grad.
-        z = _implicit_root(jax.lax.stop_gradient(z), active, _step_residual, (_stop_gradient(self), ode, known, b * h))
-        y_new = self._to_state(z)
-        evaluation = ode.evaluate(y_new)
-        psi_new, J_new, drive_new = evaluation.psi, evaluation.J, evaluation.drive
-        a_new = (psi_new - carry.psi) / (gamma * h) + (1.0 - 1.0 / gamma) * carry.a
+        z = _implicit_root(jax.lax.stop_gradient(z), active & converged, _step_residual, (_stop_gradient(self), ode, known, b * h))
+        evaluation = ode.evaluate(self._to_state(z))
+        a_new = (evaluation.psi - carry.psi) / (gamma * h) + (1.0 - 1.0 / gamma) * carry.a
+        return z, evaluation, a_new, iterations, residual, converged, matrix
 
+    def _substep(self, ode, carry: AlphaState, h, accept_unresolved, z_solved=None):
+        """One uniform-mesh step of size h with its stop tests; returns (new carry candidate,
+        iterations, residual, matrix)."""
+        z, evaluation, a_new, iterations, residual, converged, matrix = self.solve_step(ode, carry, h, z_solved)
+        y_new = self._to_state(z)
+        psi_new, J_new, drive_new = evaluation.psi, evaluation.J, evaluation.drive
         finite = jnp.all(jnp.isfinite(y_new)) & jnp.all(jnp.isfinite(psi_new)) & jnp.all(jnp.isfinite(a_new))
         crossed = (carry.J * J_new) < 0
         drive_kept_sign = (carry.drive * drive_new) > 0
