@@ -37,9 +37,17 @@ def _finite_array(name: str, value) -> np.ndarray:
     return array
 
 
+def _plain_positive(value) -> bool:
+    """A fast yes for the common case, a Python or 0-d NumPy number that is finite and > 0."""
+    if type(value) is float or type(value) is int or (isinstance(value, np.ndarray) and value.shape == ()):
+        number = float(value)
+        return math.isfinite(number) and number > 0
+    return False
+
+
 def check_positive(name: str, value) -> None:
     """``name`` must be finite and > 0 (every entry, if an array)."""
-    if not is_concrete(value):
+    if _plain_positive(value) or not is_concrete(value):
         return
     array = _finite_array(name, value)
     if np.any(array <= 0):

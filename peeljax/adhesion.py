@@ -29,6 +29,8 @@ import jax.numpy as jnp
 from jax.custom_derivatives import SymbolicZero
 from jaxtyping import Array, ArrayLike, Float
 
+from ._arrays import float_array
+
 __all__ = ["AdhesionLaw", "COEFFICIENT_NAMES", "PAPER_COEFFICIENTS", "safe_pow", "as_adhesion"]
 
 COEFFICIENT_NAMES: tuple[str, ...] = (
@@ -72,7 +74,7 @@ def _safe_pow_jvp(primals, tangents):
 
 
 def _coefficient():
-    return eqx.field(converter=lambda a: jnp.asarray(a, dtype=float))
+    return eqx.field(converter=float_array)
 
 
 class AdhesionLaw(eqx.Module):

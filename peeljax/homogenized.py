@@ -21,6 +21,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
+from ._arrays import float_array
 from .model import PeelingModel
 from .structure import Jacobians, jacobians, schur_complement, truncated_schur_complement
 
@@ -44,8 +45,8 @@ class HomogenizedODE(eqx.Module):
     """
 
     model: PeelingModel
-    V: Float[Array, ""] = eqx.field(converter=lambda a: jnp.asarray(a, dtype=float))
-    tau: Float[Array, ""] = eqx.field(converter=lambda a: jnp.asarray(a, dtype=float))
+    V: Float[Array, ""] = eqx.field(converter=float_array)
+    tau: Float[Array, ""] = eqx.field(converter=float_array)
     truncation: int | None = eqx.field(static=True, default=None)
 
     def evaluate(self, y: Float[Array, "4"]) -> Evaluation:

@@ -26,6 +26,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
+from ._arrays import float_array
 from .adhesion import AdhesionLaw, as_adhesion
 
 __all__ = ["PeelingModel", "GEOMETRIES", "PAPER_V0_FACTOR", "PAPER_ALPHA0"]
@@ -36,7 +37,7 @@ PAPER_ALPHA0 = 0.25 * jnp.pi * 1e-8  # α0 = (π/4)·1e-8
 
 
 def _parameter():
-    return eqx.field(converter=lambda a: jnp.asarray(a, dtype=float))
+    return eqx.field(converter=float_array)
 
 
 class PeelingModel(eqx.Module):

@@ -171,7 +171,11 @@ def test_output_on_a_grid_and_at_the_steps():
     np.testing.assert_allclose(np.interp(ts[1:-1], t, v_steps), np.asarray(dense.v)[1:-1], rtol=2e-2)
     assert float(dense.v[-1]) == pytest.approx(v_steps[-1], rel=1e-12)
     assert int(dense.stats["steps"]) == int(dense.stats["accepted_steps"]) == n
-    assert float(steps.stats["step_size_min"]) <= float(steps.stats["step_size_mean"]) <= float(steps.stats["step_size_max"])
+    assert (
+        float(steps.stats["step_size_min"])
+        <= float(steps.stats["step_size_mean"])
+        <= float(steps.stats["step_size_max"])
+    )
 
 
 # ---------------------------------------------------------------- accuracy

@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._arrays import float_array
 from ..analysis import phi_extrema
 from ..integrators.reference import _stop_reason
 from ..model import PeelingModel
@@ -52,8 +53,8 @@ class StateSpaceODE(eqx.Module):
     """x' = f(x, v(x)) with v(x) the stick-branch root of G(x) = φ(v, V), v ∈ (0, v_top]."""
 
     model: PeelingModel
-    V: Float[Array, ""] = eqx.field(converter=lambda a: jnp.asarray(a, dtype=float))
-    v_top: Float[Array, ""] = eqx.field(converter=lambda a: jnp.asarray(a, dtype=float))
+    V: Float[Array, ""] = eqx.field(converter=float_array)
+    v_top: Float[Array, ""] = eqx.field(converter=float_array)
     v_floor: float = 1e-14
 
     def velocity(self, x: Float[Array, "3"]) -> Array:

@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+from .._arrays import float_array
 from ..integrators.reference import _stop_reason
 from ..model import PeelingModel
 from ..solution import Solution, mask_after_stop
@@ -38,8 +39,8 @@ class InertialModel(eqx.Module):
     """The peeling ODE with tape inertia m (eq. ``inertial`` of the module doc), state (α, ω, u, log v)."""
 
     model: PeelingModel
-    V: Float[Array, ""] = eqx.field(converter=lambda a: jnp.asarray(a, dtype=float))
-    m: Float[Array, ""] = eqx.field(converter=lambda a: jnp.asarray(a, dtype=float))
+    V: Float[Array, ""] = eqx.field(converter=float_array)
+    m: Float[Array, ""] = eqx.field(converter=float_array)
 
     def rhs(self, z: Float[Array, "4"]) -> Float[Array, "4"]:
         """d/dt (α, ω, u, log v)."""

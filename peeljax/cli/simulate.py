@@ -214,7 +214,16 @@ def run(config: RunConfig) -> tuple[Solution, float]:
     ts = None if config.save_ts is None else np.asarray(config.save_ts)
     if config.adaptive:
         solution = simulate(
-            config.model, config.V, config.tau, None, config.t_final, config.rho, config.y0, rtol=config.rtol, atol=config.atol, ts=ts
+            config.model,
+            config.V,
+            config.tau,
+            None,
+            config.t_final,
+            config.rho,
+            config.y0,
+            rtol=config.rtol,
+            atol=config.atol,
+            ts=ts,
         )
         if ts is None:  # the accepted steps: only the valid rows (the rest is padding)
             solution = _valid_rows(solution)

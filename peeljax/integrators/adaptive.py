@@ -61,16 +61,17 @@ def error_constant(rho: ArrayLike) -> Array:
     return b / 2 + (0.5 - b) * (0.5 - gamma) - 1.0 / 6.0
 
 
-def alpha_attempt(ode, solver: AlphaMethod, state: AlphaState, h) -> tuple[AlphaState, Array, Array, Array]:
+def alpha_attempt(ode, solver: AlphaMethod, state: AlphaState, h, chord=None) -> tuple[AlphaState, Array, Array, Array]:
     """One α-method step of size h from ``state`` (carried coordinates) and its error estimate.
 
     The step is :meth:`AlphaMethod.solve_step`, the one the uniform mesh takes. Returns
     (candidate state, error estimate e = C·h²·(a_{n+1} − a_n), solved, Newton iterations).
     ``solved`` is False when Newton did not converge or the result is not finite; the
     candidate then keeps the incoming ψ, a, J and F̃·f (finite, never used). The candidate's
-    status is 0; the stop tests are the driver's.
+    status is 0; the stop tests are the driver's. ``chord``: see :meth:`AlphaMethod.solve_step`
+    (None: full Newton with a fresh Jacobian every iteration).
     """
-    z, evaluation, a_new, iterations, _, converged, _ = solver.solve_step(ode, state, h)
+    z, evaluation, a_new, iterations, _, converged, _ = solver.solve_step(ode, state, h, chord=chord)
     finite = jnp.all(jnp.isfinite(evaluation.psi)) & jnp.all(jnp.isfinite(a_new)) & jnp.isfinite(evaluation.J)
     solved = converged & finite
     new = AlphaState(
@@ -97,6 +98,11 @@ class _Carry(eqx.Module):
     max_newton_iterations: Array
     h_min: Array
     h_max: Array
+    parts: tuple[Array, Array]  # (∂y/∂z, ∂ψ/∂z) of the kept Newton matrix
+    parts_fresh: Array  # computed at the current state
+    refresh: Array  # recompute them before the next attempt
+    parts_age: Array  # accepted steps since they were computed
+    jacobian_evaluations: Array
     out_t: Array
     out_y: Array
     out_J: Array
@@ -187,6 +193,11 @@ def integrate_alpha_adaptive(
         max_newton_iterations=zero,
         h_min=jnp.asarray(jnp.inf),
         h_max=jnp.asarray(0.0),
+        parts=(jnp.eye(n), jnp.zeros((n, n))),
+        parts_fresh=jnp.asarray(False),
+        refresh=jnp.asarray(True),
+        parts_age=zero,
+        jacobian_evaluations=zero,
         out_t=out_t,
         out_y=out_y,
         out_J=out_J,
@@ -202,9 +213,16 @@ def integrate_alpha_adaptive(
         remaining = t_final - c.t
         last = c.h >= remaining
         h = jnp.where(last, remaining, c.h)
-        new, error, solved, iterations = alpha_attempt(ode, solver, state, h)
+        z_n = jax.lax.stop_gradient(solver._to_unknown(state.y))
+        parts = jax.lax.cond(c.refresh, lambda: solver.linearize(jax.lax.stop_gradient(ode), z_n), lambda: c.parts)
+        fresh = c.refresh | c.parts_fresh
+        scale = controller.scale(z_n, z_n, log_mask)
+        chord = (parts, scale, solver.newton_kappa, solver.chord_iterations)
+        new, error, solved, iterations = alpha_attempt(ode, solver, state, h, chord)
         norm = jax.lax.stop_gradient(controller.error_norm(error, state.y, new.y, log_mask))
         norm = jnp.where(solved, norm, jnp.inf)
+        # A Newton failure with a kept matrix is retried at the same h with a fresh one.
+        retry_fresh = ~solved & ~fresh
         accept = solved & (norm <= 1.0)
         impasse = accept & (state.J * new.J < 0) & (state.drive * new.drive > 0)
         advance = accept & ~impasse
@@ -226,7 +244,8 @@ def integrate_alpha_adaptive(
             out_iterations = jnp.where(inside, iterations, c.out_iterations)
             out_valid = c.out_valid | inside
 
-        factor = controller.factor(norm, c.prev_norm, accept, solved)
+        factor = controller.factor(norm, c.prev_norm, accept, solved | retry_fresh)
+        factor = jnp.where(retry_fresh, 1.0, factor)
         h_next = jax.lax.stop_gradient(jnp.minimum(h * factor, span))
         # The clipped last step says nothing about the step the solution allows: keep c.h.
         h_next = jnp.where(last & accept, jnp.maximum(h_next, c.h), h_next)
@@ -250,6 +269,11 @@ def integrate_alpha_adaptive(
             max_newton_iterations=jnp.maximum(c.max_newton_iterations, iterations),
             h_min=jnp.where(advance, jnp.minimum(c.h_min, h_taken), c.h_min),
             h_max=jnp.where(advance, jnp.maximum(c.h_max, h_taken), c.h_max),
+            parts=parts,
+            parts_fresh=fresh & ~advance,
+            refresh=retry_fresh | (advance & (c.parts_age + 1 >= solver.jacobian_max_age)),
+            parts_age=jnp.where(c.refresh, 0, c.parts_age) + advance,
+            jacobian_evaluations=c.jacobian_evaluations + c.refresh,
             out_t=out_t,
             out_y=out_y,
             out_J=out_J,
@@ -291,6 +315,7 @@ def _solution(ode, solver, final: _Carry, step_points: bool, t0) -> Solution:
         "step_size_max": jnp.where(accepted > 0, final.h_max, jnp.nan),
         "newton_iterations": final.newton_iterations,
         "max_newton_iterations": final.max_newton_iterations,
+        "jacobian_evaluations": final.jacobian_evaluations,
     }
     return Solution(
         ts=final.out_t,

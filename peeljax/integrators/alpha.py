@@ -50,6 +50,7 @@ import jax.numpy as jnp
 import jax.tree_util as jtu
 from jaxtyping import Array, ArrayLike, Float
 
+from .._arrays import float_array
 from .._linalg import solve_small
 from ..homogenized import HomogenizedODE
 from ..solution import Solution, StepDiagnostics, StopReason, mask_after_stop
@@ -275,17 +276,26 @@ class AlphaMethod(eqx.Module):
         max_log_change: a step in which a log component (log v) changes by more than this is
             retried on substeps (v changing by more than a factor e^max_log_change is not
             resolved by the step); accepted as it is on the last subdivision level.
+        newton_kappa, chord_iterations, jacobian_max_age: error control only. Newton keeps
+            its matrix across steps (:meth:`_chord_newton`) and converges when its update,
+            in the error norm's weights, times min(1, its convergence rate), is ≤
+            ``newton_kappa``; after ``chord_iterations`` or on divergence the step is retried
+            with a fresh matrix, and only then with a smaller step. The matrix is refreshed
+            at least every ``jacobian_max_age`` accepted steps (static).
     """
 
-    rho: Float[Array, ""] = eqx.field(converter=lambda a: jnp.asarray(a, dtype=float), default=0.0)
-    newton_rtol: Float[Array, ""] = eqx.field(converter=lambda a: jnp.asarray(a, dtype=float), default=1e-10)
-    newton_atol: Float[Array, ""] = eqx.field(converter=lambda a: jnp.asarray(a, dtype=float), default=1e-12)
+    rho: Float[Array, ""] = eqx.field(converter=float_array, default=0.0)
+    newton_rtol: Float[Array, ""] = eqx.field(converter=float_array, default=1e-10)
+    newton_atol: Float[Array, ""] = eqx.field(converter=float_array, default=1e-12)
     max_newton_iterations: int = eqx.field(static=True, default=25)
     max_subdivisions: int = eqx.field(static=True, default=4)
     condition_number: bool = eqx.field(static=True, default=False)
     log_components: tuple[int, ...] = eqx.field(static=True, default=(3,))
     log_discretization: bool = eqx.field(static=True, default=True)
-    max_log_change: Float[Array, ""] = eqx.field(converter=lambda a: jnp.asarray(a, dtype=float), default=1.0)
+    max_log_change: Float[Array, ""] = eqx.field(converter=float_array, default=1.0)
+    newton_kappa: Float[Array, ""] = eqx.field(converter=float_array, default=0.01)
+    chord_iterations: int = eqx.field(static=True, default=4)
+    jacobian_max_age: int = eqx.field(static=True, default=20)
 
     def _newton_in_log(self) -> tuple[int, ...]:
         """Components that Newton alone solves for in log form (the scheme stays in y)."""
@@ -350,7 +360,48 @@ class AlphaMethod(eqx.Module):
         z, iterations, norm, matrix = jax.lax.while_loop(cond, body, init)
         return z, iterations, norm, norm <= 1.0, matrix
 
-    def solve_step(self, ode, carry: AlphaState, h, z_solved=None):
+    def linearize(self, ode, z: Array) -> tuple[Array, Array]:
+        """(∂y/∂z, ∂ψ/∂z) at Newton's unknown z: the Newton matrix of a step of any size h is
+        ∂y/∂z − h·b·∂ψ/∂z, so these pieces can be kept across steps (error control reuses them
+        while Newton converges fast, as CVODE does)."""
+
+        def parts(z):
+            y = self._to_state(z)
+            return y, ode(y)
+
+        return jax.jacfwd(parts)(z)
+
+    def _chord_newton(self, ode, known, hb, z_start, active, chord):
+        """Newton with a kept matrix (a chord iteration): converged when the update's WRMS norm
+        in the error weights ``scale``, times min(1, the convergence rate), is ≤ ``kappa``
+        (CVODE's test); fails after ``max_iterations`` or when an update grows (divergence).
+
+        Returns (z, iterations, the last scaled update, converged).
+        """
+        (Dy, Dpsi), scale, kappa, max_iterations = chord
+        matrix = Dy - hb * Dpsi
+
+        def body(carry):
+            z, iteration, _, previous, rate, _ = carry
+            y = self._to_state(z)
+            delta = solve_small(matrix, y - known - hb * ode(y))
+            z_new = z - delta
+            norm = jnp.sqrt(jnp.mean((delta / scale) ** 2))
+            norm = jnp.where(jnp.all(jnp.isfinite(z_new)), norm, jnp.inf)
+            rate = jnp.where(iteration > 0, jnp.maximum(0.3 * rate, norm / previous), rate)
+            converged = norm * jnp.minimum(1.0, rate) <= kappa
+            diverged = (iteration > 0) & (norm > 2.0 * previous)
+            return z_new, iteration + 1, norm, norm, rate, jnp.where(converged, 1, jnp.where(diverged, -1, 0))
+
+        def cond(carry):
+            iteration, outcome = carry[1], carry[5]
+            return (outcome == 0) & (iteration < max_iterations)
+
+        init = (z_start, jnp.asarray(0, jnp.int32), jnp.asarray(0.0), jnp.asarray(1.0), jnp.asarray(1.0), jnp.where(active, 0, 1))
+        z, iterations, norm, _, _, outcome = jax.lax.while_loop(cond, body, init)
+        return z, iterations, norm, outcome == 1
+
+    def solve_step(self, ode, carry: AlphaState, h, z_solved=None, chord=None):
         """The α-method's step of size h from ``carry``: the one step both drivers use.
 
         Solves y_{n+1} = y_n + (1 − b)·h·ψ_n + b·h·ψ(y_{n+1}) + (1/2 − b)·h²·a_n by Newton
@@ -359,6 +410,9 @@ class AlphaMethod(eqx.Module):
         iterations, residual, converged, matrix). A solve that did not converge is evaluated
         at the incoming state instead (finite values and derivatives; the caller rejects it).
         ``z_solved``: the replay of an accepted step whose Newton solution is known.
+        ``chord``: ((∂y/∂z, ∂ψ/∂z), scale, kappa, max_iterations) for Newton with a kept
+        matrix (:meth:`_chord_newton`, error control); None: a fresh autodiff Jacobian every
+        iteration and the tolerances ``newton_rtol``/``newton_atol`` (the uniform mesh).
 
         Newton starts from y_n, not from an explicit predictor: near a fold of the step
         equation (J_t → 0) the predictor overshoots and Newton can land on the root beyond it,
@@ -373,9 +427,15 @@ class AlphaMethod(eqx.Module):
         if z_solved is None:
             z_start = _stop_gradient(self._to_unknown(carry.y))
             # Newton sees no tangents: its iterations are never differentiated.
-            z, iterations, residual, converged, matrix = self._newton(
-                _stop_gradient(ode), _stop_gradient(known), _stop_gradient(b * h), z_start, active
-            )
+            if chord is None:
+                z, iterations, residual, converged, matrix = self._newton(
+                    _stop_gradient(ode), _stop_gradient(known), _stop_gradient(b * h), z_start, active
+                )
+            else:
+                z, iterations, residual, converged = self._chord_newton(
+                    _stop_gradient(ode), _stop_gradient(known), _stop_gradient(b * h), z_start, active, _stop_gradient(chord)
+                )
+                matrix = self._no_matrix(carry.y)
             z = jnp.where(converged, z, z_start)
         else:  # the replay of an accepted plain step: its solution is known
             z, iterations, residual, converged = z_solved, jnp.asarray(0, jnp.int32), jnp.asarray(0.0), jnp.asarray(True)

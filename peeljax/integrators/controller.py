@@ -17,13 +17,11 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
+from .._arrays import float_array
+
 __all__ = ["PIController", "ERROR_ORDER"]
 
 ERROR_ORDER = 3  # local error of the α-method's step: C·h³·y'''
-
-
-def _float(a):
-    return jnp.asarray(a, dtype=float)
 
 
 class PIController(eqx.Module):
@@ -42,14 +40,18 @@ class PIController(eqx.Module):
         newton_failure_factor: h_next/h after a step whose Newton iteration failed.
     """
 
-    rtol: Float[Array, ""] = eqx.field(converter=_float, default=1e-6)
-    atol: Float[Array, ""] = eqx.field(converter=_float, default=1e-9)
-    pcoeff: Float[Array, ""] = eqx.field(converter=_float, default=0.2)
-    icoeff: Float[Array, ""] = eqx.field(converter=_float, default=0.4)
-    safety: Float[Array, ""] = eqx.field(converter=_float, default=0.9)
-    factormin: Float[Array, ""] = eqx.field(converter=_float, default=0.2)
-    factormax: Float[Array, ""] = eqx.field(converter=_float, default=10.0)
-    newton_failure_factor: Float[Array, ""] = eqx.field(converter=_float, default=0.25)
+    rtol: Float[Array, ""] = eqx.field(converter=float_array, default=1e-6)
+    atol: Float[Array, ""] = eqx.field(converter=float_array, default=1e-9)
+    pcoeff: Float[Array, ""] = eqx.field(converter=float_array, default=0.2)
+    icoeff: Float[Array, ""] = eqx.field(converter=float_array, default=0.4)
+    safety: Float[Array, ""] = eqx.field(converter=float_array, default=0.9)
+    factormin: Float[Array, ""] = eqx.field(converter=float_array, default=0.2)
+    factormax: Float[Array, ""] = eqx.field(converter=float_array, default=10.0)
+    newton_failure_factor: Float[Array, ""] = eqx.field(converter=float_array, default=0.25)
+
+    def scale(self, y0: Float[Array, " n"], y1: Float[Array, " n"], log_mask: Bool[Array, " n"]) -> Float[Array, " n"]:
+        """The error weights s_i: atol + rtol·max(|y0_i|, |y1_i|), or rtol for a log component."""
+        return jnp.where(log_mask, self.rtol, self.atol + self.rtol * jnp.maximum(jnp.abs(y0), jnp.abs(y1)))
 
     def error_norm(
         self,
@@ -59,8 +61,7 @@ class PIController(eqx.Module):
         log_mask: Bool[Array, " n"],
     ) -> Float[Array, ""]:
         """Weighted RMS norm of ``error`` (≤ 1: within tolerance); inf when not finite."""
-        scale = jnp.where(log_mask, self.rtol, self.atol + self.rtol * jnp.maximum(jnp.abs(y0), jnp.abs(y1)))
-        norm = jnp.sqrt(jnp.mean((error / scale) ** 2))
+        norm = jnp.sqrt(jnp.mean((error / self.scale(y0, y1, log_mask)) ** 2))
         return jnp.where(jnp.isfinite(norm), norm, jnp.inf)
 
     def factor(self, norm: Array, prev_norm: Array, accepted: Array, solved: Array) -> Array:

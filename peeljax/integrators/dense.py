@@ -12,7 +12,6 @@ which matches y and y' = ψ at both ends: its error is O(h⁴) on a smooth solut
 
 from __future__ import annotations
 
-import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 __all__ = ["hermite"]
