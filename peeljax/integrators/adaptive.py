@@ -108,6 +108,7 @@ class _Carry(eqx.Module):
     out_J: Array
     out_iterations: Array
     out_valid: Array
+    out_next: Array  # the first output time not yet reached (dense output)
 
 
 def _initial_step(controller: PIController, state: AlphaState, log_mask, span):
@@ -165,6 +166,7 @@ def integrate_alpha_adaptive(
     carried_log = solver.log_components if solver.log_discretization else ()
     log_mask = _log_mask(n, carried_log)
     step_points = ts is None
+    kind = "checkpointed" if adjoint == "reverse" else "lax"
     if step_points:
         rows = max_steps + 1
         out_t = jnp.full(rows, jnp.nan).at[0].set(t0)
@@ -203,6 +205,7 @@ def integrate_alpha_adaptive(
         out_J=out_J,
         out_iterations=jnp.zeros(out_t.shape, jnp.int32),
         out_valid=out_valid,
+        out_next=jnp.sum(out_t <= t0).astype(jnp.int32) if not step_points else zero,
     )
 
     def running(c: _Carry):
@@ -235,14 +238,28 @@ def integrate_alpha_adaptive(
             out_J = c.out_J.at[row].set(jnp.where(advance, new.J, c.out_J[row]))
             out_iterations = c.out_iterations.at[row].set(jnp.where(advance, iterations, 0))
             out_valid = c.out_valid.at[row].set(advance)
+            out_next = c.out_next
         else:
-            inside = advance & (c.out_t > c.t) & (c.out_t <= t_new)
-            dense = hermite(c.t, h, state.y, state.psi, new.y, new.psi, c.out_t)
-            out_t = c.out_t
-            out_y = jnp.where(inside[:, None], dense, c.out_y)
-            out_J = c.out_J
-            out_iterations = jnp.where(inside, iterations, c.out_iterations)
-            out_valid = c.out_valid | inside
+            # The output times in (t, t_new], one at a time (a step covers few of them).
+            def fill_cond(d):
+                k = d[0]
+                return advance & (k < c.out_t.shape[0]) & (c.out_t[jnp.minimum(k, c.out_t.shape[0] - 1)] <= t_new)
+
+            def fill(d):
+                k, out_y, out_iterations, out_valid = d
+                y_k = hermite(c.t, h, state.y, state.psi, new.y, new.psi, c.out_t[k][None])[0]
+                return k + 1, out_y.at[k].set(y_k), out_iterations.at[k].set(iterations), out_valid.at[k].set(True)
+
+            n_out = c.out_t.shape[0]
+            out_next, out_y, out_iterations, out_valid = eqxi.while_loop(
+                fill_cond,
+                fill,
+                (c.out_next, c.out_y, c.out_iterations, c.out_valid),
+                max_steps=n_out,
+                kind=kind,
+                checkpoints=n_out if kind == "checkpointed" else None,
+            )
+            out_t, out_J = c.out_t, c.out_J
 
         factor = controller.factor(norm, c.prev_norm, accept, solved | retry_fresh)
         factor = jnp.where(retry_fresh, 1.0, factor)
@@ -279,9 +296,9 @@ def integrate_alpha_adaptive(
             out_J=out_J,
             out_iterations=out_iterations,
             out_valid=out_valid,
+            out_next=out_next,
         )
 
-    kind = "checkpointed" if adjoint == "reverse" else "lax"
     final = eqxi.while_loop(running, body, init, max_steps=max_steps, kind=kind)
     return _solution(ode, solver, final, step_points, t0)
 
