@@ -29,7 +29,7 @@ _SHORT_REASONS = {
     StopReason.MAX_STEPS: "reached max_steps",
     StopReason.SOLVER_FAILED: "diffrax solver failed",
 }
-_METHOD_LABELS = {"alpha": "α-method", "diffrax": "diffrax reference"}
+_METHOD_LABELS = {"alpha": "α-method", "alpha-adaptive": "α-method, error control", "diffrax": "diffrax reference"}
 _PANELS = (
     ("v", "peeling velocity v [m/s]"),
     ("alpha", "peel-front angle α [rad]"),
