@@ -234,32 +234,33 @@ def test_max_steps_is_its_own_reason():
 
 
 # ---------------------------------------------------------------- gradients
-def _loss(V, tau, adjoint, t_final=0.5, rtol=1e-10):
+def _loss(params, adjoint, t_final=0.5, rtol=1e-10):
+    """mean v² over 26 output times, as a function of (V, τ, c1 of φ)."""
+    V, tau, c1 = params
+    model = pj.PeelingModel(adhesion=pj.AdhesionLaw(c1=c1))
     ts = np.linspace(0.0, t_final, 26)
-    sol = pj.simulate(V=V, tau=tau, t_final=t_final, rtol=rtol, atol=1e-13, ts=ts, adjoint=adjoint)
+    sol = pj.simulate(model, V=V, tau=tau, t_final=t_final, rtol=rtol, atol=1e-13, ts=ts, adjoint=adjoint)
     return jnp.mean(jnp.where(sol.valid, sol.v, 0.0) ** 2)
 
 
 @pytest.mark.slow
 def test_gradients_agree_with_central_differences():
-    V, tau = 1.1, 0.1
-    grad = jax.grad(_loss, argnums=(0, 1))(V, tau, "reverse")
-    tangent_V = jax.jvp(lambda V_: _loss(V_, tau, "forward"), (V,), (1.0,))[1]
-    tangent_tau = jax.jvp(lambda tau_: _loss(V, tau_, "forward"), (tau,), (1.0,))[1]
-    for k, (x, dx) in enumerate(((V, 1e-5), (tau, 1e-6))):
-        args = [V, tau]
-        args[k] = x + dx
-        up = float(_loss(*args, "forward"))
-        args[k] = x - dx
-        down = float(_loss(*args, "forward"))
-        fd = (up - down) / (2 * dx)
-        assert float(grad[k]) == pytest.approx(fd, rel=1e-5)
-        assert float((tangent_V, tangent_tau)[k]) == pytest.approx(fd, rel=1e-5)
+    """Reverse (checkpointed loop) and forward (plain loop) mode against central differences,
+    with respect to V, τ and a coefficient of φ, at rtol = 1e-10."""
+    params = jnp.array([1.1, 0.1, 400.0])
+    grad = np.asarray(jax.grad(_loss)(params, "reverse"))
+    forward = np.asarray(jax.jacfwd(_loss)(params, "forward"))
+    for k, step in enumerate((1e-5, 1e-6, 1e-3)):
+        up = float(_loss(params.at[k].add(step), "forward"))
+        down = float(_loss(params.at[k].add(-step), "forward"))
+        fd = (up - down) / (2 * step)
+        assert grad[k] == pytest.approx(fd, rel=1e-5), k
+        assert forward[k] == pytest.approx(fd, rel=1e-5), k
 
 
 @pytest.mark.slow
 def test_gradients_are_finite_across_a_stop():
-    loss = lambda tau: _loss(1.1, tau, "reverse", t_final=0.5, rtol=1e-4)  # noqa: E731
+    loss = lambda tau: _loss(jnp.stack([1.1, tau, 400.0]), "reverse", t_final=0.5, rtol=1e-4)  # noqa: E731
     sol = pj.simulate(V=1.1, tau=1e-3, t_final=0.5, rtol=1e-4, ts=np.linspace(0, 0.5, 26))
     assert not bool(sol.completed)
     value, grad = jax.value_and_grad(loss)(1e-3)

@@ -162,6 +162,15 @@ def test_save_dt_gives_the_output_grid(tmp_path):
     assert "accepted_steps" in json.loads(out) and "rejected_steps" in json.loads(out)
 
 
+def test_diffrax_output_on_save_dt(tmp_path):
+    npz = tmp_path / "ref.npz"
+    code, out, err = run_main(["simulate", "--method", "diffrax", "--t-final", "0.25", "--save-dt", "0.1", "--out", str(npz)])
+    assert code == 0, err
+    with np.load(npz, allow_pickle=False) as data:
+        np.testing.assert_allclose(data["t"], [0.0, 0.1, 0.2, 0.25])
+        assert str(data["method"]) == "diffrax"
+
+
 def test_uniform_mesh_reports_accepted_and_rejected_steps(alpha_run):
     record = json.loads(alpha_run["stdout"])
     assert record["accepted_steps"] == record["steps"] == 20 and record["rejected_steps"] >= 0
@@ -295,3 +304,53 @@ def test_summary_of_a_run_rejected_at_the_start():
     record = summarize(_stopped_solution(all_invalid=True))
     assert record["status"] == "stopped" and record["steps"] == 0 and math.isnan(record["v_final"])
     json.dumps(cli.json_safe(record), allow_nan=False)  # strict JSON: NaN became null
+
+
+# ---------------------------------------------------------------------------- outputs that cannot be written
+@pytest.fixture
+def nothing_runs(monkeypatch):
+    """Any simulation, sweep or figure run fails the test: the refusal must come first."""
+
+    def forbidden(*args, **kwargs):
+        raise AssertionError("an unwritable output reached the computation")
+
+    cli_simulate = importlib.import_module("peeljax.cli.simulate")
+    monkeypatch.setattr(cli_simulate, "run", forbidden)
+    monkeypatch.setattr(importlib.import_module("peeljax.cli.sweep"), "_run_sweep", forbidden)
+    monkeypatch.setattr(importlib.import_module("peeljax.figures"), "write_figures", forbidden)
+
+
+UNWRITABLE = [
+    (["simulate", "--t-final", "0.1", "--out", "/proc/x.npz"], "--out", "cannot write"),
+    (["simulate", "--t-final", "0.1", "--plot", "/proc/x.png"], "--plot", "cannot write"),
+    (["sweep", "--V", "1.1", "--tau", "0.01", "0.1", "--n-tau", "2", "--dt", "0.01", "--t-final", "0.1",
+      "--out", "/proc/s.npz"], "--out", "cannot write"),
+    (["figures", "--out", "/proc/nope"], "--out", "cannot write"),
+    (["simulate", "--t-final", "0.1", "--out", "AFILE/sub/x.npz"], "--out", "is a file, not a folder"),
+    (["figures", "--out", "AFILE/sub"], "--out", "is a file, not a folder"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("argv", "option", "words"), UNWRITABLE, ids=[" ".join(a[:1] + a[-2:]) for a, *_ in UNWRITABLE])
+def test_unwritable_output_exits_2_before_computing(argv, option, words, nothing_runs, tmp_path, capsys):
+    afile = tmp_path / "afile"
+    afile.write_text("not a folder")
+    argv = [arg.replace("AFILE", str(afile)) for arg in argv]
+    assert main(argv) == 2
+    message = capsys.readouterr().err.strip().splitlines()[-1]
+    assert message.startswith("peeljax: error: ") and option in message and words in message, message
+
+
+def test_a_write_error_after_the_run_is_reported_not_raised(monkeypatch, tmp_path, capsys):
+    cli_simulate = importlib.import_module("peeljax.cli.simulate")
+
+    def disk_full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(cli_simulate, "write_npz", disk_full)
+    code = main(["simulate", *SHORT, "--out", str(tmp_path / "run.npz"), "--json"])
+    captured = capsys.readouterr()
+    assert code == 1
+    record = json.loads(captured.out)  # the run's result still comes out
+    assert record["status"] in {"completed", "stopped"} and record["out"] is None
+    assert "could not write --out" in captured.err and "No space left on device" in captured.err

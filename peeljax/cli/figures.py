@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from .._validation import check_positive
-from ._common import PROG, checked, fail, json_safe, plot_formats
+from ._common import PROG, check_output_folder, checked, fail, json_safe, plot_formats, write_failed
 
 __all__ = ["add_command"]
 
@@ -44,16 +44,16 @@ def _figures_command(args: argparse.Namespace) -> int:
         if fmt not in plot_formats():
             raise ValueError(f"--format: unknown image format {fmt!r}; use one of {', '.join(sorted(plot_formats()))}")
         out = Path(args.out)
-        if out.exists() and not out.is_dir():
-            raise ValueError(f"--out: {args.out!r} exists and is not a folder")
-        if not out.parent.is_dir() and str(out.parent) not in ("", "."):
-            raise ValueError(f"--out: the parent folder {str(out.parent)!r} does not exist")
+        check_output_folder("--out", args.out)
     except ValueError as error:
         return fail(error)
 
     from ..figures import write_figures
 
-    facts = write_figures(out, t_final=args.t_final, fmt=fmt, log=lambda m: print(f"{PROG}: {m}", file=sys.stderr))
+    try:
+        facts = write_figures(out, t_final=args.t_final, fmt=fmt, log=lambda m: print(f"{PROG}: {m}", file=sys.stderr))
+    except OSError as error:
+        return write_failed("--out", args.out, error, "the figures were computed but not all were saved")
     if args.json:
         print(json.dumps(json_safe(facts)))
     else:

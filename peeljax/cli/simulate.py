@@ -18,7 +18,7 @@ from ..simulate import DEFAULT_ATOL as _ALPHA_ATOL
 from ..simulate import DEFAULT_RTOL as _ALPHA_RTOL
 from ..simulate import simulate, simulate_reference
 from ..solution import Solution
-from ._common import PROG, check_output_path, checked, fail, json_safe, load_phi, plot_formats
+from ._common import PROG, check_output_path, checked, fail, json_safe, load_phi, plot_formats, write_failed
 
 __all__ = ["add_command", "run", "summarize", "validate_run", "write_npz"]
 
@@ -422,14 +422,25 @@ def _simulate_command(args: argparse.Namespace) -> int:
         "out": args.out,
         "plot": args.plot,
     }
+    failed = []  # (option, path, error): the run is reported whatever could not be written
     if args.out is not None:
-        write_npz(args.out, solution, config)
+        try:
+            write_npz(args.out, solution, config)
+        except OSError as error:
+            failed.append(("--out", args.out, error))
+            record["out"] = None
     if args.plot is not None:
         from ..plots import plot_run  # matplotlib only when a plot is asked for
 
-        plot_run(solution, config.model, V=config.V, title=_plot_title(config, dt), path=args.plot)
+        try:
+            plot_run(solution, config.model, V=config.V, title=_plot_title(config, dt), path=args.plot)
+        except OSError as error:
+            failed.append(("--plot", args.plot, error))
+            record["plot"] = None
     if args.json:
         print(json.dumps(json_safe(record), allow_nan=False))
     else:
         _print_summary(record, config, stats)
-    return 0
+    for option, path, error in failed:
+        write_failed(option, path, error, "the run's summary is above")
+    return 1 if failed else 0

@@ -13,7 +13,7 @@ import numpy as np
 from .._validation import check_choice, check_mesh, check_rho
 from ..adhesion import AdhesionLaw
 from ..model import GEOMETRIES, PeelingModel
-from ._common import PROG, check_output_path, checked, fail, json_safe, load_phi, plot_formats
+from ._common import PROG, check_output_path, checked, fail, json_safe, load_phi, plot_formats, write_failed
 
 __all__ = ["add_command", "tau_grid", "validate_sweep", "validate_tau_star"]
 
@@ -174,11 +174,18 @@ def _sweep_command(args: argparse.Namespace) -> int:
         result = _run_sweep(kwargs)
     except ValueError as error:  # e.g. an --out made with other settings, or too much output
         return fail(error)
+    except OSError as error:  # the chunk files: written as they finish
+        return write_failed("--out", args.out, error, "the chunks written before it are kept; rerun to resume")
     wall = time.perf_counter() - start
+    plot_error, record_plot = None, args.plot
     if args.plot is not None:
         from ..plots import plot_sweep_map
 
-        plot_sweep_map(result, path=args.plot)
+        try:
+            plot_sweep_map(result, path=args.plot)
+        except OSError as error:
+            plot_error = error
+            args.plot = None
     completed = result.completed
     record = {
         "n": len(result),
@@ -199,7 +206,14 @@ def _sweep_command(args: argparse.Namespace) -> int:
     }
     if args.json:
         print(json.dumps(json_safe(record), allow_nan=False))
-        return 0
+    else:
+        _print_sweep(record, result, kwargs, wall)
+    if plot_error is not None:
+        return write_failed("--plot", record_plot, plot_error, "the sweep's results are above")
+    return 0
+
+
+def _print_sweep(record: dict, result, kwargs: dict, wall: float) -> None:
     print(f"{PROG} sweep: {record['n']} trajectories, {record['n_completed']} completed t = {kwargs['t_final']:g} s, "
           f"wall time {wall:.3g} s")  # fmt: skip
     print(f"{'V':>8} {'tau':>10} {'status':>14} {'t_stop':>8} {'v_mean':>10} {'v_std':>10} {'events':>6}")
@@ -211,7 +225,6 @@ def _sweep_command(args: argparse.Namespace) -> int:
     for key in ("out", "plot"):
         if record[key]:
             print(f"wrote {record[key]}")
-    return 0
 
 
 def _tau_star_command(args: argparse.Namespace) -> int:
