@@ -41,6 +41,15 @@ PAPER_COEFFICIENTS: dict[str, float] = dict(
 )
 
 
+# The family's domain, (lower bound, bound included): every coefficient carries its sign in
+# the formula, so they are non-negative; c4 divides v, the powers of v must vanish at v = 0.
+COEFFICIENT_DOMAIN: dict[str, tuple[float, bool]] = {
+    "c1": (0.0, False), "p1": (0.0, False), "c2": (0.0, False), "p2": (0.0, False), "c3": (0.0, True),
+    "c4": (0.0, False), "c5": (0.0, True), "p5": (0.0, True), "c6": (0.0, True), "c7": (0.0, True),
+    "p7": (0.0, True), "c8": (0.0, True), "p8": (0.0, True), "p9": (0.0, False),
+}  # fmt: skip
+
+
 @jax.custom_jvp
 def safe_pow(x: ArrayLike, p: ArrayLike) -> Array:
     """``x**p`` for x > 0, and 0 (its limit from the right, p > 0) for x ≤ 0.
@@ -135,7 +144,9 @@ class AdhesionLaw(eqx.Module):
     def from_dict(cls, data: dict, *, source: str = "coefficients") -> "AdhesionLaw":
         """Coefficients from a mapping; keys other than the 14 names are ignored.
 
-        Missing names keep the paper's values; every present value must be a finite number.
+        Missing names keep the paper's values; every present value must be a finite number in
+        the family's domain (``COEFFICIENT_DOMAIN``: c1, c2, c4 and the powers of v p1, p2, p9
+        are > 0, the others ≥ 0).
         """
         if not isinstance(data, dict):
             raise ValueError(f"{source}: expected a JSON object of coefficients, got {type(data).__name__}")
@@ -153,8 +164,15 @@ class AdhesionLaw(eqx.Module):
             values[name] = number
         if not values:
             raise ValueError(f"{source}: none of the coefficient names {list(COEFFICIENT_NAMES)} is present")
-        if "c4" in values and values["c4"] == 0.0:
-            raise ValueError(f"{source}: coefficient 'c4' divides v and must be non-zero")
+        for name, number in values.items():
+            low, closed = COEFFICIENT_DOMAIN[name]
+            if number < low or (number == low and not closed):
+                allowed = f"[{low:g}, inf)" if closed else f"({low:g}, inf)"
+                raise ValueError(
+                    f"{source}: coefficient {name!r} must lie in {allowed} (the family's domain: the signs are in "
+                    f"the formula, and the powers of v must vanish at v = 0), got {number:g}; "
+                    "for another law pass a callable phi(v, V) in Python"
+                )
         return cls(**values)
 
     @classmethod

@@ -354,3 +354,12 @@ def test_a_write_error_after_the_run_is_reported_not_raised(monkeypatch, tmp_pat
     record = json.loads(captured.out)  # the run's result still comes out
     assert record["status"] in {"completed", "stopped"} and record["out"] is None
     assert "could not write --out" in captured.err and "No space left on device" in captured.err
+
+
+@pytest.mark.parametrize(("coefficient", "value", "allowed"), [("c1", -5.0, "(0, inf)"), ("p9", 0.0, "(0, inf)"), ("c7", -1.0, "[0, inf)")])
+def test_phi_outside_the_family_domain_exits_2(coefficient, value, allowed, no_compilation, tmp_path, capsys):
+    path = tmp_path / "phi.json"
+    path.write_text(json.dumps({coefficient: value}))
+    assert main(["simulate", *SHORT, "--phi", str(path)]) == 2
+    message = capsys.readouterr().err.strip().splitlines()[-1]
+    assert repr(coefficient) in message and allowed in message, message

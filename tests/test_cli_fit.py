@@ -112,6 +112,10 @@ def _bad_files(tmp_path):
     np.savez(files["negative_V"], t=t, v=t, V=-1.0)
     files["text"] = tmp_path / "e.npz"
     files["text"].write_text("not an npz")
+    files["infinite_v"] = tmp_path / "f.npz"
+    np.savez(files["infinite_v"], t=t, v=np.where(t > 0.1, np.inf, 1.0), V=1.0)
+    files["unordered_t"] = tmp_path / "g.npz"
+    np.savez(files["unordered_t"], t=t[::-1], v=t, V=1.0)
     return files
 
 
@@ -130,6 +134,8 @@ BAD = [
     (["--data", "lengths"], "--data", "one length"),
     (["--data", "negative_V"], "V", "(0, inf)"),
     (["--data", "text"], "--data", "without pickles"),
+    (["--data", "infinite_v"], "--data", "infinite"),
+    (["--data", "unordered_t"], "--data", "increase strictly"),
 ]
 
 

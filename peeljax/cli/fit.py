@@ -97,6 +97,21 @@ def _array(data, key: str, path: str) -> np.ndarray:
     return value.astype(float)
 
 
+def _check_series(path: str, key: str, time_key: str, times: np.ndarray, values: np.ndarray) -> None:
+    """NaN marks a missing entry (ignored); an infinite value or time, or times that do not
+    increase, mean a broken file."""
+    if np.any(np.isinf(values)):
+        raise ValueError(f"--data {path!r}: {key!r} has infinite entries (NaN marks a missing value; inf is not one)")
+    if np.any(np.isinf(times)):
+        raise ValueError(f"--data {path!r}: {time_key!r} has infinite entries")
+    finite = times[np.isfinite(times)]
+    if np.any(np.diff(finite) <= 0):
+        i = int(np.flatnonzero(np.diff(finite) <= 0)[0])
+        raise ValueError(
+            f"--data {path!r}: the times {time_key!r} must increase strictly, got {finite[i]:g} then {finite[i + 1]:g}"
+        )
+
+
 def _observation(data, path: str, suffix: str) -> Observation:
     keys = set(data.files)
     for key in ("V", "t", "v"):
@@ -111,12 +126,15 @@ def _observation(data, path: str, suffix: str) -> Observation:
     fields = {"v": _array(data, "v" + suffix, path)}
     if fields["v"].shape != t.shape:
         raise ValueError(f"--data {path!r}: 't{suffix}' and 'v{suffix}' must have one length")
+    _check_series(path, "v" + suffix, "t" + suffix, t, fields["v"])
     for q in ("F", "alpha"):
         if q + suffix in keys:
             values = _array(data, q + suffix, path)
             times = _array(data, f"t_{q}{suffix}", path) if f"t_{q}{suffix}" in keys else t
             if times.shape != values.shape:
                 raise ValueError(f"--data {path!r}: {q}{suffix!s} and its times must have one length")
+            time_key = f"t_{q}{suffix}" if f"t_{q}{suffix}" in keys else "t" + suffix
+            _check_series(path, q + suffix, time_key, times, values)
             fields[q], fields[f"t_{q}"] = values, times
     observation = Observation(V=V, t=t, **fields)
     if len(observation.series("v")[0]) < 2:
