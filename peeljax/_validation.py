@@ -17,6 +17,7 @@ __all__ = [
     "check_output_times",
     "check_positive",
     "check_rho",
+    "check_tau",
     "check_tolerance",
     "check_y0",
     "is_concrete",
@@ -52,6 +53,24 @@ def check_positive(name: str, value) -> None:
     array = _finite_array(name, value)
     if np.any(array <= 0):
         raise ValueError(f"{name} must be > 0 (allowed range: (0, inf)), got {value!r}")
+
+
+TAU_MAX = 1e6  # s
+
+
+def check_tau(tau) -> None:
+    """τ ∈ (0, 1e6] s. Beyond that the homogenized v is frozen (dv/dt ∝ 1/τ: at τ = 1e10 s v
+    moves from 1.1e-10 to 4.4e-10 m/s in 3 s), and from τ ≈ 1e150 J_t overflows."""
+    if not is_concrete(tau):
+        return
+    array = _finite_array("tau", tau)
+    if np.any(array <= 0):
+        raise ValueError(f"tau must be > 0 (allowed range: (0, {TAU_MAX:g}]), got {tau!r}")
+    if np.any(array > TAU_MAX):
+        raise ValueError(
+            f"tau must be <= {TAU_MAX:g} s (allowed range: (0, {TAU_MAX:g}]): beyond it the homogenized v "
+            f"does not move (dv/dt is proportional to 1/tau), got {tau!r}"
+        )
 
 
 def check_rho(rho) -> None:

@@ -18,6 +18,7 @@ from ._validation import (
     check_output_times,
     check_positive,
     check_rho,
+    check_tau,
     check_tolerance,
     check_truncation,
     check_y0,
@@ -38,7 +39,7 @@ def _prepare(model, V, tau, y0, truncation):
     if not isinstance(model, PeelingModel):
         raise TypeError(f"model must be a PeelingModel, got {type(model).__name__}")
     check_positive("V", V)
-    check_positive("tau", tau)
+    check_tau(tau)
     check_y0(y0)
     check_truncation(truncation)
     for name in ("R", "I", "k", "l"):

@@ -215,8 +215,8 @@ def malformed_phi(tmp_path):
 
 # (options, the parameter the message must name, the allowed range or choices it must state)
 BAD_INPUT = [
-    (["--tau", "0"], "tau", "(0, inf)"),
-    (["--tau=-1"], "tau", "(0, inf)"),
+    (["--tau", "0"], "tau", "(0, 1e+06]"),
+    (["--tau=-1"], "tau", "(0, 1e+06]"),
     (["--V", "0"], "V", "(0, inf)"),
     (["--dt", "0"], "dt", "(0, inf)"),
     (["--t-final", "0"], "t_final", "(0, inf)"),
@@ -224,7 +224,8 @@ BAD_INPUT = [
     (["--rho", "1"], "rho", "[0, 1)"),
     (["--rho=-0.1"], "rho", "[0, 1)"),
     (["--V", "nan"], "V", "(0, inf)"),
-    (["--tau", "inf"], "tau", "(0, inf)"),
+    (["--tau", "inf"], "tau", "(0, 1e+06]"),
+    (["--tau", "1e300"], "tau", "(0, 1e+06]"),
     (["--geometry", "foo"], "geometry", "paper, full"),
     (["--method", "foo"], "method", "alpha, diffrax"),
     (["--y0", "0", "0", "0.001", "0"], "y0", "(0, inf)"),
@@ -363,3 +364,11 @@ def test_phi_outside_the_family_domain_exits_2(coefficient, value, allowed, no_c
     assert main(["simulate", *SHORT, "--phi", str(path)]) == 2
     message = capsys.readouterr().err.strip().splitlines()[-1]
     assert repr(coefficient) in message and allowed in message, message
+
+
+def test_a_v_without_stick_slip_is_said(tmp_path):
+    code, out, err = run_main(["simulate", "--V", "20", "--t-final", "0.05", "--json"])
+    assert code == 0, err
+    assert "no maximum" in json.loads(out)["note"]
+    code, out, err = run_main(["simulate", "--V", "1.1", "--t-final", "0.05", "--json"])
+    assert code == 0 and "note" not in json.loads(out)

@@ -30,6 +30,7 @@ BAD_INPUT = [
     (dict(V=0.0), "V"),
     (dict(V=float("nan")), "V"),
     (dict(tau=float("inf")), "tau"),
+    (dict(tau=1e7), "tau"),
     (dict(dt=0.0), "dt"),
     (dict(t_final=0.0), "t_final"),
     (dict(dt=4.0, t_final=3.0), "dt"),

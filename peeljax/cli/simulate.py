@@ -11,7 +11,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import check_choice, check_mesh, check_positive, check_rho, check_tolerance, check_y0
+from .._validation import (
+    TAU_MAX,
+    check_choice,
+    check_mesh,
+    check_positive,
+    check_rho,
+    check_tau,
+    check_tolerance,
+    check_y0,
+)
 from ..adhesion import AdhesionLaw
 from ..model import GEOMETRIES, PeelingModel
 from ..simulate import DEFAULT_ATOL as _ALPHA_ATOL
@@ -147,7 +156,7 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
     check_choice("method", args.method, METHODS)
     positive = "(0, inf)"
     checked(positive, check_positive, "V", args.V)
-    checked(positive, check_positive, "tau", args.tau)
+    checked(f"(0, {TAU_MAX:g}]", check_tau, args.tau)
     checked(positive, check_positive, "t_final", args.t_final)
     dt = args.dt
     if args.method == "diffrax" and dt is None and args.save_dt is None:
@@ -355,6 +364,20 @@ def _plot_title(config: RunConfig, dt: float) -> str:
     return ", ".join(parts)
 
 
+def _regime_note(config: RunConfig) -> str | None:
+    """A plain word when φ(·, V) has no maximum: then there is no stick-slip to resolve (the
+    paper's φ loses its maximum between V = 4 and 8 m/s) and large V makes the run stiff."""
+    from ..analysis import phi_extrema
+
+    v_peak, _ = phi_extrema(config.model, config.V)
+    if math.isfinite(v_peak):
+        return None
+    return (
+        f"phi(v, V = {config.V:g}) has no maximum for v in [1e-3, 50] m/s: no stick-slip regime at this V "
+        "(the paper's law has one up to V of about 7 m/s)"
+    )
+
+
 def _print_summary(record: dict, config: RunConfig, stats: dict) -> None:
     """A few human-readable lines (ASCII, whatever the terminal's encoding)."""
     settings = [] if config.rho is None else [f"rho = {config.rho:g}"]
@@ -375,6 +398,8 @@ def _print_summary(record: dict, config: RunConfig, stats: dict) -> None:
     else:
         print(f"stopped at t = {record['t_stop']:.6g} s: {record['reason']}")
     print(f"v [m/s]: final {record['v_final']:.6g}, min {record['v_min']:.6g}, max {record['v_max']:.6g}")
+    if record.get("note"):
+        print(f"note: {record['note']}")
     print("stats: " + ", ".join(f"{key} {value}" for key, value in stats.items()))
     print(f"wall time {record['wall_time_s']:.3g} s (including compilation)")
     for key in ("out", "plot"):
@@ -422,6 +447,9 @@ def _simulate_command(args: argparse.Namespace) -> int:
         "out": args.out,
         "plot": args.plot,
     }
+    note = _regime_note(config)
+    if note:
+        record["note"] = note
     failed = []  # (option, path, error): the run is reported whatever could not be written
     if args.out is not None:
         try:
