@@ -351,7 +351,7 @@ def write_npz(path: str, solution: Solution, config: RunConfig) -> None:
         np.savez(handle, **arrays)
 
 
-def _plot_title(config: RunConfig, dt: float) -> str:
+def _plot_title(config: RunConfig, dt: float, record: dict | None = None) -> str:
     parts = [f"V = {config.V:g} m/s", f"τ = {config.tau:g} s", _PLOT_METHODS[config.method]]
     if config.adaptive:
         parts += [f"rtol = {config.rtol:g}", f"atol = {config.atol:g}", f"ρ = {config.rho:g}"]
@@ -361,7 +361,11 @@ def _plot_title(config: RunConfig, dt: float) -> str:
         parts += [f"rtol = {config.rtol:g}", f"output every {dt:.4g} s"]
     if config.model.geometry != "paper":
         parts.append(f"{config.model.geometry} geometry")
-    return ", ".join(parts)
+    title = ", ".join(parts)
+    if record is not None:  # the run's outcome, on a line of its own
+        outcome = "completed" if record["status"] == "completed" else f"stopped at t = {record['t_stop']:.4g} s"
+        title += f"\n{outcome}"
+    return title
 
 
 def _regime_note(config: RunConfig) -> str | None:
@@ -461,7 +465,7 @@ def _simulate_command(args: argparse.Namespace) -> int:
         from ..plots import plot_run  # matplotlib only when a plot is asked for
 
         try:
-            plot_run(solution, config.model, V=config.V, title=_plot_title(config, dt), path=args.plot)
+            plot_run(solution, config.model, V=config.V, title=_plot_title(config, dt, record), path=args.plot)
         except OSError as error:
             failed.append(("--plot", args.plot, error))
             record["plot"] = None

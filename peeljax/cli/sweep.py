@@ -21,7 +21,9 @@ __all__ = ["add_command", "tau_grid", "validate_sweep", "validate_tau_star"]
 # ---------------------------------------------------------------------------- parsers
 def _add_model_arguments(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("problem")
-    group.add_argument("--V", type=float, nargs="+", default=[1.1, 2.0, 4.0], help="pull velocities [m/s], > 0")
+    group.add_argument(
+        "--V", type=float, nargs="+", default=[1.1, 2.0, 4.0], help="pull velocities [m/s], > 0 (default 1.1 2 4)"
+    )
     group.add_argument("--dt", type=float, default=1 / 82, help="alpha-method step [s] (default 1/82)")
     group.add_argument("--t-final", dest="t_final", type=float, default=3.0, help="end time [s] (default 3)")
     group.add_argument("--rho", type=float, default=0.0, help="alpha-method's rho in [0, 1) (default 0)")
