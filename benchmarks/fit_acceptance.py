@@ -88,7 +88,7 @@ def main() -> None:
         t_final=args.t_final, tau=args.tau, steps=args.steps, free=args.free, optimizer=args.optimizer, seed=args.seed
     )
     result, start, floor = out["result"], out["start"], out["noise_floor"]
-    print(f"fitted {list(result.free)}: {result.steps} loss evaluations, {result.wall_time_s:.0f} s")
+    print(f"fitted {list(result.free)}: {result.steps} iterations, {result.wall_time_s:.0f} s")
     print(f"loss {result.initial_loss:.3e} -> {result.final_loss:.3e}: {result.loss_reduction:.0f}x (>= 100 required)")
     print(
         f"loss of the true phi on these data (noise floor) {floor:.3e}; L(start)/L(true) = {result.initial_loss / floor:.0f}"

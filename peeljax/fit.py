@@ -262,10 +262,10 @@ class FitResult:
     Attributes:
         adhesion: the fitted law (the best iterate).
         start: the law the fit started from.
-        loss_history: the loss at every iteration (before its update).
+        loss_history: the loss at θ_0 … θ_steps (``steps + 1`` entries).
         initial_loss, final_loss: L at the start and at the fitted law.
         gradient_norm: ‖∂L/∂θ‖₂ at the fitted law (θ the log parameters of the free coefficients).
-        steps: loss evaluations done (θ_0 … θ_k: one more than the updates);
+        steps: the optimizer's iterations (updates) taken, at most the ``steps`` asked for;
             stopped_early: early stopping (patience/tolerance) fired.
         v_range: (min, max) of v visited by the fitted model's runs (or of the data's v,
             steady case): φ is determined by the data only there.
@@ -438,7 +438,7 @@ def _fit(
         initial_loss=float(history[0]),
         final_loss=float(value),
         gradient_norm=float(gnorm),
-        steps=len(history),
+        steps=len(history) - 1,
         stopped_early=early,
         v_range=(float(np.min(v_min)), float(np.max(v_max))),
         free=names,
