@@ -219,6 +219,7 @@ def integrate_alpha_adaptive(
         z_n = jax.lax.stop_gradient(solver._to_unknown(state.y))
         parts = jax.lax.cond(c.refresh, lambda: solver.linearize(jax.lax.stop_gradient(ode), z_n), lambda: c.parts)
         fresh = c.refresh | c.parts_fresh
+        age = jnp.where(c.refresh, 0, c.parts_age)  # accepted steps since the parts were computed
         scale = controller.scale(z_n, z_n, log_mask)
         chord = (parts, scale, solver.newton_kappa, solver.chord_iterations)
         new, error, solved, iterations = alpha_attempt(ode, solver, state, h, chord)
@@ -264,8 +265,6 @@ def integrate_alpha_adaptive(
         factor = controller.factor(norm, c.prev_norm, accept, solved | retry_fresh)
         factor = jnp.where(retry_fresh, 1.0, factor)
         h_next = jax.lax.stop_gradient(jnp.minimum(h * factor, span))
-        # The clipped last step says nothing about the step the solution allows: keep c.h.
-        h_next = jnp.where(last & accept, jnp.maximum(h_next, c.h), h_next)
         done = advance & last
         collapsed = ~done & ~impasse & (h_next < dtmin)
         status = jnp.where(impasse, StopReason.IMPASSE, jnp.where(collapsed, StopReason.STALLED, 0))
@@ -288,8 +287,8 @@ def integrate_alpha_adaptive(
             h_max=jnp.where(advance, jnp.maximum(c.h_max, h_taken), c.h_max),
             parts=parts,
             parts_fresh=fresh & ~advance,
-            refresh=retry_fresh | (advance & (c.parts_age + 1 >= solver.jacobian_max_age)),
-            parts_age=jnp.where(c.refresh, 0, c.parts_age) + advance,
+            refresh=retry_fresh | (advance & (age + 1 >= solver.jacobian_max_age)),
+            parts_age=age + advance,
             jacobian_evaluations=c.jacobian_evaluations + c.refresh,
             out_t=out_t,
             out_y=out_y,

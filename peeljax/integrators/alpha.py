@@ -281,7 +281,10 @@ class AlphaMethod(eqx.Module):
             in the error norm's weights, times min(1, its convergence rate), is ≤
             ``newton_kappa``; after ``chord_iterations`` or on divergence the step is retried
             with a fresh matrix, and only then with a smaller step. The matrix is refreshed
-            at least every ``jacobian_max_age`` accepted steps (static).
+            at least every ``jacobian_max_age`` accepted steps (static). Error control
+            uses neither ``newton_rtol``/``newton_atol`` nor the subdivision safeguard
+            (``max_subdivisions``, ``max_log_change``): a failed step is retried with a
+            smaller one instead.
     """
 
     rho: Float[Array, ""] = eqx.field(converter=float_array, default=0.0)
