@@ -17,6 +17,7 @@ Medians of round-robin repeats; ratios are to ``peeljax.simulate`` in the same r
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib
 import statistics
 import time
@@ -123,9 +124,10 @@ def call_overhead(repeats):
     args = jax.device_put(
         (ode, pj.AlphaMethod(), None, np.asarray(1e-4), pj.PIController(), ts, np.asarray(1e-16))
     )
+    compiled = jax.jit(functools.partial(simulate_module._integrate_adaptive, max_steps=100_000, adjoint="reverse"))
     runs = {
         "simulate": lambda: pj.simulate(model, V=V, tau=0.1, t_final=1e-4, ts=ts).ys,
-        "compiled": lambda: simulate_module._adaptive_jit(*args, max_steps=100_000, adjoint="reverse").ys,
+        "compiled": lambda: compiled(*args).ys,
     }
     for fn in runs.values():
         jax.block_until_ready(fn())

@@ -98,19 +98,40 @@ def _integrate_adaptive(ode, solver, y0, t_final, controller, ts, dtmin, max_ste
     )
 
 
-_STATIC = ("max_steps", "adjoint")
-_adaptive_jit = jax.jit(_integrate_adaptive, static_argnames=_STATIC)
+def _integrate_packed(packed, rest, *, treedef, scalars, max_steps, adjoint):
+    leaves, k, j = [], 0, 0
+    for is_scalar in scalars:
+        if is_scalar:
+            leaves.append(packed[k])
+            k += 1
+        else:
+            leaves.append(rest[j])
+            j += 1
+    args = jax.tree_util.tree_unflatten(treedef, leaves)
+    return _integrate_adaptive(*args, max_steps=max_steps, adjoint=adjoint)
+
+
+_adaptive_jit = jax.jit(_integrate_packed, static_argnames=("treedef", "scalars", "max_steps", "adjoint"))
 _adaptive_filter_jit = eqx.filter_jit(_integrate_adaptive)
 
 
 def _run_adaptive(ode, solver, y0, t_final, controller, ts, dtmin, max_steps, adjoint):
-    """The compiled run. ``jax.jit``'s C++ dispatch when every leaf is an array (about 0.1 ms
-    less per call than ``eqx.filter_jit``); ``filter_jit`` when one is not (a φ given as a
-    plain Python function)."""
-    args = (ode, solver, y0, t_final, controller, ts, dtmin)
-    if all(isinstance(leaf, (jax.Array, np.ndarray, np.generic)) for leaf in jax.tree_util.tree_leaves(args)):
-        return _adaptive_jit(*args, max_steps=max_steps, adjoint=adjoint)
-    return _adaptive_filter_jit(*args, max_steps=max_steps, adjoint=adjoint)
+    """The compiled run, with ``jax.jit``'s C++ dispatch when every leaf is an array.
+
+    The float parameters held on the host (about 30: the model's, φ's, the solver's, the
+    controller's) travel as one vector, one host-to-device copy instead of one each (65 µs
+    less per call). A leaf that is not an array (a φ given as a plain Python function) takes
+    ``eqx.filter_jit`` instead.
+    """
+    leaves, treedef = jax.tree_util.tree_flatten((ode, solver, y0, t_final, controller, ts, dtmin))
+    scalars = tuple(
+        isinstance(leaf, (np.ndarray, np.generic)) and leaf.shape == () and leaf.dtype == np.float64 for leaf in leaves
+    )
+    if all(isinstance(leaf, (jax.Array, np.ndarray, np.generic)) for leaf in leaves):
+        packed = np.array([leaf for leaf, is_scalar in zip(leaves, scalars) if is_scalar], dtype=float)
+        rest = [leaf for leaf, is_scalar in zip(leaves, scalars) if not is_scalar]
+        return _adaptive_jit(packed, rest, treedef=treedef, scalars=scalars, max_steps=max_steps, adjoint=adjoint)
+    return _adaptive_filter_jit(ode, solver, y0, t_final, controller, ts, dtmin, max_steps, adjoint)
 
 
 DEFAULT_RTOL, DEFAULT_ATOL = 1e-6, 1e-9

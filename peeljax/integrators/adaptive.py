@@ -46,7 +46,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from ..solution import Solution, StepDiagnostics, StopReason
 from ..structure import local_index
-from .alpha import AlphaMethod, AlphaState, _log_mask, alpha_start, to_physical
+from .alpha import AlphaMethod, AlphaState, _log_mask, _stop_gradient, alpha_start, to_physical
 from .controller import PIController
 from .dense import hermite
 
@@ -217,7 +217,7 @@ def integrate_alpha_adaptive(
         last = c.h >= remaining
         h = jnp.where(last, remaining, c.h)
         z_n = jax.lax.stop_gradient(solver._to_unknown(state.y))
-        parts = jax.lax.cond(c.refresh, lambda: solver.linearize(jax.lax.stop_gradient(ode), z_n), lambda: c.parts)
+        parts = jax.lax.cond(c.refresh, lambda: solver.linearize(_stop_gradient(ode), z_n), lambda: c.parts)
         fresh = c.refresh | c.parts_fresh
         age = jnp.where(c.refresh, 0, c.parts_age)  # accepted steps since the parts were computed
         scale = controller.scale(z_n, z_n, log_mask)
