@@ -4,7 +4,12 @@ from __future__ import annotations
 
 import importlib
 
+import equinox as eqx
+import jax
+import jax.numpy as jnp
 import pytest
+
+from peeljax.homogenized import Evaluation
 
 
 @pytest.fixture
@@ -17,3 +22,16 @@ def no_compilation(monkeypatch):
     simulate_module = importlib.import_module("peeljax.simulate")  # peeljax.simulate is the function
     for name in ("_run_alpha", "_run_adaptive", "_run_reference"):
         monkeypatch.setattr(simulate_module, name, forbidden)
+
+
+class LinearODE(eqx.Module):
+    """y' = λ·y, componentwise (no Schur complement: J = −1, F̃·f = 0)."""
+
+    lam: jax.Array
+    tau: float = 0.5
+
+    def evaluate(self, y):
+        return Evaluation(psi=self.lam * y, J=jnp.asarray(-1.0), drive=jnp.asarray(0.0))
+
+    def __call__(self, y):
+        return self.evaluate(y).psi

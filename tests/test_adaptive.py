@@ -7,28 +7,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import LinearODE
 
 import peeljax as pj
-from peeljax.homogenized import Evaluation, HomogenizedODE
+from peeljax.homogenized import HomogenizedODE
 from peeljax.integrators.adaptive import alpha_attempt, error_constant
 from peeljax.integrators.alpha import alpha_start
 from peeljax.integrators.dense import hermite
 from peeljax.solution import StopReason
 
 GRID = np.linspace(0.0, 3.0, 301)
-
-
-class LinearODE(eqx.Module):
-    """y' = λ·y componentwise (J = −1, F̃·f = 0: no impasse)."""
-
-    lam: jax.Array
-    tau: float = 0.5
-
-    def evaluate(self, y):
-        return Evaluation(psi=self.lam * y, J=jnp.asarray(-1.0), drive=jnp.asarray(0.0))
-
-    def __call__(self, y):
-        return self.evaluate(y).psi
 
 
 GENERAL = pj.AlphaMethod(log_components=())

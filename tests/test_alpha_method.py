@@ -7,23 +7,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import LinearODE
 
 import peeljax as pj
 from peeljax.homogenized import Evaluation
 from peeljax.solution import StopReason
-
-
-class LinearODE(eqx.Module):
-    """y' = λ·y, componentwise (no Schur complement: J = −1, F̃·f = 0)."""
-
-    lam: jax.Array
-    tau: float = 0.5
-
-    def evaluate(self, y):
-        return Evaluation(psi=self.lam * y, J=jnp.asarray(-1.0), drive=jnp.asarray(0.0))
-
-    def __call__(self, y):
-        return self.evaluate(y).psi
 
 
 class FoldODE(eqx.Module):
