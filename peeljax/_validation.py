@@ -28,13 +28,18 @@ def is_concrete(value) -> bool:
     return not isinstance(value, jax.core.Tracer)
 
 
+def _shown(value):
+    """A value for an error message: a plain number for a 0-d array."""
+    return float(value) if isinstance(value, (np.ndarray, np.generic)) and np.ndim(value) == 0 else value
+
+
 def _finite_array(name: str, value) -> np.ndarray:
     try:
         array = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a real number, got {value!r}") from None
+        raise ValueError(f"{name} must be a real number, got {_shown(value)!r}") from None
     if not np.all(np.isfinite(array)):
-        raise ValueError(f"{name} must be finite, got {value!r}")
+        raise ValueError(f"{name} must be finite, got {_shown(value)!r}")
     return array
 
 
@@ -52,7 +57,7 @@ def check_positive(name: str, value) -> None:
         return
     array = _finite_array(name, value)
     if np.any(array <= 0):
-        raise ValueError(f"{name} must be > 0 (allowed range: (0, inf)), got {value!r}")
+        raise ValueError(f"{name} must be > 0 (allowed range: (0, inf)), got {_shown(value)!r}")
 
 
 TAU_MAX = 1e6  # s
@@ -65,11 +70,11 @@ def check_tau(tau) -> None:
         return
     array = _finite_array("tau", tau)
     if np.any(array <= 0):
-        raise ValueError(f"tau must be > 0 (allowed range: (0, {TAU_MAX:g}]), got {tau!r}")
+        raise ValueError(f"tau must be > 0 (allowed range: (0, {TAU_MAX:g}]), got {_shown(tau)!r}")
     if np.any(array > TAU_MAX):
         raise ValueError(
             f"tau must be <= {TAU_MAX:g} s (allowed range: (0, {TAU_MAX:g}]): beyond it the homogenized v "
-            f"does not move (dv/dt is proportional to 1/tau), got {tau!r}"
+            f"does not move (dv/dt is proportional to 1/tau), got {_shown(tau)!r}"
         )
 
 
@@ -79,14 +84,14 @@ def check_rho(rho) -> None:
         return
     array = _finite_array("rho", rho)
     if np.any((array < 0) | (array >= 1)):
-        raise ValueError(f"rho must lie in [0, 1), got {rho!r}")
+        raise ValueError(f"rho must lie in [0, 1), got {_shown(rho)!r}")
 
 
 def check_mesh(dt, t_final) -> int:
     """dt and t_final (Python numbers: they set the mesh's shape); returns N = round(t_final/dt) ≥ 1."""
     for name, value in (("dt", dt), ("t_final", t_final)):
         if not is_concrete(value) or np.ndim(value) != 0:
-            raise ValueError(f"{name} sets the number of steps and must be a concrete scalar, got {value!r}")
+            raise ValueError(f"{name} sets the number of steps and must be a concrete scalar, got {_shown(value)!r}")
         check_positive(name, value)
     dt, t_final = float(dt), float(t_final)
     if dt > t_final:
@@ -100,13 +105,13 @@ def check_mesh(dt, t_final) -> int:
 def check_tolerance(name: str, value, upper: float = math.inf) -> None:
     """A tolerance in (0, upper): a finite Python or numpy number (it is not traced)."""
     if not is_concrete(value) or np.ndim(value) != 0:
-        raise ValueError(f"{name} must be a number in (0, {upper:g}), got {value!r}")
+        raise ValueError(f"{name} must be a number in (0, {upper:g}), got {_shown(value)!r}")
     try:
         number = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number in (0, {upper:g}), got {value!r}") from None
+        raise ValueError(f"{name} must be a number in (0, {upper:g}), got {_shown(value)!r}") from None
     if not (0.0 < number < upper):  # also refuses NaN
-        raise ValueError(f"{name} must lie in (0, {upper:g}), got {value!r}")
+        raise ValueError(f"{name} must lie in (0, {upper:g}), got {_shown(value)!r}")
 
 
 def check_max_steps(max_steps) -> None:
@@ -141,7 +146,7 @@ def check_y0(y0) -> None:
 
 def check_choice(name: str, value, allowed) -> None:
     if value not in allowed:
-        raise ValueError(f"{name} must be one of {', '.join(map(str, allowed))}; got {value!r}")
+        raise ValueError(f"{name} must be one of {', '.join(map(str, allowed))}; got {_shown(value)!r}")
 
 
 def check_truncation(truncation) -> None:
@@ -153,5 +158,5 @@ def check_truncation(truncation) -> None:
 
 def check_finite_scalar(name: str, value) -> float:
     if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
-        raise ValueError(f"{name} must be a finite number, got {value!r}")
+        raise ValueError(f"{name} must be a finite number, got {_shown(value)!r}")
     return float(value)

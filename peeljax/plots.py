@@ -157,48 +157,215 @@ def plot_run(
     return plot_runs([solution], None if label is None else [label], model, V=V, title=title, path=path)
 
 
+# Up to this many pull velocities the sweep map draws one series per V against τ; more V
+# values (on a full V × τ grid) are drawn as images over (τ, V).
+SWEEP_MAP_MAX_LINES = 8
+_STOPPED_LABEL = "stopped before t_final"
+
+
+def _format_step(dt: float) -> str:
+    """``0.01`` → "0.01 s"; 1/82 → "1/82 s" (the steps are often given as fractions)."""
+    n = 1.0 / dt
+    if abs(n - round(n)) < 1e-9 * n and round(n) > 1 and f"{dt:g}" != f"{dt:.12g}":
+        return f"1/{round(n)} s"
+    return f"{dt:g} s"
+
+
+def _sweep_heading(result, title: str | None, t_final: float, window: tuple[float, float], n_V: int, n_tau: int) -> str:
+    """The figure title: the user's title (if any) over a line with the sweep's settings."""
+    settings = result.settings
+    completed = np.asarray(result.completed, bool)
+    parts = [f"{completed.size} runs ({n_V} V × {n_tau} τ)"]
+    if "dt" in settings:
+        parts.append(f"dt = {_format_step(float(settings['dt']))}")
+    parts.append(f"t_final = {t_final:g} s")
+    parts.append(f"window t ∈ [{window[0] * t_final:g}, {window[1] * t_final:g}] s")
+    parts.append(f"{int(completed.sum())} completed, {int((~completed).sum())} stopped")
+    params = [name for name in getattr(result, "params", {}) or {}]
+    if params:
+        parts.append("also swept: " + ", ".join(params) + " (overplotted)")
+    line = ", ".join(parts)
+    return f"{title}\n{line}" if title else f"peeljax sweep: {line}"
+
+
+def _events_title(events: np.ndarray, completed: np.ndarray) -> tuple[str, bool]:
+    """The events panel's title, and whether any completed run had an event."""
+    any_events = bool(completed.any() and (events[completed] > 0).any())
+    if any_events:
+        return "stick-slip events in the window", True
+    return "no stick-slip events in this sweep", False
+
+
+def _no_events_note(ax) -> None:
+    ax.text(
+        0.5, 0.5, "no stick-slip events in this sweep:\nno completed run crossed v_slip\n(the v of the maximum of φ) "
+        "upwards\nin the window", transform=ax.transAxes, ha="center", va="center", fontsize=9,
+        bbox={"boxstyle": "round,pad=0.4", "fc": "white", "ec": "0.6", "alpha": 0.9},
+    )  # fmt: skip
+
+
+def _sweep_lines(fig: Figure, tau, V, completed, t_stop, spread, events, t_final: float) -> None:
+    """Few V: three panels against τ (log), one series per V; ● completed, × stopped."""
+    axes = fig.subplots(3, 1, sharex=True)
+    Vs = np.unique(V)
+    lo = np.nanmin(spread[completed & (spread > 0)]) if (completed & (spread > 0)).any() else None
+    events_title, any_events = _events_title(events, completed)
+    for i, V_i in enumerate(Vs):
+        color = f"C{i % 10}"
+        row = np.flatnonzero(V == V_i)
+        row = row[np.argsort(tau[row], kind="stable")]
+        done, stop = row[completed[row]], row[~completed[row]]
+        axes[0].plot(tau[row], t_stop[row], "-", color=color, lw=1.0, alpha=0.6)
+        axes[0].plot(tau[done], t_stop[done], "o", color=color, ms=6)
+        axes[0].plot(tau[stop], t_stop[stop], "x", color=color, ms=8, mew=2)
+        axes[1].plot(tau[done], np.maximum(spread[done], lo) if lo else spread[done], "o-", color=color, ms=5, lw=1.2)
+        if any_events:
+            axes[2].plot(tau[done], events[done], "o-", color=color, ms=5, lw=1.2)
+        # stopped runs have no statistics over the whole window: a × on the panels' lower edge
+        for ax in axes[1:] if any_events else axes[1:2]:
+            ax.plot(tau[stop], np.zeros(stop.size), "x", color=color, ms=8, mew=2,
+                    transform=ax.get_xaxis_transform(), clip_on=False)  # fmt: skip
+    axes[0].axhline(t_final, color="k", ls="--", lw=0.8)
+    axes[0].set_ylim(0.0, t_final * 1.08)
+    axes[0].set_ylabel("t_stop [s]\n(t_final: completed)")
+    axes[0].set_title("how far each run got")
+    axes[1].set_yscale("log")
+    axes[1].set_ylabel("std(v)/V")
+    axes[1].set_title("spread of v over the window (≈ 0: v smoothed to V)")
+    axes[2].set_title(events_title)
+    if any_events:
+        from matplotlib.ticker import MaxNLocator
+
+        axes[2].yaxis.set_major_locator(MaxNLocator(integer=True))
+        axes[2].set_ylim(-0.5, max(1, int(events[completed].max())) + 0.5)
+        axes[2].set_ylabel("events")
+    else:
+        _no_events_note(axes[2])
+        axes[2].set_yticks([])
+    axes[-1].set_xscale("log")
+    axes[-1].set_xlabel("homogenization scale τ [s]")
+    for ax in axes:
+        ax.grid(True, alpha=0.3)
+    from matplotlib.lines import Line2D
+
+    handles = [Line2D([], [], color=f"C{i % 10}", marker="o", lw=1.2) for i in range(Vs.size)]
+    labels = [f"V = {V_i:g} m/s" for V_i in Vs]
+    handles += [
+        Line2D([], [], color="k", marker="o", ls="none"),
+        Line2D([], [], color="k", marker="x", ms=8, mew=2, ls="none"),
+        Line2D([], [], color="k", ls="--", lw=0.8),
+    ]
+    labels += ["completed [0, t_final]", _STOPPED_LABEL + "\n(lower panels: × on the axis, no value)", "t_final"]
+    fig.legend(handles, labels, loc="outside lower center", ncols=min(len(labels), 6), fontsize=8)
+
+
+def _edges(centres: np.ndarray, log: bool) -> np.ndarray:
+    """Cell edges around sorted centres (geometric midpoints on a log axis)."""
+    c = np.log(centres) if log else centres.astype(float)
+    if c.size == 1:
+        e = np.array([c[0] - 0.1, c[0] + 0.1]) if log else np.array([c[0] - 0.5, c[0] + 0.5]) * (1 if c[0] else 1)
+    else:
+        mid = 0.5 * (c[1:] + c[:-1])
+        e = np.concatenate([[c[0] - (mid[0] - c[0])], mid, [c[-1] + (c[-1] - mid[-1])]])
+    return np.exp(e) if log else e
+
+
+def _sweep_images(fig: Figure, tau, V, completed, t_stop, spread, events, t_final: float) -> None:
+    """Many V on a full grid: three images over (τ, V), stopped cells hatched in every panel."""
+    from matplotlib.collections import PolyCollection
+    from matplotlib.colors import BoundaryNorm, LogNorm
+    from matplotlib.patches import Patch
+
+    taus, Vs = np.unique(tau), np.unique(V)
+    col, row = np.searchsorted(taus, tau), np.searchsorted(Vs, V)
+
+    def image(values):
+        out = np.full((Vs.size, taus.size), np.nan)
+        out[row, col] = values
+        return out
+
+    xe, ye = _edges(taus, log=True), _edges(Vs, log=False)
+    stopped = ~completed
+    hatch_cells = [
+        [(xe[c], ye[r]), (xe[c + 1], ye[r]), (xe[c + 1], ye[r + 1]), (xe[c], ye[r + 1])]
+        for r, c in zip(row[stopped], col[stopped])
+    ]
+    axes = fig.subplots(1, 3, sharey=True)
+    events_title, any_events = _events_title(events, completed)
+    # how far each run got
+    mesh = axes[0].pcolormesh(xe, ye, image(t_stop), cmap="autumn", vmin=0.0, vmax=t_final)
+    fig.colorbar(mesh, ax=axes[0], label="t_stop [s] (= t_final: completed)", location="bottom", shrink=0.9)
+    axes[0].set_title("how far each run got")
+    # spread of v (completed runs)
+    ok = completed & np.isfinite(spread)
+    positive = spread[ok & (spread > 0)]
+    floor = max(float(positive.min()) if positive.size else 1e-12, 1e-12)
+    top = max(floor * 10, float(positive.max()) if positive.size else 1.0)
+    mesh = axes[1].pcolormesh(
+        xe, ye, np.ma.masked_invalid(image(np.where(ok, np.maximum(spread, floor), np.nan))),
+        cmap="viridis", norm=LogNorm(vmin=floor, vmax=top),
+    )  # fmt: skip
+    fig.colorbar(mesh, ax=axes[1], label="std(v)/V over the window (≈ 0: v smoothed to V)", location="bottom", shrink=0.9)
+    axes[1].set_title("spread of v")
+    # events (completed runs)
+    if any_events:
+        n_max = int(events[completed].max())
+        norm = BoundaryNorm(np.arange(-0.5, n_max + 1.5), 256)
+        mesh = axes[2].pcolormesh(
+            xe, ye, np.ma.masked_invalid(image(np.where(completed, events, np.nan))), cmap="viridis", norm=norm
+        )
+        ticks = np.unique(np.linspace(0, n_max, min(n_max + 1, 8)).round().astype(int))
+        fig.colorbar(mesh, ax=axes[2], label="upward crossings of v_slip (the v of the maximum of φ)", location="bottom",
+                     shrink=0.9, ticks=ticks)  # fmt: skip
+    else:
+        _no_events_note(axes[2])
+    axes[2].set_title(events_title)
+    for ax in axes:
+        ax.set_facecolor("0.88")  # stopped cells of the value panels: no value
+        ax.add_collection(
+            PolyCollection(hatch_cells, facecolor="none", edgecolor="0.15", hatch="xxx", linewidth=0.0)
+        )
+        ax.set_xscale("log")
+        ax.set_xlim(xe[0], xe[-1])
+        ax.set_ylim(ye[0], ye[-1])
+        ax.set_xlabel("homogenization scale τ [s]")
+    axes[0].set_ylabel("pull velocity V [m/s]")
+    fig.legend(
+        [Patch(facecolor="0.88", edgecolor="0.15", hatch="xxx", lw=0.0)], [_STOPPED_LABEL + " (hatched)"],
+        loc="outside lower center", fontsize=8,
+    )  # fmt: skip
+
+
 def plot_sweep_map(result, *, title: str | None = None, path: str | Path | None = None) -> Figure:
     """The stick-slip map of a :class:`peeljax.SweepResult` over (τ, V) (cf. the paper's Figs. 2, 5–7).
 
-    Left: completion (filled: completed [0, t_final]; cross: stopped, coloured by t_stop).
-    Right: the spread of v over the window, v_std/V (log colour scale): large where the
-    trajectory sticks and slips, ~0 where τ has smoothed v to V. τ on a log axis.
+    Three panels: how far each run got (t_stop; t_final when it completed), the spread of v
+    over the statistics window, std(v)/V (log scale: large where v sticks and slips, ≈ 0 where
+    τ has smoothed v to V), and the stick-slip events in the window (or a note that there are
+    none). Up to :data:`SWEEP_MAP_MAX_LINES` pull velocities: one series per V against τ (log
+    axis), ● completed, × stopped (on the lower edge of the value panels, which have no value
+    for it). More V values on a full V × τ grid: images over (τ, V) with stopped cells hatched
+    in every panel. The title gives the settings (dt, t_final, window) and the counts.
     """
     tau, V = np.asarray(result.tau, float), np.asarray(result.V, float)
     completed = np.asarray(result.completed, bool)
-    t_final = float(result.settings.get("t_final", np.nanmax(result.t_stop)))
-    fig = Figure(figsize=(11, 4.2), layout="constrained")
-    FigureCanvasAgg(fig)
-    left, right = fig.subplots(1, 2, sharey=True)
-    size = 60 if V.size <= 200 else 20
-    left.scatter(tau[completed], V[completed], s=size, marker="s", color="tab:green", label="completed")
-    stopped = left.scatter(
-        tau[~completed], V[~completed], s=size, marker="X", c=np.asarray(result.t_stop)[~completed],
-        cmap="autumn", vmin=0.0, vmax=t_final, label="stopped",
-    )  # fmt: skip
-    if (~completed).any():
-        fig.colorbar(stopped, ax=left, label="t_stop [s] of stopped runs")
-    left.set_title("completion of [0, t_final]")
-    left.legend(loc="best", fontsize=8)
+    t_stop = np.asarray(result.t_stop, float)
     spread = np.asarray(result.v_std, float) / V
-    ok = completed & np.isfinite(spread)
-    floor = max(np.nanmin(spread[ok]) if ok.any() else 1e-12, 1e-12)
-    from matplotlib.colors import LogNorm
-
-    image = right.scatter(
-        tau[ok], V[ok], s=size, marker="s", c=np.maximum(spread[ok], floor),
-        norm=LogNorm(vmin=floor, vmax=max(floor * 10, np.nanmax(spread[ok]) if ok.any() else 1.0)), cmap="viridis",
-    )  # fmt: skip
-    right.scatter(tau[~completed], V[~completed], s=size, marker="x", color="0.6")
-    fig.colorbar(image, ax=right, label="spread of v: std(v)/V over the window")
-    right.set_title("stick-slip map")
-    for ax in (left, right):
-        ax.set_xscale("log")
-        ax.set_xlabel("homogenization scale τ [s]")
-        ax.grid(True, alpha=0.3)
-    left.set_ylabel("pull velocity V [m/s]")
-    if title:
-        fig.suptitle(title)
+    events = np.asarray(result.events)
+    settings = result.settings or {}
+    t_final = float(settings.get("t_final", np.nanmax(t_stop)))
+    window = tuple(float(w) for w in settings.get("window", (0.5, 1.0)))
+    n_V, n_tau = np.unique(V).size, np.unique(tau).size
+    full_grid = n_V * n_tau == tau.size and np.unique(np.stack([tau, V]), axis=1).shape[1] == tau.size
+    if n_V <= SWEEP_MAP_MAX_LINES or not full_grid:
+        fig = Figure(figsize=(10.0, 8.5), layout="constrained")
+        FigureCanvasAgg(fig)
+        _sweep_lines(fig, tau, V, completed, t_stop, spread, events, t_final)
+    else:
+        fig = Figure(figsize=(14.0, 5.6), layout="constrained")
+        FigureCanvasAgg(fig)
+        _sweep_images(fig, tau, V, completed, t_stop, spread, events, t_final)
+    fig.suptitle(_sweep_heading(result, title, t_final, window, n_V, n_tau), fontsize=10)
     if path is not None:
         fig.savefig(path, dpi=150)
     return fig

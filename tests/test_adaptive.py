@@ -290,3 +290,25 @@ def test_a_callable_phi_runs_like_the_adhesion_law():
     function = pj.simulate(pj.PeelingModel(adhesion=phi), V=1.1, tau=0.1, t_final=0.5, ts=ts)
     assert bool(function.completed)
     np.testing.assert_allclose(np.asarray(function.v), np.asarray(law.v), rtol=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("build", "name"),
+    [
+        (lambda: pj.AlphaMethod(rho=1.5), "rho"),
+        (lambda: pj.AlphaMethod(newton_kappa=0.0), "newton_kappa"),
+        (lambda: pj.AlphaMethod(chord_iterations=0), "chord_iterations"),
+        (lambda: pj.PIController(rtol=0.0), "rtol"),
+        (lambda: pj.PIController(atol=-1.0), "atol"),
+        (lambda: pj.PIController(safety=1.5), "safety"),
+        (lambda: pj.PIController(factormax=0.5), "factormax"),
+    ],
+)
+def test_solver_and_controller_check_their_numbers(build, name):
+    with pytest.raises(ValueError, match=name):
+        build()
+
+
+def test_traced_settings_are_not_checked_at_construction():
+    assert float(jax.jit(lambda r: pj.PIController(rtol=r).rtol)(1e-3)) == 1e-3
+    assert float(jax.jit(lambda r: pj.AlphaMethod(rho=r).rho)(0.3)) == 0.3

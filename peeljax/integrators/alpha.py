@@ -52,6 +52,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .._arrays import float_array
 from .._linalg import solve_small
+from .._validation import check_positive, check_rho
 from ..homogenized import HomogenizedODE
 from ..solution import Solution, StepDiagnostics, StopReason, mask_after_stop
 from ..structure import local_index
@@ -299,6 +300,16 @@ class AlphaMethod(eqx.Module):
     newton_kappa: Float[Array, ""] = eqx.field(converter=float_array, default=0.01)
     chord_iterations: int = eqx.field(static=True, default=4)
     jacobian_max_age: int = eqx.field(static=True, default=20)
+
+    def __check_init__(self):
+        check_rho(self.rho)
+        for name in ("newton_rtol", "newton_atol", "newton_kappa", "max_log_change"):
+            check_positive(name, getattr(self, name))
+        for name in ("max_newton_iterations", "chord_iterations", "jacobian_max_age"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)!r}")
+        if self.max_subdivisions < 0:
+            raise ValueError(f"max_subdivisions must be >= 0, got {self.max_subdivisions!r}")
 
     def _newton_in_log(self) -> tuple[int, ...]:
         """Components that Newton alone solves for in log form (the scheme stays in y)."""

@@ -18,6 +18,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 from .._arrays import float_array
+from .._validation import check_tolerance, is_concrete
 
 __all__ = ["PIController", "ERROR_ORDER"]
 
@@ -48,6 +49,22 @@ class PIController(eqx.Module):
     factormin: Float[Array, ""] = eqx.field(converter=float_array, default=0.2)
     factormax: Float[Array, ""] = eqx.field(converter=float_array, default=10.0)
     newton_failure_factor: Float[Array, ""] = eqx.field(converter=float_array, default=0.25)
+
+    def __check_init__(self):
+        if is_concrete(self.rtol):
+            check_tolerance("rtol", self.rtol, upper=1.0)
+        if is_concrete(self.atol):
+            check_tolerance("atol", self.atol)
+        for name in ("pcoeff", "icoeff"):
+            value = getattr(self, name)
+            if is_concrete(value) and not float(value) >= 0:
+                raise ValueError(f"{name} must be >= 0, got {float(value)!r}")
+        for name in ("safety", "factormin", "newton_failure_factor"):
+            value = getattr(self, name)
+            if is_concrete(value) and not 0.0 < float(value) <= 1.0:
+                raise ValueError(f"{name} must lie in (0, 1], got {float(value)!r}")
+        if is_concrete(self.factormax) and not float(self.factormax) > 1:
+            raise ValueError(f"factormax must be > 1, got {float(self.factormax)!r}")
 
     def scale(self, y0: Float[Array, " n"], y1: Float[Array, " n"], log_mask: Bool[Array, " n"]) -> Float[Array, " n"]:
         """The error weights s_i: atol + rtol·max(|y0_i|, |y1_i|), or rtol for a log component."""
