@@ -362,7 +362,8 @@ def analyze(
         )
         if Vi not in extrema_cache:
             extrema_cache[Vi] = phi_extrema(model, Vi)
-        t_tr = 0.5 * (ts[0] + ts[-1]) if t_transient is None else float(t_transient)
+        # nanmax: an error-controlled run without output times pads its step points with NaN
+        t_tr = 0.5 * (ts[0] + np.nanmax(ts)) if t_transient is None else float(t_transient)
         out.append(
             _analyze_one(
                 ts,

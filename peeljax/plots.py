@@ -222,7 +222,7 @@ def _sweep_lines(fig: Figure, tau, V, completed, t_stop, spread, events, t_final
         if any_events:
             axes[2].plot(tau[done], events[done], "o-", color=color, ms=5, lw=1.2)
         # stopped runs have no statistics over the whole window: a × on the panels' lower edge
-        for ax in axes[1:] if any_events else axes[1:2]:
+        for ax in (axes[1:] if any_events else axes[1:2]) if stop.size else ():  # (an empty unclipped line breaks the layout)
             ax.plot(tau[stop], np.zeros(stop.size), "x", color=color, ms=8, mew=2,
                     transform=ax.get_xaxis_transform(), clip_on=False)  # fmt: skip
     axes[0].axhline(t_final, color="k", ls="--", lw=0.8)
@@ -318,6 +318,7 @@ def _sweep_images(fig: Figure, tau, V, completed, t_stop, spread, events, t_fina
         fig.colorbar(mesh, ax=axes[2], label="upward crossings of v_slip (the v of the maximum of φ)", location="bottom",
                      shrink=0.9, ticks=ticks)  # fmt: skip
     else:
+        axes[2].pcolormesh(xe, ye, np.ma.masked_invalid(image(np.where(completed, 0.0, np.nan))), cmap="Greys", vmin=0, vmax=1)
         _no_events_note(axes[2])
     axes[2].set_title(events_title)
     for ax in axes:

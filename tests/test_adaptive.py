@@ -312,3 +312,13 @@ def test_solver_and_controller_check_their_numbers(build, name):
 def test_traced_settings_are_not_checked_at_construction():
     assert float(jax.jit(lambda r: pj.PIController(rtol=r).rtol)(1e-3)) == 1e-3
     assert float(jax.jit(lambda r: pj.AlphaMethod(rho=r).rho)(0.3)) == 0.3
+
+
+def test_analysis_of_the_accepted_steps_equals_that_on_a_grid():
+    """analyze() on the NaN-padded step points of error control: same period and amplitude as
+    on a fine output grid of the same run."""
+    grid = pj.simulate(V=1.1, tau=0.005, t_final=3.0, ts=np.linspace(0.0, 3.0, 3001))
+    steps = pj.simulate(V=1.1, tau=0.005, t_final=3.0, max_steps=20_000)
+    a, b = pj.analyze(grid, V=1.1, tau=0.005), pj.analyze(steps, V=1.1, tau=0.005)
+    assert np.isfinite(b.period) and b.period == pytest.approx(a.period, rel=1e-2)
+    assert b.amplitude == pytest.approx(a.amplitude, rel=1e-2)
