@@ -23,8 +23,11 @@ Figures (file name → content):
 * ``bifurcation_V`` the late extrema of v against V (17 values in [1, 5] m/s) at τ = 2.37e-3 s,
   h = 1/164 s (:func:`peeljax.bifurcation_diagram`);
 * ``schur_index_V1.1`` |J_t| (Lemma 1) and the local index ⌈log_τ|J_t|⌉ + 1 (Lemma 2) along the
-  diffrax reference trajectory at V = 1.1, τ = 1e-3, up to where its step collapses, with the
-  stick (∂φ/∂v > 0) and slip (∂φ/∂v < 0) phases shaded.
+  diffrax reference trajectory at V = 1.1, τ = 1e-3 (output every 1/16400 s), up to where its
+  step collapses, with the stick (∂φ/∂v > 0) and slip (∂φ/∂v < 0) phases shaded, and a zoom of
+  its last 10 ms (the slip phase and the index change are a sliver at the full scale).
+
+Legends sit below the axes, outside the data.
 
 :func:`make_figures` returns the figures and captions; :func:`write_figures` saves PNGs and a
 ``captions.md``. ``t_final`` shortens every run (for tests); it is rounded to a whole number of
@@ -75,7 +78,7 @@ RUNS = {
     4.0: FigureRuns(V=4.0, dt=1 / 164, taus=(3.16e-4, 1e-3, 1e-2, 1e-1)),
 }
 BIFURCATION_RUN = {"Vs": tuple(np.linspace(1.0, 5.0, 17)), "tau": 2.37e-3, "dt": 1 / 164}
-SCHUR_RUN = {"V": 1.1, "tau": 1e-3, "dt": 1 / 1640, "t_final": 0.2}  # diffrax reference, fine output
+SCHUR_RUN = {"V": 1.1, "tau": 1e-3, "dt": 1 / 16400, "t_final": 0.2}  # diffrax reference, fine output
 
 CAPTIONS = {
     "fig2_v_V1.1": "Fig. 2: peeling velocity v(t) at V = 1.1 m/s, h = 1/82 s, for τ = 1e-3 (the paper's least τ; stops early), "
@@ -83,18 +86,25 @@ CAPTIONS = {
     "fig3_alpha_V1.1": "Fig. 3: peel-front angle α(t) at V = 1.1 m/s, same runs as Fig. 2; α settles to its mean, "
     "slower than v.",
     "fig4_F_vs_v_V1.1": "Fig. 4: tension F(u, α) = (k/l)·u against v at V = 1.1 m/s, same runs; v moves far while "
-    "F hardly changes near the jump; larger τ spirals into the fixed point v = V.",
+    "F hardly changes near the jump; τ = 4.22e-3 and 1e-2 spiral towards v = V. τ = 0.1 s ends at F ≈ 398 N "
+    "(diffrax: 401 N), not at 300–315 N like the others, nor at φ(V, V) = 281 N (dotted): its v lags and creeps up "
+    "to V from below without overshoot (0.9·V only at t = 0.37 s, against 0.23 s for τ = 1e-2), and while v < V "
+    "the tape keeps stretching, u̇ ≈ V − v, so F grows by (k/l)·∫(V − v)dt = 1000 N/m × 0.267 m = 267 N from "
+    "131 N (τ = 1e-2: 0.184 m, its overshoot past V gives some back). Every state with α = 0, ω = V/R, v = V is "
+    "an equilibrium of eq. hv whatever u, so F stays there: 118 N off the constraint (sac), which τ relaxes.",
     "fig5_v_V2": "Fig. 5: v(t) at V = 2 m/s, h = 1/164 s, for the τ list of peeljax.figures.RUNS[2.0].",
     "fig6_v_V4": "Fig. 6: v(t) at V = 4 m/s, h = 1/164 s, for the τ list of peeljax.figures.RUNS[4.0].",
     "fig7_v_three_V": "Fig. 7: v(t) at V = 1.1, 2 and 4 m/s, each at the least τ of its list (1e-3, 2.37e-3, "
-    "3.16e-4 s); V = 1.1 stops early, as in the paper.",
+    "3.16e-4 s); V = 1.1 stops early (t = 0.171 s), as in the paper.",
     "phi_extrema": "φ(v, V) of de2006dynamics for V = 1.1, 2, 4 m/s with its maximum (▲, end of the stick "
-    "branch) and minimum (▼) marked; ∂φ/∂v < 0 between them (slip).",
+    "branch) and minimum (▼) marked, their v [m/s] and φ [N] in the legend; ∂φ/∂v < 0 between them (slip).",
     "bifurcation_V": "Bifurcation diagram: local maxima and minima of v over the second half of each run against V "
     "(17 values in [1, 5] m/s), τ = 2.37e-3 s, h = 1/164 s (sweep engine); × marks runs that stopped early.",
-    "schur_index_V1.1": "|J_t| (Lemma 1) and the local index ⌈log_τ|J_t|⌉ + 1 (Lemma 2) along the diffrax "
-    "Kvaerno5 trajectory at V = 1.1 m/s, τ = 1e-3, up to where its step collapses; stick (∂φ/∂v > 0) and "
-    "slip (∂φ/∂v < 0) phases shaded.",
+    "schur_index_V1.1": "v, |J_t| (Lemma 1) and the local index ⌈log_τ|J_t|⌉ + 1 (Lemma 2, an integer) along "
+    "the diffrax Kvaerno5 trajectory at V = 1.1 m/s, τ = 1e-3 (output every 1/16400 s), up to where its step "
+    "collapses (t = 0.1728 s); stick (∂φ/∂v > 0) and slip (∂φ/∂v < 0) phases shaded. Right: the last 10 ms, "
+    "where the slip phase (from t = 0.1687 s, v past the maximum of φ) and the index 2 (from t = 0.1718 s, "
+    "|J_t| < 1) are.",
 }
 
 
@@ -117,6 +127,12 @@ def _label(tau: float, solution: Solution) -> str:
     return text
 
 
+def _legend_below(fig: Figure, ax, ncols: int = 3) -> None:
+    """The axes' legend below it, outside the data (inside, it hid peaks or minima)."""
+    handles, labels = ax.get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncols=min(ncols, len(labels)), fontsize=8)
+
+
 def _plot_against_time(runs: dict[float, Solution], column: int, ylabel: str, title: str, V: float | None):
     fig, (ax,) = _figure()
     for i, (tau, solution) in enumerate(runs.items()):
@@ -130,38 +146,31 @@ def _plot_against_time(runs: dict[float, Solution], column: int, ylabel: str, ti
     ax.set_ylabel(ylabel)
     ax.set_title(title)
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8, loc="best")
+    _legend_below(fig, ax)
     return fig
 
 
 def plot_phi_extrema(model: PeelingModel | None = None, Vs=(1.1, 2.0, 4.0), v_range=(1e-3, 12.0)) -> Figure:
-    """φ(v, V) on a log v axis for each V with its maximum and minimum marked (∂φ/∂v = 0)."""
+    """φ(v, V) on a log v axis for each V with its maximum (▲) and minimum (▼) marked (∂φ/∂v = 0);
+    the values, with units, are in the legend below the axes (labels on the curves overlapped them)."""
     model = PeelingModel() if model is None else model
-    fig, (ax,) = _figure()
+    fig, (ax,) = _figure(figsize=(8.0, 5.2))
     vs = np.geomspace(*v_range, 800)
     for i, V in enumerate(Vs):
         phi = np.asarray(model.phi(vs, V))
-        ax.plot(vs, phi, color=f"C{i}", label=f"V = {V:g} m/s")
-        v_top, v_bottom = phi_extrema(model, V)
-        for v_ext, marker, word in ((v_top, "^", "max"), (v_bottom, "v", "min")):
+        label = f"V = {V:g} m/s"
+        for v_ext, marker in zip(phi_extrema(model, V), ("^", "v")):
             if np.isfinite(v_ext):
-                ax.plot([v_ext], [float(model.phi(v_ext, V))], marker=marker, color=f"C{i}", ms=8, ls="none")
-                ax.annotate(
-                    f"{word} v = {v_ext:.3g}",
-                    (v_ext, float(model.phi(v_ext, V))),
-                    fontsize=7,
-                    xytext=(4, 6 if word == "max" else -12),
-                    textcoords="offset points",
-                    color=f"C{i}",
-                )
-    ax.plot([], [], "k^", ls="none", label="maximum (stick → slip)")
-    ax.plot([], [], "kv", ls="none", label="minimum")
+                phi_ext = float(model.phi(v_ext, V))
+                ax.plot([v_ext], [phi_ext], marker=marker, color=f"C{i}", ms=8, ls="none", zorder=3)
+                label += f"\n{'▲ max' if marker == '^' else '▼ min'} φ = {phi_ext:.0f} N at v = {v_ext:.3g} m/s"
+        ax.plot(vs, phi, color=f"C{i}", label=label)
     ax.set_xscale("log")
     ax.set_xlabel("peeling velocity v [m/s]")
     ax.set_ylabel("adhesion force φ(v, V) [N]")
-    ax.set_title("The adhesion law and its extrema")
+    ax.set_title("The adhesion law and its extrema (▲ maximum: stick → slip; ▼ minimum)")
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
+    _legend_below(fig, ax)
     return fig
 
 
@@ -174,40 +183,84 @@ def _shade_phases(ax, ts, stick, slip):
 
 
 def plot_schur_index(
-    solution: Solution, model: PeelingModel | None = None, V: float = 1.1, tau: float = 1e-3
+    solution: Solution, model: PeelingModel | None = None, V: float = 1.1, tau: float = 1e-3, zoom: float = 0.01
 ) -> Figure:
-    """v, |J_t| (log) and the local index along a trajectory, stick and slip phases shaded."""
+    """v, |J_t| (log) and the local index along a trajectory, stick and slip phases shaded.
+
+    Left: the whole run; right: its last ``zoom`` seconds [s] (default 10 ms), where the slip
+    phase and the index change happen (a sliver at the full scale).
+    """
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+    from matplotlib.ticker import MaxNLocator
+
     model = PeelingModel() if model is None else model
     a = analyze(solution, model, V, tau)
-    fig, axes = _figure(3, figsize=(8.0, 8.0))
+    v_top, _ = phi_extrema(model, V)
+    fig = Figure(figsize=(11.0, 8.5), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(3, 2, sharex="col", width_ratios=(3, 2))
     ts = a.ts
-    for ax in axes:
-        _shade_phases(ax, ts, a.stick, a.slip)
-    axes[0].plot(ts, a.v, color="k", lw=1.1, label="v")
-    axes[0].set_yscale("log")
-    axes[0].set_ylabel("peeling velocity v [m/s]")
-    axes[1].plot(ts, np.abs(a.schur), color="C3", lw=1.1, label="|J_t|")
-    axes[1].axhline(1.0, color="k", ls="--", lw=0.8, label="|J_t| = 1 (index 2 below)")
-    axes[1].set_yscale("log")
-    axes[1].set_ylabel("|J_t| [N·s/m]")
-    axes[2].step(ts, np.where(a.valid, a.local_index, np.nan), where="mid", color="C2", label="local index")
-    axes[2].set_ylabel("local index ⌈log_τ|J_t|⌉ + 1")
-    axes[2].set_xlabel("time t [s]")
-    for t in a.bifurcation_times:
-        for ax in axes:
-            ax.axvline(t, color="C3", ls=":", lw=0.9)
+    t_end = float(solution.t_stop) if not bool(solution.completed) else float(ts[a.valid][-1])
+    t_zoom = max(float(ts[0]), t_end - zoom)
+    index = np.where(a.valid, a.local_index, np.nan)
+    for column, in_zoom in ((0, np.ones_like(a.valid)), (1, ts >= t_zoom - 1e-12)):
+        ax_v, ax_j, ax_i = axes[:, column]
+        for ax in axes[:, column]:
+            _shade_phases(ax, ts, a.stick & in_zoom, a.slip & in_zoom)
+            for t in a.bifurcation_times:
+                ax.axvline(t, color="C3", ls=":", lw=1.2)
+            if not bool(solution.completed):
+                ax.axvline(float(solution.t_stop), color="k", ls=":", lw=1.0)
+            ax.grid(True, alpha=0.3)
+        ax_v.plot(ts[in_zoom], a.v[in_zoom], color="k", lw=1.1)
+        if np.isfinite(v_top):
+            ax_v.axhline(v_top, color="C1", ls="--", lw=0.8)
+        ax_v.set_yscale("log" if column == 0 else "linear")  # v spans 10 decades, but not in the zoom
+        ax_j.plot(ts[in_zoom], np.abs(a.schur[in_zoom]), color="C3", lw=1.1)
+        ax_j.axhline(1.0, color="k", ls="--", lw=0.8)
+        ax_j.set_yscale("log")
+        ax_i.step(ts[in_zoom], index[in_zoom], where="mid", color="C2", lw=1.5)
+        ax_i.yaxis.set_major_locator(MaxNLocator(integer=True, min_n_ticks=1))
+        top = int(np.nanmax(index)) if np.isfinite(index).any() else 1
+        ax_i.set_ylim(min(0.5, np.nanmin(index) - 0.5) if np.isfinite(index).any() else 0.5, top + 0.5)
+        ax_i.set_xlabel("time t [s]")
+    for ax in axes[:, 0]:
+        ax.axvline(t_zoom, color="0.4", ls="--", lw=0.8)
+    axes[2, 1].set_xlim(t_zoom, t_end + 0.02 * zoom)
+    axes[0, 0].set_ylabel("peeling velocity v [m/s]")
+    axes[1, 0].set_ylabel("|J_t| [N·s/m]")
+    axes[2, 0].set_ylabel("local index ⌈log_τ|J_t|⌉ + 1")
+    axes[0, 0].set_title("the whole run")
+    axes[0, 1].set_title(f"zoom: the last {zoom * 1e3:g} ms before t = {t_end:.4g} s")
+    handles = [
+        Line2D([], [], color="k", lw=1.1),
+        Line2D([], [], color="C1", ls="--", lw=0.8),
+        Line2D([], [], color="C3", lw=1.1),
+        Line2D([], [], color="k", ls="--", lw=0.8),
+        Line2D([], [], color="C2", lw=1.5),
+        Patch(color="tab:blue", alpha=0.3),
+        Patch(color="tab:orange", alpha=0.3),
+        Line2D([], [], color="0.4", ls="--", lw=0.8),
+    ]
+    labels = [
+        "v",
+        f"v = {v_top:.3g} m/s, the maximum of φ (stick → slip)",
+        "|J_t|",
+        "|J_t| = 1 (index 2 below)",
+        "local index",
+        "stick (∂φ/∂v > 0)",
+        "slip (∂φ/∂v < 0)",
+        "start of the zoom",
+    ]
+    if a.bifurcation_times.size:
+        handles.append(Line2D([], [], color="C3", ls=":", lw=1.2))
+        labels.append("bifurcation point (J_t = 0 or min |J_t| < threshold)")
     if not bool(solution.completed):
-        for ax in axes:
-            ax.axvline(float(solution.t_stop), color="k", ls=":", lw=1.0)
-    from matplotlib.patches import Patch
-
-    for ax in axes:
-        handles, labels = ax.get_legend_handles_labels()
-        handles += [Patch(color="tab:blue", alpha=0.3), Patch(color="tab:orange", alpha=0.3)]
-        labels += ["stick (∂φ/∂v > 0)", "slip (∂φ/∂v < 0)"]
-        ax.legend(handles, labels, fontsize=7, loc="best")
-        ax.grid(True, alpha=0.3)
-    axes[0].set_title(f"Structure along the trajectory, V = {V:g} m/s, τ = {tau:g} s ({solution.method})")
+        handles.append(Line2D([], [], color="k", ls=":", lw=1.0))
+        labels.append(f"run stops: {solution.method} at t = {float(solution.t_stop):.4g} s")
+    fig.legend(handles, labels, loc="outside lower center", ncols=4, fontsize=8)
+    fig.suptitle(f"Structure along the trajectory, V = {V:g} m/s, τ = {tau:g} s ({solution.method})")
     return fig
 
 
@@ -264,11 +317,14 @@ def make_figures(t_final: float = 3.0, model: PeelingModel | None = None, log=No
             ys[:, 3], np.asarray(model.tension(ys[:, 2], ys[:, 0])), color=f"C{i}", lw=1.0, label=_label(tau, solution)
         )
     ax.axvline(1.1, color="k", ls="--", lw=0.8, label="v = V")
+    # on the constraint (sac) with α = 0, v = V: F = φ(V, V); large τ relaxes (sac) and ends elsewhere
+    phi_VV = float(model.phi(1.1, 1.1))
+    ax.axhline(phi_VV, color="0.4", ls=":", lw=1.0, label=f"F = φ(V, V) = {phi_VV:.0f} N (constraint sac at v = V)")
     ax.set_xlabel("peeling velocity v [m/s]")
     ax.set_ylabel("tension F(u, α) [N]")
     ax.set_title("Fig. 4: F(u, α) against v, V = 1.1 m/s")
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
+    _legend_below(fig, ax)
     figures["fig4_F_vs_v_V1.1"] = fig
     figures["fig5_v_V2"] = _plot_against_time(runs[2.0], 3, "peeling velocity v [m/s]", "Fig. 5: v(t), V = 2 m/s", 2.0)
     figures["fig6_v_V4"] = _plot_against_time(runs[4.0], 3, "peeling velocity v [m/s]", "Fig. 6: v(t), V = 4 m/s", 4.0)
@@ -282,7 +338,7 @@ def make_figures(t_final: float = 3.0, model: PeelingModel | None = None, log=No
     ax.set_ylabel("peeling velocity v [m/s]")
     ax.set_title("Fig. 7: v(t) at the three pull velocities (dashed: V)")
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
+    _legend_below(fig, ax)
     figures["fig7_v_three_V"] = fig
     figures["phi_extrema"] = plot_phi_extrema(model)
     b_dt = BIFURCATION_RUN["dt"]

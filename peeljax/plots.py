@@ -171,11 +171,13 @@ def _format_step(dt: float) -> str:
     return f"{dt:g} s"
 
 
-def _sweep_heading(result, title: str | None, t_final: float, window: tuple[float, float], n_V: int, n_tau: int) -> str:
+def _sweep_heading(result, title: str | None, t_final: float, window: tuple[float, float], n_V: int, n_tau: int,
+                   grid: bool) -> str:  # fmt: skip
     """The figure title: the user's title (if any) over a line with the sweep's settings."""
-    settings = result.settings
+    settings = result.settings or {}
     completed = np.asarray(result.completed, bool)
-    parts = [f"{completed.size} runs ({n_V} V × {n_tau} τ)"]
+    runs = f"{completed.size} run{'' if completed.size == 1 else 's'}"
+    parts = [f"{runs} ({n_V} V × {n_tau} τ)" if grid else f"{runs} ({n_V} V, {n_tau} τ values)"]
     if "dt" in settings:
         parts.append(f"dt = {_format_step(float(settings['dt']))}")
     parts.append(f"t_final = {t_final:g} s")
@@ -190,26 +192,31 @@ def _sweep_heading(result, title: str | None, t_final: float, window: tuple[floa
 
 def _events_title(events: np.ndarray, completed: np.ndarray) -> tuple[str, bool]:
     """The events panel's title, and whether any completed run had an event."""
-    any_events = bool(completed.any() and (events[completed] > 0).any())
-    if any_events:
+    if not completed.any():
+        return "stick-slip events: no run completed", False
+    if (events[completed] > 0).any():
         return "stick-slip events in the window", True
     return "no stick-slip events in this sweep", False
 
 
-def _no_events_note(ax) -> None:
+def _no_events_note(ax, any_completed: bool) -> None:
+    text = (
+        "no completed run crossed v_slip (the v of the maximum of φ)\nupwards in the window"
+        if any_completed
+        else "every run stopped before t_final:\nno events over the whole window to count"
+    )
     ax.text(
-        0.5, 0.5, "no stick-slip events in this sweep:\nno completed run crossed v_slip\n(the v of the maximum of φ) "
-        "upwards\nin the window", transform=ax.transAxes, ha="center", va="center", fontsize=9,
+        0.5, 0.5, text, transform=ax.transAxes, ha="center", va="center", fontsize=9,
         bbox={"boxstyle": "round,pad=0.4", "fc": "white", "ec": "0.6", "alpha": 0.9},
     )  # fmt: skip
 
 
 def _sweep_lines(fig: Figure, tau, V, completed, t_stop, spread, events, t_final: float) -> None:
     """Few V: three panels against τ (log), one series per V; ● completed, × stopped."""
-    axes = fig.subplots(3, 1, sharex=True)
+    events_title, any_events = _events_title(events, completed)
+    axes = fig.subplots(3, 1, sharex=True, height_ratios=(1.0, 1.0, 1.0 if any_events else 0.4))
     Vs = np.unique(V)
     lo = np.nanmin(spread[completed & (spread > 0)]) if (completed & (spread > 0)).any() else None
-    events_title, any_events = _events_title(events, completed)
     for i, V_i in enumerate(Vs):
         color = f"C{i % 10}"
         row = np.flatnonzero(V == V_i)
@@ -222,14 +229,22 @@ def _sweep_lines(fig: Figure, tau, V, completed, t_stop, spread, events, t_final
         if any_events:
             axes[2].plot(tau[done], events[done], "o-", color=color, ms=5, lw=1.2)
         # stopped runs have no statistics over the whole window: a × on the panels' lower edge
-        for ax in (axes[1:] if any_events else axes[1:2]) if stop.size else ():  # (an empty unclipped line breaks the layout)
+        # (only when there are some: an empty unclipped line breaks the constrained layout)
+        for ax in (axes[1:] if any_events else axes[1:2]) if stop.size else ():
             ax.plot(tau[stop], np.zeros(stop.size), "x", color=color, ms=8, mew=2,
                     transform=ax.get_xaxis_transform(), clip_on=False)  # fmt: skip
     axes[0].axhline(t_final, color="k", ls="--", lw=0.8)
     axes[0].set_ylim(0.0, t_final * 1.08)
     axes[0].set_ylabel("t_stop [s]\n(t_final: completed)")
     axes[0].set_title("how far each run got")
-    axes[1].set_yscale("log")
+    if lo is None:  # nothing to draw on a log scale
+        axes[1].text(0.5, 0.5, "no completed run with a spread of v > 0", transform=axes[1].transAxes, ha="center")
+        axes[1].set_yticks([])
+    else:
+        hi = np.nanmax(spread[completed])
+        if hi <= lo * 1.01:  # one value: a decade around it (a log axis cannot autoscale to a point)
+            axes[1].set_ylim(lo / 3.0, lo * 3.0)
+        axes[1].set_yscale("log")
     axes[1].set_ylabel("std(v)/V")
     axes[1].set_title("spread of v over the window (≈ 0: v smoothed to V)")
     axes[2].set_title(events_title)
@@ -240,7 +255,7 @@ def _sweep_lines(fig: Figure, tau, V, completed, t_stop, spread, events, t_final
         axes[2].set_ylim(-0.5, max(1, int(events[completed].max())) + 0.5)
         axes[2].set_ylabel("events")
     else:
-        _no_events_note(axes[2])
+        _no_events_note(axes[2], completed.any())
         axes[2].set_yticks([])
     axes[-1].set_xscale("log")
     axes[-1].set_xlabel("homogenization scale τ [s]")
@@ -255,7 +270,8 @@ def _sweep_lines(fig: Figure, tau, V, completed, t_stop, spread, events, t_final
         Line2D([], [], color="k", marker="x", ms=8, mew=2, ls="none"),
         Line2D([], [], color="k", ls="--", lw=0.8),
     ]
-    labels += ["completed [0, t_final]", _STOPPED_LABEL + "\n(lower panels: × on the axis, no value)", "t_final"]
+    stopped_label = _STOPPED_LABEL + ("\n(lower panels: × on the axis, no value)" if (~completed).any() else " (none)")
+    labels += ["completed [0, t_final]", stopped_label, "t_final"]
     fig.legend(handles, labels, loc="outside lower center", ncols=min(len(labels), 6), fontsize=8)
 
 
@@ -263,37 +279,50 @@ def _edges(centres: np.ndarray, log: bool) -> np.ndarray:
     """Cell edges around sorted centres (geometric midpoints on a log axis)."""
     c = np.log(centres) if log else centres.astype(float)
     if c.size == 1:
-        e = np.array([c[0] - 0.1, c[0] + 0.1]) if log else np.array([c[0] - 0.5, c[0] + 0.5]) * (1 if c[0] else 1)
+        half = 0.5 * np.log(10.0) if log else 0.5  # one decade (log) or 1 m/s around a single value
+        e = np.array([c[0] - half, c[0] + half])
     else:
         mid = 0.5 * (c[1:] + c[:-1])
         e = np.concatenate([[c[0] - (mid[0] - c[0])], mid, [c[-1] + (c[-1] - mid[-1])]])
     return np.exp(e) if log else e
 
 
-def _sweep_images(fig: Figure, tau, V, completed, t_stop, spread, events, t_final: float) -> None:
-    """Many V on a full grid: three images over (τ, V), stopped cells hatched in every panel."""
+def _sweep_images(fig: Figure, tau, V, completed, t_stop, spread, events, t_final: float, grid: bool) -> None:
+    """Many V: three maps over (τ, V). On a full V × τ grid, images with the stopped cells
+    hatched in every panel; otherwise (pairs, other parameters) squares at the runs, × stopped."""
     from matplotlib.collections import PolyCollection
     from matplotlib.colors import BoundaryNorm, LogNorm
+    from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
-    taus, Vs = np.unique(tau), np.unique(V)
-    col, row = np.searchsorted(taus, tau), np.searchsorted(Vs, V)
-
-    def image(values):
-        out = np.full((Vs.size, taus.size), np.nan)
-        out[row, col] = values
-        return out
-
-    xe, ye = _edges(taus, log=True), _edges(Vs, log=False)
     stopped = ~completed
-    hatch_cells = [
-        [(xe[c], ye[r]), (xe[c + 1], ye[r]), (xe[c + 1], ye[r + 1]), (xe[c], ye[r + 1])]
-        for r, c in zip(row[stopped], col[stopped])
-    ]
     axes = fig.subplots(1, 3, sharey=True)
     events_title, any_events = _events_title(events, completed)
+    if grid:
+        taus, Vs = np.unique(tau), np.unique(V)
+        col, row = np.searchsorted(taus, tau), np.searchsorted(Vs, V)
+        xe, ye = _edges(taus, log=True), _edges(Vs, log=False)
+
+        def draw(ax, values, **kwargs):
+            image = np.full((Vs.size, taus.size), np.nan)
+            image[row, col] = values
+            return ax.pcolormesh(xe, ye, np.ma.masked_invalid(image), **kwargs)
+
+        cells = [[(xe[c], ye[r]), (xe[c + 1], ye[r]), (xe[c + 1], ye[r + 1]), (xe[c], ye[r + 1])]
+                 for r, c in zip(row[stopped], col[stopped])]  # fmt: skip
+        stopped_handle = Patch(facecolor="0.88", edgecolor="0.15", hatch="xxx", lw=0.0)
+        stopped_label = _STOPPED_LABEL + (" (hatched)" if stopped.any() else " (none)")
+    else:
+        size = float(np.clip(4e4 / max(tau.size, 1), 4.0, 60.0))
+
+        def draw(ax, values, **kwargs):
+            keep = np.isfinite(values)
+            return ax.scatter(tau[keep], V[keep], c=values[keep], s=size, marker="s", **kwargs)
+
+        stopped_handle = Line2D([], [], color="k", marker="x", ls="none")
+        stopped_label = _STOPPED_LABEL + ("" if stopped.any() else " (none)")
     # how far each run got
-    mesh = axes[0].pcolormesh(xe, ye, image(t_stop), cmap="autumn", vmin=0.0, vmax=t_final)
+    mesh = draw(axes[0], t_stop, cmap="autumn", vmin=0.0, vmax=t_final)
     fig.colorbar(mesh, ax=axes[0], label="t_stop [s] (= t_final: completed)", location="bottom", shrink=0.9)
     axes[0].set_title("how far each run got")
     # spread of v (completed runs)
@@ -301,40 +330,35 @@ def _sweep_images(fig: Figure, tau, V, completed, t_stop, spread, events, t_fina
     positive = spread[ok & (spread > 0)]
     floor = max(float(positive.min()) if positive.size else 1e-12, 1e-12)
     top = max(floor * 10, float(positive.max()) if positive.size else 1.0)
-    mesh = axes[1].pcolormesh(
-        xe, ye, np.ma.masked_invalid(image(np.where(ok, np.maximum(spread, floor), np.nan))),
-        cmap="viridis", norm=LogNorm(vmin=floor, vmax=top),
-    )  # fmt: skip
-    fig.colorbar(mesh, ax=axes[1], label="std(v)/V over the window (≈ 0: v smoothed to V)", location="bottom", shrink=0.9)
+    values = np.where(ok, np.maximum(spread, floor), np.nan)
+    mesh = draw(axes[1], values, cmap="viridis", norm=LogNorm(vmin=floor, vmax=top))
+    label = "std(v)/V over the window (≈ 0: v smoothed to V)"
+    fig.colorbar(mesh, ax=axes[1], label=label, location="bottom", shrink=0.9)
     axes[1].set_title("spread of v")
     # events (completed runs)
     if any_events:
         n_max = int(events[completed].max())
         norm = BoundaryNorm(np.arange(-0.5, n_max + 1.5), 256)
-        mesh = axes[2].pcolormesh(
-            xe, ye, np.ma.masked_invalid(image(np.where(completed, events, np.nan))), cmap="viridis", norm=norm
-        )
+        mesh = draw(axes[2], np.where(completed, events, np.nan), cmap="viridis", norm=norm)
         ticks = np.unique(np.linspace(0, n_max, min(n_max + 1, 8)).round().astype(int))
         fig.colorbar(mesh, ax=axes[2], label="upward crossings of v_slip (the v of the maximum of φ)", location="bottom",
                      shrink=0.9, ticks=ticks)  # fmt: skip
     else:
-        axes[2].pcolormesh(xe, ye, np.ma.masked_invalid(image(np.where(completed, 0.0, np.nan))), cmap="Greys", vmin=0, vmax=1)
-        _no_events_note(axes[2])
+        draw(axes[2], np.where(completed, 0.0, np.nan), cmap="Greys", vmin=0.0, vmax=1.0)
+        _no_events_note(axes[2], completed.any())
     axes[2].set_title(events_title)
     for ax in axes:
-        ax.set_facecolor("0.88")  # stopped cells of the value panels: no value
-        ax.add_collection(
-            PolyCollection(hatch_cells, facecolor="none", edgecolor="0.15", hatch="xxx", linewidth=0.0)
-        )
+        if grid:
+            ax.set_facecolor("0.88")  # the stopped cells of the value panels: no value
+            ax.add_collection(PolyCollection(cells, facecolor="none", edgecolor="0.15", hatch="xxx", linewidth=0.0))
+            ax.set_xlim(xe[0], xe[-1])
+            ax.set_ylim(ye[0], ye[-1])
+        elif stopped.any():
+            ax.scatter(tau[stopped], V[stopped], marker="x", color="k", s=size, linewidths=1.0)
         ax.set_xscale("log")
-        ax.set_xlim(xe[0], xe[-1])
-        ax.set_ylim(ye[0], ye[-1])
         ax.set_xlabel("homogenization scale τ [s]")
     axes[0].set_ylabel("pull velocity V [m/s]")
-    fig.legend(
-        [Patch(facecolor="0.88", edgecolor="0.15", hatch="xxx", lw=0.0)], [_STOPPED_LABEL + " (hatched)"],
-        loc="outside lower center", fontsize=8,
-    )  # fmt: skip
+    fig.legend([stopped_handle], [stopped_label], loc="outside lower center", fontsize=8)
 
 
 def plot_sweep_map(result, *, title: str | None = None, path: str | Path | None = None) -> Figure:
@@ -358,15 +382,15 @@ def plot_sweep_map(result, *, title: str | None = None, path: str | Path | None 
     window = tuple(float(w) for w in settings.get("window", (0.5, 1.0)))
     n_V, n_tau = np.unique(V).size, np.unique(tau).size
     full_grid = n_V * n_tau == tau.size and np.unique(np.stack([tau, V]), axis=1).shape[1] == tau.size
-    if n_V <= SWEEP_MAP_MAX_LINES or not full_grid:
+    if n_V <= SWEEP_MAP_MAX_LINES:
         fig = Figure(figsize=(10.0, 8.5), layout="constrained")
         FigureCanvasAgg(fig)
         _sweep_lines(fig, tau, V, completed, t_stop, spread, events, t_final)
     else:
         fig = Figure(figsize=(14.0, 5.6), layout="constrained")
         FigureCanvasAgg(fig)
-        _sweep_images(fig, tau, V, completed, t_stop, spread, events, t_final)
-    fig.suptitle(_sweep_heading(result, title, t_final, window, n_V, n_tau), fontsize=10)
+        _sweep_images(fig, tau, V, completed, t_stop, spread, events, t_final, grid=full_grid)
+    fig.suptitle(_sweep_heading(result, title, t_final, window, n_V, n_tau, full_grid), fontsize=10)
     if path is not None:
         fig.savefig(path, dpi=150)
     return fig
