@@ -4,7 +4,7 @@ Problems (paper geometry and initial data):
 
 * (P1) one trajectory at V = 1.1, τ = 0.01 and τ = 0.1, t ∈ [0, 3 s]: for each method, the
   cheapest setting whose error in v is at most ``TARGET`` (1e-3), its median time, and that time
-  divided by peeljax's at the same target;
+  divided by peeljax's (uniform mesh) and by peeljax's adaptive α-method's at the same target;
 * (P2) work-precision: wall time against the error in v (max over the 301 times
   0, 0.01, …, 3 s) relative to a tight reference (diffrax Kvaerno5, rtol 1e-11), over a range
   of tolerances (adaptive peers) or steps (α-methods); ``results/work_precision.png``;
@@ -13,11 +13,12 @@ Problems (paper geometry and initial data):
   ``jax.vmap`` and against looping CVODE, CasADi cvodes (both on log v) and scipy Radau (on a
   few trajectories, extrapolated), each at the cheapest setting tried whose relative error in v
   (max|v − v_ref| / max|v_ref|) is ≤ ``TARGET`` on 32 trajectories spread over the grid (the
-  tight reference for all 1024 would be too slow); PETSc TSALPHA through petsc4py if another
+  tight reference for all 1024 would be too slow); PETSc TSALPHA (fixed steps) through petsc4py if another
   interpreter has it (``PETSC_PYTHON``, default ``/usr/bin/python3``; ``petsc_tsalpha.py``);
 * (P4) the gradient of L = mean over t_i = i/82 s, t ∈ [0, 1 s], of (v(t_i) − v_data(t_i))²
   (V = 1.1, τ = 0.1) with respect to φ's 14 coefficients: peeljax reverse mode (``jax.grad``
-  through ``integrate_alpha``) against CasADi cvodes forward sensitivities, central finite
+  through ``integrate_alpha``; the adaptive α-method: ``jax.grad`` through ``simulate(…, rtol=…, ts=…)``,
+  its checkpointed while loop) against CasADi cvodes forward sensitivities, central finite
   differences (28 forward runs, of peeljax and of CasADi) and diffrax's
   ``RecursiveCheckpointAdjoint`` on Kvaerno5 (full mode only), every gradient checked against
   CasADi's at rtol 1e-11;
@@ -29,6 +30,9 @@ that reports success but misses the reference by more than 10 % of max|v|, or an
 off by more than max(1e3·rtol, 1e-4)·max|v|, is reported as a wrong answer and not timed):
 
 * ``peeljax``: the α-method (``peeljax.simulate``), h = 3/N, N ∈ {300, 600, …};
+* ``peeljax adaptive α``: the error-controlled α-method (``peeljax.simulate(dt=None, rtol=…,
+  atol=1e-3·rtol, ts=GRID)``: PI controller on the estimate C·h²·(a_{n+1} − a_n), Hermite
+  dense output), rtol ∈ {1e-2, …, 1e-8};
 * ``numba α``: the same algorithm as a compiled loop (``compiled_loop.py``), the practical limit;
 * ``diffrax Kvaerno5``, ``diffrax Kvaerno3``: ``peeljax.simulate_reference`` with that solver;
 * ``scipy Radau``, ``scipy BDF``: ``solve_ivp`` with ψ and its exact Jacobian compiled by
@@ -37,15 +41,20 @@ off by more than max(1e3·rtol, 1e-4)·max|v|, is reported as a wrong answer and
 * ``CasADi cvodes``: CasADi's CVODES integrator on ψ built from CasADi symbols, with its own
   automatic Jacobian;
 * the SUNDIALS, scipy BDF and CasADi peers also run on z = (α, ω, u, log v) ("(log v)"), the
-  coordinates peeljax discretises: on y they stumble over the non-Lipschitz start v0 = 1e-10·V.
+  coordinates peeljax discretises: on y they stumble over the non-Lipschitz start v0 = 1e-10·V;
+* ``petsc4py TSALPHA``: PETSc's generalized-α for first-order systems (ρ∞ = peeljax's ρ) with
+  its own error control (TSAdapt basic), on log v, v at ``GRID`` by TSInterpolate; run by
+  ``petsc_tsalpha.py --serve`` in a long-lived subprocess of the interpreter that has petsc4py
+  (its time includes ψ and a finite-difference Jacobian in Python, and one JSON round trip).
 
 All peers integrate the homogenized ODE (eq. ``hv``) in the physical state (α, ω, u, v)
 unless marked "(log v)"; peeljax and the numba loop discretise (α, ω, u, log v)
 (``AlphaMethod.log_discretization``).
 
-    python benchmarks/compare.py                  # full: ~9-14 min on 2 cores (P3 on 1024 trajectories)
-    python benchmarks/compare.py --quick          # ~5 min: τ = 0.01 only, P3 on 16 trajectories, fewer settings;
-                                                  # --smoke (the test): ~2.5-3.5 min, one setting per peer
+    python benchmarks/compare.py                  # full: ~5.5 min on a 2-core Intel Xeon (9-14 min on a 2-core
+                                                  # AMD EPYC); P3 on 1024 trajectories
+    python benchmarks/compare.py --quick          # ~2.5 min: τ = 0.01 only, P3 on 16 trajectories, fewer settings;
+                                                  # --smoke (the test): ~1.3 min, one setting per peer
     python benchmarks/compare.py --only P3 P4     # some problems only (P1 includes P2)
 
 Writes ``benchmarks/results/latest.md`` (``latest_quick.md`` with ``--quick``) and the plot.
@@ -115,6 +124,39 @@ class PeeljaxAlpha(Peer):
         return v[:: n // 300]
 
 
+ADAPTIVE_ALPHA_ATOL = 1e-3  # the adaptive α-method runs at atol = ADAPTIVE_ALPHA_ATOL·rtol
+
+
+class PeeljaxAdaptive(Peer):
+    """The error-controlled α-method: ``peeljax.simulate(dt=None, rtol, atol, ts=GRID)``.
+
+    atol = 1e-3·rtol (the error of α, ω, u is then mostly relative; log v is weighted by rtol
+    alone in any case), which gives a clean second-order work-precision curve. The last run's
+    ``stats`` per setting are kept (device arrays, read only when the tables are written).
+    """
+
+    name = "peeljax adaptive α"
+    setting_name = "rtol"
+
+    def prepare(self):
+        import jax
+
+        import peeljax
+
+        self._jax, self._pj = jax, peeljax
+        self.stats = {}
+
+    def run(self, rtol):
+        sol = self._pj.simulate(V=V, tau=self.tau, t_final=T_FINAL, rtol=rtol, atol=ADAPTIVE_ALPHA_ATOL * rtol, ts=GRID)
+        v = np.asarray(self._jax.block_until_ready(sol.ys))[:, 3]  # NaN after a stop
+        self.stats[rtol] = sol.stats
+        return v
+
+    def describe(self, rtol):
+        st = {k: int(self.stats[rtol][k]) for k in ("accepted_steps", "rejected_steps", "newton_iterations")}
+        return f"{st['accepted_steps']}/{st['rejected_steps']}, {st['newton_iterations']}"
+
+
 class NumbaAlpha(Peer):
     name = "numba α-method"
     setting_name = "N"
@@ -155,6 +197,66 @@ class DiffraxPeer(Peer):
             V=V, tau=self.tau, dt=T_FINAL / 300, t_final=T_FINAL, solver=self._solver, rtol=rtol, atol=1e-2 * rtol
         )
         return np.asarray(self._jax.block_until_ready(sol.ys))[:, 3]
+
+
+class NotRun(Exception):
+    """A peer that cannot run on this machine (an optional dependency is missing): reported, not fatal."""
+
+
+PETSC_DT0 = 1e-8  # TSALPHA's first step [s]; TSAdapt basic grows it by at most 10× a step
+
+
+class PetscAlphaPeer(Peer):
+    """PETSc TSALPHA with TSAdapt basic on z = (α, ω, u, log v), in a ``petsc_tsalpha.py --serve`` subprocess."""
+
+    name = "petsc4py TSALPHA, TSAdapt basic (log v)"
+    setting_name = "rtol"
+
+    def prepare(self):
+        import json
+        import subprocess
+
+        import peeljax
+
+        self._json = json
+        self.radius = float(peeljax.AlphaMethod().rho)
+        python, script = petsc_python(), str(HERE / "petsc_tsalpha.py")
+        try:
+            check = subprocess.run([python, script, "--check"], check=False, capture_output=True, text=True, timeout=60)
+        except (OSError, subprocess.SubprocessError) as error:
+            raise NotRun(f"{python} cannot be run ({_one_line(error)})") from error
+        if check.returncode != 0:
+            last = (check.stderr.strip().splitlines() or ["?"])[-1]
+            raise NotRun(f"petsc4py not installed ({python}: {last[:80]})")
+        command = [python, script, "--serve"]
+        self._proc = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        self.version = json.loads(self._proc.stdout.readline())["petsc"]
+        self.stats = {}
+
+    def run(self, rtol):
+        request = {"V": V, "tau": self.tau, "rtol": rtol, "atol": 1e-2 * rtol, "grid": GRID.tolist(),
+                   "radius": self.radius, "dt0": PETSC_DT0}  # fmt: skip
+        self._proc.stdin.write(self._json.dumps(request) + "\n")
+        self._proc.stdin.flush()
+        line = self._proc.stdout.readline()
+        if not line:
+            raise RuntimeError(f"petsc_tsalpha.py --serve ended (exit code {self._proc.poll()})")
+        result = self._json.loads(line)
+        if result["v"] is None:
+            raise RuntimeError(result["status"])
+        self.stats[rtol] = result
+        return np.array([np.nan if a is None else a for a in result["v"]], float)
+
+    def describe(self, rtol):
+        r = self.stats[rtol]
+        return f"{r['steps']}/{r['rejected']}, {r['snes_iterations']} ({r['snes_failures']} failed)"
+
+    def close(self):
+        proc = getattr(self, "_proc", None)
+        if proc is not None and proc.poll() is None:
+            proc.stdin.write("\n")
+            proc.stdin.flush()
+            proc.wait(timeout=60)
 
 
 def _numba_rhs(tau, log_v, Vp=V):
@@ -914,6 +1016,29 @@ def jax_losses(v_data):
     return alpha_loss, diffrax_loss
 
 
+def adaptive_alpha_loss(v_data):
+    """L(c, rtol) through ``peeljax.simulate(model, …, rtol=rtol, atol=1e-3·rtol, ts=P4_TIMES)``
+    (the error-controlled α-method, dense output at the data times; ``adjoint="reverse"``, the
+    default: ``jax.grad`` through its checkpointed while loop). rtol is a Python number: one
+    compilation per rtol. Returns (L, status)."""
+    import jax.numpy as jnp
+
+    import peeljax
+
+    vd = jnp.asarray(v_data)
+
+    def loss(c, rtol):
+        law = peeljax.AdhesionLaw(**{name: c[i] for i, name in enumerate(COEFFICIENT_NAMES)})
+        sol = peeljax.simulate(
+            peeljax.PeelingModel(adhesion=law), V=V, tau=P4_TAU, t_final=P4_T_FINAL, rtol=rtol,
+            atol=ADAPTIVE_ALPHA_ATOL * rtol, ts=P4_TIMES,
+        )  # fmt: skip
+        v = jnp.where(sol.valid, sol.ys[:, 3], 0.0)
+        return jnp.mean((v - vd) ** 2), sol.status
+
+    return loss
+
+
 def _scaled_error(g, g_ref, c):
     """max_i |c_i·(g − g_ref)_i| / max_i |c_i·g_ref,i|: the error of the sensitivities to relative changes of c."""
     return float(np.max(np.abs(c * (g - g_ref))) / np.max(np.abs(c * g_ref)))
@@ -930,6 +1055,7 @@ def gradient_table(emit, settings, repeats):
     reference = CasadiLoss(1e-11, v_data)
     L_ref, g_ref = reference.value_and_grad(c)
     alpha_loss, diffrax_loss = jax_losses(v_data)
+    adaptive_loss = adaptive_alpha_loss(v_data)
     n_base = settings["steps"][0]
     emit("## (P4) the gradient of a trajectory loss with respect to φ's 14 coefficients")
     emit()
@@ -960,6 +1086,17 @@ def gradient_table(emit, settings, repeats):
             return setup, call
 
         methods.append(("peeljax reverse mode (jax.grad)", f"N = {n} (dt = 1/{n / P4_T_FINAL:g})", prepare, "peeljax"))
+    for rtol in settings.get("rtols_adaptive", ()):
+        def prepare_adaptive(rtol=rtol):
+            setup, exe = jit_compiled(jax.value_and_grad(lambda c: adaptive_loss(c, rtol), has_aux=True), c_jax)
+
+            def call():
+                (L, status), g = jax.block_until_ready(exe(c_jax))
+                return float(L), np.asarray(g), int(status)
+
+            return setup, call
+
+        methods.append(("peeljax adaptive α, reverse mode (jax.grad)", f"rtol = {rtol:g}", prepare_adaptive, "adaptive"))
     def prepare_fd(n=n_base):
         setup, exe = jit_compiled(lambda c: alpha_loss(c, n)[0], c_jax)
         value = lambda x: float(exe(jnp.asarray(x)))
@@ -1052,16 +1189,21 @@ def gradient_table(emit, settings, repeats):
     emit()
     # Equal accuracy: for each peeljax setting, the cheapest setting of each other family whose error is ≤ its own.
     families = (("casadi", "CasADi forward sensitivities"), ("fd", "finite differences (any)"),
-                ("diffrax", "diffrax adjoint"))  # fmt: skip
+                ("diffrax", "diffrax adjoint"), ("peeljax", "peeljax uniform mesh"),
+                ("adaptive", "peeljax adaptive α"))  # fmt: skip
     emit("Time of the cheapest setting of each peer with a gradient error ≤ peeljax's (within 5 %), divided by "
-         "peeljax's time (> 1: peeljax faster):")  # fmt: skip
+         "peeljax's time (> 1: peeljax faster), for each setting of peeljax on the uniform mesh and of the adaptive "
+         "α-method:")  # fmt: skip
     emit()
     emit("| peeljax setting | gradient error | median s | " + " | ".join(label for _, label in families) + " |")
     emit("|---|---:|---:|" + "---|" * len(families))
     verdicts = []
-    for p_row in (r for r in rows if r["family"] == "peeljax" and "median" in r):
+    for p_row in (r for r in rows if r["family"] in ("peeljax", "adaptive") and "median" in r):
         cells = []
         for family, label in families:
+            if family == p_row["family"]:
+                cells.append("–")
+                continue
             timed = [r for r in rows if r["family"] == family and "median" in r]
             if not timed:
                 cells.append("not run")
@@ -1075,7 +1217,8 @@ def gradient_table(emit, settings, repeats):
             ratio = best["median"] / p_row["median"]
             cells.append(f"{ratio:.2f} ({best['setting']}{', ' + best['name'].split(' of ')[-1] if family == 'fd' else ''})")
             verdicts.append((p_row, label, ratio))
-        emit(f"| {p_row['setting']} | {p_row['error']:.1e} | {p_row['median']:.4f} | " + " | ".join(cells) + " |")
+        label = p_row["setting"] if p_row["family"] == "peeljax" else f"adaptive α, {p_row['setting']}"
+        emit(f"| {label} | {p_row['error']:.1e} | {p_row['median']:.4f} | " + " | ".join(cells) + " |")
     emit()
     lines = []
     for p_row in (r for r in rows if r["family"] == "peeljax" and "median" in r):
@@ -1111,6 +1254,8 @@ def check(peer: Peer, v_ref: np.ndarray):
     rows = []
     try:
         peer.prepare()
+    except NotRun as error:  # an optional peer whose dependency is missing here
+        return [{"setting": None, "status": f"not run here: {error}"}]
     except Exception as error:  # noqa: BLE001 (a missing optional peer is reported, not fatal)
         return [{"setting": None, "status": f"unavailable: {_one_line(error)}"}]
     scale = np.max(np.abs(v_ref))
@@ -1177,12 +1322,15 @@ def work_precision_plot(results, path):
     taus = sorted(results)
     fig = Figure(figsize=(5.5 * len(taus), 4.5), layout="constrained")
     axes = fig.subplots(1, len(taus), squeeze=False)[0]
+    palette = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:gray",
+               "tab:olive", "tab:cyan", "black", "gold")  # fmt: skip
     for ax, tau in zip(axes, taus):
-        for name, rows in results[tau].items():
+        for i, (name, rows) in enumerate(results[tau].items()):
             pts = sorted((r["error"], r["median_s"]) for r in rows if r.get("status") == "ok")
             if pts:
                 errors, times = zip(*pts)
-                ax.loglog(errors, times, "o-", label=name, lw=1.2, ms=4)
+                marker = "o-" if i < 10 else "s--"  # more peers than tab10 has colours
+                ax.loglog(errors, times, marker, color=palette[i % len(palette)], label=name, lw=1.2, ms=4)
         ax.axvline(TARGET, color="0.6", ls=":", lw=1)
         ax.set_xlabel("max |v − v_ref| over 301 times [m/s]")
         ax.set_ylabel("wall time per run [s]")
@@ -1203,27 +1351,33 @@ def main(argv=None):
     args = parser.parse_args(argv)
     repeats = args.repeats or (1 if args.smoke else 3 if args.quick else 5)
     taus = (0.01,) if (args.quick or args.smoke) else (0.01, 0.1)
+    adaptive_rtols = (1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8)  # ~1-15 ms a run: the whole ladder in every mode
     if args.smoke:
         steps, rtols = (300,), (1e-4,)
+        adaptive_rtols, petsc_rtols = (1e-5,), (1e-3,)
         p3 = {"n_tau": 2, "per_v": 2, "radau_count": 2, "repeats": 1, "settings": {
             "steps": (300,), "rtols_diffrax": (1e-3,), "rtols_loop": (1e-4,), "rtols_radau": (1e-5,)}}
         p4 = {"repeats": 1, "settings": {
-            "steps": (82,), "rtols_casadi": (1e-6,), "rtols_casadi_fd": (1e-8,), "rtols_diffrax": ()}}
+            "steps": (82,), "rtols_casadi": (1e-6,), "rtols_casadi_fd": (1e-8,), "rtols_diffrax": (),
+            "rtols_adaptive": (1e-6,)}}
     elif args.quick:
         steps, rtols = (300, 1200, 4800, 9600), (1e-3, 1e-5, 1e-7)
+        petsc_rtols = (1e-2, 1e-3, 1e-4, 1e-5)
         p3 = {"n_tau": 4, "per_v": 4, "radau_count": 4, "repeats": 2, "settings": {
             "steps": (9600,), "rtols_diffrax": (1e-3, 1e-4, 1e-5), "rtols_loop": (1e-4, 1e-5, 1e-6),
             "rtols_radau": (1e-5, 1e-7)}}
         p4 = {"repeats": 3, "settings": {
-            "steps": (82,), "rtols_casadi": (1e-4, 1e-6, 1e-8), "rtols_casadi_fd": (1e-8,), "rtols_diffrax": ()}}
+            "steps": (82,), "rtols_casadi": (1e-4, 1e-6, 1e-8), "rtols_casadi_fd": (1e-8,), "rtols_diffrax": (),
+            "rtols_adaptive": (1e-4, 1e-6, 1e-8)}}
     else:
         steps, rtols = (300, 600, 1200, 2400, 4800, 9600, 19200, 38400), (1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9)
+        petsc_rtols = (1e-2, 1e-3, 1e-4, 1e-5, 1e-6)  # 1e-7 takes ~10 s a run (ψ and its Jacobian in Python)
         p3 = {"n_tau": 256, "per_v": 8, "radau_count": 8, "repeats": 1, "settings": {
             "steps": (4800, 9600, 19200), "rtols_diffrax": (1e-2, 1e-3, 1e-4, 1e-5, 1e-6),
             "rtols_loop": (1e-3, 1e-4, 1e-5, 1e-6, 1e-7), "rtols_radau": (1e-5, 1e-6, 1e-7)}}
         p4 = {"repeats": 5, "settings": {
             "steps": (82, 820, 8200), "rtols_casadi": (1e-4, 1e-6, 1e-8), "rtols_casadi_fd": (1e-6, 1e-8),
-            "rtols_diffrax": (1e-6, 1e-8, 1e-10)}}
+            "rtols_diffrax": (1e-6, 1e-8, 1e-10), "rtols_adaptive": (1e-4, 1e-6, 1e-8)}}
     started = time.perf_counter()
 
     out = []
@@ -1239,7 +1393,8 @@ def main(argv=None):
     emit(f"- {versions()}")
     emit(f"- problem: V = {V}, t ∈ [0, {T_FINAL:g}] s, paper geometry and initial data; error = max over the")
     emit(f"  301 times 0, 0.01, …, 3 s of |v − v_ref|, v_ref = diffrax Kvaerno5 at rtol {REF_RTOL:g}, atol {REF_ATOL:g}")
-    emit(f"- medians of {repeats} runs after a warm-up run; adaptive peers use atol = 1e-2·rtol")
+    emit(f"- medians of {repeats} runs after a warm-up run; adaptive peers use atol = 1e-2·rtol, "
+         f"peeljax adaptive α atol = {ADAPTIVE_ALPHA_ATOL:g}·rtol")
     emit()
 
     results = {}
@@ -1247,6 +1402,7 @@ def main(argv=None):
         v_ref = reference(tau)
         peers = [
             PeeljaxAlpha(tau, steps),
+            PeeljaxAdaptive(tau, adaptive_rtols),
             NumbaAlpha(tau, steps),
             DiffraxPeer(tau, rtols, "Kvaerno5"),
             DiffraxPeer(tau, rtols, "Kvaerno3"),
@@ -1257,31 +1413,40 @@ def main(argv=None):
             CvodePeer(tau, rtols, log_v=True),
             CasadiPeer(tau, rtols),
             CasadiPeer(tau, rtols, log_v=True),
+            PetscAlphaPeer(tau, petsc_rtols),
         ]
+        adaptive = next(peer for peer in peers if isinstance(peer, PeeljaxAdaptive))
         results[tau] = {}
         for peer in peers:
             results[tau][peer.name] = check(peer, v_ref)
             print(f"  [τ = {tau}: {peer.name} checked]", file=sys.stderr, flush=True)
         time_round_robin(peers, results[tau], repeats)
+        for peer in peers:
+            if hasattr(peer, "close"):
+                peer.close()
 
         emit(f"## τ = {tau}")
         emit()
         emit(f"### (P1) the cheapest setting with error ≤ {TARGET:g}")
         emit()
         base = cheapest_at(results[tau]["peeljax α-method"], TARGET)
-        emit("| method | setting | error | median s | time / peeljax's |")
-        emit("|---|---:|---:|---:|---:|")
+        base_adaptive = cheapest_at(results[tau][PeeljaxAdaptive.name], TARGET)
+        emit("| method | setting | error | median s | time / peeljax's | time / peeljax adaptive α's |")
+        emit("|---|---:|---:|---:|---:|---:|")
         for peer in peers:
             best = cheapest_at(results[tau][peer.name], TARGET)
             if best is None:
                 statuses = sorted({r["status"] for r in results[tau][peer.name] if r.get("status") != "ok"})
-                emit(f"| {peer.name} | – | – | – | not reached ({'; '.join(statuses) or 'error above target'}) |")
+                emit(f"| {peer.name} | – | – | – | not reached ({'; '.join(statuses) or 'error above target'}) | – |")
                 continue
             ratio = best["median_s"] / base["median_s"] if base else math.nan
+            ratio_adaptive = best["median_s"] / base_adaptive["median_s"] if base_adaptive else math.nan
             emit(
                 f"| {peer.name} | {peer.setting_name} = {best['setting']:g} | {best['error']:.1e} "
-                f"| {best['median_s']:.4f} | {ratio:.2f} |"
+                f"| {best['median_s']:.4f} | {ratio:.2f} | {ratio_adaptive:.2f} |"
             )
+        emit()
+        emit("Both ratios are of medians measured round-robin in this run (> 1: that peeljax method is faster).")
         emit()
         emit("### (P2) work-precision: every setting")
         emit()
@@ -1294,6 +1459,20 @@ def main(argv=None):
                 median = f"{r['median_s']:.4f}" if "median_s" in r else "–"
                 first = f"{r['first_s']:.2f}" if "first_s" in r else "–"
                 emit(f"| {peer.name} | {setting} | {r['status']} | {error} | {median} | {first} |")
+        emit()
+        for peer in peers:
+            if hasattr(peer, "describe") and getattr(peer, "stats", None):
+                what = ("accepted/rejected steps, Newton iterations" if isinstance(peer, PeeljaxAdaptive)
+                        else f"PETSc {getattr(peer, 'version', '?')}, ρ∞ = {getattr(peer, 'radius', math.nan):g}, "
+                             f"first step {PETSC_DT0:g} s: steps/rejected, SNES iterations")  # fmt: skip
+                emit(f"- {peer.name} ({what}): "
+                     + "; ".join(f"rtol {rtol:g}: {peer.describe(rtol)}" for rtol in peer.settings if rtol in peer.stats))
+        adaptive_ok = [r for r in results[tau][PeeljaxAdaptive.name] if r.get("status") == "ok"]
+        if len(adaptive_ok) >= 3:
+            steps_taken = np.array([int(adaptive.stats[r["setting"]]["accepted_steps"]) for r in adaptive_ok], float)
+            slope = np.polyfit(np.log(steps_taken), np.log([r["error"] for r in adaptive_ok]), 1)[0]
+            emit(f"- {PeeljaxAdaptive.name}: error ∝ (accepted steps)^{slope:.2f} over rtol "
+                 f"{adaptive_ok[0]['setting']:g} … {adaptive_ok[-1]['setting']:g} (least squares; −2 for a second-order method)")
         emit()
 
     if "P3" in args.only:

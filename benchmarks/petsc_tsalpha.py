@@ -4,20 +4,33 @@ Run by ``compare.py`` in a subprocess with another interpreter (``PETSC_PYTHON``
 ``/usr/bin/python3``), because petsc4py is not installable into the project's venv. It needs
 only numpy and petsc4py (no jax, no peeljax): ψ is written out below for the paper geometry and
 the paper's φ family, in z = (α, ω, u, log v) like the other "(log v)" peers, and the Newton
-matrix shift·𝐈 − ∂ψ/∂z is built by central differences of ψ (4×4).
+matrix shift·𝐈 − ∂ψ/∂z is built by central differences of ψ (4×4). Debian's
+``python3-petsc4py`` puts petsc4py under ``/usr/lib/petscdir/<build>/lib/python3/dist-packages``
+and finds it through ``PETSC_DIR`` or the ``/usr/lib/petsc`` alternative (set only with PETSc's
+-dev package); without either, :func:`import_petsc4py` looks there itself.
 
     python3 petsc_tsalpha.py --check              # exit 0 if numpy and petsc4py import
-    python3 petsc_tsalpha.py jobs.json out.json   # run the jobs, write the results
+    python3 petsc_tsalpha.py jobs.json out.json   # fixed steps: run the jobs, write the results
+    python3 petsc_tsalpha.py --serve              # error control: one JSON request per line
 
 jobs.json: {"jobs": [[V, tau], ...], "n_steps": N, "t_final": T, "every": k, "radius": ρ∞}.
 out.json: {"petsc": version, "runs": [{"v": [v every k steps, NaN after a stop], "seconds": s,
 "status": "ok" | "stopped near t = …" | "failed: …"}, ...]}.
+
+--serve: first prints {"petsc": version}; then for each line {"V", "tau", "rtol", "atol",
+"grid": [t_0 = 0, …, t_final], "radius", "dt0"} runs TSALPHA with its own error control
+(``-ts_adapt_type basic``: TSALPHA's local error estimate from backward differences of the
+last three solutions, order 2; the usual safety 0.9 and clip [0.1, 10]) and prints
+{"v": v at the grid times (TSInterpolate between steps), "seconds", "status", "steps",
+"rejected", "snes_iterations", "snes_failures"}. An empty line ends it.
 """
 
 from __future__ import annotations
 
+import glob
 import json
 import math
+import os
 import sys
 import time
 
@@ -64,12 +77,49 @@ def initial_z(V):
     return [al0, v0 / R, phi / (1.0 + math.sin(al0)) / K, math.log(v0)]
 
 
-def run_one(PETSc, np, V, tau, n_steps, t_final, every, radius):
-    dt = t_final / n_steps
-    saved = np.full(n_steps // every + 1, np.nan)
-    z0 = initial_z(V)
-    saved[0] = math.exp(z0[3])
-    last = {"t": 0.0}
+def import_petsc4py():
+    """petsc4py, initialised; on Debian without ``PETSC_DIR`` or the ``/usr/lib/petsc`` alternative,
+    from the first build under ``/usr/lib/petscdir`` (real numbers preferred)."""
+    try:
+        import petsc4py
+    except ImportError:
+        roots = [os.environ["PETSC_DIR"]] if os.environ.get("PETSC_DIR") else []
+        roots += ["/usr/lib/petscdir/petsc-real", *sorted(glob.glob("/usr/lib/petscdir/*/*-real")),
+                  *sorted(glob.glob("/usr/lib/petscdir/*"))]  # fmt: skip
+        for root in roots:
+            path = os.path.join(root, "lib", "python3", "dist-packages")
+            if os.path.isdir(os.path.join(path, "petsc4py")):
+                sys.path.append(path)
+                break
+        import petsc4py
+    petsc4py.init([sys.argv[0]])
+    from petsc4py import PETSc
+
+    return PETSc
+
+
+_PREFIXES = [0]
+
+
+def make_ts(PETSc, np, V, tau, radius, adapt):
+    """A TSALPHA on z' = ψ(z) (implicit form F = ż − ψ(z)), LU on the 4×4 Newton matrix.
+
+    ``adapt``: "none" (fixed steps) or "basic" (TSAdapt basic), set through the options database
+    under a prefix of its own (petsc4py 3.18 has no TS.getAdapt).
+    """
+    ts = PETSc.TS().create(comm=PETSc.COMM_SELF)
+    ts.setType("alpha")
+    _PREFIXES[0] += 1
+    prefix = f"peel{_PREFIXES[0]}_"
+    ts.setOptionsPrefix(prefix)
+    options = PETSc.Options()
+    options[f"{prefix}ts_adapt_type"] = adapt
+    ts.setFromOptions()
+    del options[f"{prefix}ts_adapt_type"]
+    ts.setProblemType(PETSc.TS.ProblemType.NONLINEAR)
+    residual = PETSc.Vec().createSeq(4, comm=PETSc.COMM_SELF)
+    matrix = PETSc.Mat().createDense([4, 4], comm=PETSc.COMM_SELF)
+    matrix.setUp()
 
     def ifunction(ts, t, x, xdot, F):
         F.setArray(xdot.getArray(readonly=True) - psi_z(x.getArray(readonly=True), V, tau))
@@ -88,28 +138,98 @@ def run_one(PETSc, np, V, tau, n_steps, t_final, every, radius):
         if A != P:
             A.assemble()
 
+    ts.setIFunction(ifunction, residual)
+    ts.setIJacobian(ijacobian, matrix, matrix)
+    ts.setAlphaRadius(radius)
+    ts.getSNES().getKSP().setType("preonly")
+    ts.getSNES().getKSP().getPC().setType("lu")
+    return ts, (residual, matrix)
+
+
+def run_adaptive(PETSc, np, V, tau, grid, rtol, atol, radius, dt0):
+    """TSALPHA with TSAdapt basic at (rtol, atol); v at the ``grid`` times by TSInterpolate."""
+    grid = np.asarray(grid, float)
+    saved = np.full(grid.size, np.nan)
+    z0 = initial_z(V)
+    state = {"t": 0.0, "next": 0}
+    work = PETSc.Vec().createSeq(4, comm=PETSc.COMM_SELF)
+
+    def monitor(ts, step, t, x):
+        k = state["next"]
+        while k < grid.size and grid[k] <= t:
+            if grid[k] == t or step == 0:
+                saved[k] = math.exp(x.getArray(readonly=True)[3])
+            else:
+                ts.interpolate(grid[k], work)
+                saved[k] = math.exp(work.getArray(readonly=True)[3])
+            k += 1
+        state["next"], state["t"] = k, t
+
+    started = time.perf_counter()
+    ts, keep = make_ts(PETSc, np, V, tau, radius, "basic")
+    ts.setTolerances(rtol=rtol, atol=atol)
+    ts.setTime(0.0)
+    ts.setTimeStep(dt0)
+    ts.setMaxSteps(10_000_000)
+    ts.setMaxTime(float(grid[-1]))
+    ts.setExactFinalTime(PETSc.TS.ExactFinalTime.MATCHSTEP)
+    ts.setMaxStepRejections(-1)  # a rejected step is retried smaller (PETSc's default stops after 10 in one step)
+    ts.setMaxSNESFailures(-1)  # a failed Newton solve too (the adaptor cuts the step by 4)
+    ts.setMonitor(monitor)
+    x = PETSc.Vec().createSeq(4, comm=PETSc.COMM_SELF)
+    x.setArray(z0)
+    try:
+        ts.solve(x)
+        reason = ts.getConvergedReason()
+        if reason > 0 and state["next"] == grid.size - 1 and abs(ts.getTime() - grid[-1]) <= 1e-12 * grid[-1]:
+            saved[-1] = math.exp(x.getArray(readonly=True)[3])  # the last step ended a rounding error short
+        done = reason > 0 and np.isfinite(saved).all()
+        status = "ok" if done else f"stopped near t = {state['t']:.3g} s (reason {reason})"
+    except Exception as error:  # noqa: BLE001 (a PETSc error ends the run)
+        status = f"stopped near t = {state['t']:.3g} s ({type(error).__name__})"
+    seconds = time.perf_counter() - started
+    stats = {"steps": ts.getStepNumber(), "rejected": ts.getStepRejections(),
+             "snes_iterations": ts.getSNESIterations(), "snes_failures": ts.getSNESFailures()}  # fmt: skip
+    for obj in (ts, *keep, x, work):
+        obj.destroy()
+    return {"v": [None if not math.isfinite(a) else a for a in saved], "seconds": seconds, "status": status, **stats}
+
+
+def serve(PETSc, np):
+    """Answer one JSON request per stdin line (see the module's docstring) until an empty line."""
+    version = ".".join(str(n) for n in PETSc.Sys.getVersion())
+    print(json.dumps({"petsc": version}), flush=True)
+    for line in sys.stdin:
+        if not line.strip():
+            break
+        job = json.loads(line)
+        try:
+            result = run_adaptive(PETSc, np, job["V"], job["tau"], job["grid"], job["rtol"], job["atol"],
+                                  job.get("radius", 0.0), job.get("dt0", 1e-8))  # fmt: skip
+        except Exception as error:  # noqa: BLE001 (reported per request)
+            result = {"v": None, "seconds": None, "status": f"failed: {type(error).__name__}: {error}"[:120]}
+        print(json.dumps(result), flush=True)
+    return 0
+
+
+def run_one(PETSc, np, V, tau, n_steps, t_final, every, radius):
+    dt = t_final / n_steps
+    saved = np.full(n_steps // every + 1, np.nan)
+    z0 = initial_z(V)
+    saved[0] = math.exp(z0[3])
+    last = {"t": 0.0}
+
     def monitor(ts, step, t, x):
         last["t"] = t
         if step % every == 0 and step // every < saved.size:
             saved[step // every] = math.exp(x.getArray(readonly=True)[3])
 
-    ts = PETSc.TS().create(comm=PETSc.COMM_SELF)
-    ts.setType("alpha")
-    ts.setProblemType(PETSc.TS.ProblemType.NONLINEAR)
-    residual = PETSc.Vec().createSeq(4, comm=PETSc.COMM_SELF)
-    matrix = PETSc.Mat().createDense([4, 4], comm=PETSc.COMM_SELF)
-    matrix.setUp()
-    ts.setIFunction(ifunction, residual)
-    ts.setIJacobian(ijacobian, matrix, matrix)
-    ts.setAlphaRadius(radius)
+    ts, keep = make_ts(PETSc, np, V, tau, radius, "none")
     ts.setTime(0.0)
     ts.setTimeStep(dt)
     ts.setMaxSteps(n_steps)
     ts.setMaxTime(t_final)
     ts.setExactFinalTime(PETSc.TS.ExactFinalTime.MATCHSTEP)
-    ts.getAdapt().setType("none")
-    ts.getSNES().getKSP().setType("preonly")
-    ts.getSNES().getKSP().getPC().setType("lu")
     ts.setMonitor(monitor)
     x = PETSc.Vec().createSeq(4, comm=PETSc.COMM_SELF)
     x.setArray(z0)
@@ -121,25 +241,21 @@ def run_one(PETSc, np, V, tau, n_steps, t_final, every, radius):
     except Exception as error:  # noqa: BLE001 (a diverged nonlinear solve ends the run)
         status = f"stopped near t = {last['t']:.3g} s ({type(error).__name__})"
     seconds = time.perf_counter() - started
-    for obj in (ts, residual, matrix, x):
+    for obj in (ts, *keep, x):
         obj.destroy()
     return {"v": [None if not math.isfinite(a) else a for a in saved], "seconds": seconds, "status": status}
 
 
 def main(argv):
-    if argv[:1] == ["--check"]:
-        import importlib
+    import numpy as np
 
-        for module in ("petsc4py", "numpy"):
-            importlib.import_module(module)
+    PETSc = import_petsc4py()
+    if argv[:1] == ["--check"]:
         return 0
+    if argv[:1] == ["--serve"]:
+        return serve(PETSc, np)
     with open(argv[0]) as file:
         jobs = json.load(file)
-    import numpy as np
-    import petsc4py
-
-    petsc4py.init([sys.argv[0]])
-    from petsc4py import PETSc
 
     runs = []
     for V, tau in jobs["jobs"]:
