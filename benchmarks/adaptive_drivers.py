@@ -27,12 +27,11 @@ import diffrax
 import jax
 import jax.numpy as jnp
 import numpy as np
+from machine import cpu_model
 
 import peeljax as pj
 from peeljax.homogenized import HomogenizedODE
 from peeljax.integrators.adaptive import integrate_alpha_adaptive
-
-from machine import cpu_model
 
 RESULTS = Path(__file__).resolve().parent / "results" / "adaptive_drivers.md"
 V, T_FINAL = 1.1, 3.0
@@ -87,7 +86,9 @@ def compare(tau, rtols, repeats):
         atol = 1e-3 * rtol
         controller = pj.PIController(rtol=rtol, atol=atol)
         runs = {
-            "peeljax.simulate": lambda: pj.simulate(model, V=V, tau=tau, t_final=T_FINAL, rtol=rtol, atol=atol, ts=GRID),
+            "peeljax.simulate": lambda: pj.simulate(
+                model, V=V, tau=tau, t_final=T_FINAL, rtol=rtol, atol=atol, ts=GRID
+            ),
             "compiled run (jax.jit)": lambda: _direct(ode, controller, ts),
             "diffrax + AlphaSolver": lambda: _in_diffrax(ode, rtol, atol, ts),
         }
@@ -121,9 +122,7 @@ def call_overhead(repeats):
     model = pj.PeelingModel()
     ts = np.linspace(0.0, 1e-4, 2)
     ode = HomogenizedODE(model, V, 0.1)
-    args = jax.device_put(
-        (ode, pj.AlphaMethod(), None, np.asarray(1e-4), pj.PIController(), ts, np.asarray(1e-16))
-    )
+    args = jax.device_put((ode, pj.AlphaMethod(), None, np.asarray(1e-4), pj.PIController(), ts, np.asarray(1e-16)))
     compiled = jax.jit(functools.partial(simulate_module._integrate_adaptive, max_steps=100_000, adjoint="reverse"))
     runs = {
         "simulate": lambda: pj.simulate(model, V=V, tau=0.1, t_final=1e-4, ts=ts).ys,

@@ -283,7 +283,13 @@ def test_a_callable_phi_runs_like_the_adhesion_law():
     """A φ given as a Python function (a non-array leaf: the filter_jit path) gives the same run."""
 
     def phi(v, V):
-        return 400 * v**0.35 + 110 * v**0.15 + 130 * jnp.exp(v / 11) - 2 * V**1.5 - (415 - 45 * V**0.4 - 0.35 * V**2.15) * v**0.5
+        return (
+            400 * v**0.35
+            + 110 * v**0.15
+            + 130 * jnp.exp(v / 11)
+            - 2 * V**1.5
+            - (415 - 45 * V**0.4 - 0.35 * V**2.15) * v**0.5
+        )
 
     ts = np.linspace(0.0, 0.5, 6)
     law = pj.simulate(V=1.1, tau=0.1, t_final=0.5, ts=ts)

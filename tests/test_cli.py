@@ -164,7 +164,9 @@ def test_save_dt_gives_the_output_grid(tmp_path):
 
 def test_diffrax_output_on_save_dt(tmp_path):
     npz = tmp_path / "ref.npz"
-    code, out, err = run_main(["simulate", "--method", "diffrax", "--t-final", "0.25", "--save-dt", "0.1", "--out", str(npz)])
+    code, out, err = run_main(
+        ["simulate", "--method", "diffrax", "--t-final", "0.25", "--save-dt", "0.1", "--out", str(npz)]
+    )
     assert code == 0, err
     with np.load(npz, allow_pickle=False) as data:
         np.testing.assert_allclose(data["t"], [0.0, 0.1, 0.2, 0.25])
@@ -332,7 +334,9 @@ UNWRITABLE = [
 ]  # fmt: skip
 
 
-@pytest.mark.parametrize(("argv", "option", "words"), UNWRITABLE, ids=[" ".join(a[:1] + a[-2:]) for a, *_ in UNWRITABLE])
+@pytest.mark.parametrize(
+    ("argv", "option", "words"), UNWRITABLE, ids=[" ".join(a[:1] + a[-2:]) for a, *_ in UNWRITABLE]
+)
 def test_unwritable_output_exits_2_before_computing(argv, option, words, nothing_runs, tmp_path, capsys):
     afile = tmp_path / "afile"
     afile.write_text("not a folder")
@@ -357,7 +361,9 @@ def test_a_write_error_after_the_run_is_reported_not_raised(monkeypatch, tmp_pat
     assert "could not write --out" in captured.err and "No space left on device" in captured.err
 
 
-@pytest.mark.parametrize(("coefficient", "value", "allowed"), [("c1", -5.0, "(0, inf)"), ("p9", 0.0, "(0, inf)"), ("c7", -1.0, "[0, inf)")])
+@pytest.mark.parametrize(
+    ("coefficient", "value", "allowed"), [("c1", -5.0, "(0, inf)"), ("p9", 0.0, "(0, inf)"), ("c7", -1.0, "[0, inf)")]
+)
 def test_phi_outside_the_family_domain_exits_2(coefficient, value, allowed, no_compilation, tmp_path, capsys):
     path = tmp_path / "phi.json"
     path.write_text(json.dumps({coefficient: value}))
