@@ -5,7 +5,8 @@ law of de2006dynamics) and initial data (v0 = 1e-10·V, ω0 = v0/R, α0 = (π/4)
 (sac)), the α-method with ρ = 0 on [0, 3] s. Steps and τ lists are in :data:`RUNS`:
 
 * V = 1.1 m/s: the paper's h = 1/82 s; τ = 1e-3 (the paper's least τ: it stops early here too,
-  at t ≈ 0.171 s), 4.22e-3 (the least τ of the grid below that completes [0, 3] s), 1e-2, 1e-1;
+  at t ≈ 0.171 s), 4.22e-3 (the least τ of the grid below that completes [0, 3] s; τ* = 4.8e-3,
+  since 4.59e-3 stops), 1e-2, 1e-1;
 * V = 2 and 4 m/s: h = 1/164 s (the paper says only that smaller steps work there; 1/164 halves
   the V = 1.1 step); τ lists from the least τ found to complete [0, 3] s on a log grid of 25 values
   in [1e-4, 0.1] at that step, rounded to 3 digits and rechecked (``docs/reproduction.md``):
@@ -82,7 +83,9 @@ SCHUR_RUN = {"V": 1.1, "tau": 1e-3, "dt": 1 / 16400, "t_final": 0.2}  # diffrax 
 
 CAPTIONS = {
     "fig2_v_V1.1": "Fig. 2: peeling velocity v(t) at V = 1.1 m/s, h = 1/82 s, for τ = 1e-3 (the paper's least τ; stops early), "
-    "4.22e-3 (least τ completing [0, 3] s), 1e-2 and 1e-1 s; as τ grows v is smoothed to the pull velocity V (dashed).",
+    "4.22e-3 (the least τ of a 25-point log grid in [1e-4, 0.1] that completes [0, 3] s: not τ* = 4.8e-3 of "
+    "peeljax.least_tau, the least τ above which every tested τ completes, since completion is not monotone "
+    "in τ: 4.59e-3 stops at 0.256 s), 1e-2 and 1e-1 s; as τ grows v is smoothed to the pull velocity V (dashed).",
     "fig3_alpha_V1.1": "Fig. 3: peel-front angle α(t) at V = 1.1 m/s, same runs as Fig. 2; α settles to its mean, "
     "slower than v.",
     "fig4_F_vs_v_V1.1": "Fig. 4: tension F(u, α) = (k/l)·u against v at V = 1.1 m/s, same runs; v moves far while "
