@@ -83,7 +83,7 @@ def test_tau_star_json(monkeypatch):
     assert code == 0, err
     record = json.loads(out)
     assert record["V"] == [1.1, 2.0, 4.0] and record["tau_star"] == [2e-3] * 3
-    assert {"found", "tau_below", "rounds", "dt", "rtol"} <= set(record)
+    assert {"found", "tau_below", "rounds", "dt", "tau_rtol"} <= set(record)
     code, out, err = run_main(["tau-star", "--V", "1.1", "--dt", "0.01", "--t-final", "1"])
     assert code == 0 and "tau* = 0.002" in out
 
@@ -110,7 +110,7 @@ def test_tau_star_json(monkeypatch):
         (["sweep", "--plot", "map.xyz"], "unknown image format"),
         (["tau-star", "--V", "1.1", "0"], "--V must be finite and > 0"),
         (["tau-star", "--tau-range", "1", "0.1"], "--tau-range"),
-        (["tau-star", "--rtol", "0"], "--rtol"),
+        (["tau-star", "--tau-rtol", "0"], "--tau-rtol"),
         (["tau-star", "--n-points", "1"], "--n-points"),
     ],
 )

@@ -1,4 +1,4 @@
-"""peeljax.least_tau: τ* completes, τ*·(1 − rtol) stops, and the paper's ordering over V.
+"""peeljax.least_tau: τ* completes, τ*·(1 − tau_rtol) stops, and the paper's ordering over V.
 
 Steps used (docs/sweeps.md): dt = 1/82 s at every V (the paper's step at V = 1.1) over
 t_final = 1 s; measured τ* ≈ 4.8e-3 (V = 1.1), 1.7e-3 (V = 2), 1.2e-4 (V = 4).
@@ -21,7 +21,7 @@ DT, T_FINAL, RTOL = 1 / 82, 1.0, 0.05
 
 @pytest.fixture(scope="module")
 def paper():
-    return peeljax.least_tau(V=[1.1, 2.0, 4.0], dt=DT, t_final=T_FINAL, tau_range=(1e-5, 1.0), rtol=RTOL, n_points=8)
+    return peeljax.least_tau(V=[1.1, 2.0, 4.0], dt=DT, t_final=T_FINAL, tau_range=(1e-5, 1.0), tau_rtol=RTOL, n_points=8)
 
 
 @pytest.mark.slow
@@ -67,7 +67,7 @@ def test_bracket_rules():
     assert _bracket(history, 0.05)[3] is True
     history[4e-3 * 0.95] = (True, 1.0)  # completes: the new bracket is (2e-3, 3.8e-3)
     assert _bracket(history, 0.05)[:2] == (2e-3, 4e-3 * 0.95)
-    # a bracket tighter than rtol whose τ*·(1 − rtol) completes below a stop: cannot be resolved
+    # a bracket tighter than tau_rtol whose τ*·(1 − tau_rtol) completes below a stop: cannot be resolved
     tight = {1e-3: (False, 0.2), 1.02e-3: (True, 1.0), 1.02e-3 * 0.95: (True, 1.0)}
     assert _bracket(tight, 0.05) == (1e-3, 1.02e-3, 0.2, False)
     everything = {1e-3: (True, 1.0), 1e-2: (True, 1.0)}
@@ -85,7 +85,7 @@ def test_bracket_rules():
         ({"V": [1.1, -2.0]}, "V must be > 0"),
         ({"tau_range": (1e-2, 1e-3)}, "tau_range"),
         ({"tau_range": (0.0, 1.0)}, "tau_range"),
-        ({"rtol": 1.5}, "rtol"),
+        ({"tau_rtol": 1.5}, "tau_rtol"),
         ({"n_points": 1}, "n_points"),
         ({"dt": -1.0}, "dt must be > 0"),
     ],

@@ -68,13 +68,19 @@ def add_command(subparsers) -> None:
         help="the least resolvable tau per V",
         description=(
             "For each V, tau* = the least tested tau above which every tested tau completes [0, t_final], "
-            "with tau*(1 - rtol) stopping (docs/sweeps.md). All V are searched in parallel."
+            "with tau*(1 - tau_rtol) stopping (docs/sweeps.md). All V are searched in parallel."
         ),
     )
     _add_model_arguments(star)
     star.add_argument("--tau-range", dest="tau_range", type=float, nargs=2, default=[1e-5, 1.0], metavar=("LO", "HI"),
                       help="search interval, 0 < LO < HI (default 1e-5 1)")  # fmt: skip
-    star.add_argument("--rtol", type=float, default=0.05, help="relative resolution in (0, 1) (default 0.05)")
+    star.add_argument(
+        "--tau-rtol",
+        dest="tau_rtol",
+        type=float,
+        default=0.05,
+        help="relative resolution of tau* in (0, 1) (default 0.05)",
+    )
     star.add_argument("--n-points", dest="n_points", type=int, default=8, help="tau values per V and round (>= 2)")
     star.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     star.set_defaults(handler=_tau_star_command)
@@ -143,12 +149,12 @@ def validate_tau_star(args: argparse.Namespace) -> dict:
     lo, hi = args.tau_range
     if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
         raise ValueError(f"--tau-range LO HI must satisfy 0 < LO < HI (finite), got {lo:g} {hi:g}")
-    if not (math.isfinite(args.rtol) and 0 < args.rtol < 1):
-        raise ValueError(f"--rtol must lie in (0, 1), got {args.rtol:g}")
+    if not (math.isfinite(args.tau_rtol) and 0 < args.tau_rtol < 1):
+        raise ValueError(f"--tau-rtol must lie in (0, 1), got {args.tau_rtol:g}")
     if args.n_points < 2:
         raise ValueError(f"--n-points must be an integer >= 2 (allowed range: [2, inf)), got {args.n_points}")
     return {"model": model, "V": V, "dt": float(args.dt), "t_final": float(args.t_final), "tau_range": (lo, hi),
-                "rtol": float(args.rtol), "n_points": args.n_points, "rho": float(args.rho)}  # fmt: skip
+                "tau_rtol": float(args.tau_rtol), "n_points": args.n_points, "rho": float(args.rho)}  # fmt: skip
 
 
 # ---------------------------------------------------------------------------- commands
@@ -248,17 +254,17 @@ def _tau_star_command(args: argparse.Namespace) -> int:
         "dt": kwargs["dt"],
         "t_final": kwargs["t_final"],
         "tau_range": list(kwargs["tau_range"]),
-        "rtol": kwargs["rtol"],
+        "tau_rtol": kwargs["tau_rtol"],
         "wall_time_s": wall,
     }
     if args.json:
         print(json.dumps(json_safe(record), allow_nan=False))
         return 0
-    print(f"{PROG} tau-star: dt = {kwargs['dt']:.6g} s, t_final = {kwargs['t_final']:g} s, rtol = {kwargs['rtol']:g}, "
+    print(f"{PROG} tau-star: dt = {kwargs['dt']:.6g} s, t_final = {kwargs['t_final']:g} s, tau_rtol = {kwargs['tau_rtol']:g}, "
           f"{result.rounds} batched runs, {wall:.3g} s")  # fmt: skip
     for i, V in enumerate(result.V):
         note = "" if result.found[i] else "  (not bracketed inside --tau-range)"
         print(
-            f"V = {V:g} m/s: tau* = {result.tau_star[i]:.6g} s (tau*(1-rtol) stops at t = {result.t_stop_below[i]:.4g} s){note}"
+            f"V = {V:g} m/s: tau* = {result.tau_star[i]:.6g} s (tau*(1-tau_rtol) stops at t = {result.t_stop_below[i]:.4g} s){note}"
         )
     return 0

@@ -6,7 +6,7 @@ or an impasse point ends the run early). Completion need not be monotone in τ, 
 defines, for each V and a given mesh and solver:
 
     τ* = the least tested τ such that every tested τ ≥ τ* completed,
-         and τ*·(1 − rtol) was tested and stopped.
+         and τ*·(1 − tau_rtol) was tested and stopped.
 
 The search (all V in parallel; each round is one batched :func:`peeljax.sweep`-engine run):
 
@@ -14,11 +14,11 @@ The search (all V in parallel; each round is one batched :func:`peeljax.sweep`-e
    the range (NaN, ``found = False``); if every τ completes, τ* ≤ lo (``tau_star = lo``,
    ``found = False``). Otherwise the bracket is (largest stopping τ, next tested τ).
 2. Refine: each round tests, for every V not yet done, ``n_points`` τ inside the bracket
-   (lo, hi): top = hi·(1 − rtol) and top·q^j, j = 1 … n_points − 1, with
-   q = min((lo/top)^(1/n_points), 1 − rtol) (those at or below lo are replaced by top). Then
+   (lo, hi): top = hi·(1 − tau_rtol) and top·q^j, j = 1 … n_points − 1, with
+   q = min((lo/top)^(1/n_points), 1 − tau_rtol) (those at or below lo are replaced by top). Then
    lo = the largest stopping τ tested so far, hi = the least completing τ tested above it.
-   Consecutive points are at most a factor (1 − rtol) apart, so the search ends when
-   hi·(1 − rtol) itself was tested: it stopped (τ* = hi found), or, completion being
+   Consecutive points are at most a factor (1 − tau_rtol) apart, so the search ends when
+   hi·(1 − tau_rtol) itself was tested: it stopped (τ* = hi found), or, completion being
    non-monotone there, it completed below a larger stopping τ (reported, ``found = False``).
    The bracket's log-width shrinks about n_points-fold per round.
 
@@ -53,8 +53,8 @@ class LeastTau:
         V: the pull velocities, shape (m,).
         tau_star: τ* (NaN where even tau_range's upper end stops; tau_range's lower end where
             every tested τ completed).
-        tau_below: the largest tested τ that stopped (in [τ*·(1 − rtol), τ*) when found).
-        found: True where τ* lies inside tau_range and is bracketed to rtol.
+        tau_below: the largest tested τ that stopped (in [τ*·(1 − tau_rtol), τ*) when found).
+        found: True where τ* lies inside tau_range and is bracketed to tau_rtol.
         t_stop_below: where the run at tau_below stopped.
         rounds: batched runs made (the scan included).
         tested: per V, every tested (τ, (completed, t_stop)) in increasing τ.
@@ -76,7 +76,7 @@ def least_tau(
     dt: float = 1 / 82,
     t_final: float = 3.0,
     tau_range: tuple[float, float] = (1e-4, 1.0),
-    rtol: float = 0.05,
+    tau_rtol: float = 0.05,
     *,
     n_points: int = 8,
     solver: AlphaMethod | None = None,
@@ -91,7 +91,7 @@ def least_tau(
         V: pull velocities [m/s] (> 0), searched in parallel.
         dt, t_final: the α-method's mesh (as in :func:`peeljax.simulate`).
         tau_range: (lo, hi), 0 < lo < hi: where to search.
-        rtol: relative resolution: τ·(1 − rtol) is tested and stops, 0 < rtol < 1.
+        tau_rtol: relative resolution: τ·(1 − tau_rtol) is tested and stops, 0 < tau_rtol < 1.
         n_points: τ values per V and round (the scan's and every refinement's).
 
     Returns:
@@ -107,8 +107,8 @@ def least_tau(
         raise ValueError(f"tau_range must be two numbers (lo, hi) with 0 < lo < hi, got {tau_range!r}") from None
     if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
         raise ValueError(f"tau_range must satisfy 0 < lo < hi (finite), got {tau_range!r}")
-    if not (isinstance(rtol, (int, float)) and 0 < rtol < 1):
-        raise ValueError(f"rtol must lie in (0, 1), got {rtol!r}")
+    if not (isinstance(tau_rtol, (int, float)) and 0 < tau_rtol < 1):
+        raise ValueError(f"tau_rtol must lie in (0, 1), got {tau_rtol!r}")
     if isinstance(n_points, bool) or not isinstance(n_points, int) or n_points < 2:
         raise ValueError(f"n_points must be an integer >= 2, got {n_points!r}")
     solver = checked_solver(solver, rho)
@@ -146,16 +146,16 @@ def least_tau(
     scan = np.broadcast_to(np.geomspace(lo, hi, n_points), (m, n_points)).copy()
     record(scan, *run(scan))
     rounds = 1
-    state = [_bracket(h, rtol) for h in history]
+    state = [_bracket(h, tau_rtol) for h in history]
     active = np.array([s[3] is None for s in state])
 
-    # 2. refinement rounds: n_points τ per V from hi·(1 − rtol) down, ratio ≤ 1 − rtol
+    # 2. refinement rounds: n_points τ per V from hi·(1 − tau_rtol) down, ratio ≤ 1 − tau_rtol
     while active.any() and rounds < max_rounds:
         points = scan.copy()  # placeholders for finished V (results ignored)
         for j in np.flatnonzero(active):
             lower, upper = state[j][0], state[j][1]
-            top = upper * (1.0 - rtol)
-            q = min((lower / top) ** (1.0 / n_points), 1.0 - rtol) if top > lower else 1.0
+            top = upper * (1.0 - tau_rtol)
+            q = min((lower / top) ** (1.0 / n_points), 1.0 - tau_rtol) if top > lower else 1.0
             candidates = top * q ** np.arange(n_points)
             points[j] = np.where(candidates > lower, candidates, top)
         done, t_stop = run(points)
@@ -163,14 +163,14 @@ def least_tau(
         for j in np.flatnonzero(active):
             for k in range(n_points):
                 history[j][float(points[j, k])] = (bool(done[j, k]), float(t_stop[j, k]))
-            state[j] = _bracket(history[j], rtol)
+            state[j] = _bracket(history[j], tau_rtol)
             active[j] = state[j][3] is None
     lower = np.array([s[0] for s in state])
     upper = np.array([s[1] for s in state])
     t_below = np.array([s[2] for s in state])
     found = np.array([s[3] is True for s in state])
     tau_star = upper
-    settings = {"dt": float(dt), "t_final": float(t_final), "n_steps": n_steps, "tau_range": [lo, hi], "rtol": float(rtol),
+    settings = {"dt": float(dt), "t_final": float(t_final), "n_steps": n_steps, "tau_range": [lo, hi], "tau_rtol": float(tau_rtol),
                 "n_points": n_points, "rho": float(solver.rho), "truncation": truncation}  # fmt: skip
     return LeastTau(
         V=Vs,
@@ -184,13 +184,13 @@ def least_tau(
     )
 
 
-def _bracket(history: dict[float, tuple[bool, float]], rtol: float):
+def _bracket(history: dict[float, tuple[bool, float]], tau_rtol: float):
     """(lower, upper, t_stop at lower, verdict) from the tested τ of one V.
 
     lower: the largest stopping τ (NaN if none), upper: the least completing τ above it
     (= τ*; NaN if none; the least tested τ if none stops). verdict: True when
-    upper·(1 − rtol) was tested and stopped (τ* found), False when the search cannot go on
-    (no stop, nothing completes above the largest stop, or upper·(1 − rtol) completed while a
+    upper·(1 − tau_rtol) was tested and stopped (τ* found), False when the search cannot go on
+    (no stop, nothing completes above the largest stop, or upper·(1 − tau_rtol) completed while a
     larger τ stopped), None to continue.
     """
     taus = np.array(sorted(history))
@@ -202,7 +202,7 @@ def _bracket(history: dict[float, tuple[bool, float]], rtol: float):
     if k == taus.size - 1:
         return lower, math.nan, t_below, False
     upper = float(taus[k + 1])
-    top = upper * (1.0 - rtol)
+    top = upper * (1.0 - tau_rtol)
     near = [t for t in history if abs(t - top) <= 1e-12 * top]
     if near:
         return lower, upper, t_below, (not history[near[0]][0]) or False
