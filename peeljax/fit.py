@@ -40,10 +40,12 @@ import numpy as np
 import optax
 from jaxtyping import Array, ArrayLike, Float
 
-from ._validation import check_mesh, check_positive
+from ._validation import check_mesh, check_positive, check_tolerance
 from .adhesion import COEFFICIENT_NAMES, AdhesionLaw
 from .homogenized import HomogenizedODE
+from .integrators.adaptive import integrate_alpha_adaptive
 from .integrators.alpha import AlphaMethod, integrate_alpha
+from .integrators.controller import PIController
 from .model import PeelingModel
 
 __all__ = [
@@ -131,10 +133,19 @@ def _model_quantities(model: PeelingModel, ys: Array) -> dict[str, Array]:
     return {"v": ys[:, 3], "alpha": ys[:, 0], "F": model.tension(ys[:, 2], ys[:, 0])}
 
 
-def _run_loss(model, V, tau, solver, n_steps, t_final, t, values, scale, mask, weights, checkpoint_every):
-    """Loss terms of one pull velocity (see the module docstring) and the visited v range."""
+def _run_loss(model, V, tau, solver, n_steps, t_final, t, values, scale, mask, weights, checkpoint_every, controller):
+    """Loss terms of one pull velocity (see the module docstring) and the visited v range.
+
+    With a ``controller`` the run is the error-controlled α-method (reverse mode through its
+    checkpointed loop) with dense output on the n_steps + 1 points of [0, t_final]; without,
+    the uniform mesh of n_steps steps."""
     ode = HomogenizedODE(model, V, tau)
-    sol = integrate_alpha(ode, solver, model.initial_state(V), 0.0, t_final, n_steps, checkpoint_every=checkpoint_every)
+    y0 = model.initial_state(V)
+    if controller is None:
+        sol = integrate_alpha(ode, solver, y0, 0.0, t_final, n_steps, checkpoint_every=checkpoint_every)
+    else:
+        grid = jnp.linspace(0.0, t_final, n_steps + 1)
+        sol = integrate_alpha_adaptive(ode, solver, y0, 0.0, t_final, controller=controller, ts=grid)
     ys = jnp.where(sol.valid[:, None], sol.ys, 0.0)  # the double where: no NaN reaches the gradient
     quantities = _model_quantities(model, ys)
     t_stop = jax.lax.stop_gradient(sol.t_stop)
@@ -166,6 +177,7 @@ def trajectory_loss(
     weights: dict[str, float],
     checkpoint_every=None,
     batch: str = "map",
+    controller: PIController | None = None,
 ) -> tuple[Array, tuple[Array, Array, Array]]:
     """The fit's loss L (module docstring) for φ = ``adhesion``, and (v_min, v_max, t_stop) per V.
 
@@ -178,7 +190,7 @@ def trajectory_loss(
 
     def one(args):
         V, t, values, scale, mask = args
-        return _run_loss(model, V, tau, solver, n_steps, t_final, t, values, scale, mask, w, checkpoint_every)
+        return _run_loss(model, V, tau, solver, n_steps, t_final, t, values, scale, mask, w, checkpoint_every, controller)
 
     args = (data.V, data.t, data.values, data.scale, data.mask)
     if batch == "vmap":
@@ -220,6 +232,7 @@ class _TrajectoryLoss(eqx.Module):
     tau: Float[Array, ""]
     solver: AlphaMethod
     weights: dict
+    controller: PIController | None
     n_steps: int = eqx.field(static=True)
     t_final: float = eqx.field(static=True)
     checkpoint_every: object = eqx.field(static=True)
@@ -237,6 +250,7 @@ class _TrajectoryLoss(eqx.Module):
             weights=self.weights,
             checkpoint_every=self.checkpoint_every,
             batch=self.batch,
+            controller=self.controller,
         )
 
 
@@ -467,6 +481,8 @@ def fit_adhesion(
     solver: AlphaMethod | None = None,
     checkpoint_every=None,
     batch: str = "map",
+    rtol: float | None = None,
+    atol: float | None = None,
 ) -> FitResult:
     """Fit φ's coefficients to observed runs (v(t), optionally F(t) and α(t)) at one or more V.
 
@@ -488,6 +504,10 @@ def fit_adhesion(
         progress: a tqdm progress bar (on stderr).
         checkpoint_every: passed to :func:`integrate_alpha` (``"sqrt"`` for long runs).
         batch: ``"map"`` (default) or ``"vmap"`` over the pull velocities.
+        rtol, atol: give them to run the model with the error-controlled α-method (exact
+            reverse-mode gradients through its checkpointed loop, step sizes held constant);
+            ``dt`` then sets only the grid on which the model meets the observations. By
+            default the model runs on the uniform mesh of step ``dt``.
 
     Returns:
         A :class:`FitResult` with the best iterate, the loss history, the gradient norm and
@@ -516,6 +536,13 @@ def fit_adhesion(
     t_final = float(t_obs_max if t_final is None else t_final)
     n_steps = check_mesh(dt, t_final)
     learning_rate = _check_options(steps, optimizer, learning_rate)
+    controller = None
+    if rtol is not None or atol is not None:
+        rtol = 1e-6 if rtol is None else rtol
+        atol = 1e-9 if atol is None else atol
+        check_tolerance("rtol", rtol, upper=1.0)
+        check_tolerance("atol", atol)
+        controller = PIController(rtol=rtol, atol=atol)
     loss_fn = _TrajectoryLoss(
         start=start,
         data=data,
@@ -527,6 +554,7 @@ def fit_adhesion(
         t_final=t_final,
         checkpoint_every=checkpoint_every,
         batch=batch,
+        controller=controller,
     )
     settings = {
         "V": [float(o.V) for o in observations],
@@ -542,6 +570,8 @@ def fit_adhesion(
         "weights": {q: weights[q] for q in data.values},
         "batch": batch,
         "checkpoint_every": checkpoint_every,
+        "rtol": None if controller is None else float(rtol),
+        "atol": None if controller is None else float(atol),
         "parametrisation": "c = c_start*exp(theta)",
     }
     return _fit(

@@ -134,6 +134,8 @@ BAD = [
     (["--data", "lengths"], "--data", "one length"),
     (["--data", "negative_V"], "V", "(0, inf)"),
     (["--data", "text"], "--data", "without pickles"),
+    (["--rtol", "2"], "rtol", "(0, 1)"),
+    (["--atol", "1e-9"], "--atol", "--rtol"),
     (["--data", "infinite_v"], "--data", "infinite"),
     (["--data", "unordered_t"], "--data", "increase strictly"),
 ]

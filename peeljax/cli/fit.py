@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validation import check_mesh, check_positive
+from .._validation import check_mesh, check_positive, check_tolerance
 from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw
 from ..fit import QUANTITIES, Observation
 from ._common import PROG, check_output_path, checked, fail, json_safe, load_phi, plot_formats
@@ -54,7 +54,20 @@ def add_command(subparsers) -> None:
     parser.add_argument(
         "--tau", type=float, default=None, help="tau [s], > 0 (default: the data files' tau, else 0.01)"
     )
-    parser.add_argument("--dt", type=float, default=None, help="step [s] (default: the data files' dt, else 1/82)")
+    parser.add_argument(
+        "--dt",
+        type=float,
+        default=None,
+        help="uniform step [s], or with --rtol the grid the model meets the data on (default: the data files' dt, "
+        "else 1/82)",
+    )
+    parser.add_argument(
+        "--rtol",
+        type=float,
+        default=None,
+        help="run the model with the error-controlled alpha-method at this relative tolerance in (0, 1)",
+    )
+    parser.add_argument("--atol", type=float, default=None, help="its absolute tolerance, > 0 (default 1e-9)")
     parser.add_argument(
         "--t-final", dest="t_final", type=float, default=None, help="end time (default: last observation)"
     )
@@ -210,6 +223,13 @@ def _validate(args: argparse.Namespace) -> dict:
     t_last = max(float(np.nanmax(o.t)) for o in observations)
     t_final = args.t_final if args.t_final is not None else t_last
     n_steps = checked("dt in (0, t_final], t_final in (0, inf)", check_mesh, dt, t_final)
+    rtol, atol = args.rtol, args.atol
+    if atol is not None and rtol is None:
+        raise ValueError("--atol sets the error control that --rtol turns on: give --rtol too")
+    if rtol is not None:
+        atol = 1e-9 if atol is None else atol
+        checked("(0, 1)", check_tolerance, "rtol", rtol, 1.0)
+        checked("(0, inf)", check_tolerance, "atol", atol)
     start = AdhesionLaw() if args.phi is None else load_phi(args.phi)
     check_output_path("--out", args.out)
     if args.plot is not None:
@@ -221,6 +241,8 @@ def _validate(args: argparse.Namespace) -> dict:
         "dt": float(dt),
         "t_final": float(t_final),
         "n_steps": n_steps,
+        "rtol": rtol,
+        "atol": atol,
         "start": start,
         "weights": weights,
     }
@@ -252,6 +274,8 @@ def _fit_command(args: argparse.Namespace) -> int:
         weights=config["weights"],
         patience=args.patience,
         progress=args.progress,
+        rtol=config["rtol"],
+        atol=config["atol"],
     )
     record = result.to_dict()
     record["settings"] = {**record["settings"], "data": list(args.data), "phi": args.phi}
