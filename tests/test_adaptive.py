@@ -328,3 +328,16 @@ def test_analysis_of_the_accepted_steps_equals_that_on_a_grid():
     a, b = pj.analyze(grid, V=1.1, tau=0.005), pj.analyze(steps, V=1.1, tau=0.005)
     assert np.isfinite(b.period) and b.period == pytest.approx(a.period, rel=1e-2)
     assert b.amplitude == pytest.approx(a.amplitude, rel=1e-2)
+
+
+@pytest.mark.slow
+def test_vmap_over_tau_equals_single_runs():
+    """Each lane of a vmapped error-controlled run is the single run (a stopped lane included)."""
+    grid = np.linspace(0.0, 1.0, 11)
+    taus = jnp.array([1e-3, 0.01, 0.1])
+    batch = jax.vmap(lambda tau: pj.simulate(V=1.1, tau=tau, t_final=1.0, ts=grid))(taus)
+    for i, tau in enumerate((1e-3, 0.01, 0.1)):
+        single = pj.simulate(V=1.1, tau=tau, t_final=1.0, ts=grid)
+        assert int(batch.status[i]) == int(single.status)
+        assert int(batch.stats["accepted_steps"][i]) == int(single.stats["accepted_steps"])
+        np.testing.assert_allclose(np.asarray(batch.v[i]), np.asarray(single.v), rtol=1e-12)
