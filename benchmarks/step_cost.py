@@ -58,6 +58,35 @@ REF_RTOL, REF_ATOL = 1e-12, 1e-14
 CHECK_LIMIT = 1e-6
 
 
+def _report(title):
+    """The lines of a results file, an ``emit`` that prints and keeps them, and the load average:
+    the title, then the machine and the versions that the figures depend on."""
+    import diffrax
+    import equinox as eqx
+    import jax
+    import jaxlib
+    import numba
+    import numpy as np
+    from machine import cpu_model
+
+    out = []
+
+    def emit(line=""):
+        print(line, flush=True)
+        out.append(line)
+
+    load = os.getloadavg() if hasattr(os, "getloadavg") else ("?",)
+    emit(title)
+    emit()
+    emit(f"- CPU: {cpu_model()}, {os.cpu_count()} logical cores; load average at start {load[0]:.2f}")
+    emit(
+        f"- python {platform.python_version()}, jax {jax.__version__}, jaxlib {jaxlib.__version__}"
+        f", diffrax {diffrax.__version__}, equinox {eqx.__version__}, numba {numba.__version__}, numpy {np.__version__}"
+    )
+    emit(f"- XLA_FLAGS: `{os.environ.get('XLA_FLAGS', '')}`")
+    return out, emit, load
+
+
 def median(values):
     import numpy as np
 
@@ -95,29 +124,12 @@ def main():
     import equinox as eqx
     import jax
     import jax.numpy as jnp
-    import jaxlib
-    import numba
     import numpy as np
     from compiled_loop import check_jacobian, compare_with_peeljax, initial_state, integrate, options_of, parameters
-    from machine import cpu_model
 
     import peeljax
 
-    out = []
-
-    def emit(line=""):
-        print(line, flush=True)
-        out.append(line)
-
-    load = os.getloadavg() if hasattr(os, "getloadavg") else ("?",)
-    emit("# Cost per α-method step: peeljax vs a compiled loop (numba) vs diffrax Kvaerno5")
-    emit()
-    emit(f"- CPU: {cpu_model()}, {os.cpu_count()} logical cores; load average at start {load[0]:.2f}")
-    emit(
-        f"- python {platform.python_version()}, jax {jax.__version__}, jaxlib {jaxlib.__version__}"
-        f", diffrax {diffrax.__version__}, equinox {eqx.__version__}, numba {numba.__version__}, numpy {np.__version__}"
-    )
-    emit(f"- XLA_FLAGS: `{os.environ.get('XLA_FLAGS', '')}`")
+    out, emit, load = _report("# Cost per α-method step: peeljax vs a compiled loop (numba) vs diffrax Kvaerno5")
     emit(
         f"- problem: V = {V}, τ = {TAU}, t ∈ [0, {T_FINAL}], paper geometry; mode: {'quick' if args.quick else 'full'}, "
         f"{repeats} timed runs per median"
@@ -359,8 +371,6 @@ def adaptive_main(args):
     import equinox as eqx
     import jax
     import jax.numpy as jnp
-    import jaxlib
-    import numba
     import numpy as np
     from compiled_loop import (
         adaptive_options_of,
@@ -369,27 +379,12 @@ def adaptive_main(args):
         integrate_adaptive,
         parameters,
     )
-    from machine import cpu_model
 
     import peeljax
     from peeljax.integrators.adaptive import integrate_alpha_adaptive
     from peeljax.integrators.controller import PIController
 
-    out = []
-
-    def emit(line=""):
-        print(line, flush=True)
-        out.append(line)
-
-    load = os.getloadavg() if hasattr(os, "getloadavg") else ("?",)
-    emit("# Cost per attempt of the error-controlled α-method: peeljax vs a compiled loop (numba)")
-    emit()
-    emit(f"- CPU: {cpu_model()}, {os.cpu_count()} logical cores; load average at start {load[0]:.2f}")
-    emit(
-        f"- python {platform.python_version()}, jax {jax.__version__}, jaxlib {jaxlib.__version__}"
-        f", equinox {eqx.__version__}, numba {numba.__version__}, numpy {np.__version__}"
-    )
-    emit(f"- XLA_FLAGS: `{os.environ.get('XLA_FLAGS', '')}`")
+    out, emit, load = _report("# Cost per attempt of the error-controlled α-method: peeljax vs a compiled loop (numba)")
     emit(
         f"- problem: V = {V}, τ = {TAU}, t ∈ [0, {T_FINAL}], paper geometry, output at {N_OUT} equispaced times; "
         f"rtol ∈ {{{', '.join(f'{r:g}' for r in ADAPTIVE_RTOLS)}}}, atol = {ADAPTIVE_ATOL:g}·rtol; mode: "
