@@ -50,7 +50,16 @@ from .alpha import AlphaMethod, AlphaState, _log_mask, _stop_gradient, alpha_sta
 from .controller import PIController
 from .dense import hermite
 
-__all__ = ["error_constant", "alpha_attempt", "integrate_alpha_adaptive"]
+__all__ = [
+    "AcceptedStep",
+    "DenseOutput",
+    "Observer",
+    "StepPoints",
+    "adaptive_loop",
+    "alpha_attempt",
+    "error_constant",
+    "integrate_alpha_adaptive",
+]
 
 
 def error_constant(rho: ArrayLike) -> Array:
@@ -86,6 +95,123 @@ def alpha_attempt(ode, solver: AlphaMethod, state: AlphaState, h, chord=None) ->
     return new, error, solved, iterations
 
 
+class AcceptedStep(eqx.Module):
+    """What an observer of the adaptive loop sees after each attempt (carried coordinates).
+
+    ``advance`` is False for a rejected attempt (or the step onto an impasse point): the
+    observer must then leave its record unchanged.
+    """
+
+    t0: Array
+    t1: Array
+    h: Array
+    y0: Array
+    psi0: Array
+    y1: Array
+    psi1: Array
+    J1: Array
+    iterations: Array
+    advance: Array
+
+
+class Observer(eqx.Module):
+    """Records something of each accepted step inside the compiled loop (an abstract base).
+
+    :func:`integrate_alpha_adaptive` uses :class:`StepPoints` or :class:`DenseOutput`; the
+    sweep engine adds window statistics (:mod:`peeljax.sweeps.engine`). ``init`` gives the
+    record at t0, ``update`` the record after one attempt (masked by ``step.advance``).
+    """
+
+    def init(self, t0: Array, state0: AlphaState):
+        raise NotImplementedError
+
+    def update(self, record, step: AcceptedStep, kind: str):
+        raise NotImplementedError
+
+
+class _Output(eqx.Module):
+    t: Array
+    y: Array
+    J: Array
+    iterations: Array
+    valid: Array
+    next: Array  # step points: rows written; dense output: the first output time not yet reached
+
+
+class StepPoints(Observer):
+    """The accepted step points, in ``rows`` = max_steps + 1 rows padded with NaN."""
+
+    rows: int = eqx.field(static=True)
+
+    def init(self, t0, state0):
+        n = state0.y.shape[0]
+        return _Output(
+            t=jnp.full(self.rows, jnp.nan).at[0].set(t0),
+            y=jnp.full((self.rows, n), jnp.nan).at[0].set(state0.y),
+            J=jnp.full(self.rows, jnp.nan).at[0].set(state0.J),
+            iterations=jnp.zeros(self.rows, jnp.int32),
+            valid=jnp.zeros(self.rows, bool).at[0].set(state0.status == 0),
+            next=jnp.asarray(1, jnp.int32),
+        )
+
+    def update(self, out, step, kind):
+        row = jnp.minimum(out.next, self.rows - 1)
+        keep = step.advance
+
+        def put(array, value):
+            return array.at[row].set(jnp.where(keep, value, array[row]))
+
+        return _Output(
+            t=put(out.t, step.t1),
+            y=put(out.y, step.y1),
+            J=put(out.J, step.J1),
+            iterations=put(out.iterations, step.iterations),
+            valid=put(out.valid, True),
+            next=out.next + keep,
+        )
+
+
+class DenseOutput(Observer):
+    """The cubic Hermite interpolant of each accepted step at the given times ``ts``."""
+
+    ts: Array
+
+    def init(self, t0, state0):
+        at_start = self.ts <= t0
+        return _Output(
+            t=self.ts,
+            y=jnp.where(at_start[:, None], state0.y, jnp.nan),
+            J=jnp.full(self.ts.shape, jnp.nan),
+            iterations=jnp.zeros(self.ts.shape, jnp.int32),
+            valid=at_start & (state0.status == 0),
+            next=jnp.sum(at_start).astype(jnp.int32),
+        )
+
+    def update(self, out, step, kind):
+        n_out = self.ts.shape[0]
+        t1 = step.t1
+
+        # The output times in (t0, t1], one at a time (a step covers few of them).
+        def more(d):
+            k = d[0]
+            return step.advance & (k < n_out) & (self.ts[jnp.minimum(k, n_out - 1)] <= t1)
+
+        def fill(d):
+            k, y, iterations, valid = d
+            y_k = hermite(step.t0, step.h, step.y0, step.psi0, step.y1, step.psi1, self.ts[k][None])[0]
+            return k + 1, y.at[k].set(y_k), iterations.at[k].set(step.iterations), valid.at[k].set(True)
+
+        k, y, iterations, valid = eqxi.while_loop(
+            more,
+            fill,
+            (out.next, out.y, out.iterations, out.valid),
+            max_steps=n_out,
+            kind=kind,
+            checkpoints=n_out if kind == "checkpointed" else None,
+        )
+        return _Output(t=out.t, y=y, J=out.J, iterations=iterations, valid=valid, next=k)
+
+
 class _Carry(eqx.Module):
     t: Array
     h: Array  # the step the controller proposes next
@@ -103,12 +229,7 @@ class _Carry(eqx.Module):
     refresh: Array  # recompute them before the next attempt
     parts_age: Array  # accepted steps since they were computed
     jacobian_evaluations: Array
-    out_t: Array
-    out_y: Array
-    out_J: Array
-    out_iterations: Array
-    out_valid: Array
-    out_next: Array  # the first output time not yet reached (dense output)
+    record: object  # the observer's
 
 
 def _initial_step(controller: PIController, state: AlphaState, log_mask, span):
@@ -118,6 +239,119 @@ def _initial_step(controller: PIController, state: AlphaState, log_mask, span):
     h1 = jnp.where(d1 > 0, 0.01 / jnp.where(d1 > 0, d1, 1.0), span)
     h2 = jnp.where(d2 > 0, 0.01 / jnp.sqrt(jnp.where(d2 > 0, d2, 1.0)), span)
     return jnp.minimum(jnp.minimum(h1, h2), span)
+
+
+def adaptive_loop(
+    ode,
+    solver: AlphaMethod,
+    y0: Float[Array, " n"],
+    t0: ArrayLike,
+    t_final: ArrayLike,
+    observer: Observer,
+    *,
+    controller: PIController,
+    dt0: ArrayLike | None,
+    dtmin: ArrayLike | None,
+    max_steps: int,
+    kind: Literal["checkpointed", "lax"],
+):
+    """The error-controlled loop itself; returns (the ODE in carried coordinates, final carry).
+
+    Shared by :func:`integrate_alpha_adaptive` (one trajectory's output) and the sweep engine
+    (per-lane summaries), so that a lane of a sweep takes exactly the steps of a single run.
+    """
+    t0 = jnp.asarray(t0, float)
+    t_final = jnp.asarray(t_final, float)
+    span = t_final - t0
+    dtmin = 1e-12 * span if dtmin is None else jnp.asarray(dtmin, float)
+    ode, state0 = alpha_start(ode, solver, jnp.asarray(y0, float))
+    n = state0.y.shape[0]
+    carried_log = solver.log_components if solver.log_discretization else ()
+    log_mask = _log_mask(n, carried_log)
+    h0 = _initial_step(controller, state0, log_mask, span) if dt0 is None else jnp.asarray(dt0, float)
+    h0 = jax.lax.stop_gradient(jnp.clip(h0, dtmin, span))
+    zero = jnp.asarray(0, jnp.int32)
+    init = _Carry(
+        t=t0,
+        h=h0,
+        state=state0,
+        prev_norm=jnp.asarray(1.0),
+        attempts=zero,
+        accepted=zero,
+        rejected=zero,
+        newton_iterations=zero,
+        max_newton_iterations=zero,
+        h_min=jnp.asarray(jnp.inf),
+        h_max=jnp.asarray(0.0),
+        parts=(jnp.eye(n), jnp.zeros((n, n))),
+        parts_fresh=jnp.asarray(False),
+        refresh=jnp.asarray(True),
+        parts_age=zero,
+        jacobian_evaluations=zero,
+        record=observer.init(t0, state0),
+    )
+
+    def running(c: _Carry):
+        return (c.state.status == 0) & (c.t < t_final)
+
+    def body(c: _Carry) -> _Carry:
+        state = c.state
+        remaining = t_final - c.t
+        last = c.h >= remaining
+        h = jnp.where(last, remaining, c.h)
+        z_n = jax.lax.stop_gradient(solver._to_unknown(state.y))
+        parts = jax.lax.cond(c.refresh, lambda: solver.linearize(_stop_gradient(ode), z_n), lambda: c.parts)
+        fresh = c.refresh | c.parts_fresh
+        age = jnp.where(c.refresh, 0, c.parts_age)  # accepted steps since the parts were computed
+        scale = controller.scale(z_n, z_n, log_mask)
+        chord = (parts, scale, solver.newton_kappa, solver.chord_iterations)
+        new, error, solved, iterations = alpha_attempt(ode, solver, state, h, chord)
+        norm = jax.lax.stop_gradient(controller.error_norm(error, state.y, new.y, log_mask))
+        norm = jnp.where(solved, norm, jnp.inf)
+        # A Newton failure with a kept matrix is retried at the same h with a fresh one.
+        retry_fresh = ~solved & ~fresh
+        accept = solved & (norm <= 1.0)
+        impasse = accept & (state.J * new.J < 0) & (state.drive * new.drive > 0)
+        advance = accept & ~impasse
+        t_new = jnp.where(last, t_final, c.t + h)  # exactly t_final at the end
+        step = AcceptedStep(
+            t0=c.t, t1=t_new, h=h, y0=state.y, psi0=state.psi, y1=new.y, psi1=new.psi, J1=new.J,
+            iterations=iterations, advance=advance,
+        )  # fmt: skip
+        record = observer.update(c.record, step, kind)
+
+        factor = controller.factor(norm, c.prev_norm, accept, solved | retry_fresh)
+        factor = jnp.where(retry_fresh, 1.0, factor)
+        h_next = jax.lax.stop_gradient(jnp.minimum(h * factor, span))
+        done = advance & last
+        collapsed = ~done & ~impasse & (h_next < dtmin)
+        status = jnp.where(impasse, StopReason.IMPASSE, jnp.where(collapsed, StopReason.STALLED, 0))
+        attempts = c.attempts + 1
+        status = jnp.where((status == 0) & ~done & (attempts >= max_steps), StopReason.MAX_STEPS, status)
+        kept = jax.tree_util.tree_map(lambda a, b: jnp.where(advance, a, b), new, state)
+        kept = eqx.tree_at(lambda s: s.status, kept, status.astype(jnp.int32))
+        h_taken = jax.lax.stop_gradient(h)
+        return _Carry(
+            t=jnp.where(advance, t_new, c.t),
+            h=h_next,
+            state=kept,
+            prev_norm=jnp.where(accept, jnp.maximum(norm, 1e-10), c.prev_norm),
+            attempts=attempts,
+            accepted=c.accepted + advance,
+            rejected=c.rejected + ~accept,
+            newton_iterations=c.newton_iterations + iterations,
+            max_newton_iterations=jnp.maximum(c.max_newton_iterations, iterations),
+            h_min=jnp.where(advance, jnp.minimum(c.h_min, h_taken), c.h_min),
+            h_max=jnp.where(advance, jnp.maximum(c.h_max, h_taken), c.h_max),
+            parts=parts,
+            parts_fresh=fresh & ~advance,
+            refresh=retry_fresh | (advance & (age + 1 >= solver.jacobian_max_age)),
+            parts_age=age + advance,
+            jacobian_evaluations=c.jacobian_evaluations + c.refresh,
+            record=record,
+        )
+
+    return ode, eqxi.while_loop(running, body, init, max_steps=max_steps, kind=kind)
 
 
 def integrate_alpha_adaptive(
@@ -157,164 +391,30 @@ def integrate_alpha_adaptive(
     if adjoint not in ("reverse", "forward"):
         raise ValueError(f"adjoint must be 'reverse' or 'forward', got {adjoint!r}")
     controller = PIController() if controller is None else controller
-    t0 = jnp.asarray(t0, float)
-    t_final = jnp.asarray(t_final, float)
-    span = t_final - t0
-    dtmin = 1e-12 * span if dtmin is None else jnp.asarray(dtmin, float)
-    ode, state0 = alpha_start(ode, solver, jnp.asarray(y0, float))
-    n = state0.y.shape[0]
-    carried_log = solver.log_components if solver.log_discretization else ()
-    log_mask = _log_mask(n, carried_log)
     step_points = ts is None
-    kind = "checkpointed" if adjoint == "reverse" else "lax"
-    if step_points:
-        rows = max_steps + 1
-        out_t = jnp.full(rows, jnp.nan).at[0].set(t0)
-        out_y = jnp.full((rows, n), jnp.nan).at[0].set(state0.y)
-        out_J = jnp.full(rows, jnp.nan).at[0].set(state0.J)
-        out_valid = jnp.zeros(rows, bool).at[0].set(state0.status == 0)
-    else:
-        ts = jnp.asarray(ts, float)
-        out_t = ts
-        at_start = ts <= t0
-        out_y = jnp.where(at_start[:, None], state0.y, jnp.nan)
-        out_J = jnp.full(ts.shape, jnp.nan)
-        out_valid = at_start & (state0.status == 0)
-    h0 = _initial_step(controller, state0, log_mask, span) if dt0 is None else jnp.asarray(dt0, float)
-    h0 = jax.lax.stop_gradient(jnp.clip(h0, dtmin, span))
-    zero = jnp.asarray(0, jnp.int32)
-    init = _Carry(
-        t=t0,
-        h=h0,
-        state=state0,
-        prev_norm=jnp.asarray(1.0),
-        attempts=zero,
-        accepted=zero,
-        rejected=zero,
-        newton_iterations=zero,
-        max_newton_iterations=zero,
-        h_min=jnp.asarray(jnp.inf),
-        h_max=jnp.asarray(0.0),
-        parts=(jnp.eye(n), jnp.zeros((n, n))),
-        parts_fresh=jnp.asarray(False),
-        refresh=jnp.asarray(True),
-        parts_age=zero,
-        jacobian_evaluations=zero,
-        out_t=out_t,
-        out_y=out_y,
-        out_J=out_J,
-        out_iterations=jnp.zeros(out_t.shape, jnp.int32),
-        out_valid=out_valid,
-        out_next=jnp.sum(out_t <= t0).astype(jnp.int32) if not step_points else zero,
-    )
-
-    def running(c: _Carry):
-        return (c.state.status == 0) & (c.t < t_final)
-
-    def body(c: _Carry) -> _Carry:
-        state = c.state
-        remaining = t_final - c.t
-        last = c.h >= remaining
-        h = jnp.where(last, remaining, c.h)
-        z_n = jax.lax.stop_gradient(solver._to_unknown(state.y))
-        parts = jax.lax.cond(c.refresh, lambda: solver.linearize(_stop_gradient(ode), z_n), lambda: c.parts)
-        fresh = c.refresh | c.parts_fresh
-        age = jnp.where(c.refresh, 0, c.parts_age)  # accepted steps since the parts were computed
-        scale = controller.scale(z_n, z_n, log_mask)
-        chord = (parts, scale, solver.newton_kappa, solver.chord_iterations)
-        new, error, solved, iterations = alpha_attempt(ode, solver, state, h, chord)
-        norm = jax.lax.stop_gradient(controller.error_norm(error, state.y, new.y, log_mask))
-        norm = jnp.where(solved, norm, jnp.inf)
-        # A Newton failure with a kept matrix is retried at the same h with a fresh one.
-        retry_fresh = ~solved & ~fresh
-        accept = solved & (norm <= 1.0)
-        impasse = accept & (state.J * new.J < 0) & (state.drive * new.drive > 0)
-        advance = accept & ~impasse
-        t_new = jnp.where(last, t_final, c.t + h)
-
-        if step_points:
-            row = c.accepted + 1
-            out_t = c.out_t.at[row].set(jnp.where(advance, t_new, c.out_t[row]))
-            out_y = c.out_y.at[row].set(jnp.where(advance, new.y, c.out_y[row]))
-            out_J = c.out_J.at[row].set(jnp.where(advance, new.J, c.out_J[row]))
-            out_iterations = c.out_iterations.at[row].set(jnp.where(advance, iterations, 0))
-            out_valid = c.out_valid.at[row].set(advance)
-            out_next = c.out_next
-        else:
-            # The output times in (t, t_new], one at a time (a step covers few of them).
-            def fill_cond(d):
-                k = d[0]
-                return advance & (k < c.out_t.shape[0]) & (c.out_t[jnp.minimum(k, c.out_t.shape[0] - 1)] <= t_new)
-
-            def fill(d):
-                k, out_y, out_iterations, out_valid = d
-                y_k = hermite(c.t, h, state.y, state.psi, new.y, new.psi, c.out_t[k][None])[0]
-                return k + 1, out_y.at[k].set(y_k), out_iterations.at[k].set(iterations), out_valid.at[k].set(True)
-
-            n_out = c.out_t.shape[0]
-            out_next, out_y, out_iterations, out_valid = eqxi.while_loop(
-                fill_cond,
-                fill,
-                (c.out_next, c.out_y, c.out_iterations, c.out_valid),
-                max_steps=n_out,
-                kind=kind,
-                checkpoints=n_out if kind == "checkpointed" else None,
-            )
-            out_t, out_J = c.out_t, c.out_J
-
-        factor = controller.factor(norm, c.prev_norm, accept, solved | retry_fresh)
-        factor = jnp.where(retry_fresh, 1.0, factor)
-        h_next = jax.lax.stop_gradient(jnp.minimum(h * factor, span))
-        done = advance & last
-        collapsed = ~done & ~impasse & (h_next < dtmin)
-        status = jnp.where(impasse, StopReason.IMPASSE, jnp.where(collapsed, StopReason.STALLED, 0))
-        attempts = c.attempts + 1
-        status = jnp.where((status == 0) & ~done & (attempts >= max_steps), StopReason.MAX_STEPS, status)
-        kept = jax.tree_util.tree_map(lambda a, b: jnp.where(advance, a, b), new, state)
-        kept = eqx.tree_at(lambda s: s.status, kept, status.astype(jnp.int32))
-        h_taken = jax.lax.stop_gradient(h)
-        return _Carry(
-            t=jnp.where(advance, t_new, c.t),
-            h=h_next,
-            state=kept,
-            prev_norm=jnp.where(accept, jnp.maximum(norm, 1e-10), c.prev_norm),
-            attempts=attempts,
-            accepted=c.accepted + advance,
-            rejected=c.rejected + ~accept,
-            newton_iterations=c.newton_iterations + iterations,
-            max_newton_iterations=jnp.maximum(c.max_newton_iterations, iterations),
-            h_min=jnp.where(advance, jnp.minimum(c.h_min, h_taken), c.h_min),
-            h_max=jnp.where(advance, jnp.maximum(c.h_max, h_taken), c.h_max),
-            parts=parts,
-            parts_fresh=fresh & ~advance,
-            refresh=retry_fresh | (advance & (age + 1 >= solver.jacobian_max_age)),
-            parts_age=age + advance,
-            jacobian_evaluations=c.jacobian_evaluations + c.refresh,
-            out_t=out_t,
-            out_y=out_y,
-            out_J=out_J,
-            out_iterations=out_iterations,
-            out_valid=out_valid,
-            out_next=out_next,
-        )
-
-    final = eqxi.while_loop(running, body, init, max_steps=max_steps, kind=kind)
-    return _solution(ode, solver, final, step_points, t0)
+    observer = StepPoints(max_steps + 1) if step_points else DenseOutput(jnp.asarray(ts, float))
+    ode, final = adaptive_loop(
+        ode, solver, y0, t0, t_final, observer,
+        controller=controller, dt0=dt0, dtmin=dtmin, max_steps=max_steps,
+        kind="checkpointed" if adjoint == "reverse" else "lax",
+    )  # fmt: skip
+    return _solution(ode, solver, final, step_points, jnp.asarray(t0, float))
 
 
 def _solution(ode, solver, final: _Carry, step_points: bool, t0) -> Solution:
-    valid = final.out_valid
-    ys_carried = jnp.where(valid[:, None], final.out_y, jnp.nan)
+    out = final.record
+    valid = out.valid
+    ys_carried = jnp.where(valid[:, None], out.y, jnp.nan)
     ys = to_physical(solver, ys_carried)
     if step_points:
-        Js = final.out_J
+        Js = out.J
     else:
         # J_t at the interpolated states (evaluated at the last state where invalid, then masked).
         safe = jnp.where(valid[:, None], ys_carried, final.state.y)
         Js = jax.vmap(lambda z: ode.evaluate(z).J)(safe)
     Js = jnp.where(valid, Js, jnp.nan)
     diagnostics = StepDiagnostics(
-        newton_iterations=jnp.where(valid, final.out_iterations, 0),
+        newton_iterations=jnp.where(valid, out.iterations, 0),
         residual=jnp.full(valid.shape, jnp.nan),
         schur=Js,
         local_index=jnp.where(valid, local_index(jnp.where(valid, Js, 1.0), ode.tau), 0),
@@ -334,7 +434,7 @@ def _solution(ode, solver, final: _Carry, step_points: bool, t0) -> Solution:
         "jacobian_evaluations": final.jacobian_evaluations,
     }
     return Solution(
-        ts=final.out_t,
+        ts=out.t,
         ys=ys,
         valid=valid,
         status=final.state.status,
