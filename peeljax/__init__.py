@@ -9,6 +9,11 @@ one function instead of one kernel launch per operation
 (``benchmarks/step_cost.py``). This only takes effect if peeljax is imported before JAX's CPU
 backend starts, and is skipped when the environment variable ``PEELJAX_KEEP_XLA_FLAGS`` is
 set or ``XLA_FLAGS`` already sets that option.
+
+And it asks for one JAX CPU device per core this process may use
+(``xla_force_host_platform_device_count``), so that :func:`peeljax.sweep` and
+:func:`peeljax.least_tau` shard their lanes over every core (a single run uses one device, as
+before). Skipped in the same two cases, or when ``XLA_FLAGS`` sets the count itself.
 """
 
 import os as _os
@@ -31,7 +36,22 @@ def _small_while_loop_flag() -> None:
     _os.environ["XLA_FLAGS"] = " ".join(words)
 
 
+def _host_device_flag() -> None:
+    if _os.environ.get("PEELJAX_KEEP_XLA_FLAGS"):
+        return
+    flags = _os.environ.get("XLA_FLAGS", "")
+    if "xla_force_host_platform_device_count" in flags:
+        return
+    try:
+        cores = len(_os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # not on Linux
+        cores = _os.cpu_count() or 1
+    if cores > 1:
+        _os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={cores}".strip()
+
+
 _small_while_loop_flag()
+_host_device_flag()
 
 import jax as _jax  # noqa: E402
 

@@ -22,6 +22,7 @@ from .._validation import (
     check_y0,
 )
 from ..adhesion import AdhesionLaw
+from ..integrators.dense import output_times
 from ..model import GEOMETRIES, PeelingModel
 from ..simulate import DEFAULT_ATOL as _ALPHA_ATOL
 from ..simulate import DEFAULT_RTOL as _ALPHA_RTOL
@@ -135,15 +136,6 @@ class RunConfig:
     @property
     def adaptive(self) -> bool:
         return self.method == "alpha" and self.dt is None
-
-
-def output_times(save_dt: float, t_final: float) -> np.ndarray:
-    """t = k·S for k = 0 … floor(t_final/S + 1e-9), plus t_final when it is not on that grid."""
-    k = np.arange(math.floor(t_final / save_dt + 1e-9) + 1)
-    ts = np.minimum(k * save_dt, t_final)
-    if t_final - ts[-1] > 1e-9 * save_dt:
-        ts = np.append(ts, t_final)
-    return ts
 
 
 def validate_run(args: argparse.Namespace) -> RunConfig:
@@ -264,7 +256,7 @@ def _valid_rows(solution: Solution) -> Solution:
 
 
 def _rows(solution: Solution, keep: np.ndarray, jax) -> Solution:
-    rows = lambda a: np.asarray(a)[keep]  # noqa: E731
+    rows = lambda a: np.asarray(a)[keep]
     return Solution(
         ts=rows(solution.ts),
         ys=rows(solution.ys),

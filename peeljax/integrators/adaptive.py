@@ -54,6 +54,7 @@ __all__ = [
     "AcceptedStep",
     "DenseOutput",
     "Observer",
+    "Observers",
     "StepPoints",
     "adaptive_loop",
     "alpha_attempt",
@@ -210,6 +211,18 @@ class DenseOutput(Observer):
             checkpoints=n_out if kind == "checkpointed" else None,
         )
         return _Output(t=out.t, y=y, J=out.J, iterations=iterations, valid=valid, next=k)
+
+
+class Observers(Observer):
+    """Several observers at once; the record is the tuple of theirs."""
+
+    observers: tuple
+
+    def init(self, t0, state0):
+        return tuple(o.init(t0, state0) for o in self.observers)
+
+    def update(self, records, step, kind):
+        return tuple(o.update(r, step, kind) for o, r in zip(self.observers, records))
 
 
 class _Carry(eqx.Module):

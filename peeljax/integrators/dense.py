@@ -12,9 +12,12 @@ which matches y and y' = ψ at both ends: its error is O(h⁴) on a smooth solut
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 from jaxtyping import Array, Float
 
-__all__ = ["hermite"]
+__all__ = ["hermite", "output_times"]
 
 
 def hermite(
@@ -35,3 +38,12 @@ def hermite(
     h01 = -2 * theta3 + 3 * theta2
     h11 = theta3 - theta2
     return h00 * y0 + h10 * (h * psi0) + h01 * y1 + h11 * (h * psi1)
+
+
+def output_times(save_dt: float, t_final: float) -> Float[np.ndarray, " m"]:
+    """t = k·S for k = 0 … floor(t_final/S + 1e-9), plus t_final when it is not on that grid."""
+    k = np.arange(math.floor(t_final / save_dt + 1e-9) + 1)
+    ts = np.minimum(k * save_dt, t_final)
+    if t_final - ts[-1] > 1e-9 * save_dt:
+        ts = np.append(ts, t_final)
+    return ts

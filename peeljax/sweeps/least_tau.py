@@ -35,12 +35,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import ArrayLike, Bool, Float
 
-from .._validation import check_mesh, check_truncation
+from .._validation import check_truncation
 from ..integrators.alpha import AlphaMethod
 from ..model import PeelingModel
-from ..simulate import checked_solver
-from . import engine
-from .api import _axis, _check_parameter, _put, _to_host, batch_mesh
+from ..simulate import DEFAULT_MAX_STEPS, checked_solver
+from .api import _axis, _check_parameter, _put, _to_host, batch_mesh, default_lane_batch, engine_for
 
 __all__ = ["LeastTau", "least_tau"]
 
@@ -73,7 +72,7 @@ class LeastTau:
 def least_tau(
     model: PeelingModel | None = None,
     V: ArrayLike = (1.1, 2.0, 4.0),
-    dt: float = 1 / 82,
+    dt: float | None = None,
     t_final: float = 3.0,
     tau_range: tuple[float, float] = (1e-4, 1.0),
     tau_rtol: float = 0.05,
@@ -82,14 +81,23 @@ def least_tau(
     solver: AlphaMethod | None = None,
     rho: float = 0.0,
     truncation: int | None = None,
+    rtol: float | None = None,
+    atol: float | None = None,
+    dtmin: float | None = None,
+    max_steps: int = DEFAULT_MAX_STEPS,
     max_rounds: int = 40,
     devices=None,
+    lane_batch: int | None = None,
 ) -> LeastTau:
     """τ* for every V: the least τ above which every tested τ completes [0, t_final].
 
     Args:
         V: pull velocities [m/s] (> 0), searched in parallel.
-        dt, t_final: the α-method's mesh (as in :func:`peeljax.simulate`).
+        dt, t_final: as in :func:`peeljax.simulate`: ``dt=None`` (default) runs the
+            error-controlled α-method, where a run stops at an impasse point or when its step
+            size collapses below ``dtmin``; a number runs the uniform mesh, where it stops at an
+            impasse point or when Newton fails at the finest subdivision.
+        rtol, atol, dtmin, max_steps: error control's, as in :func:`peeljax.simulate`.
         tau_range: (lo, hi), 0 < lo < hi: where to search.
         tau_rtol: relative resolution: τ·(1 − tau_rtol) is tested and stops, 0 < tau_rtol < 1.
         n_points: τ values per V and round (the scan's and every refinement's).
@@ -100,7 +108,7 @@ def least_tau(
     model = PeelingModel() if model is None else model
     Vs = _axis("V", V)
     _check_parameter("V", Vs)
-    n_steps = check_mesh(dt, t_final)
+    engine_run = engine_for(dt, t_final, rtol, atol, None, None, dtmin, max_steps)
     try:
         lo, hi = (float(x) for x in tau_range)
     except (TypeError, ValueError):
@@ -117,6 +125,7 @@ def least_tau(
     m = Vs.size
     mesh = batch_mesh(devices)
     width = -(-(m * n_points) // len(devices)) * len(devices)
+    lane_batch = default_lane_batch(devices, width) if lane_batch is None else lane_batch
     t_final_array, window = jnp.asarray(float(t_final)), jnp.asarray([0.0, 1.0])
 
     def run(taus: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -127,9 +136,7 @@ def least_tau(
         V_in = np.concatenate([V_lanes, np.full(pad, V_lanes[-1])])
         tau_in = np.concatenate([tau_lanes, np.full(pad, tau_lanes[-1])])
         V_dev, tau_dev = _put((V_in, tau_in), devices)
-        summary = engine.run_batch(
-            model, solver, V_dev, tau_dev, {}, t_final_array, window, n_steps, None, truncation, mesh
-        )
+        summary = engine_run.run(model, solver, V_dev, tau_dev, {}, t_final_array, window, truncation, mesh, lane_batch)
         host = _to_host({"status": summary.status, "t_stop": summary.t_stop})
         done = (host["status"][: V_lanes.size] == 0).reshape(m, n_points)
         t_stop = host["t_stop"][: V_lanes.size].reshape(m, n_points)
@@ -170,7 +177,7 @@ def least_tau(
     t_below = np.array([s[2] for s in state])
     found = np.array([s[3] is True for s in state])
     tau_star = upper
-    settings = {"dt": float(dt), "t_final": float(t_final), "n_steps": n_steps, "tau_range": [lo, hi], "tau_rtol": float(tau_rtol),
+    settings = {**engine_run.settings(), "t_final": float(t_final), "tau_range": [lo, hi], "tau_rtol": float(tau_rtol),
                 "n_points": n_points, "rho": float(solver.rho), "truncation": truncation}  # fmt: skip
     return LeastTau(
         V=Vs,

@@ -2,7 +2,7 @@
 
 Layout for ``out = "sweep.npz"``:
 
-* ``sweep.npz.chunks/meta.json``: ``{"format": "peeljax-sweep", "version": 1, "settings": …}``;
+* ``sweep.npz.chunks/meta.json``: ``{"format": "peeljax-sweep", "version": 2, "settings": …}``;
   the settings are every input that changes the results (grid, mesh, window, solver, model).
 * ``sweep.npz.chunks/chunk_00000.npz``, …: each chunk's per-trajectory arrays, written (to a
   temporary name, then renamed) as soon as the chunk is done.
@@ -24,7 +24,7 @@ import numpy as np
 __all__ = ["FORMAT", "VERSION", "ChunkStore", "load_npz", "write_npz_atomic"]
 
 FORMAT = "peeljax-sweep"
-VERSION = 1
+VERSION = 2
 
 
 def write_npz_atomic(path: Path, arrays: dict[str, np.ndarray]) -> None:
@@ -75,7 +75,10 @@ class ChunkStore:
         if not isinstance(meta, dict) or meta.get("format") != FORMAT or "settings" not in meta:
             raise ValueError(f"{source} is not a peeljax sweep output (no {FORMAT!r} metadata); use another out")
         if meta.get("version") != VERSION:
-            raise ValueError(f"{source} has format version {meta.get('version')!r}, this peeljax writes {VERSION}")
+            raise ValueError(
+                f"{source} has format version {meta.get('version')!r}, written by another peeljax; this one reads and "
+                f"writes version {VERSION}: use another out, or delete it to recompute"
+            )
         if not isinstance(meta["settings"], dict):
             raise ValueError(f"{source}: malformed metadata (settings is not an object)")  # noqa: TRY004
         differ = _differences(meta["settings"], self.settings)
