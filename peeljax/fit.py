@@ -5,9 +5,9 @@ with observations on their own time grids:
 
     L(θ) = Σ_q w_q · (1/n_V) Σ_j  mean_i r_qij²,   r_qij = (q_model(t_ij; V_j, θ) − q_ij) / s_qj
 
-for the observed quantities q ∈ {v, F, alpha} (F = the tension (k/l)·u), the model
-interpolated linearly onto the observation times (``jnp.interp``) and s_qj the RMS of the data
-q_ij. An observation time the model run did not reach (t > t_stop, a run that stopped) adds
+for the observed quantities q ∈ {v, F, alpha} (F = the tension (k/l)·u), the model taken at
+the observation times (error control: its dense output there; uniform mesh: interpolated
+linearly, ``jnp.interp``) and s_qj the RMS of the data q_ij. An observation time the model run did not reach (t > t_stop, a run that stopped) adds
 the fixed penalty 1 (the squared residual of predicting zero) in place of its residual, so
 that a trial step that stops the run is never mistaken for a better fit; the gradient comes
 from the reached part only. Its gradient is
@@ -47,6 +47,7 @@ from .integrators.adaptive import integrate_alpha_adaptive
 from .integrators.alpha import AlphaMethod, integrate_alpha
 from .integrators.controller import PIController
 from .model import PeelingModel
+from .simulate import DEFAULT_ATOL, DEFAULT_RTOL
 
 __all__ = [
     "FitResult",
@@ -103,6 +104,7 @@ class _Data(eqx.Module):
     values: dict
     scale: dict
     mask: dict
+    grid: Float[Array, "nV m"]  # per V: every observation time, increasing (padded with the last)
 
 
 def _pack(observations: Sequence[Observation]) -> tuple[_Data, float]:
@@ -126,26 +128,32 @@ def _pack(observations: Sequence[Observation]) -> tuple[_Data, float]:
             t_max = max(t_max, float(s[0].max()))
         t[q], values[q], scale[q], mask[q] = jnp.asarray(T), jnp.asarray(X), jnp.asarray(S), jnp.asarray(M)
     V = jnp.asarray([float(o.V) for o in observations])
-    return _Data(V=V, t=t, values=values, scale=scale, mask=mask), t_max
+    times = [np.unique(np.concatenate([np.asarray(t[q])[j][np.asarray(mask[q])[j]] for q in quantities]))
+             for j in range(len(observations))]  # fmt: skip
+    m = max(len(row) for row in times)
+    grid = np.stack([np.concatenate([row, np.full(m - len(row), row[-1])]) for row in times])
+    return _Data(V=V, t=t, values=values, scale=scale, mask=mask, grid=jnp.asarray(grid)), t_max
 
 
 def _model_quantities(model: PeelingModel, ys: Array) -> dict[str, Array]:
     return {"v": ys[:, 3], "alpha": ys[:, 0], "F": model.tension(ys[:, 2], ys[:, 0])}
 
 
-def _run_loss(model, V, tau, solver, n_steps, t_final, t, values, scale, mask, weights, checkpoint_every, controller):
+def _run_loss(
+    model, V, tau, solver, n_steps, t_final, t, values, scale, mask, grid, weights, checkpoint_every, controller
+):
     """Loss terms of one pull velocity (see the module docstring) and the visited v range.
 
     With a ``controller`` the run is the error-controlled α-method (reverse mode through its
-    checkpointed loop) with dense output on the n_steps + 1 points of [0, t_final]; without,
-    the uniform mesh of n_steps steps."""
+    checkpointed loop) with dense output at the observation times ``grid`` (within
+    [0, t_final]); without, the uniform mesh of n_steps steps, linearly interpolated."""
     ode = HomogenizedODE(model, V, tau)
     y0 = model.initial_state(V)
     if controller is None:
         sol = integrate_alpha(ode, solver, y0, 0.0, t_final, n_steps, checkpoint_every=checkpoint_every)
     else:
-        grid = jnp.linspace(0.0, t_final, n_steps + 1)
-        sol = integrate_alpha_adaptive(ode, solver, y0, 0.0, t_final, controller=controller, ts=grid)
+        ts = jnp.clip(grid, 0.0, t_final)
+        sol = integrate_alpha_adaptive(ode, solver, y0, 0.0, t_final, controller=controller, ts=ts)
     ys = jnp.where(sol.valid[:, None], sol.ys, 0.0)  # the double where: no NaN reaches the gradient
     quantities = _model_quantities(model, ys)
     t_stop = jax.lax.stop_gradient(sol.t_stop)
@@ -189,10 +197,12 @@ def trajectory_loss(
     w = {q: jnp.asarray(weights.get(q, 1.0), float) for q in data.values}
 
     def one(args):
-        V, t, values, scale, mask = args
-        return _run_loss(model, V, tau, solver, n_steps, t_final, t, values, scale, mask, w, checkpoint_every, controller)
+        V, t, values, scale, mask, grid = args
+        return _run_loss(
+            model, V, tau, solver, n_steps, t_final, t, values, scale, mask, grid, w, checkpoint_every, controller
+        )
 
-    args = (data.V, data.t, data.values, data.scale, data.mask)
+    args = (data.V, data.t, data.values, data.scale, data.mask, data.grid)
     if batch == "vmap":
         terms, extra = jax.vmap(one)(args)
     else:
@@ -467,7 +477,7 @@ def fit_adhesion(
     model: PeelingModel | None = None,
     *,
     tau: float = 0.01,
-    dt: float = 1 / 82,
+    dt: float | None = None,
     t_final: float | None = None,
     free: Sequence[str] | None = None,
     start: AdhesionLaw | None = None,
@@ -489,8 +499,9 @@ def fit_adhesion(
     Minimises the loss of :func:`trajectory_loss` (module docstring) over θ with
     c = c_start·exp(θ) for each free coefficient, with optax's Adam (default) or L-BFGS
     (``optimizer="lbfgs"``, with a backtracking line search; ``learning_rate`` caps its step). The model runs
-    with the α-method at step ``dt`` on [0, t_final] (default: the last observation time),
-    starting from the paper's consistent initial data at each V.
+    with the error-controlled α-method (default; ``rtol``, ``atol``), or the uniform mesh of
+    step ``dt`` when given, on [0, t_final] (default: the last observation time), starting
+    from the paper's consistent initial data at each V.
 
     Args:
         observations: one :class:`Observation` per pull velocity.
@@ -504,10 +515,11 @@ def fit_adhesion(
         progress: a tqdm progress bar (on stderr).
         checkpoint_every: passed to :func:`integrate_alpha` (``"sqrt"`` for long runs).
         batch: ``"map"`` (default) or ``"vmap"`` over the pull velocities.
-        rtol, atol: give them to run the model with the error-controlled α-method (exact
-            reverse-mode gradients through its checkpointed loop, step sizes held constant);
-            ``dt`` then sets only the grid on which the model meets the observations. By
-            default the model runs on the uniform mesh of step ``dt``.
+        dt: None (default) for error control; a number runs the uniform mesh of that step
+            (the model is then interpolated linearly to the observation times).
+        rtol, atol: error control's tolerances (default 1e-6, 1e-9; not with ``dt``): exact
+            reverse-mode gradients through its checkpointed loop (step sizes held constant),
+            the model evaluated at the observation times by the dense output.
 
     Returns:
         A :class:`FitResult` with the best iterate, the loss history, the gradient norm and
@@ -534,12 +546,18 @@ def fit_adhesion(
     weights = {q: 1.0 for q in QUANTITIES} | dict(weights or {})
     data, t_obs_max = _pack(observations)
     t_final = float(t_obs_max if t_final is None else t_final)
-    n_steps = check_mesh(dt, t_final)
     learning_rate = _check_options(steps, optimizer, learning_rate)
     controller = None
-    if rtol is not None or atol is not None:
-        rtol = 1e-6 if rtol is None else rtol
-        atol = 1e-9 if atol is None else atol
+    if dt is not None:
+        for name, value in (("rtol", rtol), ("atol", atol)):
+            if value is not None:
+                raise ValueError(f"{name} applies to error control (dt=None); it cannot be combined with dt={dt!r}")
+        n_steps = check_mesh(dt, t_final)
+    else:
+        check_positive("t_final", t_final)
+        n_steps = 1  # unused by error control
+        rtol = DEFAULT_RTOL if rtol is None else rtol
+        atol = DEFAULT_ATOL if atol is None else atol
         check_tolerance("rtol", rtol, upper=1.0)
         check_tolerance("atol", atol)
         controller = PIController(rtol=rtol, atol=atol)
@@ -559,9 +577,9 @@ def fit_adhesion(
     settings = {
         "V": [float(o.V) for o in observations],
         "tau": float(tau),
-        "dt": float(t_final / n_steps),
+        "dt": None if controller is not None else float(t_final / n_steps),
         "t_final": t_final,
-        "n_steps": n_steps,
+        "n_steps": None if controller is not None else n_steps,
         "optimizer": optimizer,
         "learning_rate": learning_rate,
         "steps": steps,

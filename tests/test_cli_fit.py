@@ -16,7 +16,7 @@ from peeljax.adhesion import COEFFICIENT_NAMES
 from peeljax.cli import main
 from peeljax.cli.fit import load_observations
 
-SHORT = ["--t-final", "0.2", "--dt", "0.01", "--tau", "0.1"]
+SHORT = ["--t-final", "0.2", "--save-dt", "0.01", "--tau", "0.1"]
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
@@ -53,7 +53,8 @@ def test_fit_a_simulate_file_end_to_end(simulated):
     record = json.loads(out.read_text())
     assert set(COEFFICIENT_NAMES) <= set(record)
     assert record["settings"]["tau"] == pytest.approx(0.1)  # taken from the data file
-    assert record["settings"]["dt"] == pytest.approx(0.01)
+    assert record["settings"]["dt"] is None  # error control (the default), not the data's spacing
+    assert record["settings"]["rtol"] == 1e-6
     assert len(record["loss_history"]) == summary["steps"] + 1 and 1 <= summary["steps"] <= 25
     # Noise-free data from c1 = 440 (the start, the paper's 400, is 10 % off): L-BFGS must find
     # it. Measured: c1 = 440.000, the loss from 0.58 to 0.0000 (5 decimals) within 10 iterations.
@@ -135,7 +136,7 @@ BAD = [
     (["--data", "negative_V"], "V", "(0, inf)"),
     (["--data", "text"], "--data", "without pickles"),
     (["--rtol", "2"], "rtol", "(0, 1)"),
-    (["--atol", "1e-9"], "--atol", "--rtol"),
+    (["--dt", "0.01", "--atol", "1e-9"], "--atol", "--dt"),
     (["--data", "infinite_v"], "--data", "infinite"),
     (["--data", "unordered_t"], "--data", "increase strictly"),
 ]

@@ -5,7 +5,7 @@ Data files (``--data``, repeatable; ``np.load(..., allow_pickle=False)``), eithe
 * one pull velocity per file: a scalar ``V`` and 1-D arrays ``t``, ``v`` of one length, and
   optionally ``F`` (the tension [N]) and ``alpha`` [rad], on the same times ``t`` or on their
   own ``t_F`` / ``t_alpha``. A ``peeljax simulate --out`` file is such a file (its NaN
-  entries after a stop are ignored; its ``tau`` and ``dt`` become the defaults);
+  entries after a stop are ignored; its ``tau`` becomes the default);
 * several pull velocities in one file: ``V_0, t_0, v_0`` (and ``F_0, alpha_0, t_F_0,
   t_alpha_0``), ``V_1, t_1, v_1``, … with consecutive indices from 0.
 
@@ -28,6 +28,7 @@ import numpy as np
 from .._validation import check_mesh, check_positive, check_tolerance
 from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw
 from ..fit import QUANTITIES, Observation
+from ..simulate import DEFAULT_ATOL, DEFAULT_RTOL
 from ._common import PROG, check_output_path, checked, fail, json_safe, load_phi, plot_formats
 
 __all__ = ["add_command", "load_observations"]
@@ -58,16 +59,15 @@ def add_command(subparsers) -> None:
         "--dt",
         type=float,
         default=None,
-        help="uniform step [s], or with --rtol the grid the model meets the data on (default: the data files' dt, "
-        "else 1/82)",
+        help="run the model on the uniform mesh of this step [s] (default: the error-controlled alpha-method)",
     )
     parser.add_argument(
         "--rtol",
         type=float,
         default=None,
-        help="run the model with the error-controlled alpha-method at this relative tolerance in (0, 1)",
+        help="error control's relative tolerance in (0, 1) (default 1e-6; not with --dt)",
     )
-    parser.add_argument("--atol", type=float, default=None, help="its absolute tolerance, > 0 (default 1e-9)")
+    parser.add_argument("--atol", type=float, default=None, help="its absolute tolerance, > 0 (default 1e-9; not with --dt)")
     parser.add_argument(
         "--t-final", dest="t_final", type=float, default=None, help="end time (default: last observation)"
     )
@@ -218,18 +218,23 @@ def _validate(args: argparse.Namespace) -> dict:
         drop = {q: None for q in ("F", "alpha") if q not in args.quantities}
         observations = [Observation(**{**o.__dict__, **drop}) for o in observations]
     tau = args.tau if args.tau is not None else defaults.get("tau", 0.01)
-    dt = args.dt if args.dt is not None else defaults.get("dt", 1 / 82)
+    dt = args.dt
     checked("(0, inf)", check_positive, "tau", tau)
     t_last = max(float(np.nanmax(o.t)) for o in observations)
     t_final = args.t_final if args.t_final is not None else t_last
-    n_steps = checked("dt in (0, t_final], t_final in (0, inf)", check_mesh, dt, t_final)
     rtol, atol = args.rtol, args.atol
-    if atol is not None and rtol is None:
-        raise ValueError("--atol sets the error control that --rtol turns on: give --rtol too")
-    if rtol is not None:
-        atol = 1e-9 if atol is None else atol
+    if dt is not None:
+        for option, value in (("--rtol", rtol), ("--atol", atol)):
+            if value is not None:
+                raise ValueError(f"{option} sets the error control that --dt replaces by a uniform mesh: give one of them")
+        n_steps = checked("dt in (0, t_final], t_final in (0, inf)", check_mesh, dt, t_final)
+    else:
+        checked("(0, inf)", check_positive, "t_final", t_final)
+        rtol = DEFAULT_RTOL if rtol is None else rtol
+        atol = DEFAULT_ATOL if atol is None else atol
         checked("(0, 1)", check_tolerance, "rtol", rtol, 1.0)
         checked("(0, inf)", check_tolerance, "atol", atol)
+        n_steps = None
     start = AdhesionLaw() if args.phi is None else load_phi(args.phi)
     check_output_path("--out", args.out)
     if args.plot is not None:
@@ -238,7 +243,7 @@ def _validate(args: argparse.Namespace) -> dict:
     return {
         "observations": observations,
         "tau": float(tau),
-        "dt": float(dt),
+        "dt": None if dt is None else float(dt),
         "t_final": float(t_final),
         "n_steps": n_steps,
         "rtol": rtol,
@@ -246,6 +251,12 @@ def _validate(args: argparse.Namespace) -> dict:
         "start": start,
         "weights": weights,
     }
+
+
+def _engine(config: dict) -> str:
+    if config["dt"] is None:
+        return f"error control rtol {config['rtol']:g}, atol {config['atol']:g}"
+    return f"uniform mesh of {config['n_steps']} steps"
 
 
 def _fit_command(args: argparse.Namespace) -> int:
@@ -258,7 +269,7 @@ def _fit_command(args: argparse.Namespace) -> int:
     observations = config["observations"]
     print(
         f"{PROG}: fitting {len(args.free or COEFFICIENT_NAMES)} coefficient(s) to {len(observations)} run(s) "
-        f"(V = {', '.join(f'{o.V:g}' for o in observations)}), {config['n_steps']} steps each; compiling first ...",
+        f"(V = {', '.join(f'{o.V:g}' for o in observations)}), {_engine(config)}; compiling first ...",
         file=sys.stderr,
     )
     result = fit_adhesion(
