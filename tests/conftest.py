@@ -14,7 +14,7 @@ from peeljax.homogenized import Evaluation
 
 @pytest.fixture
 def no_compilation(monkeypatch):
-    """Fail the test if anything reaches a compiled runner of ``peeljax.simulate``."""
+    """Fail the test if anything reaches a compiled runner of ``peeljax.simulate`` or of the sweeps."""
 
     def forbidden(*args, **kwargs):
         raise AssertionError("compiled before the input was checked")
@@ -22,6 +22,9 @@ def no_compilation(monkeypatch):
     simulate_module = importlib.import_module("peeljax.simulate")  # peeljax.simulate is the function
     for name in ("_run_alpha", "_run_adaptive", "_run_reference"):
         monkeypatch.setattr(simulate_module, name, forbidden)
+    engine = importlib.import_module("peeljax.sweeps.engine")
+    for name in ("run_batch", "run_batch_adaptive"):
+        monkeypatch.setattr(engine, name, forbidden)
 
 
 class LinearODE(eqx.Module):

@@ -257,6 +257,15 @@ SHARDED = textwrap.dedent(
     # XLA fuses the partitioned program differently: floating-point values agree to rounding.
     for key in ("v_mean", "v_std", "v_min", "v_max", "ys"):
         np.testing.assert_allclose(getattr(many, key), getattr(one, key), rtol=1e-12, atol=1e-13, err_msg=key)
+    # Error control: each device runs its lanes one after another, as one device does.
+    adaptive = dict(V=[1.1, 2.0, 1.1], tau=[1e-3, 1e-2], t_final=0.4, window=(0.25, 1.0), save_dt=0.05, chunk=5,
+                    progress=False)
+    many_a = peeljax.sweep(**adaptive)
+    one_a = peeljax.sweep(**{**adaptive, "chunk": 8}, devices=jax.devices()[:1])
+    for key in ("status", "accepted_steps", "rejected_steps", "events", "window_count"):
+        np.testing.assert_array_equal(getattr(many_a, key), getattr(one_a, key), err_msg=key)
+    for key in ("t_stop", "v_mean", "v_std", "v_min", "v_max", "ys"):
+        np.testing.assert_allclose(getattr(many_a, key), getattr(one_a, key), rtol=1e-12, atol=1e-13, err_msg=key)
     print(json.dumps({"ok": True, "completed": many.completed.tolist()}))
     """
 )
