@@ -1,10 +1,28 @@
-"""The batched α-method run behind :func:`peeljax.sweep`: one compiled, ``vmap``ped scan.
+"""The batched α-method runs behind :func:`peeljax.sweep`: per-lane summaries, no full trajectories.
 
-Every trajectory (lane) integrates the homogenized ODE y' = ψ(y; τ) (eq. ``hv`` with
-(``av``)–(``str``)) by the α-method of the section "Numerical Integration" on a uniform mesh
-of N steps, exactly as :func:`peeljax.simulate` does (same :func:`alpha_start` /
-:func:`alpha_advance`), but instead of returning every state it accumulates per-lane
-summaries inside the scan:
+Two engines, one per integrator; both give each lane the steps :func:`peeljax.simulate` takes
+with the same settings, and accumulate the summaries inside the compiled loop.
+
+**Error control** (:func:`run_batch_adaptive`, the default of ``sweep``): each lane runs
+:func:`peeljax.integrators.adaptive.adaptive_loop`, the loop of
+:func:`~peeljax.integrate_alpha_adaptive`, with its own step sizes, and a
+:class:`WindowStatistics` observer that integrates over the window W = [w0·t_final, w1·t_final]:
+
+* mean and (population) standard deviation of v as time averages, (1/T)∫_W v dt and
+  ((1/T)∫_W (v − v̄)² dt)^(1/2), T the covered part of W, by Gauss–Legendre quadrature of each
+  step's Hermite interpolant (exact on the dense output up to rounding);
+* v_min, v_max over the dense output at the window's ends and the quadrature nodes;
+* events: upward crossings v_n < v̂ ≤ v_{n+1} between accepted step points with t_{n+1} ∈ W;
+* the work: accepted and rejected steps, Newton iterations;
+* saved states (optional) at given times by the dense output.
+
+Lanes run in groups of ``lane_batch`` under ``vmap``, the groups one after another
+(``lax.map``): a ``vmap``ped while loop runs until its slowest lane is done, so on a CPU one
+lane at a time is fastest, while a GPU takes a whole chunk at once (``sweeps.api.default_lane_batch``).
+
+**Uniform mesh** (:func:`run_batch`, ``sweep(dt=…)``): every lane integrates on the mesh of N
+steps (same :func:`alpha_start` / :func:`alpha_advance` as :func:`peeljax.simulate`), one
+``vmap``ped scan, and the summaries are over the accepted mesh points:
 
 * status and t_stop (the time of the last accepted state, as in :class:`peeljax.Solution`);
 * over the window W = [w0·t_final, w1·t_final]: the count, mean and (population) standard
@@ -19,6 +37,8 @@ summaries inside the scan:
 
 Saved states (optional) come from a nested scan: an outer scan over save points, an inner
 one over ``save_every`` steps, so memory is O(N/save_every), never O(N).
+
+With a device mesh both engines run under ``shard_map``, each device on its share of the lanes.
 
 v̂(V) is found per lane inside the compiled function: ∂φ/∂v (by ``jax.grad``) is sampled at
 ``_PEAK_GRID`` points log-spaced in v ∈ [1e-8, 1e2]·max(V, 1) … the first sign change from
