@@ -178,8 +178,10 @@ def _sweep_heading(result, title: str | None, t_final: float, window: tuple[floa
     completed = np.asarray(result.completed, bool)
     runs = f"{completed.size} run{'' if completed.size == 1 else 's'}"
     parts = [f"{runs} ({n_V} V × {n_tau} τ)" if grid else f"{runs} ({n_V} V, {n_tau} τ values)"]
-    if "dt" in settings:
+    if settings.get("dt") is not None:
         parts.append(f"dt = {_format_step(float(settings['dt']))}")
+    elif settings.get("rtol") is not None:
+        parts.append(f"error control rtol = {settings['rtol']:g}, atol = {settings['atol']:g}")
     parts.append(f"t_final = {t_final:g} s")
     parts.append(f"window t ∈ [{window[0] * t_final:g}, {window[1] * t_final:g}] s")
     parts.append(f"{int(completed.sum())} completed, {int((~completed).sum())} stopped")
@@ -411,7 +413,8 @@ def plot_fit(result, observations, *, model: PeelingModel | None = None, title: 
     axes = fig.subplots(1, n + 1, squeeze=False)[0]
     for ax, obs in zip(axes, observations):
         fitted = PeelingModel(R=model.R, I=model.I, k=model.k, l=model.l, adhesion=result.adhesion, geometry=model.geometry)
-        run = simulate(fitted, V=obs.V, tau=settings["tau"], dt=settings["dt"], t_final=settings["t_final"])
+        engine = {"dt": settings["dt"]} if settings.get("dt") is not None else {"rtol": settings["rtol"], "atol": settings["atol"]}
+        run = simulate(fitted, V=obs.V, tau=settings["tau"], t_final=settings["t_final"], **engine)
         t, v = obs.series("v")
         ax.plot(t, v, ".", ms=2, color="0.5", label="data v")
         ax.plot(np.asarray(run.ts), np.asarray(run.v), "-", color="C0", label="fitted model v")

@@ -62,7 +62,7 @@ def test_out_must_not_be_a_file(tmp_path):
 
 
 # ---------------------------------------------------------------------------- sweep map
-def _sweep_result(Vs, taus, *, events=None, completed=None):
+def _sweep_result(Vs, taus, *, events=None, completed=None, settings=None):
     """A synthetic outer-grid SweepResult (no simulation): runs with small τ stop early."""
     from peeljax.sweeps import SweepResult
     from peeljax.sweeps.api import PER_TRAJECTORY_KEYS
@@ -75,8 +75,20 @@ def _sweep_result(Vs, taus, *, events=None, completed=None):
         v_std=np.where(done, 1e-4 * V / tau, np.nan),
         events=np.where(done & (tau < 5e-3), 2, 0) if events is None else np.broadcast_to(events, V.shape),
     )  # fmt: skip
-    settings = {"dt": 0.01, "t_final": 1.0, "window": [0.5, 1.0]}
-    return SweepResult(params={}, completed=done, ts=None, ys=None, grid_shape=None, settings=settings, **arrays)
+    settings = {"dt": 0.01, "t_final": 1.0, "window": [0.5, 1.0]} | (settings or {})
+    return SweepResult(
+        params={}, completed=done, window_time=np.zeros(V.size), ts=None, ys=None, grid_shape=None, settings=settings,
+        **arrays,
+    )  # fmt: skip
+
+
+def test_sweep_map_heading_names_the_tolerances_of_error_control(tmp_path):
+    from peeljax.plots import plot_sweep_map
+
+    settings = {"dt": None, "method": "alpha-adaptive", "rtol": 1e-5, "atol": 1e-8}
+    result = _sweep_result([1.1, 2.0], np.geomspace(1e-3, 1e-1, 3), settings=settings)
+    heading = plot_sweep_map(result, path=tmp_path / "map.png").get_suptitle()
+    assert "error control rtol = 1e-05, atol = 1e-08" in heading and "dt =" not in heading
 
 
 def _legend_texts(fig):
