@@ -9,11 +9,16 @@ Problems (paper geometry and initial data):
   0, 0.01, …, 3 s) relative to a tight reference (diffrax Kvaerno5, rtol 1e-11), over a range
   of tolerances (adaptive peers) or steps (α-methods); ``results/work_precision.png``;
 * (P3) a batch of 1024 trajectories (V ∈ {1.1, 2, 4, 8} × 256 τ log-spaced in [0.005, 0.5] s,
-  t ∈ [0, 3 s]): ``peeljax.sweep`` (the batched α-method) against diffrax Kvaerno5 under
-  ``jax.vmap`` and against looping CVODE, CasADi cvodes (both on log v) and scipy Radau (on a
-  few trajectories, extrapolated), each at the cheapest setting tried whose relative error in v
+  t ∈ [0, 3 s]): ``peeljax.sweep`` with error control (the α-method with a step size per
+  trajectory, rtol ∈ {1e-3, 3e-4, …, 1e-7}, atol = 1e-3·rtol, v saved at ``GRID`` by
+  ``save_dt = 0.01``; lanes sharded over every JAX device, one at a time per device on a CPU),
+  the row every ratio is taken against, and ``peeljax.sweep`` on a uniform mesh (``dt``, the
+  same N for every trajectory: the before) against diffrax Kvaerno5 under ``jax.vmap`` and
+  against looping CVODE, CasADi cvodes (both on log v) and scipy Radau (on a few trajectories,
+  extrapolated), each at the cheapest setting tried whose relative error in v
   (max|v − v_ref| / max|v_ref|) is ≤ ``TARGET`` on 32 trajectories spread over the grid (the
-  tight reference for all 1024 would be too slow); PETSc TSALPHA (fixed steps) through petsc4py if another
+  tight reference for all 1024 would be too slow); PETSc TSALPHA (fixed steps, the uniform
+  mesh's N) through petsc4py if another
   interpreter has it (``PETSC_PYTHON``, default ``/usr/bin/python3``; ``petsc_tsalpha.py``);
 * (P4) the gradient of L = mean over t_i = i/82 s, t ∈ [0, 1 s], of (v(t_i) − v_data(t_i))²
   (V = 1.1, τ = 0.1) with respect to φ's 14 coefficients: peeljax reverse mode (``jax.grad``
@@ -584,13 +589,31 @@ def diffrax_vmap():
 
 
 def peeljax_batch(Vs, taus, n):
-    """``peeljax.sweep`` on the (V, τ) pairs, states kept at ``GRID`` (every n/300 steps); (v, status)."""
+    """``peeljax.sweep`` on a uniform mesh of n steps, states kept at ``GRID`` (every n/300 steps); (v, status)."""
     import peeljax
 
     result = peeljax.sweep(
         None, Vs, taus, T_FINAL / n, T_FINAL, grid="pairs", save_every=n // (GRID.size - 1), progress=False
     )
     return result.ys[:, :, 3], result.status
+
+
+P3_SAVE_DT = 0.01  # output_times(0.01, 3) is GRID (checked in batch_table)
+# Loose to tight, atol = ADAPTIVE_ALPHA_ATOL·rtol. The error falls only about as rtol^(2/3) (P2: error ∝
+# steps^-2, steps ∝ rtol^(-1/3)), so the rungs are half a decade apart.
+P3_ADAPTIVE_RTOLS = (1e-3, 3e-4, 1e-4, 3e-5, 1e-5, 3e-6, 1e-6, 3e-7, 1e-7)
+
+
+def peeljax_batch_adaptive(Vs, taus, rtol):
+    """``peeljax.sweep`` with error control (default devices and lane_batch), v at ``GRID``;
+    (v, status, accepted steps, rejected steps)."""
+    import peeljax
+
+    result = peeljax.sweep(
+        None, Vs, taus, None, T_FINAL, rtol=rtol, atol=ADAPTIVE_ALPHA_ATOL * rtol, save_dt=P3_SAVE_DT,
+        grid="pairs", progress=False,
+    )  # fmt: skip
+    return result.ys[:, :, 3], result.status, result.accepted_steps, result.rejected_steps
 
 
 def cvode_logv(Vp, tau, rtol):
@@ -740,14 +763,33 @@ def _loop(fn, Vs, taus, setting):
     return np.stack([fn(float(Vp), float(tau), setting) for Vp, tau in zip(Vs, taus)])
 
 
+def _stopped_note(label, setting, completed, stopped_ok, Vs, taus, B):
+    """One sentence: where ``label`` stopped (by V, up to which τ) and how the others did there."""
+    stopped = ~completed
+    if not stopped.any():
+        return f"{label} completed all {B} trajectories at {setting}"
+    return (f"{label} stopped on {int(stopped.sum())} of {B} (V, τ) at {setting}: "
+            + ", ".join(f"V = {Vp:g}: τ ≤ {taus[stopped & (Vs == Vp)].max():.3g} ({int(np.sum(stopped & (Vs == Vp)))})"
+                        for Vp in P3_VELOCITIES if np.any(stopped & (Vs == Vp)))
+            + "; on those, " + ", ".join(f"{k} completed {int(np.sum(ok[stopped]))}" for k, ok in stopped_ok.items()))  # fmt: skip
+
+
 def batch_table(emit, n_tau, per_v, settings, repeats, radau_count):
     """(P3): the batch of 4·n_tau trajectories; errors checked on a subsample of 4·per_v."""
+    import jax
+
     import peeljax
+    from peeljax.integrators.dense import output_times
 
     Vs, taus = p3_grid(n_tau)
     B = Vs.size
     sub = p3_subsample(n_tau, per_v)
     radau_sub = sub[np.linspace(0, sub.size - 1, radau_count).round().astype(int)]
+    save_ts = output_times(P3_SAVE_DT, T_FINAL)
+    if save_ts.shape != GRID.shape or np.max(np.abs(save_ts - GRID)) > 1e-12 * T_FINAL:
+        raise RuntimeError(f"output_times({P3_SAVE_DT}, {T_FINAL}) is not GRID: the error-controlled sweep would "
+                           "save v at other times than the peers'")  # fmt: skip
+    devices = jax.devices()
     emit(f"## (P3) a batch of {B} trajectories")
     emit()
     emit(f"V ∈ {{{', '.join(f'{v:g}' for v in P3_VELOCITIES)}}} × {n_tau} τ log-spaced in "
@@ -756,6 +798,13 @@ def batch_table(emit, n_tau, per_v, settings, repeats, radau_count):
          f"the reference), v_ref = diffrax Kvaerno5 at rtol {REF_RTOL:g}, atol {REF_ATOL:g} under vmap; checked on "
          f"{sub.size} trajectories spread over the grid ({per_v} τ per V, both ends included). Each method's setting is "
          f"the cheapest of those tried whose max error on them is ≤ {TARGET:g}.")  # fmt: skip
+    emit()
+    kind = devices[0].platform + ("" if devices[0].device_kind == devices[0].platform else f", {devices[0].device_kind}")
+    emit(f"peeljax.sweep ran on {len(devices)} JAX device(s) ({kind}; "
+         f"jax.devices() of this process), its lanes dealt over them; with error control each device runs its lanes "
+         f"{'one at a time (lane_batch = 1, the CPU default)' if devices[0].platform == 'cpu' else 'together (vmap)'} "
+         f"and v is saved at the 301 times by save_dt = {P3_SAVE_DT:g} (dense output). diffrax under vmap runs on "
+         "one device; the looped peers run one trajectory after another in this process (one core).")  # fmt: skip
     emit()
     started = time.perf_counter()
     run_diffrax = diffrax_vmap()
@@ -784,9 +833,14 @@ def batch_table(emit, n_tau, per_v, settings, repeats, radau_count):
         return (ok[0] if ok else min(tried, key=lambda t: t[1])), bool(ok)
 
     everything = slice(None)
+    (r_adaptive, _, _), met_adaptive = calibrate(
+        "peeljax error control (rtol)", settings["rtols_adaptive"],
+        lambda r: peeljax_batch_adaptive(Vs[sub], taus[sub], r)[0], key=lambda s: everything,
+    )  # fmt: skip
     (n_alpha, _, _), met_alpha = calibrate(
-        "peeljax", settings["steps"], lambda n: peeljax_batch(Vs[sub], taus[sub], n)[0], key=lambda s: everything
-    )
+        "peeljax uniform mesh (N)", settings["steps"], lambda n: peeljax_batch(Vs[sub], taus[sub], n)[0],
+        key=lambda s: everything,
+    )  # fmt: skip
     (r_diffrax, _, _), met_diffrax = calibrate(
         "diffrax", settings["rtols_diffrax"], lambda r: run_diffrax(Vs[sub], taus[sub], r)[0], key=lambda s: everything
     )
@@ -807,16 +861,20 @@ def batch_table(emit, n_tau, per_v, settings, repeats, radau_count):
     # First (compiling) calls on the whole batch, then `repeats` round-robin rounds.
     first = {}
     start = time.perf_counter()
+    v_adaptive, status_adaptive, accepted, rejected = peeljax_batch_adaptive(Vs, taus, r_adaptive)
+    first["adaptive"] = time.perf_counter() - start
+    start = time.perf_counter()
     v_alpha, status_alpha = peeljax_batch(Vs, taus, n_alpha)
-    first["peeljax"] = time.perf_counter() - start
+    first["uniform"] = time.perf_counter() - start
     start = time.perf_counter()
     v_dfx, status_dfx = run_diffrax(Vs, taus, r_diffrax)
     first["diffrax"] = time.perf_counter() - start
-    times = {k: [] for k in ("peeljax", "diffrax", "cvode", "casadi", "radau")}
+    times = {k: [] for k in ("adaptive", "uniform", "diffrax", "cvode", "casadi", "radau")}
     outputs = {}
     for _ in range(repeats):
         for key, call in (
-            ("peeljax", lambda: peeljax_batch(Vs, taus, n_alpha)),
+            ("adaptive", lambda: peeljax_batch_adaptive(Vs, taus, r_adaptive)),
+            ("uniform", lambda: peeljax_batch(Vs, taus, n_alpha)),
             ("diffrax", lambda: run_diffrax(Vs, taus, r_diffrax)),
             ("cvode", lambda: _loop(cvode_logv, Vs, taus, r_cvode)),
             ("casadi", lambda: _loop(casadi, Vs, taus, r_casadi)),
@@ -828,27 +886,32 @@ def batch_table(emit, n_tau, per_v, settings, repeats, radau_count):
         print(f"  [P3 round: { {k: round(t[-1], 2) for k, t in times.items()} }]", file=sys.stderr, flush=True)
     median = {k: float(np.median(t)) for k, t in times.items()}
     completed = {
-        "peeljax": status_alpha == 0,
+        "adaptive": status_adaptive == 0,
+        "uniform": status_alpha == 0,
         "diffrax": status_dfx == 0,
         "cvode": np.all(np.isfinite(outputs["cvode"]), axis=1),
         "casadi": np.all(np.isfinite(outputs["casadi"]), axis=1),
     }
     # The errors of the timed runs themselves, on the checked subsample.
     check_error = {
-        "peeljax": float(np.max(relative_errors(v_alpha[sub], v_ref))),
+        "adaptive": float(np.max(relative_errors(v_adaptive[sub], v_ref))),
+        "uniform": float(np.max(relative_errors(v_alpha[sub], v_ref))),
         "diffrax": float(np.max(relative_errors(v_dfx[sub], v_ref))),
         "cvode": float(np.max(relative_errors(outputs["cvode"][sub], v_ref))),
         "casadi": float(np.max(relative_errors(outputs["casadi"][sub], v_ref))),
         "radau": float(np.max(relative_errors(outputs["radau"], v_ref[radau_pos]))),
     }
-    base = median["peeljax"]
+    base = median["adaptive"]
 
     def compiled(key):  # the first call on the whole batch compiles, unless the check ran the same batch size
         return "in the check" if B == sub.size else f"{first[key] - median[key]:.1f}"
 
     rows = [
-        ("peeljax.sweep, batched α-method", f"N = {n_alpha} (dt = 1/{n_alpha / T_FINAL:g})", "peeljax", met_alpha,
-         compiled("peeljax"), B, ""),
+        ("peeljax.sweep, error control (α-method, a step size per trajectory)",
+         f"rtol = {r_adaptive:g}, atol = {ADAPTIVE_ALPHA_ATOL:g}·rtol", "adaptive", met_adaptive, compiled("adaptive"),
+         B, ""),
+        ("peeljax.sweep, uniform mesh", f"N = {n_alpha} (dt = 1/{n_alpha / T_FINAL:g})", "uniform", met_alpha,
+         compiled("uniform"), B, ""),
         ("diffrax Kvaerno5 under jax.vmap", f"rtol = {r_diffrax:g}", "diffrax", met_diffrax,
          compiled("diffrax"), B, ""),
         ("SUNDIALS CVODE (BDF) (log v), looped", f"rtol = {r_cvode:g}", "cvode", met_cvode, "–", B, ""),
@@ -881,38 +944,49 @@ def batch_table(emit, n_tau, per_v, settings, repeats, radau_count):
     emit(f"Times: median of {repeats} timed round-robin round(s) after a first (compiling) call on the whole batch; loops "
          "call one trajectory after another (CasADi: one integrator with (V, τ) as parameters, built outside the "
          "timing; CVODE: one solver object per trajectory, as in P1). Compile s = first call − median. "
+         "time / peeljax's: divided by peeljax.sweep with error control (the first row; > 1: it is faster). "
          "Settings tried on the checked trajectories (setting: max error, completed):")  # fmt: skip
     emit()
     for name, tried in calibration.items():
         emit(f"- {name}: " + "; ".join(f"{s:g}: {e:.1e} ({c})" for s, e, c in tried))
+    errors_adaptive = relative_errors(v_adaptive[sub], v_ref)
     errors_alpha = relative_errors(v_alpha[sub], v_ref)
     emit()
-    emit(f"peeljax's max error at N = {n_alpha} by V (checked trajectories): "
+    emit(f"peeljax's max error by V (checked trajectories): error control at rtol = {r_adaptive:g}: "
+         + ", ".join(f"{Vp:g}: {np.max(errors_adaptive[Vs[sub] == Vp]):.1e}" for Vp in P3_VELOCITIES)
+         + f"; uniform mesh at N = {n_alpha}: "
          + ", ".join(f"{Vp:g}: {np.max(errors_alpha[Vs[sub] == Vp]):.1e}" for Vp in P3_VELOCITIES)
-         + "; one dt serves the whole batch, so the hardest (V, τ) sets it.")  # fmt: skip
-    stopped = ~completed["peeljax"]
+         + " (one dt serves the whole batch, so the hardest (V, τ) sets it; with error control each trajectory "
+           "takes the steps its own error needs).")  # fmt: skip
     emit()
-    if stopped.any():
-        emit(f"peeljax stopped on {int(stopped.sum())} of {B} (V, τ) at N = {n_alpha} (τ below the least resolvable "
-             "τ at that dt, or an impasse point): "
-             + ", ".join(f"V = {Vp:g}: τ ≤ {taus[stopped & (Vs == Vp)].max():.3g} ({int(np.sum(stopped & (Vs == Vp)))})"
-                         for Vp in P3_VELOCITIES if np.any(stopped & (Vs == Vp)))
-             + "; on those, " + ", ".join(f"{k} completed {int(np.sum(completed[k][stopped]))}"
-                                          for k in ("diffrax", "cvode", "casadi")) + ".")  # fmt: skip
-    else:
-        emit(f"peeljax completed all {B} trajectories at N = {n_alpha}; diffrax completed "
-             f"{int(completed['diffrax'].sum())}, CVODE {int(completed['cvode'].sum())}, "
-             f"CasADi {int(completed['casadi'].sum())}.")  # fmt: skip
+    emit(f"Steps of the error-controlled sweep per trajectory (whole batch): accepted mean {np.mean(accepted):.0f} "
+         f"(min {int(np.min(accepted))}, max {int(np.max(accepted))}; by V: "
+         + ", ".join(f"{Vp:g}: {np.mean(accepted[Vs == Vp]):.0f}" for Vp in P3_VELOCITIES)
+         + f"), rejected mean {np.mean(rejected):.1f}; the uniform mesh takes N = {n_alpha} on every trajectory.")  # fmt: skip
     emit()
+    others = {"diffrax": completed["diffrax"], "CVODE": completed["cvode"], "CasADi": completed["casadi"]}
+    emit(_stopped_note("peeljax with error control", f"rtol = {r_adaptive:g}", completed["adaptive"], others, Vs, taus, B)
+         + "; " + _stopped_note("on the uniform mesh", f"N = {n_alpha}", completed["uniform"], others, Vs, taus, B)
+         + f"; diffrax completed {int(completed['diffrax'].sum())}, CVODE {int(completed['cvode'].sum())}, "
+         f"CasADi {int(completed['casadi'].sum())}.")  # fmt: skip
+    emit()
+    n_cores = len(devices) if devices[0].platform == "cpu" else 1
+    casadi_shared = per_batch["casadi"] / n_cores  # the loop split perfectly over the cores peeljax used
+    ratio_dfx = per_batch["diffrax"] / base
+    ratio_casadi = casadi_shared / base
     looped = {k: per_batch[k] for k in ("cvode", "casadi", "radau")}
     best = min(looped, key=looped.get)
-    ratio_dfx = per_batch["diffrax"] / base
     emit(f"Targets (issue 6): peeljax ≥ 10× faster than diffrax under vmap: "
-         f"{'met' if ratio_dfx >= 10 else 'missed'} ({ratio_dfx:.2f}×); faster than the best looped peer "
-         f"({best}, {looped[best]:.2f} s per batch): {'met' if looped[best] > base else 'missed'} "
-         f"({looped[best] / base:.2f}×). P3 time: {time.perf_counter() - started:.0f} s.")  # fmt: skip
+         f"{'met' if ratio_dfx >= 10 else 'missed'} ({ratio_dfx:.2f}×); faster than looping CasADi cvodes (log v) on the "
+         f"same cores: {'met' if ratio_casadi > 1 else 'missed'} ({ratio_casadi:.2f}×: CasADi's "
+         f"{per_batch['casadi']:.2f} s per batch on one core / {n_cores} core(s), as if its loop were split perfectly "
+         f"over the {n_cores} the sweep used; {per_batch['casadi'] / base:.2f}× as looped here). peeljax here is "
+         f"peeljax.sweep with error control at equal error ({base:.2f} s per batch on {len(devices)} device(s)); on the "
+         f"uniform mesh (before): {per_batch['diffrax'] / per_batch['uniform']:.2f}× diffrax, "
+         f"{casadi_shared / per_batch['uniform']:.2f}× CasADi on the same cores. Best looped peer: {best} "
+         f"({looped[best]:.2f} s per batch). P3 time: {time.perf_counter() - started:.0f} s.")  # fmt: skip
     emit()
-    return {"B": B, "per_batch": per_batch, "base": base, "n": n_alpha}
+    return {"B": B, "per_batch": per_batch, "base": base, "n": n_alpha, "rtol": r_adaptive}
 
 
 # --------------------------------------------------------------------------- (P4) the gradient of a trajectory loss
@@ -1356,7 +1430,8 @@ def main(argv=None):
         steps, rtols = (300,), (1e-4,)
         adaptive_rtols, petsc_rtols = (1e-5,), (1e-3,)
         p3 = {"n_tau": 2, "per_v": 2, "radau_count": 2, "repeats": 1, "settings": {
-            "steps": (300,), "rtols_diffrax": (1e-3,), "rtols_loop": (1e-4,), "rtols_radau": (1e-5,)}}
+            "rtols_adaptive": (1e-4,), "steps": (300,), "rtols_diffrax": (1e-3,), "rtols_loop": (1e-4,),
+            "rtols_radau": (1e-5,)}}
         p4 = {"repeats": 1, "settings": {
             "steps": (82,), "rtols_casadi": (1e-6,), "rtols_casadi_fd": (1e-8,), "rtols_diffrax": (),
             "rtols_adaptive": (1e-6,)}}
@@ -1364,7 +1439,8 @@ def main(argv=None):
         steps, rtols = (300, 1200, 4800, 9600), (1e-3, 1e-5, 1e-7)
         petsc_rtols = (1e-2, 1e-3, 1e-4, 1e-5)
         p3 = {"n_tau": 4, "per_v": 4, "radau_count": 4, "repeats": 2, "settings": {
-            "steps": (9600,), "rtols_diffrax": (1e-3, 1e-4, 1e-5), "rtols_loop": (1e-4, 1e-5, 1e-6),
+            "rtols_adaptive": P3_ADAPTIVE_RTOLS, "steps": (9600,), "rtols_diffrax": (1e-3, 1e-4, 1e-5),
+            "rtols_loop": (1e-4, 1e-5, 1e-6),
             "rtols_radau": (1e-5, 1e-7)}}
         p4 = {"repeats": 3, "settings": {
             "steps": (82,), "rtols_casadi": (1e-4, 1e-6, 1e-8), "rtols_casadi_fd": (1e-8,), "rtols_diffrax": (),
@@ -1373,7 +1449,8 @@ def main(argv=None):
         steps, rtols = (300, 600, 1200, 2400, 4800, 9600, 19200, 38400), (1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9)
         petsc_rtols = (1e-2, 1e-3, 1e-4, 1e-5, 1e-6)  # 1e-7 takes ~10 s a run (ψ and its Jacobian in Python)
         p3 = {"n_tau": 256, "per_v": 8, "radau_count": 8, "repeats": 1, "settings": {
-            "steps": (4800, 9600, 19200), "rtols_diffrax": (1e-2, 1e-3, 1e-4, 1e-5, 1e-6),
+            "rtols_adaptive": P3_ADAPTIVE_RTOLS, "steps": (4800, 9600, 19200),
+            "rtols_diffrax": (1e-2, 1e-3, 1e-4, 1e-5, 1e-6),
             "rtols_loop": (1e-3, 1e-4, 1e-5, 1e-6, 1e-7), "rtols_radau": (1e-5, 1e-6, 1e-7)}}
         p4 = {"repeats": 5, "settings": {
             "steps": (82, 820, 8200), "rtols_casadi": (1e-4, 1e-6, 1e-8), "rtols_casadi_fd": (1e-6, 1e-8),
