@@ -10,27 +10,48 @@ import time
 
 import numpy as np
 
-from .._validation import check_choice, check_mesh, check_rho
+from .._validation import check_choice, check_mesh, check_positive, check_rho, check_tolerance
 from ..adhesion import AdhesionLaw
 from ..model import GEOMETRIES, PeelingModel
+from ..simulate import DEFAULT_ATOL, DEFAULT_RTOL
 from ._common import PROG, check_output_path, checked, fail, json_safe, load_phi, plot_formats, write_failed
 
-__all__ = ["add_command", "tau_grid", "validate_sweep", "validate_tau_star"]
+__all__ = ["add_command", "engine_text", "tau_grid", "validate_sweep", "validate_tau_star"]
 
 
 # ---------------------------------------------------------------------------- parsers
-def _add_model_arguments(parser: argparse.ArgumentParser) -> None:
+def _add_model_arguments(parser: argparse.ArgumentParser):
+    """The problem's and the integrator's options; returns the integrator's argument group."""
     group = parser.add_argument_group("problem")
     group.add_argument(
         "--V", type=float, nargs="+", default=[1.1, 2.0, 4.0], help="pull velocities [m/s], > 0 (default 1.1 2 4)"
     )
-    group.add_argument("--dt", type=float, default=1 / 82, help="alpha-method step [s] (default 1/82)")
     group.add_argument("--t-final", dest="t_final", type=float, default=3.0, help="end time [s] (default 3)")
-    group.add_argument("--rho", type=float, default=0.0, help="alpha-method's rho in [0, 1) (default 0)")
     group.add_argument("--geometry", default="paper", metavar="{paper,full}", help="'paper' or 'full' (default paper)")
     group.add_argument(
         "--phi", metavar="COEFFS.json", help="adhesion coefficients c1..p9 as JSON (default: the paper's)"
     )
+    solver = parser.add_argument_group("integrator")
+    solver.add_argument(
+        "--dt",
+        type=float,
+        default=None,
+        help="uniform-mesh step [s]; without it the error-controlled alpha-method runs (default: error control)",
+    )
+    solver.add_argument(
+        "--rtol",
+        type=float,
+        default=None,
+        help=f"error control's relative tolerance in (0, 1) (default {DEFAULT_RTOL:g}; not with --dt)",
+    )
+    solver.add_argument(
+        "--atol",
+        type=float,
+        default=None,
+        help=f"error control's absolute tolerance, > 0 (default {DEFAULT_ATOL:g}; not with --dt)",
+    )
+    solver.add_argument("--rho", type=float, default=0.0, help="alpha-method's rho in [0, 1) (default 0)")
+    return solver
 
 
 def add_command(subparsers) -> None:
@@ -38,12 +59,27 @@ def add_command(subparsers) -> None:
         "sweep",
         help="batched runs over a grid of V and tau",
         description=(
-            "Integrate every (V, tau) of a grid with the alpha-method in compiled batches; write per-trajectory "
-            "summaries (completed, t_stop, v mean/std/min/max over a window, stick-slip events). "
+            "Integrate every (V, tau) of a grid with the alpha-method in compiled batches (error control by "
+            "default, each trajectory with its own steps; --dt for a uniform mesh); write per-trajectory "
+            "summaries (completed, t_stop, v mean/std/min/max over a window, stick-slip events, steps taken). "
             "With --out the sweep is written chunk by chunk and a rerun resumes."
         ),
     )
-    _add_model_arguments(parser)
+    solver = _add_model_arguments(parser)
+    solver.add_argument(
+        "--save-dt",
+        dest="save_dt",
+        type=float,
+        default=None,
+        help="error control only: also save the states at t = 0, S, 2S, ... and t_final [s] (dense output)",
+    )
+    solver.add_argument(
+        "--save-every",
+        dest="save_every",
+        type=int,
+        default=None,
+        help="uniform mesh only (with --dt): also save the states every N steps",
+    )
     parser.add_argument(
         "--tau", type=float, nargs="+", default=[1e-3, 1e-1],
         help="tau values [s], > 0; with --n-tau, two numbers LO HI give a log-spaced grid",
@@ -53,9 +89,6 @@ def add_command(subparsers) -> None:
     )
     parser.add_argument("--window", type=float, nargs=2, default=[0.5, 1.0], metavar=("W0", "W1"),
                         help="window of the v statistics, fractions of t_final (default 0.5 1)")  # fmt: skip
-    parser.add_argument(
-        "--save-every", dest="save_every", type=int, default=None, help="also save states every N steps"
-    )
     parser.add_argument("--chunk", type=int, default=256, help="trajectories per compiled batch (default 256)")
     parser.add_argument("--out", metavar="FILE.npz", help="results (numpy); chunks in FILE.npz.chunks/, resumable")
     parser.add_argument("--plot", metavar="FILE.png", help="the stick-slip map over (V, tau)")
@@ -68,7 +101,8 @@ def add_command(subparsers) -> None:
         help="the least resolvable tau per V",
         description=(
             "For each V, tau* = the least tested tau above which every tested tau completes [0, t_final], "
-            "with tau*(1 - tau_rtol) stopping (docs/sweeps.md). All V are searched in parallel."
+            "with tau*(1 - tau_rtol) stopping (docs/sweeps.md). All V are searched in parallel. The runs use "
+            "error control (--rtol, --atol) by default, a uniform mesh with --dt."
         ),
     )
     _add_model_arguments(star)
@@ -79,7 +113,7 @@ def add_command(subparsers) -> None:
         dest="tau_rtol",
         type=float,
         default=0.05,
-        help="relative resolution of tau* in (0, 1) (default 0.05)",
+        help="relative resolution of tau* in (0, 1), not an integrator tolerance (default 0.05)",
     )
     star.add_argument("--n-points", dest="n_points", type=int, default=8, help="tau values per V and round (>= 2)")
     star.add_argument("--json", action="store_true", help="print one JSON object on stdout")
@@ -110,6 +144,77 @@ def tau_grid(tau: list[float], n_tau: int | None) -> list[float]:
     return np.geomspace(tau[0], tau[1], n_tau).tolist()
 
 
+_MAX_SAVE_TIMES = 10_000_001
+
+
+def _integrator(args: argparse.Namespace) -> dict:
+    """The integrator's options, checked: ``dt`` (uniform mesh) or ``rtol``/``atol`` (error control).
+
+    Returns the keyword arguments of :func:`peeljax.sweep` / :func:`peeljax.least_tau` that choose
+    the engine (``save_dt``/``save_every`` only where the namespace has them), all others None.
+    """
+    save_dt = getattr(args, "save_dt", None)
+    save_every = getattr(args, "save_every", None)
+    if args.dt is not None:
+        given = [option for option, value in (("--rtol", args.rtol), ("--atol", args.atol), ("--save-dt", save_dt))
+                 if value is not None]  # fmt: skip
+        if given:
+            raise ValueError(
+                f"{'/'.join(given)} set{'s' if len(given) == 1 else ''} the alpha-method's error control; "
+                f"--dt asks for a uniform mesh: give one or the other"
+            )
+        n_steps = checked("dt in (0, t_final], t_final in (0, inf)", check_mesh, args.dt, args.t_final)
+        if save_every is not None and not 1 <= save_every <= n_steps:
+            raise ValueError(f"--save-every must lie in [1, {n_steps}] (the number of steps), got {save_every}")
+        options = {"dt": float(args.dt), "rtol": None, "atol": None}
+        if hasattr(args, "save_every"):
+            options.update(save_every=save_every, save_dt=None)
+        return options
+    if save_every is not None:
+        raise ValueError(
+            "--save-every counts the steps of a uniform mesh and needs --dt; "
+            "with error control (no --dt) save on times with --save-dt"
+        )
+    checked("(0, inf)", check_positive, "t_final", args.t_final)
+    rtol = DEFAULT_RTOL if args.rtol is None else args.rtol
+    atol = DEFAULT_ATOL if args.atol is None else args.atol
+    checked("(0, 1)", check_tolerance, "--rtol", rtol, 1.0)
+    checked("(0, inf)", check_tolerance, "--atol", atol)
+    options = {"dt": None, "rtol": float(rtol), "atol": float(atol)}
+    if hasattr(args, "save_dt"):
+        if save_dt is not None:
+            if not (math.isfinite(save_dt) and 0 < save_dt <= args.t_final):
+                raise ValueError(f"--save-dt must lie in (0, t_final] = (0, {args.t_final:g}], got {save_dt:g}")
+            n_save = math.floor(args.t_final / save_dt) + 2
+            if n_save > _MAX_SAVE_TIMES:
+                raise ValueError(
+                    f"--save-dt {save_dt:g} gives {n_save:.3g} save times per trajectory; the limit is 1e7"
+                )
+        options.update(save_every=None, save_dt=None if save_dt is None else float(save_dt))
+    return options
+
+
+def engine_text(kwargs: dict) -> str:
+    """Which engine runs, in words (ASCII): error control with its tolerances, or the uniform mesh."""
+    if kwargs["dt"] is None:
+        text = f"alpha-method, error control rtol = {kwargs['rtol']:g}, atol = {kwargs['atol']:g}"
+    else:
+        n_steps = check_mesh(kwargs["dt"], kwargs["t_final"])
+        text = f"alpha-method, uniform mesh dt = {kwargs['t_final'] / n_steps:.6g} s ({n_steps} steps)"
+    return f"{text}, rho = {kwargs['rho']:g}"
+
+
+def _engine_record(kwargs: dict) -> dict:
+    """The integrator's settings for the JSON output: method, dt (null with error control), rtol, atol."""
+    return {
+        "method": "alpha" if kwargs["dt"] is not None else "alpha-adaptive",
+        "dt": kwargs["dt"],
+        "rtol": kwargs["rtol"],
+        "atol": kwargs["atol"],
+        "rho": kwargs["rho"],
+    }
+
+
 def _model(args) -> PeelingModel:
     check_choice("--geometry", args.geometry, GEOMETRIES)
     checked("[0, 1)", check_rho, args.rho)
@@ -121,14 +226,15 @@ def validate_sweep(args: argparse.Namespace) -> dict:
     """Every option checked, nothing compiled; returns the keyword arguments of :func:`peeljax.sweep`."""
     V = _positive_list("--V", args.V)
     tau = tau_grid(args.tau, args.n_tau)
-    checked("dt in (0, t_final], t_final in (0, inf)", check_mesh, args.dt, args.t_final)
+    options = _integrator(args)
     model = _model(args)
     w0, w1 = args.window
     if not (math.isfinite(w0) and math.isfinite(w1) and 0 <= w0 <= w1 <= 1):
         raise ValueError(f"--window W0 W1 must satisfy 0 <= W0 <= W1 <= 1, got {w0:g} {w1:g}")
-    n_steps = check_mesh(args.dt, args.t_final)
-    if args.save_every is not None and not 1 <= args.save_every <= n_steps:
-        raise ValueError(f"--save-every must lie in [1, {n_steps}] (the number of steps), got {args.save_every}")
+    if options["dt"] is None and w0 == w1:
+        raise ValueError(
+            f"--window W0 W1 needs W0 < W1 with error control (its statistics are time integrals), got {w0:g} {w1:g}"
+        )
     if args.chunk < 1:
         raise ValueError(f"--chunk must be a positive integer (allowed range: [1, inf)), got {args.chunk}")
     if args.out is not None:
@@ -136,15 +242,15 @@ def validate_sweep(args: argparse.Namespace) -> dict:
     if args.plot is not None:
         check_output_path("--plot", args.plot, plot_formats())
     return {
-        "model": model, "V": V, "tau": tau, "dt": float(args.dt), "t_final": float(args.t_final), "grid": "outer",
-        "window": (w0, w1), "save_every": args.save_every, "chunk": args.chunk, "out": args.out, "rho": float(args.rho),
+        "model": model, "V": V, "tau": tau, **options, "t_final": float(args.t_final), "grid": "outer",
+        "window": (w0, w1), "chunk": args.chunk, "out": args.out, "rho": float(args.rho),
         "progress": args.progress and not args.json,
     }  # fmt: skip
 
 
 def validate_tau_star(args: argparse.Namespace) -> dict:
     V = _positive_list("--V", args.V)
-    checked("dt in (0, t_final], t_final in (0, inf)", check_mesh, args.dt, args.t_final)
+    options = _integrator(args)
     model = _model(args)
     lo, hi = args.tau_range
     if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
@@ -153,11 +259,15 @@ def validate_tau_star(args: argparse.Namespace) -> dict:
         raise ValueError(f"--tau-rtol must lie in (0, 1), got {args.tau_rtol:g}")
     if args.n_points < 2:
         raise ValueError(f"--n-points must be an integer >= 2 (allowed range: [2, inf)), got {args.n_points}")
-    return {"model": model, "V": V, "dt": float(args.dt), "t_final": float(args.t_final), "tau_range": (lo, hi),
+    return {"model": model, "V": V, **options, "t_final": float(args.t_final), "tau_range": (lo, hi),
                 "tau_rtol": float(args.tau_rtol), "n_points": args.n_points, "rho": float(args.rho)}  # fmt: skip
 
 
 # ---------------------------------------------------------------------------- commands
+_TRAJECTORY_KEYS = ("V", "tau", "completed", "status", "t_stop", "v_mean", "v_std", "v_min", "v_max", "events",
+                    "accepted_steps", "rejected_steps", "window_time")  # fmt: skip
+
+
 def _run_sweep(kwargs: dict):
     from ..sweeps import sweep
 
@@ -176,7 +286,8 @@ def _sweep_command(args: argparse.Namespace) -> int:
     except (ValueError, TypeError) as error:
         return fail(error)
     n = len(kwargs["V"]) * len(kwargs["tau"])
-    print(f"{PROG}: sweep of {n} trajectories (compiling first: a few seconds) ...", file=sys.stderr)
+    print(f"{PROG}: sweep of {n} trajectories, {engine_text(kwargs)} (compiling first: a few seconds) ...",
+          file=sys.stderr)  # fmt: skip
     start = time.perf_counter()
     try:
         result = _run_sweep(kwargs)
@@ -200,17 +311,16 @@ def _sweep_command(args: argparse.Namespace) -> int:
         "n_completed": int(completed.sum()),
         "V": kwargs["V"],
         "tau": kwargs["tau"],
-        "dt": kwargs["dt"],
+        **_engine_record(kwargs),
+        "save_dt": kwargs["save_dt"],
+        "save_every": kwargs["save_every"],
         "t_final": kwargs["t_final"],
         "window": list(kwargs["window"]),
         "wall_time_s": wall,
         "computed_chunks": list(result.computed_chunks),
         "out": args.out,
         "plot": args.plot,
-        "trajectories": {
-            key: np.asarray(getattr(result, key)).tolist()
-            for key in ("V", "tau", "completed", "status", "t_stop", "v_mean", "v_std", "v_min", "v_max", "events")
-        },
+        "trajectories": {key: np.asarray(getattr(result, key)).tolist() for key in _TRAJECTORY_KEYS},
     }
     if args.json:
         print(json.dumps(json_safe(record), allow_nan=False))
@@ -224,11 +334,15 @@ def _sweep_command(args: argparse.Namespace) -> int:
 def _print_sweep(record: dict, result, kwargs: dict, wall: float) -> None:
     print(f"{PROG} sweep: {record['n']} trajectories, {record['n_completed']} completed t = {kwargs['t_final']:g} s, "
           f"wall time {wall:.3g} s")  # fmt: skip
-    print(f"{'V':>8} {'tau':>10} {'status':>14} {'t_stop':>8} {'v_mean':>10} {'v_std':>10} {'events':>6}")
+    w0, w1 = kwargs["window"]
+    print(f"{engine_text(kwargs)}; v statistics over t in [{w0 * kwargs['t_final']:g}, {w1 * kwargs['t_final']:g}] s")
+    print(f"{'V':>8} {'tau':>10} {'status':>14} {'t_stop':>8} {'v_mean':>10} {'v_std':>10} {'events':>6} "
+          f"{'steps':>8} {'rejected':>8}")  # fmt: skip
     for i in range(len(result)):
         print(
             f"{result.V[i]:8.4g} {result.tau[i]:10.4g} {result.reasons[i]:>14} {result.t_stop[i]:8.4g} "
-            f"{result.v_mean[i]:10.4g} {result.v_std[i]:10.4g} {result.events[i]:6d}"
+            f"{result.v_mean[i]:10.4g} {result.v_std[i]:10.4g} {result.events[i]:6d} "
+            f"{result.accepted_steps[i]:8d} {result.rejected_steps[i]:8d}"
         )
     for key in ("out", "plot"):
         if record[key]:
@@ -240,7 +354,8 @@ def _tau_star_command(args: argparse.Namespace) -> int:
         kwargs = validate_tau_star(args)
     except (ValueError, TypeError) as error:
         return fail(error)
-    print(f"{PROG}: searching tau* for V = {kwargs['V']} (compiling first: a few seconds) ...", file=sys.stderr)
+    print(f"{PROG}: searching tau* for V = {kwargs['V']}, {engine_text(kwargs)} (compiling first: a few seconds) ...",
+          file=sys.stderr)  # fmt: skip
     start = time.perf_counter()
     result = _run_tau_star(kwargs)
     wall = time.perf_counter() - start
@@ -251,7 +366,7 @@ def _tau_star_command(args: argparse.Namespace) -> int:
         "found": result.found.tolist(),
         "t_stop_below": result.t_stop_below.tolist(),
         "rounds": result.rounds,
-        "dt": kwargs["dt"],
+        **_engine_record(kwargs),
         "t_final": kwargs["t_final"],
         "tau_range": list(kwargs["tau_range"]),
         "tau_rtol": kwargs["tau_rtol"],
@@ -260,8 +375,8 @@ def _tau_star_command(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(json_safe(record), allow_nan=False))
         return 0
-    print(f"{PROG} tau-star: dt = {kwargs['dt']:.6g} s, t_final = {kwargs['t_final']:g} s, tau_rtol = {kwargs['tau_rtol']:g}, "
-          f"{result.rounds} batched runs, {wall:.3g} s")  # fmt: skip
+    print(f"{PROG} tau-star: {engine_text(kwargs)}, t_final = {kwargs['t_final']:g} s, "
+          f"tau_rtol = {kwargs['tau_rtol']:g}, {result.rounds} batched runs, {wall:.3g} s")  # fmt: skip
     for i, V in enumerate(result.V):
         note = "" if result.found[i] else "  (not bracketed inside --tau-range)"
         print(
