@@ -49,6 +49,7 @@ def test_trajectory_fit_acceptance():
     """
     out = fit_acceptance.run(t_final=1.0, steps=500, progress=False)
     result = out["result"]
+    assert result.settings["rtol"] == 1e-6 and result.settings["dt"] is None  # error control, the default
     assert result.loss_reduction >= 100
     assert result.final_loss <= 1.05 * out["noise_floor"]  # at the noise floor: nothing left to fit
     assert result.v_range[0] < 1e-9 and result.v_range[1] > 4.0  # from v0 = 1e-10·V past V = 4
@@ -95,11 +96,3 @@ def test_fit_tolerances_are_checked():
         pj.fit_adhesion(obs, rtol=2.0, progress=False)
     with pytest.raises(ValueError, match="cannot be combined with dt"):
         pj.fit_adhesion(obs, dt=0.01, rtol=1e-6, progress=False)
-
-
-def test_fit_defaults_to_error_control_and_dt_keeps_the_uniform_mesh():
-    obs = pj.Observation(V=1.1, t=np.linspace(0, 0.1, 5), v=np.full(5, 1.1))
-    default = pj.fit_adhesion(obs, tau=0.1, free=["c1"], steps=0, progress=False)
-    assert default.settings["rtol"] == 1e-6 and default.settings["dt"] is None
-    uniform = pj.fit_adhesion(obs, tau=0.1, dt=0.01, free=["c1"], steps=0, progress=False)
-    assert uniform.settings["rtol"] is None and uniform.settings["n_steps"] == 10

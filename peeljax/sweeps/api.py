@@ -455,6 +455,7 @@ def sweep(
     Vs, taus, param_values, grid_shape = _trajectories(V, tau, params, grid)
     n = Vs.size
     devices = list(jax.devices()) if devices is None else list(devices)
+    devices = devices[: max(1, min(len(devices), n))]  # no device with only padding to run
     n_dev = len(devices)
     chunk = min(chunk, n)
     chunk = -(-chunk // n_dev) * n_dev  # a multiple of the device count
