@@ -156,7 +156,3 @@ def check_truncation(truncation) -> None:
         raise ValueError(f"truncation must be None or an integer >= 0, got {truncation!r}")
 
 
-def check_finite_scalar(name: str, value) -> float:
-    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
-        raise ValueError(f"{name} must be a finite number, got {_shown(value)!r}")
-    return float(value)

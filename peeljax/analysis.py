@@ -421,7 +421,7 @@ def bifurcation_diagram(
         t_transient: extrema are taken over t ≥ this (default t_final/2).
         engine: ``"sweep"`` (the batched :func:`peeljax.sweep`, states saved every step),
             ``"loop"`` (one :func:`peeljax.simulate` per V; V is traced, so one compilation), or
-            ``"auto"`` (the sweep engine when it is available).
+            ``"auto"`` (the sweep engine).
     """
     from .simulate import simulate
 
@@ -431,15 +431,7 @@ def bifurcation_diagram(
     Vs = np.atleast_1d(np.asarray(Vs, float))
     t_tr = 0.5 * t_final if t_transient is None else float(t_transient)
     series = []  # (ts, v, t_stop, completed) per V
-    use_sweep = engine == "sweep"
-    if engine == "auto":
-        try:
-            from .sweeps import sweep as _sweep  # noqa: F401
-
-            use_sweep = True
-        except ImportError:
-            use_sweep = False
-    if use_sweep:
+    if engine in ("auto", "sweep"):
         from .sweeps import sweep as run_sweep
 
         result = run_sweep(model, V=Vs, tau=tau, dt=dt, t_final=t_final, save_every=1, progress=False)

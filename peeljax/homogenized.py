@@ -23,7 +23,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from ._arrays import float_array
 from .model import PeelingModel
-from .structure import Jacobians, jacobians, schur_complement, truncated_schur_complement
+from .structure import jacobians, schur_complement, truncated_schur_complement
 
 __all__ = ["HomogenizedODE", "Evaluation"]
 
@@ -34,7 +34,6 @@ class Evaluation(eqx.Module):
     psi: Float[Array, "4"]
     J: Float[Array, ""]  # the (possibly truncated) Schur complement
     drive: Float[Array, ""]  # F̃·f, the rate of change of the shear force
-    jac: Jacobians | None = None
 
 
 class HomogenizedODE(eqx.Module):
@@ -50,7 +49,7 @@ class HomogenizedODE(eqx.Module):
     truncation: int | None = eqx.field(static=True, default=None)
 
     def evaluate(self, y: Float[Array, "4"]) -> Evaluation:
-        """ψ(y) together with J_t, F̃·f and the Jacobians."""
+        """ψ(y) together with J_t and F̃·f (the stop tests and diagnostics need them)."""
         x, v = y[:3], y[3]
         jac = jacobians(self.model, x, v, self.V)
         if self.truncation is None:
@@ -59,7 +58,7 @@ class HomogenizedODE(eqx.Module):
             J = truncated_schur_complement(jac, self.tau, self.truncation)
         drive = jnp.dot(jac.F_tilde, jac.f)
         psi = jnp.concatenate([jac.f, (-drive / J)[None]])
-        return Evaluation(psi=psi, J=J, drive=drive, jac=jac)
+        return Evaluation(psi=psi, J=J, drive=drive)
 
     def __call__(self, y: Float[Array, "4"]) -> Float[Array, "4"]:
         """ψ(y) (eq. ``hv``)."""
