@@ -60,7 +60,7 @@ _jax.config.update("jax_enable_x64", True)
 from .adhesion import COEFFICIENT_NAMES, PAPER_COEFFICIENTS, AdhesionLaw, safe_pow  # noqa: E402
 from .analysis import StickSlipAnalysis, analyze, bifurcation_diagram, phi_extrema, trajectory_structure  # noqa: E402
 from .fit import FitResult, Observation, fit_adhesion, fit_adhesion_steady, phi_relative_error  # noqa: E402
-from .homogenized import HomogenizedODE  # noqa: E402
+from .homogenized import ODE, HomogenizedODE  # noqa: E402
 from .integrators import (  # noqa: E402
     AlphaMethod,
     AlphaSolver,
@@ -99,6 +99,7 @@ __all__ = [
     "Jacobians",
     "LeastTau",
     "LogTransformedODE",
+    "ODE",
     "Observation",
     "PAPER_COEFFICIENTS",
     "PIController",

@@ -17,6 +17,8 @@ constraint is kept exactly only in the index-1 limit; τ > 0 relaxes it and smoo
 
 from __future__ import annotations
 
+from typing import Protocol, runtime_checkable
+
 import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
@@ -25,7 +27,7 @@ from ._arrays import float_array
 from .model import PeelingModel
 from .structure import jacobians, schur_complement, truncated_schur_complement
 
-__all__ = ["HomogenizedODE", "Evaluation"]
+__all__ = ["ODE", "Evaluation", "HomogenizedODE"]
 
 
 class Evaluation(eqx.Module):
@@ -34,6 +36,23 @@ class Evaluation(eqx.Module):
     psi: Float[Array, "4"]
     J: Float[Array, ""]  # the (possibly truncated) Schur complement
     drive: Float[Array, ""]  # F̃·f, the rate of change of the shear force
+
+
+@runtime_checkable
+class ODE(Protocol):
+    """What peeljax's α-method integrators take: y' = ψ(y) with the quantities of its stop tests.
+
+    ``evaluate(y)`` returns an :class:`Evaluation`: ψ(y), J_t (a run stops at an impasse point,
+    where J_t changes sign while ``drive`` = F̃·f does not) and F̃·f; ``tau`` is the
+    homogenization time scale (for the local index in the diagnostics). It must be a pytree
+    (an ``eqx.Module``) of traced arrays and static fields, differentiable by JAX.
+    :class:`HomogenizedODE` is the peeling problem; ``tests/conftest.py`` has a linear one
+    (J_t = −1, F̃·f = 0: never an impasse).
+    """
+
+    tau: Array
+
+    def evaluate(self, y: Float[Array, " n"]) -> Evaluation: ...
 
 
 class HomogenizedODE(eqx.Module):

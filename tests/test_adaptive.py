@@ -341,3 +341,12 @@ def test_vmap_over_tau_equals_single_runs():
         assert int(batch.status[i]) == int(single.status)
         assert int(batch.stats["accepted_steps"][i]) == int(single.stats["accepted_steps"])
         np.testing.assert_allclose(np.asarray(batch.v[i]), np.asarray(single.v), rtol=1e-12)
+
+
+def test_the_ode_contract_is_a_type():
+    """peeljax.ODE names what the integrators take; the peeling ODE, its log form and a test ODE meet it."""
+    ode = HomogenizedODE(pj.PeelingModel(), 1.1, 0.01)
+    assert isinstance(ode, pj.ODE)
+    assert isinstance(pj.LogTransformedODE(ode, (3,)), pj.ODE)
+    assert isinstance(LinearODE(jnp.asarray([-1.0])), pj.ODE)
+    assert not isinstance(pj.PeelingModel(), pj.ODE)

@@ -44,6 +44,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
+from ..homogenized import ODE
 from ..solution import Solution, StepDiagnostics, StopReason
 from ..structure import local_index
 from .alpha import AlphaMethod, AlphaState, _log_mask, _stop_gradient, alpha_start, to_physical
@@ -71,7 +72,7 @@ def error_constant(rho: ArrayLike) -> Array:
     return b / 2 + (0.5 - b) * (0.5 - gamma) - 1.0 / 6.0
 
 
-def alpha_attempt(ode, solver: AlphaMethod, state: AlphaState, h, chord=None) -> tuple[AlphaState, Array, Array, Array]:
+def alpha_attempt(ode: ODE, solver: AlphaMethod, state: AlphaState, h, chord=None) -> tuple[AlphaState, Array, Array, Array]:
     """One α-method step of size h from ``state`` (carried coordinates) and its error estimate.
 
     The step is :meth:`AlphaMethod.solve_step`, the one the uniform mesh takes. Returns
@@ -255,7 +256,7 @@ def _initial_step(controller: PIController, state: AlphaState, log_mask, span):
 
 
 def adaptive_loop(
-    ode,
+    ode: ODE,
     solver: AlphaMethod,
     y0: Float[Array, " n"],
     t0: ArrayLike,
@@ -368,7 +369,7 @@ def adaptive_loop(
 
 
 def integrate_alpha_adaptive(
-    ode,
+    ode: ODE,
     solver: AlphaMethod,
     y0: Float[Array, " n"],
     t0: ArrayLike,
@@ -384,8 +385,8 @@ def integrate_alpha_adaptive(
     """Integrate y' = ψ(y) from t0 to t_final with the error-controlled α-method.
 
     Args:
-        ode: the ODE (a :class:`~peeljax.HomogenizedODE` or anything with ``evaluate(y)``
-            returning ψ, J and F̃·f, and ``tau``).
+        ode: the ODE: a :class:`~peeljax.HomogenizedODE`, or anything that meets the
+            :class:`~peeljax.ODE` contract (``evaluate(y)`` returning ψ, J and F̃·f; ``tau``).
         solver: the :class:`AlphaMethod` (ρ, Newton tolerances, log components).
         y0: initial state (physical coordinates).
         controller: tolerances and step-size update (default ``PIController()``).

@@ -53,7 +53,7 @@ from jaxtyping import Array, ArrayLike, Float
 from .._arrays import float_array
 from .._linalg import solve_small
 from .._validation import check_positive, check_rho
-from ..homogenized import HomogenizedODE
+from ..homogenized import ODE, HomogenizedODE
 from ..solution import Solution, StepDiagnostics, StopReason, mask_after_stop
 from ..structure import local_index
 
@@ -676,7 +676,7 @@ def _checkpointed_scan(body, init, n_steps: int, chunk: int):
 
 
 def integrate_alpha(
-    ode: HomogenizedODE,
+    ode: ODE,
     solver: AlphaMethod,
     y0: Float[Array, "4"],
     t0: ArrayLike,
