@@ -127,6 +127,7 @@ def test_resume_with_other_tolerances_is_refused(tmp_path):
         ({"window": (0.5, 0.5)}, "w0 < w1 with error control"),
         ({"lane_batch": 0}, "lane_batch must be a positive integer"),
         ({"max_steps": 0}, "max_steps must be a positive integer"),
+        ({"save_dt": 1e-4, "memory_limit": 1e5}, "a larger save_dt, now 0.0001"),
     ],
 )
 def test_bad_input_is_refused_before_compiling(options, message, no_compilation):
