@@ -55,6 +55,7 @@ __all__ = [
     "fit_adhesion",
     "fit_adhesion_steady",
     "phi_relative_error",
+    "restart_on_ascent",
     "trajectory_loss",
 ]
 
@@ -349,74 +350,129 @@ class FitResult:
         return text
 
 
-def _check_options(steps, optimizer, learning_rate) -> float | None:
-    """Checks the optimizer options before anything compiles; returns ``learning_rate`` as a float or None."""
+OPTIMIZERS = ("adam", "lbfgs")
+
+
+def restart_on_ascent(inner: optax.GradientTransformation) -> optax.GradientTransformationExtraArgs:
+    """Wraps an L-BFGS-like transformation: an uphill step restarts its memory.
+
+    optax's L-BFGS keeps curvature pairs with s·y ≤ 0 (the trajectory loss is not convex far
+    from its minimum), and its direction can then point uphill. After each update the wrapper
+    checks ⟨g, u⟩ < 0 (g the gradient passed in as ``updates``, u the update); where it fails,
+    the update is taken again from ``inner.init(params)``: fresh memory, i.e. a line-searched
+    gradient step. ``optimizer="lbfgs"`` is ``restart_on_ascent(optax.lbfgs(...))``; wrap your
+    own L-BFGS the same way, e.g.
+    ``fit_adhesion_steady(v, F, optimizer=restart_on_ascent(optax.lbfgs()))``.
+
+    ``params`` is required; extra arguments (``value``, ``grad``, ``value_fn`` for a line
+    search) are passed on to ``inner`` in both calls. The state is ``inner``'s.
+    """
+    if not isinstance(inner, optax.GradientTransformation):
+        raise TypeError(f"restart_on_ascent wraps an optax.GradientTransformation, got {type(inner).__name__}")
+    inner = optax.with_extra_args_support(inner)
+
+    def update(updates, state, params=None, **extra_args):
+        if params is None:
+            raise ValueError("restart_on_ascent: the update needs params (its restart calls inner.init(params))")
+        grad = updates
+        new_updates, new_state = inner.update(grad, state, params, **extra_args)
+
+        def restart(_):
+            return inner.update(grad, inner.init(params), params, **extra_args)
+
+        descent = optax.tree.vdot(grad, new_updates) < 0
+        return jax.lax.cond(descent, lambda _: (new_updates, new_state), restart, None)
+
+    return optax.GradientTransformationExtraArgs(inner.init, update)
+
+
+def _check_options(steps, optimizer, learning_rate) -> tuple[optax.GradientTransformation, float | None]:
+    """Checks the optimizer options before anything compiles.
+
+    Returns the optax transformation to run and ``learning_rate`` as a float (or None)."""
     if not isinstance(steps, int) or isinstance(steps, bool) or steps < 0:
         raise ValueError(
             f"steps must be an integer >= 0 (allowed range: [0, inf); 0 evaluates the start), got {steps!r}"
         )
+    if isinstance(optimizer, optax.GradientTransformation):
+        if learning_rate is not None:
+            raise ValueError(
+                f"learning_rate={learning_rate!r} applies to optimizer='adam' or 'lbfgs' only; an optax "
+                "transformation passed as optimizer carries its own learning rate: give one or the other"
+            )
+        if not (callable(optimizer.init) and callable(optimizer.update)):
+            # ValueError like every other bad option (the CLI and callers catch ValueError).
+            raise ValueError("optimizer: an optax.GradientTransformation needs callable init and update")  # noqa: TRY004
+        return optimizer, None
+    if not isinstance(optimizer, str) or optimizer not in OPTIMIZERS:
+        hint = " (a callable, not a transformation: call it, e.g. optax.adam(1e-2))" if callable(optimizer) else ""
+        raise ValueError(
+            f"optimizer must be 'adam', 'lbfgs' or an optax.GradientTransformation, got {optimizer!r}{hint}"
+        )
     if learning_rate is not None:
         check_positive("learning_rate", learning_rate)
         learning_rate = float(learning_rate)
-    _make_optimizer(optimizer, learning_rate)
-    return learning_rate
+    return _make_optimizer(optimizer, learning_rate), learning_rate
+
+
+def _optimizer_setting(optimizer) -> str:
+    """``FitResult.settings["optimizer"]``: the name, or the kind of a user's transformation (JSON-able)."""
+    if isinstance(optimizer, str):
+        return optimizer
+    return f"optax.{type(optimizer).__name__} (user)"
 
 
 @functools.cache  # one object per setting: the jitted update is cached on it
-def _make_optimizer(optimizer: str, learning_rate: float | None):
+def _make_optimizer(optimizer: str, learning_rate: float | None) -> optax.GradientTransformation:
     if optimizer == "adam":
-        return optax.adam(0.02 if learning_rate is None else learning_rate), False
+        return optax.adam(0.02 if learning_rate is None else learning_rate)
     if optimizer == "lbfgs":
         # A backtracking (Armijo) line search needs only loss values: the compiled update then
         # holds one gradient program, not a second one for the zoom line search's gradients.
         linesearch = optax.scale_by_backtracking_linesearch(max_backtracking_steps=20, store_grad=False)
-        return optax.lbfgs(learning_rate=learning_rate, linesearch=linesearch), True
+        return restart_on_ascent(optax.lbfgs(learning_rate=learning_rate, linesearch=linesearch))
     raise ValueError(f"optimizer must be 'adam' or 'lbfgs', got {optimizer!r}")
 
 
 @eqx.filter_jit
-def _update(loss_fn, optimizer: str, learning_rate, theta, state):
+def _update(loss_fn, opt: optax.GradientTransformation, theta, state):
     """One optimizer iteration at θ: (new θ, new state, L(θ), ∇L(θ), aux(θ)).
 
-    Module level and keyed on the loss module's structure: fits with new data or new start
-    values but the same shapes reuse the compiled program.
+    Module level and keyed on the loss module's structure and on ``opt`` (a NamedTuple of
+    functions: static, compared by identity): fits with new data or new start values but the
+    same shapes and the same transformation object reuse the compiled program. A
+    ``GradientTransformationExtraArgs`` (optax.lbfgs, optax.chain, ...) gets ``value``,
+    ``grad`` and ``value_fn`` (the loss alone, for a line search) as keyword arguments, as
+    optax's own solvers expect; a plain ``GradientTransformation`` gets none.
     """
-    opt, is_lbfgs = _make_optimizer(optimizer, learning_rate)
 
     def value_only(th):
         return loss_fn(th)[0]
 
     (value, aux), grad = jax.value_and_grad(loss_fn, has_aux=True)(theta)
-    if is_lbfgs:
-        updates, new_state = opt.update(grad, state, theta, value=value, grad=grad, value_fn=value_only)
-
-        # optax keeps curvature pairs with s·y ≤ 0 (the trajectory loss is not convex far
-        # from its minimum): the L-BFGS direction can then point uphill. Restart the memory
-        # and take a line-searched gradient step instead.
-        def restart(_):
-            return opt.update(grad, opt.init(theta), theta, value=value, grad=grad, value_fn=value_only)
-
-        descent = optax.tree.vdot(grad, updates) < 0
-        updates, state = jax.lax.cond(descent, lambda _: (updates, new_state), restart, None)
+    if isinstance(opt, optax.GradientTransformationExtraArgs):
+        updates, state = opt.update(grad, state, theta, value=value, grad=grad, value_fn=value_only)
     else:
         updates, state = opt.update(grad, state, theta)
     return optax.apply_updates(theta, updates), state, value, grad, aux
 
 
-def _fit(
-    loss_fn, start, names, settings, *, optimizer, learning_rate, steps, patience, tolerance, progress, description
-):
-    """Minimise loss_fn(θ) → (L, (v_min, v_max, t_stop)) from θ = 0 and report it as a :class:`FitResult`.
+def _strong(x):
+    # optax's init leaves weakly typed scalars (L-BFGS' line-search counter) that come back
+    # strongly typed from the first update: make them strong now, or step 2 compiles again.
+    return jnp.array(x, dtype=jnp.result_type(x)) if eqx.is_array_like(x) else x
+
+
+def _fit(loss_fn, start, names, settings, *, opt, steps, patience, tolerance, progress, description):
+    """Minimise loss_fn(θ) → (L, (v_min, v_max, t_stop)) with the optax transformation ``opt``
+    from θ = 0 and report it as a :class:`FitResult`.
 
     The best of θ_0 … θ_steps is returned (the last update is evaluated too). ``settings``
     without a ``"kind"`` are a trajectory fit's: its ``t_stop`` per V is reported.
     """
     began = time.perf_counter()
-    opt, _ = _make_optimizer(optimizer, learning_rate)
     theta = {n: jnp.zeros((), float) for n in names}  # strongly typed: no recompile after step 1
-    # optax's init leaves weakly typed scalars (L-BFGS' line-search counter) that come back
-    # strongly typed from the first update: make them strong now, or step 2 compiles again.
-    state = jax.tree.map(lambda x: jnp.array(x, dtype=x.dtype), opt.init(theta))
+    state = jax.tree.map(_strong, opt.init(theta))
     history = []
     best = (math.inf, theta, math.nan, None)
     since_best = 0
@@ -427,7 +483,7 @@ def _fit(
 
         bar = tqdm(total=steps, desc=description, leave=False)
     for k in range(steps + 1):
-        new_theta, state, value, grad, aux = _update(loss_fn, optimizer, learning_rate, theta, state)
+        new_theta, state, value, grad, aux = _update(loss_fn, opt, theta, state)
         value = float(value)
         if not math.isfinite(value):
             break
@@ -481,7 +537,7 @@ def fit_adhesion(
     t_final: float | None = None,
     free: Sequence[str] | None = None,
     start: AdhesionLaw | None = None,
-    optimizer: str = "adam",
+    optimizer: str | optax.GradientTransformation = "adam",
     steps: int = 500,
     learning_rate: float | None = None,
     weights: dict[str, float] | None = None,
@@ -497,8 +553,8 @@ def fit_adhesion(
     """Fit φ's coefficients to observed runs (v(t), optionally F(t) and α(t)) at one or more V.
 
     Minimises the loss of :func:`trajectory_loss` (module docstring) over θ with
-    c = c_start·exp(θ) for each free coefficient, with optax's Adam (default) or L-BFGS
-    (``optimizer="lbfgs"``, with a backtracking line search; ``learning_rate`` caps its step). The model runs
+    c = c_start·exp(θ) for each free coefficient, with optax's Adam (default), L-BFGS
+    (``optimizer="lbfgs"``) or any optax transformation passed as ``optimizer``. The model runs
     with the error-controlled α-method (default; ``rtol``, ``atol``), or the uniform mesh of
     step ``dt`` when given, on [0, t_final] (default: the last observation time), starting
     from the paper's consistent initial data at each V.
@@ -508,7 +564,18 @@ def fit_adhesion(
         model: spool and tape (default the paper's); its adhesion law is the start unless
             ``start`` is given.
         free: names of the coefficients to fit (default all 14); the rest stay at the start.
+        optimizer: ``"adam"`` (default; ``optax.adam(learning_rate)``), ``"lbfgs"``
+            (:func:`restart_on_ascent` of ``optax.lbfgs`` with a backtracking Armijo line
+            search; ``learning_rate`` caps its step), or an ``optax.GradientTransformation``
+            acting on θ, e.g. ``optax.chain(optax.clip_by_global_norm(1.0), optax.sgd(1e-2))``
+            or ``restart_on_ascent(optax.lbfgs())``. A ``GradientTransformationExtraArgs``
+            (``optax.lbfgs``, anything from ``optax.chain``) is updated with the keyword
+            arguments ``value``, ``grad`` and ``value_fn`` (θ ↦ L, for a line search); a plain
+            ``GradientTransformation`` without. Reuse one object across fits: the compiled
+            update is cached on it.
         steps: optimizer iterations (0: only evaluate the loss and its gradient at the start).
+        learning_rate: Adam's step (default 0.02) or L-BFGS' cap on its step (default none);
+            only with ``optimizer="adam"``/``"lbfgs"`` (a transformation carries its own).
         weights: per observed quantity ``{"v": 1, "F": 1, "alpha": 1}``.
         patience, tolerance: stop when the loss has not fallen by a relative ``tolerance``
             for ``patience`` iterations.
@@ -546,7 +613,7 @@ def fit_adhesion(
     weights = {q: 1.0 for q in QUANTITIES} | dict(weights or {})
     data, t_obs_max = _pack(observations)
     t_final = float(t_obs_max if t_final is None else t_final)
-    learning_rate = _check_options(steps, optimizer, learning_rate)
+    opt, learning_rate = _check_options(steps, optimizer, learning_rate)
     controller = None
     if dt is not None:
         for name, value in (("rtol", rtol), ("atol", atol)):
@@ -580,7 +647,7 @@ def fit_adhesion(
         "dt": None if controller is not None else float(t_final / n_steps),
         "t_final": t_final,
         "n_steps": None if controller is not None else n_steps,
-        "optimizer": optimizer,
+        "optimizer": _optimizer_setting(optimizer),
         "learning_rate": learning_rate,
         "steps": steps,
         "patience": patience,
@@ -597,8 +664,7 @@ def fit_adhesion(
         start,
         names,
         settings,
-        optimizer=optimizer,
-        learning_rate=learning_rate,
+        opt=opt,
         steps=steps,
         patience=patience,
         tolerance=tolerance,
@@ -614,7 +680,7 @@ def fit_adhesion_steady(
     *,
     start: AdhesionLaw | None = None,
     free: Sequence[str] | None = None,
-    optimizer: str = "adam",
+    optimizer: str | optax.GradientTransformation = "adam",
     steps: int = 2000,
     learning_rate: float | None = None,
     patience: int = 200,
@@ -626,7 +692,9 @@ def fit_adhesion_steady(
     In steady peeling the constraint (sac) holds with α, u constant, so the shear force
     (1 + l·sinα/L)·F equals φ(v, V) with v = V (default ``V = v``). The loss is
     mean_i ((φ(v_i, V_i) − force_i)/rms(force))², with the same parametrisation and
-    optimizers as :func:`fit_adhesion`. φ is determined only on the measured v range.
+    optimizers as :func:`fit_adhesion` (``optimizer``: ``"adam"``, ``"lbfgs"`` or an
+    ``optax.GradientTransformation``; ``learning_rate`` only with the names). φ is determined
+    only on the measured v range.
     """
     v = jnp.asarray(v, float)
     force = jnp.asarray(force, float)
@@ -636,12 +704,12 @@ def fit_adhesion_steady(
     if not bool(jnp.all(v > 0)) or not bool(jnp.all(jnp.isfinite(force))):
         raise ValueError("v must be > 0 and force finite")
     names = _check_free(free)
-    learning_rate = _check_options(steps, optimizer, learning_rate)
+    opt, learning_rate = _check_options(steps, optimizer, learning_rate)
     start = AdhesionLaw() if start is None else start
     loss_fn = _SteadyLoss(start=start, v=v, force=force, V=V, scale=jnp.sqrt(jnp.mean(force**2)))
     settings = {
         "kind": "steady",
-        "optimizer": optimizer,
+        "optimizer": _optimizer_setting(optimizer),
         "learning_rate": learning_rate,
         "steps": steps,
         "patience": patience,
@@ -652,8 +720,7 @@ def fit_adhesion_steady(
         start,
         names,
         settings,
-        optimizer=optimizer,
-        learning_rate=learning_rate,
+        opt=opt,
         steps=steps,
         patience=patience,
         tolerance=tolerance,

@@ -10,9 +10,11 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import optax
 import pytest
 
 import peeljax as pj
+from peeljax.fit import _update, restart_on_ascent
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import fit_acceptance
@@ -96,3 +98,60 @@ def test_fit_tolerances_are_checked():
         pj.fit_adhesion(obs, rtol=2.0, progress=False)
     with pytest.raises(ValueError, match="cannot be combined with dt"):
         pj.fit_adhesion(obs, dt=0.01, rtol=1e-6, progress=False)
+
+
+def steady_data(seed=0):
+    """(v, force, start) of the steady fit above: 1 % noise, all 14 coefficients 10–20 % off."""
+    rng = np.random.default_rng(seed)
+    v = np.geomspace(0.3, 5.0, 40)
+    force = np.asarray(pj.AdhesionLaw()(v, v)) * (1 + 0.01 * rng.standard_normal(v.size))
+    return v, force, perturbed(rng, pj.COEFFICIENT_NAMES)
+
+
+def test_optax_transformation_as_optimizer():
+    """optimizer=optax.adam(0.05) is optimizer="adam", learning_rate=0.05; the settings name it."""
+    v, force, start = steady_data()
+    named = pj.fit_adhesion_steady(v, force, start=start, steps=15, optimizer="adam", learning_rate=0.05,
+                                   progress=False)  # fmt: skip
+    given = pj.fit_adhesion_steady(v, force, start=start, steps=15, optimizer=optax.adam(0.05), progress=False)
+    assert named.settings["optimizer"] == "adam"
+    np.testing.assert_allclose(given.loss_history, named.loss_history, rtol=0, atol=1e-12)
+    assert given.settings["optimizer"] == "optax.GradientTransformationExtraArgs (user)"
+    assert given.settings["learning_rate"] is None
+    assert '"optax.GradientTransformationExtraArgs (user)"' in given.to_json()
+
+
+def test_chained_transformation_lowers_the_loss_and_compiles_once():
+    """optax.chain(clip, sgd) fits; a second fit with the same object and new data values reuses
+    the compiled update. A user L-BFGS (zoom line search: needs value, grad, value_fn) wrapped
+    in restart_on_ascent fits too."""
+    v, force, start = steady_data()
+    opt = optax.chain(optax.clip_by_global_norm(1.0), optax.sgd(0.01))
+    result = pj.fit_adhesion_steady(v, force, start=start, steps=5, optimizer=opt, progress=False)
+    assert result.steps == 5 and result.final_loss < result.initial_loss
+    size = _update._cached._cache_size()
+    again = pj.fit_adhesion_steady(v, 1.01 * force, start=start, steps=5, optimizer=opt, progress=False)
+    assert again.final_loss < again.initial_loss
+    assert _update._cached._cache_size() == size  # same shapes, free set and transformation
+    lbfgs = pj.fit_adhesion_steady(
+        v, force, start=start, steps=10, optimizer=restart_on_ascent(optax.lbfgs()), progress=False
+    )
+    assert lbfgs.final_loss < 0.1 * lbfgs.initial_loss
+
+
+def test_bad_optimizers_are_rejected_before_compiling():
+    obs = pj.Observation(V=1.1, t=np.linspace(0, 0.2, 5), v=np.ones(5))
+    v, force, _ = steady_data()
+    size = _update._cached._cache_size()
+    for bad in ("sgd", optax.adam, (optax.adam(0.1).init, optax.adam(0.1).update), 0.1, None):
+        with pytest.raises(ValueError, match="optimizer must be"):
+            pj.fit_adhesion(obs, optimizer=bad, progress=False)
+        with pytest.raises(ValueError, match="optimizer must be"):
+            pj.fit_adhesion_steady(v, force, optimizer=bad, progress=False)
+    with pytest.raises(ValueError, match="call it"):
+        pj.fit_adhesion_steady(v, force, optimizer=optax.sgd, progress=False)
+    with pytest.raises(ValueError, match="learning_rate.*optimizer"):
+        pj.fit_adhesion(obs, optimizer=optax.adam(0.1), learning_rate=0.1, progress=False)
+    with pytest.raises(ValueError, match="learning_rate.*optimizer"):
+        pj.fit_adhesion_steady(v, force, optimizer=optax.sgd(0.1), learning_rate=0.1, progress=False)
+    assert _update._cached._cache_size() == size
