@@ -24,10 +24,10 @@ from jaxtyping import Array, Float
 
 from .._arrays import float_array
 from ..analysis import phi_extrema
-from ..integrators.reference import _stop_reason
+from ..integrators.reference import solution_from_diffrax
 from ..model import PeelingModel
 from ..simulate import simulate_reference
-from ..solution import Solution, mask_after_stop
+from ..solution import Solution
 
 __all__ = ["StateSpaceODE", "integrate_index1", "integrate_state_space", "tolerance_sensitivity"]
 
@@ -57,7 +57,7 @@ class StateSpaceODE(eqx.Module):
     v_top: Float[Array, ""] = eqx.field(converter=float_array)
     v_floor: float = 1e-14
 
-    def velocity(self, x: Float[Array, "3"]) -> Array:
+    def velocity(self, x: Float[Array, " 3"]) -> Array:
         """v(x) by 200 bisections in log v on (v_floor, v_top]; NaN where G(x) > φ(v_top) (past the fold)."""
         G = self.model.shear_force(x)
         lo, hi = jnp.log(self.v_floor), jnp.log(self.v_top)
@@ -73,7 +73,7 @@ class StateSpaceODE(eqx.Module):
         exists = G <= self.model.phi(self.v_top, self.V)
         return jnp.where(exists, v, jnp.nan)
 
-    def __call__(self, x: Float[Array, "3"]) -> Float[Array, "3"]:
+    def __call__(self, x: Float[Array, " 3"]) -> Float[Array, " 3"]:
         return self.model.f(x, self.velocity(x), self.V)
 
 
@@ -94,7 +94,7 @@ def _solve_state_space(system, x0, ts, rtol, atol, dtmin, max_steps):
     )
     xs = sol.ys
     vs = jax.vmap(system.velocity)(jnp.where(jnp.isfinite(xs), xs, x0))
-    return xs, vs, sol.result, sol.stats["num_steps"]
+    return sol, vs
 
 
 def integrate_state_space(
@@ -118,22 +118,11 @@ def integrate_state_space(
     ts = jnp.linspace(0.0, float(t_final), n + 1)
     y0 = model.initial_state(V)
     system = StateSpaceODE(model, V, v_top)
-    xs, vs, result, steps = _solve_state_space(
+    sol, vs = _solve_state_space(
         system, y0[:3], ts, jnp.asarray(rtol), jnp.asarray(atol), 1e-12 * float(t_final), max_steps
     )
-    ys = jnp.concatenate([xs, vs[:, None]], axis=1)
-    valid = jnp.cumprod(jnp.all(jnp.isfinite(xs), axis=1)).astype(bool)
-    n_valid = jnp.sum(valid)
-    return Solution(
-        ts=ts,
-        ys=mask_after_stop(jnp.where(valid[:, None], ys, y0), valid),
-        valid=valid,
-        status=_stop_reason(result),
-        t_stop=ts[jnp.maximum(n_valid - 1, 0)],
-        stats={"steps": steps, "v_top": jnp.asarray(v_top)},
-        diagnostics=None,
-        method="state-space",
-    )
+    ys = jnp.concatenate([sol.ys, vs[:, None]], axis=1)
+    return solution_from_diffrax(sol, y0, ts, ys=ys, method="state-space", stats={"v_top": jnp.asarray(v_top)})
 
 
 def tolerance_sensitivity(

@@ -28,9 +28,9 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .._arrays import float_array
-from ..integrators.reference import _stop_reason
+from ..integrators.reference import solution_from_diffrax
 from ..model import PeelingModel
-from ..solution import Solution, mask_after_stop
+from ..solution import Solution
 
 __all__ = ["InertialModel", "constraint_report", "integrate_inertial"]
 
@@ -42,7 +42,7 @@ class InertialModel(eqx.Module):
     V: Float[Array, ""] = eqx.field(converter=float_array)
     m: Float[Array, ""] = eqx.field(converter=float_array)
 
-    def rhs(self, z: Float[Array, "4"]) -> Float[Array, "4"]:
+    def rhs(self, z: Float[Array, " 4"]) -> Float[Array, " 4"]:
         """d/dt (α, ω, u, log v)."""
         x, v = z[:3], jnp.exp(z[3])
         vdot = self.model.constraint(x, v, self.V) / self.m
@@ -69,7 +69,7 @@ def _solve(system, z0, ts, rtol, atol, dtmin, max_steps, save_steps=False):
         max_steps=max_steps,
         throw=False,
     )
-    return sol.ts, sol.ys, sol.result, sol.stats["num_steps"]
+    return sol
 
 
 def integrate_inertial(
@@ -110,24 +110,9 @@ def integrate_inertial(
     z0 = y0.at[3].set(jnp.log(y0[3]))
     ts = jnp.linspace(0.0, float(t_final), n + 1)
     system = InertialModel(model, V, m)
-    ts_saved, zs, result, steps = _solve(
-        system, z0, ts, jnp.asarray(rtol), jnp.asarray(atol), 1e-14 * float(t_final), max_steps, save_steps
-    )
-    ys = zs.at[:, 3].set(jnp.exp(zs[:, 3]))
-    valid = jnp.cumprod(jnp.all(jnp.isfinite(ys), axis=1)).astype(bool)
-    if save_steps:
-        valid = valid & jnp.isfinite(ts_saved)
-        ts = jnp.where(valid, ts_saved, jnp.nan)
-    return Solution(
-        ts=ts,
-        ys=mask_after_stop(jnp.where(valid[:, None], ys, y0), valid),
-        valid=valid,
-        status=_stop_reason(result),
-        t_stop=jnp.nanmax(jnp.where(valid, ts, -jnp.inf)),
-        stats={"steps": steps},
-        diagnostics=None,
-        method="inertial",
-    )
+    sol = _solve(system, z0, ts, jnp.asarray(rtol), jnp.asarray(atol), 1e-14 * float(t_final), max_steps, save_steps)
+    ys = sol.ys.at[:, 3].set(jnp.exp(sol.ys[:, 3]))
+    return solution_from_diffrax(sol, y0, None if save_steps else ts, ys=ys, method="inertial")
 
 
 def constraint_report(solution: Solution, model: PeelingModel | None = None, V: float = 1.1) -> dict[str, float]:
