@@ -40,14 +40,14 @@ import numpy as np
 import optax
 from jaxtyping import Array, ArrayLike, Float
 
-from ._validation import check_mesh, check_positive, check_tolerance
+from ._validation import check_mesh, check_positive
 from .adhesion import COEFFICIENT_NAMES, AdhesionLaw
 from .homogenized import HomogenizedODE
 from .integrators.adaptive import integrate_alpha_adaptive
 from .integrators.alpha import AlphaMethod, integrate_alpha
 from .integrators.controller import PIController
 from .model import PeelingModel
-from .simulate import DEFAULT_ATOL, DEFAULT_RTOL
+from .simulate import check_error_control, refuse_with_dt
 
 __all__ = [
     "FitResult",
@@ -616,17 +616,11 @@ def fit_adhesion(
     opt, learning_rate = _check_options(steps, optimizer, learning_rate)
     controller = None
     if dt is not None:
-        for name, value in (("rtol", rtol), ("atol", atol)):
-            if value is not None:
-                raise ValueError(f"{name} applies to error control (dt=None); it cannot be combined with dt={dt!r}")
+        refuse_with_dt(dt, rtol=rtol, atol=atol)
         n_steps = check_mesh(dt, t_final)
     else:
-        check_positive("t_final", t_final)
         n_steps = 1  # unused by error control
-        rtol = DEFAULT_RTOL if rtol is None else rtol
-        atol = DEFAULT_ATOL if atol is None else atol
-        check_tolerance("rtol", rtol, upper=1.0)
-        check_tolerance("atol", atol)
+        rtol, atol = check_error_control(t_final, rtol, atol, None, 1)
         controller = PIController(rtol=rtol, atol=atol)
     loss_fn = _TrajectoryLoss(
         start=start,

@@ -138,6 +138,26 @@ DEFAULT_RTOL, DEFAULT_ATOL = 1e-6, 1e-9
 DEFAULT_MAX_STEPS = 100_000
 
 
+def refuse_with_dt(dt, **options) -> None:
+    """Error control's options (not None) cannot be combined with a uniform mesh ``dt``."""
+    for name, value in options.items():
+        if value is not None:
+            raise ValueError(f"{name} applies to error control (dt=None); it cannot be combined with dt={dt!r}")
+
+
+def check_error_control(t_final, rtol, atol, dtmin, max_steps) -> tuple[float, float]:
+    """Error control's options, checked before anything compiles; returns (rtol, atol) with defaults."""
+    check_positive("t_final", t_final)
+    rtol = DEFAULT_RTOL if rtol is None else rtol
+    atol = DEFAULT_ATOL if atol is None else atol
+    check_tolerance("rtol", rtol, upper=1.0)
+    check_tolerance("atol", atol)
+    if dtmin is not None:
+        check_positive("dtmin", dtmin)
+    check_max_steps(max_steps)
+    return float(rtol), float(atol)
+
+
 def simulate(
     model: PeelingModel | None = None,
     V: ArrayLike = 1.1,
@@ -206,9 +226,7 @@ def simulate(
     mesh's shape and must be Python numbers. Input is checked before compilation.
     """
     if dt is not None:
-        for name, value in (("rtol", rtol), ("atol", atol), ("ts", ts), ("dtmin", dtmin)):
-            if value is not None:
-                raise ValueError(f"{name} applies to error control (dt=None); it cannot be combined with dt={dt!r}")
+        refuse_with_dt(dt, rtol=rtol, atol=atol, ts=ts, dtmin=dtmin)
         n_steps = check_mesh(dt, t_final)
         solver = checked_solver(solver, rho)
         ode, y0 = _prepare(model, V, tau, y0, truncation)
@@ -217,20 +235,13 @@ def simulate(
         raise ValueError(
             "checkpoint_every applies to the uniform mesh (dt given); error control checkpoints its loop itself"
         )
-    check_positive("t_final", t_final)
-    rtol = DEFAULT_RTOL if rtol is None else rtol
-    atol = DEFAULT_ATOL if atol is None else atol
-    check_tolerance("rtol", rtol, upper=1.0)
-    check_tolerance("atol", atol)
-    if dtmin is not None:
-        check_positive("dtmin", dtmin)
-    check_max_steps(max_steps)
+    rtol, atol = check_error_control(t_final, rtol, atol, dtmin, max_steps)
     if adjoint not in ("reverse", "forward"):
         raise ValueError(f"adjoint must be 'reverse' or 'forward', got {adjoint!r}")
     ts = None if ts is None else check_output_times(ts, t_final)
     solver = checked_solver(solver, rho)
     ode, y0 = _prepare(model, V, tau, y0, truncation)
-    controller = _controller(float(rtol), float(atol))
+    controller = _controller(rtol, atol)
     t_final = float_array(t_final)
     dtmin = 1e-12 * t_final if dtmin is None else float_array(dtmin)
     return _run_adaptive(ode, solver, y0, t_final, controller, ts, dtmin, max_steps, adjoint)

@@ -12,13 +12,13 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import ArrayLike, Bool, Float, Int
 
-from .._validation import check_choice, check_max_steps, check_mesh, check_positive, check_tolerance, check_truncation
+from .._validation import check_choice, check_mesh, check_positive, check_truncation
 from ..adhesion import AdhesionLaw
 from ..integrators.alpha import AlphaMethod
 from ..integrators.controller import PIController
 from ..integrators.dense import output_times
 from ..model import PeelingModel
-from ..simulate import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_RTOL, checked_solver
+from ..simulate import DEFAULT_MAX_STEPS, check_error_control, checked_solver, refuse_with_dt
 from ..solution import StopReason
 from . import engine
 from .storage import ChunkStore
@@ -288,9 +288,7 @@ class ErrorControl:
 def engine_for(dt, t_final, rtol, atol, save_dt, save_every, dtmin, max_steps) -> UniformMesh | ErrorControl:
     """Check the integrator's options (uniform mesh when ``dt`` is given, else error control)."""
     if dt is not None:
-        for name, value in (("rtol", rtol), ("atol", atol), ("save_dt", save_dt), ("dtmin", dtmin)):
-            if value is not None:
-                raise ValueError(f"{name} applies to error control (dt=None); it cannot be combined with dt={dt!r}")
+        refuse_with_dt(dt, rtol=rtol, atol=atol, save_dt=save_dt, dtmin=dtmin)
         n_steps = check_mesh(dt, t_final)
         if save_every is not None and (
             isinstance(save_every, bool) or not isinstance(save_every, int) or not 1 <= save_every <= n_steps
@@ -301,20 +299,13 @@ def engine_for(dt, t_final, rtol, atol, save_dt, save_every, dtmin, max_steps) -
         return UniformMesh(float(dt), n_steps, save_every)
     if save_every is not None:
         raise ValueError("save_every counts uniform-mesh steps (dt given); with error control save on times: save_dt")
-    check_positive("t_final", t_final)
-    rtol = DEFAULT_RTOL if rtol is None else rtol
-    atol = DEFAULT_ATOL if atol is None else atol
-    check_tolerance("rtol", rtol, upper=1.0)
-    check_tolerance("atol", atol)
+    rtol, atol = check_error_control(t_final, rtol, atol, dtmin, max_steps)
     if save_dt is not None:
         check_positive("save_dt", save_dt)
         if float(save_dt) > float(t_final):
             raise ValueError(f"save_dt must lie in (0, t_final] = (0, {float(t_final):g}], got {save_dt!r}")
-    if dtmin is not None:
-        check_positive("dtmin", dtmin)
-    check_max_steps(max_steps)
     return ErrorControl(
-        float(rtol), float(atol), None if save_dt is None else float(save_dt),
+        rtol, atol, None if save_dt is None else float(save_dt),
         None if dtmin is None else float(dtmin), int(max_steps), float(t_final),
     )  # fmt: skip
 
