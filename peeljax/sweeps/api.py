@@ -1,4 +1,10 @@
-"""``peeljax.sweep``: many (V, τ[, model parameter]) trajectories, batched, chunked, resumable."""
+"""``peeljax.sweep``: many (V, τ[, model parameter]) trajectories, batched, chunked, resumable.
+
+The flow: the inputs become one entry per trajectory (:mod:`.grid`); the integrator is chosen
+(:mod:`.integrators`); each chunk of lanes is placed on the devices (:mod:`.devices`), run by
+the compiled engine (:mod:`.engine`), gathered and written (:mod:`.storage`); the chunks are
+merged into a :class:`SweepResult`.
+"""
 
 from __future__ import annotations
 
@@ -12,15 +18,15 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import ArrayLike, Bool, Float, Int
 
-from .._validation import check_choice, check_mesh, check_positive, check_truncation
+from .._validation import check_choice, check_truncation
 from ..adhesion import AdhesionLaw
 from ..integrators.alpha import AlphaMethod
-from ..integrators.controller import PIController
-from ..integrators.dense import output_times
 from ..model import PeelingModel
-from ..simulate import DEFAULT_MAX_STEPS, check_error_control, checked_solver, refuse_with_dt
+from ..simulate import DEFAULT_MAX_STEPS, checked_solver
 from ..solution import StopReason
-from . import engine
+from .devices import batch_mesh, deal, default_lane_batch, put_lanes, to_host
+from .grid import axis, check_window, trajectories
+from .integrators import ErrorControl, UniformMesh, integrator_for
 from .storage import ChunkStore
 
 __all__ = ["PER_TRAJECTORY_KEYS", "SweepResult", "sweep", "sweep_settings"]
@@ -129,59 +135,6 @@ class SweepResult:
 
 
 # ---------------------------------------------------------------------------- inputs
-def _axis(name: str, values) -> np.ndarray:
-    try:
-        array = np.asarray(values, dtype=float).reshape(-1)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number or a 1-D sequence of numbers, got {values!r}") from None
-    if np.ndim(values) > 1:
-        raise ValueError(f"{name} must be a number or a 1-D sequence, got shape {np.shape(values)}")
-    if array.size == 0:
-        raise ValueError(f"{name} is empty: give at least one value (allowed range: (0, inf))")
-    if not np.all(np.isfinite(array)):
-        raise ValueError(f"{name} must be finite, got {array[~np.isfinite(array)][:3].tolist()}")
-    return array
-
-
-def _check_parameter(name: str, array: np.ndarray) -> None:
-    positive = {"R", "I", "k", "l", "V", "tau", "c4"}
-    if name in positive and np.any(array <= 0):
-        raise ValueError(f"{name} must be > 0 (allowed range: (0, inf)), got {array[array <= 0][:3].tolist()}")
-
-
-def _trajectories(V, tau, params: dict, grid: str):
-    """Flatten the inputs to one entry per trajectory; returns (V, tau, params, grid_shape)."""
-    axes = {"V": _axis("V", V), "tau": _axis("tau", tau)}
-    for name, values in params.items():
-        if name not in engine.MODEL_PARAMETERS:
-            raise ValueError(f"unknown model parameter {name!r}; sweepable: {', '.join(engine.MODEL_PARAMETERS)}")
-        axes[name] = _axis(name, values)
-    for name, array in axes.items():
-        _check_parameter(name, array)
-    if grid == "outer":
-        shape = tuple(a.size for a in axes.values())
-        mesh = np.meshgrid(*axes.values(), indexing="ij")
-        flat = {name: m.reshape(-1) for name, m in zip(axes, mesh)}
-        return flat["V"], flat["tau"], {n: flat[n] for n in params}, shape
-    lengths = {name: a.size for name, a in axes.items()}
-    n = max(lengths.values())
-    bad = {name: size for name, size in lengths.items() if size not in (1, n)}
-    if bad:
-        raise ValueError(f"grid='pairs' needs equal lengths (or length 1): got {lengths}")
-    flat = {name: np.broadcast_to(a, (n,)).copy() for name, a in axes.items()}
-    return flat["V"], flat["tau"], {n_: flat[n_] for n_ in params}, None
-
-
-def _check_window(window) -> tuple[float, float]:
-    try:
-        w0, w1 = (float(w) for w in window)
-    except (TypeError, ValueError):
-        raise ValueError(f"window must be two numbers (w0, w1) with 0 <= w0 <= w1 <= 1, got {window!r}") from None
-    if not (0.0 <= w0 <= w1 <= 1.0):
-        raise ValueError(f"window must satisfy 0 <= w0 <= w1 <= 1 (fractions of t_final), got {window!r}")
-    return w0, w1
-
-
 def _memory_limit() -> float:
     try:
         return 0.5 * os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
@@ -226,128 +179,6 @@ def sweep_settings(model, solver, engine_run, V, tau, params, grid, t_final, win
         "solver": _solver_settings(solver),
         "model": _model_settings(model),
     }
-
-
-# ---------------------------------------------------------------------------- the two engines
-@dataclasses.dataclass(frozen=True)
-class UniformMesh:
-    """Every lane on the same mesh of ``n_steps`` steps (:func:`engine.run_batch`)."""
-
-    dt: float
-    n_steps: int
-    save_every: int | None
-
-    def settings(self) -> dict:
-        return {"dt": float(self.dt), "n_steps": self.n_steps, "save_every": self.save_every}
-
-    def save_times(self, t_final: float) -> np.ndarray | None:
-        if self.save_every is None:
-            return None
-        return float(t_final) / self.n_steps * self.save_every * np.arange(self.n_steps // self.save_every + 1)
-
-    def run(self, model, solver, V, tau, params, t_final, window, truncation, mesh, lane_batch):
-        return engine.run_batch(
-            model, solver, V, tau, params, t_final, window, self.n_steps, self.save_every, truncation, mesh
-        )
-
-
-@dataclasses.dataclass(frozen=True)
-class ErrorControl:
-    """Each lane with its own step size (:func:`engine.run_batch_adaptive`)."""
-
-    rtol: float
-    atol: float
-    save_dt: float | None
-    dtmin: float | None
-    max_steps: int
-    t_final: float
-
-    def settings(self) -> dict:
-        return {
-            "method": "alpha-adaptive",
-            "rtol": self.rtol,
-            "atol": self.atol,
-            "save_dt": self.save_dt,
-            "dtmin": self.dtmin,
-            "max_steps": self.max_steps,
-        }
-
-    def save_times(self, t_final: float) -> np.ndarray | None:
-        return None if self.save_dt is None else output_times(self.save_dt, float(t_final))
-
-    def run(self, model, solver, V, tau, params, t_final, window, truncation, mesh, lane_batch):
-        save_ts = self.save_times(self.t_final)
-        dtmin = 1e-12 * self.t_final if self.dtmin is None else self.dtmin
-        return engine.run_batch_adaptive(
-            model, solver, PIController(rtol=self.rtol, atol=self.atol), V, tau, params, t_final, window,
-            None if save_ts is None else jnp.asarray(save_ts), jnp.asarray(dtmin), self.max_steps, truncation,
-            lane_batch, mesh,
-        )  # fmt: skip
-
-
-def engine_for(dt, t_final, rtol, atol, save_dt, save_every, dtmin, max_steps) -> UniformMesh | ErrorControl:
-    """Check the integrator's options (uniform mesh when ``dt`` is given, else error control)."""
-    if dt is not None:
-        refuse_with_dt(dt, rtol=rtol, atol=atol, save_dt=save_dt, dtmin=dtmin)
-        n_steps = check_mesh(dt, t_final)
-        if save_every is not None and (
-            isinstance(save_every, bool) or not isinstance(save_every, int) or not 1 <= save_every <= n_steps
-        ):
-            raise ValueError(
-                f"save_every must be an integer in [1, {n_steps}] (the number of steps), got {save_every!r}"
-            )
-        return UniformMesh(float(dt), n_steps, save_every)
-    if save_every is not None:
-        raise ValueError("save_every counts uniform-mesh steps (dt given); with error control save on times: save_dt")
-    rtol, atol = check_error_control(t_final, rtol, atol, dtmin, max_steps)
-    if save_dt is not None:
-        check_positive("save_dt", save_dt)
-        if float(save_dt) > float(t_final):
-            raise ValueError(f"save_dt must lie in (0, t_final] = (0, {float(t_final):g}], got {save_dt!r}")
-    return ErrorControl(
-        rtol, atol, None if save_dt is None else float(save_dt),
-        None if dtmin is None else float(dtmin), int(max_steps), float(t_final),
-    )  # fmt: skip
-
-
-def default_lane_batch(devices, chunk: int) -> int:
-    """Lanes ``vmap``ped together by error control: 1 on CPUs, the whole chunk on accelerators.
-
-    Measured (``benchmarks/sweep_throughput.py``): on a CPU a ``vmap``ped while loop runs every
-    lane until the slowest is done and turns the kept-matrix ``cond`` into a select that
-    computes the Jacobian at every step, so one lane at a time is fastest; a GPU's time is set
-    by the number of loop iterations, not by the lanes, so it takes them all at once.
-    """
-    return 1 if devices[0].platform == "cpu" else max(1, chunk // len(devices))
-
-
-# ---------------------------------------------------------------------------- devices
-def batch_mesh(devices) -> jax.sharding.Mesh | None:
-    """A 1-D mesh with axis ``"batch"`` over ``devices``; None for a single device."""
-    if devices is None or len(devices) == 1:
-        return None
-    return jax.sharding.Mesh(np.asarray(devices), ("batch",))
-
-
-def _put(arrays, devices):
-    """Shard the batch axis over ``devices`` (a 1-D mesh), or leave on the default device."""
-    mesh = batch_mesh(devices)
-    if mesh is None:
-        return jax.tree_util.tree_map(jnp.asarray, arrays)
-    sharding = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch"))
-    # make_array_from_callback also works across hosts (jax.distributed): each process holds
-    # the whole (small) input and supplies the shards of its own devices.
-    return jax.tree_util.tree_map(
-        lambda a: jax.make_array_from_callback(a.shape, sharding, lambda index, a=a: a[index]), arrays
-    )
-
-
-def _to_host(tree):
-    if jax.process_count() > 1:
-        from jax.experimental import multihost_utils
-
-        return jax.tree_util.tree_map(np.asarray, multihost_utils.process_allgather(tree, tiled=True))
-    return jax.tree_util.tree_map(np.asarray, tree)
 
 
 # ---------------------------------------------------------------------------- the sweep
@@ -430,20 +261,20 @@ def sweep(
     if not isinstance(model, PeelingModel):
         raise TypeError(f"model must be a PeelingModel, got {type(model).__name__}")
     check_choice("grid", grid, ("outer", "pairs"))
-    engine_run = engine_for(dt, t_final, rtol, atol, save_dt, save_every, dtmin, max_steps)
+    engine_run = integrator_for(dt, t_final, rtol, atol, save_dt, save_every, dtmin, max_steps)
     solver = checked_solver(solver, rho)
     check_truncation(truncation)
     params = dict(params or {})
     if not isinstance(model.adhesion, AdhesionLaw) and any(name not in ("R", "I", "k", "l") for name in params):
         raise ValueError("sweeping coefficients of φ needs model.adhesion to be an AdhesionLaw")
-    window = _check_window(window)
+    window = check_window(window)
     if isinstance(engine_run, ErrorControl) and window[0] == window[1]:
         raise ValueError(f"window must have w0 < w1 with error control (its statistics are time integrals), got {window!r}")
     if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
         raise ValueError(f"chunk must be a positive integer, got {chunk!r}")
     if lane_batch is not None and (isinstance(lane_batch, bool) or not isinstance(lane_batch, int) or lane_batch < 1):
         raise ValueError(f"lane_batch must be a positive integer, got {lane_batch!r}")
-    Vs, taus, param_values, grid_shape = _trajectories(V, tau, params, grid)
+    Vs, taus, param_values, grid_shape = trajectories(V, tau, params, grid)
     n = Vs.size
     devices = list(jax.devices()) if devices is None else list(devices)
     devices = devices[: max(1, min(len(devices), n))]  # no device with only padding to run
@@ -469,7 +300,7 @@ def sweep(
         )
 
     settings = sweep_settings(
-        model, solver, engine_run, _axis("V", V), _axis("tau", tau), {k: _axis(k, v) for k, v in params.items()},
+        model, solver, engine_run, axis("V", V), axis("tau", tau), {k: axis(k, v) for k, v in params.items()},
         grid, t_final, window, chunk, truncation,
     )  # fmt: skip
     n_chunks = -(-n // chunk)
@@ -501,13 +332,13 @@ def sweep(
                 bar.set_postfix_str(f"chunk {i + 1}/{n_chunks}")
             if chunks[i] is not None:
                 continue
-            lanes = _device_order(np.arange(i * chunk, i * chunk + chunk).clip(max=n - 1), n_dev)  # padded
-            inputs = _put((Vs[lanes], taus[lanes], {k: v[lanes] for k, v in param_values.items()}), devices)
+            lanes = deal(np.arange(i * chunk, i * chunk + chunk).clip(max=n - 1), n_dev)  # padded
+            inputs = put_lanes((Vs[lanes], taus[lanes], {k: v[lanes] for k, v in param_values.items()}), devices)
             summary = engine_run.run(
                 model, solver, *inputs, t_final_array, window_array, truncation, mesh, lane_batch
             )
-            host = _to_host({key: getattr(summary, key) for key in keys})
-            back = np.argsort(_device_order(np.arange(chunk), n_dev))
+            host = to_host({key: getattr(summary, key) for key in keys})
+            back = np.argsort(deal(np.arange(chunk), n_dev))
             arrays = {key: value[back][: sizes[i]] for key, value in host.items()}
             if store is not None and jax.process_index() == 0:
                 store.save(i, arrays)
@@ -525,17 +356,6 @@ def sweep(
     if store is not None and jax.process_index() == 0:
         store.finish(result.arrays())
     return result
-
-
-def _device_order(lanes: np.ndarray, n_devices: int) -> np.ndarray:
-    """Deal the lanes to the devices like cards (lane i to device i mod n_devices).
-
-    Sharding gives each device a contiguous block of the batch; dealing spreads neighbouring
-    (V, τ), which cost alike, over all devices, so no device gets all the hard ones.
-    """
-    if n_devices == 1:
-        return lanes
-    return lanes.reshape(-1, n_devices).T.reshape(-1)
 
 
 def _result(arrays, Vs, taus, params, save_ts, t_final, window, grid_shape, settings, computed) -> SweepResult:

@@ -18,7 +18,7 @@ with the same settings, and accumulate the summaries inside the compiled loop.
 
 Lanes run in groups of ``lane_batch`` under ``vmap``, the groups one after another
 (``lax.map``): a ``vmap``ped while loop runs until its slowest lane is done, so on a CPU one
-lane at a time is fastest, while a GPU takes a whole chunk at once (``sweeps.api.default_lane_batch``).
+lane at a time is fastest, while a GPU takes a whole chunk at once (:func:`peeljax.sweeps.devices.default_lane_batch`).
 
 **Uniform mesh** (:func:`run_batch`, ``sweep(dt=…)``): every lane integrates on the mesh of N
 steps (same :func:`alpha_start` / :func:`alpha_advance` as :func:`peeljax.simulate`), one

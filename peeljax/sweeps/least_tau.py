@@ -39,7 +39,9 @@ from .._validation import check_truncation
 from ..integrators.alpha import AlphaMethod
 from ..model import PeelingModel
 from ..simulate import DEFAULT_MAX_STEPS, checked_solver
-from .api import _axis, _check_parameter, _put, _to_host, batch_mesh, default_lane_batch, engine_for
+from .devices import batch_mesh, default_lane_batch, put_lanes, to_host
+from .grid import axis, check_parameter
+from .integrators import integrator_for
 
 __all__ = ["LeastTau", "least_tau"]
 
@@ -106,9 +108,9 @@ def least_tau(
         A :class:`LeastTau`.
     """
     model = PeelingModel() if model is None else model
-    Vs = _axis("V", V)
-    _check_parameter("V", Vs)
-    engine_run = engine_for(dt, t_final, rtol, atol, None, None, dtmin, max_steps)
+    Vs = axis("V", V)
+    check_parameter("V", Vs)
+    engine_run = integrator_for(dt, t_final, rtol, atol, None, None, dtmin, max_steps)
     try:
         lo, hi = (float(x) for x in tau_range)
     except (TypeError, ValueError):
@@ -135,9 +137,9 @@ def least_tau(
         pad = width - V_lanes.size
         V_in = np.concatenate([V_lanes, np.full(pad, V_lanes[-1])])
         tau_in = np.concatenate([tau_lanes, np.full(pad, tau_lanes[-1])])
-        V_dev, tau_dev = _put((V_in, tau_in), devices)
+        V_dev, tau_dev = put_lanes((V_in, tau_in), devices)
         summary = engine_run.run(model, solver, V_dev, tau_dev, {}, t_final_array, window, truncation, mesh, lane_batch)
-        host = _to_host({"status": summary.status, "t_stop": summary.t_stop})
+        host = to_host({"status": summary.status, "t_stop": summary.t_stop})
         done = (host["status"][: V_lanes.size] == 0).reshape(m, n_points)
         t_stop = host["t_stop"][: V_lanes.size].reshape(m, n_points)
         return done, t_stop
