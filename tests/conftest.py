@@ -1,8 +1,12 @@
-"""Fixtures shared by the test modules."""
+"""Fixtures and helpers shared by the test modules (import the helpers: ``from conftest import run_cli``)."""
 
 from __future__ import annotations
 
+import contextlib
 import importlib
+import io
+from pathlib import Path
+from types import ModuleType
 
 import equinox as eqx
 import jax
@@ -11,22 +15,69 @@ import pytest
 
 from peeljax.homogenized import Evaluation
 
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+ERROR_PREFIX = "peeljax: error: "  # what the command line's refusals of bad input start with
+
+
+# ---------------------------------------------------------------------------- forbidding computation
+def forbid(monkeypatch, module: str | ModuleType, *names: str, reason: str) -> None:
+    """Replace each of ``module``'s ``names`` by a function that fails the test with ``reason``."""
+
+    def forbidden(*args, **kwargs):
+        raise AssertionError(reason)
+
+    if isinstance(module, str):
+        module = importlib.import_module(module)
+    for name in names:
+        monkeypatch.setattr(module, name, forbidden)
+
 
 @pytest.fixture
 def no_compilation(monkeypatch):
     """Fail the test if anything reaches a compiled runner of ``peeljax.simulate`` or of the sweeps."""
-
-    def forbidden(*args, **kwargs):
-        raise AssertionError("compiled before the input was checked")
-
-    simulate_module = importlib.import_module("peeljax.simulate")  # peeljax.simulate is the function
-    for name in ("_run_alpha", "_run_adaptive", "_run_reference"):
-        monkeypatch.setattr(simulate_module, name, forbidden)
-    engine = importlib.import_module("peeljax.sweeps.engine")
-    for name in ("run_batch", "run_batch_adaptive"):
-        monkeypatch.setattr(engine, name, forbidden)
+    reason = "compiled before the input was checked"
+    # the module, not the function peeljax.simulate
+    forbid(monkeypatch, "peeljax.simulate", "_run_alpha", "_run_adaptive", "_run_reference", reason=reason)
+    forbid(monkeypatch, "peeljax.sweeps.engine", "run_batch", "run_batch_adaptive", reason=reason)
 
 
+# ---------------------------------------------------------------------------- the command line
+def run_cli(argv: list[str]) -> tuple[int, str, str]:
+    """``peeljax.cli.main(argv)`` in-process: ``(exit code, stdout, stderr)`` (usable in module fixtures)."""
+    from peeljax.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(argv)
+    return code, out.getvalue(), err.getvalue()
+
+
+def run_cli_writing(folder: Path, argv: list[str]) -> dict:
+    """``argv`` run once with ``--out`` and ``--plot`` files in ``folder`` and ``--json``.
+
+    Returns ``{"code", "stdout", "stderr", "npz", "png"}`` for a module fixture's tests to share.
+    """
+    npz, png = folder / "out.npz", folder / "out.png"
+    code, out, err = run_cli([*argv, "--out", str(npz), "--plot", str(png), "--json"])
+    return {"code": code, "stdout": out, "stderr": err, "npz": npz, "png": png}
+
+
+def assert_refused(code: int, stderr: str, *words: str, stdout: str | None = None) -> str:
+    """Exit status 2 with stderr's last line ``peeljax: error: …`` naming every word; returns that line.
+
+    With ``stdout`` given, it must be empty: nothing but the refusal is printed.
+    """
+    assert code == 2, stderr
+    if stdout is not None:
+        assert stdout == ""
+    message = stderr.strip().splitlines()[-1]
+    assert message.startswith(ERROR_PREFIX), message
+    for word in words:
+        assert word in message, message
+    return message
+
+
+# ---------------------------------------------------------------------------- models
 class LinearODE(eqx.Module):
     """y' = λ·y, componentwise (no Schur complement: J = −1, F̃·f = 0)."""
 

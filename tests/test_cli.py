@@ -6,9 +6,7 @@ run's outputs serve several tests.
 
 from __future__ import annotations
 
-import contextlib
 import importlib
-import io
 import json
 import math
 import subprocess
@@ -17,33 +15,22 @@ import sys
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import PNG_MAGIC, assert_refused, forbid, run_cli, run_cli_writing
 
 from peeljax import AdhesionLaw, PeelingModel, Solution, StopReason, cli
-from peeljax.cli import build_parser, main, summarize, validate_run, write_npz
+from peeljax.cli import build_parser, summarize, validate_run, write_npz
 
 SHORT = ["--t-final", "0.2", "--dt", "0.01"]
-PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 REQUIRED_JSON_KEYS = {
     "status", "reason", "t_stop", "steps", "v_final", "v_min", "v_max", "wall_time_s",
     "V", "tau", "dt", "method", "stats",
 }  # fmt: skip
 
 
-def run_main(argv: list[str]) -> tuple[int, str, str]:
-    """``main(argv)`` in-process with its stdout and stderr captured (usable in module fixtures)."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main(argv)
-    return code, out.getvalue(), err.getvalue()
-
-
 @pytest.fixture(scope="module")
 def alpha_run(tmp_path_factory):
     """One short α-method run writing every output."""
-    folder = tmp_path_factory.mktemp("alpha_run")
-    npz, png = folder / "run.npz", folder / "run.png"
-    code, out, err = run_main(["simulate", *SHORT, "--out", str(npz), "--plot", str(png), "--json"])
-    return {"code": code, "stdout": out, "stderr": err, "npz": npz, "png": png}
+    return run_cli_writing(tmp_path_factory.mktemp("alpha_run"), ["simulate", *SHORT])
 
 
 # ---------------------------------------------------------------------------- a good run
@@ -97,19 +84,17 @@ def test_png_written(alpha_run):
     assert alpha_run["png"].read_bytes()[:8] == PNG_MAGIC
 
 
-def test_human_summary(alpha_run, capsys):
+def test_human_summary(alpha_run):
     # Same mesh and model as alpha_run: JAX's cache serves it without recompiling.
-    assert main(["simulate", *SHORT]) == 0
-    out = capsys.readouterr().out
+    code, out, _err = run_cli(["simulate", *SHORT])
+    assert code == 0
     assert "V = 1.1 m/s" in out and ("completed" in out or "stopped" in out)
     assert not out.lstrip().startswith("{")
 
 
 def test_diffrax_method(tmp_path):
     npz = tmp_path / "ref.npz"
-    code, out, err = run_main(
-        ["simulate", "--method", "diffrax", *SHORT, "--rtol", "1e-6", "--out", str(npz), "--json"]
-    )
+    code, out, err = run_cli(["simulate", "--method", "diffrax", *SHORT, "--rtol", "1e-6", "--out", str(npz), "--json"])
     assert code == 0, err
     record = json.loads(out)
     assert record["method"] == "diffrax" and record["status"] in {"completed", "stopped"}
@@ -133,15 +118,14 @@ BAD_TOLERANCES = [
 
 
 @pytest.mark.parametrize(("options", "name", "allowed"), BAD_TOLERANCES, ids=[" ".join(o) for o, *_ in BAD_TOLERANCES])
-def test_bad_tolerances_exit_2_before_compiling(options, name, allowed, no_compilation, capsys):
-    assert main(["simulate", "--t-final", "0.2", *options]) == 2
-    message = capsys.readouterr().err.strip().splitlines()[-1]
-    assert message.startswith("peeljax: error: ") and name in message and allowed in message, message
+def test_bad_tolerances_exit_2_before_compiling(options, name, allowed, no_compilation):
+    code, _out, err = run_cli(["simulate", "--t-final", "0.2", *options])
+    assert_refused(code, err, name, allowed)
 
 
 def test_error_control_is_the_default(tmp_path):
     npz = tmp_path / "run.npz"
-    code, out, err = run_main(["simulate", "--t-final", "0.2", "--rtol", "1e-5", "--out", str(npz), "--json"])
+    code, out, err = run_cli(["simulate", "--t-final", "0.2", "--rtol", "1e-5", "--out", str(npz), "--json"])
     assert code == 0, err
     record = json.loads(out)
     assert record["rtol"] == 1e-5 and record["atol"] == 1e-9 and record["dt"] is None
@@ -155,7 +139,7 @@ def test_error_control_is_the_default(tmp_path):
 
 def test_save_dt_gives_the_output_grid(tmp_path):
     npz = tmp_path / "run.npz"
-    code, out, err = run_main(["simulate", "--t-final", "0.25", "--save-dt", "0.1", "--out", str(npz), "--json"])
+    code, out, err = run_cli(["simulate", "--t-final", "0.25", "--save-dt", "0.1", "--out", str(npz), "--json"])
     assert code == 0, err
     with np.load(npz, allow_pickle=False) as data:
         np.testing.assert_allclose(data["t"], [0.0, 0.1, 0.2, 0.25])
@@ -164,7 +148,7 @@ def test_save_dt_gives_the_output_grid(tmp_path):
 
 def test_diffrax_output_on_save_dt(tmp_path):
     npz = tmp_path / "ref.npz"
-    code, out, err = run_main(
+    code, _out, err = run_cli(
         ["simulate", "--method", "diffrax", "--t-final", "0.25", "--save-dt", "0.1", "--out", str(npz)]
     )
     assert code == 0, err
@@ -194,18 +178,10 @@ def test_module_entry_point_prints_one_json_object():
 
 # ---------------------------------------------------------------------------- bad input
 @pytest.fixture
-def no_compilation(monkeypatch):
-    """Any attempt to integrate (and so to compile) fails the test."""
-
-    def forbidden(*args, **kwargs):
-        raise AssertionError("bad input reached the integrator: it must be rejected before compilation")
-
-    simulate_module = importlib.import_module("peeljax.simulate")  # peeljax.simulate is the function
-    monkeypatch.setattr(simulate_module, "_run_alpha", forbidden)
-    monkeypatch.setattr(simulate_module, "_run_reference", forbidden)
-    cli_simulate = importlib.import_module("peeljax.cli.simulate")
-    monkeypatch.setattr(cli_simulate, "simulate", forbidden)
-    monkeypatch.setattr(cli_simulate, "simulate_reference", forbidden)
+def no_compilation(no_compilation, monkeypatch):
+    """conftest's ``no_compilation``, and the command line's own calls of the integrators fail the test too."""
+    reason = "bad input reached the integrator: it must be rejected before compilation"
+    forbid(monkeypatch, "peeljax.cli.simulate", "simulate", "simulate_reference", reason=reason)
 
 
 @pytest.fixture
@@ -241,25 +217,23 @@ BAD_INPUT = [
 
 
 @pytest.mark.parametrize(("options", "name", "allowed"), BAD_INPUT, ids=[" ".join(o) for o, *_ in BAD_INPUT])
-def test_bad_input_exits_2_before_compiling(options, name, allowed, no_compilation, malformed_phi, capsys):
+def test_bad_input_exits_2_before_compiling(options, name, allowed, no_compilation, malformed_phi):
     options = [malformed_phi if option == "MALFORMED" else option for option in options]
-    assert main(["simulate", *SHORT, *options]) == 2
-    captured = capsys.readouterr()
-    assert captured.out == ""
-    message = captured.err.strip().splitlines()[-1]
-    assert message.startswith("peeljax: error: ")
-    assert name in message and allowed in message, message
+    code, out, err = run_cli(["simulate", *SHORT, *options])
+    assert_refused(code, err, name, allowed, stdout=out)
 
 
 @pytest.mark.parametrize("argv", [[], ["simulate", "--nope"], ["simulate", "--tau", "abc"], ["frobnicate"]])
-def test_argparse_errors_exit_2(argv, no_compilation, capsys):
-    assert main(argv) == 2
-    assert "error" in capsys.readouterr().err
+def test_argparse_errors_exit_2(argv, no_compilation):
+    code, _out, err = run_cli(argv)
+    assert code == 2
+    assert "error" in err
 
 
-def test_help_exits_0(capsys):
-    assert main(["simulate", "--help"]) == 0
-    assert "--t-final" in capsys.readouterr().out
+def test_help_exits_0():
+    code, out, _err = run_cli(["simulate", "--help"])
+    assert code == 0
+    assert "--t-final" in out
 
 
 def test_valid_phi_file_is_used(tmp_path):
@@ -313,14 +287,10 @@ def test_summary_of_a_run_rejected_at_the_start():
 @pytest.fixture
 def nothing_runs(monkeypatch):
     """Any simulation, sweep or figure run fails the test: the refusal must come first."""
-
-    def forbidden(*args, **kwargs):
-        raise AssertionError("an unwritable output reached the computation")
-
-    cli_simulate = importlib.import_module("peeljax.cli.simulate")
-    monkeypatch.setattr(cli_simulate, "run", forbidden)
-    monkeypatch.setattr(importlib.import_module("peeljax.cli.sweep"), "_run_sweep", forbidden)
-    monkeypatch.setattr(importlib.import_module("peeljax.figures"), "write_figures", forbidden)
+    reason = "an unwritable output reached the computation"
+    forbid(monkeypatch, "peeljax.cli.simulate", "run", reason=reason)
+    forbid(monkeypatch, "peeljax.cli.sweep", "_run_sweep", reason=reason)
+    forbid(monkeypatch, "peeljax.figures", "write_figures", reason=reason)
 
 
 UNWRITABLE = [
@@ -337,44 +307,41 @@ UNWRITABLE = [
 @pytest.mark.parametrize(
     ("argv", "option", "words"), UNWRITABLE, ids=[" ".join(a[:1] + a[-2:]) for a, *_ in UNWRITABLE]
 )
-def test_unwritable_output_exits_2_before_computing(argv, option, words, nothing_runs, tmp_path, capsys):
+def test_unwritable_output_exits_2_before_computing(argv, option, words, nothing_runs, tmp_path):
     afile = tmp_path / "afile"
     afile.write_text("not a folder")
     argv = [arg.replace("AFILE", str(afile)) for arg in argv]
-    assert main(argv) == 2
-    message = capsys.readouterr().err.strip().splitlines()[-1]
-    assert message.startswith("peeljax: error: ") and option in message and words in message, message
+    code, _out, err = run_cli(argv)
+    assert_refused(code, err, option, words)
 
 
-def test_a_write_error_after_the_run_is_reported_not_raised(monkeypatch, tmp_path, capsys):
+def test_a_write_error_after_the_run_is_reported_not_raised(monkeypatch, tmp_path):
     cli_simulate = importlib.import_module("peeljax.cli.simulate")
 
     def disk_full(*args, **kwargs):
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(cli_simulate, "write_npz", disk_full)
-    code = main(["simulate", *SHORT, "--out", str(tmp_path / "run.npz"), "--json"])
-    captured = capsys.readouterr()
+    code, out, err = run_cli(["simulate", *SHORT, "--out", str(tmp_path / "run.npz"), "--json"])
     assert code == 1
-    record = json.loads(captured.out)  # the run's result still comes out
+    record = json.loads(out)  # the run's result still comes out
     assert record["status"] in {"completed", "stopped"} and record["out"] is None
-    assert "could not write --out" in captured.err and "No space left on device" in captured.err
+    assert "could not write --out" in err and "No space left on device" in err
 
 
 @pytest.mark.parametrize(
     ("coefficient", "value", "allowed"), [("c1", -5.0, "(0, inf)"), ("p9", 0.0, "(0, inf)"), ("c7", -1.0, "[0, inf)")]
 )
-def test_phi_outside_the_family_domain_exits_2(coefficient, value, allowed, no_compilation, tmp_path, capsys):
+def test_phi_outside_the_family_domain_exits_2(coefficient, value, allowed, no_compilation, tmp_path):
     path = tmp_path / "phi.json"
     path.write_text(json.dumps({coefficient: value}))
-    assert main(["simulate", *SHORT, "--phi", str(path)]) == 2
-    message = capsys.readouterr().err.strip().splitlines()[-1]
-    assert repr(coefficient) in message and allowed in message, message
+    code, _out, err = run_cli(["simulate", *SHORT, "--phi", str(path)])
+    assert_refused(code, err, repr(coefficient), allowed)
 
 
 def test_a_v_without_stick_slip_is_said(tmp_path):
-    code, out, err = run_main(["simulate", "--V", "20", "--t-final", "0.05", "--json"])
+    code, out, err = run_cli(["simulate", "--V", "20", "--t-final", "0.05", "--json"])
     assert code == 0, err
     assert "no maximum" in json.loads(out)["note"]
-    code, out, err = run_main(["simulate", "--V", "1.1", "--t-final", "0.05", "--json"])
+    code, out, err = run_cli(["simulate", "--V", "1.1", "--t-final", "0.05", "--json"])
     assert code == 0 and "note" not in json.loads(out)

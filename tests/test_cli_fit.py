@@ -3,28 +3,17 @@ rejected (exit 2) before anything is compiled."""
 
 from __future__ import annotations
 
-import contextlib
-import importlib
-import io
 import json
 
 import numpy as np
 import pytest
+from conftest import PNG_MAGIC, assert_refused, forbid, run_cli
 
 from peeljax import AdhesionLaw
 from peeljax.adhesion import COEFFICIENT_NAMES
-from peeljax.cli import main
 from peeljax.cli.fit import load_observations
 
 SHORT = ["--t-final", "0.2", "--save-dt", "0.01", "--tau", "0.1"]
-PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-
-
-def run_main(argv):
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main(argv)
-    return code, out.getvalue(), err.getvalue()
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +23,7 @@ def simulated(tmp_path_factory):
     phi = folder / "true.json"
     AdhesionLaw(c1=440.0).to_json(phi)
     npz = folder / "observed.npz"
-    code, _, err = run_main(["simulate", *SHORT, "--V", "1.1", "--phi", str(phi), "--out", str(npz)])
+    code, _, err = run_cli(["simulate", *SHORT, "--V", "1.1", "--phi", str(phi), "--out", str(npz)])
     assert code == 0, err
     return folder, npz
 
@@ -44,7 +33,7 @@ def test_fit_a_simulate_file_end_to_end(simulated):
     """simulate --out → fit --data: fitted.json readable by --phi, loss falls, plot written."""
     folder, npz = simulated
     out, png = folder / "fitted.json", folder / "fit.png"
-    code, stdout, err = run_main(
+    code, stdout, err = run_cli(
         ["fit", "--data", str(npz), "--out", str(out), "--free", "c1", "--steps", "25", "--optimizer", "lbfgs",
          "--plot", str(png), "--json", "--no-progress"]
     )  # fmt: skip
@@ -84,12 +73,7 @@ def test_data_layouts(tmp_path):
 @pytest.fixture
 def no_fit(monkeypatch):
     """Bad input must fail before anything is fitted or compiled."""
-    fit_module = importlib.import_module("peeljax.fit")
-
-    def forbidden(*args, **kwargs):
-        raise AssertionError("fit_adhesion must not run for bad input")
-
-    monkeypatch.setattr(fit_module, "fit_adhesion", forbidden)
+    forbid(monkeypatch, "peeljax.fit", "fit_adhesion", reason="fit_adhesion must not run for bad input")
 
 
 @pytest.fixture
@@ -143,14 +127,10 @@ BAD = [
 
 
 @pytest.mark.parametrize(("options", "name", "allowed"), BAD, ids=[" ".join(o) for o, *_ in BAD])
-def test_bad_input_exits_2_before_fitting(options, name, allowed, no_fit, good_npz, tmp_path, capsys):
+def test_bad_input_exits_2_before_fitting(options, name, allowed, no_fit, good_npz, tmp_path):
     files = _bad_files(tmp_path)
     options = [str(files[o]) if o in files else o for o in options]
     data = [] if "--data" in options else ["--data", good_npz]
     out = [] if "--out" in options else ["--out", str(tmp_path / "fitted.json")]
-    assert main(["fit", *data, *out, *options]) == 2
-    captured = capsys.readouterr()
-    assert captured.out == ""
-    message = captured.err.strip().splitlines()[-1]
-    assert message.startswith("peeljax: error: ")
-    assert name in message and allowed in message, message
+    code, stdout, stderr = run_cli(["fit", *data, *out, *options])
+    assert_refused(code, stderr, name, allowed, stdout=stdout)

@@ -8,19 +8,17 @@ t = 0.4 s.
 
 from __future__ import annotations
 
-import contextlib
 import inspect
-import io
 import json
 
 import numpy as np
 import pytest
+from conftest import PNG_MAGIC, forbid, run_cli, run_cli_writing
 
-from peeljax.cli import build_parser, main
+from peeljax.cli import build_parser
 from peeljax.cli import sweep as sweep_cli
 from peeljax.sweeps import LeastTau, least_tau, sweep
 
-PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 SWEEP = ["sweep", "--V", "1.1", "2", "--tau", "1e-3", "1e-2", "--n-tau", "2", "--dt", "0.01", "--t-final", "0.4",
          "--chunk", "4", "--save-every", "5", "--window", "0.25", "1", "--no-progress"]  # fmt: skip
 SWEEP_ADAPTIVE = ["sweep", "--V", "1.1", "2", "--tau", "1e-3", "1e-2", "--t-final", "0.4", "--chunk", "4",
@@ -29,19 +27,9 @@ NPZ_KEYS = {"V", "tau", "completed", "status", "t_stop", "v_mean", "v_std", "v_m
             "accepted_steps", "rejected_steps", "window_time"}  # fmt: skip
 
 
-def run_main(argv):
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main(argv)
-    return code, out.getvalue(), err.getvalue()
-
-
 @pytest.fixture(scope="module")
 def swept(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("sweep")
-    npz, png = folder / "sweep.npz", folder / "map.png"
-    code, out, err = run_main([*SWEEP, "--out", str(npz), "--plot", str(png), "--json"])
-    return {"code": code, "stdout": out, "stderr": err, "npz": npz, "png": png}
+    return run_cli_writing(tmp_path_factory.mktemp("sweep"), SWEEP)
 
 
 def test_sweep_json_and_files(swept):
@@ -70,28 +58,25 @@ def test_sweep_json_and_files(swept):
 
 
 def test_sweep_rerun_resumes_and_prints_table(swept):
-    code, out, err = run_main([*SWEEP, "--out", str(swept["npz"])])
+    code, out, err = run_cli([*SWEEP, "--out", str(swept["npz"])])
     assert code == 0, err
     assert "4 trajectories, 3 completed" in out
     assert "uniform mesh dt = 0.01 s (40 steps)" in out
     assert "newton_failed" in out or "impasse" in out
-    code, out, err = run_main([*SWEEP, "--out", str(swept["npz"]), "--json"])
+    code, out, err = run_cli([*SWEEP, "--out", str(swept["npz"]), "--json"])
     assert json.loads(out)["computed_chunks"] == []
 
 
 def test_sweep_refuses_other_settings(swept):
     argv = [*SWEEP, "--out", str(swept["npz"])]
     argv[argv.index("0.4")] = "0.5"  # another t_final
-    code, _out, err = run_main(argv)
+    code, _out, err = run_cli(argv)
     assert code == 2 and "different settings" in err and "t_final" in err
 
 
 @pytest.fixture(scope="module")
 def swept_adaptive(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("sweep_adaptive")
-    npz, png = folder / "sweep.npz", folder / "map.png"
-    code, out, err = run_main([*SWEEP_ADAPTIVE, "--out", str(npz), "--plot", str(png), "--json"])
-    return {"code": code, "stdout": out, "stderr": err, "npz": npz, "png": png}
+    return run_cli_writing(tmp_path_factory.mktemp("sweep_adaptive"), SWEEP_ADAPTIVE)
 
 
 def test_sweep_without_dt_runs_error_control(swept_adaptive):
@@ -121,12 +106,12 @@ def test_sweep_without_dt_runs_error_control(swept_adaptive):
 
 
 def test_sweep_error_control_table_names_tolerances(swept_adaptive):
-    code, out, err = run_main([*SWEEP_ADAPTIVE, "--out", str(swept_adaptive["npz"])])  # loaded, not recomputed
+    code, out, err = run_cli([*SWEEP_ADAPTIVE, "--out", str(swept_adaptive["npz"])])  # loaded, not recomputed
     assert code == 0, err
     assert "alpha-method, error control rtol = 1e-06, atol = 1e-09" in out
     assert "rejected" in out.splitlines()[2]  # the table's header
     # other tolerances are other settings: refused for this --out, before anything runs
-    code, _out, err = run_main([*SWEEP_ADAPTIVE, "--out", str(swept_adaptive["npz"]), "--rtol", "1e-4"])
+    code, _out, err = run_cli([*SWEEP_ADAPTIVE, "--out", str(swept_adaptive["npz"]), "--rtol", "1e-4"])
     assert code == 2 and "different settings" in err and "rtol" in err
 
 
@@ -150,7 +135,7 @@ def test_sweep_options_reach_the_api(extra, expected):
 def test_tau_star_without_dt_runs_error_control():
     argv = ["tau-star", "--V", "1.1", "--tau-range", "1e-3", "1e-2", "--n-points", "4", "--tau-rtol", "0.2",
             "--t-final", "0.4", "--json"]  # fmt: skip
-    code, out, err = run_main(argv)
+    code, out, err = run_cli(argv)
     assert code == 0, err
     assert "error control rtol = 1e-06, atol = 1e-09" in err
     record = json.loads(out)
@@ -173,16 +158,16 @@ def test_tau_star_json(monkeypatch):
                         settings={})  # fmt: skip
 
     monkeypatch.setattr(sweep_cli, "_run_tau_star", fake)
-    code, out, err = run_main(["tau-star", "--V", "1.1", "2", "4", "--dt", "0.01", "--t-final", "1", "--json"])
+    code, out, err = run_cli(["tau-star", "--V", "1.1", "2", "4", "--dt", "0.01", "--t-final", "1", "--json"])
     assert code == 0, err
     record = json.loads(out)
     assert record["V"] == [1.1, 2.0, 4.0] and record["tau_star"] == [2e-3] * 3
     assert {"found", "tau_below", "rounds", "dt", "tau_rtol", "method", "rtol", "atol"} <= set(record)
     assert record["dt"] == 0.01 and record["method"] == "alpha" and record["rtol"] is None
-    code, out, err = run_main(["tau-star", "--V", "1.1", "--dt", "0.01", "--t-final", "1"])
+    code, out, err = run_cli(["tau-star", "--V", "1.1", "--dt", "0.01", "--t-final", "1"])
     assert code == 0 and "tau* = 0.002" in out
     assert "uniform mesh dt = 0.01 s (100 steps)" in out
-    code, out, err = run_main(["tau-star", "--V", "1.1", "--t-final", "1", "--rtol", "1e-5"])
+    code, out, err = run_cli(["tau-star", "--V", "1.1", "--t-final", "1", "--rtol", "1e-5"])
     assert code == 0 and "error control rtol = 1e-05, atol = 1e-09" in out
 
 
@@ -232,12 +217,8 @@ def test_tau_star_json(monkeypatch):
     ],
 )
 def test_bad_input_exits_2_without_compiling(argv, message, monkeypatch):
-    def forbidden(kwargs):
-        raise AssertionError("must not run")
-
-    monkeypatch.setattr(sweep_cli, "_run_sweep", forbidden)
-    monkeypatch.setattr(sweep_cli, "_run_tau_star", forbidden)
-    code, out, err = run_main(argv)
+    forbid(monkeypatch, sweep_cli, "_run_sweep", "_run_tau_star", reason="must not run")
+    code, out, err = run_cli(argv)
     assert code == 2
     assert message in err, err
     assert out == ""

@@ -2,30 +2,19 @@
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 
 import numpy as np
 import pytest
+from conftest import PNG_MAGIC, run_cli
 
-from peeljax.cli import main
 from peeljax.figures import CAPTIONS, RUNS
-
-PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-
-
-def run_main(argv):
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main(argv)
-    return code, out.getvalue(), err.getvalue()
 
 
 @pytest.mark.slow
 def test_figures_writes_every_png_and_captions(tmp_path):
     out = tmp_path / "figs"
-    code, stdout, stderr = run_main(["figures", "--out", str(out), "--t-final", "0.2", "--json"])
+    code, stdout, stderr = run_cli(["figures", "--out", str(out), "--t-final", "0.2", "--json"])
     assert code == 0, stderr
     facts = json.loads(stdout)
     for name in CAPTIONS:
@@ -49,7 +38,7 @@ def test_figures_writes_every_png_and_captions(tmp_path):
     ],
 )
 def test_bad_input_exits_2_before_running(tmp_path, argv, message):
-    code, stdout, stderr = run_main(["figures", "--out", str(tmp_path / "f"), *argv])
+    code, stdout, stderr = run_cli(["figures", "--out", str(tmp_path / "f"), *argv])
     assert code == 2 and message in stderr and stdout == ""
     assert not (tmp_path / "f").exists()
 
@@ -57,7 +46,7 @@ def test_bad_input_exits_2_before_running(tmp_path, argv, message):
 def test_out_must_not_be_a_file(tmp_path):
     target = tmp_path / "file.txt"
     target.write_text("x")
-    code, _, stderr = run_main(["figures", "--out", str(target)])
+    code, _, stderr = run_cli(["figures", "--out", str(target)])
     assert code == 2 and "not a folder" in stderr
 
 
