@@ -28,14 +28,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .model import PeelingModel
 from .solution import Solution
-from .structure import jacobians, local_index, schur_complement
+from .structure import jacobians, local_index, phi_extremum, schur_complement
 
 __all__ = [
     "BifurcationDiagram",
@@ -82,39 +81,20 @@ def trajectory_structure(
     return {"phi_v": phi_v, "schur": J, "local_index": index, "residual": residual, "drive": drive}
 
 
-@eqx.filter_jit  # module level: compiled once per model structure and grid shape, not per call
-def _dphi_dv(model: PeelingModel, V, v):
-    return jax.vmap(jax.grad(lambda v_: model.phi(v_, V)))(v)
-
-
-def phi_extrema(
-    model: PeelingModel | None = None, V: float = 1.1, v_range: tuple[float, float] = (1e-3, 50.0), n: int = 20001
-) -> tuple[float, float]:
+def phi_extrema(model: PeelingModel | None = None, V: float = 1.1) -> tuple[float, float]:
     """The peeling velocities of the maximum and the minimum of φ(·, V) (∂φ/∂v = 0), NaN if absent.
 
-    Located on a log grid and refined by bisection on ∂φ/∂v.
+    :func:`peeljax.structure.phi_extremum` (the search the sweep engine runs in the graph), on
+    the host: v ∈ [1e-8, 1e2]·max(V, 1), a log grid refined by bisection in log v.
     """
     model = PeelingModel() if model is None else model
+    top, bottom = _phi_extrema_jit(model, jnp.asarray(V, float))
+    return float(top), float(bottom)
 
-    def grad(v):
-        return _dphi_dv(model, jnp.asarray(V, float), v)
 
-    vs = np.geomspace(*v_range, n)
-    dphi = np.asarray(grad(jnp.asarray(vs)))
-    roots = {}
-    for kind, mask in (("max", (dphi[:-1] > 0) & (dphi[1:] <= 0)), ("min", (dphi[:-1] < 0) & (dphi[1:] >= 0))):
-        hits = np.flatnonzero(mask)
-        if hits.size == 0:
-            roots[kind] = float("nan")
-            continue
-        lo, hi = vs[hits[0]], vs[hits[0] + 1]
-        sign_lo = np.sign(dphi[hits[0]])
-        for _ in range(60):
-            mid = 0.5 * (lo + hi)
-            value = float(grad(jnp.asarray([mid]))[0])
-            lo, hi = (mid, hi) if np.sign(value) == sign_lo else (lo, mid)
-        roots[kind] = 0.5 * (lo + hi)
-    return roots["max"], roots["min"]
+@eqx.filter_jit  # module level: compiled once per model structure, not per call
+def _phi_extrema_jit(model, V):
+    return phi_extremum(model, V, "max"), phi_extremum(model, V, "min")
 
 
 _structure_jit = eqx.filter_jit(trajectory_structure)

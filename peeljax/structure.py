@@ -7,7 +7,9 @@ For the DAE (``peel``) with x = (α, ω, u) and constraint G(x) = φ(v, V), G = 
       J_t(τ) = −∂φ/∂v + τ·F̃·(𝐈 − τ·∂f/∂x)⁻¹·∂f/∂v;
 * its Neumann expansion (Lemma 2, eq. ``hvex``), J_t = −∂φ/∂v + Σ_{p≥1} τ^p·F̃·(∂f/∂x)^{p−1}·∂f/∂v,
   which converges only for τ·ρ(∂f/∂x) < 1 (ρ the spectral radius);
-* the local differential index of Lemma 2, ⌈log_τ|J_t|⌉ + 1, and the slow/fast scale.
+* the local differential index of Lemma 2, ⌈log_τ|J_t|⌉ + 1, and the slow/fast scale;
+* the extrema of φ(·, V) (∂φ/∂v = 0): at its maximum v̂ the stick phase ends and, for small τ,
+  J_t ≈ τ·F̃·(…)·∂f/∂v is smallest (Lemma ``hi``).
 
 Conventions (measured, see ``docs/theory.md``): the index formula compares |J_t| (units
 N·s/m) with powers of τ (s), so it is not unit-invariant; it is meaningful for 0 < τ < 1.
@@ -17,6 +19,8 @@ regime, the *slow scale*). Where |J_t| < 1 the index is ≥ 2 (the *fast scale*)
 """
 
 from __future__ import annotations
+
+from typing import Literal
 
 import equinox as eqx
 import jax
@@ -35,6 +39,7 @@ __all__ = [
     "truncated_schur_complement",
     "neumann_radius",
     "is_fast_scale",
+    "phi_extremum",
     "MAX_INDEX",
 ]
 
@@ -121,3 +126,41 @@ def local_index(J: ArrayLike, tau: ArrayLike) -> Int[Array, "..."]:
 def is_fast_scale(J: ArrayLike, tau: ArrayLike) -> Bool[Array, "..."]:
     """The *fast scale* (stick-slip) of the paper: local index > 1, i.e. |J_t| < 1 = τ⁰."""
     return local_index(J, tau) > 1
+
+
+PHI_SEARCH_RANGE = (1e-8, 1e2)  # × max(V, 1) m/s
+_PHI_GRID = 256
+_PHI_BISECTIONS = 60
+
+
+def phi_extremum(model: PeelingModel, V: ArrayLike, kind: Literal["max", "min"] = "max") -> Array:
+    """The first maximum (∂φ/∂v from + to −) or minimum (− to +) of φ(·, V); NaN if none.
+
+    ∂φ/∂v (``jax.grad``) is sampled at 256 points log-spaced in v ∈ [1e-8, 1e2]·max(V, 1); the
+    first sign change of the kind asked brackets the extremum, and 60 bisection steps in log v
+    refine it (relative accuracy ~1e-14). Traced in V and the model: ``jit`` and ``vmap`` work
+    (the sweep engine finds v̂ per lane this way; :func:`peeljax.phi_extrema` calls it on the host).
+    """
+    if kind not in ("max", "min"):
+        raise ValueError(f"kind must be 'max' or 'min', got {kind!r}")
+    V = jnp.asarray(V, float)
+    rising = 1.0 if kind == "max" else -1.0  # the sign of ∂φ/∂v before the extremum
+    scale = jnp.maximum(V, 1.0)
+    log_v = jnp.linspace(jnp.log(PHI_SEARCH_RANGE[0]), jnp.log(PHI_SEARCH_RANGE[1]), _PHI_GRID) + jnp.log(scale)
+
+    def slope(log_v):
+        return rising * jax.grad(lambda v: model.phi(v, V))(jnp.exp(log_v))
+
+    slopes = jax.vmap(slope)(log_v)
+    falls = (slopes[:-1] > 0) & (slopes[1:] <= 0)
+    index = jnp.argmax(falls)
+    bracket = (log_v[index], log_v[index + 1])
+
+    def bisect(_, bracket):
+        lo, hi = bracket
+        mid = 0.5 * (lo + hi)
+        before = slope(mid) > 0
+        return jnp.where(before, mid, lo), jnp.where(before, hi, mid)
+
+    lo, hi = jax.lax.fori_loop(0, _PHI_BISECTIONS, bisect, bracket)
+    return jnp.where(jnp.any(falls), jnp.exp(0.5 * (lo + hi)), jnp.nan)

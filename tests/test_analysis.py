@@ -6,6 +6,7 @@ The real runs are short (≤ 0.3 s of the paper's step 1/82 s) and shared throug
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -126,3 +127,14 @@ def test_bifurcation_diagram_shapes_and_late_extrema():
     loop = A.bifurcation_diagram([1.1, 4.0], tau=0.01, dt=H, t_final=T_SHORT, t_transient=0.1, engine="loop")
     for a, b in zip(diagram.v_max, loop.v_max):
         np.testing.assert_allclose(a, b, rtol=1e-12)  # the sweep engine and single runs agree
+
+
+def test_phi_extrema_and_the_sweep_slip_velocity_are_one_search():
+    """v̂ is found one way (structure.phi_extremum): on the host by phi_extrema, in the graph by the sweeps."""
+    from peeljax.sweeps import slip_velocity
+
+    model = pj.PeelingModel()
+    for V in (1.1, 2.0, 4.0):
+        top, _ = A.phi_extrema(model, V)
+        assert float(slip_velocity(model, jnp.asarray(V))) == pytest.approx(top, rel=1e-13)
+    assert float(slip_velocity(model, jnp.asarray(8.0))) == np.inf  # no maximum: no events

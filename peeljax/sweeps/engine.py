@@ -40,10 +40,9 @@ one over ``save_every`` steps, so memory is O(N/save_every), never O(N).
 
 With a device mesh both engines run under ``shard_map``, each device on its share of the lanes.
 
-v̂(V) is found per lane inside the compiled function: ∂φ/∂v (by ``jax.grad``) is sampled at
-``_PEAK_GRID`` points log-spaced in v ∈ [1e-8, 1e2]·max(V, 1) … the first sign change from
-+ to − brackets the maximum, refined by ``_PEAK_BISECTIONS`` bisection steps in log v (a
-relative accuracy of ~1e-14). A φ with no maximum in that range gives v̂ = inf (no events).
+v̂(V) is found per lane inside the compiled function by :func:`peeljax.structure.phi_extremum`
+(the same search :func:`peeljax.phi_extrema` runs on the host). A φ with no maximum in its
+range gives v̂ = inf (no events).
 """
 
 from __future__ import annotations
@@ -60,6 +59,7 @@ from ..integrators.alpha import AlphaMethod, alpha_advance, alpha_start, to_phys
 from ..integrators.controller import PIController
 from ..integrators.dense import hermite
 from ..model import PeelingModel
+from ..structure import phi_extremum
 
 __all__ = [
     "MODEL_PARAMETERS",
@@ -72,9 +72,6 @@ __all__ = [
 ]
 
 MODEL_PARAMETERS: tuple[str, ...] = ("R", "I", "k", "l", *COEFFICIENT_NAMES)
-_PEAK_GRID = 96
-_PEAK_BISECTIONS = 60
-_PEAK_RANGE = (1e-8, 1e2)
 
 
 class BatchSummary(eqx.Module):
@@ -109,30 +106,9 @@ def with_parameters(model: PeelingModel, params: dict[str, Array]) -> PeelingMod
 
 
 def slip_velocity(model: PeelingModel, V: Float[Array, ""]) -> Float[Array, ""]:
-    """v̂(V) = argmax of φ(·, V): the first maximum in v ∈ [1e-8, 1e2]·max(V, 1) (inf if none).
-
-    ∂φ/∂v changes sign from + to − at v̂; sampled on a log grid, then bisected in log v.
-    """
-    scale = jnp.maximum(V, 1.0)
-    log_v = jnp.linspace(jnp.log(_PEAK_RANGE[0]), jnp.log(_PEAK_RANGE[1]), _PEAK_GRID) + jnp.log(scale)
-
-    def slope(log_v):
-        return jax.grad(lambda v: model.phi(v, V))(jnp.exp(log_v))
-
-    slopes = jax.vmap(slope)(log_v)
-    falls = (slopes[:-1] > 0) & (slopes[1:] <= 0)
-    found = jnp.any(falls)
-    index = jnp.argmax(falls)
-    lo, hi = log_v[index], log_v[index + 1]
-
-    def bisect(_, bracket):
-        lo, hi = bracket
-        mid = 0.5 * (lo + hi)
-        rising = slope(mid) > 0
-        return jnp.where(rising, mid, lo), jnp.where(rising, hi, mid)
-
-    lo, hi = jax.lax.fori_loop(0, _PEAK_BISECTIONS, bisect, (lo, hi))
-    return jnp.where(found, jnp.exp(0.5 * (lo + hi)), jnp.inf)
+    """v̂(V) = the first maximum of φ(·, V) (:func:`peeljax.structure.phi_extremum`); inf if none (no events)."""
+    v_hat = phi_extremum(model, V, "max")
+    return jnp.where(jnp.isnan(v_hat), jnp.inf, v_hat)
 
 
 class _Accumulator(eqx.Module):
