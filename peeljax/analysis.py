@@ -34,7 +34,8 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .model import PeelingModel
 from .solution import Solution
-from .structure import jacobians, local_index, phi_extremum, schur_complement
+from .homogenized import HomogenizedODE
+from .structure import jacobians, local_index, phi_extremum, schur_complement, truncated_schur_complement
 
 __all__ = [
     "BifurcationDiagram",
@@ -53,7 +54,7 @@ DEFAULT_THRESHOLD = 1.0  # N·s/m: |J_t| < 1 ⇔ local index ≥ 2 (Lemma 2), th
 
 # ---------------------------------------------------------------------------- JAX part
 def trajectory_structure(
-    model: PeelingModel, ys: Float[Array, "... 4"], V: ArrayLike, tau: ArrayLike
+    model: PeelingModel, ys: Float[Array, "... 4"], V: ArrayLike, tau: ArrayLike, truncation: int | None = None
 ) -> dict[str, Array]:
     """∂φ/∂v, J_t(τ), the local index, the constraint residual G − φ and F̃·f at every state.
 
@@ -61,6 +62,8 @@ def trajectory_structure(
         model: the model the run used.
         ys: states (α, ω, u, v), any leading axes (NaN states give NaN).
         V, tau: pull velocity and τ, broadcastable against ``ys[..., 0]``.
+        truncation: the run's (``None``: the exact J_t; m: its m-term eq. ``hvex``), as in
+            :class:`~peeljax.HomogenizedODE`.
 
     Returns:
         A dict of arrays of shape ``ys.shape[:-1]``: ``phi_v``, ``schur`` (J_t, Lemma 1),
@@ -71,7 +74,7 @@ def trajectory_structure(
 
     def one(y, V, tau):
         jac = jacobians(model, y[:3], y[3], V)
-        J = schur_complement(jac, tau)
+        J = schur_complement(jac, tau) if truncation is None else truncated_schur_complement(jac, tau, truncation)
         return jac.phi_v, J, model.constraint(y[:3], y[3], V), jnp.dot(jac.F_tilde, jac.f)
 
     V = jnp.broadcast_to(jnp.asarray(V, float), ys.shape[:-1])
@@ -97,7 +100,7 @@ def _phi_extrema_jit(model, V):
     return phi_extremum(model, V, "max"), phi_extremum(model, V, "min")
 
 
-_structure_jit = eqx.filter_jit(trajectory_structure)
+_structure_jit = eqx.filter_jit(trajectory_structure)  # truncation: a Python int or None, static
 
 
 # ---------------------------------------------------------------------------- host helpers
@@ -295,35 +298,48 @@ def _analyze_one(ts, ys, valid, t_stop, completed, struct, model, V, tau, thresh
 
 def analyze(
     solution: Solution,
-    model: PeelingModel | None = None,
-    V: ArrayLike = 1.1,
-    tau: ArrayLike = 0.01,
+    model: PeelingModel | HomogenizedODE | None = None,
+    V: ArrayLike | None = None,
+    tau: ArrayLike | None = None,
     *,
+    truncation: int | None = None,
     threshold: float = DEFAULT_THRESHOLD,
     t_transient: float | None = None,
 ) -> StickSlipAnalysis | list[StickSlipAnalysis]:
     """The stick-slip analysis of a run (or of each run of a batched, ``vmap``-ed, Solution).
 
+    ``analyze(solution, ode)`` takes everything from the :class:`~peeljax.HomogenizedODE` the
+    run integrated (model, V, τ, truncation); ``analyze(solution, model, V=…, tau=…)`` names
+    them one by one.
+
     Args:
         solution: a single or batched :class:`Solution` (batch axes lead).
-        model: the model the run used (default: the paper's).
-        V, tau: the run's pull velocity and τ (scalars, or one per trajectory of the batch).
-            J_t is recomputed at τ from the states (the α-method's ``diagnostics.schur`` holds
-            the same values).
+        model: the :class:`~peeljax.HomogenizedODE` of the run, or the model it used
+            (default: the paper's).
+        V, tau: with a model: the run's pull velocity and τ (scalars, or one per trajectory of
+            the batch; default 1.1 and 0.01). J_t is recomputed at τ from the states (the
+            α-method's ``diagnostics.schur`` holds the same values).
+        truncation: with a model: the run's (see :class:`~peeljax.HomogenizedODE`).
         threshold: |J_t| below this [N·s/m] marks the fast scale / a near-singular point.
         t_transient: cycle measures use t ≥ this (default: the second half of the output span).
 
     Returns:
         A :class:`StickSlipAnalysis`, or a flat list of them for a batch (row-major order).
     """
+    if isinstance(model, HomogenizedODE):
+        if V is not None or tau is not None or truncation is not None:
+            raise ValueError("analyze: give the run's HomogenizedODE, or its model with V, tau and truncation, not both")
+        model, V, tau, truncation = model.model, model.V, model.tau, model.truncation
     model = PeelingModel() if model is None else model
+    V = 1.1 if V is None else V
+    tau = 0.01 if tau is None else tau
     if not threshold > 0:
         raise ValueError(f"threshold must be > 0 (allowed range: (0, inf)), got {threshold!r}")
     ys = jnp.asarray(solution.ys)
     batch_shape = ys.shape[:-2]
     V_b = np.broadcast_to(np.asarray(V, float), batch_shape)
     tau_b = np.broadcast_to(np.asarray(tau, float), batch_shape)
-    struct = _structure_jit(model, ys, jnp.asarray(V_b)[..., None], jnp.asarray(tau_b)[..., None])
+    struct = _structure_jit(model, ys, jnp.asarray(V_b)[..., None], jnp.asarray(tau_b)[..., None], truncation)
     struct = {key: np.asarray(value) for key, value in struct.items()}
     ts_all = np.asarray(solution.ts, float)
     ys_all = np.asarray(ys, float)

@@ -138,3 +138,20 @@ def test_phi_extrema_and_the_sweep_slip_velocity_are_one_search():
         top, _ = A.phi_extrema(model, V)
         assert float(slip_velocity(model, jnp.asarray(V))) == pytest.approx(top, rel=1e-13)
     assert float(slip_velocity(model, jnp.asarray(8.0))) == np.inf  # no maximum: no events
+
+
+def test_analyze_takes_the_runs_ode_truncation_included():
+    """analyze(solution, ode) equals the keyword form, and honours the ODE's truncation: its J_t
+    is the one the α-method used (diagnostics.schur), not the exact one."""
+    model = pj.PeelingModel()
+    sol = pj.simulate(model, V=1.1, tau=0.01, dt=0.01, t_final=0.3, truncation=2)
+    ode = pj.HomogenizedODE(model, 1.1, 0.01, truncation=2)
+    a = A.analyze(sol, ode)
+    valid = np.asarray(sol.valid)
+    np.testing.assert_allclose(a.schur[valid], np.asarray(sol.diagnostics.schur)[valid], rtol=1e-9)
+    b = A.analyze(sol, model, V=1.1, tau=0.01, truncation=2)
+    np.testing.assert_array_equal(a.schur, b.schur)
+    exact = A.analyze(sol, model, V=1.1, tau=0.01)
+    assert np.nanmax(np.abs(exact.schur[valid] - a.schur[valid])) > 0  # the truncation is not ignored
+    with pytest.raises(ValueError, match="not both"):
+        A.analyze(sol, ode, tau=0.1)
