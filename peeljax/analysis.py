@@ -32,9 +32,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+from .homogenized import HomogenizedODE
 from .model import PeelingModel
 from .solution import Solution
-from .homogenized import HomogenizedODE
 from .structure import jacobians, local_index, phi_extremum, schur_complement, truncated_schur_complement
 
 __all__ = [
