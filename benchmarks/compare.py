@@ -81,6 +81,7 @@ family (peeljax, numba, diffrax, scipy, SUNDIALS, CasADi, PETSc), each built on 
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib
 import json
 import os
@@ -366,28 +367,23 @@ def measure_gradient(settings, repeats):
         return time.perf_counter() - start, exe
 
     c_jax = jnp.asarray(c)
+
+    def reverse_mode(loss):
+        """(setup seconds, call) for jax.grad of ``loss(c) -> (L, status)``, compiled once."""
+        setup, exe = jit_compiled(jax.value_and_grad(loss, has_aux=True), c_jax)
+
+        def call():
+            (L, status), g = jax.block_until_ready(exe(c_jax))
+            return float(L), np.asarray(g), int(status)
+
+        return setup, call
+
     for n in settings["steps"]:
-        def prepare(n=n):
-            setup, exe = jit_compiled(jax.value_and_grad(lambda c: alpha_loss(c, n), has_aux=True), c_jax)
-
-            def call():
-                (L, status), g = jax.block_until_ready(exe(c_jax))
-                return float(L), np.asarray(g), int(status)
-
-            return setup, call
-
+        prepare = functools.partial(reverse_mode, lambda c, n=n: alpha_loss(c, n))
         methods.append(("peeljax reverse mode (jax.grad)", f"N = {n} (dt = 1/{n / P4_T_FINAL:g})", prepare, "peeljax"))
     for rtol in settings.get("rtols_adaptive", ()):
-        def prepare_adaptive(rtol=rtol):
-            setup, exe = jit_compiled(jax.value_and_grad(lambda c: adaptive_loss(c, rtol), has_aux=True), c_jax)
-
-            def call():
-                (L, status), g = jax.block_until_ready(exe(c_jax))
-                return float(L), np.asarray(g), int(status)
-
-            return setup, call
-
-        methods.append(("peeljax adaptive α, reverse mode (jax.grad)", f"rtol = {rtol:g}", prepare_adaptive, "adaptive"))
+        prepare = functools.partial(reverse_mode, lambda c, rtol=rtol: adaptive_loss(c, rtol))
+        methods.append(("peeljax adaptive α, reverse mode (jax.grad)", f"rtol = {rtol:g}", prepare, "adaptive"))
     def prepare_fd(n=n_base):
         setup, exe = jit_compiled(lambda c: alpha_loss(c, n)[0], c_jax)
         value = lambda x: float(exe(jnp.asarray(x)))
