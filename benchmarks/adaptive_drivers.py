@@ -17,7 +17,6 @@ Medians of round-robin repeats; ratios are to ``peeljax.simulate`` in the same r
 from __future__ import annotations
 
 import argparse
-import functools
 import importlib
 import statistics
 import time
@@ -31,7 +30,7 @@ from machine import cpu_model
 
 import peeljax as pj
 from peeljax.homogenized import HomogenizedODE
-from peeljax.integrators.adaptive import integrate_alpha_adaptive
+from peeljax.integrators import integrate_alpha_adaptive, integrator_for
 
 RESULTS = Path(__file__).resolve().parent / "results" / "adaptive_drivers.md"
 V, T_FINAL = 1.1, 3.0
@@ -122,8 +121,9 @@ def call_overhead(repeats):
     model = pj.PeelingModel()
     ts = np.linspace(0.0, 1e-4, 2)
     ode = HomogenizedODE(model, V, 0.1)
-    args = jax.device_put((ode, pj.AlphaMethod(), None, np.asarray(1e-4), pj.PIController(), ts, np.asarray(1e-16)))
-    compiled = jax.jit(functools.partial(simulate_module._integrate_adaptive, max_steps=100_000, adjoint="reverse"))
+    integrator = integrator_for(t_final=1e-4)  # simulate's: error control at the default tolerances
+    args = jax.device_put((integrator, ode, None, np.asarray(1e-4), ts))
+    compiled = jax.jit(simulate_module._integrate)
     runs = {
         "simulate": lambda: pj.simulate(model, V=V, tau=0.1, t_final=1e-4, ts=ts).ys,
         "compiled": lambda: compiled(*args).ys,

@@ -1,5 +1,15 @@
 """peeljax: stick-slip peeling of an adhesive tape off a rotating spool, in JAX.
 
+The modules follow the data flow; each imports only those above it:
+
+    model.py, adhesion.py    the DAE: f(x, v), the constraint (sac), φ(v, V)
+    structure.py             ∂f/∂x, ∂f/∂v, F̃, ∂φ/∂v by autodiff; J_t(τ); the local index
+    homogenized.py           ψ(y; τ) of eq. (hv): the ODE every integrator solves (``ODE``)
+    integrators/             one contract (base.py), three integrators → ``Solution``
+    simulate.py              one run, its options checked before anything compiles
+    sweeps/, fit.py, analysis.py    many runs at once; φ from data; stick-slip and index in time
+    cli/, plots.py, figures.py      the command line and the pictures
+
 Importing peeljax enables 64-bit floats in JAX (``jax_enable_x64``): the peeling problem
 spans v from 1e-10 to 10 m/s and stiff Newton solves, which float32 cannot carry.
 

@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["float_array"]
+__all__ = ["float_array", "optional_float_array"]
 
 
 def float_array(value):
@@ -20,3 +20,8 @@ def float_array(value):
     if isinstance(value, jax.Array):
         return value if value.dtype == jnp.float64 else jnp.asarray(value, dtype=float)
     return np.asarray(value, dtype=float)
+
+
+def optional_float_array(value):
+    """None stays None (an option left at its default); anything else is :func:`float_array`."""
+    return None if value is None else float_array(value)

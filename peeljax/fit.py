@@ -33,6 +33,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -40,17 +41,17 @@ import numpy as np
 import optax
 from jaxtyping import Array, ArrayLike, Float
 
-from ._validation import check_mesh, check_positive
+from ._validation import check_positive
 from .adhesion import COEFFICIENT_NAMES, AdhesionLaw
 from .homogenized import HomogenizedODE
-from .integrators.adaptive import integrate_alpha_adaptive
-from .integrators.alpha import AlphaMethod, integrate_alpha
-from .integrators.controller import PIController
+from .integrators.alpha import AlphaMethod
+from .integrators.base import AbstractIntegrator
+from .integrators.select import integrator_for
 from .model import PeelingModel
-from .simulate import check_error_control, refuse_with_dt
 
 __all__ = [
     "FitResult",
+    "LossInfo",
     "Observation",
     "fit_adhesion",
     "fit_adhesion_steady",
@@ -140,21 +141,31 @@ def _model_quantities(model: PeelingModel, ys: Array) -> dict[str, Array]:
     return {"v": ys[:, 3], "alpha": ys[:, 0], "F": model.tension(ys[:, 2], ys[:, 0])}
 
 
-def _run_loss(
-    model, V, tau, solver, n_steps, t_final, t, values, scale, mask, grid, weights, checkpoint_every, controller
-):
-    """Loss terms of one pull velocity (see the module docstring) and the visited v range.
+class LossInfo(eqx.Module):
+    """What a fit's loss reports besides its value.
 
-    With a ``controller`` the run is the error-controlled α-method (reverse mode through its
-    checkpointed loop) with dense output at the observation times ``grid`` (within
-    [0, t_final]); without, the uniform mesh of n_steps steps, linearly interpolated."""
+    Attributes:
+        v_min, v_max: the v range on which the loss evaluated φ (per V for a trajectory loss):
+            the data determine φ only there.
+        t_stop: per V, where the model's run stopped (t_final when it completed); None for
+            the steady loss, which runs no model.
+    """
+
+    v_min: Array
+    v_max: Array
+    t_stop: Array | None
+
+
+def _run_loss(model, V, tau, integrator, t_final, t, values, scale, mask, grid, weights) -> tuple[Array, LossInfo]:
+    """Loss terms of one pull velocity (see the module docstring) and what the run visited.
+
+    An integrator with dense output (error control, diffrax) outputs at the observation
+    times ``grid`` (within [0, t_final]); the uniform mesh outputs its mesh points, which are
+    interpolated linearly."""
     ode = HomogenizedODE(model, V, tau)
     y0 = model.initial_state(V)
-    if controller is None:
-        sol = integrate_alpha(ode, solver, y0, 0.0, t_final, n_steps, checkpoint_every=checkpoint_every)
-    else:
-        ts = jnp.clip(grid, 0.0, t_final)
-        sol = integrate_alpha_adaptive(ode, solver, y0, 0.0, t_final, controller=controller, ts=ts)
+    ts = jnp.clip(grid, 0.0, t_final) if integrator.dense_output else None
+    sol = integrator.integrate(ode, y0, 0.0, t_final, ts)
     ys = jnp.where(sol.valid[:, None], sol.ys, 0.0)  # the double where: no NaN reaches the gradient
     quantities = _model_quantities(model, ys)
     t_stop = jax.lax.stop_gradient(sol.t_stop)
@@ -171,7 +182,7 @@ def _run_loss(
     v = jax.lax.stop_gradient(ys[:, 3])
     v_min = jnp.min(jnp.where(sol.valid, v, jnp.inf))
     v_max = jnp.max(jnp.where(sol.valid, v, -jnp.inf))
-    return total, (v_min, v_max, t_stop)
+    return total, LossInfo(v_min=v_min, v_max=v_max, t_stop=t_stop)
 
 
 def trajectory_loss(
@@ -180,15 +191,12 @@ def trajectory_loss(
     *,
     model: PeelingModel,
     tau: ArrayLike,
-    solver: AlphaMethod,
-    n_steps: int,
+    integrator: AbstractIntegrator,
     t_final: float,
     weights: dict[str, float],
-    checkpoint_every=None,
     batch: str = "map",
-    controller: PIController | None = None,
-) -> tuple[Array, tuple[Array, Array, Array]]:
-    """The fit's loss L (module docstring) for φ = ``adhesion``, and (v_min, v_max, t_stop) per V.
+) -> tuple[Array, LossInfo]:
+    """The fit's loss L (module docstring) for φ = ``adhesion``, and its :class:`LossInfo` (per V).
 
     ``batch="map"`` runs the pull velocities one after another (``lax.map``: a gradient costs
     the sum of the runs); ``"vmap"`` batches them (one run's wall time on many cores, but the
@@ -199,16 +207,14 @@ def trajectory_loss(
 
     def one(args):
         V, t, values, scale, mask, grid = args
-        return _run_loss(
-            model, V, tau, solver, n_steps, t_final, t, values, scale, mask, grid, w, checkpoint_every, controller
-        )
+        return _run_loss(model, V, tau, integrator, t_final, t, values, scale, mask, grid, w)
 
     args = (data.V, data.t, data.values, data.scale, data.mask, data.grid)
     if batch == "vmap":
-        terms, extra = jax.vmap(one)(args)
+        terms, info = jax.vmap(one)(args)
     else:
-        terms, extra = jax.lax.map(one, args)
-    return jnp.mean(terms), extra
+        terms, info = jax.lax.map(one, args)
+    return jnp.mean(terms), info
 
 
 # ---------------------------------------------------------------------------- parametrisation
@@ -234,39 +240,43 @@ def _check_free(free) -> tuple[str, ...]:
     return tuple(n for n in COEFFICIENT_NAMES if n in free)  # canonical order, no duplicates
 
 
-class _TrajectoryLoss(eqx.Module):
-    """θ ↦ (L, aux) of :func:`trajectory_loss` with φ = ``_to_law(θ, start)`` (a pytree, so jit caches on it)."""
+class _Loss(eqx.Module):
+    """θ ↦ (L, :class:`LossInfo`) with φ = ``_to_law(θ, start)``: the shape of every fit's loss.
+
+    A pytree, so :func:`_update`'s compiled program is cached on its structure: a new fit
+    with new data or start values but the same shapes reuses it.
+    """
+
+    start: eqx.AbstractVar[AdhesionLaw]
+
+    def loss(self, adhesion: AdhesionLaw) -> tuple[Array, LossInfo]:
+        raise NotImplementedError
+
+    def __call__(self, theta):
+        return self.loss(_to_law(theta, self.start))
+
+
+class _TrajectoryLoss(_Loss):
+    """:func:`trajectory_loss` of the observed runs."""
 
     start: AdhesionLaw
     data: _Data
     model: PeelingModel
     tau: Float[Array, ""]
-    solver: AlphaMethod
+    integrator: AbstractIntegrator
     weights: dict
-    controller: PIController | None
-    n_steps: int = eqx.field(static=True)
     t_final: float = eqx.field(static=True)
-    checkpoint_every: object = eqx.field(static=True)
     batch: str = eqx.field(static=True)
 
-    def __call__(self, theta):
+    def loss(self, adhesion):
         return trajectory_loss(
-            _to_law(theta, self.start),
-            self.data,
-            model=self.model,
-            tau=self.tau,
-            solver=self.solver,
-            n_steps=self.n_steps,
-            t_final=self.t_final,
-            weights=self.weights,
-            checkpoint_every=self.checkpoint_every,
-            batch=self.batch,
-            controller=self.controller,
-        )
+            adhesion, self.data, model=self.model, tau=self.tau, integrator=self.integrator,
+            t_final=self.t_final, weights=self.weights, batch=self.batch,
+        )  # fmt: skip
 
 
-class _SteadyLoss(eqx.Module):
-    """θ ↦ mean_i ((φ(v_i, V_i) − force_i)/rms(force))² with φ = ``_to_law(θ, start)``, and aux."""
+class _SteadyLoss(_Loss):
+    """mean_i ((φ(v_i, V_i) − force_i)/rms(force))², no model run."""
 
     start: AdhesionLaw
     v: Float[Array, " n"]
@@ -274,10 +284,9 @@ class _SteadyLoss(eqx.Module):
     V: Float[Array, " n"]
     scale: Float[Array, ""]
 
-    def __call__(self, theta):
-        law = _to_law(theta, self.start)
-        aux = (jnp.min(self.v), jnp.max(self.v), jnp.zeros(()))
-        return jnp.mean(((law(self.v, self.V) - self.force) / self.scale) ** 2), aux
+    def loss(self, adhesion):
+        info = LossInfo(v_min=jnp.min(self.v), v_max=jnp.max(self.v), t_stop=None)
+        return jnp.mean(((adhesion(self.v, self.V) - self.force) / self.scale) ** 2), info
 
 
 @dataclasses.dataclass
@@ -463,12 +472,11 @@ def _strong(x):
     return jnp.array(x, dtype=jnp.result_type(x)) if eqx.is_array_like(x) else x
 
 
-def _fit(loss_fn, start, names, settings, *, opt, steps, patience, tolerance, progress, description):
-    """Minimise loss_fn(θ) → (L, (v_min, v_max, t_stop)) with the optax transformation ``opt``
+def _fit(loss_fn: _Loss, names, settings, *, opt, steps, patience, tolerance, progress, description):
+    """Minimise loss_fn(θ) → (L, :class:`LossInfo`) with the optax transformation ``opt``
     from θ = 0 and report it as a :class:`FitResult`.
 
-    The best of θ_0 … θ_steps is returned (the last update is evaluated too). ``settings``
-    without a ``"kind"`` are a trajectory fit's: its ``t_stop`` per V is reported.
+    The best of θ_0 … θ_steps is returned (the last update is evaluated too).
     """
     began = time.perf_counter()
     theta = {n: jnp.zeros((), float) for n in names}  # strongly typed: no recompile after step 1
@@ -510,7 +518,7 @@ def _fit(loss_fn, start, names, settings, *, opt, steps, patience, tolerance, pr
     value, theta_best, gnorm, aux = best
     if aux is None:
         raise FloatingPointError(f"{description}: the loss is not finite at the start; check the data and the start")
-    v_min, v_max, t_stop = (np.asarray(a) for a in aux)
+    start = loss_fn.start
     return FitResult(
         adhesion=_to_law(theta_best, start),
         start=start,
@@ -520,10 +528,10 @@ def _fit(loss_fn, start, names, settings, *, opt, steps, patience, tolerance, pr
         gradient_norm=float(gnorm),
         steps=len(history) - 1,
         stopped_early=early,
-        v_range=(float(np.min(v_min)), float(np.max(v_max))),
+        v_range=(float(np.min(aux.v_min)), float(np.max(aux.v_max))),
         free=names,
         settings=settings,
-        t_stop=[] if "kind" in settings else [float(x) for x in np.atleast_1d(t_stop)],
+        t_stop=[] if aux.t_stop is None else [float(x) for x in np.atleast_1d(aux.t_stop)],
         wall_time_s=time.perf_counter() - began,
     )
 
@@ -544,7 +552,7 @@ def fit_adhesion(
     patience: int = 50,
     tolerance: float = 1e-4,
     progress: bool = True,
-    solver: AlphaMethod | None = None,
+    solver: AlphaMethod | diffrax.AbstractSolver | None = None,
     checkpoint_every=None,
     batch: str = "map",
     rtol: float | None = None,
@@ -557,7 +565,9 @@ def fit_adhesion(
     (``optimizer="lbfgs"``) or any optax transformation passed as ``optimizer``. The model runs
     with the error-controlled α-method (default; ``rtol``, ``atol``), or the uniform mesh of
     step ``dt`` when given, on [0, t_final] (default: the last observation time), starting
-    from the paper's consistent initial data at each V.
+    from the paper's consistent initial data at each V. ``solver`` may be any
+    ``diffrax.AbstractSolver`` instead of the α-method (error control; gradients through
+    diffrax's ``RecursiveCheckpointAdjoint``).
 
     Args:
         observations: one :class:`Observation` per pull velocity.
@@ -609,38 +619,29 @@ def fit_adhesion(
     start = model.adhesion if start is None else start
     if not isinstance(start, AdhesionLaw):
         raise TypeError("fit_adhesion fits an AdhesionLaw; the model's adhesion is a plain callable")
-    solver = AlphaMethod() if solver is None else solver
     weights = {q: 1.0 for q in QUANTITIES} | dict(weights or {})
     data, t_obs_max = _pack(observations)
     t_final = float(t_obs_max if t_final is None else t_final)
     opt, learning_rate = _check_options(steps, optimizer, learning_rate)
-    controller = None
-    if dt is not None:
-        refuse_with_dt(dt, rtol=rtol, atol=atol)
-        n_steps = check_mesh(dt, t_final)
-    else:
-        n_steps = 1  # unused by error control
-        rtol, atol = check_error_control(t_final, rtol, atol, None, 1)
-        controller = PIController(rtol=rtol, atol=atol)
+    integrator = integrator_for(solver, dt=dt, t_final=t_final, rtol=rtol, atol=atol, checkpoint_every=checkpoint_every)
     loss_fn = _TrajectoryLoss(
         start=start,
         data=data,
         model=model,
         tau=jnp.asarray(tau, float),
-        solver=solver,
+        integrator=integrator,
         weights={q: jnp.asarray(weights[q], float) for q in data.values},
-        n_steps=n_steps,
         t_final=t_final,
-        checkpoint_every=checkpoint_every,
         batch=batch,
-        controller=controller,
     )
+    uniform = dt is not None
+    error_control = integrator.settings()
     settings = {
         "V": [float(o.V) for o in observations],
         "tau": float(tau),
-        "dt": None if controller is not None else float(t_final / n_steps),
+        "dt": float(t_final / integrator.n_steps) if uniform else None,
         "t_final": t_final,
-        "n_steps": None if controller is not None else n_steps,
+        "n_steps": integrator.n_steps if uniform else None,
         "optimizer": _optimizer_setting(optimizer),
         "learning_rate": learning_rate,
         "steps": steps,
@@ -649,13 +650,13 @@ def fit_adhesion(
         "weights": {q: weights[q] for q in data.values},
         "batch": batch,
         "checkpoint_every": checkpoint_every,
-        "rtol": None if controller is None else float(rtol),
-        "atol": None if controller is None else float(atol),
+        "rtol": None if uniform else error_control["rtol"],
+        "atol": None if uniform else error_control["atol"],
+        "method": "alpha" if uniform else error_control["method"],
         "parametrisation": "c = c_start*exp(theta)",
     }
     return _fit(
         loss_fn,
-        start,
         names,
         settings,
         opt=opt,
@@ -711,7 +712,6 @@ def fit_adhesion_steady(
     }
     return _fit(
         loss_fn,
-        start,
         names,
         settings,
         opt=opt,

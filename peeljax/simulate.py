@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import functools
-
 import diffrax
 import equinox as eqx
 import jax
@@ -17,17 +15,15 @@ from ._validation import (
     check_mesh,
     check_output_times,
     check_positive,
-    check_rho,
     check_tau,
-    check_tolerance,
     check_truncation,
     check_y0,
 )
 from .homogenized import HomogenizedODE
-from .integrators.adaptive import integrate_alpha_adaptive
-from .integrators.alpha import AlphaMethod, integrate_alpha
-from .integrators.controller import PIController
+from .integrators.alpha import AlphaMethod
+from .integrators.base import AbstractIntegrator
 from .integrators.reference import integrate_reference
+from .integrators.select import DEFAULT_MAX_STEPS, integrator_for, refuse_with_dt
 from .model import PeelingModel
 from .solution import Solution
 
@@ -54,51 +50,11 @@ def _initial_state(ode, y0):
     return ode.model.initial_state(ode.V) if y0 is None else y0
 
 
-@functools.lru_cache(maxsize=64)
-def _default_solver(rho: float) -> AlphaMethod:
-    return AlphaMethod(rho=rho)
+def _integrate(integrator, ode, y0, t_final, ts):
+    return integrator.integrate(ode, _initial_state(ode, y0), 0.0, t_final, ts)
 
 
-@functools.lru_cache(maxsize=64)
-def _controller(rtol: float, atol: float) -> PIController:
-    return PIController(rtol=rtol, atol=atol)
-
-
-def checked_solver(solver: AlphaMethod | None, rho: ArrayLike) -> AlphaMethod:
-    """``solver``, or ``AlphaMethod(rho=rho)`` when it is None, with ρ checked (before compiling)."""
-    if solver is None:
-        check_rho(rho)
-        # Modules are immutable: one per ρ serves every call (building one costs ~50 µs).
-        return _default_solver(float(rho)) if type(rho) in (float, int) else AlphaMethod(rho=rho)
-    if not isinstance(solver, AlphaMethod):
-        raise TypeError(f"solver must be an AlphaMethod, got {type(solver).__name__}")
-    check_rho(solver.rho)
-    return solver
-
-
-@eqx.filter_jit
-def _run_alpha(ode, solver, y0, t_final, n_steps, checkpoint_every=None):
-    return integrate_alpha(
-        ode, solver, _initial_state(ode, y0), 0.0, t_final, n_steps, checkpoint_every=checkpoint_every
-    )
-
-
-def _integrate_adaptive(ode, solver, y0, t_final, controller, ts, dtmin, max_steps, adjoint):
-    return integrate_alpha_adaptive(
-        ode,
-        solver,
-        _initial_state(ode, y0),
-        0.0,
-        t_final,
-        controller=controller,
-        ts=ts,
-        dtmin=dtmin,
-        max_steps=max_steps,
-        adjoint=adjoint,
-    )
-
-
-def _integrate_packed(packed, rest, *, treedef, scalars, max_steps, adjoint):
+def _integrate_packed(packed, rest, *, treedef, scalars):
     leaves, k, j = [], 0, 0
     for is_scalar in scalars:
         if is_scalar:
@@ -107,55 +63,31 @@ def _integrate_packed(packed, rest, *, treedef, scalars, max_steps, adjoint):
         else:
             leaves.append(rest[j])
             j += 1
-    args = jax.tree_util.tree_unflatten(treedef, leaves)
-    return _integrate_adaptive(*args, max_steps=max_steps, adjoint=adjoint)
+    return _integrate(*jax.tree_util.tree_unflatten(treedef, leaves))
 
 
-_adaptive_jit = jax.jit(_integrate_packed, static_argnames=("treedef", "scalars", "max_steps", "adjoint"))
-_adaptive_filter_jit = eqx.filter_jit(_integrate_adaptive)
+_packed_jit = jax.jit(_integrate_packed, static_argnames=("treedef", "scalars"))
+_filter_jit = eqx.filter_jit(_integrate)
 
 
-def _run_adaptive(ode, solver, y0, t_final, controller, ts, dtmin, max_steps, adjoint):
+def _run(integrator: AbstractIntegrator, ode, y0, t_final, ts) -> Solution:
     """The compiled run, with ``jax.jit``'s C++ dispatch when every leaf is an array.
 
-    The float parameters held on the host (about 30: the model's, φ's, the solver's, the
-    controller's) travel as one vector, one host-to-device copy instead of one each (65 µs
-    less per call). A leaf that is not an array (a φ given as a plain Python function) takes
-    ``eqx.filter_jit`` instead.
+    The float parameters held on the host (about 30: the model's, φ's, the integrator's)
+    travel as one vector, one host-to-device copy instead of one each (65 µs less per call);
+    the integrator's static fields (step budgets, mesh size) are in the tree's structure. A
+    leaf that is not an array (a φ given as a plain Python function, a diffrax solver's
+    settings) takes ``eqx.filter_jit`` instead.
     """
-    leaves, treedef = jax.tree_util.tree_flatten((ode, solver, y0, t_final, controller, ts, dtmin))
+    leaves, treedef = jax.tree_util.tree_flatten((integrator, ode, y0, t_final, ts))
     scalars = tuple(
         isinstance(leaf, (np.ndarray, np.generic)) and leaf.shape == () and leaf.dtype == np.float64 for leaf in leaves
     )
     if all(isinstance(leaf, (jax.Array, np.ndarray, np.generic)) for leaf in leaves):
         packed = np.array([leaf for leaf, is_scalar in zip(leaves, scalars) if is_scalar], dtype=float)
         rest = [leaf for leaf, is_scalar in zip(leaves, scalars) if not is_scalar]
-        return _adaptive_jit(packed, rest, treedef=treedef, scalars=scalars, max_steps=max_steps, adjoint=adjoint)
-    return _adaptive_filter_jit(ode, solver, y0, t_final, controller, ts, dtmin, max_steps, adjoint)
-
-
-DEFAULT_RTOL, DEFAULT_ATOL = 1e-6, 1e-9
-DEFAULT_MAX_STEPS = 100_000
-
-
-def refuse_with_dt(dt, **options) -> None:
-    """Error control's options (not None) cannot be combined with a uniform mesh ``dt``."""
-    for name, value in options.items():
-        if value is not None:
-            raise ValueError(f"{name} applies to error control (dt=None); it cannot be combined with dt={dt!r}")
-
-
-def check_error_control(t_final, rtol, atol, dtmin, max_steps) -> tuple[float, float]:
-    """Error control's options, checked before anything compiles; returns (rtol, atol) with defaults."""
-    check_positive("t_final", t_final)
-    rtol = DEFAULT_RTOL if rtol is None else rtol
-    atol = DEFAULT_ATOL if atol is None else atol
-    check_tolerance("rtol", rtol, upper=1.0)
-    check_tolerance("atol", atol)
-    if dtmin is not None:
-        check_positive("dtmin", dtmin)
-    check_max_steps(max_steps)
-    return float(rtol), float(atol)
+        return _packed_jit(packed, rest, treedef=treedef, scalars=scalars)
+    return _filter_jit(integrator, ode, y0, t_final, ts)
 
 
 def simulate(
@@ -173,11 +105,11 @@ def simulate(
     dtmin: float | None = None,
     max_steps: int = DEFAULT_MAX_STEPS,
     adjoint: str = "reverse",
-    solver: AlphaMethod | None = None,
+    solver: AlphaMethod | diffrax.AbstractSolver | None = None,
     truncation: int | None = None,
     checkpoint_every: int | str | None = None,
 ) -> Solution:
-    """Integrate the homogenized peeling ODE (eq. ``hv``) with the α-method.
+    """Integrate the homogenized peeling ODE (eq. ``hv``) with the α-method (or a diffrax solver).
 
     Two modes share the α-method's step (:mod:`peeljax.integrators.alpha`):
 
@@ -185,6 +117,11 @@ def simulate(
       a step size chosen by a PI controller so that each step's local error estimate is
       within ``rtol``/``atol``; output at ``ts`` by cubic Hermite interpolation.
     * ``dt`` a number: the uniform mesh of the paper (:func:`peeljax.integrate_alpha`).
+
+    ``solver`` may also be any ``diffrax.AbstractSolver`` (e.g. ``diffrax.Kvaerno5()``): the
+    same problem, tolerances, stops and output then run through diffrax with its PID controller
+    (:class:`~peeljax.integrators.DiffraxIntegrator`; error control only). The options become
+    an integrator in one place, :func:`peeljax.integrators.integrator_for`.
 
     Args:
         model: spool, tape and adhesion law (default: the paper's, ``PeelingModel()``).
@@ -197,7 +134,8 @@ def simulate(
         rho: the α-method's ρ ∈ [0, 1) (ignored when ``solver`` is given).
         y0: initial (α, ω, u, v) with v > 0 (default: the paper's consistent data,
             :meth:`PeelingModel.initial_state`).
-        solver: an :class:`AlphaMethod` to set Newton tolerances and safeguards.
+        solver: an :class:`AlphaMethod` to set Newton tolerances and safeguards, or a
+            ``diffrax.AbstractSolver`` (error control: ``dt=None``).
         truncation: ``None`` for the exact J_t, m ≥ 1 for the m-term eq. ``hvex``, 0 for the
             τ → 0 index-1 ODE.
         rtol, atol: error control only (default 1e-6 and 1e-9): relative tolerance in
@@ -226,25 +164,14 @@ def simulate(
     mesh's shape and must be Python numbers. Input is checked before compilation.
     """
     if dt is not None:
-        refuse_with_dt(dt, rtol=rtol, atol=atol, ts=ts, dtmin=dtmin)
-        n_steps = check_mesh(dt, t_final)
-        solver = checked_solver(solver, rho)
-        ode, y0 = _prepare(model, V, tau, y0, truncation)
-        return _run_alpha(ode, solver, y0, jnp.asarray(t_final, float), n_steps, checkpoint_every)
-    if checkpoint_every is not None:
-        raise ValueError(
-            "checkpoint_every applies to the uniform mesh (dt given); error control checkpoints its loop itself"
-        )
-    rtol, atol = check_error_control(t_final, rtol, atol, dtmin, max_steps)
-    if adjoint not in ("reverse", "forward"):
-        raise ValueError(f"adjoint must be 'reverse' or 'forward', got {adjoint!r}")
+        refuse_with_dt(dt, ts=ts)
+    integrator = integrator_for(
+        solver, rho=rho, dt=dt, t_final=t_final, rtol=rtol, atol=atol, dtmin=dtmin, max_steps=max_steps,
+        adjoint=adjoint, checkpoint_every=checkpoint_every,
+    )  # fmt: skip
     ts = None if ts is None else check_output_times(ts, t_final)
-    solver = checked_solver(solver, rho)
     ode, y0 = _prepare(model, V, tau, y0, truncation)
-    controller = _controller(rtol, atol)
-    t_final = float_array(t_final)
-    dtmin = 1e-12 * t_final if dtmin is None else float_array(dtmin)
-    return _run_adaptive(ode, solver, y0, t_final, controller, ts, dtmin, max_steps, adjoint)
+    return _run(integrator, ode, y0, float_array(t_final), ts)
 
 
 @eqx.filter_jit

@@ -37,7 +37,7 @@ def no_compilation(monkeypatch):
     """Fail the test if anything reaches a compiled runner of ``peeljax.simulate`` or of the sweeps."""
     reason = "compiled before the input was checked"
     # the module, not the function peeljax.simulate
-    forbid(monkeypatch, "peeljax.simulate", "_run_alpha", "_run_adaptive", "_run_reference", reason=reason)
+    forbid(monkeypatch, "peeljax.simulate", "_run", "_run_reference", reason=reason)
     forbid(monkeypatch, "peeljax.sweeps.engine", "run_batch", "run_batch_adaptive", reason=reason)
 
 

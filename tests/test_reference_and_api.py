@@ -2,27 +2,11 @@
 
 from __future__ import annotations
 
-import importlib
-
 import numpy as np
 import pytest
 
 import peeljax as pj
 from peeljax.solution import StopReason
-
-simulate_module = importlib.import_module("peeljax.simulate")  # the module, not the function
-
-
-@pytest.fixture
-def no_compilation(monkeypatch):
-    """Fail the test if anything reaches the compiled runners."""
-
-    def forbidden(*args, **kwargs):
-        raise AssertionError("compiled before the input was checked")
-
-    monkeypatch.setattr(simulate_module, "_run_alpha", forbidden)
-    monkeypatch.setattr(simulate_module, "_run_reference", forbidden)
-
 
 BAD_INPUT = [
     (dict(tau=0.0), "tau"),

@@ -28,7 +28,7 @@ import numpy as np
 from .._validation import check_mesh, check_positive, check_tolerance
 from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw
 from ..fit import QUANTITIES, Observation
-from ..simulate import DEFAULT_ATOL, DEFAULT_RTOL
+from ..integrators.select import DEFAULT_ATOL, DEFAULT_RTOL
 from ._common import PROG, check_output_path, checked, fail, json_safe, load_phi, plot_formats
 
 __all__ = ["add_command", "load_observations"]

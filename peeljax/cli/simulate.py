@@ -23,9 +23,9 @@ from .._validation import (
 )
 from ..adhesion import AdhesionLaw
 from ..integrators.dense import output_times
+from ..integrators.select import DEFAULT_ATOL as _ALPHA_ATOL
+from ..integrators.select import DEFAULT_RTOL as _ALPHA_RTOL
 from ..model import GEOMETRIES, PeelingModel
-from ..simulate import DEFAULT_ATOL as _ALPHA_ATOL
-from ..simulate import DEFAULT_RTOL as _ALPHA_RTOL
 from ..simulate import simulate, simulate_reference
 from ..solution import Solution
 from ._common import PROG, check_output_path, checked, fail, json_safe, load_phi, plot_formats, write_failed

@@ -12,8 +12,8 @@ import numpy as np
 
 from .._validation import check_choice, check_mesh, check_positive, check_rho, check_tolerance
 from ..adhesion import AdhesionLaw
+from ..integrators.select import DEFAULT_ATOL, DEFAULT_RTOL
 from ..model import GEOMETRIES, PeelingModel
-from ..simulate import DEFAULT_ATOL, DEFAULT_RTOL
 from ._common import PROG, check_output_path, checked, fail, json_safe, load_phi, plot_formats, write_failed
 
 __all__ = ["add_command", "engine_text", "tau_grid", "validate_sweep", "validate_tau_star"]

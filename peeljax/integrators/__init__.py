@@ -1,12 +1,20 @@
-"""Time integrators for the homogenized ODE: the α-method (uniform mesh, error control, and as a
-diffrax solver) and the diffrax reference."""
+"""Time integrators for the homogenized ODE, behind one contract (:mod:`.base`).
 
-from .adaptive import alpha_attempt, error_constant, integrate_alpha_adaptive
+- :mod:`.alpha`: the α-method's step and the uniform mesh (:class:`UniformMesh`);
+- :mod:`.adaptive`, :mod:`.controller`, :mod:`.dense`: error control (:class:`ErrorControl`);
+- :mod:`.reference`: any diffrax solver (:class:`DiffraxIntegrator`), the reference;
+- :mod:`.observers`: what an adaptive run records of each step (output, a sweep's statistics);
+- :mod:`.select`: the user's options → an integrator (:func:`integrator_for`);
+- :mod:`.diffrax_solver`: the α-method as a diffrax solver (:class:`AlphaSolver`).
+"""
+
+from .adaptive import ErrorControl, alpha_attempt, error_constant, integrate_alpha_adaptive
 from .alpha import (
     AlphaMethod,
     AlphaState,
     LogTransformedODE,
     StepInfo,
+    UniformMesh,
     alpha_advance,
     alpha_coefficients,
     alpha_start,
@@ -14,27 +22,42 @@ from .alpha import (
     integrate_alpha,
     to_physical,
 )
+from .base import AbstractAdaptiveIntegrator, AbstractIntegrator, ObservedRun
 from .controller import PIController
 from .dense import hermite
 from .diffrax_solver import AlphaSolver
-from .reference import integrate_reference
+from .observers import AcceptedStep, DenseOutput, Observer, Observers, StepPoints
+from .reference import DiffraxIntegrator, integrate_reference
+from .select import integrator_for
 
 __all__ = [
+    "AbstractAdaptiveIntegrator",
+    "AbstractIntegrator",
+    "AcceptedStep",
     "AlphaMethod",
     "AlphaSolver",
     "AlphaState",
+    "DenseOutput",
+    "DiffraxIntegrator",
+    "ErrorControl",
     "LogTransformedODE",
+    "ObservedRun",
+    "Observer",
+    "Observers",
     "PIController",
     "StepInfo",
-    "alpha_attempt",
-    "error_constant",
-    "hermite",
-    "integrate_alpha_adaptive",
+    "StepPoints",
+    "UniformMesh",
     "alpha_advance",
+    "alpha_attempt",
     "alpha_coefficients",
     "alpha_start",
     "amplification_matrix",
+    "error_constant",
+    "hermite",
     "integrate_alpha",
+    "integrate_alpha_adaptive",
     "integrate_reference",
+    "integrator_for",
     "to_physical",
 ]

@@ -44,19 +44,17 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
+from .._arrays import optional_float_array
 from ..homogenized import ODE
 from ..solution import Solution, StepDiagnostics, StopReason
 from ..structure import local_index
 from .alpha import AlphaMethod, AlphaState, _log_mask, _stop_gradient, alpha_start, to_physical
+from .base import AbstractAdaptiveIntegrator, ObservedRun
 from .controller import PIController
-from .dense import hermite
+from .observers import AcceptedStep, DenseOutput, Observer, StepPoints
 
 __all__ = [
-    "AcceptedStep",
-    "DenseOutput",
-    "Observer",
-    "Observers",
-    "StepPoints",
+    "ErrorControl",
     "adaptive_loop",
     "alpha_attempt",
     "error_constant",
@@ -95,135 +93,6 @@ def alpha_attempt(ode: ODE, solver: AlphaMethod, state: AlphaState, h, chord=Non
     )
     error = error_constant(solver.rho) * h**2 * (new.a - state.a)
     return new, error, solved, iterations
-
-
-class AcceptedStep(eqx.Module):
-    """What an observer of the adaptive loop sees after each attempt (carried coordinates).
-
-    ``advance`` is False for a rejected attempt (or the step onto an impasse point): the
-    observer must then leave its record unchanged.
-    """
-
-    t0: Array
-    t1: Array
-    h: Array
-    y0: Array
-    psi0: Array
-    y1: Array
-    psi1: Array
-    J1: Array
-    iterations: Array
-    advance: Array
-
-
-class Observer(eqx.Module):
-    """Records something of each accepted step inside the compiled loop (an abstract base).
-
-    :func:`integrate_alpha_adaptive` uses :class:`StepPoints` or :class:`DenseOutput`; the
-    sweep engine adds window statistics (:mod:`peeljax.sweeps.engine`). ``init`` gives the
-    record at t0, ``update`` the record after one attempt (masked by ``step.advance``).
-    """
-
-    def init(self, t0: Array, state0: AlphaState):
-        raise NotImplementedError
-
-    def update(self, record, step: AcceptedStep, kind: str):
-        raise NotImplementedError
-
-
-class _Output(eqx.Module):
-    t: Array
-    y: Array
-    J: Array
-    iterations: Array
-    valid: Array
-    next: Array  # step points: rows written; dense output: the first output time not yet reached
-
-
-class StepPoints(Observer):
-    """The accepted step points, in ``rows`` = max_steps + 1 rows padded with NaN."""
-
-    rows: int = eqx.field(static=True)
-
-    def init(self, t0, state0):
-        n = state0.y.shape[0]
-        return _Output(
-            t=jnp.full(self.rows, jnp.nan).at[0].set(t0),
-            y=jnp.full((self.rows, n), jnp.nan).at[0].set(state0.y),
-            J=jnp.full(self.rows, jnp.nan).at[0].set(state0.J),
-            iterations=jnp.zeros(self.rows, jnp.int32),
-            valid=jnp.zeros(self.rows, bool).at[0].set(state0.status == 0),
-            next=jnp.asarray(1, jnp.int32),
-        )
-
-    def update(self, out, step, kind):
-        row = jnp.minimum(out.next, self.rows - 1)
-        keep = step.advance
-
-        def put(array, value):
-            return array.at[row].set(jnp.where(keep, value, array[row]))
-
-        return _Output(
-            t=put(out.t, step.t1),
-            y=put(out.y, step.y1),
-            J=put(out.J, step.J1),
-            iterations=put(out.iterations, step.iterations),
-            valid=put(out.valid, True),
-            next=out.next + keep,
-        )
-
-
-class DenseOutput(Observer):
-    """The cubic Hermite interpolant of each accepted step at the given times ``ts``."""
-
-    ts: Array
-
-    def init(self, t0, state0):
-        at_start = self.ts <= t0
-        return _Output(
-            t=self.ts,
-            y=jnp.where(at_start[:, None], state0.y, jnp.nan),
-            J=jnp.full(self.ts.shape, jnp.nan),
-            iterations=jnp.zeros(self.ts.shape, jnp.int32),
-            valid=at_start & (state0.status == 0),
-            next=jnp.sum(at_start).astype(jnp.int32),
-        )
-
-    def update(self, out, step, kind):
-        n_out = self.ts.shape[0]
-        t1 = step.t1
-
-        # The output times in (t0, t1], one at a time (a step covers few of them).
-        def more(d):
-            k = d[0]
-            return step.advance & (k < n_out) & (self.ts[jnp.minimum(k, n_out - 1)] <= t1)
-
-        def fill(d):
-            k, y, iterations, valid = d
-            y_k = hermite(step.t0, step.h, step.y0, step.psi0, step.y1, step.psi1, self.ts[k][None])[0]
-            return k + 1, y.at[k].set(y_k), iterations.at[k].set(step.iterations), valid.at[k].set(True)
-
-        k, y, iterations, valid = eqxi.while_loop(
-            more,
-            fill,
-            (out.next, out.y, out.iterations, out.valid),
-            max_steps=n_out,
-            kind=kind,
-            checkpoints=n_out if kind == "checkpointed" else None,
-        )
-        return _Output(t=out.t, y=y, J=out.J, iterations=iterations, valid=valid, next=k)
-
-
-class Observers(Observer):
-    """Several observers at once; the record is the tuple of theirs."""
-
-    observers: tuple
-
-    def init(self, t0, state0):
-        return tuple(o.init(t0, state0) for o in self.observers)
-
-    def update(self, records, step, kind):
-        return tuple(o.update(r, step, kind) for o, r in zip(self.observers, records))
 
 
 class _Carry(eqx.Module):
@@ -302,7 +171,7 @@ def adaptive_loop(
         refresh=jnp.asarray(True),
         parts_age=zero,
         jacobian_evaluations=zero,
-        record=observer.init(t0, state0),
+        record=observer.init(t0, state0.y, state0.J, state0.status == 0),
     )
 
     def running(c: _Carry):
@@ -457,3 +326,68 @@ def _solution(ode, solver, final: _Carry, step_points: bool, t0) -> Solution:
         diagnostics=diagnostics,
         method="alpha-adaptive",
     )
+
+
+class ErrorControl(AbstractAdaptiveIntegrator):
+    """The error-controlled α-method as an integrator (:mod:`peeljax.integrators.base`).
+
+    :meth:`integrate` is :func:`integrate_alpha_adaptive`; :meth:`observe` runs the same loop
+    (:func:`adaptive_loop`) with a sweep lane's observer, so a lane takes exactly the steps of
+    a single run.
+
+    Attributes:
+        method: the :class:`AlphaMethod` (ρ, Newton's settings, log components).
+        controller: the :class:`PIController` (rtol, atol, step-size update).
+        dtmin: a proposed step below it stops the run (``STALLED``); None: 1e-12·(t_final − t0).
+        max_steps: most step attempts, accepted or rejected (static).
+        adjoint: ``"reverse"`` (a checkpointed while loop, for ``jax.grad``) or ``"forward"``
+            (a plain while loop: ``jax.jvp``, and the fastest run when nothing is differentiated).
+    """
+
+    method: AlphaMethod = AlphaMethod()
+    controller: PIController = PIController()
+    dtmin: Float[Array, ""] | None = eqx.field(converter=optional_float_array, default=None)
+    max_steps: int = eqx.field(static=True, default=100_000)
+    adjoint: str = eqx.field(static=True, default="reverse")
+
+    def __check_init__(self):
+        if self.adjoint not in ("reverse", "forward"):
+            raise ValueError(f"adjoint must be 'reverse' or 'forward', got {self.adjoint!r}")
+        if isinstance(self.max_steps, bool) or not isinstance(self.max_steps, int) or self.max_steps < 1:
+            raise ValueError(f"max_steps must be a positive integer, got {self.max_steps!r}")
+
+    @property
+    def carried_log(self) -> tuple[int, ...]:
+        return self.method.log_components if self.method.log_discretization else ()
+
+    def integrate(self, ode, y0, t0, t_final, ts=None) -> Solution:
+        return integrate_alpha_adaptive(
+            ode, self.method, y0, t0, t_final, controller=self.controller, ts=ts, dtmin=self.dtmin,
+            max_steps=self.max_steps, adjoint=self.adjoint,
+        )  # fmt: skip
+
+    def observe(self, ode, y0, t0, t_final, observer) -> ObservedRun:
+        _, final = adaptive_loop(
+            ode, self.method, y0, t0, t_final, observer, controller=self.controller, dt0=None, dtmin=self.dtmin,
+            max_steps=self.max_steps, kind="checkpointed" if self.adjoint == "reverse" else "lax",
+        )  # fmt: skip
+        start_failed = (final.attempts == 0) & (final.state.status != 0)
+        return ObservedRun(
+            record=final.record,
+            status=final.state.status,
+            t_stop=final.t,
+            y_final=jnp.where(start_failed, jnp.nan, to_physical(self.method, final.state.y)),
+            accepted_steps=final.accepted,
+            rejected_steps=final.rejected,
+            newton_iterations=final.newton_iterations,
+        )
+
+    def settings(self) -> dict:
+        return {
+            "method": "alpha-adaptive",
+            "rtol": float(self.controller.rtol),
+            "atol": float(self.controller.atol),
+            "dtmin": None if self.dtmin is None else float(self.dtmin),
+            "max_steps": self.max_steps,
+            "solver": self.method.settings(),
+        }

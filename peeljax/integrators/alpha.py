@@ -44,6 +44,8 @@ per step than a ``lax.map`` over the batch.
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -56,16 +58,19 @@ from .._validation import check_positive, check_rho
 from ..homogenized import ODE, HomogenizedODE
 from ..solution import Solution, StepDiagnostics, StopReason, mask_after_stop
 from ..structure import local_index
+from .base import AbstractIntegrator
 
 __all__ = [
     "AlphaMethod",
     "AlphaState",
     "LogTransformedODE",
     "StepInfo",
+    "UniformMesh",
     "alpha_advance",
     "alpha_coefficients",
     "alpha_start",
     "amplification_matrix",
+    "from_log",
     "integrate_alpha",
     "to_physical",
 ]
@@ -117,7 +122,8 @@ def _log_mask(n, log_components):
     return jnp.zeros(n, bool).at[jnp.asarray(log_components, int)].set(True) if log_components else jnp.zeros(n, bool)
 
 
-def _from_log(z, log_components):
+def from_log(z: Float[Array, "... n"], log_components: tuple[int, ...]) -> Float[Array, "... n"]:
+    """z with the ``log_components`` exponentiated: carried coordinates (log v) back to y."""
     mask = _log_mask(z.shape[-1], log_components)
     return jnp.where(mask, jnp.exp(jnp.where(mask, z, 0.0)), z)
 
@@ -142,7 +148,7 @@ class LogTransformedODE(eqx.Module):
         return self.ode.tau
 
     def evaluate(self, z):
-        y = _from_log(z, self.log_components)
+        y = from_log(z, self.log_components)
         evaluation = self.ode.evaluate(y)
         mask = _log_mask(z.shape[-1], self.log_components)
         psi = jnp.where(mask, evaluation.psi / y, evaluation.psi)
@@ -311,12 +317,25 @@ class AlphaMethod(eqx.Module):
         if self.max_subdivisions < 0:
             raise ValueError(f"max_subdivisions must be >= 0, got {self.max_subdivisions!r}")
 
+    def settings(self) -> dict:
+        """The method's settings as JSON-able host values (recorded with a sweep's results)."""
+        return {
+            "rho": float(self.rho),
+            "newton_rtol": float(self.newton_rtol),
+            "newton_atol": float(self.newton_atol),
+            "max_newton_iterations": self.max_newton_iterations,
+            "max_subdivisions": self.max_subdivisions,
+            "log_components": list(self.log_components),
+            "log_discretization": self.log_discretization,
+            "max_log_change": float(self.max_log_change),
+        }
+
     def _newton_in_log(self) -> tuple[int, ...]:
         """Components that Newton alone solves for in log form (the scheme stays in y)."""
         return () if self.log_discretization else self.log_components
 
     def _to_state(self, z):
-        return _from_log(z, self._newton_in_log())
+        return from_log(z, self._newton_in_log())
 
     def _to_unknown(self, y):
         return _to_log(y, self._newton_in_log())
@@ -624,7 +643,7 @@ def alpha_start(ode, solver: AlphaMethod, y0: Float[Array, " n"]) -> tuple[Homog
 def to_physical(solver: AlphaMethod, y: Float[Array, "... n"]) -> Float[Array, "... n"]:
     """Carried states (log v with ``log_discretization``) back to y = (α, ω, u, v)."""
     if solver.log_discretization and solver.log_components:
-        return _from_log(y, solver.log_components)
+        return from_log(y, solver.log_components)
     return y
 
 
@@ -749,3 +768,37 @@ def integrate_alpha(
         diagnostics=diagnostics,
         method="alpha",
     )
+
+
+class UniformMesh(AbstractIntegrator):
+    """The α-method on a uniform mesh of ``n_steps`` steps (the paper's) as an integrator.
+
+    :meth:`integrate` is :func:`integrate_alpha`: output at the n_steps + 1 mesh points
+    (``ts`` must be None: the mesh has no dense output of its own).
+
+    Attributes:
+        method: the :class:`AlphaMethod`.
+        n_steps: steps on [t0, t_final] (static).
+        dt: the requested step, recorded in :meth:`settings` (the mesh's step is
+            (t_final − t0)/n_steps).
+        checkpoint_every: see :func:`integrate_alpha` (static).
+    """
+
+    dense_output: ClassVar[bool] = False
+    method: AlphaMethod = AlphaMethod()
+    n_steps: int = eqx.field(static=True, default=246)
+    dt: float | None = eqx.field(static=True, default=None)
+    checkpoint_every: int | str | None = eqx.field(static=True, default=None)
+
+    def __check_init__(self):
+        if isinstance(self.n_steps, bool) or not isinstance(self.n_steps, int) or self.n_steps < 1:
+            raise ValueError(f"n_steps must be a positive integer, got {self.n_steps!r}")
+        _checkpoint_chunk(self.checkpoint_every, self.n_steps)
+
+    def integrate(self, ode, y0, t0, t_final, ts=None) -> Solution:
+        if ts is not None:
+            raise ValueError("the uniform mesh outputs its own points: ts must be None (error control has dense output)")
+        return integrate_alpha(ode, self.method, y0, t0, t_final, self.n_steps, checkpoint_every=self.checkpoint_every)
+
+    def settings(self) -> dict:
+        return {"dt": self.dt, "n_steps": self.n_steps, "solver": self.method.settings()}

@@ -10,17 +10,23 @@ the direct and inertial alternatives (:mod:`peeljax.alternatives`) use it too.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Mapping
 
 import diffrax
+import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
+from .._arrays import float_array, optional_float_array
 from ..homogenized import HomogenizedODE
 from ..solution import Solution, StepDiagnostics, StopReason, mask_after_stop
 from ..structure import local_index
+from .base import AbstractAdaptiveIntegrator, ObservedRun
+from .observers import AcceptedStep
 
-__all__ = ["integrate_reference", "solution_from_diffrax"]
+__all__ = ["DiffraxIntegrator", "integrate_reference", "solution_from_diffrax"]
 
 
 def _stop_reason(result) -> Array:
@@ -92,6 +98,125 @@ def solution_from_diffrax(
     )
 
 
+class DiffraxIntegrator(AbstractAdaptiveIntegrator):
+    """Any diffrax solver, with diffrax's PID step control, as an integrator.
+
+    :meth:`integrate` saves at ``ts`` (``SaveAt(ts=ts)``) or, with ``ts=None``, at the
+    accepted steps (``SaveAt(t0=True, steps=True)``: ``max_steps + 1`` rows, NaN-padded);
+    :meth:`observe` replays the accepted steps to an observer with the cubic Hermite
+    interpolant through their ends (diffrax's own dense output for Kvaerno and other solvers
+    with ``ThirdOrderHermitePolynomialInterpolation``). A collapsing step (below ``dtmin``)
+    stops the run with ``STALLED``: diffrax has no impasse test of its own.
+
+    Attributes:
+        solver: a ``diffrax.AbstractSolver`` (default ``Kvaerno5()``).
+        rtol, atol: the ``PIDController``'s tolerances (traced).
+        dtmin: smallest step (None: 1e-12 of the span).
+        dt0: first step (None: 1e-6 of the span).
+        max_steps: diffrax's step budget (static).
+        adjoint: ``"reverse"`` (``RecursiveCheckpointAdjoint``, for ``jax.grad``) or
+            ``"forward"`` (``ForwardMode``, for ``jax.jvp``).
+    """
+
+    solver: diffrax.AbstractSolver = diffrax.Kvaerno5()
+    rtol: Float[Array, ""] = eqx.field(converter=float_array, default=1e-8)
+    atol: Float[Array, ""] = eqx.field(converter=float_array, default=1e-10)
+    dtmin: Float[Array, ""] | None = eqx.field(converter=optional_float_array, default=None)
+    dt0: Float[Array, ""] | None = eqx.field(converter=optional_float_array, default=None)
+    max_steps: int = eqx.field(static=True, default=100_000)
+    adjoint: str = eqx.field(static=True, default="reverse")
+
+    def __check_init__(self):
+        if not isinstance(self.solver, diffrax.AbstractSolver):
+            raise TypeError(f"solver must be a diffrax.AbstractSolver, got {type(self.solver).__name__}")
+        if self.adjoint not in ("reverse", "forward"):
+            raise ValueError(f"adjoint must be 'reverse' or 'forward', got {self.adjoint!r}")
+
+    @property
+    def carried_log(self) -> tuple[int, ...]:
+        return ()
+
+    def _solve(self, ode, y0, t0, t_final, saveat):
+        t0 = jnp.asarray(t0, float)
+        t_final = jnp.asarray(t_final, float)
+        span = t_final - t0
+        dt0 = 1e-6 * span if self.dt0 is None else self.dt0
+        dtmin = 1e-12 * span if self.dtmin is None else self.dtmin
+        controller = diffrax.PIDController(rtol=self.rtol, atol=self.atol, dtmin=dtmin, force_dtmin=False)
+        adjoint = diffrax.RecursiveCheckpointAdjoint() if self.adjoint == "reverse" else diffrax.ForwardMode()
+        return diffrax.diffeqsolve(
+            diffrax.ODETerm(lambda t, y, args: ode.evaluate(y).psi), self.solver, t0, t_final, dt0, jnp.asarray(y0, float),
+            saveat=saveat, stepsize_controller=controller, max_steps=self.max_steps, adjoint=adjoint, throw=False,
+        )  # fmt: skip
+
+    def integrate(self, ode, y0, t0, t_final, ts=None) -> Solution:
+        y0 = jnp.asarray(y0, float)
+        if ts is None:
+            sol = self._solve(ode, y0, t0, t_final, diffrax.SaveAt(t0=True, steps=True))
+        else:
+            ts = jnp.asarray(ts, float)
+            sol = self._solve(ode, y0, t0, t_final, diffrax.SaveAt(ts=ts))
+        n = sol.ys.shape[0]
+
+        def diagnostics(ys, valid):
+            Js = jnp.vectorize(lambda y: ode.evaluate(y).J, signature="(n)->()")(ys)
+            return StepDiagnostics(
+                newton_iterations=jnp.zeros(n, jnp.int32),
+                residual=jnp.full(n, jnp.nan),
+                schur=jnp.where(valid, Js, jnp.nan),
+                local_index=jnp.where(valid, local_index(Js, ode.tau), 0),
+                condition=jnp.full(n, jnp.nan),
+            )
+
+        stats = {"accepted_steps": sol.stats["num_accepted_steps"], "rejected_steps": sol.stats["num_rejected_steps"]}
+        return solution_from_diffrax(sol, y0, ts, stats=stats, diagnostics=diagnostics, method=self.method_name)
+
+    def observe(self, ode, y0, t0, t_final, observer) -> ObservedRun:
+        y0 = jnp.asarray(y0, float)
+        sol = self._solve(ode, y0, t0, t_final, diffrax.SaveAt(t0=True, steps=True))
+        # Rows after the last accepted step are inf; so are all after a failure.
+        n_points = jnp.sum(jnp.cumprod(jnp.isfinite(sol.ts) & jnp.all(jnp.isfinite(sol.ys), axis=1)))
+        start = ode.evaluate(y0)
+        start_ok = jnp.all(jnp.isfinite(start.psi)) & jnp.isfinite(start.J)
+
+        def step(k, carry):
+            record, psi0 = carry
+            y1 = sol.ys[k + 1]
+            end = ode.evaluate(y1)
+            accepted = AcceptedStep(
+                t0=sol.ts[k], t1=sol.ts[k + 1], h=sol.ts[k + 1] - sol.ts[k], y0=sol.ys[k], psi0=psi0, y1=y1,
+                psi1=end.psi, J1=end.J, iterations=jnp.asarray(0, jnp.int32), advance=jnp.asarray(True),
+            )  # fmt: skip
+            return observer.update(record, accepted, "lax"), end.psi
+
+        record0 = observer.init(jnp.asarray(t0, float), y0, start.J, start_ok)
+        record, _ = jax.lax.fori_loop(0, jnp.maximum(n_points - 1, 0), step, (record0, start.psi))
+        last = jnp.maximum(n_points - 1, 0)
+        return ObservedRun(
+            record=record,
+            status=_stop_reason(sol.result),
+            t_stop=jnp.where(n_points > 0, sol.ts[last], jnp.asarray(t0, float)),
+            y_final=jnp.where(n_points > 0, sol.ys[last], jnp.nan),
+            accepted_steps=sol.stats["num_accepted_steps"],
+            rejected_steps=sol.stats["num_rejected_steps"],
+            newton_iterations=jnp.asarray(0, jnp.int32),
+        )
+
+    @property
+    def method_name(self) -> str:
+        return f"diffrax-{type(self.solver).__name__}"
+
+    def settings(self) -> dict:
+        return {
+            "method": self.method_name,
+            "rtol": float(self.rtol),
+            "atol": float(self.atol),
+            "dtmin": None if self.dtmin is None else float(self.dtmin),
+            "max_steps": self.max_steps,
+            "solver": {"name": type(self.solver).__name__},
+        }
+
+
 def integrate_reference(
     ode: HomogenizedODE,
     y0: Float[Array, " 4"],
@@ -104,7 +229,8 @@ def integrate_reference(
     dtmin: ArrayLike | None = None,
     max_steps: int = 100_000,
 ) -> Solution:
-    """Solve y' = ψ(y) with diffrax, saving at ``ts`` (``ts[0]`` is the start).
+    """Solve y' = ψ(y) with diffrax, saving at ``ts`` (``ts[0]`` is the start): the
+    :class:`DiffraxIntegrator` from ``ts[0]`` to ``ts[-1]``, with ``Solution.method = "diffrax"``.
 
     Args:
         solver: any diffrax solver (default ``Kvaerno5()``).
@@ -113,36 +239,8 @@ def integrate_reference(
         dtmin: smallest step before the run is declared stalled (default 1e-12 of the span).
         max_steps: step budget (static).
     """
-    solver = diffrax.Kvaerno5() if solver is None else solver
-    ts = jnp.asarray(ts, float)
-    y0 = jnp.asarray(y0, float)
-    span = ts[-1] - ts[0]
-    dt0 = 1e-6 * span if dt0 is None else dt0
-    dtmin = 1e-12 * span if dtmin is None else dtmin
-    controller = diffrax.PIDController(rtol=rtol, atol=atol, dtmin=dtmin, force_dtmin=False)
-    term = diffrax.ODETerm(lambda t, y, args: ode(y))
-    sol = diffrax.diffeqsolve(
-        term,
-        solver,
-        ts[0],
-        ts[-1],
-        dt0,
-        y0,
-        saveat=diffrax.SaveAt(ts=ts),
-        stepsize_controller=controller,
-        max_steps=max_steps,
-        throw=False,
+    integrator = DiffraxIntegrator(
+        diffrax.Kvaerno5() if solver is None else solver, rtol, atol, dtmin, dt0, max_steps
     )
-
-    def diagnostics(ys, valid):
-        Js = jnp.vectorize(ode.schur_complement, signature="(4)->()")(ys)
-        return StepDiagnostics(
-            newton_iterations=jnp.zeros(ts.shape, jnp.int32),
-            residual=jnp.full(ts.shape, jnp.nan),
-            schur=jnp.where(valid, Js, jnp.nan),
-            local_index=jnp.where(valid, local_index(Js, ode.tau), 0),
-            condition=jnp.full(ts.shape, jnp.nan),
-        )
-
-    stats = {"accepted_steps": sol.stats["num_accepted_steps"], "rejected_steps": sol.stats["num_rejected_steps"]}
-    return solution_from_diffrax(sol, y0, ts, stats=stats, diagnostics=diagnostics)
+    ts = jnp.asarray(ts, float)
+    return dataclasses.replace(integrator.integrate(ode, y0, ts[0], ts[-1], ts), method="diffrax")

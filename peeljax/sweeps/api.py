@@ -13,6 +13,7 @@ import os
 import sys
 from collections.abc import Sequence
 
+import diffrax
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -21,12 +22,12 @@ from jaxtyping import ArrayLike, Bool, Float, Int
 from .._validation import check_choice, check_truncation
 from ..adhesion import AdhesionLaw
 from ..integrators.alpha import AlphaMethod
+from ..integrators.select import DEFAULT_MAX_STEPS
 from ..model import PeelingModel
-from ..simulate import DEFAULT_MAX_STEPS, checked_solver
 from ..solution import StopReason
 from .devices import batch_mesh, deal, default_lane_batch, put_lanes, to_host
 from .grid import axis, check_window, trajectories
-from .integrators import ErrorControl, UniformMesh, integrator_for
+from .integrators import sweep_plan
 from .storage import ChunkStore
 
 __all__ = ["PER_TRAJECTORY_KEYS", "SweepResult", "sweep", "sweep_settings"]
@@ -142,19 +143,6 @@ def _memory_limit() -> float:
         return 8e9
 
 
-def _solver_settings(solver: AlphaMethod) -> dict:
-    return {
-        "rho": float(solver.rho),
-        "newton_rtol": float(solver.newton_rtol),
-        "newton_atol": float(solver.newton_atol),
-        "max_newton_iterations": solver.max_newton_iterations,
-        "max_subdivisions": solver.max_subdivisions,
-        "log_components": list(solver.log_components),
-        "log_discretization": solver.log_discretization,
-        "max_log_change": float(solver.max_log_change),
-    }
-
-
 def _model_settings(model: PeelingModel) -> dict:
     adhesion = model.adhesion
     phi = adhesion.coefficients() if isinstance(adhesion, AdhesionLaw) else f"callable {type(adhesion).__qualname__}"
@@ -164,19 +152,18 @@ def _model_settings(model: PeelingModel) -> dict:
     }
 
 
-def sweep_settings(model, solver, engine_run, V, tau, params, grid, t_final, window, chunk, truncation) -> dict:
+def sweep_settings(model, plan, V, tau, params, grid, t_final, window, chunk, truncation) -> dict:
     """The JSON-able settings that determine a sweep's results (compared when resuming)."""
     return {
         "V": [float(x) for x in V],
         "tau": [float(x) for x in tau],
         "params": {name: [float(x) for x in values] for name, values in params.items()},
         "grid": grid,
-        **engine_run.settings(),
+        **plan.settings(),
         "t_final": float(t_final),
         "window": list(window),
         "chunk": chunk,
         "truncation": truncation,
-        "solver": _solver_settings(solver),
         "model": _model_settings(model),
     }
 
@@ -199,7 +186,7 @@ def sweep(
     chunk: int = 256,
     out: str | os.PathLike | None = None,
     progress: bool = True,
-    solver: AlphaMethod | None = None,
+    solver: AlphaMethod | diffrax.AbstractSolver | None = None,
     rho: float = 0.0,
     truncation: int | None = None,
     dtmin: float | None = None,
@@ -239,7 +226,9 @@ def sweep(
             to ``out``; a rerun with the same out and settings resumes (finished chunks are
             loaded, not recomputed) and different settings (tolerances included) are refused.
         progress: show a tqdm bar of trajectories and chunks (stderr).
-        solver: an :class:`AlphaMethod` (default ``AlphaMethod(rho=rho)``).
+        solver: an :class:`AlphaMethod` (default ``AlphaMethod(rho=rho)``), or any
+            ``diffrax.AbstractSolver`` (error control: each lane through diffrax with its PID
+            controller, the same summaries; a reference, far slower than the α-method).
         truncation: as in :func:`peeljax.simulate`.
         dtmin, max_steps: error control only, as in :func:`peeljax.simulate`.
         memory_limit: bytes the results may take in host memory (default: half the RAM).
@@ -261,14 +250,13 @@ def sweep(
     if not isinstance(model, PeelingModel):
         raise TypeError(f"model must be a PeelingModel, got {type(model).__name__}")
     check_choice("grid", grid, ("outer", "pairs"))
-    engine_run = integrator_for(dt, t_final, rtol, atol, save_dt, save_every, dtmin, max_steps)
-    solver = checked_solver(solver, rho)
+    plan = sweep_plan(solver, rho, dt, t_final, rtol, atol, save_dt, save_every, dtmin, max_steps)
     check_truncation(truncation)
     params = dict(params or {})
     if not isinstance(model.adhesion, AdhesionLaw) and any(name not in ("R", "I", "k", "l") for name in params):
         raise ValueError("sweeping coefficients of φ needs model.adhesion to be an AdhesionLaw")
     window = check_window(window)
-    if isinstance(engine_run, ErrorControl) and window[0] == window[1]:
+    if not plan.uniform and window[0] == window[1]:
         raise ValueError(f"window must have w0 < w1 with error control (its statistics are time integrals), got {window!r}")
     if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
         raise ValueError(f"chunk must be a positive integer, got {chunk!r}")
@@ -284,12 +272,12 @@ def sweep(
     lane_batch = default_lane_batch(devices, chunk) if lane_batch is None else lane_batch
 
     # Memory: every saved state of every trajectory is returned in host memory.
-    save_ts = engine_run.save_times(t_final)
+    save_ts = plan.save_times()
     n_save = 0 if save_ts is None else save_ts.size
     limit = _memory_limit() if memory_limit is None else float(memory_limit)
     total = n * (n_save * 4 * 8 + _BYTES_PER_TRAJECTORY)
     if total > limit:
-        if isinstance(engine_run, UniformMesh):
+        if plan.uniform:
             fewer = f"a larger save_every{'' if save_every is None else f', now {save_every}'}, or none"
         else:
             fewer = f"a larger save_dt{'' if save_dt is None else f', now {save_dt:g}'}, or none"
@@ -300,7 +288,7 @@ def sweep(
         )
 
     settings = sweep_settings(
-        model, solver, engine_run, axis("V", V), axis("tau", tau), {k: axis(k, v) for k, v in params.items()},
+        model, plan, axis("V", V), axis("tau", tau), {k: axis(k, v) for k, v in params.items()},
         grid, t_final, window, chunk, truncation,
     )  # fmt: skip
     n_chunks = -(-n // chunk)
@@ -334,9 +322,7 @@ def sweep(
                 continue
             lanes = deal(np.arange(i * chunk, i * chunk + chunk).clip(max=n - 1), n_dev)  # padded
             inputs = put_lanes((Vs[lanes], taus[lanes], {k: v[lanes] for k, v in param_values.items()}), devices)
-            summary = engine_run.run(
-                model, solver, *inputs, t_final_array, window_array, truncation, mesh, lane_batch
-            )
+            summary = plan.run(model, *inputs, t_final_array, window_array, truncation, mesh, lane_batch)
             host = to_host({key: getattr(summary, key) for key in keys})
             back = np.argsort(deal(np.arange(chunk), n_dev))
             arrays = {key: value[back][: sizes[i]] for key, value in host.items()}

@@ -54,10 +54,10 @@ from jaxtyping import Array, Float, Int
 
 from ..adhesion import COEFFICIENT_NAMES
 from ..homogenized import HomogenizedODE
-from ..integrators.adaptive import DenseOutput, Observer, Observers, adaptive_loop
-from ..integrators.alpha import AlphaMethod, alpha_advance, alpha_start, to_physical
-from ..integrators.controller import PIController
+from ..integrators.alpha import AlphaMethod, alpha_advance, alpha_start, from_log, to_physical
+from ..integrators.base import AbstractAdaptiveIntegrator
 from ..integrators.dense import hermite
+from ..integrators.observers import DenseOutput, Observer, Observers
 from ..model import PeelingModel
 from ..structure import phi_extremum
 
@@ -332,14 +332,14 @@ class WindowStatistics(Observer):
     t_n+1 ∈ W, the uniform mesh's definition.
     """
 
-    solver: AlphaMethod
     w0: Array
     w1: Array
     v_slip: Array
+    carried_log: tuple[int, ...] = eqx.field(static=True)
 
-    def init(self, t0, state0):
+    def init(self, t0, y0, J0, ok):
         zero = jnp.asarray(0, jnp.int32)
-        in_window = (self.w0 <= t0) & (t0 <= self.w1) & (state0.status == 0)
+        in_window = (self.w0 <= t0) & (t0 <= self.w1) & ok
         return _WindowRecord(
             time=jnp.asarray(0.0),
             mean=jnp.asarray(0.0),
@@ -357,7 +357,7 @@ class WindowStatistics(Observer):
         inside = step.advance & (length > 0)
         times = jnp.stack([a, *(a + node * length for node in _GAUSS_NODES), b])
         ys = hermite(step.t0, step.h, step.y0, step.psi0, step.y1, step.psi1, times)
-        v = to_physical(self.solver, ys)[:, 3]
+        v = from_log(ys, self.carried_log)[:, 3]
         time, mean, m2 = record.time, record.mean, record.m2
         for weight, v_node in zip(_GAUSS_WEIGHTS, v[1:4]):
             w = jnp.where(inside, weight * length, 0.0)
@@ -366,7 +366,7 @@ class WindowStatistics(Observer):
             mean = jnp.where(w > 0, mean + (w / jnp.where(w > 0, total, 1.0)) * delta, mean)
             m2 = jnp.where(w > 0, m2 + w * delta * (v_node - mean), m2)
             time = total
-        v0, v1 = (to_physical(self.solver, y)[3] for y in (step.y0, step.y1))
+        v0, v1 = (from_log(y, self.carried_log)[3] for y in (step.y0, step.y1))
         end_inside = step.advance & (self.w0 <= step.t1) & (step.t1 <= self.w1)
         crossed = end_inside & (v0 < self.v_slip) & (v1 >= self.v_slip)
         return _WindowRecord(
@@ -382,53 +382,47 @@ class WindowStatistics(Observer):
 
 def _adaptive_lane(
     model: PeelingModel,
-    solver: AlphaMethod,
-    controller: PIController,
+    integrator: AbstractAdaptiveIntegrator,
     V,
     tau,
     params: dict,
     t_final,
     window,
     save_ts,
-    dtmin,
-    max_steps: int,
     truncation: int | None,
 ) -> BatchSummary:
-    """One trajectory by the error-controlled α-method, with window statistics (time integrals)."""
+    """One trajectory by an integrator that picks its own steps, with window statistics (time integrals)."""
     model = with_parameters(model, params)
     ode = HomogenizedODE(model, V, tau, truncation)
     v_slip = slip_velocity(model, ode.V)
-    statistics = WindowStatistics(solver, window[0] * t_final, window[1] * t_final, v_slip)
+    carried_log = integrator.carried_log
+    statistics = WindowStatistics(window[0] * t_final, window[1] * t_final, v_slip, carried_log)
     observers = (statistics,) if save_ts is None else (statistics, DenseOutput(save_ts))
-    _, final = adaptive_loop(
-        ode, solver, model.initial_state(ode.V), 0.0, t_final, Observers(observers),
-        controller=controller, dt0=None, dtmin=dtmin, max_steps=max_steps, kind="lax",
-    )  # fmt: skip
-    record = final.record[0]
+    run = integrator.observe(ode, model.initial_state(ode.V), 0.0, t_final, Observers(observers))
+    record = run.record[0]
     have = record.time > 0
     nan = jnp.asarray(jnp.nan)
-    start_failed = (final.attempts == 0) & (final.state.status != 0)
     ys = None
     if save_ts is not None:
-        out = final.record[1]
-        ys = jnp.where(out.valid[:, None], to_physical(solver, out.y), jnp.nan)
+        out = run.record[1]
+        ys = jnp.where(out.valid[:, None], from_log(out.y, carried_log), jnp.nan)
     zero = jnp.asarray(0, jnp.int32)
     return BatchSummary(
-        status=final.state.status,
-        t_stop=final.t,
+        status=run.status,
+        t_stop=run.t_stop,
         v_mean=jnp.where(have, record.mean, nan),
         v_std=jnp.where(have, jnp.sqrt(jnp.maximum(record.m2, 0.0) / jnp.where(have, record.time, 1.0)), nan),
         v_min=jnp.where(have, record.vmin, nan),
         v_max=jnp.where(have, record.vmax, nan),
-        v_final=jnp.where(start_failed, nan, to_physical(solver, final.state.y)[3]),
+        v_final=run.y_final[3],
         window_count=record.count,
         events=record.events,
         v_slip=v_slip,
-        newton_iterations=final.newton_iterations,
+        newton_iterations=run.newton_iterations,
         subdivided_steps=zero,
         max_subdivision_level=zero,
-        accepted_steps=final.accepted,
-        rejected_steps=final.rejected,
+        accepted_steps=run.accepted_steps,
+        rejected_steps=run.rejected_steps,
         ys=ys,
     )
 
@@ -436,21 +430,19 @@ def _adaptive_lane(
 @eqx.filter_jit
 def run_batch_adaptive(
     model: PeelingModel,
-    solver: AlphaMethod,
-    controller: PIController,
+    integrator: AbstractAdaptiveIntegrator,
     V: Float[Array, " B"],
     tau: Float[Array, " B"],
     params: dict[str, Float[Array, " B"]],
     t_final: Float[Array, ""],
     window: Float[Array, " 2"],
     save_ts: Float[Array, " S"] | None,
-    dtmin: Float[Array, ""],
-    max_steps: int,
     truncation: int | None,
     lane_batch: int,
     mesh: jax.sharding.Mesh | None = None,
 ) -> BatchSummary:
-    """All lanes by the error-controlled α-method, each with its own step size.
+    """All lanes by an integrator that picks its own steps (the error-controlled α-method, a
+    diffrax solver), each lane with its own step sizes.
 
     ``lax.map`` runs groups of ``lane_batch`` lanes one after another, each group ``vmap``ped:
     a group's while loop runs until its slowest lane is done, so a small group wastes little
@@ -460,11 +452,9 @@ def run_batch_adaptive(
     device runs its own share of the lanes this way (``shard_map``).
     """
 
-    def lanes(model, solver, controller, t_final, window, save_ts, dtmin, V, tau, params):
+    def lanes(model, integrator, t_final, window, save_ts, V, tau, params):
         def one(lane):
-            return _adaptive_lane(
-                model, solver, controller, *lane, t_final, window, save_ts, dtmin, max_steps, truncation
-            )
+            return _adaptive_lane(model, integrator, *lane, t_final, window, save_ts, truncation)
 
         order = jnp.argsort(tau)
         inverse = jnp.argsort(order)
@@ -473,5 +463,5 @@ def run_batch_adaptive(
         results = jax.lax.map(one, lanes, batch_size=batch) if batch > 1 else jax.lax.map(one, lanes)
         return jax.tree_util.tree_map(lambda x: x[inverse], results)
 
-    shared = (model, solver, controller, t_final, window, save_ts, dtmin)
+    shared = (model, integrator, t_final, window, save_ts)
     return _over_devices(lanes, mesh, shared, (V, tau, params))

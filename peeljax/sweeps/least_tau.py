@@ -30,6 +30,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import diffrax
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -37,11 +38,11 @@ from jaxtyping import ArrayLike, Bool, Float
 
 from .._validation import check_truncation
 from ..integrators.alpha import AlphaMethod
+from ..integrators.select import DEFAULT_MAX_STEPS
 from ..model import PeelingModel
-from ..simulate import DEFAULT_MAX_STEPS, checked_solver
 from .devices import batch_mesh, default_lane_batch, put_lanes, to_host
 from .grid import axis, check_parameter
-from .integrators import integrator_for
+from .integrators import sweep_plan
 
 __all__ = ["LeastTau", "least_tau"]
 
@@ -80,7 +81,7 @@ def least_tau(
     tau_rtol: float = 0.05,
     *,
     n_points: int = 8,
-    solver: AlphaMethod | None = None,
+    solver: AlphaMethod | diffrax.AbstractSolver | None = None,
     rho: float = 0.0,
     truncation: int | None = None,
     rtol: float | None = None,
@@ -100,6 +101,8 @@ def least_tau(
             size collapses below ``dtmin``; a number runs the uniform mesh, where it stops at an
             impasse point or when Newton fails at the finest subdivision.
         rtol, atol, dtmin, max_steps: error control's, as in :func:`peeljax.simulate`.
+        solver: an :class:`AlphaMethod` (default ``AlphaMethod(rho=rho)``) or any
+            ``diffrax.AbstractSolver`` (error control), as in :func:`peeljax.sweep`.
         tau_range: (lo, hi), 0 < lo < hi: where to search.
         tau_rtol: relative resolution: τ·(1 − tau_rtol) is tested and stops, 0 < tau_rtol < 1.
         n_points: τ values per V and round (the scan's and every refinement's).
@@ -110,7 +113,7 @@ def least_tau(
     model = PeelingModel() if model is None else model
     Vs = axis("V", V)
     check_parameter("V", Vs)
-    engine_run = integrator_for(dt, t_final, rtol, atol, None, None, dtmin, max_steps)
+    plan = sweep_plan(solver, rho, dt, t_final, rtol, atol, None, None, dtmin, max_steps)
     try:
         lo, hi = (float(x) for x in tau_range)
     except (TypeError, ValueError):
@@ -121,7 +124,6 @@ def least_tau(
         raise ValueError(f"tau_rtol must lie in (0, 1), got {tau_rtol!r}")
     if isinstance(n_points, bool) or not isinstance(n_points, int) or n_points < 2:
         raise ValueError(f"n_points must be an integer >= 2, got {n_points!r}")
-    solver = checked_solver(solver, rho)
     check_truncation(truncation)
     devices = list(jax.devices()) if devices is None else list(devices)
     m = Vs.size
@@ -138,7 +140,7 @@ def least_tau(
         V_in = np.concatenate([V_lanes, np.full(pad, V_lanes[-1])])
         tau_in = np.concatenate([tau_lanes, np.full(pad, tau_lanes[-1])])
         V_dev, tau_dev = put_lanes((V_in, tau_in), devices)
-        summary = engine_run.run(model, solver, V_dev, tau_dev, {}, t_final_array, window, truncation, mesh, lane_batch)
+        summary = plan.run(model, V_dev, tau_dev, {}, t_final_array, window, truncation, mesh, lane_batch)
         host = to_host({"status": summary.status, "t_stop": summary.t_stop})
         done = (host["status"][: V_lanes.size] == 0).reshape(m, n_points)
         t_stop = host["t_stop"][: V_lanes.size].reshape(m, n_points)
@@ -179,8 +181,8 @@ def least_tau(
     t_below = np.array([s[2] for s in state])
     found = np.array([s[3] is True for s in state])
     tau_star = upper
-    settings = {**engine_run.settings(), "t_final": float(t_final), "tau_range": [lo, hi], "tau_rtol": float(tau_rtol),
-                "n_points": n_points, "rho": float(solver.rho), "truncation": truncation}  # fmt: skip
+    settings = {**plan.settings(), "t_final": float(t_final), "tau_range": [lo, hi], "tau_rtol": float(tau_rtol),
+                "n_points": n_points, "truncation": truncation}  # fmt: skip
     return LeastTau(
         V=Vs,
         tau_star=tau_star,

@@ -1,0 +1,153 @@
+"""Observers: what a run records of each step, inside the compiled loop.
+
+An integrator that chooses its own steps (:class:`~peeljax.integrators.base.AbstractAdaptiveIntegrator`:
+the error-controlled α-method, a diffrax solver) hands every step attempt to an
+:class:`Observer` as an :class:`AcceptedStep`: the step's ends (t, y, ψ) in the integrator's
+carried coordinates, so that the observer can evaluate the step's cubic Hermite interpolant
+(:func:`~peeljax.integrators.dense.hermite`) anywhere inside it. Output is an observer
+(:class:`StepPoints`, :class:`DenseOutput`); so are a sweep's per-lane statistics
+(:class:`peeljax.sweeps.engine.WindowStatistics`). Nothing is stored per step unless an
+observer stores it, so a sweep lane's memory does not grow with its number of steps.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import equinox.internal as eqxi
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
+from .dense import hermite
+
+__all__ = ["AcceptedStep", "DenseOutput", "Observer", "Observers", "StepPoints"]
+
+
+class AcceptedStep(eqx.Module):
+    """What an observer sees after each step attempt (carried coordinates).
+
+    ``advance`` is False for a rejected attempt (or the step onto an impasse point): the
+    observer must then leave its record unchanged. ``iterations`` is the attempt's Newton
+    iterations (0 where the integrator does not report them).
+    """
+
+    t0: Array
+    t1: Array
+    h: Array
+    y0: Array
+    psi0: Array
+    y1: Array
+    psi1: Array
+    J1: Array
+    iterations: Array
+    advance: Array
+
+
+class Observer(eqx.Module):
+    """Records something of each accepted step inside the compiled loop (an abstract base).
+
+    ``init`` gives the record at the start (t0, state y0 in carried coordinates, its J_t, and
+    whether the start is usable), ``update`` the record after one attempt (masked by
+    ``step.advance``); ``kind`` is the loop's (``"lax"`` or ``"checkpointed"``) for any loop
+    of the observer's own.
+    """
+
+    def init(self, t0: Float[Array, ""], y0: Float[Array, " n"], J0: Float[Array, ""], ok: Bool[Array, ""]):
+        raise NotImplementedError
+
+    def update(self, record, step: AcceptedStep, kind: str):
+        raise NotImplementedError
+
+
+class _Output(eqx.Module):
+    t: Array
+    y: Array
+    J: Array
+    iterations: Array
+    valid: Array
+    next: Array  # step points: rows written; dense output: the first output time not yet reached
+
+
+class StepPoints(Observer):
+    """The accepted step points, in ``rows`` = max_steps + 1 rows padded with NaN."""
+
+    rows: int = eqx.field(static=True)
+
+    def init(self, t0, y0, J0, ok):
+        n = y0.shape[0]
+        return _Output(
+            t=jnp.full(self.rows, jnp.nan).at[0].set(t0),
+            y=jnp.full((self.rows, n), jnp.nan).at[0].set(y0),
+            J=jnp.full(self.rows, jnp.nan).at[0].set(J0),
+            iterations=jnp.zeros(self.rows, jnp.int32),
+            valid=jnp.zeros(self.rows, bool).at[0].set(ok),
+            next=jnp.asarray(1, jnp.int32),
+        )
+
+    def update(self, out, step, kind):
+        row = jnp.minimum(out.next, self.rows - 1)
+        keep = step.advance
+
+        def put(array, value):
+            return array.at[row].set(jnp.where(keep, value, array[row]))
+
+        return _Output(
+            t=put(out.t, step.t1),
+            y=put(out.y, step.y1),
+            J=put(out.J, step.J1),
+            iterations=put(out.iterations, step.iterations),
+            valid=put(out.valid, True),
+            next=out.next + keep,
+        )
+
+
+class DenseOutput(Observer):
+    """The cubic Hermite interpolant of each accepted step at the given times ``ts``."""
+
+    ts: Array
+
+    def init(self, t0, y0, J0, ok):
+        at_start = self.ts <= t0
+        return _Output(
+            t=self.ts,
+            y=jnp.where(at_start[:, None], y0, jnp.nan),
+            J=jnp.full(self.ts.shape, jnp.nan),
+            iterations=jnp.zeros(self.ts.shape, jnp.int32),
+            valid=at_start & ok,
+            next=jnp.sum(at_start).astype(jnp.int32),
+        )
+
+    def update(self, out, step, kind):
+        n_out = self.ts.shape[0]
+        t1 = step.t1
+
+        # The output times in (t0, t1], one at a time (a step covers few of them).
+        def more(d):
+            k = d[0]
+            return step.advance & (k < n_out) & (self.ts[jnp.minimum(k, n_out - 1)] <= t1)
+
+        def fill(d):
+            k, y, iterations, valid = d
+            y_k = hermite(step.t0, step.h, step.y0, step.psi0, step.y1, step.psi1, self.ts[k][None])[0]
+            return k + 1, y.at[k].set(y_k), iterations.at[k].set(step.iterations), valid.at[k].set(True)
+
+        k, y, iterations, valid = eqxi.while_loop(
+            more,
+            fill,
+            (out.next, out.y, out.iterations, out.valid),
+            max_steps=n_out,
+            kind=kind,
+            checkpoints=n_out if kind == "checkpointed" else None,
+        )
+        return _Output(t=out.t, y=y, J=out.J, iterations=iterations, valid=valid, next=k)
+
+
+class Observers(Observer):
+    """Several observers at once; the record is the tuple of theirs."""
+
+    observers: tuple
+
+    def init(self, t0, y0, J0, ok):
+        return tuple(o.init(t0, y0, J0, ok) for o in self.observers)
+
+    def update(self, records, step, kind):
+        return tuple(o.update(r, step, kind) for o, r in zip(self.observers, records))

@@ -1,0 +1,134 @@
+"""From the user's options to an integrator, checked before anything compiles.
+
+:func:`integrator_for` is the one place where ``solver``, ``dt``, ``rtol``, ``atol``,
+``dtmin``, ``max_steps`` and ``adjoint`` of :func:`peeljax.simulate`, :func:`peeljax.sweep`,
+:func:`peeljax.least_tau` and :func:`peeljax.fit_adhesion` become an integrator
+(:mod:`peeljax.integrators.base`):
+
+==============================  ==========  ==========================================
+``solver``                      ``dt``      integrator
+==============================  ==========  ==========================================
+None or an :class:`AlphaMethod`  a number    :class:`UniformMesh` (the paper's mesh)
+None or an :class:`AlphaMethod`  None        :class:`ErrorControl` (rtol, atol)
+a ``diffrax.AbstractSolver``     None        :class:`DiffraxIntegrator` (rtol, atol)
+==============================  ==========  ==========================================
+"""
+
+from __future__ import annotations
+
+import functools
+
+import diffrax
+from jaxtyping import ArrayLike
+
+from .._arrays import float_array
+from .._validation import check_max_steps, check_mesh, check_positive, check_rho, check_tolerance
+from .adaptive import ErrorControl
+from .alpha import AlphaMethod, UniformMesh
+from .base import AbstractIntegrator
+from .controller import PIController
+from .reference import DiffraxIntegrator
+
+__all__ = [
+    "DEFAULT_ATOL",
+    "DEFAULT_MAX_STEPS",
+    "DEFAULT_RTOL",
+    "check_error_control",
+    "checked_solver",
+    "integrator_for",
+    "refuse_with_dt",
+]
+
+DEFAULT_RTOL, DEFAULT_ATOL = 1e-6, 1e-9
+DEFAULT_MAX_STEPS = 100_000
+
+
+@functools.lru_cache(maxsize=64)
+def _default_solver(rho: float) -> AlphaMethod:
+    return AlphaMethod(rho=rho)
+
+
+def checked_solver(solver: AlphaMethod | diffrax.AbstractSolver | None, rho: ArrayLike = 0.0):
+    """``solver``, or ``AlphaMethod(rho=rho)`` when it is None, with ρ checked (before compiling)."""
+    if solver is None:
+        check_rho(rho)
+        # Modules are immutable: one per ρ serves every call (building one costs ~50 µs).
+        return _default_solver(float(rho)) if type(rho) in (float, int) else AlphaMethod(rho=rho)
+    if isinstance(solver, AlphaMethod):
+        check_rho(solver.rho)
+        return solver
+    if isinstance(solver, diffrax.AbstractSolver):
+        return solver
+    raise TypeError(f"solver must be an AlphaMethod or a diffrax.AbstractSolver, got {type(solver).__name__}")
+
+
+def refuse_with_dt(dt, **options) -> None:
+    """Error control's options (not None) cannot be combined with a uniform mesh ``dt``."""
+    for name, value in options.items():
+        if value is not None:
+            raise ValueError(f"{name} applies to error control (dt=None); it cannot be combined with dt={dt!r}")
+
+
+def check_error_control(t_final, rtol, atol, dtmin, max_steps) -> tuple[float, float]:
+    """Error control's options, checked before anything compiles; returns (rtol, atol) with defaults."""
+    check_positive("t_final", t_final)
+    rtol = DEFAULT_RTOL if rtol is None else rtol
+    atol = DEFAULT_ATOL if atol is None else atol
+    check_tolerance("rtol", rtol, upper=1.0)
+    check_tolerance("atol", atol)
+    if dtmin is not None:
+        check_positive("dtmin", dtmin)
+    check_max_steps(max_steps)
+    return float(rtol), float(atol)
+
+
+@functools.lru_cache(maxsize=64)
+def _error_control(rho, rtol, atol, dtmin, max_steps, adjoint) -> ErrorControl:
+    # The default method's integrator, built once per setting (a module costs ~50 µs to build).
+    return ErrorControl(
+        _default_solver(rho), PIController(rtol=rtol, atol=atol),
+        None if dtmin is None else float_array(dtmin), max_steps, adjoint,
+    )  # fmt: skip
+
+
+def integrator_for(
+    solver: AlphaMethod | diffrax.AbstractSolver | None = None,
+    *,
+    rho: ArrayLike = 0.0,
+    dt: float | None = None,
+    t_final: float = 3.0,
+    rtol: float | None = None,
+    atol: float | None = None,
+    dtmin: float | None = None,
+    max_steps: int = DEFAULT_MAX_STEPS,
+    adjoint: str = "reverse",
+    checkpoint_every: int | str | None = None,
+) -> AbstractIntegrator:
+    """The integrator the options describe (module docstring), every option checked.
+
+    Raises ``ValueError``/``TypeError`` naming the option and its allowed values; nothing is
+    compiled. ``rho`` is used only when ``solver`` is None.
+    """
+    if adjoint not in ("reverse", "forward"):
+        raise ValueError(f"adjoint must be 'reverse' or 'forward', got {adjoint!r}")
+    method = checked_solver(solver, rho)
+    if dt is not None:
+        refuse_with_dt(dt, rtol=rtol, atol=atol, dtmin=dtmin)
+        if not isinstance(method, AlphaMethod):
+            raise ValueError(
+                f"dt (a uniform mesh) is the α-method's; a diffrax solver ({type(method).__name__}) runs with "
+                "error control: give rtol/atol instead of dt"
+            )
+        n_steps = check_mesh(dt, t_final)
+        return UniformMesh(method, n_steps, float(dt), checkpoint_every)
+    if checkpoint_every is not None:
+        raise ValueError(
+            "checkpoint_every applies to the uniform mesh (dt given); error control checkpoints its loop itself"
+        )
+    rtol, atol = check_error_control(t_final, rtol, atol, dtmin, max_steps)
+    dtmin = None if dtmin is None else float(dtmin)
+    if isinstance(method, diffrax.AbstractSolver):
+        return DiffraxIntegrator(method, rtol, atol, dtmin, None, max_steps, adjoint)
+    if solver is None and type(rho) in (float, int):
+        return _error_control(float(rho), rtol, atol, dtmin, max_steps, adjoint)
+    return ErrorControl(method, PIController(rtol=rtol, atol=atol), dtmin, max_steps, adjoint)
