@@ -67,7 +67,7 @@ def trajectory_structure(
 
     Returns:
         A dict of arrays of shape ``ys.shape[:-1]``: ``phi_v``, ``schur`` (J_t, Lemma 1),
-        ``local_index`` (Lemma 2), ``residual`` ((1 + l·sinα/L)·F − φ, eq. ``sac``), ``drive``
+        ``local_index`` (Lemma 2), ``constraint_residual`` ((1 + l·sinα/L)·F − φ, eq. ``sac``), ``drive``
         (F̃·f, the rate of change of the shear force).
     """
     ys = jnp.asarray(ys, float)
@@ -79,9 +79,9 @@ def trajectory_structure(
 
     V = jnp.broadcast_to(jnp.asarray(V, float), ys.shape[:-1])
     tau = jnp.broadcast_to(jnp.asarray(tau, float), ys.shape[:-1])
-    phi_v, J, residual, drive = jnp.vectorize(one, signature="(4),(),()->(),(),(),()")(ys, V, tau)
+    phi_v, J, constraint_residual, drive = jnp.vectorize(one, signature="(4),(),()->(),(),(),()")(ys, V, tau)
     index = jnp.where(jnp.isfinite(J), local_index(jnp.where(jnp.isfinite(J), J, 1.0), tau), 0)
-    return {"phi_v": phi_v, "schur": J, "local_index": index, "residual": residual, "drive": drive}
+    return {"phi_v": phi_v, "schur": J, "local_index": index, "constraint_residual": constraint_residual, "drive": drive}
 
 
 def phi_extrema(model: PeelingModel | None = None, V: float = 1.1) -> tuple[float, float]:
@@ -162,7 +162,7 @@ class StickSlipAnalysis:
     """The stick-slip picture of one trajectory (host numpy arrays; see the module doc).
 
     Per output time: ``ts``, ``v``, ``valid``, ``phi_v``, ``stick``, ``slip``, ``branch``,
-    ``schur`` (J_t), ``local_index``, ``near_singular`` (|J_t| < threshold), ``residual``.
+    ``schur`` (J_t), ``local_index``, ``near_singular`` (|J_t| < threshold), ``constraint_residual``.
     Events: ``stick_to_slip`` and ``slip_to_stick`` times, ``schur_sign_changes`` (J_t = 0 crossed
     between samples), ``bifurcation_times`` (those and the local minima of |J_t| below the
     threshold: Theorem 3's points, as far as the output grid resolves them). Cycle measures of
@@ -186,7 +186,7 @@ class StickSlipAnalysis:
     schur: np.ndarray
     local_index: np.ndarray
     near_singular: np.ndarray
-    residual: np.ndarray
+    constraint_residual: np.ndarray
     stick_to_slip: np.ndarray
     slip_to_stick: np.ndarray
     schur_sign_changes: np.ndarray
@@ -280,7 +280,7 @@ def _analyze_one(ts, ys, valid, t_stop, completed, struct, model, V, tau, thresh
         schur=J,
         local_index=np.where(valid, struct["local_index"], 0).astype(np.int32),
         near_singular=near,
-        residual=np.where(valid, struct["residual"], np.nan),
+        constraint_residual=np.where(valid, struct["constraint_residual"], np.nan),
         stick_to_slip=crossings(ts, phi_v, "down"),
         slip_to_stick=crossings(ts, phi_v, "up"),
         schur_sign_changes=sign_changes,

@@ -54,7 +54,7 @@ class StepDiagnostics(eqx.Module):
     Attributes:
         newton_iterations: Newton iterations of the step that ended at this time (summed over
             substeps when the step was subdivided; 0 at t = 0 and after a stop).
-        residual: max-norm of the last Newton correction of the step, scaled by
+        newton_correction: max-norm of the last Newton correction of the step, scaled by
             ``atol + rtol·|y|`` (relative for v); ≤ 1 ⇔ converged to tolerance (the maximum
             over substeps when the step was subdivided).
         schur: J_t(τ) at the state (Lemma 1).
@@ -63,7 +63,7 @@ class StepDiagnostics(eqx.Module):
     """
 
     newton_iterations: Int[Array, " n"]
-    residual: Float[Array, " n"]
+    newton_correction: Float[Array, " n"]
     schur: Float[Array, " n"]
     local_index: Int[Array, " n"]
     condition: Float[Array, " n"]

@@ -189,10 +189,10 @@ def test_diagnostics_have_one_entry_per_time(paper_runs):
     sol = paper_runs[0.01]
     n = sol.ts.shape[0]
     d = sol.diagnostics
-    for field in (d.newton_iterations, d.residual, d.schur, d.local_index, d.condition):
+    for field in (d.newton_iterations, d.newton_correction, d.schur, d.local_index, d.condition):
         assert field.shape == (n,)
     assert np.all(np.asarray(d.local_index) >= 1)
-    assert np.all(np.asarray(d.residual)[1:] <= 1.0 + 1e-9)  # converged to Newton's tolerance
+    assert np.all(np.asarray(d.newton_correction)[1:] <= 1.0 + 1e-9)  # converged to Newton's tolerance
     assert np.all(np.asarray(d.newton_iterations)[1:] >= 1)
 
 

@@ -48,7 +48,7 @@ class InertialModel(eqx.Module):
         vdot = self.model.constraint(x, v, self.V) / self.m
         return jnp.concatenate([self.model.f(x, v, self.V), (vdot / v)[None]])
 
-    def residual(self, y: Float[Array, "... 4"]) -> Array:
+    def constraint_residual(self, y: Float[Array, "... 4"]) -> Array:
         """(1 + l·sinα/L)·F − φ(v, V) at states y = (α, ω, u, v) (eq. ``sac``; m·v̇ along the flow)."""
         y = jnp.asarray(y)
         return jnp.vectorize(lambda y: self.model.constraint(y[:3], y[3], self.V), signature="(4)->()")(y)

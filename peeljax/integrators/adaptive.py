@@ -298,7 +298,7 @@ def _solution(ode, solver, final: _Carry, step_points: bool, t0) -> Solution:
     Js = jnp.where(valid, Js, jnp.nan)
     diagnostics = StepDiagnostics(
         newton_iterations=jnp.where(valid, out.iterations, 0),
-        residual=jnp.full(valid.shape, jnp.nan),
+        newton_correction=jnp.full(valid.shape, jnp.nan),
         schur=Js,
         local_index=jnp.where(valid, local_index(jnp.where(valid, Js, 1.0), ode.tau), 0),
         condition=jnp.full(valid.shape, jnp.nan),

@@ -162,7 +162,7 @@ class DiffraxIntegrator(AbstractAdaptiveIntegrator):
             Js = jnp.vectorize(lambda y: ode.evaluate(y).J, signature="(n)->()")(ys)
             return StepDiagnostics(
                 newton_iterations=jnp.zeros(n, jnp.int32),
-                residual=jnp.full(n, jnp.nan),
+                newton_correction=jnp.full(n, jnp.nan),
                 schur=jnp.where(valid, Js, jnp.nan),
                 local_index=jnp.where(valid, local_index(Js, ode.tau), 0),
                 condition=jnp.full(n, jnp.nan),
