@@ -38,7 +38,7 @@ def no_compilation(monkeypatch):
     reason = "compiled before the input was checked"
     # the module, not the function peeljax.simulate
     forbid(monkeypatch, "peeljax.simulate", "_run", "_run_reference", reason=reason)
-    forbid(monkeypatch, "peeljax.sweeps.engine", "run_batch", "run_batch_adaptive", reason=reason)
+    forbid(monkeypatch, "peeljax.sweeps.engine", "run_batch", reason=reason)
 
 
 # ---------------------------------------------------------------------------- the command line

@@ -15,11 +15,11 @@ from conftest import LinearODE
 
 import peeljax as pj
 from peeljax.integrators import (
-    AbstractAdaptiveIntegrator,
     AbstractIntegrator,
     DenseOutput,
     DiffraxIntegrator,
     ErrorControl,
+    EveryNthPoint,
     UniformMesh,
     integrator_for,
 )
@@ -41,8 +41,9 @@ def test_integrator_for_builds_each_integrator_and_checks_its_options():
     reference = integrator_for(diffrax.Kvaerno5(), rtol=1e-5, t_final=1.0)
     assert isinstance(reference, DiffraxIntegrator) and float(reference.rtol) == 1e-5
     for integrator in (control, reference):
-        assert isinstance(integrator, AbstractAdaptiveIntegrator) and integrator.dense_output
+        assert isinstance(integrator, AbstractIntegrator) and integrator.dense_output
     assert isinstance(integrator_for(dt=0.01), AbstractIntegrator) and not UniformMesh.dense_output
+    assert integrator_for(dt=0.01).carried_log == (3,) and reference.carried_log == ()
     with pytest.raises(ValueError, match="dt .*α-method's"):
         integrator_for(diffrax.Kvaerno5(), dt=0.01)
     with pytest.raises(TypeError, match="solver must be an AlphaMethod or a diffrax.AbstractSolver"):
@@ -83,6 +84,11 @@ def test_every_integrator_meets_the_contract(integrator, tol):
     if not integrator.dense_output:
         with pytest.raises(ValueError, match="ts must be None"):
             integrator.integrate(ode, Y0, 0.0, T_FINAL, TS)
+        # observe() takes the steps integrate() takes: every mesh point, bit for bit
+        run = integrator.observe(ode, Y0, 0.0, T_FINAL, EveryNthPoint(1, integrator.n_steps + 1))
+        assert int(run.status) == 0 and float(run.t_stop) == pytest.approx(T_FINAL)
+        assert int(run.accepted_steps) == integrator.n_steps
+        np.testing.assert_array_equal(np.asarray(run.record.y), np.asarray(own.ys))
         return
     at_ts = integrator.integrate(ode, Y0, 0.0, T_FINAL, TS)
     assert np.asarray(at_ts.valid).all()

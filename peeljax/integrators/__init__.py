@@ -22,16 +22,15 @@ from .alpha import (
     integrate_alpha,
     to_physical,
 )
-from .base import AbstractAdaptiveIntegrator, AbstractIntegrator, ObservedRun
+from .base import AbstractIntegrator, ObservedRun
 from .controller import PIController
 from .dense import hermite
 from .diffrax_solver import AlphaSolver
-from .observers import AcceptedStep, DenseOutput, Observer, Observers, StepPoints
+from .observers import AcceptedStep, DenseOutput, EveryNthPoint, Observer, Observers, StepPoints
 from .reference import DiffraxIntegrator, integrate_reference
 from .select import integrator_for
 
 __all__ = [
-    "AbstractAdaptiveIntegrator",
     "AbstractIntegrator",
     "AcceptedStep",
     "AlphaMethod",
@@ -40,6 +39,7 @@ __all__ = [
     "DenseOutput",
     "DiffraxIntegrator",
     "ErrorControl",
+    "EveryNthPoint",
     "LogTransformedODE",
     "ObservedRun",
     "Observer",

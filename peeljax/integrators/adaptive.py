@@ -36,7 +36,7 @@ Derivatives: the loop is equinox's checkpointed while loop (reverse mode, as dif
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
 import equinox as eqx
 import equinox.internal as eqxi
@@ -49,7 +49,7 @@ from ..homogenized import ODE
 from ..solution import Solution, StepDiagnostics, StopReason
 from ..structure import local_index
 from .alpha import AlphaMethod, AlphaState, _log_mask, _stop_gradient, alpha_start, to_physical
-from .base import AbstractAdaptiveIntegrator, ObservedRun
+from .base import AbstractIntegrator, ObservedRun
 from .controller import PIController
 from .observers import AcceptedStep, DenseOutput, Observer, StepPoints
 
@@ -328,7 +328,7 @@ def _solution(ode, solver, final: _Carry, step_points: bool, t0) -> Solution:
     )
 
 
-class ErrorControl(AbstractAdaptiveIntegrator):
+class ErrorControl(AbstractIntegrator):
     """The error-controlled α-method as an integrator (:mod:`peeljax.integrators.base`).
 
     :meth:`integrate` is :func:`integrate_alpha_adaptive`; :meth:`observe` runs the same loop
@@ -344,6 +344,7 @@ class ErrorControl(AbstractAdaptiveIntegrator):
             (a plain while loop: ``jax.jvp``, and the fastest run when nothing is differentiated).
     """
 
+    dense_output: ClassVar[bool] = True
     method: AlphaMethod = AlphaMethod()
     controller: PIController = PIController()
     dtmin: Float[Array, ""] | None = eqx.field(converter=optional_float_array, default=None)
@@ -380,6 +381,8 @@ class ErrorControl(AbstractAdaptiveIntegrator):
             accepted_steps=final.accepted,
             rejected_steps=final.rejected,
             newton_iterations=final.newton_iterations,
+            subdivided_steps=jnp.asarray(0, jnp.int32),
+            max_subdivision_level=jnp.asarray(0, jnp.int32),
         )
 
     def settings(self) -> dict:

@@ -58,7 +58,8 @@ from .._validation import check_positive, check_rho
 from ..homogenized import ODE, HomogenizedODE
 from ..solution import Solution, StepDiagnostics, StopReason, mask_after_stop
 from ..structure import local_index
-from .base import AbstractIntegrator
+from .base import AbstractIntegrator, ObservedRun
+from .observers import AcceptedStep
 
 __all__ = [
     "AlphaMethod",
@@ -773,7 +774,8 @@ class UniformMesh(AbstractIntegrator):
     """The α-method on a uniform mesh of ``n_steps`` steps (the paper's) as an integrator.
 
     :meth:`integrate` is :func:`integrate_alpha`: output at the n_steps + 1 mesh points
-    (``ts`` must be None: the mesh has no dense output of its own).
+    (``ts`` must be None: the mesh has no dense output of its own). :meth:`observe` runs the
+    same steps and shows each to an observer (a sweep lane's statistics over the mesh points).
 
     Attributes:
         method: the :class:`AlphaMethod`.
@@ -794,10 +796,55 @@ class UniformMesh(AbstractIntegrator):
             raise ValueError(f"n_steps must be a positive integer, got {self.n_steps!r}")
         _checkpoint_chunk(self.checkpoint_every, self.n_steps)
 
+    @property
+    def carried_log(self) -> tuple[int, ...]:
+        return self.method.log_components if self.method.log_discretization else ()
+
     def integrate(self, ode, y0, t0, t_final, ts=None) -> Solution:
         if ts is not None:
             raise ValueError("the uniform mesh outputs its own points: ts must be None (error control has dense output)")
         return integrate_alpha(ode, self.method, y0, t0, t_final, self.n_steps, checkpoint_every=self.checkpoint_every)
+
+    def observe(self, ode, y0, t0, t_final, observer) -> ObservedRun:
+        """The scan of :func:`integrate_alpha` (forward only), each step shown to ``observer``.
+
+        A step the safeguard subdivided is shown whole (its ends); after a stop the steps
+        are shown with ``advance`` False.
+        """
+        t0 = jnp.asarray(t0, float)
+        h = (jnp.asarray(t_final, float) - t0) / self.n_steps
+        ode, state = alpha_start(ode, self.method, jnp.asarray(y0, float))
+        start_ok = state.status == 0
+        zero = jnp.asarray(0, jnp.int32)
+
+        def body(carry, index):
+            state, record, t_last, accepted, newton, subdivided, level = carry
+            new, info, ok = alpha_advance(ode, self.method, state, h)
+            t1 = t0 + h * (index + 1)
+            step = AcceptedStep(
+                t0=t1 - h, t1=t1, h=h, y0=state.y, psi0=state.psi, y1=new.y, psi1=new.psi, J1=new.J,
+                iterations=info.newton_iterations, advance=ok,
+            )  # fmt: skip
+            carry = (
+                new, observer.update(record, step, "lax"), jnp.where(ok, t1, t_last), accepted + ok,
+                newton + info.newton_iterations, subdivided + (info.level > 0), jnp.maximum(level, info.level),
+            )  # fmt: skip
+            return carry, None
+
+        init = (state, observer.init(t0, state.y, state.J, start_ok), t0, zero, zero, zero, zero)
+        steps = jnp.arange(self.n_steps, dtype=jnp.int32)
+        (final, record, t_last, accepted, newton, subdivided, level), _ = jax.lax.scan(body, init, steps)
+        return ObservedRun(
+            record=record,
+            status=final.status,
+            t_stop=t_last,
+            y_final=jnp.where(start_ok, to_physical(self.method, final.y), jnp.nan),
+            accepted_steps=accepted,
+            rejected_steps=zero,  # a subdivided step is counted by subdivided_steps
+            newton_iterations=newton,
+            subdivided_steps=subdivided,
+            max_subdivision_level=level,
+        )
 
     def settings(self) -> dict:
         return {"dt": self.dt, "n_steps": self.n_steps, "solver": self.method.settings()}

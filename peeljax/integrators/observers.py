@@ -1,12 +1,12 @@
 """Observers: what a run records of each step, inside the compiled loop.
 
-An integrator that chooses its own steps (:class:`~peeljax.integrators.base.AbstractAdaptiveIntegrator`:
-the error-controlled α-method, a diffrax solver) hands every step attempt to an
+Every integrator (:meth:`peeljax.integrators.base.AbstractIntegrator.observe`: the uniform
+mesh, the error-controlled α-method, a diffrax solver) can hand every step attempt to an
 :class:`Observer` as an :class:`AcceptedStep`: the step's ends (t, y, ψ) in the integrator's
 carried coordinates, so that the observer can evaluate the step's cubic Hermite interpolant
 (:func:`~peeljax.integrators.dense.hermite`) anywhere inside it. Output is an observer
-(:class:`StepPoints`, :class:`DenseOutput`); so are a sweep's per-lane statistics
-(:class:`peeljax.sweeps.engine.WindowStatistics`). Nothing is stored per step unless an
+(:class:`StepPoints`, :class:`DenseOutput`, :class:`EveryNthPoint`); so are a sweep's per-lane
+statistics (:mod:`peeljax.sweeps.engine`). Nothing is stored per step unless an
 observer stores it, so a sweep lane's memory does not grow with its number of steps.
 """
 
@@ -19,7 +19,7 @@ from jaxtyping import Array, Bool, Float
 
 from .dense import hermite
 
-__all__ = ["AcceptedStep", "DenseOutput", "Observer", "Observers", "StepPoints"]
+__all__ = ["AcceptedStep", "DenseOutput", "EveryNthPoint", "Observer", "Observers", "StepPoints"]
 
 
 class AcceptedStep(eqx.Module):
@@ -151,3 +151,39 @@ class Observers(Observer):
 
     def update(self, records, step, kind):
         return tuple(o.update(r, step, kind) for o, r in zip(self.observers, records))
+
+
+class EveryNthPoint(Observer):
+    """The state after every ``every``-th step attempt, and at t0: on a uniform mesh, every
+    ``every``-th mesh point, in ``rows`` = n_steps // every + 1 rows (NaN once the run has stopped)."""
+
+    every: int = eqx.field(static=True)
+    rows: int = eqx.field(static=True)
+
+    def init(self, t0, y0, J0, ok):
+        n = y0.shape[0]
+        return _Output(
+            t=jnp.full(self.rows, jnp.nan).at[0].set(t0),
+            y=jnp.full((self.rows, n), jnp.nan).at[0].set(y0),
+            J=jnp.full(self.rows, jnp.nan).at[0].set(J0),
+            iterations=jnp.zeros(self.rows, jnp.int32),
+            valid=jnp.zeros(self.rows, bool).at[0].set(ok),
+            next=jnp.asarray(0, jnp.int32),  # attempts seen
+        )
+
+    def update(self, out, step, kind):
+        attempts = out.next + 1
+        due = attempts % self.every == 0
+        row = jnp.minimum(attempts // self.every, self.rows - 1)
+
+        def put(array, value):
+            return array.at[row].set(jnp.where(due, value, array[row]))
+
+        return _Output(
+            t=put(out.t, step.t1),
+            y=put(out.y, step.y1),
+            J=put(out.J, step.J1),
+            iterations=put(out.iterations, step.iterations),
+            valid=put(out.valid, step.advance),
+            next=attempts,
+        )

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Mapping
+from typing import ClassVar
 
 import diffrax
 import equinox as eqx
@@ -23,7 +24,7 @@ from .._arrays import float_array, optional_float_array
 from ..homogenized import HomogenizedODE
 from ..solution import Solution, StepDiagnostics, StopReason, mask_after_stop
 from ..structure import local_index
-from .base import AbstractAdaptiveIntegrator, ObservedRun
+from .base import AbstractIntegrator, ObservedRun
 from .observers import AcceptedStep
 
 __all__ = ["DiffraxIntegrator", "integrate_reference", "solution_from_diffrax"]
@@ -98,7 +99,7 @@ def solution_from_diffrax(
     )
 
 
-class DiffraxIntegrator(AbstractAdaptiveIntegrator):
+class DiffraxIntegrator(AbstractIntegrator):
     """Any diffrax solver, with diffrax's PID step control, as an integrator.
 
     :meth:`integrate` saves at ``ts`` (``SaveAt(ts=ts)``) or, with ``ts=None``, at the
@@ -118,6 +119,7 @@ class DiffraxIntegrator(AbstractAdaptiveIntegrator):
             ``"forward"`` (``ForwardMode``, for ``jax.jvp``).
     """
 
+    dense_output: ClassVar[bool] = True
     solver: diffrax.AbstractSolver = diffrax.Kvaerno5()
     rtol: Float[Array, ""] = eqx.field(converter=float_array, default=1e-8)
     atol: Float[Array, ""] = eqx.field(converter=float_array, default=1e-10)
@@ -200,6 +202,8 @@ class DiffraxIntegrator(AbstractAdaptiveIntegrator):
             accepted_steps=sol.stats["num_accepted_steps"],
             rejected_steps=sol.stats["num_rejected_steps"],
             newton_iterations=jnp.asarray(0, jnp.int32),
+            subdivided_steps=jnp.asarray(0, jnp.int32),
+            max_subdivision_level=jnp.asarray(0, jnp.int32),
         )
 
     @property

@@ -4,12 +4,8 @@
 :func:`peeljax.integrators.integrator_for`) and adds the sweep's own: the saved states
 (``save_every`` mesh steps on the uniform mesh, ``save_dt`` seconds otherwise). The
 :class:`SweepPlan` knows its settings (recorded in the sweep's metadata, compared on resume),
-its save times and how to run a chunk (:mod:`peeljax.sweeps.engine`):
-
-* :class:`~peeljax.integrators.UniformMesh`: :func:`engine.run_batch`, statistics over the
-  mesh points;
-* any :class:`~peeljax.integrators.AbstractAdaptiveIntegrator` (the error-controlled α-method,
-  a diffrax solver): :func:`engine.run_batch_adaptive`, statistics as time integrals.
+its save times and how to run a chunk (:func:`peeljax.sweeps.engine.run_batch`, the same
+engine for every integrator).
 """
 
 from __future__ import annotations
@@ -23,6 +19,7 @@ from .._validation import check_positive
 from ..integrators.alpha import UniformMesh
 from ..integrators.base import AbstractIntegrator
 from ..integrators.dense import output_times
+from ..integrators.observers import DenseOutput, EveryNthPoint, Observer
 from ..integrators.reference import DiffraxIntegrator
 from ..integrators.select import integrator_for, refuse_with_dt
 from . import engine
@@ -58,22 +55,25 @@ class SweepPlan:
             return self.t_final / n_steps * self.save_every * np.arange(n_steps // self.save_every + 1)
         return None if self.save_dt is None else output_times(self.save_dt, self.t_final)
 
+    def save_observer(self) -> Observer | None:
+        """What keeps the saved states: every ``save_every``-th mesh point, or the dense output at the save times."""
+        if self.uniform:
+            if self.save_every is None:
+                return None
+            return EveryNthPoint(self.save_every, self.integrator.n_steps // self.save_every + 1)
+        save_ts = self.save_times()
+        return None if save_ts is None else DenseOutput(jnp.asarray(save_ts))
+
     def run(self, model, V, tau, params, t_final, window, truncation, mesh, lane_batch) -> engine.BatchSummary:
         if self.uniform:
-            integrator = self.integrator
-            return engine.run_batch(
-                model, integrator.method, V, tau, params, t_final, window, integrator.n_steps, self.save_every,
-                truncation, mesh,
-            )  # fmt: skip
-        save_ts = self.save_times()
+            lane_batch = V.shape[0]  # every lane takes the same steps: one vmap
         if isinstance(self.integrator, DiffraxIntegrator):
             # diffrax's implicit solvers fail to trace under shard_map (lineax's structure
             # check); without the mesh, XLA partitions the run over the sharded lanes itself.
             mesh = None
-        return engine.run_batch_adaptive(
-            model, self.integrator, V, tau, params, t_final, window, None if save_ts is None else jnp.asarray(save_ts),
-            truncation, lane_batch, mesh,
-        )  # fmt: skip
+        return engine.run_batch(
+            model, self.integrator, V, tau, params, t_final, window, self.save_observer(), truncation, lane_batch, mesh
+        )
 
 
 def sweep_plan(solver, rho, dt, t_final, rtol, atol, save_dt, save_every, dtmin, max_steps) -> SweepPlan:
