@@ -25,6 +25,7 @@ and at the observed V; see ``docs/fitting.md``.
 
 from __future__ import annotations
 
+import abc
 import dataclasses
 import functools
 import json
@@ -249,8 +250,9 @@ class _Loss(eqx.Module):
 
     start: eqx.AbstractVar[AdhesionLaw]
 
+    @abc.abstractmethod
     def loss(self, adhesion: AdhesionLaw) -> tuple[Array, LossInfo]:
-        raise NotImplementedError
+        """L and its :class:`LossInfo` for φ = ``adhesion``."""
 
     def __call__(self, theta):
         return self.loss(_to_law(theta, self.start))

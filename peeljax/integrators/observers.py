@@ -67,37 +67,45 @@ class _Output(eqx.Module):
     next: Array  # step points: rows written; dense output: the first output time not yet reached
 
 
+def _rows(rows: int, t0, y0, J0, ok, next) -> _Output:
+    """``rows`` rows of NaN with the start in row 0."""
+    return _Output(
+        t=jnp.full(rows, jnp.nan).at[0].set(t0),
+        y=jnp.full((rows, y0.shape[0]), jnp.nan).at[0].set(y0),
+        J=jnp.full(rows, jnp.nan).at[0].set(J0),
+        iterations=jnp.zeros(rows, jnp.int32),
+        valid=jnp.zeros(rows, bool).at[0].set(ok),
+        next=jnp.asarray(next, jnp.int32),
+    )
+
+
+def _put(out: _Output, row, write, step: AcceptedStep, valid, next) -> _Output:
+    """``out`` with the step's end written into ``row`` where ``write``."""
+
+    def put(array, value):
+        return array.at[row].set(jnp.where(write, value, array[row]))
+
+    return _Output(
+        t=put(out.t, step.t1),
+        y=put(out.y, step.y1),
+        J=put(out.J, step.J1),
+        iterations=put(out.iterations, step.iterations),
+        valid=put(out.valid, valid),
+        next=next,
+    )
+
+
 class StepPoints(Observer):
     """The accepted step points, in ``rows`` = max_steps + 1 rows padded with NaN."""
 
     rows: int = eqx.field(static=True)
 
     def init(self, t0, y0, J0, ok):
-        n = y0.shape[0]
-        return _Output(
-            t=jnp.full(self.rows, jnp.nan).at[0].set(t0),
-            y=jnp.full((self.rows, n), jnp.nan).at[0].set(y0),
-            J=jnp.full(self.rows, jnp.nan).at[0].set(J0),
-            iterations=jnp.zeros(self.rows, jnp.int32),
-            valid=jnp.zeros(self.rows, bool).at[0].set(ok),
-            next=jnp.asarray(1, jnp.int32),
-        )
+        return _rows(self.rows, t0, y0, J0, ok, next=1)
 
     def update(self, out, step, kind):
         row = jnp.minimum(out.next, self.rows - 1)
-        keep = step.advance
-
-        def put(array, value):
-            return array.at[row].set(jnp.where(keep, value, array[row]))
-
-        return _Output(
-            t=put(out.t, step.t1),
-            y=put(out.y, step.y1),
-            J=put(out.J, step.J1),
-            iterations=put(out.iterations, step.iterations),
-            valid=put(out.valid, True),
-            next=out.next + keep,
-        )
+        return _put(out, row, step.advance, step, True, out.next + step.advance)
 
 
 class DenseOutput(Observer):
@@ -161,29 +169,9 @@ class EveryNthPoint(Observer):
     rows: int = eqx.field(static=True)
 
     def init(self, t0, y0, J0, ok):
-        n = y0.shape[0]
-        return _Output(
-            t=jnp.full(self.rows, jnp.nan).at[0].set(t0),
-            y=jnp.full((self.rows, n), jnp.nan).at[0].set(y0),
-            J=jnp.full(self.rows, jnp.nan).at[0].set(J0),
-            iterations=jnp.zeros(self.rows, jnp.int32),
-            valid=jnp.zeros(self.rows, bool).at[0].set(ok),
-            next=jnp.asarray(0, jnp.int32),  # attempts seen
-        )
+        return _rows(self.rows, t0, y0, J0, ok, next=0)  # next: the attempts seen
 
     def update(self, out, step, kind):
         attempts = out.next + 1
-        due = attempts % self.every == 0
         row = jnp.minimum(attempts // self.every, self.rows - 1)
-
-        def put(array, value):
-            return array.at[row].set(jnp.where(due, value, array[row]))
-
-        return _Output(
-            t=put(out.t, step.t1),
-            y=put(out.y, step.y1),
-            J=put(out.J, step.J1),
-            iterations=put(out.iterations, step.iterations),
-            valid=put(out.valid, step.advance),
-            next=attempts,
-        )
+        return _put(out, row, attempts % self.every == 0, step, step.advance, attempts)

@@ -21,7 +21,6 @@ import functools
 import diffrax
 from jaxtyping import ArrayLike
 
-from .._arrays import float_array
 from .._validation import check_max_steps, check_mesh, check_positive, check_rho, check_tolerance
 from .adaptive import ErrorControl
 from .alpha import AlphaMethod, UniformMesh
@@ -83,12 +82,14 @@ def check_error_control(t_final, rtol, atol, dtmin, max_steps) -> tuple[float, f
 
 
 @functools.lru_cache(maxsize=64)
+def _controller(rtol: float, atol: float) -> PIController:
+    return PIController(rtol=rtol, atol=atol)
+
+
+@functools.lru_cache(maxsize=64)
 def _error_control(rho, rtol, atol, dtmin, max_steps, adjoint) -> ErrorControl:
     # The default method's integrator, built once per setting (a module costs ~50 µs to build).
-    return ErrorControl(
-        _default_solver(rho), PIController(rtol=rtol, atol=atol),
-        None if dtmin is None else float_array(dtmin), max_steps, adjoint,
-    )  # fmt: skip
+    return ErrorControl(_default_solver(rho), _controller(rtol, atol), dtmin, max_steps, adjoint)
 
 
 def integrator_for(
@@ -131,4 +132,4 @@ def integrator_for(
         return DiffraxIntegrator(method, rtol, atol, dtmin, None, max_steps, adjoint)
     if solver is None and type(rho) in (float, int):
         return _error_control(float(rho), rtol, atol, dtmin, max_steps, adjoint)
-    return ErrorControl(method, PIController(rtol=rtol, atol=atol), dtmin, max_steps, adjoint)
+    return ErrorControl(method, _controller(rtol, atol), dtmin, max_steps, adjoint)
