@@ -74,7 +74,8 @@ def _run(integrator: AbstractIntegrator, ode, y0, t_final, ts) -> Solution:
     """The compiled run, with ``jax.jit``'s C++ dispatch when every leaf is an array.
 
     The float parameters held on the host (about 30: the model's, φ's, the integrator's)
-    travel as one vector, one host-to-device copy instead of one each (65 µs less per call);
+    travel as one vector, one host-to-device copy instead of one each (a call's fixed cost is
+    measured by ``benchmarks/adaptive_drivers.py``);
     the integrator's static fields (step budgets, mesh size) are in the tree's structure. A
     leaf that is not an array (a φ given as a plain Python function, a diffrax solver's
     settings) takes ``eqx.filter_jit`` instead.

@@ -51,7 +51,7 @@ def checked_solver(solver: AlphaMethod | diffrax.AbstractSolver | None, rho: Arr
     """``solver``, or ``AlphaMethod(rho=rho)`` when it is None, with ρ checked (before compiling)."""
     if solver is None:
         check_rho(rho)
-        # Modules are immutable: one per ρ serves every call (building one costs ~50 µs).
+        # Modules are immutable: one per ρ serves every call, instead of one built per call.
         return _default_solver(float(rho)) if type(rho) in (float, int) else AlphaMethod(rho=rho)
     if isinstance(solver, AlphaMethod):
         check_rho(solver.rho)
@@ -88,7 +88,7 @@ def _controller(rtol: float, atol: float) -> PIController:
 
 @functools.lru_cache(maxsize=64)
 def _error_control(rho, rtol, atol, dtmin, max_steps, adjoint) -> ErrorControl:
-    # The default method's integrator, built once per setting (a module costs ~50 µs to build).
+    # The default method's integrator, built once per setting rather than on every call.
     return ErrorControl(_default_solver(rho), _controller(rtol, atol), dtmin, max_steps, adjoint)
 
 
