@@ -360,11 +360,12 @@ def run_batch(
         def one(lane):
             return _lane(model, integrator, *lane, t_final, window, save, truncation)
 
+        if lane_batch >= V.shape[0]:  # one group: nothing to sort
+            return jax.vmap(one)((V, tau, params))
         order = jnp.argsort(tau)
         inverse = jnp.argsort(order)
         lanes = jax.tree_util.tree_map(lambda x: x[order], (V, tau, params))
-        batch = min(lane_batch, V.shape[0])
-        results = jax.lax.map(one, lanes, batch_size=batch) if batch > 1 else jax.lax.map(one, lanes)
+        results = jax.lax.map(one, lanes, batch_size=lane_batch) if lane_batch > 1 else jax.lax.map(one, lanes)
         return jax.tree_util.tree_map(lambda x: x[inverse], results)
 
     shared = (model, integrator, t_final, window, save)
