@@ -114,6 +114,12 @@ def check_tolerance(name: str, value, upper: float = math.inf) -> None:
         raise ValueError(f"{name} must lie in (0, {upper:g}), got {_shown(value)!r}")
 
 
+def check_adjoint(adjoint) -> None:
+    """How a loop is differentiated: "reverse" (jax.grad) or "forward" (jax.jvp)."""
+    if adjoint not in ("reverse", "forward"):
+        raise ValueError(f"adjoint must be 'reverse' or 'forward', got {adjoint!r}")
+
+
 def check_max_steps(max_steps) -> None:
     if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
         raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")

@@ -45,6 +45,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from .._arrays import optional_float_array
+from .._validation import check_adjoint, check_max_steps
 from ..homogenized import ODE
 from ..solution import Solution, StepDiagnostics, StopReason
 from ..structure import local_index
@@ -149,8 +150,7 @@ def adaptive_loop(
     dtmin = 1e-12 * span if dtmin is None else jnp.asarray(dtmin, float)
     ode, state0 = alpha_start(ode, solver, jnp.asarray(y0, float))
     n = state0.y.shape[0]
-    carried_log = solver.log_components if solver.log_discretization else ()
-    log_mask = _log_mask(n, carried_log)
+    log_mask = _log_mask(n, solver.carried_log)
     h0 = _initial_step(controller, state0, log_mask, span) if dt0 is None else jnp.asarray(dt0, float)
     h0 = jax.lax.stop_gradient(jnp.clip(h0, dtmin, span))
     zero = jnp.asarray(0, jnp.int32)
@@ -271,8 +271,7 @@ def integrate_alpha_adaptive(
         A :class:`Solution`; ``stats`` holds ``accepted_steps``, ``rejected_steps``,
         ``newton_iterations`` and the smallest, mean and largest accepted step.
     """
-    if adjoint not in ("reverse", "forward"):
-        raise ValueError(f"adjoint must be 'reverse' or 'forward', got {adjoint!r}")
+    check_adjoint(adjoint)
     controller = PIController() if controller is None else controller
     step_points = ts is None
     observer = StepPoints(max_steps + 1) if step_points else DenseOutput(jnp.asarray(ts, float))
@@ -352,14 +351,12 @@ class ErrorControl(AbstractIntegrator):
     adjoint: str = eqx.field(static=True, default="reverse")
 
     def __check_init__(self):
-        if self.adjoint not in ("reverse", "forward"):
-            raise ValueError(f"adjoint must be 'reverse' or 'forward', got {self.adjoint!r}")
-        if isinstance(self.max_steps, bool) or not isinstance(self.max_steps, int) or self.max_steps < 1:
-            raise ValueError(f"max_steps must be a positive integer, got {self.max_steps!r}")
+        check_adjoint(self.adjoint)
+        check_max_steps(self.max_steps)
 
     @property
     def carried_log(self) -> tuple[int, ...]:
-        return self.method.log_components if self.method.log_discretization else ()
+        return self.method.carried_log
 
     def integrate(self, ode, y0, t0, t_final, ts=None) -> Solution:
         return integrate_alpha_adaptive(

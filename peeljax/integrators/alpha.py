@@ -331,6 +331,11 @@ class AlphaMethod(eqx.Module):
             "max_log_change": float(self.max_log_change),
         }
 
+    @property
+    def carried_log(self) -> tuple[int, ...]:
+        """Components the scheme carries as their logarithm (``log_components`` with ``log_discretization``)."""
+        return self.log_components if self.log_discretization else ()
+
     def _newton_in_log(self) -> tuple[int, ...]:
         """Components that Newton alone solves for in log form (the scheme stays in y)."""
         return () if self.log_discretization else self.log_components
@@ -623,7 +628,7 @@ def alpha_start(ode, solver: AlphaMethod, y0: Float[Array, " n"]) -> tuple[Homog
     """
     y0 = jnp.asarray(y0, float)
     positive = jnp.all(jnp.where(_log_mask(y0.shape[0], solver.log_components), y0 > 0, True))
-    if solver.log_discretization and solver.log_components:
+    if solver.carried_log:
         ode = LogTransformedODE(ode, solver.log_components)
         y0 = _to_log(y0, solver.log_components)
     evaluation0 = ode.evaluate(y0)
@@ -642,9 +647,7 @@ def alpha_start(ode, solver: AlphaMethod, y0: Float[Array, " n"]) -> tuple[Homog
 
 def to_physical(solver: AlphaMethod, y: Float[Array, "... n"]) -> Float[Array, "... n"]:
     """Carried states (log v with ``log_discretization``) back to y = (α, ω, u, v)."""
-    if solver.log_discretization and solver.log_components:
-        return from_log(y, solver.log_components)
-    return y
+    return from_log(y, solver.carried_log) if solver.carried_log else y
 
 
 def alpha_advance(ode, solver: AlphaMethod, state: AlphaState, h) -> tuple[AlphaState, StepInfo, Array]:
@@ -798,7 +801,7 @@ class UniformMesh(AbstractIntegrator):
 
     @property
     def carried_log(self) -> tuple[int, ...]:
-        return self.method.log_components if self.method.log_discretization else ()
+        return self.method.carried_log
 
     def integrate(self, ode, y0, t0, t_final, ts=None) -> Solution:
         if ts is not None:

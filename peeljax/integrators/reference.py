@@ -21,6 +21,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from .._arrays import float_array, optional_float_array
+from .._validation import check_adjoint, check_max_steps
 from ..homogenized import HomogenizedODE
 from ..solution import Solution, StepDiagnostics, StopReason, mask_after_stop
 from ..structure import local_index
@@ -131,8 +132,8 @@ class DiffraxIntegrator(AbstractIntegrator):
     def __check_init__(self):
         if not isinstance(self.solver, diffrax.AbstractSolver):
             raise TypeError(f"solver must be a diffrax.AbstractSolver, got {type(self.solver).__name__}")
-        if self.adjoint not in ("reverse", "forward"):
-            raise ValueError(f"adjoint must be 'reverse' or 'forward', got {self.adjoint!r}")
+        check_adjoint(self.adjoint)
+        check_max_steps(self.max_steps)
 
     @property
     def carried_log(self) -> tuple[int, ...]:

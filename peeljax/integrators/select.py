@@ -21,7 +21,7 @@ import functools
 import diffrax
 from jaxtyping import ArrayLike
 
-from .._validation import check_max_steps, check_mesh, check_positive, check_rho, check_tolerance
+from .._validation import check_adjoint, check_max_steps, check_mesh, check_positive, check_rho, check_tolerance
 from .adaptive import ErrorControl
 from .alpha import AlphaMethod, UniformMesh
 from .base import AbstractIntegrator
@@ -110,8 +110,7 @@ def integrator_for(
     Raises ``ValueError``/``TypeError`` naming the option and its allowed values; nothing is
     compiled. ``rho`` is used only when ``solver`` is None.
     """
-    if adjoint not in ("reverse", "forward"):
-        raise ValueError(f"adjoint must be 'reverse' or 'forward', got {adjoint!r}")
+    check_adjoint(adjoint)
     method = checked_solver(solver, rho)
     if dt is not None:
         refuse_with_dt(dt, rtol=rtol, atol=atol, dtmin=dtmin)
