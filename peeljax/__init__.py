@@ -68,6 +68,9 @@ import jax as _jax  # noqa: E402
 _jax.config.update("jax_enable_x64", True)
 
 from .adhesion import COEFFICIENT_NAMES, PAPER_COEFFICIENTS, AdhesionLaw, safe_pow  # noqa: E402
+from .branches import Folds, phi_folds  # noqa: E402
+from .constrained import ConstrainedDAE  # noqa: E402
+from .cycles import CycleStatistics, RepeatPattern, cycle_statistics  # noqa: E402
 from .analysis import StickSlipAnalysis, analyze, bifurcation_diagram, phi_extrema, trajectory_structure  # noqa: E402
 from .fit import FitResult, Observation, fit_adhesion, fit_adhesion_steady, phi_relative_error  # noqa: E402
 from .homogenized import ODE, HomogenizedODE  # noqa: E402
@@ -84,7 +87,7 @@ from .integrators import (  # noqa: E402
 )
 from .model import PeelingModel  # noqa: E402
 from .simulate import simulate, simulate_reference  # noqa: E402
-from .solution import Solution, StepDiagnostics, StopReason  # noqa: E402
+from .solution import JumpRecord, Solution, StepDiagnostics, StopReason  # noqa: E402
 from .structure import (  # noqa: E402
     Jacobians,
     is_fast_scale,
@@ -95,7 +98,7 @@ from .structure import (  # noqa: E402
     schur_complement,
     truncated_schur_complement,
 )
-from .sweeps import LeastTau, SweepResult, least_tau, sweep  # noqa: E402
+from .sweeps import LeastTau, StickSlipMap, SweepResult, least_tau, stick_slip_map, sweep  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -104,9 +107,13 @@ __all__ = [
     "AlphaMethod",
     "AlphaSolver",
     "COEFFICIENT_NAMES",
+    "ConstrainedDAE",
+    "CycleStatistics",
+    "Folds",
     "FitResult",
     "HomogenizedODE",
     "Jacobians",
+    "JumpRecord",
     "LeastTau",
     "LogTransformedODE",
     "ODE",
@@ -114,8 +121,10 @@ __all__ = [
     "PAPER_COEFFICIENTS",
     "PIController",
     "PeelingModel",
+    "RepeatPattern",
     "Solution",
     "StepDiagnostics",
+    "StickSlipMap",
     "StickSlipAnalysis",
     "StopReason",
     "SweepResult",
@@ -123,6 +132,7 @@ __all__ = [
     "amplification_matrix",
     "analyze",
     "bifurcation_diagram",
+    "cycle_statistics",
     "fit_adhesion",
     "fit_adhesion_steady",
     "integrate_alpha",
@@ -135,11 +145,13 @@ __all__ = [
     "neumann_radius",
     "neumann_terms",
     "phi_extrema",
+    "phi_folds",
     "phi_relative_error",
     "safe_pow",
     "schur_complement",
     "simulate",
     "simulate_reference",
+    "stick_slip_map",
     "sweep",
     "trajectory_structure",
     "truncated_schur_complement",

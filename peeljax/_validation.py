@@ -63,17 +63,20 @@ def check_positive(name: str, value) -> None:
 TAU_MAX = 1e6  # s
 
 
-def check_tau(tau) -> None:
-    """τ ∈ (0, 1e6] s. Beyond that the homogenized v is frozen (dv/dt ∝ 1/τ: at τ = 1e10 s v
-    moves from 1.1e-10 to 4.4e-10 m/s in 3 s), and from τ ≈ 1e150 J_t overflows."""
+def check_tau(tau, allow_zero: bool = False) -> None:
+    """τ ∈ (0, 1e6] s, or [0, 1e6] with ``allow_zero`` (τ = 0: the DAE itself). Beyond 1e6 s the
+    homogenized v is frozen (dv/dt ∝ 1/τ: at τ = 1e10 s v moves from 1.1e-10 to 4.4e-10 m/s in
+    3 s), and from τ ≈ 1e150 J_t overflows."""
     if not is_concrete(tau):
         return
     array = _finite_array("tau", tau)
-    if np.any(array <= 0):
-        raise ValueError(f"tau must be > 0 (allowed range: (0, {TAU_MAX:g}]), got {_shown(tau)!r}")
+    low = "[0" if allow_zero else "(0"
+    if np.any(array < 0) or (not allow_zero and np.any(array == 0)):
+        relation = ">= 0" if allow_zero else "> 0"
+        raise ValueError(f"tau must be {relation} (allowed range: {low}, {TAU_MAX:g}]), got {_shown(tau)!r}")
     if np.any(array > TAU_MAX):
         raise ValueError(
-            f"tau must be <= {TAU_MAX:g} s (allowed range: (0, {TAU_MAX:g}]): beyond it the homogenized v "
+            f"tau must be <= {TAU_MAX:g} s (allowed range: {low}, {TAU_MAX:g}]): beyond it the homogenized v "
             f"does not move (dv/dt is proportional to 1/tau), got {_shown(tau)!r}"
         )
 

@@ -1,4 +1,6 @@
-"""Plots of runs in the style of the paper's Figs. 2–3: v(t), α(t) and the tension F(t).
+"""Plots of runs in the style of the paper's Figs. 2–3: v(t), α(t) and the tension F(t); and
+of a run carried through the folds of φ (:func:`plot_stick_slip`): v(t) and G(t) with the
+jumps, and the G–v loop over φ(v, V).
 
 matplotlib only. The figures are plain :class:`matplotlib.figure.Figure` objects with an Agg
 canvas attached, so saving needs no GUI and importing this module never switches the pyplot
@@ -18,7 +20,7 @@ from matplotlib.figure import Figure
 from .model import PeelingModel
 from .solution import Solution, StopReason
 
-__all__ = ["plot_fit", "plot_run", "plot_runs", "plot_sweep_map", "short_reason"]
+__all__ = ["plot_fit", "plot_run", "plot_runs", "plot_stick_slip", "plot_sweep_map", "short_reason"]
 
 _SHORT_REASONS = {
     StopReason.COMPLETED: "completed",
@@ -28,6 +30,8 @@ _SHORT_REASONS = {
     StopReason.STALLED: "step size collapsed (stalled)",
     StopReason.MAX_STEPS: "reached max_steps",
     StopReason.SOLVER_FAILED: "diffrax solver failed",
+    StopReason.MAX_JUMPS: "reached max_jumps",
+    StopReason.FOLD: "reached a fold of φ (fold='stop')",
 }
 _METHOD_LABELS = {"alpha": "α-method", "alpha-adaptive": "α-method, error control", "diffrax": "diffrax reference"}
 _PANELS = (
@@ -155,6 +159,201 @@ def plot_run(
     solution's method).
     """
     return plot_runs([solution], None if label is None else [label], model, V=V, title=title, path=path)
+
+
+# ---------------------------------------------------------------------------- stick-slip with jumps
+_UP_COLOR, _DOWN_COLOR = "C3", "C0"  # stick → slip, slip → stick
+_UP_LABEL, _DOWN_LABEL = "stick → slip jump (v up)", "slip → stick jump (v down)"
+
+
+def _broken_at(t: np.ndarray, jump_t: np.ndarray, *series: np.ndarray) -> list[np.ndarray]:
+    """``t`` and ``series`` with a NaN row after each jump's time, so that a line is not drawn
+    across a jump (the jumps are drawn on their own)."""
+    at = np.searchsorted(t, jump_t, side="right")
+    return [np.insert(np.asarray(a, dtype=float), at, np.nan) for a in (t, *series)]
+
+
+def _positive_floor(*arrays: np.ndarray) -> float:
+    """A value below every positive v, where v = 0 (a fully stuck tape) is drawn on a log axis."""
+    values = np.concatenate([np.ravel(a) for a in arrays])
+    positive = values[np.isfinite(values) & (values > 0)]
+    return float(positive.min()) / 3.0 if positive.size else 1e-12
+
+
+def plot_stick_slip(
+    solution: Solution,
+    model: PeelingModel | None,
+    V: float,
+    *,
+    title: str | None = None,
+    path: str | Path | None = None,
+    transient: float | None = None,
+) -> Figure:
+    """A run carried through the folds of φ (``fold="jump"``): v(t), G(t) and the G–v loop.
+
+    Three panels:
+
+    1. v(t) on a log axis; each recorded jump is a vertical segment from v before to v after
+       it at its time (red: stick → slip at φ's maximum v̂; blue: slip → stick at its minimum
+       v̌), so v is seen to jump between the two stable branches of G(x) = φ(v, V).
+    2. G(t) = (1 + l·sinα/L)·F(u, α), the left side of the constraint (a sawtooth between the
+       fold forces φ(v̌, V) and φ(v̂, V)); G is continuous across a jump (x is unchanged).
+    3. The G–v loop: G against v (log axis) over the curve φ(v, V) (dashed), with the folds
+       (v̂, φ(v̂, V)) and (v̌, φ(v̌, V)) marked and the jumps as horizontal segments at constant G.
+       With ``transient``, only t ≥ transient (the settled loop).
+
+    Args:
+        solution: a single run with a jump record (:attr:`Solution.jumps`).
+        model: the model it used (default: the paper's), for G and φ.
+        V: its pull velocity [m/s].
+        title: figure title.
+        path: when given, the figure is saved there (format from the suffix, PNG if none).
+        transient: [s] the loop panel shows t ≥ transient only; shaded in the time panels.
+
+    Returns:
+        The figure. v = 0 (a fully stuck tape) is drawn at the bottom of the log axes. A run
+        that stopped gets a dotted vertical line at ``t_stop`` with the shortened reason.
+    """
+    if np.ndim(solution.status) != 0:
+        raise ValueError("plot a single trajectory: index the batch of a vmapped Solution first")
+    if solution.jumps is None:
+        raise ValueError("plot_stick_slip: this run has no jump record (run it with fold='jump')")
+    from .branches import phi_folds
+
+    model = PeelingModel() if model is None else model
+    V = float(V)
+    valid = np.asarray(solution.valid, dtype=bool)
+    t = np.asarray(solution.ts, dtype=float)[valid]
+    ys = np.asarray(solution.ys, dtype=float)[valid]
+    v = ys[:, 3]
+    G = np.asarray(model.shear_force(ys[:, :3].T), dtype=float)
+    jumps = solution.jumps.as_numpy()
+    jt, up, vb, va, jG = (jumps[key] for key in ("jump_t", "jump_up", "jump_v_before", "jump_v_after", "jump_G"))
+    folds = phi_folds(model, V)
+    v_hat, phi_hat, v_check, phi_check = (float(x) for x in (folds.v_max, folds.phi_max, folds.v_min, folds.phi_min))
+    has_folds = bool(np.isfinite(v_hat) and np.isfinite(v_check))
+    if transient is not None and not np.any(t >= transient):
+        transient = None  # nothing after it: show the whole run
+    # The log axis of v: down to the lowest v once stick-slip has begun, so that the approach
+    # from the paper's v0 = 1e-10·V does not squash the cycles (a note says where v starts).
+    low_all = _positive_floor(v, vb, va)
+    low_cycles = _positive_floor(v[t >= jt[0]], vb, va) if jt.size else low_all
+    cropped = low_all < low_cycles / 30.0
+    v_bottom = low_cycles / 3.0 if cropped else low_all
+    floor = v_bottom * 1.5  # where v = 0 (fully stuck) is drawn
+    stuck = bool(np.any(v[np.isfinite(v)] <= 0) or np.any(va <= 0))
+    shown = lambda values: np.where(np.asarray(values) > 0, values, floor)
+
+    fig = Figure(figsize=(13.0, 7.6), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplot_mosaic([["v", "loop"], ["G", "loop"]], width_ratios=(1.3, 1.0))
+    ax_v, ax_G, ax_loop = axes["v"], axes["G"], axes["loop"]
+    ax_G.sharex(ax_v)
+    tb, vb_line, Gb_line = _broken_at(t, jt, v, G)
+
+    # 1. v(t) with the jumps
+    ax_v.plot(tb, shown(vb_line), color="0.2", lw=1.0, label="peeling velocity v(t)")
+    for mask, color, label in ((up, _UP_COLOR, _UP_LABEL), (~up, _DOWN_COLOR, _DOWN_LABEL)):
+        if mask.any():
+            ax_v.vlines(jt[mask], shown(vb[mask]), shown(va[mask]), colors=color, lw=1.3, label=label)
+    ax_v.axhline(V, color="k", ls="--", lw=0.9, label=f"pull velocity V = {V:g} m/s")
+    if has_folds:
+        for value in (v_hat, v_check):
+            ax_v.axhline(value, color="0.55", ls=":", lw=0.9)
+        ax_v.plot([], [], color="0.55", ls=":", lw=0.9, label=f"folds v̂ = {v_hat:.3g}, v̌ = {v_check:.3g} m/s")
+    ax_v.set_yscale("log")
+    ax_v.set_ylabel("peeling velocity v [m/s]")
+    ax_v.set_ylim(bottom=v_bottom)
+    notes = []
+    if cropped:
+        first = v[np.isfinite(v) & (v > 0)]
+        notes.append(f"axis cut: v starts at {first[0]:.2g} m/s" if first.size else "axis cut")
+    if stuck:
+        notes.append("v = 0 (fully stuck) drawn at the bottom")
+    if notes:
+        ax_v.text(0.01, 0.02, "; ".join(notes), transform=ax_v.transAxes, fontsize=7, color="0.3", va="bottom",
+                  bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "none", "alpha": 0.8})  # fmt: skip
+
+    # 2. G(t): the sawtooth between the fold forces
+    ax_G.plot(tb, Gb_line, color="0.2", lw=1.0, label="G(t)")
+    if has_folds:
+        ax_G.axhline(phi_hat, color=_UP_COLOR, ls=":", lw=0.9, label=f"φ(v̂, V) = {phi_hat:.4g} N: slips")
+        ax_G.axhline(phi_check, color=_DOWN_COLOR, ls=":", lw=0.9, label=f"φ(v̌, V) = {phi_check:.4g} N: re-sticks")
+    ax_G.plot(jt[up], jG[up], "^", color=_UP_COLOR, ms=4, ls="none")
+    ax_G.plot(jt[~up], jG[~up], "v", color=_DOWN_COLOR, ms=4, ls="none")
+    ax_G.set_ylabel("shear force G = (1 + l·sinα/L)·F [N]")
+    ax_G.set_xlabel("time t [s]")
+
+    t_end = max(float(t[-1]), float(solution.t_stop)) if t.size else float(solution.t_stop)
+    ax_v.set_xlim(float(t[0]) if t.size else 0.0, t_end)
+    for ax in (ax_v, ax_G):
+        if transient is not None and transient > 0:
+            ax.axvspan(float(t[0]), transient, color="0.9", zorder=0,
+                       label="transient (left out of the loop)" if ax is ax_v else None)  # fmt: skip
+        ax.grid(True, alpha=0.3)
+    ax_v.tick_params(labelbottom=False)
+    if int(np.asarray(solution.status)) != 0:
+        t_stop = float(solution.t_stop)
+        for ax in (ax_v, ax_G):
+            ax.axvline(t_stop, color="k", ls=":", lw=1.2)
+        ax_G.annotate(
+            f"stopped at t = {t_stop:.4g} s\n{short_reason(solution)}", xy=(t_stop, 0.5),
+            xycoords=("data", "axes fraction"), xytext=(-4, 0), textcoords="offset points", ha="right",
+            va="center", fontsize=8, bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "k", "alpha": 0.85},
+        )  # fmt: skip
+    # room above the slip branch for the legend (v's data stay below it)
+    top = float(np.nanmax(np.concatenate([v[np.isfinite(v)], vb, va, [V]])))
+    ax_v.set_ylim(top=top * (top / v_bottom) ** 0.45)
+    ax_v.legend(loc="upper center", ncols=3, fontsize=7, framealpha=0.9)
+    ax_G.legend(loc="lower right", fontsize=7, framealpha=0.9)
+
+    # 3. the G–v loop over φ(v, V)
+    start = -np.inf if transient is None else transient
+    rows, kept = t >= start, jt >= start
+    _, vl, Gl = _broken_at(t[rows], jt[kept], v[rows], G[rows])
+    up_k, vb_k, va_k, G_k = up[kept], vb[kept], va[kept], jG[kept]
+    span = np.concatenate([vl[np.isfinite(vl)], vb_k, va_k] + ([[v_hat, v_check]] if has_folds else []))
+    lo, hi = _positive_floor(span) * 3.0, float(np.nanmax(span)) if span.size else 10.0
+    grid = np.geomspace(lo / 2.0, hi * 1.5, 400)
+    import jax.numpy as jnp
+
+    ax_loop.plot(grid, np.asarray(model.phi(jnp.asarray(grid), V), dtype=float), color="k", ls="--", lw=1.0,
+                 label=f"φ(v, V = {V:g} m/s)", zorder=3)  # fmt: skip
+    window = "the run" if transient is None else f"t ≥ {transient:.3g} s"
+    ax_loop.plot(shown(vl), Gl, color="C2", lw=3.0, alpha=0.55, label=f"the run: G against v ({window})")
+    for mask, color, label in ((up_k, _UP_COLOR, _UP_LABEL), (~up_k, _DOWN_COLOR, _DOWN_LABEL)):
+        if mask.any():
+            ax_loop.hlines(G_k[mask], shown(vb_k[mask]), shown(va_k[mask]), colors=color, lw=1.4, label=label,
+                           zorder=4)  # fmt: skip
+    if has_folds:
+        ax_loop.plot([v_hat, v_check], [phi_hat, phi_check], "o", ms=7, mfc="white", mec="k", mew=1.4, zorder=5)
+        ax_loop.annotate(
+            f"fold v̂ = {v_hat:.4g} m/s\nφ(v̂, V) = {phi_hat:.4g} N", xy=(v_hat, phi_hat), xytext=(0, 14),
+            textcoords="offset points", ha="center", va="bottom", fontsize=8,
+            bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": _UP_COLOR, "alpha": 0.9},
+        )  # fmt: skip
+        ax_loop.annotate(
+            f"fold v̌ = {v_check:.4g} m/s\nφ(v̌, V) = {phi_check:.4g} N", xy=(v_check, phi_check), xytext=(0, -14),
+            textcoords="offset points", ha="center", va="top", fontsize=8,
+            bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": _DOWN_COLOR, "alpha": 0.9},
+        )  # fmt: skip
+    forces = np.concatenate([Gl[np.isfinite(Gl)], G_k] + ([[phi_hat, phi_check]] if has_folds else []))
+    if forces.size:  # the loop's forces, with room for the fold labels (φ climbs steeply beyond)
+        g_lo, g_hi = float(forces.min()), float(forces.max())
+        pad = max(g_hi - g_lo, 1e-3 * max(abs(g_hi), 1.0))
+        ax_loop.set_ylim(g_lo - 0.3 * pad, g_hi + 0.45 * pad)
+    ax_loop.set_xlim(lo / 2.0, hi * 1.5)
+    ax_loop.set_xscale("log")
+    ax_loop.set_xlabel("peeling velocity v [m/s]")
+    ax_loop.set_ylabel("shear force G [N]")
+    ax_loop.set_title(f"G–v loop ({window}) over φ(v, V)", fontsize=10)
+    ax_loop.grid(True, alpha=0.3)
+    ax_loop.legend(loc="upper left", fontsize=7, framealpha=0.9)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    if path is not None:
+        fig.savefig(path, dpi=150)
+    return fig
 
 
 # Up to this many pull velocities the sweep map draws one series per V against τ; more V

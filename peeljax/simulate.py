@@ -19,28 +19,39 @@ from ._validation import (
     check_truncation,
     check_y0,
 )
+from .constrained import ConstrainedDAE
 from .homogenized import HomogenizedODE
 from .integrators.alpha import AlphaMethod
 from .integrators.base import AbstractIntegrator
 from .integrators.reference import integrate_reference
-from .integrators.select import DEFAULT_MAX_STEPS, integrator_for, refuse_with_dt
+from .integrators.select import DEFAULT_MAX_JUMPS, DEFAULT_MAX_STEPS, integrator_for, refuse_with_dt
 from .model import PeelingModel
 from .solution import Solution
 
 __all__ = ["simulate", "simulate_reference"]
 
 
-def _prepare(model, V, tau, y0, truncation):
+def is_dae(tau) -> bool:
+    """τ = 0 given as a host number: the DAE itself (:class:`ConstrainedDAE`) rather than eq. ``hv``."""
+    return not isinstance(tau, jax.core.Tracer) and np.ndim(tau) == 0 and float(tau) == 0.0
+
+
+def _prepare(model, V, tau, y0, truncation, allow_dae=False):
     model = PeelingModel() if model is None else model
     if not isinstance(model, PeelingModel):
         raise TypeError(f"model must be a PeelingModel, got {type(model).__name__}")
     check_positive("V", V)
-    check_tau(tau)
+    check_tau(tau, allow_zero=allow_dae)
     check_y0(y0)
     check_truncation(truncation)
     for name in ("R", "I", "k", "l"):
         check_positive(f"model.{name}", getattr(model, name))
-    ode = HomogenizedODE(model, V, tau, truncation)
+    if allow_dae and is_dae(tau):
+        if truncation is not None:
+            raise ValueError("truncation applies to tau > 0 (the homogenized ODE); tau=0 is the DAE itself")
+        ode = ConstrainedDAE(model, V)
+    else:
+        ode = HomogenizedODE(model, V, tau, truncation)
     # None: the paper's initial data, computed inside the compiled run (eagerly, its dozen
     # small operations would cost more than a short run).
     return ode, (None if y0 is None else jnp.asarray(y0, float))
@@ -109,8 +120,16 @@ def simulate(
     solver: AlphaMethod | diffrax.AbstractSolver | None = None,
     truncation: int | None = None,
     checkpoint_every: int | str | None = None,
+    fold: str | None = None,
+    max_jumps: int = DEFAULT_MAX_JUMPS,
 ) -> Solution:
-    """Integrate the homogenized peeling ODE (eq. ``hv``) with the α-method (or a diffrax solver).
+    """Integrate the peeling problem with the α-method (or a diffrax solver), through the folds of φ.
+
+    ``tau > 0``: the homogenized ODE (eq. ``hv``); ``tau = 0``: the DAE itself, x' = f(x, v)
+    with v solved from the constraint on its stable branch (:class:`~peeljax.ConstrainedDAE`).
+    At a fold of φ v jumps, at constant x, to the other stable branch of G(x) = φ(v, V) — the
+    tape slips at φ's maximum and re-sticks at its minimum — and the run goes on
+    (``fold="jump"``, the default under error control; every jump is in ``result.jumps``).
 
     Two modes share the α-method's step (:mod:`peeljax.integrators.alpha`):
 
@@ -127,7 +146,7 @@ def simulate(
     Args:
         model: spool, tape and adhesion law (default: the paper's, ``PeelingModel()``).
         V: pull velocity [m/s], > 0.
-        tau: homogenization time scale τ [s], > 0.
+        tau: homogenization time scale τ [s], ≥ 0 (0: the DAE itself, with jumps at the folds).
         dt: None for error control; else the requested uniform step [s]: the mesh has
             N = round(t_final/dt) steps of t_final/N (``result.stats["step_size"]``), so it
             ends exactly at t_final.
@@ -153,12 +172,23 @@ def simulate(
         checkpoint_every: uniform mesh only, for reverse-mode gradients of long runs: chunks
             of this many steps under ``jax.checkpoint`` (``"sqrt"``: ≈ √N), memory ∝ √N (see
             :func:`peeljax.integrate_alpha`); values are unchanged.
+        fold: what happens at a fold of φ (:mod:`peeljax.integrators.events`): ``"jump"``
+            (default under error control), ``"stop"`` (the paper's behaviour; the default, and
+            the only choice, with ``dt`` or a diffrax solver) or ``"follow"`` (τ > 0: jump at
+            impasse points only, follow the homogenized ODE through singular passages).
+        max_jumps: size of the jump record (static); one more jump stops the run with that
+            reason, keeping what it computed.
 
     Returns:
         A :class:`Solution`. Uniform mesh: N + 1 time points. Error control: the points of
         ``ts``, or the accepted steps; ``stats`` has ``accepted_steps``, ``rejected_steps``
         and the smallest, mean and largest step. A run that cannot continue has
-        ``status != 0``, ``t_stop`` and ``reason``; its later states are NaN.
+        ``status != 0``, ``t_stop`` and ``reason``; its later states are NaN. With folds
+        located (error control), ``jumps`` is the :class:`~peeljax.JumpRecord` and
+        ``stats["jumps"]`` its count; :func:`peeljax.cycle_statistics` summarizes it.
+
+    Gradients through a run with jumps are finite, but hold the jump times fixed (their
+    motion is not yet differentiated): see :mod:`peeljax.integrators.events`.
 
     V, tau, rho, y0, the model's parameters and the adhesion coefficients are traced: ``jit``,
     ``vmap`` and ``grad`` work over them without recompiling. ``dt`` and ``t_final`` set the
@@ -166,12 +196,13 @@ def simulate(
     """
     if dt is not None:
         refuse_with_dt(dt, ts=ts)
+    check_tau(tau, allow_zero=True)
     integrator = integrator_for(
         solver, rho=rho, dt=dt, t_final=t_final, rtol=rtol, atol=atol, dtmin=dtmin, max_steps=max_steps,
-        adjoint=adjoint, checkpoint_every=checkpoint_every,
+        adjoint=adjoint, checkpoint_every=checkpoint_every, fold=fold, max_jumps=max_jumps, dae=is_dae(tau),
     )  # fmt: skip
     ts = None if ts is None else check_output_times(ts, t_final)
-    ode, y0 = _prepare(model, V, tau, y0, truncation)
+    ode, y0 = _prepare(model, V, tau, y0, truncation, allow_dae=True)
     return _run(integrator, ode, y0, float_array(t_final), ts)
 
 

@@ -5,11 +5,12 @@ from __future__ import annotations
 import enum
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-__all__ = ["Solution", "StopReason", "StepDiagnostics"]
+__all__ = ["JumpRecord", "Solution", "StepDiagnostics", "StopReason"]
 
 
 class StopReason(enum.IntEnum):
@@ -22,6 +23,8 @@ class StopReason(enum.IntEnum):
     STALLED = 4
     MAX_STEPS = 5
     SOLVER_FAILED = 6
+    MAX_JUMPS = 7
+    FOLD = 8
 
     @property
     def message(self) -> str:
@@ -45,6 +48,11 @@ _MESSAGES = {
     ),
     StopReason.MAX_STEPS: "max_steps step attempts were used up before t_final",
     StopReason.SOLVER_FAILED: "the reference solver failed (diffrax reported an error)",
+    StopReason.MAX_JUMPS: "max_jumps jumps were recorded before t_final (raise max_jumps to go on)",
+    StopReason.FOLD: (
+        "a fold of phi was reached (fold='stop'): here the tape slips or re-sticks, v jumps to the other "
+        "stable branch of G(x) = phi(v, V); fold='jump' carries the run through it"
+    ),
 }
 
 
@@ -69,6 +77,71 @@ class StepDiagnostics(eqx.Module):
     condition: Float[Array, " n"]
 
 
+class JumpRecord(eqx.Module):
+    """Every jump of v at a fold of φ in a run, in ``max_jumps`` slots padded with NaN.
+
+    At a fold, x = (α, ω, u) is unchanged (so are F and G = (1 + l·sinα/L)·F) and v jumps to
+    the other stable root of G(x) = φ(v, V): stick → slip at φ's maximum (``up`` True),
+    slip → stick at its minimum (``up`` False). Slot k < ``count`` holds the k-th jump.
+    Under ``vmap`` every field gains a leading batch axis.
+
+    Attributes:
+        t: jump times [s].
+        up: True for stick → slip (v jumps up), False for slip → stick.
+        v_before, v_after: v just before and just after the jump [m/s] (v_after = 0: the
+            tape lands fully stuck, G below φ(0⁺, V)).
+        G: the shear force G = (1 + l·sinα/L)·F at the jump [N] (continuous across it).
+        count: the number of jumps recorded.
+    """
+
+    t: Float[Array, " m"]
+    up: Bool[Array, " m"]
+    v_before: Float[Array, " m"]
+    v_after: Float[Array, " m"]
+    G: Float[Array, " m"]
+    count: Int[Array, ""]
+
+    @classmethod
+    def empty(cls, max_jumps: int) -> "JumpRecord":
+        nan = jnp.full(max_jumps, jnp.nan)
+        return cls(t=nan, up=jnp.zeros(max_jumps, bool), v_before=nan, v_after=nan, G=nan, count=jnp.asarray(0, jnp.int32))
+
+    @property
+    def max_jumps(self) -> int:
+        return self.t.shape[-1]
+
+    def buffers(self) -> tuple:
+        """The slot arrays: written once each, in place, as buffers of a while loop."""
+        return (self.t, self.up, self.v_before, self.v_after, self.G)
+
+    def record(self, do: Bool[Array, ""], t, up, v_before, v_after, G) -> "JumpRecord":
+        """This record with one more jump where ``do`` (nothing changes where not, or when full)."""
+        slot = jnp.minimum(self.count, self.max_jumps - 1)
+        write = do & (self.count < self.max_jumps)
+
+        def put(array, value):
+            if isinstance(array, (jax.Array, np.ndarray)):
+                return array.at[slot].set(jnp.where(write, value, array[slot]))
+            # A buffer of equinox's while loop (written once per slot, never read in the loop).
+            return array.at[slot].set(value, pred=write)
+
+        return JumpRecord(
+            t=put(self.t, t), up=put(self.up, up), v_before=put(self.v_before, v_before),
+            v_after=put(self.v_after, v_after), G=put(self.G, G), count=self.count + write,
+        )  # fmt: skip
+
+    def as_numpy(self) -> dict[str, np.ndarray]:
+        """The recorded jumps (first ``count`` slots) as host arrays, keyed ``jump_t``, ``jump_up``, …"""
+        n = int(np.asarray(self.count))
+        return {
+            "jump_t": np.asarray(self.t)[:n],
+            "jump_up": np.asarray(self.up)[:n],
+            "jump_v_before": np.asarray(self.v_before)[:n],
+            "jump_v_after": np.asarray(self.v_after)[:n],
+            "jump_G": np.asarray(self.G)[:n],
+        }
+
+
 class Solution(eqx.Module):
     """A trajectory y = (α, ω, u, v) on a time grid with the reason it ended.
 
@@ -83,6 +156,8 @@ class Solution(eqx.Module):
         t_stop: the last time reached (``ts[-1]`` when completed).
         stats: run statistics (Newton iterations, safeguards fired, steps, …).
         diagnostics: per-time-point :class:`StepDiagnostics`.
+        jumps: the :class:`JumpRecord` of a run carried through the folds of φ (``fold="jump"``);
+            None for a run without jumps.
     """
 
     ts: Float[Array, " n"]
@@ -93,6 +168,7 @@ class Solution(eqx.Module):
     stats: dict[str, Array]
     diagnostics: StepDiagnostics | None
     method: str = eqx.field(static=True, default="alpha")
+    jumps: JumpRecord | None = None
 
     # -------------------------------------------------------------- states by name
     @property

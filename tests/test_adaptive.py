@@ -206,8 +206,9 @@ def test_accuracy_at_tight_tolerance(references, V, tau):
 
 # ---------------------------------------------------------------- stops
 def test_stops_honestly_at_small_tau():
-    """V = 1.1, τ = 1e-3: the run stops in (0.1, 0.3) s at the impasse or with a collapsed step."""
-    sol = pj.simulate(V=1.1, tau=1e-3, t_final=3.0, rtol=1e-4, ts=GRID)
+    """V = 1.1, τ = 1e-3, fold="stop" (the paper's behaviour): the run stops in (0.1, 0.3) s at
+    the impasse or with a collapsed step."""
+    sol = pj.simulate(V=1.1, tau=1e-3, t_final=3.0, rtol=1e-4, ts=GRID, fold="stop")
     assert int(sol.status) in (StopReason.IMPASSE, StopReason.STALLED), sol.reason
     assert 0.1 < float(sol.t_stop) < 0.3
     steps = int(sol.stats["accepted_steps"]) + int(sol.stats["rejected_steps"])
@@ -226,12 +227,14 @@ def test_max_steps_is_its_own_reason():
 
 
 # ---------------------------------------------------------------- gradients
-def _loss(params, adjoint, t_final=0.5, rtol=1e-10):
+def _loss(params, adjoint, t_final=0.5, rtol=1e-10, fold=None):
     """mean v² over 26 output times, as a function of (V, τ, c1 of φ)."""
     V, tau, c1 = params
     model = pj.PeelingModel(adhesion=pj.AdhesionLaw(c1=c1))
     ts = np.linspace(0.0, t_final, 26)
-    sol = pj.simulate(model, V=V, tau=tau, t_final=t_final, rtol=rtol, atol=1e-13, ts=ts, adjoint=adjoint)
+    sol = pj.simulate(
+        model, V=V, tau=tau, t_final=t_final, rtol=rtol, atol=1e-13, ts=ts, adjoint=adjoint, fold=fold
+    )
     return jnp.mean(jnp.where(sol.valid, sol.v, 0.0) ** 2)
 
 
@@ -252,8 +255,8 @@ def test_gradients_agree_with_central_differences():
 
 @pytest.mark.slow
 def test_gradients_are_finite_across_a_stop():
-    loss = lambda tau: _loss(jnp.stack([1.1, tau, 400.0]), "reverse", t_final=0.5, rtol=1e-4)  # noqa: E731
-    sol = pj.simulate(V=1.1, tau=1e-3, t_final=0.5, rtol=1e-4, ts=np.linspace(0, 0.5, 26))
+    loss = lambda tau: _loss(jnp.stack([1.1, tau, 400.0]), "reverse", t_final=0.5, rtol=1e-4, fold="stop")  # noqa: E731
+    sol = pj.simulate(V=1.1, tau=1e-3, t_final=0.5, rtol=1e-4, ts=np.linspace(0, 0.5, 26), fold="stop")
     assert not bool(sol.completed)
     value, grad = jax.value_and_grad(loss)(1e-3)
     assert np.isfinite(float(value)) and np.isfinite(float(grad))

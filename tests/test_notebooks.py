@@ -1,4 +1,4 @@
-"""Notebooks 01–04 run top to bottom (nbclient, the ``notebooks`` extra; skipped without it).
+"""Notebooks 01–05 run top to bottom (nbclient, the ``notebooks`` extra; skipped without it).
 
 CI sets ``PEELJAX_NOTEBOOK_T_FINAL=0.2`` so that every run is short (and the grids of 03 and the
 fit of 04 small); outputs are not stored. Measured on 2 shared CPU cores: 03 about 1 min, 04
@@ -18,7 +18,13 @@ NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks"
 @pytest.mark.slow
 @pytest.mark.parametrize(
     "name",
-    ["01_paper_figures.ipynb", "02_index_and_time_scales.ipynb", "03_sweeps.ipynb", "04_fitting_phi.ipynb"],
+    [
+        "01_paper_figures.ipynb",
+        "02_index_and_time_scales.ipynb",
+        "03_sweeps.ipynb",
+        "04_fitting_phi.ipynb",
+        "05_stick_slip.ipynb",
+    ],
 )
 def test_notebook_runs(name, monkeypatch):
     nbformat = pytest.importorskip("nbformat")

@@ -220,7 +220,8 @@ def test_memory_refusal_before_running(monkeypatch):
     ("kwargs", "match"),
     [
         ({"V": []}, "V is empty"),
-        ({"tau": [1e-3, -1.0]}, r"tau must be > 0 \(allowed range"),
+        ({"tau": [1e-3, -1.0]}, r"tau must be >= 0 \(allowed range"),
+        ({"tau": [0.0, 1e-3]}, r"tau = 0 \(the DAE itself\) and tau > 0"),
         ({"V": [1.1, np.nan]}, "V must be finite"),
         ({"tau": [[1e-3]]}, "1-D"),
         ({"grid": "cross"}, "grid must be one of"),

@@ -22,8 +22,11 @@ from .._validation import (
     check_y0,
 )
 from ..adhesion import AdhesionLaw
+from ..cycles import cycle_statistics
 from ..integrators.dense import output_times
+from ..integrators.events import FOLD_MODES, check_max_jumps
 from ..integrators.select import DEFAULT_ATOL as _ALPHA_ATOL
+from ..integrators.select import DEFAULT_MAX_JUMPS, resolve_fold
 from ..integrators.select import DEFAULT_RTOL as _ALPHA_RTOL
 from ..model import GEOMETRIES, PeelingModel
 from ..simulate import simulate, simulate_reference
@@ -37,6 +40,9 @@ _METHOD_TITLES = {"alpha": "alpha-method", "diffrax": "diffrax Kvaerno5 referenc
 _PLOT_METHODS = {"alpha": "α-method", "diffrax": "diffrax Kvaerno5 reference"}
 _DEFAULT_RTOL, _DEFAULT_ATOL = 1e-8, 1e-10  # diffrax
 _DIFFRAX_OUTPUT_DT = 1 / 82  # diffrax's output spacing when neither --dt nor --save-dt is given
+_MAX_JUMPS_LIMIT = 10_000_000  # the jump record is allocated in full (5 arrays of max_jumps)
+# The cycle statistics' text uses a few non-ASCII signs; the plain summary promises ASCII.
+_ASCII = str.maketrans({"→": "->", "—": "-", "–": "-", "≈": "~", "τ": "tau", "φ": "phi"})
 
 
 def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
@@ -44,7 +50,11 @@ def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
     physics = parser.add_argument_group("problem")
     physics.add_argument("--V", type=float, default=1.1, help="pull velocity [m/s], > 0 (default %(default)s)")
     physics.add_argument(
-        "--tau", type=float, default=0.01, help="homogenization time scale tau [s], > 0 (default %(default)s)"
+        "--tau",
+        type=float,
+        default=0.01,
+        help="homogenization time scale tau [s] in [0, 1e6]; 0: the DAE itself (v solved from G = phi(v, V), "
+        "jumping at the folds of phi; error control only) (default %(default)s)",
     )
     physics.add_argument(
         "--t-final", dest="t_final", type=float, default=3.0, help="end time [s], >= dt (default %(default)s)"
@@ -94,12 +104,43 @@ def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
         help="output at t = 0, S, 2S, ... <= t_final (and t_final) [s] (default: alpha with error control "
         "writes its accepted steps; diffrax uses --dt)",
     )
+    folds = parser.add_argument_group("folds of phi (stick-slip jumps)")
+    folds.add_argument(
+        "--fold",
+        default=None,
+        metavar="{jump,stop,follow}",
+        help="at a fold of phi: 'jump' (v jumps to the other stable branch at fixed alpha, omega, u; the run "
+        "goes on), 'stop' (the run ends there, the paper's behaviour) or 'follow' (tau > 0: jump at impasse "
+        "points only, follow singular passages); jump and follow need error control (default: jump with "
+        "error control, stop with --dt or --method diffrax)",
+    )
+    folds.add_argument(
+        "--max-jumps",
+        dest="max_jumps",
+        type=int,
+        default=DEFAULT_MAX_JUMPS,
+        metavar="N",
+        help="size of the jump record, a positive integer; one more jump stops the run (default %(default)s)",
+    )
+    folds.add_argument(
+        "--transient",
+        type=float,
+        default=None,
+        metavar="T",
+        help="cycle statistics over [T, t_stop] [s], 0 <= T < t_final: the jumps before T (the approach to "
+        "the attractor) are left out (default t_final/3)",
+    )
 
 
 def _add_output_arguments(parser: argparse.ArgumentParser) -> None:
     output = parser.add_argument_group("output")
     output.add_argument("--out", metavar="FILE.npz", help="write t, alpha, omega, u, v, F and the parameters (numpy)")
-    output.add_argument("--plot", metavar="FILE.png", help="write v(t), alpha(t), F(t) panels (format from suffix)")
+    output.add_argument(
+        "--plot",
+        metavar="FILE.png",
+        help="write v(t), alpha(t), F(t) panels, or for a run with jumps v(t), G(t) and the G-v loop over "
+        "phi(v, V) (format from suffix)",
+    )
     output.add_argument("--json", action="store_true", help="print one JSON object on stdout instead of a summary")
 
 
@@ -107,7 +148,8 @@ def add_command(subparsers) -> None:
     parser = subparsers.add_parser(
         "simulate",
         help="integrate one run",
-        description="Integrate the homogenized peeling ODE over [0, t_final] and report how it ended.",
+        description="Integrate the homogenized peeling ODE (tau > 0) or the DAE itself (tau = 0) over "
+        "[0, t_final], through the folds of phi, and report how it ended.",
     )
     _add_run_arguments(parser)
     _add_output_arguments(parser)
@@ -132,10 +174,18 @@ class RunConfig:
     y0: tuple[float, ...] | None
     phi: str | None
     save_ts: tuple[float, ...] | None = None  # output times from --save-dt
+    fold: str = "stop"  # what happens at a fold of φ (resolve_fold: jump under error control)
+    max_jumps: int = DEFAULT_MAX_JUMPS  # the jump record's size (error control)
+    transient: float = 0.0  # the cycle statistics' window starts here [s]
 
     @property
     def adaptive(self) -> bool:
         return self.method == "alpha" and self.dt is None
+
+    @property
+    def dae(self) -> bool:
+        """τ = 0: the DAE itself rather than the homogenized ODE."""
+        return self.tau == 0.0
 
 
 def validate_run(args: argparse.Namespace) -> RunConfig:
@@ -148,7 +198,7 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
     check_choice("method", args.method, METHODS)
     positive = "(0, inf)"
     checked(positive, check_positive, "V", args.V)
-    checked(f"(0, {TAU_MAX:g}]", check_tau, args.tau)
+    _check_tau(args)
     checked(positive, check_positive, "t_final", args.t_final)
     dt = args.dt
     if args.method == "diffrax" and dt is None and args.save_dt is None:
@@ -183,6 +233,7 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
     if rtol is not None:
         checked("(0, 1)", check_tolerance, "rtol", rtol, 1.0)
         checked(positive, check_tolerance, "atol", atol)
+    fold, max_jumps, transient = _check_folds(args, dt)
     checked("finite (alpha, omega, u, v) with v > 0", check_y0, args.y0)
     adhesion = AdhesionLaw() if args.phi is None else load_phi(args.phi)
     check_output_path("--out", args.out)
@@ -203,7 +254,75 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
         y0=None if args.y0 is None else tuple(args.y0),
         phi=args.phi,
         save_ts=save_ts,
+        fold=fold,
+        max_jumps=max_jumps,
+        transient=transient,
     )
+
+
+def _without_error_control(args: argparse.Namespace) -> str | None:
+    """The option that takes the run off the α-method's error control (None: it has it)."""
+    if args.method == "diffrax":
+        return "--method diffrax"
+    return None if args.dt is None else "--dt"
+
+
+def _remedy(other: str) -> str:
+    return "drop --dt" if other == "--dt" else "use --method alpha"
+
+
+def _check_tau(args: argparse.Namespace) -> None:
+    """τ ∈ [0, 1e6] under error control; τ = 0 (the DAE, with jumps) needs it, so with --dt or
+    diffrax the range is (0, 1e6]."""
+    other = _without_error_control(args)
+    if other is None:
+        checked(f"[0, {TAU_MAX:g}]", check_tau, args.tau, True)
+        return
+    if args.tau == 0:
+        what = "a uniform mesh (--dt)" if other == "--dt" else "the diffrax reference (--method diffrax)"
+        raise ValueError(
+            f"--tau 0 (the DAE itself, with jumps at the folds of phi) runs on the alpha-method with error "
+            f"control, not on {what}: {_remedy(other)}, or give tau in (0, {TAU_MAX:g}] (the homogenized ODE)"
+        )
+    checked(f"(0, {TAU_MAX:g}]", check_tau, args.tau)
+
+
+def _check_folds(args: argparse.Namespace, dt: float | None) -> tuple[str, int, float]:
+    """--fold (checked against the integrator: jump and follow need error control), --max-jumps
+    and --transient; returns the fold mode (its default when not given), max_jumps and the transient."""
+    fold = getattr(args, "fold", None)
+    if fold is not None:
+        check_choice("fold", fold, FOLD_MODES)
+    other = _without_error_control(args)
+    if fold not in (None, "stop") and other is not None:
+        raise ValueError(
+            f"--fold {fold} needs the alpha-method with error control, which cuts a step at a fold; with "
+            f"{other} a run can only stop there: give --fold stop, or {_remedy(other)}"
+        )
+    if fold == "follow" and args.tau == 0:
+        raise ValueError(
+            "--fold follow applies to tau > 0 (it follows the homogenized ODE through singular passages); "
+            "with --tau 0 give --fold jump or --fold stop"
+        )
+    # The library's own check and default; it cannot refuse what passed above.
+    if args.method == "diffrax":
+        import diffrax
+
+        fold = resolve_fold(fold, solver=diffrax.Kvaerno5(), dae=args.tau == 0)
+    else:
+        fold = resolve_fold(fold, dt=dt, dae=args.tau == 0)
+    max_jumps = getattr(args, "max_jumps", DEFAULT_MAX_JUMPS)
+    checked("integers >= 1", check_max_jumps, max_jumps)
+    if max_jumps > _MAX_JUMPS_LIMIT:
+        raise ValueError(
+            f"--max-jumps {max_jumps} allocates a record of that many jumps; the limit is {_MAX_JUMPS_LIMIT:.0e}"
+        )
+    transient = getattr(args, "transient", None)
+    if transient is None:
+        transient = args.t_final / 3.0
+    elif not (math.isfinite(transient) and 0 <= transient < args.t_final):
+        raise ValueError(f"--transient must lie in [0, t_final) = [0, {args.t_final:g}), got {transient:g}")
+    return fold, int(max_jumps), float(transient)
 
 
 # ---------------------------------------------------------------------------- running and reporting
@@ -225,6 +344,8 @@ def run(config: RunConfig) -> tuple[Solution, float]:
             rtol=config.rtol,
             atol=config.atol,
             ts=ts,
+            fold=config.fold,
+            max_jumps=config.max_jumps,
         )
         if ts is None:  # the accepted steps: only the valid rows (the rest is padding)
             solution = _valid_rows(solution)
@@ -266,6 +387,7 @@ def _rows(solution: Solution, keep: np.ndarray, jax) -> Solution:
         stats=solution.stats,
         diagnostics=jax.tree_util.tree_map(rows, solution.diagnostics),
         method=solution.method,
+        jumps=solution.jumps,
     )
 
 
@@ -307,9 +429,18 @@ def write_npz(path: str, solution: Solution, config: RunConfig) -> None:
     """The run as plain arrays and scalars (loads with ``np.load(path, allow_pickle=False)``).
 
     Arrays t, alpha, omega, u, v, F (tension) and valid share one length, NaN after a stop.
-    Scalars: status, reason, t_stop, V, tau, dt (the uniform step used; NaN with error
-    control), t_final, rho (NaN for diffrax), rtol and atol (NaN on the uniform mesh),
-    geometry, method, phi_json (the 14 coefficients, "" for a callable φ) and stats_json.
+    Scalars: status, reason, t_stop, V, tau (0: the DAE itself), dt (the uniform step used;
+    NaN with error control), t_final, rho (NaN for diffrax), rtol and atol (NaN on the uniform
+    mesh), geometry, method, phi_json (the 14 coefficients, "" for a callable φ) and stats_json.
+
+    A run with a jump record (error control: ``fold`` jump, stop or follow) also has its jumps
+    at the folds of φ, one entry per jump in time order (empty arrays when there were none):
+    jump_t [s], jump_up (True: stick → slip, v jumps up; False: slip → stick), jump_v_before
+    and jump_v_after [m/s] (v just before and just after; 0: the tape landed fully stuck) and
+    jump_G [N] (G = (1 + l·sinα/L)·F, continuous across the jump); and the scalars fold (the
+    mode), max_jumps (the record's size) and transient [s] (where the cycle statistics start:
+    ``peeljax.cycle_statistics(np.load(path), t_stop, transient=transient)``). The rows of t, …
+    hold the state just before a jump at its time, then the states after it.
     """
     ys = np.asarray(solution.ys, dtype=float)
     adhesion = config.model.adhesion
@@ -338,13 +469,24 @@ def write_npz(path: str, solution: Solution, config: RunConfig) -> None:
         "phi_json": np.asarray(phi_json, dtype=str),
         "stats_json": np.asarray(json.dumps(stats), dtype=str),
     }
+    if solution.jumps is not None:
+        jumps = solution.jumps.as_numpy()
+        arrays.update(
+            {
+                **{key: np.asarray(value, dtype=bool if key == "jump_up" else float) for key, value in jumps.items()},
+                "fold": np.asarray(config.fold, dtype=str),
+                "max_jumps": np.int64(config.max_jumps),
+                "transient": np.float64(config.transient),
+            }
+        )
     # An open file keeps the name exactly as given (np.savez would append .npz to a bare name).
     with open(path, "wb") as handle:
         np.savez(handle, **arrays)
 
 
 def _plot_title(config: RunConfig, dt: float, record: dict | None = None) -> str:
-    parts = [f"V = {config.V:g} m/s", f"τ = {config.tau:g} s", _PLOT_METHODS[config.method]]
+    tau = "τ = 0 (the DAE)" if config.dae else f"τ = {config.tau:g} s"
+    parts = [f"V = {config.V:g} m/s", tau, _PLOT_METHODS[config.method]]
     if config.adaptive:
         parts += [f"rtol = {config.rtol:g}", f"atol = {config.atol:g}", f"ρ = {config.rho:g}"]
     elif config.method == "alpha":
@@ -356,6 +498,8 @@ def _plot_title(config: RunConfig, dt: float, record: dict | None = None) -> str
     title = ", ".join(parts)
     if record is not None:  # the run's outcome, on a line of its own
         outcome = "completed" if record["status"] == "completed" else f"stopped at t = {record['t_stop']:.4g} s"
+        if record.get("jumps") is not None:
+            outcome += f", {record['jumps']} jump{'' if record['jumps'] == 1 else 's'} at the folds of φ"
         title += f"\n{outcome}"
     return title
 
@@ -374,19 +518,21 @@ def _regime_note(config: RunConfig) -> str | None:
     )
 
 
-def _print_summary(record: dict, config: RunConfig, stats: dict) -> None:
+def _print_summary(record: dict, config: RunConfig, stats: dict, cycles=None) -> None:
     """A few human-readable lines (ASCII, whatever the terminal's encoding)."""
     settings = [] if config.rho is None else [f"rho = {config.rho:g}"]
     if config.rtol is not None:
         settings.append(f"rtol = {config.rtol:g}, atol = {config.atol:g}")
     if config.adaptive:
+        settings.append(f"fold {config.fold} (max_jumps {config.max_jumps})")
         mesh = f"error control ({record['accepted_steps']} accepted, {record['rejected_steps']} rejected steps)"
     elif config.n_steps is None:
         mesh = f"output at {len(config.save_ts)} times"
     else:
         mesh = f"dt = {record['dt']:.6g} s ({config.n_steps} steps)"
+    tau = "tau = 0 (the DAE)" if config.dae else f"tau = {config.tau:g} s"
     print(
-        f"peeljax simulate: {_METHOD_TITLES[config.method]}, V = {config.V:g} m/s, tau = {config.tau:g} s, "
+        f"peeljax simulate: {_METHOD_TITLES[config.method]}, V = {config.V:g} m/s, {tau}, "
         f"{mesh}, t_final = {config.t_final:g} s, {', '.join(settings)}, geometry {config.model.geometry}"
     )
     if record["status"] == "completed":
@@ -394,6 +540,15 @@ def _print_summary(record: dict, config: RunConfig, stats: dict) -> None:
     else:
         print(f"stopped at t = {record['t_stop']:.6g} s: {record['reason']}")
     print(f"v [m/s]: final {record['v_final']:.6g}, min {record['v_min']:.6g}, max {record['v_max']:.6g}")
+    if record.get("jumps") is not None:
+        print(
+            f"jumps at the folds of phi: {record['jumps']} ({record['jumps_up']} stick -> slip, "
+            f"{record['jumps'] - record['jumps_up']} slip -> stick)"
+        )
+        if cycles is not None:
+            print(str(cycles).translate(_ASCII).encode("ascii", "replace").decode("ascii"))
+        else:
+            print(f"cycles: none counted ({record['cycles_note']})")
     if record.get("note"):
         print(f"note: {record['note']}")
     print("stats: " + ", ".join(f"{key} {value}" for key, value in stats.items()))
@@ -401,6 +556,27 @@ def _print_summary(record: dict, config: RunConfig, stats: dict) -> None:
     for key in ("out", "plot"):
         if record.get(key):
             print(f"wrote {record[key]}")
+
+
+def _cycles(solution: Solution, config: RunConfig, record: dict):
+    """With a jump record: its count (``record["jumps"]``, ``"jumps_up"``) and the cycle statistics
+    over [transient, t_stop] (``record["cycles"]``, returned too; None with a note when the run
+    stopped before the transient was over)."""
+    if solution.jumps is None:
+        return None
+    jumps = solution.jumps.as_numpy()
+    record["jumps"] = int(jumps["jump_t"].size)
+    record["jumps_up"] = int(np.count_nonzero(jumps["jump_up"]))
+    t_stop = float(solution.t_stop)
+    if not config.transient < t_stop:
+        record["cycles"] = None
+        record["cycles_note"] = (
+            f"the run stopped at t = {t_stop:.6g} s, before the transient ended (--transient {config.transient:g} s)"
+        )
+        return None
+    cycles = cycle_statistics(jumps, t_stop, transient=config.transient)
+    record["cycles"] = cycles.as_dict()
+    return cycles
 
 
 def _simulate_command(args: argparse.Namespace) -> int:
@@ -438,6 +614,9 @@ def _simulate_command(args: argparse.Namespace) -> int:
         "atol": config.atol,
         "y0": None if config.y0 is None else list(config.y0),
         "phi": config.phi,
+        "fold": config.fold,
+        "max_jumps": config.max_jumps if config.adaptive else None,
+        "transient": config.transient,
         "stats": stats,
         "wall_time_s": wall,
         "out": args.out,
@@ -446,6 +625,7 @@ def _simulate_command(args: argparse.Namespace) -> int:
     note = _regime_note(config)
     if note:
         record["note"] = note
+    cycles = _cycles(solution, config, record)
     failed = []  # (option, path, error): the run is reported whatever could not be written
     if args.out is not None:
         try:
@@ -454,17 +634,22 @@ def _simulate_command(args: argparse.Namespace) -> int:
             failed.append(("--out", args.out, error))
             record["out"] = None
     if args.plot is not None:
-        from ..plots import plot_run  # matplotlib only when a plot is asked for
+        from ..plots import plot_run, plot_stick_slip  # matplotlib only when a plot is asked for
 
+        title = _plot_title(config, dt, record)
         try:
-            plot_run(solution, config.model, V=config.V, title=_plot_title(config, dt, record), path=args.plot)
+            if record.get("jumps"):  # the stick-slip figure: v(t) and G(t) with the jumps, the G-v loop
+                settled = config.transient if config.transient < record["t_stop"] else None
+                plot_stick_slip(solution, config.model, config.V, title=title, path=args.plot, transient=settled)
+            else:
+                plot_run(solution, config.model, V=config.V, title=title, path=args.plot)
         except OSError as error:
             failed.append(("--plot", args.plot, error))
             record["plot"] = None
     if args.json:
         print(json.dumps(json_safe(record), allow_nan=False))
     else:
-        _print_summary(record, config, stats)
+        _print_summary(record, config, stats, cycles)
     for option, path, error in failed:
         write_failed(option, path, error, "the run's summary is above")
     return 1 if failed else 0

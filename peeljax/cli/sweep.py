@@ -12,11 +12,14 @@ import numpy as np
 
 from .._validation import check_choice, check_mesh, check_positive, check_rho, check_tolerance
 from ..adhesion import AdhesionLaw
-from ..integrators.select import DEFAULT_ATOL, DEFAULT_RTOL
+from ..integrators.events import FOLD_MODES
+from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_RTOL
 from ..model import GEOMETRIES, PeelingModel
+from ..sweeps.engine import STARTS
+from ..sweeps.integrators import DEFAULT_SWEEP_MAX_JUMPS
 from ._common import PROG, check_output_path, checked, fail, json_safe, load_phi, plot_formats, write_failed
 
-__all__ = ["add_command", "engine_text", "tau_grid", "validate_sweep", "validate_tau_star"]
+__all__ = ["add_command", "engine_text", "tau_grid", "validate_map", "validate_sweep", "validate_tau_star"]
 
 
 # ---------------------------------------------------------------------------- parsers
@@ -81,17 +84,56 @@ def add_command(subparsers) -> None:
         help="uniform mesh only (with --dt): also save the states every N steps",
     )
     parser.add_argument(
-        "--tau", type=float, nargs="+", default=[1e-3, 1e-1],
-        help="tau values [s], > 0; with --n-tau, two numbers LO HI give a log-spaced grid",
+        "--tau", type=float, nargs="+", default=None,
+        help="tau values [s]: all > 0 (the homogenized ODE) or 0 (the DAE itself, jumping at the folds of phi; "
+        "error control only); with --n-tau, two numbers LO HI give a log-spaced grid (default 1e-3 1e-1; "
+        "with --stick-slip-map 0)",
     )  # fmt: skip
     parser.add_argument(
         "--n-tau", dest="n_tau", type=int, default=None, help="points of the log-spaced tau grid (>= 2)"
     )
-    parser.add_argument("--window", type=float, nargs=2, default=[0.5, 1.0], metavar=("W0", "W1"),
+    parser.add_argument("--window", type=float, nargs=2, default=None, metavar=("W0", "W1"),
                         help="window of the v statistics, fractions of t_final (default 0.5 1)")  # fmt: skip
     parser.add_argument("--chunk", type=int, default=256, help="trajectories per compiled batch (default 256)")
-    parser.add_argument("--out", metavar="FILE.npz", help="results (numpy); chunks in FILE.npz.chunks/, resumable")
-    parser.add_argument("--plot", metavar="FILE.png", help="the stick-slip map over (V, tau)")
+    folds = parser.add_argument_group("folds of phi (stick-slip jumps; error control only)")
+    folds.add_argument(
+        "--fold", default=None, metavar="{jump,stop,follow}",
+        help="at a fold of phi: 'jump' (v jumps to the other stable branch; the run goes on), 'stop' (the run "
+        "ends there) or 'follow' (tau > 0: jump at impasse points only); jump and follow need error control "
+        "(default: jump with error control, stop with --dt)",
+    )  # fmt: skip
+    folds.add_argument(
+        "--max-jumps", dest="max_jumps", type=int, default=None, metavar="N",
+        help=f"slots of each trajectory's jump record, a positive integer; one more jump stops the run (default "
+        f"{DEFAULT_SWEEP_MAX_JUMPS})",
+    )  # fmt: skip
+    folds.add_argument(
+        "--max-steps", dest="max_steps", type=int, default=None, metavar="N",
+        help=f"error control's step attempts per trajectory (default {DEFAULT_MAX_STEPS}); stick-slip takes "
+        "about 50-100 steps a jump",
+    )  # fmt: skip
+    folds.add_argument(
+        "--start", default=None, metavar="{paper,steady}",
+        help="each trajectory's initial state: 'paper' (the tape at rest) or 'steady' (steady peeling, v = V) "
+        "(default paper; with --stick-slip-map both, one after the other)",
+    )  # fmt: skip
+    ssm = parser.add_argument_group("the stick-slip map over V")
+    ssm.add_argument(
+        "--stick-slip-map", dest="stick_slip_map", action="store_true",
+        help="instead of the (V, tau) sweep: at one --tau (default 0, the DAE), one sweep over --V per start "
+        "(both unless --start), each run's jumps after --transient reduced to its cycle statistics; --out "
+        "writes the map's arrays (.npz), --plot its figure against V (forces at the jumps over phi's folds, "
+        "repeat period, v amplitude)",
+    )  # fmt: skip
+    ssm.add_argument(
+        "--transient", type=float, default=None, metavar="T",
+        help="with --stick-slip-map: the statistics cover [T, t_stop] [s], 0 <= T < t_final (default t_final/2)",
+    )  # fmt: skip
+    parser.add_argument("--out", metavar="FILE.npz",
+                        help="results (numpy, with each trajectory's jump record); chunks in FILE.npz.chunks/, "
+                        "resumable; with --stick-slip-map the map's arrays")  # fmt: skip
+    parser.add_argument("--plot", metavar="FILE.png",
+                        help="the stick-slip map over (V, tau) (tau > 0); with --stick-slip-map the map against V")  # fmt: skip
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     parser.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     parser.set_defaults(handler=_sweep_command)
@@ -131,7 +173,16 @@ def _positive_list(option: str, values: list[float]) -> list[float]:
 
 
 def tau_grid(tau: list[float], n_tau: int | None) -> list[float]:
-    """--tau values as given, or with --n-tau a log-spaced grid between two values."""
+    """--tau values as given (all > 0, or all 0: the DAE), or with --n-tau a log-spaced grid between two values."""
+    if tau and all(value == 0 for value in tau):
+        if n_tau is not None:
+            raise ValueError("--n-tau spaces tau logarithmically between LO > 0 and HI; --tau 0 is the DAE itself")
+        return [0.0]
+    if tau and any(value == 0 for value in tau):
+        raise ValueError(
+            f"--tau must be finite and > 0 (the homogenized ODE), or 0 alone (the DAE itself); got {tau}: "
+            "the two are different problems, sweep them separately"
+        )
     tau = _positive_list("--tau", tau)
     if n_tau is None:
         return tau
@@ -222,29 +273,120 @@ def _model(args) -> PeelingModel:
     return PeelingModel(adhesion=adhesion, geometry=args.geometry)
 
 
-def validate_sweep(args: argparse.Namespace) -> dict:
-    """Every option checked, nothing compiled; returns the keyword arguments of :func:`peeljax.sweep`."""
-    V = _positive_list("--V", args.V)
-    tau = tau_grid(args.tau, args.n_tau)
-    options = _integrator(args)
-    model = _model(args)
-    w0, w1 = args.window
-    if not (math.isfinite(w0) and math.isfinite(w1) and 0 <= w0 <= w1 <= 1):
-        raise ValueError(f"--window W0 W1 must satisfy 0 <= W0 <= W1 <= 1, got {w0:g} {w1:g}")
-    if options["dt"] is None and w0 == w1:
+_MAX_JUMPS_LIMIT = 10_000_000  # each trajectory's record is allocated in full (5 arrays of max_jumps)
+
+
+def _check_folds(args: argparse.Namespace, tau: list[float], dt: float | None) -> dict:
+    """--fold, --max-jumps, --max-steps and --start, checked against --tau and the integrator.
+
+    Returns the keyword arguments of :func:`peeljax.sweep` they set (fold None: its default).
+    """
+    dae = tau == [0.0]
+    fold = args.fold
+    if fold is not None:
+        check_choice("--fold", fold, FOLD_MODES)
+    if dt is not None:
+        if dae:
+            raise ValueError(
+                "--tau 0 (the DAE itself, with jumps at the folds of phi) runs on the alpha-method with error "
+                "control, not on a uniform mesh (--dt): drop --dt, or give tau > 0 (the homogenized ODE)"
+            )
+        if fold not in (None, "stop"):
+            raise ValueError(
+                f"--fold {fold} needs the alpha-method with error control, which cuts a step at a fold; on a "
+                "uniform mesh (--dt) a run can only stop there: give --fold stop, or drop --dt"
+            )
+        for option, value in (("--max-jumps", args.max_jumps), ("--max-steps", args.max_steps)):
+            if value is not None:
+                raise ValueError(
+                    f"{option} applies to error control; --dt asks for a uniform mesh: give one or the other"
+                )
+    if fold == "follow" and dae:
         raise ValueError(
-            f"--window W0 W1 needs W0 < W1 with error control (its statistics are time integrals), got {w0:g} {w1:g}"
+            "--fold follow applies to tau > 0 (it follows the homogenized ODE through singular passages); "
+            "with --tau 0 give --fold jump or --fold stop"
         )
+    if args.max_jumps is not None and not 1 <= args.max_jumps <= _MAX_JUMPS_LIMIT:
+        raise ValueError(
+            f"--max-jumps must be a positive integer of at most {_MAX_JUMPS_LIMIT:.0e} (the record of every "
+            f"trajectory is allocated in full), got {args.max_jumps}"
+        )
+    if args.max_steps is not None and args.max_steps < 1:
+        raise ValueError(f"--max-steps must be a positive integer (allowed range: [1, inf)), got {args.max_steps}")
+    if args.start is not None:
+        check_choice("--start", args.start, STARTS)
+    options = {"fold": fold, "max_jumps": args.max_jumps}
+    if dt is None:
+        options["max_steps"] = DEFAULT_MAX_STEPS if args.max_steps is None else int(args.max_steps)
+    return options
+
+
+def _check_outputs(args: argparse.Namespace) -> None:
     if args.chunk < 1:
         raise ValueError(f"--chunk must be a positive integer (allowed range: [1, inf)), got {args.chunk}")
     if args.out is not None:
         check_output_path("--out", args.out)
     if args.plot is not None:
         check_output_path("--plot", args.plot, plot_formats())
+
+
+def validate_sweep(args: argparse.Namespace) -> dict:
+    """Every option checked, nothing compiled; returns the keyword arguments of :func:`peeljax.sweep`."""
+    V = _positive_list("--V", args.V)
+    tau = tau_grid([1e-3, 1e-1] if args.tau is None else args.tau, args.n_tau)
+    options = _integrator(args)
+    folds = _check_folds(args, tau, options["dt"])
+    model = _model(args)
+    w0, w1 = (0.5, 1.0) if args.window is None else args.window
+    if not (math.isfinite(w0) and math.isfinite(w1) and 0 <= w0 <= w1 <= 1):
+        raise ValueError(f"--window W0 W1 must satisfy 0 <= W0 <= W1 <= 1, got {w0:g} {w1:g}")
+    if options["dt"] is None and w0 == w1:
+        raise ValueError(
+            f"--window W0 W1 needs W0 < W1 with error control (its statistics are time integrals), got {w0:g} {w1:g}"
+        )
+    if args.transient is not None:
+        raise ValueError("--transient sets where the stick-slip map's statistics start: it needs --stick-slip-map")
+    if args.plot is not None and tau == [0.0]:
+        raise ValueError(
+            "--plot draws the (V, tau) map, whose tau axis is logarithmic: with --tau 0 (the DAE) add "
+            "--stick-slip-map for the map against V"
+        )
+    _check_outputs(args)
     return {
-        "model": model, "V": V, "tau": tau, **options, "t_final": float(args.t_final), "grid": "outer",
+        "model": model, "V": V, "tau": tau, **options, **folds, "t_final": float(args.t_final), "grid": "outer",
         "window": (w0, w1), "chunk": args.chunk, "out": args.out, "rho": float(args.rho),
-        "progress": args.progress and not args.json,
+        "start": "paper" if args.start is None else args.start, "progress": args.progress and not args.json,
+    }  # fmt: skip
+
+
+def validate_map(args: argparse.Namespace) -> dict:
+    """``--stick-slip-map``: every option checked, nothing compiled; returns the keyword arguments
+    of :func:`peeljax.sweeps.stick_slip_map`."""
+    V = _positive_list("--V", args.V)
+    if args.n_tau is not None:
+        raise ValueError("--n-tau makes a grid of tau; --stick-slip-map runs over V at one --tau")
+    tau = tau_grid([0.0] if args.tau is None else args.tau, None)
+    if len(tau) != 1:
+        raise ValueError(f"--stick-slip-map runs over V at one --tau (0: the DAE itself), got {len(tau)} values")
+    for option, value in (("--dt", args.dt), ("--save-dt", args.save_dt), ("--save-every", args.save_every)):
+        if value is not None:
+            what = "a uniform mesh, which keeps no jumps" if option != "--save-dt" else "saved states"
+            raise ValueError(f"{option} asks for {what}; --stick-slip-map reads the jumps of error-controlled runs")
+    if args.window is not None:
+        raise ValueError("--window: the stick-slip map's statistics cover [--transient, t_final]; give --transient")
+    options = _integrator(args)
+    folds = _check_folds(args, tau, None)
+    if folds["fold"] == "stop":
+        raise ValueError("--fold stop ends every run at its first fold: --stick-slip-map needs --fold jump (or follow)")
+    model = _model(args)
+    transient = args.t_final / 2 if args.transient is None else args.transient
+    if not (math.isfinite(transient) and 0 <= transient < args.t_final):
+        raise ValueError(f"--transient must lie in [0, t_final) = [0, {args.t_final:g}), got {transient:g}")
+    _check_outputs(args)
+    return {
+        "model": model, "V": V, "tau": tau[0], "t_final": float(args.t_final), "transient": float(transient),
+        "starts": STARTS if args.start is None else (args.start,), "rtol": options["rtol"], "atol": options["atol"],
+        **folds, "chunk": args.chunk, "rho": float(args.rho), "progress": args.progress and not args.json,
     }  # fmt: skip
 
 
@@ -280,7 +422,34 @@ def _run_tau_star(kwargs: dict):
     return least_tau(**kwargs)
 
 
+def _run_map(kwargs: dict):
+    from ..sweeps import stick_slip_map
+
+    return stick_slip_map(**kwargs)
+
+
+_JUMP_RECORD_KEYS = ("jump_t", "jump_up", "jump_v_before", "jump_v_after", "jump_G")
+
+
+def _jump_record(jumps: dict | None) -> dict | None:
+    """Each trajectory's recorded jumps for the JSON output: jump_count, then one list per
+    trajectory (its recorded jumps only, in time order) of each of jump_t, … jump_G."""
+    if jumps is None:
+        return None
+    counts = np.asarray(jumps["jump_count"]).astype(int)
+    record = {"jump_count": counts.tolist()}
+    for key in _JUMP_RECORD_KEYS:
+        values = np.asarray(jumps[key])
+        record[key] = [
+            (values[i, :n].astype(bool) if key == "jump_up" else values[i, :n].astype(float)).tolist()
+            for i, n in enumerate(counts)
+        ]
+    return record
+
+
 def _sweep_command(args: argparse.Namespace) -> int:
+    if args.stick_slip_map:
+        return _map_command(args)
     try:
         kwargs = validate_sweep(args)
     except (ValueError, TypeError) as error:
@@ -316,11 +485,15 @@ def _sweep_command(args: argparse.Namespace) -> int:
         "save_every": kwargs["save_every"],
         "t_final": kwargs["t_final"],
         "window": list(kwargs["window"]),
+        "fold": result.settings.get("fold"),
+        "max_jumps": result.settings.get("max_jumps"),
+        "start": kwargs["start"],
         "wall_time_s": wall,
         "computed_chunks": list(result.computed_chunks),
         "out": args.out,
         "plot": args.plot,
         "trajectories": {key: np.asarray(getattr(result, key)).tolist() for key in _TRAJECTORY_KEYS},
+        "jumps": _jump_record(result.jumps),
     }
     if args.json:
         print(json.dumps(json_safe(record), allow_nan=False))
@@ -335,18 +508,99 @@ def _print_sweep(record: dict, result, kwargs: dict, wall: float) -> None:
     print(f"{PROG} sweep: {record['n']} trajectories, {record['n_completed']} completed t = {kwargs['t_final']:g} s, "
           f"wall time {wall:.3g} s")  # fmt: skip
     w0, w1 = kwargs["window"]
-    print(f"{engine_text(kwargs)}; v statistics over t in [{w0 * kwargs['t_final']:g}, {w1 * kwargs['t_final']:g}] s")
+    jumps = None if result.jumps is None else np.asarray(result.jumps["jump_count"])
+    folds = (
+        "" if jumps is None else f"; start {record['start']}, fold {record['fold']} (max_jumps {record['max_jumps']})"
+    )
+    print(f"{engine_text(kwargs)}; v statistics over t in [{w0 * kwargs['t_final']:g}, {w1 * kwargs['t_final']:g}] s"
+          f"{folds}")  # fmt: skip
     print(f"{'V':>8} {'tau':>10} {'status':>14} {'t_stop':>8} {'v_mean':>10} {'v_std':>10} {'events':>6} "
-          f"{'steps':>8} {'rejected':>8}")  # fmt: skip
+          f"{'steps':>8} {'rejected':>8}{'' if jumps is None else f' {chr(32) * 2}jumps'}")  # fmt: skip
     for i in range(len(result)):
         print(
             f"{result.V[i]:8.4g} {result.tau[i]:10.4g} {result.reasons[i]:>14} {result.t_stop[i]:8.4g} "
             f"{result.v_mean[i]:10.4g} {result.v_std[i]:10.4g} {result.events[i]:6d} "
             f"{result.accepted_steps[i]:8d} {result.rejected_steps[i]:8d}"
+            + ("" if jumps is None else f" {jumps[i]:7d}")
         )
     for key in ("out", "plot"):
         if record[key]:
             print(f"wrote {record[key]}")
+
+
+def _map_record(smap, kwargs: dict, args: argparse.Namespace, wall: float) -> dict:
+    """The map as one JSON object: settings, the ranges, and every per-lane field (rows: starts)."""
+    from ..sweeps.stick_slip_map import FOLD_FIELDS, LANE_FIELDS
+
+    return {
+        "V": smap.V.tolist(),
+        "starts": list(smap.starts),
+        "tau": smap.tau,
+        "t_final": smap.t_final,
+        "transient": smap.transient,
+        "method": "alpha-adaptive",
+        "rtol": kwargs["rtol"],
+        "atol": kwargs["atol"],
+        "rho": kwargs["rho"],
+        "fold": smap.settings.get("sweep", {}).get("fold"),
+        "max_jumps": smap.settings.get("sweep", {}).get("max_jumps"),
+        "max_steps": kwargs["max_steps"],
+        "wall_time_s": wall,
+        "out": args.out,
+        "plot": args.plot,
+        "stick_slip_ranges": {start: [list(r) for r in smap.stick_slip_ranges(start)] for start in smap.starts},
+        "no_fold_ranges": [list(r) for r in smap.no_fold_ranges()],
+        "lanes": {name: np.asarray(getattr(smap, name)).tolist() for name in (*LANE_FIELDS, "stick_slip")},
+        "folds": {name: np.asarray(getattr(smap, name)).tolist() for name in FOLD_FIELDS},
+    }
+
+
+def _map_command(args: argparse.Namespace) -> int:
+    try:
+        kwargs = validate_map(args)
+    except (ValueError, TypeError) as error:
+        return fail(error)
+    tau = "tau = 0 (the DAE)" if kwargs["tau"] == 0 else f"tau = {kwargs['tau']:g} s"
+    print(f"{PROG}: stick-slip map over {len(kwargs['V'])} values of V, {tau}, start {' and '.join(kwargs['starts'])} "
+          f"({len(kwargs['V']) * len(kwargs['starts'])} runs), {engine_text({**kwargs, 'dt': None})} "
+          "(compiling first: a few seconds) ...", file=sys.stderr)  # fmt: skip
+    start = time.perf_counter()
+    try:
+        smap = _run_map(kwargs)
+    except ValueError as error:
+        return fail(error)
+    wall = time.perf_counter() - start
+    failed = None
+    if args.out is not None:
+        try:
+            smap.save(args.out)
+        except OSError as error:
+            failed = ("--out", args.out, error)
+            args.out = None
+    if args.plot is not None and failed is None:
+        from ..stick_slip_plots import plot_stick_slip_map
+
+        try:
+            plot_stick_slip_map(smap, path=args.plot)
+        except OSError as error:
+            failed = ("--plot", args.plot, error)
+            args.plot = None
+    record = _map_record(smap, kwargs, args, wall)
+    if args.json:
+        print(json.dumps(json_safe(record), allow_nan=False))
+    else:
+        print(str(smap).translate(_ASCII))
+        print(f"{engine_text({**kwargs, 'dt': None})}, max_steps {kwargs['max_steps']}; wall time {wall:.3g} s")
+        for key in ("out", "plot"):
+            if record[key]:
+                print(f"wrote {record[key]}")
+    if failed is not None:
+        return write_failed(*failed, "the map is above")
+    return 0
+
+
+# The map's summary uses a few non-ASCII signs; the plain output promises ASCII.
+_ASCII = str.maketrans({"→": "->", "—": "-", "–": "-", "τ": "tau", "φ": "phi", "≥": ">="})
 
 
 def _tau_star_command(args: argparse.Namespace) -> int:

@@ -47,11 +47,12 @@ from jaxtyping import Array, ArrayLike, Float
 from .._arrays import optional_float_array
 from .._validation import check_adjoint, check_max_steps
 from ..homogenized import ODE
-from ..solution import Solution, StepDiagnostics, StopReason
+from ..solution import JumpRecord, Solution, StepDiagnostics, StopReason
 from ..structure import local_index
 from .alpha import AlphaMethod, AlphaState, _log_mask, _stop_gradient, alpha_start, to_physical
 from .base import AbstractIntegrator, ObservedRun
 from .controller import PIController
+from .events import FoldEvents, FoldHit, find_fold, fold_event
 from .observers import AcceptedStep, DenseOutput, Observer, StepPoints
 
 __all__ = [
@@ -114,6 +115,8 @@ class _Carry(eqx.Module):
     parts_age: Array  # accepted steps since they were computed
     jacobian_evaluations: Array
     record: object  # the observer's
+    g: Array  # the fold event at the state (0 without events)
+    jumps: JumpRecord | None  # None without events
 
 
 def _initial_step(controller: PIController, state: AlphaState, log_mask, span):
@@ -123,6 +126,50 @@ def _initial_step(controller: PIController, state: AlphaState, log_mask, span):
     h1 = jnp.where(d1 > 0, 0.01 / jnp.where(d1 > 0, d1, 1.0), span)
     h2 = jnp.where(d2 > 0, 0.01 / jnp.sqrt(jnp.where(d2 > 0, d2, 1.0)), span)
     return jnp.minimum(jnp.minimum(h1, h2), span)
+
+
+def _at_fold(events: FoldEvents, ode, solver: AlphaMethod, fold: FoldHit, new: AlphaState, t_new, g_new, jumps):
+    """The step's outcome at a fold: the state to go on from, its time and event value, the
+    jump record, a stop status (0, ``FOLD`` or ``MAX_JUMPS``) and the cut step's end
+    (y, ψ, J) for the observer. Without a fold hit, the step as it was."""
+
+    def at_fold():
+        event = ode.evaluate(fold.y)
+        end = (fold.y, event.psi, event.J)
+        if events.mode == "stop":
+            stopped = eqx.tree_at(lambda s: (s.y, s.psi, s.J, s.drive), new, (fold.y, event.psi, event.J, event.drive))
+            return stopped, fold_event(ode, fold.y), jumps, jnp.asarray(StopReason.FOLD, jnp.int32), end
+        full = jumps.count >= events.max_jumps
+        jump = ode.jump(fold.y)
+        y = jnp.where(full, fold.y, jump.y)
+        after = ode.evaluate(y)
+        # a restarts as dψ/dt at the new state; held fixed in derivatives (as the jump time is),
+        # which spares a reverse pass the second derivatives of ψ.
+        a = solver.initial_acceleration(*jax.lax.stop_gradient((ode, y, after.psi)))
+        restarted = AlphaState(
+            y=y, psi=after.psi, a=jnp.where(jnp.isfinite(a), a, 0.0), J=after.J, drive=after.drive, status=new.status
+        )
+        # The record is an output, not differentiated (see the events module): nothing of it is
+        # carried through a reverse pass.
+        record = jumps.record(~full, *jax.lax.stop_gradient((fold.t, jump.up, jump.v_before, jump.v_after, jump.G)))
+        status = jnp.where(full, StopReason.MAX_JUMPS, 0).astype(jnp.int32)
+        return restarted, fold_event(ode, y), record, status, end
+
+    def no_fold():
+        return new, g_new, jumps, jnp.asarray(0, jnp.int32), (new.y, new.psi, new.J)
+
+    state, g, record, status, end = jax.lax.cond(fold.hit, at_fold, no_fold)
+    return state, jnp.where(fold.hit, fold.t, t_new), g, record, status, end
+
+
+def _events_for(events: FoldEvents | None, ode) -> FoldEvents | None:
+    """None where nothing is to be located: an ODE without folds (no ``fold_event``), or
+    ``fold="stop"`` on an ODE whose own stop test is the paper's (``stops_at_impasse``)."""
+    if events is None or not hasattr(ode, "fold_event"):
+        return None
+    if events.mode == "stop" and getattr(ode, "stops_at_impasse", False):
+        return None
+    return events
 
 
 def adaptive_loop(
@@ -138,16 +185,22 @@ def adaptive_loop(
     dtmin: ArrayLike | None,
     max_steps: int,
     kind: Literal["checkpointed", "lax"],
+    events: FoldEvents | None = None,
 ):
     """The error-controlled loop itself; returns (the ODE in carried coordinates, final carry).
 
     Shared by :func:`integrate_alpha_adaptive` (one trajectory's output) and the sweep engine
     (per-lane summaries), so that a lane of a sweep takes exactly the steps of a single run.
+    ``events``: what to do at the folds of φ (:mod:`peeljax.integrators.events`; the ODE must
+    then be a :class:`~peeljax.homogenized.FoldingODE`); None: the paper's stops (an impasse).
     """
     t0 = jnp.asarray(t0, float)
     t_final = jnp.asarray(t_final, float)
     span = t_final - t0
     dtmin = 1e-12 * span if dtmin is None else jnp.asarray(dtmin, float)
+    events = _events_for(events, ode)
+    if events is not None:
+        ode = ode.with_folds()
     ode, state0 = alpha_start(ode, solver, jnp.asarray(y0, float))
     n = state0.y.shape[0]
     log_mask = _log_mask(n, solver.carried_log)
@@ -172,6 +225,8 @@ def adaptive_loop(
         parts_age=zero,
         jacobian_evaluations=zero,
         record=observer.init(t0, state0.y, state0.J, state0.status == 0),
+        g=jnp.zeros(()) if events is None else fold_event(ode, state0.y),
+        jumps=None if events is None else JumpRecord.empty(events.max_jumps),
     )
 
     def running(c: _Carry):
@@ -194,21 +249,38 @@ def adaptive_loop(
         # A Newton failure with a kept matrix is retried at the same h with a fresh one.
         retry_fresh = ~solved & ~fresh
         accept = solved & (norm <= 1.0)
-        impasse = accept & (state.J * new.J < 0) & (state.drive * new.drive > 0)
-        advance = accept & ~impasse
         t_new = jnp.where(last, t_final, c.t + h)  # exactly t_final at the end
-        step = AcceptedStep(
-            t0=c.t, t1=t_new, h=h, y0=state.y, psi0=state.psi, y1=new.y, psi1=new.psi, J1=new.J,
-            iterations=iterations, advance=advance,
-        )  # fmt: skip
-        record = observer.update(c.record, step, kind)
-
         factor = controller.factor(norm, c.prev_norm, accept, solved | retry_fresh)
         factor = jnp.where(retry_fresh, 1.0, factor)
         h_next = jax.lax.stop_gradient(jnp.minimum(h * factor, span))
+        if events is None:
+            impasse = accept & (state.J * new.J < 0) & (state.drive * new.drive > 0)
+            fold_status, g, jumps, restarted = 0, c.g, None, jnp.asarray(False)
+            step_end = (new.y, new.psi, new.J)
+        else:
+            impasse = jnp.asarray(False)
+            new = eqx.tree_at(lambda s: s.y, new, jnp.where(accept, ode.complete(new.y), new.y))
+            g_new = jax.lax.stop_gradient(new.J) if getattr(ode, "fold_event_is_schur", False) else fold_event(ode, new.y)
+            fold = find_fold(events, ode, c.t, h, state, new, accept, c.g, g_new)
+            new, t_new, g, jumps, fold_status, step_end = _at_fold(
+                events, ode, solver, fold, new, t_new, g_new, c.jumps
+            )
+            restarted = fold.hit & (fold_status == 0)
+            # After a jump the motion changes scale: restart the step size as at t0.
+            h_restart = jnp.clip(_initial_step(controller, new, log_mask, span), dtmin, span)
+            h_next = jax.lax.stop_gradient(jnp.where(restarted, h_restart, h_next))
+            last = last & ~fold.hit
+        advance = accept & ~impasse
+        step = AcceptedStep(
+            t0=c.t, t1=t_new, h=t_new - c.t, y0=state.y, psi0=state.psi,
+            y1=step_end[0], psi1=step_end[1], J1=step_end[2], iterations=iterations, advance=advance,
+        )  # fmt: skip
+        record = observer.update(c.record, step, kind)
+
         done = advance & last
-        collapsed = ~done & ~impasse & (h_next < dtmin)
+        collapsed = ~done & ~impasse & (h_next < dtmin) & (fold_status == 0)
         status = jnp.where(impasse, StopReason.IMPASSE, jnp.where(collapsed, StopReason.STALLED, 0))
+        status = jnp.where(accept & (fold_status != 0), fold_status, status)
         attempts = c.attempts + 1
         status = jnp.where((status == 0) & ~done & (attempts >= max_steps), StopReason.MAX_STEPS, status)
         kept = jax.tree_util.tree_map(lambda a, b: jnp.where(advance, a, b), new, state)
@@ -218,7 +290,7 @@ def adaptive_loop(
             t=jnp.where(advance, t_new, c.t),
             h=h_next,
             state=kept,
-            prev_norm=jnp.where(accept, jnp.maximum(norm, 1e-10), c.prev_norm),
+            prev_norm=jnp.where(restarted, 1.0, jnp.where(accept, jnp.maximum(norm, 1e-10), c.prev_norm)),
             attempts=attempts,
             accepted=c.accepted + advance,
             rejected=c.rejected + ~accept,
@@ -228,13 +300,16 @@ def adaptive_loop(
             h_max=jnp.where(advance, jnp.maximum(c.h_max, h_taken), c.h_max),
             parts=parts,
             parts_fresh=fresh & ~advance,
-            refresh=retry_fresh | (advance & (age + 1 >= solver.jacobian_max_age)),
+            refresh=retry_fresh | restarted | (advance & (age + 1 >= solver.jacobian_max_age)),
             parts_age=age + advance,
             jacobian_evaluations=c.jacobian_evaluations + c.refresh,
             record=record,
+            g=jnp.where(advance, g, c.g),
+            jumps=jumps,
         )
 
-    return ode, eqxi.while_loop(running, body, init, max_steps=max_steps, kind=kind)
+    buffers = None if events is None else (lambda c: c.jumps.buffers())
+    return ode, eqxi.while_loop(running, body, init, max_steps=max_steps, kind=kind, buffers=buffers)
 
 
 def integrate_alpha_adaptive(
@@ -250,6 +325,7 @@ def integrate_alpha_adaptive(
     dtmin: ArrayLike | None = None,
     max_steps: int = 100_000,
     adjoint: Literal["reverse", "forward"] = "reverse",
+    events: FoldEvents | None = None,
 ) -> Solution:
     """Integrate y' = ψ(y) from t0 to t_final with the error-controlled α-method.
 
@@ -266,6 +342,9 @@ def integrate_alpha_adaptive(
             1e-12·(t_final − t0)).
         max_steps: most step attempts, accepted or rejected (static).
         adjoint: "reverse" (checkpointed while loop: ``jax.grad``) or "forward" (``jax.jvp``).
+        events: what happens at the folds of φ (:class:`~peeljax.integrators.events.FoldEvents`:
+            jump, stop or follow; the ODE must be a :class:`~peeljax.homogenized.FoldingODE`);
+            None: the paper's stop at an impasse point.
 
     Returns:
         A :class:`Solution`; ``stats`` holds ``accepted_steps``, ``rejected_steps``,
@@ -278,15 +357,20 @@ def integrate_alpha_adaptive(
     ode, final = adaptive_loop(
         ode, solver, y0, t0, t_final, observer,
         controller=controller, dt0=dt0, dtmin=dtmin, max_steps=max_steps,
-        kind="checkpointed" if adjoint == "reverse" else "lax",
+        kind="checkpointed" if adjoint == "reverse" else "lax", events=events,
     )  # fmt: skip
-    return _solution(ode, solver, final, step_points, jnp.asarray(t0, float))
+    return _solution(ode, solver, final, step_points, jnp.asarray(t0, float), final.jumps is not None)
 
 
-def _solution(ode, solver, final: _Carry, step_points: bool, t0) -> Solution:
+def _solution(ode, solver, final: _Carry, step_points: bool, t0, folding: bool = False) -> Solution:
     out = final.record
     valid = out.valid
-    ys_carried = jnp.where(valid[:, None], out.y, jnp.nan)
+    ys_carried = out.y
+    if folding:
+        # An interpolated state's algebraic part (the DAE's v) is solved anew at that state.
+        safe = jnp.where(valid[:, None], ys_carried, final.state.y)
+        ys_carried = jax.vmap(ode.complete)(safe)
+    ys_carried = jnp.where(valid[:, None], ys_carried, jnp.nan)
     ys = to_physical(solver, ys_carried)
     if step_points:
         Js = out.J
@@ -315,6 +399,8 @@ def _solution(ode, solver, final: _Carry, step_points: bool, t0) -> Solution:
         "max_newton_iterations": final.max_newton_iterations,
         "jacobian_evaluations": final.jacobian_evaluations,
     }
+    if final.jumps is not None:
+        stats["jumps"] = final.jumps.count
     return Solution(
         ts=out.t,
         ys=ys,
@@ -324,6 +410,7 @@ def _solution(ode, solver, final: _Carry, step_points: bool, t0) -> Solution:
         stats=stats,
         diagnostics=diagnostics,
         method="alpha-adaptive",
+        jumps=final.jumps,
     )
 
 
@@ -349,6 +436,7 @@ class ErrorControl(AbstractIntegrator):
     dtmin: Float[Array, ""] | None = eqx.field(converter=optional_float_array, default=None)
     max_steps: int = eqx.field(static=True, default=100_000)
     adjoint: str = eqx.field(static=True, default="reverse")
+    events: FoldEvents | None = None
 
     def __check_init__(self):
         check_adjoint(self.adjoint)
@@ -361,13 +449,14 @@ class ErrorControl(AbstractIntegrator):
     def integrate(self, ode, y0, t0, t_final, ts=None) -> Solution:
         return integrate_alpha_adaptive(
             ode, self.method, y0, t0, t_final, controller=self.controller, ts=ts, dtmin=self.dtmin,
-            max_steps=self.max_steps, adjoint=self.adjoint,
+            max_steps=self.max_steps, adjoint=self.adjoint, events=self.events,
         )  # fmt: skip
 
     def observe(self, ode, y0, t0, t_final, observer) -> ObservedRun:
         _, final = adaptive_loop(
             ode, self.method, y0, t0, t_final, observer, controller=self.controller, dt0=None, dtmin=self.dtmin,
             max_steps=self.max_steps, kind="checkpointed" if self.adjoint == "reverse" else "lax",
+            events=self.events,
         )  # fmt: skip
         start_failed = (final.attempts == 0) & (final.state.status != 0)
         return ObservedRun(
@@ -380,6 +469,7 @@ class ErrorControl(AbstractIntegrator):
             newton_iterations=final.newton_iterations,
             subdivided_steps=jnp.asarray(0, jnp.int32),
             max_subdivision_level=jnp.asarray(0, jnp.int32),
+            jumps=final.jumps,
         )
 
     def settings(self) -> dict:
@@ -390,4 +480,5 @@ class ErrorControl(AbstractIntegrator):
             "dtmin": None if self.dtmin is None else float(self.dtmin),
             "max_steps": self.max_steps,
             "solver": self.method.settings(),
+            **({} if self.events is None else self.events.settings()),
         }

@@ -158,6 +158,28 @@ class LogTransformedODE(eqx.Module):
     def __call__(self, z):
         return self.evaluate(z).psi
 
+    # The fold hooks of a FoldingODE, in the carried coordinates.
+    @property
+    def fold_event_is_schur(self) -> bool:
+        return getattr(self.ode, "fold_event_is_schur", False)
+
+    @property
+    def stops_at_impasse(self) -> bool:
+        return getattr(self.ode, "stops_at_impasse", False)
+
+    def with_folds(self):
+        return LogTransformedODE(self.ode.with_folds(), self.log_components)
+
+    def fold_event(self, z):
+        return self.ode.fold_event(from_log(z, self.log_components))
+
+    def jump(self, z):
+        jump = self.ode.jump(from_log(z, self.log_components))
+        return eqx.tree_at(lambda j: j.y, jump, _to_log(jump.y, self.log_components))
+
+    def complete(self, z):
+        return _to_log(self.ode.complete(from_log(z, self.log_components)), self.log_components)
+
 
 def _jvp_filtered(fn, primals, tangents):
     """``jax.jvp(fn, primals, tangents)`` where ``tangents`` has ``None`` (symbolic zero) leaves.

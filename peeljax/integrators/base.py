@@ -34,7 +34,7 @@ import equinox as eqx
 from jaxtyping import Array, ArrayLike, Float, Int
 
 from ..homogenized import ODE
-from ..solution import Solution
+from ..solution import JumpRecord, Solution
 from .observers import Observer
 
 __all__ = ["AbstractIntegrator", "ObservedRun"]
@@ -50,6 +50,7 @@ class ObservedRun(eqx.Module):
         accepted_steps, rejected_steps: step counts; newton_iterations: their sum over all
             attempts (0 where the integrator does not report them).
         subdivided_steps, max_subdivision_level: the uniform mesh's safeguard (0 elsewhere).
+        jumps: the :class:`~peeljax.JumpRecord` where folds are located (error control), else None.
     """
 
     record: object
@@ -61,6 +62,7 @@ class ObservedRun(eqx.Module):
     newton_iterations: Int[Array, ""]
     subdivided_steps: Int[Array, ""]
     max_subdivision_level: Int[Array, ""]
+    jumps: JumpRecord | None = None
 
 
 class AbstractIntegrator(eqx.Module):

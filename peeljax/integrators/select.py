@@ -12,10 +12,18 @@ None or an :class:`AlphaMethod`  a number    :class:`UniformMesh` (the paper's m
 None or an :class:`AlphaMethod`  None        :class:`ErrorControl` (rtol, atol)
 a ``diffrax.AbstractSolver``     None        :class:`DiffraxIntegrator` (rtol, atol)
 ==============================  ==========  ==========================================
+
+``fold`` says what happens at a fold of φ (:mod:`peeljax.integrators.events`): ``"jump"``
+(the default under error control: v jumps to the other stable branch and the run goes on),
+``"stop"`` (the paper's behaviour; the default, and the only choice, on the uniform mesh and
+with a diffrax solver, which cannot yet cut a step at an event) or ``"follow"`` (τ > 0 only).
+``dae=True`` (τ = 0: the DAE itself, :class:`~peeljax.ConstrainedDAE`) needs error control
+with the α-method, which then carries v as it is (v = 0 on a fully stuck tape).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import diffrax
@@ -26,20 +34,24 @@ from .adaptive import ErrorControl
 from .alpha import AlphaMethod, UniformMesh
 from .base import AbstractIntegrator
 from .controller import PIController
+from .events import FoldEvents, check_fold, check_max_jumps
 from .reference import DiffraxIntegrator
 
 __all__ = [
     "DEFAULT_ATOL",
+    "DEFAULT_MAX_JUMPS",
     "DEFAULT_MAX_STEPS",
     "DEFAULT_RTOL",
     "check_error_control",
     "checked_solver",
     "integrator_for",
     "refuse_with_dt",
+    "resolve_fold",
 ]
 
 DEFAULT_RTOL, DEFAULT_ATOL = 1e-6, 1e-9
 DEFAULT_MAX_STEPS = 100_000
+DEFAULT_MAX_JUMPS = 10_000
 
 
 @functools.lru_cache(maxsize=64)
@@ -87,9 +99,36 @@ def _controller(rtol: float, atol: float) -> PIController:
 
 
 @functools.lru_cache(maxsize=64)
-def _error_control(rho, rtol, atol, dtmin, max_steps, adjoint) -> ErrorControl:
+def _error_control(rho, rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps, dae) -> ErrorControl:
     # The default method's integrator, built once per setting rather than on every call.
-    return ErrorControl(_default_solver(rho), _controller(rtol, atol), dtmin, max_steps, adjoint)
+    return _with_events(ErrorControl(_default_solver(rho), _controller(rtol, atol), dtmin, max_steps, adjoint), fold, max_jumps, dae)
+
+
+def _with_events(integrator: ErrorControl, fold: str, max_jumps: int, dae: bool) -> ErrorControl:
+    method = dataclasses.replace(integrator.method, log_components=()) if dae else integrator.method
+    return dataclasses.replace(integrator, method=method, events=FoldEvents(fold, max_jumps))
+
+
+def resolve_fold(fold: str | None, *, dt=None, solver=None, dae: bool = False) -> str:
+    """``fold`` checked against the integrator it will run on; None → its default (module docstring)."""
+    diffrax_solver = isinstance(solver, diffrax.AbstractSolver)
+    if dae and (dt is not None or diffrax_solver):
+        what = f"dt={dt!r} (a uniform mesh)" if dt is not None else f"a diffrax solver ({type(solver).__name__})"
+        raise ValueError(
+            f"tau=0 (the DAE with jumps at the folds of phi) runs on the error-controlled α-method, not on {what}"
+        )
+    if fold is None:
+        return "stop" if dt is not None or diffrax_solver else "jump"
+    check_fold(fold)
+    if fold != "stop" and (dt is not None or diffrax_solver):
+        what = f"dt={dt!r} (a uniform mesh)" if dt is not None else f"a diffrax solver ({type(solver).__name__})"
+        raise ValueError(
+            f"fold={fold!r} needs the error-controlled α-method, which cuts a step at a fold; {what} "
+            "can only stop there: give fold='stop', or drop dt/solver"
+        )
+    if fold == "follow" and dae:
+        raise ValueError("fold='follow' applies to tau > 0 (the homogenized ODE's singular passages); with tau=0 use 'jump' or 'stop'")
+    return fold
 
 
 def integrator_for(
@@ -104,6 +143,9 @@ def integrator_for(
     max_steps: int = DEFAULT_MAX_STEPS,
     adjoint: str = "reverse",
     checkpoint_every: int | str | None = None,
+    fold: str | None = None,
+    max_jumps: int = DEFAULT_MAX_JUMPS,
+    dae: bool = False,
 ) -> AbstractIntegrator:
     """The integrator the options describe (module docstring), every option checked.
 
@@ -111,6 +153,8 @@ def integrator_for(
     compiled. ``rho`` is used only when ``solver`` is None.
     """
     check_adjoint(adjoint)
+    check_max_jumps(max_jumps)
+    fold = resolve_fold(fold, dt=dt, solver=solver, dae=dae)
     method = checked_solver(solver, rho)
     if dt is not None:
         refuse_with_dt(dt, rtol=rtol, atol=atol, dtmin=dtmin)
@@ -130,5 +174,5 @@ def integrator_for(
     if isinstance(method, diffrax.AbstractSolver):
         return DiffraxIntegrator(method, rtol, atol, dtmin, None, max_steps, adjoint)
     if solver is None and type(rho) in (float, int):
-        return _error_control(float(rho), rtol, atol, dtmin, max_steps, adjoint)
-    return ErrorControl(method, _controller(rtol, atol), dtmin, max_steps, adjoint)
+        return _error_control(float(rho), rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps, dae)
+    return _with_events(ErrorControl(method, _controller(rtol, atol), dtmin, max_steps, adjoint), fold, max_jumps, dae)

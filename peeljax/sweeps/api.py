@@ -54,6 +54,10 @@ PER_TRAJECTORY_KEYS: tuple[str, ...] = (
 )
 _SUMMARY_FIELDS = PER_TRAJECTORY_KEYS[3:]
 _BYTES_PER_TRAJECTORY = 8 * len(PER_TRAJECTORY_KEYS)
+# Each lane's jump record (runs carried through the folds of φ): a count and 5 arrays of max_jumps slots.
+JUMP_KEYS: tuple[str, ...] = ("jump_count", "jump_t", "jump_up", "jump_v_before", "jump_v_after", "jump_G")
+_JUMP_FIELDS = {"jump_count": "count", "jump_t": "t", "jump_up": "up", "jump_v_before": "v_before",
+                "jump_v_after": "v_after", "jump_G": "G"}  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,6 +84,10 @@ class SweepResult:
             safeguard (0 with error control).
         ts, ys: save times (S,) and states (n, S, 4) = (α, ω, u, v), NaN after a stop;
             None unless ``save_dt`` (error control) or ``save_every`` (uniform mesh) was given.
+        jumps: where the runs go through the folds of φ, each lane's jump record: ``jump_count``
+            (n,) and ``jump_t``, ``jump_up``, ``jump_v_before``, ``jump_v_after``, ``jump_G``
+            (n, max_jumps), NaN-padded (see :class:`~peeljax.JumpRecord`); else None.
+            :meth:`cycle_statistics` summarizes a lane.
         grid_shape: (len(V), len(tau), len(p1), …) for ``grid="outer"``, else None.
         settings: everything that determined the result (JSON-able).
         computed_chunks: the chunks this call computed (the others were loaded from ``out``).
@@ -110,9 +118,22 @@ class SweepResult:
     grid_shape: tuple[int, ...] | None
     settings: dict
     computed_chunks: tuple[int, ...] = ()
+    jumps: dict[str, np.ndarray] | None = None
 
     def __len__(self) -> int:
         return int(self.V.shape[0])
+
+    def cycle_statistics(self, index: int, transient: float | None = None, **kwargs):
+        """:func:`peeljax.cycle_statistics` of lane ``index`` over [transient, t_stop] (default
+        transient: the window's start), the same function a single run's record takes."""
+        from ..cycles import cycle_statistics
+
+        if self.jumps is None:
+            raise ValueError("this sweep located no folds (fold='stop' or dt given): it has no jump records")
+        if transient is None:
+            transient = self.settings["window"][0] * self.settings["t_final"]
+        lane = {key: self.jumps[key][index] for key in JUMP_KEYS}
+        return cycle_statistics(lane, float(self.t_stop[index]), transient=transient, **kwargs)
 
     @property
     def reasons(self) -> list[str]:
@@ -132,6 +153,8 @@ class SweepResult:
         out.update({f"param_{name}": np.asarray(value) for name, value in self.params.items()})
         if self.ys is not None:
             out["ts"], out["ys"] = np.asarray(self.ts), np.asarray(self.ys)
+        if self.jumps is not None:
+            out.update(self.jumps)
         return out
 
 
@@ -194,6 +217,9 @@ def sweep(
     memory_limit: float | None = None,
     devices: Sequence | None = None,
     lane_batch: int | None = None,
+    fold: str | None = None,
+    max_jumps: int | None = None,
+    start: str = "paper",
 ) -> SweepResult:
     """Integrate eq. ``hv`` with (``av``)–(``str``) by the α-method for many (V, τ, …) at once.
 
@@ -203,7 +229,8 @@ def sweep(
 
     Args:
         model: the base model (default: the paper's); ``params`` overrides its parameters.
-        V, tau: pull velocities [m/s] and homogenization scales [s] (numbers or 1-D, all > 0).
+        V, tau: pull velocities [m/s] (> 0) and homogenization scales [s] (numbers or 1-D):
+            all τ > 0 (the homogenized ODE) or all τ = 0 (the DAE itself, with jumps).
         dt: None for error control; else the uniform mesh, N = round(t_final/dt) steps of
             t_final/N, as in :func:`peeljax.simulate`.
         t_final: end time [s], > 0.
@@ -237,6 +264,13 @@ def sweep(
         lane_batch: error control only: lanes run together under ``vmap`` (groups run one
             after another); default 1 on CPUs and the whole chunk on GPUs
             (:func:`default_lane_batch`). It changes the speed, not the steps taken.
+        fold: what happens at a fold of φ, as in :func:`peeljax.simulate` (default: ``"jump"``
+            under error control); each lane's jumps are kept (``result.jumps``).
+        max_jumps: slots of each lane's jump record (default 2048); a lane that needs more
+            stops with that reason.
+        start: each lane's initial state: ``"paper"`` (the paper's, the tape at rest) or
+            ``"steady"`` (steady peeling, v = V): stick-slip and steady peeling coexist for
+            some V, so the start decides which one a lane shows.
 
     Returns:
         A :class:`SweepResult` (see there for the summaries and :mod:`peeljax.sweeps.engine`
@@ -250,7 +284,13 @@ def sweep(
     if not isinstance(model, PeelingModel):
         raise TypeError(f"model must be a PeelingModel, got {type(model).__name__}")
     check_choice("grid", grid, ("outer", "pairs"))
-    plan = sweep_plan(solver, rho, dt, t_final, rtol, atol, save_dt, save_every, dtmin, max_steps)
+    taus_given = axis("tau", tau)
+    dae = bool(np.all(taus_given == 0))
+    plan = sweep_plan(
+        solver, rho, dt, t_final, rtol, atol, save_dt, save_every, dtmin, max_steps, fold, max_jumps, dae, start
+    )
+    if dae and truncation is not None:
+        raise ValueError("truncation applies to tau > 0 (the homogenized ODE); tau=0 is the DAE itself")
     check_truncation(truncation)
     params = dict(params or {})
     if not isinstance(model.adhesion, AdhesionLaw) and any(name not in ("R", "I", "k", "l") for name in params):
@@ -275,7 +315,8 @@ def sweep(
     save_ts = plan.save_times()
     n_save = 0 if save_ts is None else save_ts.size
     limit = _memory_limit() if memory_limit is None else float(memory_limit)
-    total = n * (n_save * 4 * 8 + _BYTES_PER_TRAJECTORY)
+    jump_bytes = 0 if plan.max_jumps is None else plan.max_jumps * 5 * 8
+    total = n * (n_save * 4 * 8 + jump_bytes + _BYTES_PER_TRAJECTORY)
     if total > limit:
         if plan.uniform:
             fewer = f"a larger save_every{'' if save_every is None else f', now {save_every}'}, or none"
@@ -294,6 +335,7 @@ def sweep(
     n_chunks = -(-n // chunk)
     sizes = [min(chunk, n - i * chunk) for i in range(n_chunks)]
     keys = tuple(_SUMMARY_FIELDS) + (("ys",) if save_ts is not None else ())
+    keys += JUMP_KEYS if plan.max_jumps is not None else ()
     store = None
     chunks: list[dict | None] = [None] * n_chunks
     if out is not None:
@@ -323,7 +365,7 @@ def sweep(
             lanes = deal(np.arange(i * chunk, i * chunk + chunk).clip(max=n - 1), n_dev)  # padded
             inputs = put_lanes((Vs[lanes], taus[lanes], {k: v[lanes] for k, v in param_values.items()}), devices)
             summary = plan.run(model, *inputs, t_final_array, window_array, truncation, mesh, lane_batch)
-            host = to_host({key: getattr(summary, key) for key in keys})
+            host = to_host({key: _summary_field(summary, key) for key in keys})
             back = np.argsort(deal(np.arange(chunk), n_dev))
             arrays = {key: value[back][: sizes[i]] for key, value in host.items()}
             if store is not None and jax.process_index() == 0:
@@ -344,8 +386,15 @@ def sweep(
     return result
 
 
+def _summary_field(summary, key: str):
+    if key in _JUMP_FIELDS:
+        return getattr(summary.jumps, _JUMP_FIELDS[key])
+    return getattr(summary, key)
+
+
 def _result(arrays, Vs, taus, params, save_ts, t_final, window, grid_shape, settings, computed) -> SweepResult:
     status = np.asarray(arrays["status"], dtype=np.int32)
+    jumps = {key: np.asarray(arrays[key]) for key in JUMP_KEYS} if "jump_count" in arrays else None
     summaries = {key: np.asarray(arrays[key]) for key in _SUMMARY_FIELDS if key != "status"}
     w0, w1 = window[0] * float(t_final), window[1] * float(t_final)
     window_time = np.clip(np.minimum(summaries["t_stop"], w1) - w0, 0.0, None)
@@ -361,5 +410,6 @@ def _result(arrays, Vs, taus, params, save_ts, t_final, window, grid_shape, sett
         grid_shape=grid_shape,
         settings=settings,
         computed_chunks=computed,
+        jumps=jumps,
         **{key: value for key, value in summaries.items() if key != "completed"},
     )

@@ -13,12 +13,16 @@ inside the compiled loop, over the window W = [w0·t_final, w1·t_final]:
 * the uniform mesh (``sweep(dt=…)``): :class:`PointStatistics`, over the accepted mesh points
   t_i ∈ W (the initial state included when w0 = 0): count, mean and standard deviation by
   Welford's update, minimum and maximum;
-* for both, events: the upward crossings v_{i−1} < v̂ ≤ v_i of v̂(V), the peeling velocity
+* for both, events: the stick → slip jumps from below v̂ in W (runs through the folds) plus the
+  upward crossings v_{i−1} < v̂ ≤ v_i of v̂(V), the peeling velocity
   at the maximum of φ(·, V) (the onset of slip, where ∂φ/∂v = 0 and J_t → τ·F̃·(…)·∂f/∂v,
   Lemma ``hi``), counted for each accepted step whose end lies in W; and the work done
   (accepted and rejected steps, Newton iterations, the uniform mesh's subdivided steps);
 * saved states (optional): at given times by the dense output (:class:`DenseOutput`), or
-  every k-th mesh point (:class:`EveryNthPoint`); memory O(saved points), never O(steps).
+  every k-th mesh point (:class:`EveryNthPoint`); memory O(saved points), never O(steps);
+* where the runs go through the folds of φ (error control, ``fold="jump"``): the lane's jump
+  record (:class:`~peeljax.JumpRecord`, ``max_jumps`` slots, filled inside the loop), from
+  which the host computes the cycle statistics with :func:`peeljax.cycle_statistics`.
 
 Lanes run in groups of ``lane_batch`` under ``vmap``, the groups one after another
 (``lax.map``): a ``vmap``ped while loop runs until its slowest lane is done, so with error
@@ -39,16 +43,19 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
 from ..adhesion import COEFFICIENT_NAMES
+from ..constrained import ConstrainedDAE
 from ..homogenized import HomogenizedODE
 from ..integrators.alpha import from_log
 from ..integrators.base import AbstractIntegrator
 from ..integrators.dense import hermite
 from ..integrators.observers import Observer, Observers
-from ..model import PeelingModel
+from ..model import PAPER_ALPHA0, PeelingModel
+from ..solution import JumpRecord
 from ..structure import phi_extremum
 
 __all__ = [
     "MODEL_PARAMETERS",
+    "STARTS",
     "BatchSummary",
     "PointStatistics",
     "WindowStatistics",
@@ -58,6 +65,15 @@ __all__ = [
 ]
 
 MODEL_PARAMETERS: tuple[str, ...] = ("R", "I", "k", "l", *COEFFICIENT_NAMES)
+STARTS = ("paper", "steady")
+
+
+def initial_state(model: PeelingModel, V, start: str):
+    """The lane's start: the paper's consistent data (v0 = 1e-10·V, the tape at rest), or
+    ``"steady"``: steady peeling, v = V and ω = V/R at the paper's α0, u from the constraint."""
+    if start == "paper":
+        return model.initial_state(V)
+    return model.consistent_state(V, PAPER_ALPHA0, V / model.R, V)
 
 
 class BatchSummary(eqx.Module):
@@ -79,6 +95,7 @@ class BatchSummary(eqx.Module):
     accepted_steps: Int[Array, " B"]
     rejected_steps: Int[Array, " B"]
     ys: Float[Array, "B S 4"] | None
+    jumps: JumpRecord | None = None  # each lane's jump record (B × max_jumps slots) where folds are located
 
 
 def with_parameters(model: PeelingModel, params: dict[str, Array]) -> PeelingModel:
@@ -295,16 +312,30 @@ def _lane(
     window,
     save: Observer | None,
     truncation: int | None,
+    dae: bool = False,
+    start: str = "paper",
 ) -> BatchSummary:
-    """One trajectory: the integrator's steps shown to the window statistics (and ``save``)."""
+    """One trajectory: the integrator's steps shown to the window statistics (and ``save``).
+
+    ``dae``: τ = 0, the DAE itself (:class:`~peeljax.ConstrainedDAE`); ``start``: see
+    :func:`initial_state`."""
     model = with_parameters(model, params)
-    ode = HomogenizedODE(model, V, tau, truncation)
+    ode = ConstrainedDAE(model, V) if dae else HomogenizedODE(model, V, tau, truncation)
     v_slip = slip_velocity(model, ode.V)
     carried_log = integrator.carried_log
     statistics_type = WindowStatistics if integrator.dense_output else PointStatistics
     statistics = statistics_type(window[0] * t_final, window[1] * t_final, v_slip, carried_log)
     observers = (statistics,) if save is None else (statistics, save)
-    run = integrator.observe(ode, model.initial_state(ode.V), 0.0, t_final, Observers(observers))
+    run = integrator.observe(ode, initial_state(model, ode.V, start), 0.0, t_final, Observers(observers))
+    summary = statistics.summary(run.record[0])
+    if run.jumps is not None:
+        # A stick → slip jump from below v̂ is no crossing between step points: count it too
+        # (one from above v̂, as the homogenized ODE's, has been counted as a crossing).
+        jumps = run.jumps
+        slot = jnp.arange(jumps.max_jumps)
+        in_window = (jumps.t >= window[0] * t_final) & (jumps.t <= window[1] * t_final)
+        from_below = jumps.up & (jumps.v_before < v_slip) & in_window & (slot < jumps.count)
+        summary["events"] = summary["events"] + jnp.sum(from_below)
     ys = None
     if save is not None:
         out = run.record[1]
@@ -312,7 +343,7 @@ def _lane(
     return BatchSummary(
         status=run.status,
         t_stop=run.t_stop,
-        **statistics.summary(run.record[0]),
+        **summary,
         v_final=run.y_final[3],
         v_slip=v_slip,
         newton_iterations=run.newton_iterations,
@@ -321,6 +352,7 @@ def _lane(
         accepted_steps=run.accepted_steps,
         rejected_steps=run.rejected_steps,
         ys=ys,
+        jumps=run.jumps,
     )
 
 
@@ -337,6 +369,8 @@ def run_batch(
     truncation: int | None,
     lane_batch: int,
     mesh: jax.sharding.Mesh | None = None,
+    dae: bool = False,
+    start: str = "paper",
 ) -> BatchSummary:
     """All lanes, each the run the integrator makes alone, summarised by :func:`_lane`.
 
@@ -358,7 +392,7 @@ def run_batch(
 
     def lanes(model, integrator, t_final, window, save, V, tau, params):
         def one(lane):
-            return _lane(model, integrator, *lane, t_final, window, save, truncation)
+            return _lane(model, integrator, *lane, t_final, window, save, truncation, dae, start)
 
         if lane_batch >= V.shape[0]:  # one group: nothing to sort
             return jax.vmap(one)((V, tau, params))

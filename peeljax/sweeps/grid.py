@@ -24,9 +24,17 @@ def axis(name: str, values) -> np.ndarray:
 
 
 def check_parameter(name: str, array: np.ndarray) -> None:
-    positive = {"R", "I", "k", "l", "V", "tau", "c4"}
+    positive = {"R", "I", "k", "l", "V", "c4"}
     if name in positive and np.any(array <= 0):
         raise ValueError(f"{name} must be > 0 (allowed range: (0, inf)), got {array[array <= 0][:3].tolist()}")
+    if name == "tau":
+        if np.any(array < 0):
+            raise ValueError(f"tau must be >= 0 (allowed range: [0, inf)), got {array[array < 0][:3].tolist()}")
+        if np.any(array == 0) and np.any(array > 0):
+            raise ValueError(
+                "tau = 0 (the DAE itself) and tau > 0 (the homogenized ODE) are different problems: "
+                "sweep them separately"
+            )
 
 
 def trajectories(V, tau, params: dict, grid: str):

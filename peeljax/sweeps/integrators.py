@@ -15,7 +15,7 @@ import dataclasses
 import jax.numpy as jnp
 import numpy as np
 
-from .._validation import check_positive
+from .._validation import check_choice, check_positive
 from ..integrators.alpha import UniformMesh
 from ..integrators.base import AbstractIntegrator
 from ..integrators.dense import output_times
@@ -24,7 +24,10 @@ from ..integrators.reference import DiffraxIntegrator
 from ..integrators.select import integrator_for, refuse_with_dt
 from . import engine
 
-__all__ = ["SweepPlan", "sweep_plan"]
+__all__ = ["DEFAULT_SWEEP_MAX_JUMPS", "SweepPlan", "sweep_plan"]
+
+# Each lane keeps its jump record (5 values a slot): 2048 slots hold 3 s at V = 4 m/s (1253 jumps).
+DEFAULT_SWEEP_MAX_JUMPS = 2048
 
 
 @dataclasses.dataclass(frozen=True)
@@ -35,6 +38,17 @@ class SweepPlan:
     t_final: float
     save_every: int | None = None
     save_dt: float | None = None
+    dae: bool = False  # τ = 0: the DAE itself on every lane
+    start: str = "paper"
+
+    @property
+    def max_jumps(self) -> int | None:
+        """Slots of each lane's jump record; None where no fold is located (the uniform mesh, a
+        diffrax solver, and ``fold="stop"`` at τ > 0: the paper's impasse stop)."""
+        events = getattr(self.integrator, "events", None)
+        if events is None or (events.mode == "stop" and not self.dae):
+            return None
+        return events.max_jumps
 
     @property
     def uniform(self) -> bool:
@@ -42,7 +56,7 @@ class SweepPlan:
 
     def settings(self) -> dict:
         """The integrator's settings and the saving (JSON-able; compared when a sweep resumes)."""
-        settings = self.integrator.settings()
+        settings = {**self.integrator.settings(), "dae": self.dae, "start": self.start}
         if self.uniform:
             return {**settings, "save_every": self.save_every}
         return {**settings, "save_dt": self.save_dt}
@@ -72,18 +86,23 @@ class SweepPlan:
             # check); without the mesh, XLA partitions the run over the sharded lanes itself.
             mesh = None
         return engine.run_batch(
-            model, self.integrator, V, tau, params, t_final, window, self.save_observer(), truncation, lane_batch, mesh
-        )
+            model, self.integrator, V, tau, params, t_final, window, self.save_observer(), truncation, lane_batch, mesh,
+            self.dae, self.start,
+        )  # fmt: skip
 
 
-def sweep_plan(solver, rho, dt, t_final, rtol, atol, save_dt, save_every, dtmin, max_steps) -> SweepPlan:
+def sweep_plan(
+    solver, rho, dt, t_final, rtol, atol, save_dt, save_every, dtmin, max_steps, fold=None, max_jumps=None,
+    dae=False, start="paper",
+) -> SweepPlan:  # fmt: skip
     """Check the options (uniform mesh when ``dt`` is given, else error control) and plan the sweep."""
     if dt is not None:
         refuse_with_dt(dt, rtol=rtol, atol=atol, save_dt=save_dt, dtmin=dtmin)
+    check_choice("start", start, engine.STARTS)
     # A sweep differentiates nothing: the plain while loop is the fastest.
     integrator = integrator_for(
         solver, rho=rho, dt=dt, t_final=t_final, rtol=rtol, atol=atol, dtmin=dtmin, max_steps=max_steps,
-        adjoint="forward",
+        adjoint="forward", fold=fold, max_jumps=DEFAULT_SWEEP_MAX_JUMPS if max_jumps is None else max_jumps, dae=dae,
     )  # fmt: skip
     if isinstance(integrator, UniformMesh):
         n_steps = integrator.n_steps
@@ -93,11 +112,13 @@ def sweep_plan(solver, rho, dt, t_final, rtol, atol, save_dt, save_every, dtmin,
             raise ValueError(
                 f"save_every must be an integer in [1, {n_steps}] (the number of steps), got {save_every!r}"
             )
-        return SweepPlan(integrator, float(t_final), save_every=save_every)
+        return SweepPlan(integrator, float(t_final), save_every=save_every, start=start)
     if save_every is not None:
         raise ValueError("save_every counts uniform-mesh steps (dt given); with error control save on times: save_dt")
     if save_dt is not None:
         check_positive("save_dt", save_dt)
         if float(save_dt) > float(t_final):
             raise ValueError(f"save_dt must lie in (0, t_final] = (0, {float(t_final):g}], got {save_dt!r}")
-    return SweepPlan(integrator, float(t_final), save_dt=None if save_dt is None else float(save_dt))
+    return SweepPlan(
+        integrator, float(t_final), save_dt=None if save_dt is None else float(save_dt), dae=dae, start=start
+    )

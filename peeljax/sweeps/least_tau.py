@@ -113,7 +113,8 @@ def least_tau(
     model = PeelingModel() if model is None else model
     Vs = axis("V", V)
     check_parameter("V", Vs)
-    plan = sweep_plan(solver, rho, dt, t_final, rtol, atol, None, None, dtmin, max_steps)
+    # τ* is where the homogenized run stops at a fold: fold="stop", the paper's behaviour.
+    plan = sweep_plan(solver, rho, dt, t_final, rtol, atol, None, None, dtmin, max_steps, fold="stop")
     try:
         lo, hi = (float(x) for x in tau_range)
     except (TypeError, ValueError):
