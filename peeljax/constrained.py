@@ -21,6 +21,8 @@ so the step that crosses the fold is an ordinary one and the event is located in
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
@@ -45,6 +47,8 @@ class ConstrainedDAE(eqx.Module):
     model: PeelingModel
     V: Float[Array, ""] = eqx.field(converter=float_array)
     folds: Folds | None = None
+    # The integrator solves v anew (``complete``) at every accepted and every output state.
+    completes_state: ClassVar[bool] = True
 
     @property
     def tau(self) -> Array:

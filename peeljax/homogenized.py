@@ -72,7 +72,8 @@ class FoldingODE(ODE, Protocol):
     ``with_folds()`` returns the ODE with φ's folds computed (once per run, inside the
     compiled loop); ``fold_event(y)`` is negative before the current branch's fold and
     crosses zero at it; ``jump(y)`` is the jump there (:class:`Jump`); ``complete(y)`` maps an
-    integrator's state (for instance an interpolated one) to the output state.
+    integrator's state (for instance an interpolated one) to the output state, and the
+    integrator calls it on every accepted and output state where ``completes_state`` is True.
     """
 
     def with_folds(self) -> FoldingODE: ...
@@ -137,7 +138,7 @@ class HomogenizedODE(eqx.Module):
         return _jump(self.model, self.V, self.folds, y, floor=PAPER_V0_FACTOR * self.V)
 
     def complete(self, y: Float[Array, "4"]) -> Float[Array, "4"]:
-        """y itself: the homogenized state is the output state."""
+        """y itself: the homogenized state is the output state (the integrator need not call it)."""
         return y
 
     def schur_complement(self, y: Float[Array, "4"]) -> Array:

@@ -338,16 +338,25 @@ def test_analysis_of_the_accepted_steps_equals_that_on_a_grid():
 
 
 @pytest.mark.slow
-def test_vmap_over_tau_equals_single_runs():
-    """Each lane of a vmapped error-controlled run is the single run (a stopped lane included)."""
+@pytest.mark.parametrize("fold", ["stop", "jump"])
+def test_vmap_over_tau_equals_single_runs(fold):
+    """Each lane of a vmapped error-controlled run is the single run (a stopped lane included,
+    or with fold="jump" a lane with 40-odd jumps). The vmapped program is fused differently, so
+    its rounding differs; at a jump that difference grows like its square root (the stick → slip
+    fold is reached almost tangentially, docs/theory.md), hence 1e-6 there and 1e-12 without."""
     grid = np.linspace(0.0, 1.0, 11)
     taus = jnp.array([1e-3, 0.01, 0.1])
-    batch = jax.vmap(lambda tau: pj.simulate(V=1.1, tau=tau, t_final=1.0, ts=grid))(taus)
+    batch = jax.vmap(lambda tau: pj.simulate(V=1.1, tau=tau, t_final=1.0, ts=grid, fold=fold))(taus)
     for i, tau in enumerate((1e-3, 0.01, 0.1)):
-        single = pj.simulate(V=1.1, tau=tau, t_final=1.0, ts=grid)
+        single = pj.simulate(V=1.1, tau=tau, t_final=1.0, ts=grid, fold=fold)
         assert int(batch.status[i]) == int(single.status)
         assert int(batch.stats["accepted_steps"][i]) == int(single.stats["accepted_steps"])
-        np.testing.assert_allclose(np.asarray(batch.v[i]), np.asarray(single.v), rtol=1e-12)
+        jumps = 0 if single.jumps is None else int(single.jumps.count)
+        assert (jumps > 0) == (fold == "jump" and tau == 1e-3)
+        if jumps:
+            assert int(batch.jumps.count[i]) == jumps
+        rtol = 1e-6 if jumps else 1e-12
+        np.testing.assert_allclose(np.asarray(batch.v[i]), np.asarray(single.v), rtol=rtol)
 
 
 def test_the_ode_contract_is_a_type():

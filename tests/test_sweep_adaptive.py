@@ -34,6 +34,7 @@ def adaptive_sweep(**kwargs):
         "window": WINDOW,
         "chunk": 4,
         "progress": False,
+        "fold": "stop",  # the paper's stops: the small τ lanes end at their first fold
     } | kwargs
     return peeljax.sweep(**options)
 
@@ -50,7 +51,7 @@ def test_each_lane_is_the_simulate_run(swept):
     assert swept.settings["method"] == "alpha-adaptive" and swept.settings["rtol"] == RTOL
     np.testing.assert_array_equal(swept.completed, swept.tau == 1e-2)
     for i in range(len(swept)):
-        run = simulate(V=swept.V[i], tau=swept.tau[i], t_final=T_FINAL, ts=ts, rtol=RTOL, atol=ATOL)
+        run = simulate(V=swept.V[i], tau=swept.tau[i], t_final=T_FINAL, ts=ts, rtol=RTOL, atol=ATOL, fold="stop")
         assert swept.status[i] == int(run.status)
         assert swept.t_stop[i] == pytest.approx(float(run.t_stop), rel=1e-12)
         assert swept.accepted_steps[i] == int(run.stats["accepted_steps"])
@@ -144,7 +145,7 @@ def test_least_tau_with_error_control_agrees_with_single_runs():
     assert found.found[0]
     tau_star, tau_below = float(found.tau_star[0]), float(found.tau_below[0])
     assert tau_below >= tau_star * (1 - 0.1) * (1 - 1e-9)
-    assert int(simulate(V=1.1, tau=tau_star, t_final=0.5).status) == 0
-    below = simulate(V=1.1, tau=tau_below, t_final=0.5)
+    assert int(simulate(V=1.1, tau=tau_star, t_final=0.5, fold="stop").status) == 0
+    below = simulate(V=1.1, tau=tau_below, t_final=0.5, fold="stop")
     assert int(below.status) in (StopReason.STALLED, StopReason.IMPASSE)
     assert float(below.t_stop) == pytest.approx(float(found.t_stop_below[0]), rel=1e-9)

@@ -134,18 +134,19 @@ def _at_fold(events: FoldEvents, ode, solver: AlphaMethod, fold: FoldHit, new: A
     (y, ψ, J) for the observer. Without a fold hit, the step as it was."""
 
     def at_fold():
-        event = ode.evaluate(fold.y)
-        end = (fold.y, event.psi, event.J)
+        y_fold = ode.complete(fold.y) if getattr(ode, "completes_state", False) else fold.y
+        event = ode.evaluate(y_fold)
+        end = (y_fold, event.psi, event.J)
         if events.mode == "stop":
-            stopped = eqx.tree_at(lambda s: (s.y, s.psi, s.J, s.drive), new, (fold.y, event.psi, event.J, event.drive))
-            return stopped, fold_event(ode, fold.y), jumps, jnp.asarray(StopReason.FOLD, jnp.int32), end
+            stopped = eqx.tree_at(lambda s: (s.y, s.psi, s.J, s.drive), new, (y_fold, event.psi, event.J, event.drive))
+            return stopped, fold_event(ode, y_fold), jumps, jnp.asarray(StopReason.FOLD, jnp.int32), end
         full = jumps.count >= events.max_jumps
-        jump = ode.jump(fold.y)
-        y = jnp.where(full, fold.y, jump.y)
+        jump = ode.jump(y_fold)
+        y = jnp.where(full, y_fold, jump.y)
         after = ode.evaluate(y)
         # a restarts as dψ/dt at the new state; held fixed in derivatives (as the jump time is),
         # which spares a reverse pass the second derivatives of ψ.
-        a = solver.initial_acceleration(*jax.lax.stop_gradient((ode, y, after.psi)))
+        a = solver.initial_acceleration(*_stop_gradient((ode, y, after.psi)))
         restarted = AlphaState(
             y=y, psi=after.psi, a=jnp.where(jnp.isfinite(a), a, 0.0), J=after.J, drive=after.drive, status=new.status
         )
@@ -259,7 +260,8 @@ def adaptive_loop(
             step_end = (new.y, new.psi, new.J)
         else:
             impasse = jnp.asarray(False)
-            new = eqx.tree_at(lambda s: s.y, new, jnp.where(accept, ode.complete(new.y), new.y))
+            if getattr(ode, "completes_state", False):  # the DAE's v, solved anew at the step's end
+                new = eqx.tree_at(lambda s: s.y, new, jnp.where(accept, ode.complete(new.y), new.y))
             g_new = jax.lax.stop_gradient(new.J) if getattr(ode, "fold_event_is_schur", False) else fold_event(ode, new.y)
             fold = find_fold(events, ode, c.t, h, state, new, accept, c.g, g_new)
             new, t_new, g, jumps, fold_status, step_end = _at_fold(
@@ -366,7 +368,7 @@ def _solution(ode, solver, final: _Carry, step_points: bool, t0, folding: bool =
     out = final.record
     valid = out.valid
     ys_carried = out.y
-    if folding:
+    if folding and getattr(ode, "completes_state", False):
         # An interpolated state's algebraic part (the DAE's v) is solved anew at that state.
         safe = jnp.where(valid[:, None], ys_carried, final.state.y)
         ys_carried = jax.vmap(ode.complete)(safe)

@@ -167,6 +167,10 @@ class LogTransformedODE(eqx.Module):
     def stops_at_impasse(self) -> bool:
         return getattr(self.ode, "stops_at_impasse", False)
 
+    @property
+    def completes_state(self) -> bool:
+        return getattr(self.ode, "completes_state", False)
+
     def with_folds(self):
         return LogTransformedODE(self.ode.with_folds(), self.log_components)
 

@@ -13,8 +13,8 @@ inside the compiled loop, over the window W = [w0·t_final, w1·t_final]:
 * the uniform mesh (``sweep(dt=…)``): :class:`PointStatistics`, over the accepted mesh points
   t_i ∈ W (the initial state included when w0 = 0): count, mean and standard deviation by
   Welford's update, minimum and maximum;
-* for both, events: the stick → slip jumps from below v̂ in W (runs through the folds) plus the
-  upward crossings v_{i−1} < v̂ ≤ v_i of v̂(V), the peeling velocity
+* for both, events (τ = 0, the DAE: its stick → slip jumps in W, since its v never crosses v̂):
+  the upward crossings v_{i−1} < v̂ ≤ v_i of v̂(V), the peeling velocity
   at the maximum of φ(·, V) (the onset of slip, where ∂φ/∂v = 0 and J_t → τ·F̃·(…)·∂f/∂v,
   Lemma ``hi``), counted for each accepted step whose end lies in W; and the work done
   (accepted and rejected steps, Newton iterations, the uniform mesh's subdivided steps);
@@ -328,14 +328,13 @@ def _lane(
     observers = (statistics,) if save is None else (statistics, save)
     run = integrator.observe(ode, initial_state(model, ode.V, start), 0.0, t_final, Observers(observers))
     summary = statistics.summary(run.record[0])
-    if run.jumps is not None:
-        # A stick → slip jump from below v̂ is no crossing between step points: count it too
-        # (one from above v̂, as the homogenized ODE's, has been counted as a crossing).
+    if dae and run.jumps is not None:
+        # The DAE's v never crosses v̂ (its stick branch ends there): its slips are its
+        # stick → slip jumps. (The homogenized ODE's v rises through v̂ before J_t → 0: a crossing.)
         jumps = run.jumps
         slot = jnp.arange(jumps.max_jumps)
         in_window = (jumps.t >= window[0] * t_final) & (jumps.t <= window[1] * t_final)
-        from_below = jumps.up & (jumps.v_before < v_slip) & in_window & (slot < jumps.count)
-        summary["events"] = summary["events"] + jnp.sum(from_below)
+        summary["events"] = jnp.sum(jumps.up & in_window & (slot < jumps.count)).astype(summary["events"].dtype)
     ys = None
     if save is not None:
         out = run.record[1]
