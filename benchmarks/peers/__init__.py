@@ -11,6 +11,8 @@ batch runner (P3), gradient (P4) and direct-DAE runner (P5):
 * ``sundials_peer``: SUNDIALS CVODE and IDA through scikit-sundae;
 * ``casadi_peer``: CasADi's cvodes (ψ from CasADi symbols, forward sensitivities) and idas;
 * ``petsc_peer``: PETSc TSALPHA through ``petsc_tsalpha.py`` run by the interpreter that has petsc4py.
+* ``jump_peers``: (P6, ``stick_slip.py``) the DAE at τ = 0 through φ's folds: ``run(rtol)`` returns the
+  jump times (peeljax, scipy events, diffrax ``Event``, CasADi events, the inertial model).
 """
 
 from __future__ import annotations

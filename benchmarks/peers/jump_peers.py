@@ -1,0 +1,413 @@
+"""The peers of ``stick_slip.py`` (P6): the DAE (τ = 0) carried through φ's folds by jumps.
+
+Each peer's ``run(rtol)`` returns the jump times over [0, ``T_FINAL``] at V = ``V`` (the
+stick → slip and slip → stick jumps of v at fixed x, in order); ``prepare()`` builds or
+compiles what the runs need, outside the timed region. Every peer uses atol = ``ATOL_RATIO``·rtol.
+
+* :class:`PeeljaxDAE`: ``peeljax.simulate(tau=0, rtol=…)``, the fold located inside the compiled loop;
+* :class:`ScipyEvents`: ``solve_ivp`` (LSODA, Radau, …) on ẋ = f(x, v(x)) with v the root on
+  the current branch (plain Python), a terminal event at the fold, restarted after each jump;
+  with ``refine=True`` the scipy reference's algorithm (``tests/jump_reference.py``: the last
+  stretch before each fold integrated again in arclength) at that rtol;
+* :class:`DiffraxEvents`: ``diffrax.diffeqsolve`` with a ``diffrax.Event`` (G(x) reaching the
+  fold, located by Newton on the dense output) on ``peeljax.ConstrainedDAE``'s vector field,
+  compiled once; the host restarts it after each jump;
+* :class:`CasadiEvents`: CasADi's cvodes with CasADi's own (experimental, 3.8) zero-crossing
+  events: a ``zero`` function and a ``transition`` Function that flips the branch, CasADi
+  locating each event and re-initializing CVODES after it, all 210 jumps in one call;
+* :class:`InertialModel`: ``peeljax.alternatives.inertial.integrate_inertial`` (diffrax
+  Kvaerno5) at a tape mass m; its "jumps" are the times where v crosses √(v̂·v̌), the
+  geometric mean of φ's folds (the split ``peeljax.branches.branch_of`` uses).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+
+from peers import Peer
+
+V = 1.1
+T_FINAL = 3.0
+ATOL_RATIO = 1e-3
+TESTS = Path(__file__).resolve().parents[2] / "tests"
+
+
+def jump_reference():
+    """``tests/jump_reference.py`` (the independent scipy implementation with the arclength refinement)."""
+    if str(TESTS) not in sys.path:
+        sys.path.insert(0, str(TESTS))
+    import jump_reference
+
+    return jump_reference
+
+
+# --------------------------------------------------------------------------- peeljax
+class PeeljaxDAE(Peer):
+    """``peeljax.simulate(V, tau=0, rtol, atol)``: output at [0, t_final] only (``ts``), so no step buffer."""
+
+    name = "peeljax simulate(tau=0)"
+
+    def __init__(self, settings, V=V, max_steps=1_000_000):
+        super().__init__(0.0, settings)
+        self.V, self.max_steps = V, max_steps
+
+    def prepare(self):
+        import peeljax
+
+        self._pj = peeljax
+        self._ts = np.array([0.0, T_FINAL])
+        self._last = None
+
+    def run(self, rtol):
+        sol = self._pj.simulate(
+            V=self.V, tau=0, t_final=T_FINAL, rtol=rtol, atol=ATOL_RATIO * rtol, ts=self._ts, max_steps=self.max_steps
+        )
+        jumps = sol.jumps.as_numpy()
+        if sol.status_name != "completed":
+            raise RuntimeError(f"stopped at t = {float(sol.t_stop):.6g}: {sol.reason}")
+        self._last = sol.stats
+        return jumps["jump_t"]
+
+    def run_stats(self, rtol):
+        if self._last is None:
+            return None
+        return {key: int(self._last[key]) for key in ("accepted_steps", "rejected_steps", "newton_iterations")}
+
+
+# --------------------------------------------------------------------------- scipy
+def _scalar_law(V):
+    """φ(·, V) and dφ/d(log v) as scalar functions of v (plain Python)."""
+    c = jump_reference().PAPER
+    offset = c["c5"] * V ** c["p5"]
+    c9 = c["c6"] - c["c7"] * V ** c["p7"] - c["c8"] * V ** c["p8"]
+    c1, p1, c2, p2, c3, c4, p9 = c["c1"], c["p1"], c["c2"], c["p2"], c["c3"], c["c4"], c["p9"]
+
+    def phi(v):
+        if v <= 0.0:
+            return c3 - offset
+        return c1 * v**p1 + c2 * v**p2 + c3 * math.exp(v / c4) - offset - c9 * v**p9
+
+    def dphi_dlogv(v):
+        return c1 * p1 * v**p1 + c2 * p2 * v**p2 + c3 / c4 * v * math.exp(v / c4) - c9 * p9 * v**p9
+
+    return phi, dphi_dlogv
+
+
+class _Branch:
+    """An increasing branch [lo, hi] of φ(·, V): v(G) by safeguarded Newton in log v, warm-started."""
+
+    def __init__(self, law, lo, hi):
+        self.phi, self.slope = law
+        self.lo, self.hi = lo, min(hi, 1e3)
+        self.phi_lo, self.phi_hi = self.phi(lo), (self.phi(hi) if math.isfinite(hi) else math.inf)
+        self.w = math.log(math.sqrt(max(lo, 1e-6) * self.hi))
+
+    def velocity(self, G):
+        if G <= self.phi_lo:
+            return self.lo
+        if G >= self.phi_hi:
+            return self.hi
+        a, b = (math.log(self.lo) if self.lo > 0 else -690.0), math.log(self.hi)
+        w = min(max(self.w, a), b)
+        for _ in range(100):
+            v = math.exp(w)
+            r = self.phi(v) - G
+            if r < 0:
+                a = w
+            else:
+                b = w
+            s = self.slope(v)
+            new = w - r / s if s > 0 else math.nan
+            if not a < new < b:
+                new = 0.5 * (a + b)
+            done = abs(new - w) <= 1e-13
+            w = new
+            if done:
+                break
+        self.w = w
+        return math.exp(w)
+
+
+def scipy_events_run(V, rtol, atol, method="LSODA", t_final=T_FINAL):
+    """Jump times by ``solve_ivp`` with a terminal event at the fold, restarted after each jump (no refinement).
+
+    Returns (jump times, right-hand-side evaluations).
+    """
+    from scipy.integrate import solve_ivp
+
+    ref = jump_reference()
+    R, I, K = ref.R, ref.I, ref.K_OVER_L
+    law = _scalar_law(V)
+    v_hat, v_min = ref.fold_velocities(V)
+    folds = not math.isnan(v_hat)
+    stick = _Branch(law, 0.0, v_hat if folds else math.inf)
+    slip = _Branch(law, v_min, math.inf) if folds else None
+
+    def shear(x):
+        return (1.0 + math.sin(x[0])) * K * x[2]
+
+    def rhs(_, x, branch):
+        v = branch.velocity(shear(x))
+        slip_rate = x[1] - v / R
+        s = math.sin(x[0])
+        return [slip_rate, -R * s * K * x[2] / I, R * s * slip_rate + V - v]
+
+    def to_slip(_, x, branch):
+        return shear(x) - branch.phi_hi
+
+    def to_stick(_, x, branch):
+        return shear(x) - branch.phi_lo
+
+    to_slip.terminal = to_stick.terminal = True
+    to_slip.direction, to_stick.direction = 1.0, -1.0
+    t, x, sticking, jumps, nfev = 0.0, ref.initial_state(V)[:3], True, [], 0
+    while t < t_final:
+        branch = stick if sticking else slip
+        events = None if not folds else (to_slip if sticking else to_stick)
+        sol = solve_ivp(rhs, (t, t_final), x, method=method, rtol=rtol, atol=atol, events=events, args=(branch,))
+        nfev += sol.nfev
+        if not sol.success:
+            raise RuntimeError(f"solve_ivp failed at t = {sol.t[-1]:.9g} s: {sol.message}")
+        if sol.status != 1:
+            break
+        t, x = float(sol.t_events[0][0]), sol.y_events[0][0]
+        jumps.append(t)
+        sticking = not sticking
+        (stick if sticking else slip).velocity(shear(x))  # warm start on the landing branch
+    return np.array(jumps), nfev
+
+
+class ScipyEvents(Peer):
+    def __init__(self, settings, method="LSODA", refine=False, V=V):
+        super().__init__(0.0, settings)
+        self.method, self.refine, self.V = method, refine, V
+        self.name = f"scipy {method} events" + (" + arclength refinement" if refine else "")
+        self._last = None
+
+    def prepare(self):
+        self._ref = jump_reference()
+
+    def run(self, rtol):
+        if self.refine:
+            return self._ref.reference_jump_run(self.V, T_FINAL, rtol=rtol, atol=ATOL_RATIO * rtol, method=self.method)[
+                "jump_t"
+            ]
+        jumps, self._last = scipy_events_run(self.V, rtol, ATOL_RATIO * rtol, self.method)
+        return jumps
+
+    def run_stats(self, rtol):
+        return None if self._last is None or self.refine else {"nfev": self._last}
+
+
+# --------------------------------------------------------------------------- diffrax
+class DiffraxEvents(Peer):
+    """``diffeqsolve`` with ``diffrax.Event`` on ``peeljax.ConstrainedDAE``, restarted on the host after each jump.
+
+    The state is y = (α, ω, u, v) with ψ_v = 0 (``ConstrainedDAE``): v is solved from the
+    constraint on the branch y's v lies on at every evaluation; the event is
+    ``ConstrainedDAE.fold_event`` (G(x) − φ(v̂, V) on the stick branch, φ(v̌, V) − G(x) on the
+    slip branch), located by ``optimistix.Newton`` on the step's dense output. The compiled
+    segment also returns the state after the jump (``ConstrainedDAE.jump``: v⁺ on the other
+    branch at fixed x), so each restart is one call; the loop over segments is Python.
+    """
+
+    def __init__(self, settings, solver_name="Tsit5", V=V, max_steps=1_000_000):
+        super().__init__(0.0, settings)
+        self.solver_name, self.V, self.max_steps = solver_name, V, max_steps
+        self.name = f"diffrax {solver_name} + Event"
+        self._last = None
+
+    def prepare(self):
+        import diffrax
+        import equinox as eqx
+        import jax.numpy as jnp
+        import optimistix as optx
+
+        import peeljax
+
+        solver, max_steps = getattr(diffrax, self.solver_name)(), self.max_steps
+        self._jnp = jnp
+        self._ode = peeljax.ConstrainedDAE(peeljax.PeelingModel(), self.V).with_folds()
+        self._y0 = peeljax.PeelingModel().initial_state(self.V)
+
+        @eqx.filter_jit
+        def segment(ode, t0, y0, rtol, atol):
+            event = diffrax.Event(
+                lambda t, y, args, **kwargs: ode.fold_event(y), root_finder=optx.Newton(rtol=1e-13, atol=1e-13)
+            )
+            sol = diffrax.diffeqsolve(
+                diffrax.ODETerm(lambda t, y, args: ode(y)), solver, t0, T_FINAL, None, y0,
+                saveat=diffrax.SaveAt(t1=True), stepsize_controller=diffrax.PIDController(rtol=rtol, atol=atol),
+                event=event, max_steps=max_steps, throw=False,
+            )  # fmt: skip
+            t1, y1, hit = sol.ts[-1], sol.ys[-1], sol.event_mask
+            after = jnp.where(hit, ode.jump(y1).y, y1)
+            ok = sol.result == diffrax.RESULTS.successful
+            return t1, after, hit, ok, sol.stats["num_accepted_steps"], sol.stats["num_rejected_steps"]
+
+        self._segment = segment
+
+    def run(self, rtol):
+        jnp = self._jnp
+        r, a = jnp.asarray(rtol), jnp.asarray(ATOL_RATIO * rtol)
+        t, y, jumps, accepted, rejected = 0.0, self._y0, [], 0, 0
+        while True:
+            t1, y, hit, ok, n_acc, n_rej = self._segment(self._ode, jnp.asarray(t), y, r, a)
+            t, hit = float(t1), bool(hit)
+            accepted, rejected = accepted + int(n_acc), rejected + int(n_rej)
+            if not hit and not bool(ok):
+                raise RuntimeError(f"diffeqsolve stopped at t = {t:.9g} s")
+            if not hit or t >= T_FINAL:
+                break
+            jumps.append(t)
+        self._last = {"accepted_steps": accepted, "rejected_steps": rejected, "restarts": len(jumps)}
+        return np.array(jumps)
+
+    def run_stats(self, rtol):
+        return self._last
+
+
+# --------------------------------------------------------------------------- CasADi
+class CasadiEvents(Peer):
+    """CasADi cvodes with CasADi 3.8's experimental events (``dae["zero"]`` and the ``transition`` option).
+
+    State X = (α, ω, u, b, n, s1 … s4): b the branch (0 stick, 1 slip), n the jump count and
+    s1 … s4 the last four jump times (the transition shifts them: CasADi reports no event
+    times, so they are read back from the states at 3000 output times, ≤ 4 jumps apart).
+    v(x) on branch b is an SX expression: ``BISECTIONS`` bisections in log v on the branch,
+    two Newton steps (which carry the implicit function theorem's derivative into CVODES's
+    Jacobian), clamped at the branch's ends. Zero function: φ(v̂, V) − G on the stick branch,
+    G − φ(v̌, V) on the slip branch; CasADi only reports zeros crossed from + to − (measured:
+    with the opposite signs no event fires). ``event_tol`` 1e-14 and ``max_event_iter`` 100:
+    the defaults leave every stick → slip jump ~4e-5 s early.
+    """
+
+    REGISTER, OUTPUTS, BISECTIONS = 4, 3000, 56
+    OPTIONS: ClassVar[dict] = {
+        "event_tol": 1e-14,
+        "max_event_iter": 100,
+        "max_events": 100_000,
+        "max_num_steps": 1_000_000,
+    }
+
+    def __init__(self, settings, V=V):
+        super().__init__(0.0, settings)
+        self.V = V
+        self.name = "CasADi cvodes + events (experimental)"
+        self._integrators = {}
+
+    def prepare(self):
+        import casadi as ca
+
+        ref = jump_reference()
+        V, c = self.V, ref.PAPER
+        offset = c["c5"] * V ** c["p5"]
+        c9 = c["c6"] - c["c7"] * V ** c["p7"] - c["c8"] * V ** c["p8"]
+
+        def phi(w):
+            v = ca.exp(w)
+            return (
+                c["c1"] * v ** c["p1"]
+                + c["c2"] * v ** c["p2"]
+                + c["c3"] * ca.exp(v / c["c4"])
+                - offset
+                - c9 * v ** c["p9"]
+            )
+
+        v_hat, v_min = ref.fold_velocities(V)
+        phi_max, phi_min = float(ref.phi(v_hat, V)), float(ref.phi(v_min, V))
+        X = ca.SX.sym("X", 5 + self.REGISTER)
+        alpha, omega, u, branch, count = X[0], X[1], X[2], X[3], X[4]
+        G = (1 + ca.sin(alpha)) * ref.K_OVER_L * u
+        slip = branch > 0.5
+        lo = ca.if_else(slip, math.log(v_min), math.log(1e-100))
+        hi = ca.if_else(slip, math.log(100.0), math.log(v_hat))
+        a, b = lo, hi
+        for _ in range(self.BISECTIONS):
+            mid = 0.5 * (a + b)
+            below = phi(mid) < G
+            a, b = ca.if_else(below, mid, a), ca.if_else(below, b, mid)
+        w, ws = 0.5 * (a + b), ca.SX.sym("w")
+        slope = ca.Function("slope", [ws], [ca.jacobian(phi(ws), ws)])
+        for _ in range(2):
+            w = w - (phi(w) - G) / slope(w)
+        phi_lo = ca.if_else(slip, phi_min, phi(math.log(1e-100)))
+        phi_hi = ca.if_else(slip, ca.inf, phi_max)
+        v = ca.exp(ca.if_else(G >= phi_hi, hi, ca.if_else(G <= phi_lo, lo, w)))
+        slip_rate, s = omega - v / ref.R, ca.sin(alpha)
+        ode = ca.vertcat(
+            slip_rate,
+            -ref.R * s * ref.K_OVER_L * u / ref.I,
+            ref.R * s * slip_rate + V - v,
+            ca.SX.zeros(2 + self.REGISTER),
+        )
+        t, index, empty = ca.SX.sym("t"), ca.SX.sym("index"), ca.SX(0, 1)
+        post = ca.vertcat(alpha, omega, u, 1 - branch, count + 1, t, X[5 : 4 + self.REGISTER])
+        self._transition = ca.Function(
+            "transition", [index, t, X, empty, empty, empty], [post, empty], ca.event_in(), ca.event_out()
+        )
+        self._dae = {"x": X, "ode": ode, "zero": ca.if_else(slip, G - phi_min, phi_max - G)}
+        self._x0 = np.concatenate([ref.initial_state(V)[:3], [0.0, 0.0], np.full(self.REGISTER, -1.0)])
+        self._ca = ca
+
+    def _integrator(self, rtol):
+        if rtol not in self._integrators:
+            grid = np.linspace(0.0, T_FINAL, self.OUTPUTS + 1)[1:]
+            options = {"transition": self._transition, "reltol": rtol, "abstol": ATOL_RATIO * rtol, **self.OPTIONS}
+            self._integrators[rtol] = self._ca.integrator("F", "cvodes", self._dae, 0.0, grid, options)
+        return self._integrators[rtol]
+
+    def run(self, rtol):
+        xf = np.asarray(self._integrator(rtol)(x0=self._x0)["xf"])
+        count = np.concatenate([[0], np.round(xf[4]).astype(int)])
+        jumps = []
+        for k in range(1, count.size):
+            new = count[k] - count[k - 1]
+            if new > self.REGISTER:
+                raise RuntimeError(f"{new} jumps between two output times: the register holds {self.REGISTER}")
+            jumps += list(xf[5 : 5 + new, k - 1][::-1])
+        return np.array(jumps)
+
+
+# --------------------------------------------------------------------------- the inertial model
+class InertialModel(Peer):
+    """``integrate_inertial`` (diffrax Kvaerno5, m·v̇ = G − φ) at mass m; jumps: v crossing √(v̂·v̌).
+
+    The crossing times are interpolated linearly in log v between the saved accepted steps
+    (a crossing lasts O(m) and the steps there are shorter still).
+    """
+
+    def __init__(self, settings, m, V=V, max_steps=400_000):
+        super().__init__(0.0, settings)
+        self.m, self.V, self.max_steps = m, V, max_steps
+        self.name = f"inertial model m = {m:g} kg (diffrax Kvaerno5)"
+        self._last = None
+
+    def prepare(self):
+        import peeljax
+        from peeljax.alternatives.inertial import integrate_inertial
+
+        folds = peeljax.phi_folds(peeljax.PeelingModel(), self.V)
+        self._log_split = 0.5 * math.log(float(folds.v_max) * float(folds.v_min))
+        self._integrate = integrate_inertial
+
+    def run(self, rtol):
+        sol = self._integrate(
+            V=self.V, m=self.m, t_final=T_FINAL, rtol=rtol, atol=ATOL_RATIO * rtol, save_steps=True,
+            max_steps=self.max_steps,
+        )  # fmt: skip
+        valid = np.asarray(sol.valid)
+        if not bool(sol.completed):
+            raise RuntimeError(f"stopped at t = {float(sol.t_stop):.6g} s")
+        t, w = np.asarray(sol.ts)[valid], np.log(np.asarray(sol.ys)[valid, 3]) - self._log_split
+        i = np.flatnonzero(np.sign(w[:-1]) != np.sign(w[1:]))
+        self._last = {"saved_steps": int(valid.sum())}
+        return t[i] - w[i] * (t[i + 1] - t[i]) / (w[i + 1] - w[i])
+
+    def run_stats(self, rtol):
+        return self._last
