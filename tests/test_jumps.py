@@ -247,3 +247,23 @@ def test_sweep_lanes_jump_as_simulate_does():
     up, t = res.jumps["jump_up"], res.jumps["jump_t"]
     slips = np.sum(up & (t >= 0.5) & (t <= 1.0), axis=1)
     np.testing.assert_array_equal(res.events, slips)
+
+
+def test_a_landing_below_phi_at_rest_is_a_fully_stuck_tape():
+    """Where G(x) < φ(0⁺, V) the stick branch has no root: the jump from the slip branch lands
+    at v = 0 (stuck), the DAE's ψ is finite there (x moves with v = 0), and once G is back above
+    φ(0⁺, V) v leaves 0 continuously on the stick branch."""
+    V = 1.1
+    dae = pj.ConstrainedDAE(MODEL, V).with_folds()
+    phi_zero = float(dae.folds.phi_zero)
+    stuck_x = jnp.array([0.1, 0.0, float(MODEL.stretch_for_force(0.1, phi_zero - 5.0))])
+    slipping = jnp.concatenate([stuck_x, jnp.array([9.0])])
+    jump = dae.jump(slipping)
+    assert not bool(jump.up) and float(jump.v_after) == 0.0
+    evaluation = dae.evaluate(jump.y)
+    assert np.all(np.isfinite(np.asarray(evaluation.psi)))
+    np.testing.assert_allclose(np.asarray(evaluation.psi[:3]), np.asarray(MODEL.f(stuck_x, 0.0, V)), rtol=1e-12)
+    for excess, expected_positive in ((-1e-3, False), (1e-3, True)):
+        x = stuck_x.at[2].set(float(MODEL.stretch_for_force(0.1, phi_zero + excess)))
+        v = float(dae.velocity(jnp.concatenate([x, jnp.array([0.0])])))
+        assert (v > 0) == expected_positive and v < 1e-6
