@@ -81,21 +81,9 @@ class PeeljaxDAE(Peer):
 
 # --------------------------------------------------------------------------- scipy
 def _scalar_law(V):
-    """φ(·, V) and dφ/d(log v) as scalar functions of v (plain Python)."""
-    c = jump_reference().PAPER
-    offset = c["c5"] * V ** c["p5"]
-    c9 = c["c6"] - c["c7"] * V ** c["p7"] - c["c8"] * V ** c["p8"]
-    c1, p1, c2, p2, c3, c4, p9 = c["c1"], c["p1"], c["c2"], c["p2"], c["c3"], c["c4"], c["p9"]
-
-    def phi(v):
-        if v <= 0.0:
-            return c3 - offset
-        return c1 * v**p1 + c2 * v**p2 + c3 * math.exp(v / c4) - offset - c9 * v**p9
-
-    def dphi_dlogv(v):
-        return c1 * p1 * v**p1 + c2 * p2 * v**p2 + c3 / c4 * v * math.exp(v / c4) - c9 * p9 * v**p9
-
-    return phi, dphi_dlogv
+    """φ(·, V) and dφ/d(log v) = v·∂φ/∂v as scalar functions of v (the reference's own law)."""
+    phi, slope = jump_reference()._scalar_law(V)
+    return phi, lambda v: v * slope(v)
 
 
 class _Branch:
