@@ -9,7 +9,7 @@ import peeljax as pj
 from peeljax.solution import StopReason
 
 BAD_INPUT = [
-    (dict(tau=0.0, dt=0.01), "tau=0"),  # τ = 0 (the DAE) runs with error control only
+    (dict(tau=0.0, dt=0.01), "tau"),  # τ = 0 (the DAE) runs with error control only (simulate_reference: τ > 0)
     (dict(tau=-1.0), "tau"),
     (dict(V=0.0), "V"),
     (dict(V=float("nan")), "V"),
