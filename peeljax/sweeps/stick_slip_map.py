@@ -21,8 +21,9 @@ Definitions (per V and start, over the lane's window [window_start, t_stop]; see
   such lanes are not completed (``status``) and say what the run was doing when it stopped.
 * **jumps_total**: every jump of the run, transient included.
 * **jumps**, **slips**: the jumps of v in the window, and the stick → slip ones among them.
-* **crossings**: the sweep's ``events`` over its window: upward crossings of v̂ without a jump
-  (τ > 0: the homogenized ODE can pass a fold smoothly; 0 for τ = 0, where v jumps over v̂).
+* **crossings**: the sweep's ``events`` over its window: for τ > 0 the upward crossings of v̂
+  (the homogenized ODE rises through v̂ before it jumps, or passes a fold smoothly); for τ = 0,
+  whose v never crosses v̂, the sweep counts the stick → slip jumps there (= ``slips``).
 * **stick_slip**: ``jumps > 0`` or ``crossings > 0``: the run still slips once the transient is
   over. The cycle statistics below read the jumps only (for τ > 0, smooth passages are left out).
 * **jump_G**, **jump_up**: the shear force G = (1 + l·sinα/L)·F at every jump in the window and
