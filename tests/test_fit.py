@@ -14,7 +14,7 @@ import optax
 import pytest
 
 import peeljax as pj
-from peeljax.fit import _update, restart_on_ascent
+from peeljax.fit.trajectory import _update, restart_on_ascent
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import fit_acceptance

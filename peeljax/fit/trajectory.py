@@ -42,13 +42,13 @@ import numpy as np
 import optax
 from jaxtyping import Array, ArrayLike, Float
 
-from ._validation import check_positive
-from .adhesion import COEFFICIENT_NAMES, AdhesionLaw
-from .homogenized import HomogenizedODE
-from .integrators.alpha import AlphaMethod
-from .integrators.base import AbstractIntegrator
-from .integrators.select import integrator_for
-from .model import PeelingModel
+from .._validation import check_positive
+from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw
+from ..homogenized import HomogenizedODE
+from ..integrators.alpha import AlphaMethod
+from ..integrators.base import AbstractIntegrator
+from ..integrators.select import integrator_for
+from ..model import PeelingModel
 
 __all__ = [
     "FitResult",
