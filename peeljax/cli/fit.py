@@ -1,13 +1,19 @@
 """``peeljax fit``: fit the adhesion law's coefficients to observed runs.
 
-Data files (``--data``, repeatable; ``np.load(..., allow_pickle=False)``), either layout:
+Data files (``--data``, repeatable; read by :mod:`peeljax.fit.data`, never executed):
 
-* one pull velocity per file: a scalar ``V`` and 1-D arrays ``t``, ``v`` of one length, and
-  optionally ``F`` (the tension [N]) and ``alpha`` [rad], on the same times ``t`` or on their
-  own ``t_F`` / ``t_alpha``. A ``peeljax simulate --out`` file is such a file (its NaN
-  entries after a stop are ignored; its ``tau`` becomes the default);
-* several pull velocities in one file: ``V_0, t_0, v_0`` (and ``F_0, alpha_0, t_F_0,
-  t_alpha_0``), ``V_1, t_1, v_1``, … with consecutive indices from 0.
+* a force record: CSV or whitespace-separated text, ``#`` comment lines, a header naming the
+  columns ``t`` [s] and ``F`` [N] (the tension), optionally ``v`` [m/s], ``alpha`` [rad] and a
+  constant ``V`` [m/s]; the pull velocity from that column, the file name (``peel_V=1.1.csv``)
+  or ``--V`` (one value for all such files, or one per ``--data``), which must agree;
+* ``.npz`` (``np.load(..., allow_pickle=False)``), either layout:
+
+  - one pull velocity per file: a scalar ``V`` and 1-D arrays ``t``, ``v`` of one length, and
+    optionally ``F`` (the tension [N]) and ``alpha`` [rad], on the same times ``t`` or on their
+    own ``t_F`` / ``t_alpha``. A ``peeljax simulate --out`` file is such a file (its NaN
+    entries after a stop are ignored; its ``tau`` becomes the default);
+  - several pull velocities in one file: ``V_0, t_0, v_0`` (and ``F_0, alpha_0, t_F_0,
+    t_alpha_0``), ``V_1, t_1, v_1``, … with consecutive indices from 0.
 
 Output (``--out``): a JSON object with the 14 coefficients ``c1, p1, …, p9`` at top level
 (``AdhesionLaw.from_json`` and ``--phi`` read it), ``loss_history``, ``initial_loss``,
@@ -28,6 +34,7 @@ import numpy as np
 from .._validation import check_mesh, check_positive, check_tolerance
 from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw
 from ..fit import QUANTITIES, Observation
+from ..fit.data import DataFileError, read_force_record, read_npz
 from ..integrators.select import DEFAULT_ATOL, DEFAULT_RTOL
 from ._common import PROG, check_output_path, checked, fail, json_safe, load_phi, plot_formats
 
@@ -47,7 +54,22 @@ def add_command(subparsers) -> None:
         ),
     )
     parser.add_argument(
-        "--data", action="append", required=True, metavar="OBSERVED.npz", help="observations (repeatable)"
+        "--data",
+        action="append",
+        required=True,
+        metavar="FILE",
+        help="observations (repeatable): .npz, or a force record as CSV / whitespace text with a header naming "
+        "its columns: t [s], F [N] (the tension), optional v [m/s], alpha [rad], V [m/s]",
+    )
+    parser.add_argument(
+        "--V",
+        dest="V",
+        type=float,
+        nargs="+",
+        default=None,
+        metavar="V",
+        help="pull velocity [m/s] of text --data files that carry it neither in a V column nor in their name "
+        "(peel_V=1.1.csv): one value for all files, or one per --data file in order",
     )
     parser.add_argument(
         "--out", required=True, metavar="FITTED.json", help="the fitted coefficients, loss history and settings"
@@ -96,104 +118,50 @@ def add_command(subparsers) -> None:
     parser.set_defaults(handler=_fit_command)
 
 
-def _scalar(data, key: str, path: str) -> float:
-    value = np.asarray(data[key])
-    if value.size != 1 or not np.issubdtype(value.dtype, np.number):
-        raise ValueError(f"--data {path!r}: {key!r} must be a number")
-    return float(value.reshape(()))
-
-
-def _array(data, key: str, path: str) -> np.ndarray:
-    value = np.asarray(data[key])
-    if value.ndim != 1 or not np.issubdtype(value.dtype, np.number) or value.size < 2:
-        raise ValueError(f"--data {path!r}: {key!r} must be a 1-D numeric array of at least 2 entries")
-    return value.astype(float)
-
-
-def _check_series(path: str, key: str, time_key: str, times: np.ndarray, values: np.ndarray) -> None:
-    """NaN marks a missing entry (ignored); an infinite value or time, or times that do not
-    increase, mean a broken file."""
-    if np.any(np.isinf(values)):
-        raise ValueError(f"--data {path!r}: {key!r} has infinite entries (NaN marks a missing value; inf is not one)")
-    if np.any(np.isinf(times)):
-        raise ValueError(f"--data {path!r}: {time_key!r} has infinite entries")
-    finite = times[np.isfinite(times)]
-    if np.any(np.diff(finite) <= 0):
-        i = int(np.flatnonzero(np.diff(finite) <= 0)[0])
+def _V_per_file(paths: list[str], V) -> list[float | None]:
+    """--V: one pull velocity for every --data file, or one per file in order (None: not given)."""
+    if V is None:
+        return [None] * len(paths)
+    values = list(V) if isinstance(V, (list, tuple)) else [V]
+    for value in values:
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"--V must be > 0 [m/s] (allowed range: (0, inf)), got {value:g}")
+    if len(values) == 1:
+        return values * len(paths)
+    if len(values) != len(paths):
         raise ValueError(
-            f"--data {path!r}: the times {time_key!r} must increase strictly, got {finite[i]:g} then {finite[i + 1]:g}"
+            f"--V takes one value for all --data files or one per file: {len(values)} values for {len(paths)} files"
         )
+    return values
 
 
-def _observation(data, path: str, suffix: str) -> Observation:
-    keys = set(data.files)
-    for key in ("V", "t", "v"):
-        if key + suffix not in keys:
-            raise ValueError(
-                f"--data {path!r}: missing {key + suffix!r} (keys: t, v, V and optional F, alpha; or V_0, t_0, v_0, ...)"
-            )
-    V = _scalar(data, "V" + suffix, path)
-    if not (math.isfinite(V) and V > 0):
-        raise ValueError(f"--data {path!r}: V{suffix} must be > 0 (allowed range: (0, inf)), got {V}")
-    t = _array(data, "t" + suffix, path)
-    fields = {"v": _array(data, "v" + suffix, path)}
-    if fields["v"].shape != t.shape:
-        raise ValueError(f"--data {path!r}: 't{suffix}' and 'v{suffix}' must have one length")
-    _check_series(path, "v" + suffix, "t" + suffix, t, fields["v"])
-    for q in ("F", "alpha"):
-        if q + suffix in keys:
-            values = _array(data, q + suffix, path)
-            times = _array(data, f"t_{q}{suffix}", path) if f"t_{q}{suffix}" in keys else t
-            if times.shape != values.shape:
-                raise ValueError(f"--data {path!r}: {q}{suffix!s} and its times must have one length")
-            time_key = f"t_{q}{suffix}" if f"t_{q}{suffix}" in keys else "t" + suffix
-            _check_series(path, q + suffix, time_key, times, values)
-            fields[q], fields[f"t_{q}"] = values, times
-    observation = Observation(V=V, t=t, **fields)
-    if len(observation.series("v")[0]) < 2:
-        raise ValueError(f"--data {path!r}: fewer than 2 finite v{suffix} values")
-    return observation
+def load_observations(paths: list[str], V=None) -> tuple[list[Observation], dict]:
+    """Observations from the --data files and the .npz files' tau/dt where they agree.
 
+    ``.npz`` files keep their layouts (module docstring); any other file is a text force
+    record (:func:`peeljax.fit.data.read_force_record`: a CSV or whitespace table with columns
+    t, F and optionally v, alpha, V). ``V`` (``--V``): the pull velocity of text files that carry
+    it neither in a V column nor in their name, one value for all files or one per file.
 
-def load_observations(paths: list[str]) -> tuple[list[Observation], dict]:
-    """Observations from .npz files (layouts in the module docstring) and the files' tau/dt if they agree."""
+    Raises:
+        ValueError: starting with ``--data`` and naming the file (and the line and column or
+            field at fault), or naming ``--V``.
+    """
     observations, defaults = [], {"tau": set(), "dt": set()}
-    for path in paths:
+    for path, V_file in zip(paths, _V_per_file(paths, V)):
         if not Path(path).is_file():
             raise ValueError(f"--data: file {path!r} does not exist")
         try:
-            data = np.load(path, allow_pickle=False)
-        except Exception as error:  # noqa: BLE001  (any failure to parse the file is bad input)
-            raise ValueError(f"--data {path!r}: not a readable .npz without pickles ({type(error).__name__})") from None
-        if not hasattr(data, "files"):
-            raise ValueError(f"--data {path!r}: expected an .npz archive of named arrays")
-        with data:
-            try:
-                _read_file(data, path, observations, defaults)
-            except ValueError as error:
-                if "allow_pickle" in str(error):
-                    raise ValueError(f"--data {path!r}: not a readable .npz without pickles (object arrays)") from None
-                raise
+            if Path(path).suffix.lower() == ".npz":
+                found, settings = read_npz(path, V=V_file)
+                for key, value in settings.items():
+                    defaults[key].add(value)
+            else:
+                found = [read_force_record(path, V=V_file)]
+        except DataFileError as error:
+            raise ValueError(f"--data: {error}") from None
+        observations.extend(found)
     return observations, {k: next(iter(v)) for k, v in defaults.items() if len(v) == 1}
-
-
-def _read_file(data, path, observations, defaults):
-    """Append the file's observations; collect its tau and dt."""
-    if "V_0" in data.files:
-        i = 0
-        while f"V_{i}" in data.files:
-            observations.append(_observation(data, path, f"_{i}"))
-            i += 1
-    else:
-        observations.append(_observation(data, path, ""))
-    for key in ("tau", "dt"):
-        if key in data.files:
-            try:
-                value = _scalar(data, key, path)
-            except ValueError:
-                continue
-            if math.isfinite(value) and value > 0:
-                defaults[key].add(value)
 
 
 def _validate(args: argparse.Namespace) -> dict:
@@ -213,7 +181,7 @@ def _validate(args: argparse.Namespace) -> dict:
         unknown = [q for q in args.quantities if q not in QUANTITIES]
         if unknown or "v" not in args.quantities and not args.quantities:
             raise ValueError(f"--quantities: unknown {unknown}; allowed: {', '.join(QUANTITIES)}")
-    observations, defaults = load_observations(args.data)
+    observations, defaults = load_observations(args.data, args.V)
     if args.quantities is not None:
         drop = {q: None for q in ("F", "alpha") if q not in args.quantities}
         observations = [Observation(**{**o.__dict__, **drop}) for o in observations]

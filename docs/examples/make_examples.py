@@ -1,0 +1,60 @@
+"""Writes the example data files of docs/examples/ (run from the repository root):
+
+    python docs/examples/make_examples.py
+
+* ``peel_V=1.1.csv``: the force record of a peeljax stick-slip run at V = 1.1 m/s — the paper's
+  φ and model, τ = 0 (the DAE itself, v jumping at the folds of φ), from the paper's initial
+  data, t in [0, 1] s every 0.5 ms, the tension F = (k/l)·u that a load cell on the tape
+  measures. The pull velocity is in the file name (``peeljax fit --data`` and
+  ``peeljax.fit.data.read_force_record`` read it from there). No noise is added.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+import peeljax as pj
+
+HERE = Path(__file__).resolve().parent
+
+FORCE_RECORD = {"V": 1.1, "t_final": 1.0, "sample": 5e-4, "rtol": 1e-8, "atol": 1e-10}
+
+
+def force_record(path: Path = HERE / "peel_V=1.1.csv") -> Path:
+    """The stick-slip force record at V = 1.1 m/s (module docstring)."""
+    V, t_final, sample = FORCE_RECORD["V"], FORCE_RECORD["t_final"], FORCE_RECORD["sample"]
+    model = pj.PeelingModel()
+    ts = np.round(np.arange(round(t_final / sample) + 1) * sample, 12)
+    sol = pj.simulate(
+        model, V=V, tau=0.0, t_final=t_final, ts=ts, fold="jump",
+        rtol=FORCE_RECORD["rtol"], atol=FORCE_RECORD["atol"], max_steps=400_000,
+    )  # fmt: skip
+    if sol.status_name != "completed":
+        raise RuntimeError(f"the run stopped at t = {float(sol.t_stop):g} s: {sol.reason}")
+    ys = np.asarray(sol.ys, dtype=np.float64)
+    F = np.asarray(model.tension(ys[:, 2], ys[:, 0]), dtype=np.float64)
+    jumps = int(sol.jumps.count)
+    up = np.asarray(sol.jumps.up)[:jumps]
+    slips, first = int(np.sum(up)), float(np.asarray(sol.jumps.t)[:jumps][up][0])
+    header = [
+        f"# peeljax stick-slip force record at the pull velocity V = {V:g} m/s (also in the file name)",
+        "# columns: t [s] time; F [N] the tape tension (k/l)*u, what a load cell on the tape measures",
+        (
+            f"# made by docs/examples/make_examples.py: peeljax.simulate(V={V:g}, tau=0, fold='jump', "
+            f"rtol={FORCE_RECORD['rtol']:g}, atol={FORCE_RECORD['atol']:g}), the paper's phi and model,"
+        ),
+        (
+            f"# from the paper's initial data (v0 = 1e-10*V): the tape sticks and loads until the first slip at "
+            f"t = {first:.4f} s; {slips} stick -> slip jumps in [0, {t_final:g}] s; no noise"
+        ),
+        "t,F",
+    ]
+    rows = [f"{t:.4f},{f:.4f}" for t, f in zip(ts, F)]
+    path.write_text("\n".join(header + rows) + "\n")
+    return path
+
+
+if __name__ == "__main__":
+    print(f"wrote {force_record()}")
