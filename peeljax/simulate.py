@@ -10,6 +10,7 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 from ._arrays import float_array
+from ._memory import check_output_memory
 from ._validation import (
     check_max_steps,
     check_mesh,
@@ -21,14 +22,33 @@ from ._validation import (
 )
 from .constrained import ConstrainedDAE
 from .homogenized import HomogenizedODE
-from .integrators.alpha import AlphaMethod
+from .integrators.alpha import AlphaMethod, UniformMesh
 from .integrators.base import AbstractIntegrator
 from .integrators.reference import integrate_reference
 from .integrators.select import DEFAULT_MAX_JUMPS, DEFAULT_MAX_STEPS, integrator_for, refuse_with_dt
 from .model import PeelingModel
 from .solution import Solution
 
-__all__ = ["simulate", "simulate_reference"]
+__all__ = ["check_run_memory", "simulate", "simulate_reference"]
+
+# Peak host memory of a run per output row [bytes], measured as the growth of the peak RSS
+# from 2e6 to 4e6 rows (V = 1.1, tau = 0.01, t_final = 3): the dense output at ``ts`` 354,
+# the accepted steps (``ts=None``, max_steps + 1 rows) 76, the uniform mesh 133; rounded up.
+# Times, states, the diagnostics, the compiled loop's buffers and the returned copy.
+ROW_BYTES = {"ts": 400, "steps": 100, "mesh": 150}
+_ROWS = {"ts": "output times", "steps": "rows of accepted steps (max_steps + 1)", "mesh": "mesh points"}
+
+
+def check_run_memory(rows: int, kind: str, max_jumps: int = 0, *, remedy: str, limit: float | None = None) -> None:
+    """Refuse a run whose output would not fit in memory (:func:`peeljax._memory.check_output_memory`).
+
+    ``rows``: output rows of ``kind`` ``"ts"`` (dense output), ``"steps"`` (the accepted steps)
+    or ``"mesh"`` (the uniform mesh); ``max_jumps``: slots of the jump record (up to 6 arrays of 8 bytes).
+    """
+    total = float(rows) * ROW_BYTES[kind] + 48.0 * max_jumps
+    jumps = f" + a record of {max_jumps} jumps" if max_jumps else ""
+    detail = f"{rows:.4g} {_ROWS[kind]} x ~{ROW_BYTES[kind]} bytes{jumps}"
+    check_output_memory("the run's output", total, detail, remedy, limit)
 
 
 def is_dae(tau) -> bool:
@@ -122,6 +142,7 @@ def simulate(
     checkpoint_every: int | str | None = None,
     fold: str | None = None,
     max_jumps: int = DEFAULT_MAX_JUMPS,
+    memory_limit: float | None = None,
 ) -> Solution:
     """Integrate the peeling problem with the α-method (or a diffrax solver), through the folds of φ.
 
@@ -164,7 +185,9 @@ def simulate(
         ts: error control only: output times in [0, t_final], increasing. None: the
             accepted step points, in ``max_steps + 1`` rows NaN-padded (``valid`` False).
         dtmin: error control only: a proposed step below it stops the run with "step size
-            collapsed" (default 1e-12·t_final).
+            collapsed" (default 1e-12·t_final, at most 3e-12 s: the first step from the paper's
+            start is about 1e-11 s whatever t_final is, so a dtmin growing with t_final would
+            stop a long run at t = 0). Must be < t_final.
         max_steps: error control only: most step attempts (accepted + rejected; static).
             Reaching it stops the run with its own reason.
         adjoint: error control only: ``"reverse"`` (default; a checkpointed while loop, for
@@ -178,6 +201,9 @@ def simulate(
             impasse points only, follow the homogenized ODE through singular passages).
         max_jumps: size of the jump record (static); one more jump stops the run with that
             reason, keeping what it computed.
+        memory_limit: bytes the run's output may take in host memory (default: half the RAM);
+            a run whose output rows (``ts``, ``max_steps + 1`` accepted steps, or the mesh
+            points) would take more is refused before anything compiles.
 
     Returns:
         A :class:`Solution`. Uniform mesh: N + 1 time points. Error control: the points of
@@ -202,8 +228,22 @@ def simulate(
         adjoint=adjoint, checkpoint_every=checkpoint_every, fold=fold, max_jumps=max_jumps, dae=is_dae(tau),
     )  # fmt: skip
     ts = None if ts is None else check_output_times(ts, t_final)
+    _check_memory(integrator, ts, max_steps, memory_limit)
     ode, y0 = _prepare(model, V, tau, y0, truncation, allow_dae=True)
     return _run(integrator, ode, y0, float_array(t_final), ts)
+
+
+def _check_memory(integrator, ts, max_steps, limit) -> None:
+    events = getattr(integrator, "events", None)
+    max_jumps = 0 if events is None else int(events.max_jumps)
+    if isinstance(integrator, UniformMesh):
+        rows, kind, remedy = integrator.n_steps + 1, "mesh", "a larger dt or a shorter t_final"
+    elif ts is not None:
+        rows, kind, remedy = ts.size, "ts", "fewer output times ts"
+    else:
+        rows, kind, remedy = max_steps + 1, "steps", "a smaller max_steps, or output at fewer times ts"
+    remedy += (", a smaller max_jumps" if max_jumps else "") + ", or raise memory_limit"
+    check_run_memory(rows, kind, max_jumps, remedy=remedy, limit=limit)
 
 
 @eqx.filter_jit
@@ -228,18 +268,23 @@ def simulate_reference(
     dtmin: float | None = None,
     max_steps: int = 200_000,
     truncation: int | None = None,
+    memory_limit: float | None = None,
 ) -> Solution:
     """The same problem with diffrax (Kvaerno5 by default), output on the α-method's grid.
 
     ``dt`` sets only the output grid (N = round(t_final/dt) intervals), or ``ts`` (with
     ``dt=None``) gives the output times; the steps are adaptive with a PID controller at
-    ``rtol``/``atol``. A collapsing step (< ``dtmin``, default
-    1e-12·t_final) stops the run with status ``STALLED``.
+    ``rtol``/``atol``. A collapsing step (< ``dtmin``, default 1e-12·t_final, at most
+    3e-12 s) stops the run with status ``STALLED``. Output that would take more than
+    ``memory_limit`` bytes (default: half the RAM) is refused before anything compiles.
     """
     if (ts is None) == (dt is None):
         raise ValueError("simulate_reference: give the output grid either as dt or as ts (with dt=None)")
     if ts is None:
         n_steps = check_mesh(dt, t_final)
+        check_run_memory(
+            n_steps + 1, "ts", remedy="a larger dt or a shorter t_final, or raise memory_limit", limit=memory_limit
+        )
         ts = jnp.linspace(0.0, float(t_final), n_steps + 1)
     else:
         check_positive("t_final", t_final)
@@ -252,7 +297,8 @@ def simulate_reference(
     if dtmin is not None:
         check_positive("dtmin", dtmin)
     check_max_steps(max_steps)
+    check_run_memory(ts.size, "ts", remedy="fewer output times ts, or raise memory_limit", limit=memory_limit)
     ode, y0 = _prepare(model, V, tau, y0, truncation)
     solver = diffrax.Kvaerno5() if solver is None else solver
-    dtmin = 1e-12 * float(t_final) if dtmin is None else dtmin
+    dtmin = min(1e-12 * float(t_final), 3e-12) if dtmin is None else dtmin
     return _run_reference(ode, y0, ts, solver, jnp.asarray(rtol), jnp.asarray(atol), jnp.asarray(dtmin), max_steps)

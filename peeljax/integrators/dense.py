@@ -17,7 +17,7 @@ import math
 import numpy as np
 from jaxtyping import Array, Float
 
-__all__ = ["hermite", "output_times"]
+__all__ = ["hermite", "output_count", "output_times"]
 
 
 def hermite(
@@ -38,6 +38,12 @@ def hermite(
     h01 = -2 * theta3 + 3 * theta2
     h11 = theta3 - theta2
     return h00 * y0 + h10 * (h * psi0) + h01 * y1 + h11 * (h * psi1)
+
+
+def output_count(save_dt: float, t_final: float) -> int:
+    """``len(output_times(save_dt, t_final))``, without making the array (checked before a run)."""
+    last = math.floor(t_final / save_dt + 1e-9)
+    return last + 1 + (t_final - min(last * save_dt, t_final) > 1e-9 * save_dt)
 
 
 def output_times(save_dt: float, t_final: float) -> Float[np.ndarray, " m"]:

@@ -18,7 +18,7 @@ import numpy as np
 from .._validation import check_choice, check_positive
 from ..integrators.alpha import UniformMesh
 from ..integrators.base import AbstractIntegrator
-from ..integrators.dense import output_times
+from ..integrators.dense import output_count, output_times
 from ..integrators.observers import DenseOutput, EveryNthPoint, Observer
 from ..integrators.reference import DiffraxIntegrator
 from ..integrators.select import integrator_for, refuse_with_dt
@@ -60,6 +60,12 @@ class SweepPlan:
         if self.uniform:
             return {**settings, "save_every": self.save_every}
         return {**settings, "save_dt": self.save_dt}
+
+    def save_count(self) -> int:
+        """How many states each lane keeps (``save_times().size``, 0 for none), without making them."""
+        if self.uniform:
+            return 0 if self.save_every is None else self.integrator.n_steps // self.save_every + 1
+        return 0 if self.save_dt is None else output_count(self.save_dt, self.t_final)
 
     def save_times(self) -> np.ndarray | None:
         if self.uniform:
