@@ -17,9 +17,11 @@ positive, and initial states with v ≤ 0 are rejected before compilation.
 
 from __future__ import annotations
 
+import difflib
 import functools
 import json
 import math
+import re
 from collections.abc import Callable
 from pathlib import Path
 
@@ -31,7 +33,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from ._arrays import float_array
 
-__all__ = ["AdhesionLaw", "COEFFICIENT_NAMES", "PAPER_COEFFICIENTS", "safe_pow", "as_adhesion"]
+__all__ = ["AdhesionLaw", "COEFFICIENT_NAMES", "PAPER_COEFFICIENTS", "as_adhesion", "paper_defaults", "read_json", "safe_pow"]
 
 COEFFICIENT_NAMES: tuple[str, ...] = (
     "c1", "p1", "c2", "p2", "c3", "c4", "c5", "p5", "c6", "c7", "p7", "c8", "p8", "p9",
@@ -142,14 +144,24 @@ class AdhesionLaw(eqx.Module):
 
     @classmethod
     def from_dict(cls, data: dict, *, source: str = "coefficients") -> "AdhesionLaw":
-        """Coefficients from a mapping; keys other than the 14 names are ignored.
+        """Coefficients from a mapping.
 
-        Missing names keep the paper's values; every present value must be a finite number in
-        the family's domain (``COEFFICIENT_DOMAIN``: c1, c2, c4 and the powers of v p1, p2, p9
-        are > 0, the others ≥ 0).
+        Missing names keep the paper's values (:func:`paper_defaults` lists them); every present
+        value must be a finite number in the family's domain (``COEFFICIENT_DOMAIN``: c1, c2, c4
+        and the powers of v p1, p2, p9 are > 0, the others ≥ 0). A key that looks like a
+        coefficient but is none of the 14 names (``"C3"``, ``"c9"``, ``"p_1"``, ``"c1 "``) is
+        refused, naming it and the valid names: taken silently, a misspelling would leave the
+        paper's value in place. Other keys are notes and are ignored (``to_json(**extra)``
+        writes them, and a fit's result file carries its history next to the coefficients).
         """
         if not isinstance(data, dict):
             raise ValueError(f"{source}: expected a JSON object of coefficients, got {type(data).__name__}")
+        unknown = [key for key in data if key not in COEFFICIENT_NAMES and _looks_like_coefficient(key)]
+        if unknown:
+            raise ValueError(
+                f"{source}: unknown coefficient name{'s' if len(unknown) > 1 else ''} {unknown} (names are "
+                f"case-sensitive); the coefficients are {', '.join(COEFFICIENT_NAMES)}"
+            )
         values = {}
         for name in COEFFICIENT_NAMES:
             if name not in data:
@@ -177,15 +189,40 @@ class AdhesionLaw(eqx.Module):
 
     @classmethod
     def from_json(cls, path: str | Path) -> "AdhesionLaw":
-        """Coefficients from a JSON file written by :meth:`to_json` (data, never code)."""
-        path = Path(path)
-        try:
-            data = json.loads(path.read_text())
-        except FileNotFoundError:
-            raise ValueError(f"--phi: file {str(path)!r} does not exist") from None
-        except json.JSONDecodeError as error:
-            raise ValueError(f"--phi: {str(path)!r} is not valid JSON ({error})") from None
-        return cls.from_dict(data, source=str(path))
+        """Coefficients from a JSON file written by :meth:`to_json` (data, never code), read by
+        :meth:`from_dict`; :func:`read_json` also says which coefficients kept the paper's values."""
+        return read_json(path)[0]
+
+
+def read_json(path: str | Path) -> tuple[AdhesionLaw, tuple[str, ...]]:
+    """The law in a JSON file (:meth:`AdhesionLaw.from_dict`) and the coefficients the file left
+    out, which keep the paper's values (:func:`paper_defaults`)."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ValueError(f"--phi: file {str(path)!r} does not exist") from None
+    except json.JSONDecodeError as error:
+        raise ValueError(f"--phi: {str(path)!r} is not valid JSON ({error})") from None
+    except UnicodeDecodeError as error:
+        raise ValueError(f"--phi: {str(path)!r} is not a text (JSON) file ({error.reason})") from None
+    return AdhesionLaw.from_dict(data, source=str(path)), paper_defaults(data)
+
+
+def paper_defaults(data: dict) -> tuple[str, ...]:
+    """The coefficients a mapping leaves out, which :meth:`AdhesionLaw.from_dict` takes from the paper."""
+    return tuple(name for name in COEFFICIENT_NAMES if not isinstance(data, dict) or name not in data)
+
+
+def _looks_like_coefficient(key) -> bool:
+    """A key that is probably a misspelled coefficient name: a letter and digits in any case or
+    with a separator (C3, c9, p_1, "c1 "), or close to one of the names."""
+    if not isinstance(key, str):
+        return True
+    squeezed = re.sub(r"[\s_\-.]", "", key).lower()
+    if re.fullmatch(r"[a-z]\d+", squeezed):
+        return True
+    return bool(difflib.get_close_matches(key.lower(), COEFFICIENT_NAMES, n=1, cutoff=0.75))
 
 
 def as_adhesion(phi: AdhesionLaw | Callable | None) -> AdhesionLaw | Callable:

@@ -272,9 +272,16 @@ def test_json_round_trip(tmp_path):
     assert float(back(0.9, 2.0)) == float(law(0.9, 2.0))
 
 
-def test_from_dict_ignores_unknown_keys_and_keeps_defaults():
-    law = AdhesionLaw.from_dict({"c1": 500, "comment": "x", "C1": 3.0, "nested": {"a": 1}})
+def test_from_dict_ignores_notes_and_keeps_defaults():
+    law = AdhesionLaw.from_dict({"c1": 500, "comment": "x", "nested": {"a": 1}, "V": 1.1})
     assert law.coefficients() == {**PAPER_NUMBERS, "c1": 500.0}
+
+
+@pytest.mark.parametrize("key", ["C1", "c9", "p_1", "c1 ", "P9", "c10"])
+def test_from_dict_refuses_a_misspelled_coefficient(key):
+    """Taken silently, a misspelling would leave the paper's value in place (issue 21)."""
+    with pytest.raises(ValueError, match=rf"unknown coefficient name \['{key}'\].*c1, p1, c2"):
+        AdhesionLaw.from_dict({"c1": 500, key: 3.0})
 
 
 @pytest.mark.parametrize(

@@ -13,12 +13,13 @@ Each subcommand module has ``add_command(subparsers)``, which sets the parser's 
 from __future__ import annotations
 
 import argparse
+import sys
 
 from . import figures as _figures
 from . import fit as _fit
 from . import simulate as _simulate
 from . import sweep as _sweep
-from ._common import PROG, json_safe
+from ._common import PROG, Parser, json_safe
 from .simulate import summarize, validate_run, write_npz
 
 __all__ = ["build_parser", "json_safe", "main", "summarize", "validate_run", "write_npz"]
@@ -29,10 +30,13 @@ COMMANDS = (_simulate, _sweep, _figures, _fit)
 # ---------------------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
     """The top-level parser with one subparser per command (each sets ``handler``)."""
-    parser = argparse.ArgumentParser(
+    from .. import __version__
+
+    parser = Parser(
         prog=PROG,
         description="Stick-slip peeling of an adhesive tape off a rotating spool (homogenized DAE, in JAX).",
     )
+    parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for command in COMMANDS:
         command.add_command(subparsers)
@@ -43,7 +47,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run the command line ``argv`` (default ``sys.argv[1:]``); returns the exit status.
 
-    0: the run completed or stopped early (see its status); 2: bad input (nothing was run).
+    0: the run completed or stopped early (see its status); 2: bad input (nothing was run);
+    130: interrupted (Ctrl-C; a sweep with --out says how many chunks are saved).
     """
     parser = build_parser()
     try:
@@ -51,6 +56,10 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as exit_:  # argparse has printed its usage error (2) or --help (0)
         code = exit_.code
         return code if isinstance(code, int) else (0 if code is None else 2)
-    return args.handler(args)
+    try:
+        return args.handler(args)
+    except KeyboardInterrupt:  # Ctrl-C: one line, no traceback, the shell's status for SIGINT
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130
 
 

@@ -2,27 +2,56 @@
 
 from __future__ import annotations
 
+import argparse
 import math
 import os
+import re
 import sys
 import tempfile
 from pathlib import Path
 
-from ..adhesion import AdhesionLaw
+from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw, read_json
 
 PROG = "peeljax"
 
+# A negative number in any spelling float() reads (-1e-6, -inf, -nan, -.5): argparse's own
+# pattern (-1, -0.5) takes "-1e-6" for an option and answers "expected one argument", so the
+# range check of the option never sees it. No option of peeljax looks like a number.
+_NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*(e[+-]?\d+)?|\.\d+(e[+-]?\d+)?|inf(inity)?|nan)$", re.IGNORECASE)
 
-def load_phi(path: str) -> AdhesionLaw:
-    """The adhesion law from a JSON file; every failure becomes a ValueError naming --phi."""
+
+class Parser(argparse.ArgumentParser):
+    """An ArgumentParser (subcommands' parsers included) that reads a negative number in any
+    spelling as a value, e.g. ``--rtol -1e-6``, so that the option's range check answers."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = _NEGATIVE_NUMBER
+
+
+def read_phi(path: str) -> tuple[AdhesionLaw, tuple[str, ...]]:
+    """The adhesion law in a JSON file and the coefficients it left out (they keep the paper's
+    values), the one-line note about those printed on stderr; every failure becomes a
+    ValueError naming --phi."""
     try:
-        law = AdhesionLaw.from_json(path)
-    except OSError as error:  # a directory, no permission, …: from_json handles only a missing file
+        law, kept = read_json(path)
+    except OSError as error:  # a directory, no permission, …: read_json handles only a missing file
         raise ValueError(f"--phi: cannot read {path!r} ({error.strerror or error})") from None
     except ValueError as error:
         message = str(error)
         raise ValueError(message if message.startswith("--phi") else f"--phi: {message}") from None
-    return law
+    if kept:
+        given = [name for name in COEFFICIENT_NAMES if name not in kept]
+        print(
+            f"{PROG}: note: --phi {path} sets {', '.join(given)}; {', '.join(kept)} keep the paper's values",
+            file=sys.stderr,
+        )
+    return law, kept
+
+
+def load_phi(path: str) -> AdhesionLaw:
+    """:func:`read_phi`'s law."""
+    return read_phi(path)[0]
 
 
 def _probe_folder(option: str, folder: Path) -> None:

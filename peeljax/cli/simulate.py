@@ -23,15 +23,15 @@ from .._validation import (
 )
 from ..adhesion import AdhesionLaw
 from ..cycles import cycle_statistics
-from ..integrators.dense import output_times
+from ..integrators.dense import output_count, output_times
 from ..integrators.events import FOLD_MODES, check_max_jumps
 from ..integrators.select import DEFAULT_ATOL as _ALPHA_ATOL
 from ..integrators.select import DEFAULT_MAX_JUMPS, resolve_fold
 from ..integrators.select import DEFAULT_RTOL as _ALPHA_RTOL
 from ..model import GEOMETRIES, PeelingModel
-from ..simulate import simulate, simulate_reference
+from ..simulate import check_run_memory, simulate, simulate_reference
 from ..solution import Solution
-from ._common import PROG, check_output_path, checked, fail, json_safe, load_phi, plot_formats, write_failed
+from ._common import PROG, check_output_path, checked, fail, json_safe, plot_formats, read_phi, write_failed
 
 __all__ = ["add_command", "run", "summarize", "validate_run", "write_npz"]
 
@@ -177,6 +177,7 @@ class RunConfig:
     fold: str = "stop"  # what happens at a fold of φ (resolve_fold: jump under error control)
     max_jumps: int = DEFAULT_MAX_JUMPS  # the jump record's size (error control)
     transient: float = 0.0  # the cycle statistics' window starts here [s]
+    phi_defaults: tuple[str, ...] | None = None  # coefficients --phi left at the paper's values
 
     @property
     def adaptive(self) -> bool:
@@ -210,9 +211,15 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
             raise ValueError(f"--save-dt must lie in (0, t_final] = (0, {args.t_final:g}], got {args.save_dt:g}")
         if args.method == "alpha" and dt is not None:
             raise ValueError("--save-dt sets the output of error control; with --dt the output is the uniform mesh")
+        n_save = output_count(args.save_dt, args.t_final)  # counted first: the times themselves could fill memory
+        _check_memory(f"--save-dt {args.save_dt:g}", n_save, "ts", "give a larger --save-dt or a shorter --t-final")
+        if n_save > 10_000_001:
+            raise ValueError(f"--save-dt {args.save_dt:g} gives {n_save} output times; the limit is 1e7")
         save_ts = tuple(output_times(args.save_dt, args.t_final))
-        if len(save_ts) > 10_000_001:
-            raise ValueError(f"--save-dt {args.save_dt:g} gives {len(save_ts)} output times; the limit is 1e7")
+    elif n_steps is not None:
+        option = f"--dt {dt:g}" if args.dt is not None else "the diffrax output grid"
+        kind = "mesh" if args.method == "alpha" else "ts"
+        _check_memory(option, n_steps + 1, kind, "give a larger --dt or a shorter --t-final")
     rho = rtol = atol = None
     if args.method == "alpha":
         rho = 0.0 if args.rho is None else args.rho
@@ -235,7 +242,7 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
         checked(positive, check_tolerance, "atol", atol)
     fold, max_jumps, transient = _check_folds(args, dt)
     checked("finite (alpha, omega, u, v) with v > 0", check_y0, args.y0)
-    adhesion = AdhesionLaw() if args.phi is None else load_phi(args.phi)
+    adhesion, phi_defaults = (AdhesionLaw(), None) if args.phi is None else read_phi(args.phi)
     check_output_path("--out", args.out)
     if args.plot is not None:
         check_output_path("--plot", args.plot, plot_formats())
@@ -257,7 +264,16 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
         fold=fold,
         max_jumps=max_jumps,
         transient=transient,
+        phi_defaults=phi_defaults,
     )
+
+
+def _check_memory(option: str, rows: int, kind: str, remedy: str) -> None:
+    """The run's output must fit in memory (the rule of ``peeljax.simulate`` and ``peeljax.sweep``)."""
+    try:
+        check_run_memory(rows, kind, remedy=remedy)
+    except ValueError as error:
+        raise ValueError(f"{option}: {error}") from None
 
 
 def _without_error_control(args: argparse.Namespace) -> str | None:
@@ -429,9 +445,10 @@ def write_npz(path: str, solution: Solution, config: RunConfig) -> None:
     """The run as plain arrays and scalars (loads with ``np.load(path, allow_pickle=False)``).
 
     Arrays t, alpha, omega, u, v, F (tension) and valid share one length, NaN after a stop.
-    Scalars: status, reason, t_stop, V, tau (0: the DAE itself), dt (the uniform step used;
+    Scalars: status, status_code (the :class:`~peeljax.StopReason`), reason, t_stop, V, tau (0: the DAE itself), dt (the uniform step used;
     NaN with error control), t_final, rho (NaN for diffrax), rtol and atol (NaN on the uniform
-    mesh), geometry, method, phi_json (the 14 coefficients, "" for a callable φ) and stats_json.
+    mesh), geometry, method, phi_json (the 14 coefficients, "" for a callable φ) and stats_json
+    (strict JSON: NaN is null, as in ``--json``). :func:`peeljax.load` reads it back as a Solution.
 
     A run with a jump record (error control: ``fold`` jump, stop or follow) also has its jumps
     at the folds of φ, one entry per jump in time order (empty arrays when there were none):
@@ -455,6 +472,7 @@ def write_npz(path: str, solution: Solution, config: RunConfig) -> None:
         "F": _tension(solution, config.model),
         "valid": np.asarray(solution.valid, dtype=bool),
         "status": np.asarray(solution.status_name, dtype=str),
+        "status_code": np.int64(solution.status),
         "reason": np.asarray(solution.reason, dtype=str),
         "t_stop": np.float64(solution.t_stop),
         "V": np.float64(config.V),
@@ -467,7 +485,7 @@ def write_npz(path: str, solution: Solution, config: RunConfig) -> None:
         "geometry": np.asarray(config.model.geometry, dtype=str),
         "method": np.asarray(config.method, dtype=str),
         "phi_json": np.asarray(phi_json, dtype=str),
-        "stats_json": np.asarray(json.dumps(stats), dtype=str),
+        "stats_json": np.asarray(json.dumps(json_safe(stats), allow_nan=False), dtype=str),  # strict: NaN -> null
     }
     if solution.jumps is not None:
         jumps = solution.jumps.as_numpy()
@@ -614,6 +632,7 @@ def _simulate_command(args: argparse.Namespace) -> int:
         "atol": config.atol,
         "y0": None if config.y0 is None else list(config.y0),
         "phi": config.phi,
+        "phi_paper_defaults": None if config.phi_defaults is None else list(config.phi_defaults),
         "fold": config.fold,
         "max_jumps": config.max_jumps if config.adaptive else None,
         "transient": config.transient,
