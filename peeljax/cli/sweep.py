@@ -7,6 +7,7 @@ import json
 import math
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -17,7 +18,7 @@ from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_RTOL
 from ..model import GEOMETRIES, PeelingModel
 from ..sweeps.engine import STARTS
 from ..sweeps.integrators import DEFAULT_SWEEP_MAX_JUMPS
-from ._common import PROG, check_output_path, checked, fail, json_safe, load_phi, plot_formats, write_failed
+from ._common import PROG, check_output_path, checked, fail, json_safe, plot_formats, read_phi, write_failed
 
 __all__ = ["add_command", "engine_text", "tau_grid", "validate_map", "validate_sweep", "validate_tau_star"]
 
@@ -269,7 +270,7 @@ def _engine_record(kwargs: dict) -> dict:
 def _model(args) -> PeelingModel:
     check_choice("--geometry", args.geometry, GEOMETRIES)
     checked("[0, 1)", check_rho, args.rho)
-    adhesion = AdhesionLaw() if args.phi is None else load_phi(args.phi)
+    adhesion, args.phi_defaults = (AdhesionLaw(), None) if args.phi is None else read_phi(args.phi)
     return PeelingModel(adhesion=adhesion, geometry=args.geometry)
 
 
@@ -464,7 +465,12 @@ def _sweep_command(args: argparse.Namespace) -> int:
         return fail(error)
     except OSError as error:  # the chunk files: written as they finish
         return write_failed("--out", args.out, error, "the chunks written before it are kept; rerun to resume")
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted: {_saved_chunks(args.out)}", file=sys.stderr)
+        return 130
     wall = time.perf_counter() - start
+    if not kwargs["progress"]:  # the progress bar's own line said it otherwise
+        _print_resumed(result, args.out)
     plot_error, record_plot = None, args.plot
     if args.plot is not None:
         from ..plots import plot_sweep_map
@@ -489,6 +495,7 @@ def _sweep_command(args: argparse.Namespace) -> int:
         "max_jumps": result.settings.get("max_jumps"),
         "start": kwargs["start"],
         "wall_time_s": wall,
+        "phi_paper_defaults": _phi_defaults(args),
         "computed_chunks": list(result.computed_chunks),
         "out": args.out,
         "plot": args.plot,
@@ -502,6 +509,32 @@ def _sweep_command(args: argparse.Namespace) -> int:
     if plot_error is not None:
         return write_failed("--plot", record_plot, plot_error, "the sweep's results are above")
     return 0
+
+
+def _saved_chunks(out: str | None) -> str:
+    """After an interruption: how many chunks are saved, and how to go on (from the chunk folder)."""
+    if out is None:
+        return "nothing was saved (no --out); with --out a rerun resumes from the chunks finished"
+    folder = Path(str(out) + ".chunks")
+    saved = len(list(folder.glob("chunk_*.npz"))) if folder.is_dir() else 0
+    try:
+        total = f" of {int(json.loads((folder / 'meta.json').read_text())['n_chunks'])}"
+    except (OSError, ValueError, KeyError, TypeError):
+        total = ""
+    return (
+        f"{saved}{total} chunk{'' if saved == 1 and not total else 's'} saved in {str(folder)!r}; "
+        "rerun the same command to resume"
+    )
+
+
+def _print_resumed(result, out: str | None) -> None:
+    """The line :func:`peeljax.sweep` prints with its progress bar when it resumed an --out."""
+    if out is None:
+        return
+    n_chunks = -(-len(result) // int(result.settings["chunk"]))
+    loaded = n_chunks - len(result.computed_chunks)
+    if loaded:
+        print(f"resumed: {loaded} of {n_chunks} chunks loaded from {str(out) + '.chunks'!r}", file=sys.stderr)
 
 
 def _print_sweep(record: dict, result, kwargs: dict, wall: float) -> None:
@@ -528,6 +561,12 @@ def _print_sweep(record: dict, result, kwargs: dict, wall: float) -> None:
             print(f"wrote {record[key]}")
 
 
+def _phi_defaults(args: argparse.Namespace) -> list[str] | None:
+    """The coefficients --phi left at the paper's values (None without --phi)."""
+    kept = getattr(args, "phi_defaults", None)
+    return None if kept is None else list(kept)
+
+
 def _map_record(smap, kwargs: dict, args: argparse.Namespace, wall: float) -> dict:
     """The map as one JSON object: settings, the ranges, and every per-lane field (rows: starts)."""
     from ..sweeps.stick_slip_map import FOLD_FIELDS, LANE_FIELDS
@@ -546,6 +585,7 @@ def _map_record(smap, kwargs: dict, args: argparse.Namespace, wall: float) -> di
         "max_jumps": smap.settings.get("sweep", {}).get("max_jumps"),
         "max_steps": kwargs["max_steps"],
         "wall_time_s": wall,
+        "phi_paper_defaults": _phi_defaults(args),
         "out": args.out,
         "plot": args.plot,
         "stick_slip_ranges": {start: [list(r) for r in smap.stick_slip_ranges(start)] for start in smap.starts},
@@ -625,6 +665,7 @@ def _tau_star_command(args: argparse.Namespace) -> int:
         "tau_range": list(kwargs["tau_range"]),
         "tau_rtol": kwargs["tau_rtol"],
         "wall_time_s": wall,
+        "phi_paper_defaults": _phi_defaults(args),
     }
     if args.json:
         print(json.dumps(json_safe(record), allow_nan=False))

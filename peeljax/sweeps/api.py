@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import ArrayLike, Bool, Float, Int
 
+from .._memory import check_output_memory
 from .._validation import check_choice, check_truncation
 from ..adhesion import AdhesionLaw
 from ..integrators.alpha import AlphaMethod
@@ -159,13 +160,6 @@ class SweepResult:
 
 
 # ---------------------------------------------------------------------------- inputs
-def _memory_limit() -> float:
-    try:
-        return 0.5 * os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):
-        return 8e9
-
-
 def _model_settings(model: PeelingModel) -> dict:
     adhesion = model.adhesion
     phi = adhesion.coefficients() if isinstance(adhesion, AdhesionLaw) else f"callable {type(adhesion).__qualname__}"
@@ -251,7 +245,8 @@ def sweep(
             a multiple of their number.
         out: a ``.npz`` path: chunks go to ``<out>.chunks/`` as they finish, the merged result
             to ``out``; a rerun with the same out and settings resumes (finished chunks are
-            loaded, not recomputed) and different settings (tolerances included) are refused.
+            loaded, not recomputed; with ``progress`` a line on stderr says how many) and different
+            settings (tolerances included) are refused.
         progress: show a tqdm bar of trajectories and chunks (stderr).
         solver: an :class:`AlphaMethod` (default ``AlphaMethod(rho=rho)``), or any
             ``diffrax.AbstractSolver`` (error control: each lane through diffrax with its PID
@@ -312,21 +307,19 @@ def sweep(
     lane_batch = default_lane_batch(devices, chunk) if lane_batch is None else lane_batch
 
     # Memory: every saved state of every trajectory is returned in host memory.
-    save_ts = plan.save_times()
-    n_save = 0 if save_ts is None else save_ts.size
-    limit = _memory_limit() if memory_limit is None else float(memory_limit)
+    n_save = plan.save_count()  # counted, not made: the check comes before the arrays
     jump_bytes = 0 if plan.max_jumps is None else plan.max_jumps * 5 * 8
     total = n * (n_save * 4 * 8 + jump_bytes + _BYTES_PER_TRAJECTORY)
-    if total > limit:
-        if plan.uniform:
-            fewer = f"a larger save_every{'' if save_every is None else f', now {save_every}'}, or none"
-        else:
-            fewer = f"a larger save_dt{'' if save_dt is None else f', now {save_dt:g}'}, or none"
-        raise ValueError(
-            f"the sweep's output would take {total / 1e9:.3g} GB ({n} trajectories x {n_save} saved states x 4 x 8 bytes "
-            f"+ summaries), more than the memory limit of {limit / 1e9:.3g} GB: save fewer states ({fewer}), sweep "
-            "fewer V/tau values or a shorter t_final, or raise memory_limit"
-        )
+    if plan.uniform:
+        fewer = f"a larger save_every{'' if save_every is None else f', now {save_every}'}, or none"
+    else:
+        fewer = f"a larger save_dt{'' if save_dt is None else f', now {save_dt:g}'}, or none"
+    check_output_memory(
+        "the sweep's output", total, f"{n} trajectories x {n_save} saved states x 4 x 8 bytes + summaries",
+        f"save fewer states ({fewer}), sweep fewer V/tau values or a shorter t_final, or raise memory_limit",
+        memory_limit,
+    )  # fmt: skip
+    save_ts = plan.save_times()
 
     settings = sweep_settings(
         model, plan, axis("V", V), axis("tau", tau), {k: axis(k, v) for k, v in params.items()},
@@ -342,9 +335,14 @@ def sweep(
         store = ChunkStore(out, settings, n_chunks, sizes, keys)
         merged = store.finished_output()
         if merged is not None:
+            if progress:
+                print(f"resumed: the finished sweep loaded from {str(store.out)!r}", file=sys.stderr)
             return _result(merged, Vs, taus, param_values, save_ts, t_final, window, grid_shape, settings, ())
         store.open()
         chunks = [store.load(i) for i in range(n_chunks)]
+        loaded = sum(c is not None for c in chunks)
+        if loaded and progress:
+            print(f"resumed: {loaded} of {n_chunks} chunks loaded from {str(store.folder)!r}", file=sys.stderr)
 
     mesh = batch_mesh(devices)
     t_final_array = jnp.asarray(float(t_final))

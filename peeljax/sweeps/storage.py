@@ -21,19 +21,32 @@ from pathlib import Path
 
 import numpy as np
 
+from .._npz import read_npz
+
 __all__ = ["FORMAT", "VERSION", "ChunkStore", "load_npz", "write_npz_atomic"]
 
 FORMAT = "peeljax-sweep"
 VERSION = 2
 
 
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def write_npz_atomic(path: Path, arrays: dict[str, np.ndarray]) -> None:
-    """np.savez to a temporary file in the same folder, then an atomic rename."""
+    """np.savez to a temporary file in the same folder, then an atomic rename.
+
+    The file gets the mode a plain ``open`` would give it (0666 less the umask, e.g. 0644),
+    not the temporary file's 0600.
+    """
     path = Path(path)
     handle, temporary = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(handle, "wb") as stream:
             np.savez(stream, **arrays)
+        os.chmod(temporary, 0o666 & ~_umask())
         os.replace(temporary, path)
     except BaseException:
         Path(temporary).unlink(missing_ok=True)
@@ -41,16 +54,9 @@ def write_npz_atomic(path: Path, arrays: dict[str, np.ndarray]) -> None:
 
 
 def load_npz(path: Path, required: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
-    """All arrays of an .npz (no pickles); a ValueError naming the file if it is malformed."""
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {key: data[key] for key in data.files}
-    except (OSError, ValueError, EOFError, KeyError) as error:
-        raise ValueError(f"{str(path)!r} is not a readable .npz file ({error}); delete it to recompute") from None
-    missing = [key for key in required if key not in arrays]
-    if missing:
-        raise ValueError(f"{str(path)!r} is malformed: missing {missing}; delete it to recompute")
-    return arrays
+    """All arrays of an .npz (no pickles); a ValueError naming the file if it is unreadable
+    (:func:`peeljax._npz.read_npz`: not an .npz, damaged, or missing an array)."""
+    return read_npz(path, required, fix="delete it to recompute")
 
 
 def _differences(old: dict, new: dict) -> list[str]:
