@@ -43,8 +43,10 @@ _MESSAGES = {
     ),
     StopReason.NONFINITE: "a state or dψ/dt became non-finite",
     StopReason.STALLED: (
-        "the step size collapsed below dtmin (the solution cannot be continued: typically an impasse "
-        "point, where J_t -> 0 and dv/dt blows up)"
+        "the step size collapsed below dtmin: the step the run needs here is smaller than dtmin allows, "
+        "either because the solution cannot be continued (typically an impasse point, where J_t -> 0 and "
+        "dv/dt blows up) or because dtmin itself is too large (a start from rest and the restart after a "
+        "jump take steps of ~1e-12 to 1e-11 s: give a smaller dtmin)"
     ),
     StopReason.MAX_STEPS: "max_steps step attempts were used up before t_final",
     StopReason.SOLVER_FAILED: "the reference solver failed (diffrax reported an error)",

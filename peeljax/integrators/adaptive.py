@@ -198,7 +198,7 @@ def adaptive_loop(
     t0 = jnp.asarray(t0, float)
     t_final = jnp.asarray(t_final, float)
     span = t_final - t0
-    dtmin = 1e-12 * span if dtmin is None else jnp.asarray(dtmin, float)
+    dtmin = jnp.minimum(1e-12 * span, 3e-12) if dtmin is None else jnp.asarray(dtmin, float)  # not ∝ a long span
     events = _events_for(events, ode)
     if events is not None:
         ode = ode.with_folds()
@@ -341,7 +341,8 @@ def integrate_alpha_adaptive(
             step points, ``max_steps + 1`` rows NaN-padded (``valid`` marks the rows).
         dt0: first step (default: Hairer's estimate from ψ0 and a0, :func:`_initial_step`).
         dtmin: a proposed step below this stops the run (``STALLED``; default
-            1e-12·(t_final − t0)).
+            1e-12·(t_final − t0), at most 3e-12: the first steps from the paper's start and after
+            a jump are ~1e-11 s however long the run, so a dtmin ∝ t_final would stop a long one).
         max_steps: most step attempts, accepted or rejected (static).
         adjoint: "reverse" (checkpointed while loop: ``jax.grad``) or "forward" (``jax.jvp``).
         events: what happens at the folds of φ (:class:`~peeljax.integrators.events.FoldEvents`:
@@ -426,7 +427,7 @@ class ErrorControl(AbstractIntegrator):
     Attributes:
         method: the :class:`AlphaMethod` (ρ, Newton's settings, log components).
         controller: the :class:`PIController` (rtol, atol, step-size update).
-        dtmin: a proposed step below it stops the run (``STALLED``); None: 1e-12·(t_final − t0).
+        dtmin: a proposed step below it stops the run (``STALLED``); None: 1e-12·(t_final − t0), at most 3e-12.
         max_steps: most step attempts, accepted or rejected (static).
         adjoint: ``"reverse"`` (a checkpointed while loop, for ``jax.grad``) or ``"forward"``
             (a plain while loop: ``jax.jvp``, and the fastest run when nothing is differentiated).

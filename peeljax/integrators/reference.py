@@ -113,7 +113,7 @@ class DiffraxIntegrator(AbstractIntegrator):
     Attributes:
         solver: a ``diffrax.AbstractSolver`` (default ``Kvaerno5()``).
         rtol, atol: the ``PIDController``'s tolerances (traced).
-        dtmin: smallest step (None: 1e-12 of the span).
+        dtmin: smallest step (None: 1e-12 of the span, at most 3e-12).
         dt0: first step (None: 1e-6 of the span).
         max_steps: diffrax's step budget (static).
         adjoint: ``"reverse"`` (``RecursiveCheckpointAdjoint``, for ``jax.grad``) or
@@ -144,7 +144,7 @@ class DiffraxIntegrator(AbstractIntegrator):
         t_final = jnp.asarray(t_final, float)
         span = t_final - t0
         dt0 = 1e-6 * span if self.dt0 is None else self.dt0
-        dtmin = 1e-12 * span if self.dtmin is None else self.dtmin
+        dtmin = jnp.minimum(1e-12 * span, 3e-12) if self.dtmin is None else self.dtmin
         controller = diffrax.PIDController(rtol=self.rtol, atol=self.atol, dtmin=dtmin, force_dtmin=False)
         adjoint = diffrax.RecursiveCheckpointAdjoint() if self.adjoint == "reverse" else diffrax.ForwardMode()
         return diffrax.diffeqsolve(
@@ -241,7 +241,7 @@ def integrate_reference(
         solver: any diffrax solver (default ``Kvaerno5()``).
         rtol, atol: PID controller tolerances.
         dt0: first step (default 1e-6 of the span).
-        dtmin: smallest step before the run is declared stalled (default 1e-12 of the span).
+        dtmin: smallest step before the run is declared stalled (default 1e-12 of the span, at most 3e-12).
         max_steps: step budget (static).
     """
     integrator = DiffraxIntegrator(

@@ -27,9 +27,18 @@ import dataclasses
 import functools
 
 import diffrax
+import numpy as np
 from jaxtyping import ArrayLike
 
-from .._validation import check_adjoint, check_max_steps, check_mesh, check_positive, check_rho, check_tolerance
+from .._validation import (
+    check_adjoint,
+    check_max_steps,
+    check_mesh,
+    check_positive,
+    check_rho,
+    check_tolerance,
+    is_concrete,
+)
 from .adaptive import ErrorControl
 from .alpha import AlphaMethod, UniformMesh
 from .base import AbstractIntegrator
@@ -89,6 +98,11 @@ def check_error_control(t_final, rtol, atol, dtmin, max_steps) -> tuple[float, f
     check_tolerance("atol", atol)
     if dtmin is not None:
         check_positive("dtmin", dtmin)
+        if is_concrete(dtmin) and is_concrete(t_final) and np.ndim(dtmin) == 0 and float(dtmin) >= float(t_final):
+            raise ValueError(
+                f"dtmin must be < t_final (it is the smallest step, allowed range: (0, {float(t_final):g})), "
+                f"got {float(dtmin):g}"
+            )
     check_max_steps(max_steps)
     return float(rtol), float(atol)
 
