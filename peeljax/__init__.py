@@ -86,6 +86,7 @@ from .integrators import (  # noqa: E402
     integrate_reference,
 )
 from .model import PeelingModel  # noqa: E402
+from .saved import SavedRun, load  # noqa: E402
 from .simulate import simulate, simulate_reference  # noqa: E402
 from .solution import JumpRecord, Solution, StepDiagnostics, StopReason  # noqa: E402
 from .structure import (  # noqa: E402
@@ -122,6 +123,7 @@ __all__ = [
     "PIController",
     "PeelingModel",
     "RepeatPattern",
+    "SavedRun",
     "Solution",
     "StepDiagnostics",
     "StickSlipMap",
@@ -141,6 +143,7 @@ __all__ = [
     "is_fast_scale",
     "jacobians",
     "least_tau",
+    "load",
     "local_index",
     "neumann_radius",
     "neumann_terms",

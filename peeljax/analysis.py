@@ -34,6 +34,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .homogenized import HomogenizedODE
 from .model import PeelingModel
+from .saved import SavedRun
 from .solution import Solution
 from .structure import jacobians, local_index, phi_extremum, schur_complement, truncated_schur_complement
 
@@ -218,6 +219,21 @@ class StickSlipAnalysis:
         n = int(self.valid.sum())
         return float((mask & self.valid).sum() / n) if n else float("nan")
 
+    def __repr__(self) -> str:
+        """A few lines: the run, its phases and events, the cycle measures (``summary()``: all numbers)."""
+        valid = int(self.valid.sum())
+        outcome = "completed" if self.completed else "stopped"
+        return (
+            f"StickSlipAnalysis(V = {self.V:g} m/s, tau = {self.tau:g} s, {outcome} at t = {self.t_stop:.6g} s, "
+            f"{valid} valid of {self.ts.size} output times,\n"
+            f"  stick {self.fraction('stick'):.0%}, slip {self.fraction('slip'):.0%} of the time; "
+            f"{self.stick_to_slip.size} stick -> slip and {self.slip_to_stick.size} slip -> stick events; "
+            f"{self.bifurcation_times.size} near-singular points (min |J_t| = {self.min_abs_schur:.3g} N s/m, "
+            f"local index <= {self.max_local_index}),\n"
+            f"  v after t = {self.t_transient:.4g} s: mean {self.v_mean:.4g} m/s, amplitude {self.amplitude:.4g} m/s, "
+            f"period {self.period:.4g} s, decay {self.decay:.3g})"
+        )
+
     def summary(self) -> dict:
         """Plain-Python numbers for JSON output and tables."""
         return {
@@ -310,7 +326,8 @@ def analyze(
 
     ``analyze(solution, ode)`` takes everything from the :class:`~peeljax.HomogenizedODE` the
     run integrated (model, V, τ, truncation); ``analyze(solution, model, V=…, tau=…)`` names
-    them one by one.
+    them one by one; a run read back by :func:`peeljax.load` brings its own (model, V and τ
+    from the file; what is given here overrides them).
 
     Args:
         solution: a single or batched :class:`Solution` (batch axes lead).
@@ -330,6 +347,15 @@ def analyze(
         if V is not None or tau is not None or truncation is not None:
             raise ValueError("analyze: give the run's HomogenizedODE, or its model with V, tau and truncation, not both")
         model, V, tau, truncation = model.model, model.V, model.tau, model.truncation
+    if isinstance(solution, SavedRun):  # a run read back from a file knows its own parameters
+        if solution.model is None and model is None:
+            raise ValueError(
+                f"analyze: {solution.path!r} was made with a callable phi, which the file cannot hold: "
+                "pass the run's model (analyze(run, model))"
+            )
+        model = solution.model if model is None else model
+        V = solution.V if V is None else V
+        tau = solution.tau if tau is None else tau
     model = PeelingModel() if model is None else model
     V = 1.1 if V is None else V
     tau = 0.01 if tau is None else tau

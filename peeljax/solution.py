@@ -228,6 +228,14 @@ class Solution(eqx.Module):
         out.update({key: _to_python(value) for key, value in self.stats.items() if key not in out})
         return out
 
+    @classmethod
+    def load(cls, path) -> Solution:
+        """The run saved by ``peeljax simulate --out path``: :func:`peeljax.load` (a
+        :class:`~peeljax.saved.SavedRun`, which :func:`peeljax.analyze` reads with its V, τ and model)."""
+        from .saved import load
+
+        return load(path)
+
 
 def _to_python(value):
     array = np.asarray(value)
