@@ -30,6 +30,13 @@ Figures (file name → content):
 
 Legends sit below the axes, outside the data.
 
+What the figures show (:data:`MESH_NOTE`, also in ``captions.md``): the paper's uniform mesh,
+where a run ends at a fold of φ (``fold="stop"``). Their sustained oscillations of v (Figs. 5–7,
+the bifurcation diagram) are an artefact of that coarse mesh: resolved (a finer step, or error
+control) the same runs end at the first fold. The model's stick-slip cycles come from runs
+carried through the folds (``fold="jump"``, the default under error control; README, "Stick-slip
+through the folds", notebook ``05_stick_slip.ipynb``).
+
 :func:`make_figures` returns the figures and captions; :func:`write_figures` saves PNGs and a
 ``captions.md``. ``t_final`` shortens every run (for tests); it is rounded to a whole number of
 steps so that the step stays exactly as documented (the early stops depend on the step: at
@@ -54,6 +61,7 @@ from .solution import Solution
 __all__ = [
     "BIFURCATION_RUN",
     "CAPTIONS",
+    "MESH_NOTE",
     "RUNS",
     "FigureRuns",
     "make_figures",
@@ -81,6 +89,17 @@ RUNS = {
 BIFURCATION_RUN = {"Vs": tuple(np.linspace(1.0, 5.0, 17)), "tau": 2.37e-3, "dt": 1 / 164}
 SCHUR_RUN = {"V": 1.1, "tau": 1e-3, "dt": 1 / 16400, "t_final": 0.2}  # diffrax reference, fine output
 
+MESH_NOTE = (
+    "These figures reproduce the paper on its uniform mesh, where a run ends at a fold of φ (fold='stop', the "
+    "paper's behaviour). Their sustained oscillations of v (Figs. 5–7, the bifurcation diagram) are an artefact of "
+    "that coarse mesh, whose steps land beyond the fold where J_t → 0 and go on: resolved, the same runs end at the "
+    "first fold (V = 2, τ = 2.37e-3: h = 1/164 oscillates for 3 s, h = 1/656 stops at 0.165 s, error control at "
+    "0.122–0.124 s; docs/reproduction.md). The model's stick-slip cycles come from runs carried through the folds, "
+    "v jumping at constant force: `peeljax simulate --V 1.1 --tau 0 --plot run.png` (210 jumps in 3 s, repeating "
+    'every 0.218 s) and `peeljax sweep --stick-slip-map` (README, "Stick-slip through the folds"; notebook '
+    "05_stick_slip.ipynb)."
+)
+
 CAPTIONS = {
     "fig2_v_V1.1": "Fig. 2: peeling velocity v(t) at V = 1.1 m/s, h = 1/82 s, for τ = 1e-3 (the paper's least τ; stops early), "
     "4.22e-3 (the least τ of a 25-point log grid in [1e-4, 0.1] that completes [0, 3] s: not τ* = 4.8e-3 of "
@@ -95,14 +114,19 @@ CAPTIONS = {
     "the tape keeps stretching, u̇ ≈ V − v, so F grows by (k/l)·∫(V − v)dt = 1000 N/m × 0.267 m = 267 N from "
     "131 N (τ = 1e-2: 0.184 m, its overshoot past V gives some back). Every state with α = 0, ω = V/R, v = V is "
     "an equilibrium of eq. hv whatever u, so F stays there: 118 N off the constraint (sac), which τ relaxes.",
-    "fig5_v_V2": "Fig. 5: v(t) at V = 2 m/s, h = 1/164 s, for the τ list of peeljax.figures.RUNS[2.0].",
-    "fig6_v_V4": "Fig. 6: v(t) at V = 4 m/s, h = 1/164 s, for the τ list of peeljax.figures.RUNS[4.0].",
+    "fig5_v_V2": "Fig. 5: v(t) at V = 2 m/s, h = 1/164 s, for the τ list of peeljax.figures.RUNS[2.0]. The sustained "
+    "oscillation at τ = 2.37e-3 is the coarse mesh's: resolved, this run ends at the first fold (t ≈ 0.12 s).",
+    "fig6_v_V4": "Fig. 6: v(t) at V = 4 m/s, h = 1/164 s, for the τ list of peeljax.figures.RUNS[4.0]; as in Fig. 5, "
+    "an oscillation that lasts is the uniform mesh's, not the model's stick-slip.",
     "fig7_v_three_V": "Fig. 7: v(t) at V = 1.1, 2 and 4 m/s, each at the least τ of its list (1e-3, 2.37e-3, "
-    "3.16e-4 s); V = 1.1 stops early (t = 0.171 s), as in the paper.",
+    "3.16e-4 s) on the paper's uniform mesh; V = 1.1 stops early (t = 0.171 s), as in the paper; the lasting "
+    "oscillations at V = 2 and 4 are the mesh's (see the note above).",
     "phi_extrema": "φ(v, V) of de2006dynamics for V = 1.1, 2, 4 m/s with its maximum (▲, end of the stick "
     "branch) and minimum (▼) marked, their v [m/s] and φ [N] in the legend; ∂φ/∂v < 0 between them (slip).",
     "bifurcation_V": "Bifurcation diagram: local maxima and minima of v over the second half of each run against V "
-    "(17 values in [1, 5] m/s), τ = 2.37e-3 s, h = 1/164 s (sweep engine); × marks runs that stopped early.",
+    "(17 values in [1, 5] m/s), τ = 2.37e-3 s, h = 1/164 s (sweep engine); × marks runs that stopped early. The "
+    "late swing of v is the uniform mesh's (see the note above); the model's stick-slip against V is the map of "
+    "runs through the folds (peeljax sweep --stick-slip-map).",
     "schur_index_V1.1": "v, |J_t| (Lemma 1) and the local index ⌈log_τ|J_t|⌉ + 1 (Lemma 2, an integer) along "
     "the diffrax Kvaerno5 trajectory at V = 1.1 m/s, τ = 1e-3 (output every 1/16400 s), up to where its step "
     "collapses (t = 0.1728 s); stick (∂φ/∂v > 0) and slip (∂φ/∂v < 0) phases shaded. Right: the last 10 ms, "
@@ -385,7 +409,7 @@ def write_figures(out: str | Path, t_final: float = 3.0, fmt: str = "png", log=N
         path = out / f"{name}.{fmt}"
         fig.savefig(path, dpi=130)
         paths.append(str(path))
-    lines = ["# peeljax figures", "", f"Generated by `peeljax figures` (t_final = {t_final:g} s).", ""]
+    lines = ["# peeljax figures", "", f"Generated by `peeljax figures` (t_final = {t_final:g} s).", "", MESH_NOTE, ""]
     lines += [f"- `{name}.{fmt}`: {CAPTIONS[name]}" for name in figures]
     (out / "captions.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
     facts["files"] = paths
