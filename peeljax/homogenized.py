@@ -47,6 +47,7 @@ class Jump(eqx.Module):
     v_before: Array
     v_after: Array
     G: Array
+    F: Array  # the tension (k/l)·u, unchanged by the jump
 
 
 @runtime_checkable
@@ -156,7 +157,10 @@ def _jump(model: PeelingModel, V, folds: Folds, y, floor=0.0) -> Jump:
     x, v = y[:3], y[3]
     branch = branch_of(v, folds)
     v_after = jnp.maximum(jump_velocity(model, x, V, branch, folds), floor)
-    return Jump(y=y.at[3].set(v_after), up=branch == 0, v_before=v, v_after=v_after, G=model.shear_force(x))
+    return Jump(
+        y=y.at[3].set(v_after), up=branch == 0, v_before=v, v_after=v_after, G=model.shear_force(x),
+        F=model.tension(x[2], x[0]),
+    )  # fmt: skip
 
 
 def _with_folds(ode):

@@ -94,6 +94,12 @@ class JumpRecord(eqx.Module):
             tape lands fully stuck, G below φ(0⁺, V)).
         G: the shear force G = (1 + l·sinα/L)·F at the jump [N] (continuous across it).
         count: the number of jumps recorded.
+        F: the tape tension F = (k/l)·u at the jump [N] (what a load cell measures; F is
+            continuous across the jump, maximal at stick → slip and minimal at slip → stick).
+            None in a record built by hand without it.
+
+    Every float field carries derivatives: a jump's time by the implicit function theorem on
+    its fold event, its forces and v through the state there (:mod:`peeljax.integrators.events`).
     """
 
     t: Float[Array, " m"]
@@ -102,11 +108,14 @@ class JumpRecord(eqx.Module):
     v_after: Float[Array, " m"]
     G: Float[Array, " m"]
     count: Int[Array, ""]
+    F: Float[Array, " m"] | None = None
 
     @classmethod
     def empty(cls, max_jumps: int) -> "JumpRecord":
         nan = jnp.full(max_jumps, jnp.nan)
-        return cls(t=nan, up=jnp.zeros(max_jumps, bool), v_before=nan, v_after=nan, G=nan, count=jnp.asarray(0, jnp.int32))
+        return cls(
+            t=nan, up=jnp.zeros(max_jumps, bool), v_before=nan, v_after=nan, G=nan, count=jnp.asarray(0, jnp.int32), F=nan
+        )
 
     @property
     def max_jumps(self) -> int:
@@ -114,9 +123,9 @@ class JumpRecord(eqx.Module):
 
     def buffers(self) -> tuple:
         """The slot arrays: written once each, in place, as buffers of a while loop."""
-        return (self.t, self.up, self.v_before, self.v_after, self.G)
+        return (self.t, self.up, self.v_before, self.v_after, self.G, self.F)
 
-    def record(self, do: Bool[Array, ""], t, up, v_before, v_after, G) -> "JumpRecord":
+    def record(self, do: Bool[Array, ""], t, up, v_before, v_after, G, F=jnp.nan) -> "JumpRecord":
         """This record with one more jump where ``do`` (nothing changes where not, or when full)."""
         slot = jnp.minimum(self.count, self.max_jumps - 1)
         write = do & (self.count < self.max_jumps)
@@ -130,6 +139,7 @@ class JumpRecord(eqx.Module):
         return JumpRecord(
             t=put(self.t, t), up=put(self.up, up), v_before=put(self.v_before, v_before),
             v_after=put(self.v_after, v_after), G=put(self.G, G), count=self.count + write,
+            F=None if self.F is None else put(self.F, F),
         )  # fmt: skip
 
     def as_numpy(self) -> dict[str, np.ndarray]:
@@ -141,6 +151,7 @@ class JumpRecord(eqx.Module):
             "jump_v_before": np.asarray(self.v_before)[:n],
             "jump_v_after": np.asarray(self.v_after)[:n],
             "jump_G": np.asarray(self.G)[:n],
+            **({} if self.F is None else {"jump_F": np.asarray(self.F)[:n]}),
         }
 
 

@@ -140,6 +140,8 @@ def phi_extremum(model: PeelingModel, V: ArrayLike, kind: Literal["max", "min"] 
     first sign change of the kind asked brackets the extremum, and 60 bisection steps in log v
     refine it (relative accuracy ~1e-14). Traced in V and the model: ``jit`` and ``vmap`` work
     (the sweep engine finds v̂ per lane this way; :func:`peeljax.phi_extrema` calls it on the host).
+    Its derivatives are the implicit function theorem's on ∂φ/∂v(v̂) = 0 (the bisection is
+    not differentiated).
     """
     if kind not in ("max", "min"):
         raise ValueError(f"kind must be 'max' or 'min', got {kind!r}")
@@ -163,4 +165,12 @@ def phi_extremum(model: PeelingModel, V: ArrayLike, kind: Literal["max", "min"] 
         return jnp.where(before, mid, lo), jnp.where(before, hi, mid)
 
     lo, hi = jax.lax.fori_loop(0, _PHI_BISECTIONS, bisect, bracket)
-    return jnp.where(jnp.any(falls), jnp.exp(0.5 * (lo + hi)), jnp.nan)
+    found = jnp.any(falls)
+    log_root = jax.lax.stop_gradient(jnp.where(found, 0.5 * (lo + hi), 0.0))
+    # Derivatives by the implicit function theorem on ∂φ/∂v(v̂) = 0 (zero in value):
+    # d log v̂ = −d(∂φ/∂v)/(∂²φ/∂v∂log v) at fixed v̂, with the curvature held constant.
+    curvature = jax.lax.stop_gradient(jax.grad(slope)(log_root))
+    curvature = jnp.where(curvature != 0, curvature, 1.0)
+    residual = slope(log_root)
+    log_root = log_root - (residual - jax.lax.stop_gradient(residual)) / curvature
+    return jnp.where(found, jnp.exp(log_root), jnp.nan)

@@ -78,10 +78,12 @@ def test_x_and_the_force_are_continuous_across_every_jump(stick_slip):
     assert jumps["jump_t"].size > 20
     ts, ys = np.asarray(sol.ts), np.asarray(sol.ys)
     folds = pj.phi_folds(MODEL, 1.1)
-    for t, up, v_before, v_after, G in zip(*jumps.values()):
+    keys = ("jump_t", "jump_up", "jump_v_before", "jump_v_after", "jump_G", "jump_F")
+    for t, up, v_before, v_after, G, F in zip(*(jumps[key] for key in keys)):
         row = int(np.flatnonzero(ts == t)[0])
         x = ys[row, :3]
         assert float(MODEL.shear_force(x)) == pytest.approx(G, rel=1e-12)
+        assert float(MODEL.tension(x[2], x[0])) == pytest.approx(F, rel=1e-12)
         assert float(MODEL.phi(v_after, 1.1)) == pytest.approx(G, rel=1e-9)
         assert float(jax.grad(MODEL.phi)(v_after, 1.1)) > 0
         if up:  # from the stick branch's end to the slip branch

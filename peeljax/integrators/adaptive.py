@@ -117,6 +117,13 @@ class _Carry(eqx.Module):
     record: object  # the observer's
     g: Array  # the fold event at the state (0 without events)
     jumps: JumpRecord | None  # None without events
+    # The latest state of the current branch with g ≤ −_REFERENCE_DEPTH·g_scale, g_scale = |g|
+    # where the branch began: where a tangential fold's time is differentiated (events module).
+    reference: Array
+    g_scale: Array
+
+
+_REFERENCE_DEPTH = 1e-8
 
 
 def _initial_step(controller: PIController, state: AlphaState, log_mask, span):
@@ -144,15 +151,12 @@ def _at_fold(events: FoldEvents, ode, solver: AlphaMethod, fold: FoldHit, new: A
         jump = ode.jump(y_fold)
         y = jnp.where(full, y_fold, jump.y)
         after = ode.evaluate(y)
-        # a restarts as dψ/dt at the new state; held fixed in derivatives (as the jump time is),
-        # which spares a reverse pass the second derivatives of ψ.
-        a = solver.initial_acceleration(*_stop_gradient((ode, y, after.psi)))
+        # a restarts as dψ/dt at the new state, differentiated like the rest of the jump.
+        a = solver.initial_acceleration(ode, y, after.psi)
         restarted = AlphaState(
             y=y, psi=after.psi, a=jnp.where(jnp.isfinite(a), a, 0.0), J=after.J, drive=after.drive, status=new.status
         )
-        # The record is an output, not differentiated (see the events module): nothing of it is
-        # carried through a reverse pass.
-        record = jumps.record(~full, *jax.lax.stop_gradient((fold.t, jump.up, jump.v_before, jump.v_after, jump.G)))
+        record = jumps.record(~full, fold.t, jump.up, jump.v_before, jump.v_after, jump.G, jump.F)
         status = jnp.where(full, StopReason.MAX_JUMPS, 0).astype(jnp.int32)
         return restarted, fold_event(ode, y), record, status, end
 
@@ -228,6 +232,8 @@ def adaptive_loop(
         record=observer.init(t0, state0.y, state0.J, state0.status == 0),
         g=jnp.zeros(()) if events is None else fold_event(ode, state0.y),
         jumps=None if events is None else JumpRecord.empty(events.max_jumps),
+        reference=state0.y,
+        g_scale=jnp.zeros(()) if events is None else jnp.abs(fold_event(ode, state0.y)),
     )
 
     def running(c: _Carry):
@@ -256,18 +262,19 @@ def adaptive_loop(
         h_next = jax.lax.stop_gradient(jnp.minimum(h * factor, span))
         if events is None:
             impasse = accept & (state.J * new.J < 0) & (state.drive * new.drive > 0)
-            fold_status, g, jumps, restarted = 0, c.g, None, jnp.asarray(False)
+            fold_status, g, jumps, restarted, g_scale = 0, c.g, None, jnp.asarray(False), c.g_scale
             step_end = (new.y, new.psi, new.J)
         else:
             impasse = jnp.asarray(False)
             if getattr(ode, "completes_state", False):  # the DAE's v, solved anew at the step's end
                 new = eqx.tree_at(lambda s: s.y, new, jnp.where(accept, ode.complete(new.y), new.y))
             g_new = jax.lax.stop_gradient(new.J) if getattr(ode, "fold_event_is_schur", False) else fold_event(ode, new.y)
-            fold = find_fold(events, ode, c.t, h, state, new, accept, c.g, g_new)
+            fold = find_fold(events, ode, c.t, h, state, new, accept, c.g, g_new, c.reference)
             new, t_new, g, jumps, fold_status, step_end = _at_fold(
                 events, ode, solver, fold, new, t_new, g_new, c.jumps
             )
             restarted = fold.hit & (fold_status == 0)
+            g_scale = jnp.where(restarted, jnp.abs(g), c.g_scale)
             # After a jump the motion changes scale: restart the step size as at t0.
             h_restart = jnp.clip(_initial_step(controller, new, log_mask, span), dtmin, span)
             h_next = jax.lax.stop_gradient(jnp.where(restarted, h_restart, h_next))
@@ -308,6 +315,8 @@ def adaptive_loop(
             record=record,
             g=jnp.where(advance, g, c.g),
             jumps=jumps,
+            reference=jnp.where(advance & (g <= -_REFERENCE_DEPTH * g_scale), kept.y, c.reference),
+            g_scale=g_scale,
         )
 
     buffers = None if events is None else (lambda c: c.jumps.buffers())

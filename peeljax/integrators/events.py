@@ -26,9 +26,14 @@ What follows is the user's choice, :class:`FoldEvents` ``mode``:
   passage) the homogenized solution is followed through it — another solution of the
   non-unique DAE there (the paper's theorem ``ithm``).
 
-Derivatives: event times and the choice of branch are held fixed (``stop_gradient``);
-gradients through a run with jumps are finite but do not yet include the motion of the
-jump times (that is the implicit function theorem on g, a separate piece of work).
+Derivatives: the choice of branch, the number of jumps and the step sizes are held fixed;
+the motion of every jump is differentiated. A crossing's time is the root of g on the step's
+interpolant, differentiated by the implicit function theorem on g (:func:`locate_fold`); a
+predicted impasse's time by the secant of J_t² it was predicted from; the state after the
+jump by the implicit function theorem on G(x) = φ(v, V) at the new branch
+(:func:`peeljax.branches.branch_velocity`), and the α-method restarts from it with a = dψ/dt
+differentiated too. Together these are the saltation of the state at the jump, as diffrax's
+``Event`` differentiates its event time and state.
 """
 
 from __future__ import annotations
@@ -41,7 +46,7 @@ from jaxtyping import Array
 from .._arrays import float_array
 from .dense import hermite
 
-__all__ = ["FOLD_MODES", "FoldEvents", "FoldHit", "find_fold", "fold_event", "locate_fold"]
+__all__ = ["FOLD_MODES", "FoldEvents", "FoldHit", "event_rate", "find_fold", "fold_event", "locate_fold"]
 
 FOLD_MODES = ("jump", "stop", "follow")
 _BISECTIONS = 60
@@ -98,30 +103,66 @@ def _stop(tree):
     return jax.tree_util.tree_map(lambda a: jax.lax.stop_gradient(a) if eqx.is_inexact_array(a) else a, tree)
 
 
-def locate_fold(ode, t0, h, y0, psi0, y1, psi1) -> Array:
-    """θ ∈ [0, 1] with g(hermite(t0 + θh)) = 0, given g(y0) < 0 ≤ g(y1) (bisection to round-off).
+def event_rate(ode, y) -> Array:
+    """ġ = ∇g(y)·ψ(y): how fast the fold event changes along the flow (autodiff of the model)."""
+    return jax.jvp(ode.fold_event, (y,), (ode.evaluate(y).psi,))[1]
 
-    Nothing is differentiated here (θ is held fixed: see the module docstring).
+
+def locate_fold(ode, t0, h, y0, psi0, y1, psi1, reference=None) -> Array:
+    """θ ∈ [0, 1] with g(hermite(t0 + θh)) = 0, given g(y0) < 0 ≤ g(y1).
+
+    The root θ* is found by bisection to round-off with nothing differentiated; what is
+    returned equals θ* in value and carries the implicit function theorem's derivative
+    through the interpolant's end points (y0, ψ0, y1, ψ1) and the ODE's parameters (φ's
+    coefficients, V, the model), as diffrax differentiates an ``Event``'s time; ``h`` is held
+    fixed (the controller's step sizes are constants of the derivative):
+
+    * a transversal crossing (ġ > 0 at the root): dθ = −(∂g at fixed θ)/g'(θ*);
+    * a tangential one, ġ at the root below half the mean rate since the step's start: the
+      run reaches the fold with ġ → 0, through a folded singularity of the DAE (ġ = 0 and
+      ∂φ/∂v = 0 together; the first slip from the paper's slow creep does, see
+      ``docs/fitting.md``). There g ≈ −a·(t* − t)², its root moves like the square root of the
+      state's error, and ∂g/∂p and ġ both vanish at it; their ratio does not, and is taken at
+      ``reference`` (a state of the same branch a little before the fold, where both are
+      well-conditioned): dt* = −(∂g/∂p)/ġ there. Measured on the paper's first slip, the
+      ratio is constant to 1e-6 from 30 µs before the fold on, and to 1e-4 from 100 µs.
     """
-    ode, t0, h, y0, psi0, y1, psi1 = _stop((ode, t0, h, y0, psi0, y1, psi1))
+    h = jax.lax.stop_gradient(h)
 
-    def g(theta):
+    def g(ode, t0, y0, psi0, y1, psi1, theta):
         return ode.fold_event(hermite(t0, h, y0, psi0, y1, psi1, (t0 + theta * h)[None])[0])
+
+    frozen = _stop((ode, t0, y0, psi0, y1, psi1))
 
     def bisect(_, bracket):
         lo, hi = bracket
         mid = 0.5 * (lo + hi)
-        past = g(mid) >= 0
+        past = g(*frozen, mid) >= 0
         return jnp.where(past, lo, mid), jnp.where(past, mid, hi)
 
-    _, hi = jax.lax.fori_loop(0, _BISECTIONS, bisect, (jnp.zeros(()), jnp.ones(())))
-    return jax.lax.stop_gradient(hi)
+    _, root = jax.lax.fori_loop(0, _BISECTIONS, bisect, (jnp.zeros(()), jnp.ones(())))
+    root = jax.lax.stop_gradient(root)
+    _, slope = jax.jvp(lambda theta: g(*frozen, theta), (root,), (jnp.ones(()),))
+    residual = g(ode, t0, y0, psi0, y1, psi1, root)
+    transversal = root - (residual - jax.lax.stop_gradient(residual)) / jnp.where(slope > 0, slope, 1.0)
+    if reference is None:
+        return transversal
+    frozen_ode = frozen[0]
+    y_root = hermite(frozen[1], h, *frozen[2:], (frozen[1] + root * h)[None])[0]
+    mean_rate = -g(*frozen, jnp.zeros(())) / jnp.maximum(root * h, jnp.finfo(float).tiny)
+    tangential = event_rate(frozen_ode, y_root) < 0.5 * mean_rate
+    g_ref = ode.fold_event(reference)
+    rate_ref = jax.lax.stop_gradient(event_rate(ode, reference))
+    rate_ref = jnp.where(rate_ref > 0, rate_ref, 1.0)
+    # dθ = −(∂g/∂p)/(ġ·h) at the reference (zero in value)
+    tangent = root - (g_ref - jax.lax.stop_gradient(g_ref)) / (rate_ref * h)
+    return jnp.where(jax.lax.stop_gradient(tangential), tangent, transversal)
 
 
-def find_fold(events: FoldEvents, ode, t0, h, state, new, accept, g0, g1) -> FoldHit:
+def find_fold(events: FoldEvents, ode, t0, h, state, new, accept, g0, g1, reference=None) -> FoldHit:
     """Did the accepted step from ``state`` (at t0) to ``new`` (at t0 + h) reach a fold?
 
-    ``g0``, ``g1``: the fold event at both ends. A crossing (g1 ≥ 0) is located on the step's
+    ``g0``, ``g1``: the fold event at both ends; ``reference``: see :func:`locate_fold`. A crossing (g1 ≥ 0) is located on the step's
     interpolant; an impasse of the homogenized ODE is predicted from g² (module docstring).
     In ``"follow"`` mode a crossing where F̃·f changes sign too (a singular passage) is none.
     """
@@ -130,14 +171,20 @@ def find_fold(events: FoldEvents, ode, t0, h, state, new, accept, g0, g1) -> Fol
         crossed = crossed & (state.drive * new.drive > 0)
     closing = accept & (g0 < 0) & (g1 < 0) & (g1 * g1 < g0 * g0)
     delta = jnp.where(closing, g1 * g1 * h / jnp.where(closing, g0 * g0 - g1 * g1, 1.0), jnp.inf)
-    predicted = ~crossed & (delta < events.time_tol)
+    # Only the homogenized ODE's impasse is predicted (the DAE's g crosses zero: located).
+    predicted = ~crossed & (delta < events.time_tol) & getattr(ode, "fold_event_is_schur", False)
+    if getattr(ode, "fold_event_is_schur", False):
+        # The same secant from the steps' own J_t, which carry derivatives: the impasse time
+        # is differentiated through the secant of J_t² (the implicit function theorem on it).
+        j0, j1 = state.J**2, new.J**2
+        delta = jnp.where(predicted, j1 * h / jnp.where(predicted, j0 - j1, 1.0), 0.0)
 
     def on_crossing():
-        theta = locate_fold(ode, t0, h, state.y, state.psi, new.y, new.psi)
+        theta = locate_fold(ode, t0, h, state.y, state.psi, new.y, new.psi, reference)
         return t0 + theta * h, hermite(t0, h, state.y, state.psi, new.y, new.psi, (t0 + theta * h)[None])[0]
 
     def otherwise():
         return t0 + h + jnp.where(predicted, delta, 0.0), new.y
 
     t_event, y_event = jax.lax.cond(crossed, on_crossing, otherwise)
-    return FoldHit(hit=crossed | predicted, t=jax.lax.stop_gradient(t_event), y=y_event)
+    return FoldHit(hit=crossed | predicted, t=t_event, y=y_event)
