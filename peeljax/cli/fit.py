@@ -15,6 +15,14 @@ Data files (``--data``, repeatable; read by :mod:`peeljax.fit.data`, never execu
   - several pull velocities in one file: ``V_0, t_0, v_0`` (and ``F_0, alpha_0, t_F_0,
     t_alpha_0``), ``V_1, t_1, v_1``, … with consecutive indices from 0.
 
+A stick-slip table (``--table``, instead of ``--data``; :func:`peeljax.fit.data.read_stick_slip_table`):
+one row per pull velocity V with any of the statistics ``F_mean``, ``F_slip``, ``F_stick``,
+``period``, ``slip_duration`` (each optionally with ``<name>_std``). It is fitted by
+Levenberg-Marquardt (:func:`peeljax.fit.table.fit_stick_slip`; ``--transient``, ``--window``,
+``--starts``, ``--max-iterations``, ``--statistics``, ``--tau`` >= 0, default 0: the DAE with
+jumps); stdout gets the coefficients' values +- standard errors and why the fit stopped,
+``--out`` the result with its uncertainty, ``--plot`` :func:`peeljax.fit.plots.plot_table_fit`.
+
 Output (``--out``): a JSON object with the 14 coefficients ``c1, p1, …, p9`` at top level
 (``AdhesionLaw.from_json`` and ``--phi`` read it), ``loss_history``, ``initial_loss``,
 ``final_loss``, ``gradient_norm``, ``v_range`` (the visited v: φ is determined only there),
@@ -56,7 +64,7 @@ def add_command(subparsers) -> None:
     parser.add_argument(
         "--data",
         action="append",
-        required=True,
+        default=None,
         metavar="FILE",
         help="observations (repeatable): .npz, or a force record as CSV / whitespace text with a header naming "
         "its columns: t [s], F [N] (the tension), optional v [m/s], alpha [rad], V [m/s]",
@@ -72,10 +80,48 @@ def add_command(subparsers) -> None:
         "(peel_V=1.1.csv): one value for all files, or one per --data file in order",
     )
     parser.add_argument(
-        "--out", required=True, metavar="FITTED.json", help="the fitted coefficients, loss history and settings"
+        "--table",
+        default=None,
+        metavar="TABLE.csv",
+        help="instead of --data: a stick-slip table (CSV / whitespace text, columns V and any of F_mean, F_slip, "
+        "F_stick, period, slip_duration, each optionally with <name>_std), fitted by Levenberg-Marquardt with "
+        "uncertainties",
     )
     parser.add_argument(
-        "--tau", type=float, default=None, help="tau [s], > 0 (default: the data files' tau, else 0.01)"
+        "--out",
+        default=None,
+        metavar="FITTED.json",
+        help="the fitted coefficients, loss history and settings (required with --data; with --table also the "
+        "uncertainty, residuals and stop reason)",
+    )
+    parser.add_argument(
+        "--tau",
+        type=float,
+        default=None,
+        help="tau [s]: --data > 0 (default: the data files' tau, else 0.01); --table >= 0 (default 0: the DAE with jumps)",
+    )
+    parser.add_argument(
+        "--transient", type=float, default=None, help="--table: statistics from this time on [s], >= 0 (default 0.5)"
+    )
+    parser.add_argument(
+        "--window", type=float, default=None, help="--table: over a window of this length [s], > 0 (default 1)"
+    )
+    parser.add_argument(
+        "--starts", type=int, default=None, help="--table: perturbed starts run as one batch, >= 1 (default 1)"
+    )
+    parser.add_argument(
+        "--max-iterations",
+        dest="max_iterations",
+        type=int,
+        default=None,
+        help="--table: Levenberg-Marquardt iterations at most, >= 1 (default 30)",
+    )
+    parser.add_argument(
+        "--statistics",
+        nargs="+",
+        metavar="S",
+        default=None,
+        help="--table: the table's statistics to fit (default all it has)",
     )
     parser.add_argument(
         "--dt",
@@ -87,9 +133,9 @@ def add_command(subparsers) -> None:
         "--rtol",
         type=float,
         default=None,
-        help="error control's relative tolerance in (0, 1) (default 1e-6; not with --dt)",
+        help="error control's relative tolerance in (0, 1) (default 1e-6, --table 1e-7; not with --dt)",
     )
-    parser.add_argument("--atol", type=float, default=None, help="its absolute tolerance, > 0 (default 1e-9; not with --dt)")
+    parser.add_argument("--atol", type=float, default=None, help="its absolute tolerance, > 0 (default 1e-9, --table 1e-10; not with --dt)")
     parser.add_argument(
         "--t-final", dest="t_final", type=float, default=None, help="end time (default: last observation)"
     )
@@ -103,7 +149,8 @@ def add_command(subparsers) -> None:
         help="> 0 (default adam 0.02, lbfgs line search)",
     )
     parser.add_argument("--patience", type=int, default=50, help="early stopping patience, >= 1 (default %(default)s)")
-    parser.add_argument("--free", nargs="+", metavar="NAME", default=None, help="coefficients to fit (default all 14)")
+    parser.add_argument("--free", nargs="+", metavar="NAME", default=None,
+                        help="coefficients to fit (default all 14; --table: c1 c3 c6)")
     parser.add_argument(
         "--quantities",
         nargs="+",
@@ -112,7 +159,7 @@ def add_command(subparsers) -> None:
         help="subset of v F alpha to fit (default: all in the data)",
     )
     parser.add_argument("--phi", metavar="START.json", help="start coefficients (default: the paper's law)")
-    parser.add_argument("--plot", metavar="FIT.png", help="data vs fitted model, and fitted phi vs start")
+    parser.add_argument("--plot", metavar="FIT.png", help="data vs fitted model, and fitted phi vs start (--table: with residuals and phi's 95%% band)")
     parser.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     parser.set_defaults(handler=_fit_command)
@@ -162,6 +209,133 @@ def load_observations(paths: list[str], V=None) -> tuple[list[Observation], dict
             raise ValueError(f"--data: {error}") from None
         observations.extend(found)
     return observations, {k: next(iter(v)) for k, v in defaults.items() if len(v) == 1}
+
+
+_TABLE_ONLY = ("transient", "window", "starts", "max_iterations", "statistics")
+_DATA_ONLY = ("V", "dt", "t_final", "learning_rate", "quantities")
+
+
+def _option(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+def _check_source(args: argparse.Namespace) -> None:
+    """Exactly one of --data and --table, and no option of the other kind."""
+    if args.data is not None and args.table is not None:
+        raise ValueError("--table and --data exclude each other: fit a stick-slip table or runs, not both")
+    if args.data is None and args.table is None:
+        raise ValueError("give --data FILE (runs to fit) or --table TABLE.csv (a stick-slip table to fit)")
+    source, others = ("--table", _DATA_ONLY) if args.table is not None else ("--data", _TABLE_ONLY)
+    for name in others:
+        if getattr(args, name) is not None:
+            raise ValueError(f"{_option(name)} does not apply to {source}")
+    if args.data is not None and args.out is None:
+        raise ValueError("--out FITTED.json is required with --data")
+
+
+def _validate_table(args: argparse.Namespace) -> dict:
+    """--table's options, all checked before anything is compiled."""
+    from ..fit.data import STATISTICS, read_stick_slip_table
+
+    if not Path(args.table).is_file():
+        raise ValueError(f"--table: file {args.table!r} does not exist")
+    try:
+        table = read_stick_slip_table(args.table)
+    except DataFileError as error:
+        raise ValueError(f"--table: {error}") from None
+    except OSError as error:
+        raise ValueError(f"--table: cannot read {args.table!r} ({error.strerror or error})") from None
+    tau = 0.0 if args.tau is None else args.tau
+    if not (math.isfinite(tau) and tau >= 0):
+        raise ValueError(f"--tau must be >= 0 with --table (allowed range: [0, inf)), got {tau:g}")
+    transient = 0.5 if args.transient is None else args.transient
+    if not (math.isfinite(transient) and transient >= 0):
+        raise ValueError(f"--transient must be >= 0 [s] (allowed range: [0, inf)), got {transient:g}")
+    window = 1.0 if args.window is None else args.window
+    if not (math.isfinite(window) and window > 0):
+        raise ValueError(f"--window must be > 0 [s] (allowed range: (0, inf)), got {window:g}")
+    starts = 1 if args.starts is None else args.starts
+    if starts < 1:
+        raise ValueError(f"--starts must be >= 1 (allowed range: [1, inf)), got {starts}")
+    max_iterations = 30 if args.max_iterations is None else args.max_iterations
+    if max_iterations < 1:
+        raise ValueError(f"--max-iterations must be >= 1 (allowed range: [1, inf)), got {max_iterations}")
+    rtol = 1e-7 if args.rtol is None else args.rtol
+    atol = 1e-10 if args.atol is None else args.atol
+    checked("(0, 1)", check_tolerance, "rtol", rtol, 1.0)
+    checked("(0, inf)", check_tolerance, "atol", atol)
+    free = ("c1", "c3", "c6") if args.free is None else tuple(args.free)
+    unknown = [n for n in free if n not in COEFFICIENT_NAMES]
+    if unknown:
+        raise ValueError(f"--free: unknown coefficient(s) {unknown}; allowed: {', '.join(COEFFICIENT_NAMES)}")
+    statistics = table.statistics if args.statistics is None else tuple(args.statistics)
+    unknown = [s for s in statistics if s not in table.statistics]
+    if unknown:
+        raise ValueError(
+            f"--statistics: {unknown} not in the table {args.table!r}, which has {', '.join(table.statistics)} "
+            f"(of {', '.join(STATISTICS)})"
+        )
+    n_measured = sum(int(np.sum(~np.isnan(table.values[s]))) for s in statistics)
+    if n_measured <= len(free):
+        raise ValueError(
+            f"--free: {n_measured} measured values in --table cannot determine {len(free)} coefficient(s) "
+            "with an error estimate; fit fewer"
+        )
+    start = AdhesionLaw() if args.phi is None else load_phi(args.phi)
+    check_output_path("--out", args.out)
+    if args.plot is not None:
+        check_output_path("--plot", args.plot, plot_formats())
+    return {
+        "table": table, "tau": float(tau), "transient": float(transient), "window": float(window),
+        "n_starts": int(starts), "max_iterations": int(max_iterations), "rtol": float(rtol), "atol": float(atol),
+        "free": free, "statistics": tuple(statistics), "start": start,
+    }  # fmt: skip
+
+
+def _table_command(args: argparse.Namespace, config: dict) -> int:
+    """``peeljax fit --table``: Levenberg-Marquardt on the stick-slip statistics, with uncertainties."""
+    from ..fit.table import fit_stick_slip
+    from ..model import PeelingModel
+
+    table = config["table"]
+    print(
+        f"{PROG}: fitting {', '.join(config['free'])} to the stick-slip table {args.table} "
+        f"({len(table)} rows, V = {', '.join(f'{V:g}' for V in table.V)}; {', '.join(config['statistics'])}), "
+        f"tau {config['tau']:g}, window [{config['transient']:g}, {config['transient'] + config['window']:g}] s; "
+        "compiling first ...",
+        file=sys.stderr,
+    )
+    model = PeelingModel(adhesion=config["start"])
+    result = fit_stick_slip(
+        table, model, free=config["free"], statistics=config["statistics"], tau=config["tau"],
+        transient=config["transient"], window=config["window"], rtol=config["rtol"], atol=config["atol"],
+        max_iterations=config["max_iterations"], n_starts=config["n_starts"],
+    )  # fmt: skip
+    result.settings.update({"table": args.table, "phi": args.phi})
+    if args.out is not None:
+        result.to_json(args.out)
+    if args.plot is not None:
+        from ..fit.plots import plot_table_fit
+
+        plot_table_fit(result, table, model=model, path=args.plot)
+    if args.json:
+        record = result.to_dict()
+        record.update({"out": args.out, "plot": args.plot})
+        print(json.dumps(json_safe(record), allow_nan=False))
+        return 0
+    print(
+        f"peeljax fit --table: {result.steps} iterations (Levenberg-Marquardt), loss {result.initial_loss:.4g} -> "
+        f"{result.final_loss:.4g}"
+    )
+    print(f"stopped: {result.stop_reason}")
+    print(result.uncertainty.table())
+    print(
+        f"visited v in [{result.v_range[0]:.3g}, {result.v_range[1]:.3g}] m/s: phi is determined by the data only there"
+    )
+    written = [p for p in (args.out, args.plot) if p is not None]
+    if written:
+        print("wrote " + " and ".join(written))
+    return 0
 
 
 def _validate(args: argparse.Namespace) -> dict:
@@ -228,6 +402,14 @@ def _engine(config: dict) -> str:
 
 
 def _fit_command(args: argparse.Namespace) -> int:
+    try:
+        _check_source(args)
+        if args.table is not None:
+            config = _validate_table(args)
+    except (ValueError, TypeError) as error:
+        return fail(error)
+    if args.table is not None:
+        return _table_command(args, config)
     try:
         config = _validate(args)
     except (ValueError, TypeError) as error:
