@@ -68,11 +68,21 @@ import jax as _jax  # noqa: E402
 _jax.config.update("jax_enable_x64", True)
 
 from .adhesion import COEFFICIENT_NAMES, PAPER_COEFFICIENTS, AdhesionLaw, safe_pow  # noqa: E402
+from .analysis import StickSlipAnalysis, analyze, bifurcation_diagram, phi_extrema, trajectory_structure  # noqa: E402
 from .branches import Folds, phi_folds  # noqa: E402
 from .constrained import ConstrainedDAE  # noqa: E402
 from .cycles import CycleStatistics, RepeatPattern, cycle_statistics  # noqa: E402
-from .analysis import StickSlipAnalysis, analyze, bifurcation_diagram, phi_extrema, trajectory_structure  # noqa: E402
-from .fit import FitResult, Observation, fit_adhesion, fit_adhesion_steady, phi_relative_error  # noqa: E402
+from .fit import (  # noqa: E402
+    FitResult,
+    Observation,
+    StickSlipTable,
+    fit_adhesion,
+    fit_adhesion_steady,
+    fit_stick_slip,
+    phi_relative_error,
+    read_force_record,
+    read_stick_slip_table,
+)
 from .homogenized import ODE, HomogenizedODE  # noqa: E402
 from .integrators import (  # noqa: E402
     AlphaMethod,
@@ -104,30 +114,31 @@ from .sweeps import LeastTau, StickSlipMap, SweepResult, least_tau, stick_slip_m
 __version__ = "0.1.0"
 
 __all__ = [
+    "COEFFICIENT_NAMES",
+    "ODE",
+    "PAPER_COEFFICIENTS",
     "AdhesionLaw",
     "AlphaMethod",
     "AlphaSolver",
-    "COEFFICIENT_NAMES",
     "ConstrainedDAE",
     "CycleStatistics",
-    "Folds",
     "FitResult",
+    "Folds",
     "HomogenizedODE",
     "Jacobians",
     "JumpRecord",
     "LeastTau",
     "LogTransformedODE",
-    "ODE",
     "Observation",
-    "PAPER_COEFFICIENTS",
     "PIController",
     "PeelingModel",
     "RepeatPattern",
     "SavedRun",
     "Solution",
     "StepDiagnostics",
-    "StickSlipMap",
     "StickSlipAnalysis",
+    "StickSlipMap",
+    "StickSlipTable",
     "StopReason",
     "SweepResult",
     "alpha_coefficients",
@@ -137,6 +148,7 @@ __all__ = [
     "cycle_statistics",
     "fit_adhesion",
     "fit_adhesion_steady",
+    "fit_stick_slip",
     "integrate_alpha",
     "integrate_alpha_adaptive",
     "integrate_reference",
@@ -150,6 +162,8 @@ __all__ = [
     "phi_extrema",
     "phi_folds",
     "phi_relative_error",
+    "read_force_record",
+    "read_stick_slip_table",
     "safe_pow",
     "schur_complement",
     "simulate",

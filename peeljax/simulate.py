@@ -213,8 +213,12 @@ def simulate(
         located (error control), ``jumps`` is the :class:`~peeljax.JumpRecord` and
         ``stats["jumps"]`` its count; :func:`peeljax.cycle_statistics` summarizes it.
 
-    Gradients through a run with jumps are finite, but hold the jump times fixed (their
-    motion is not yet differentiated): see :mod:`peeljax.integrators.events`.
+    Gradients through a run with jumps follow the jumps: each jump time by the implicit
+    function theorem on its fold event, the state after it through the constraint (see
+    :mod:`peeljax.integrators.events`; the step sizes and the number of jumps are held fixed).
+    Use ``adjoint="reverse"`` (``jax.grad``) for derivatives of jump times from the paper's
+    start: ``"forward"`` (``jax.jvp``) differentiates the first, tangential slip inexactly
+    (measured in ``docs/fitting.md``); transversal jumps agree in both modes.
 
     V, tau, rho, y0, the model's parameters and the adhesion coefficients are traced: ``jit``,
     ``vmap`` and ``grad`` work over them without recompiling. ``dt`` and ``t_final`` set the

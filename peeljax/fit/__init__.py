@@ -1,9 +1,26 @@
 """Fitting the adhesion law φ(v, V) to what a peel test measures.
 
+* :mod:`.data` — the lab's files: force records (CSV/whitespace text, ``.npz``) and
+  stick-slip tables, and the statistics of a measured sawtooth;
+* :mod:`.statistics` — the same statistics of a simulated run, differentiable through its jumps;
+* :mod:`.table` — Levenberg–Marquardt on a stick-slip table (:func:`fit_stick_slip`);
+* :mod:`.uncertainty` — covariance, standard errors, correlations, undetermined coefficients,
+  the band on φ;
 * :mod:`.trajectory` — point-wise fits of smooth runs v(t), F(t), α(t) (optax), and of
-  steady peeling (φ's own branch).
+  steady peeling (φ's own branch);
+* :mod:`.plots` — data against fit, residuals, φ with its band and folds.
 """
 
+from .data import (
+    DataFileError,
+    StickSlipTable,
+    read_force_record,
+    read_observations,
+    read_stick_slip_table,
+    record_statistics,
+)
+from .statistics import jump_statistics
+from .table import fit_stick_slip
 from .trajectory import (
     QUANTITIES,
     FitResult,
@@ -15,15 +32,25 @@ from .trajectory import (
     restart_on_ascent,
     trajectory_loss,
 )
+from .uncertainty import Uncertainty
 
 __all__ = [
     "QUANTITIES",
+    "DataFileError",
     "FitResult",
     "LossInfo",
     "Observation",
+    "StickSlipTable",
+    "Uncertainty",
     "fit_adhesion",
     "fit_adhesion_steady",
+    "fit_stick_slip",
+    "jump_statistics",
     "phi_relative_error",
+    "read_force_record",
+    "read_observations",
+    "read_stick_slip_table",
+    "record_statistics",
     "restart_on_ascent",
     "trajectory_loss",
 ]

@@ -56,8 +56,8 @@ def model_statistics(
     n_samples: int = 401,
     rtol: float = 1e-7,
     atol: float = 1e-10,
-    max_jumps: int = 512,
-    max_steps: int = 200_000,
+    max_jumps: int = 4096,
+    max_steps: int = 400_000,
 ) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """The model's stick-slip statistics at the pull velocities ``V`` (a sequence, or a
     :class:`~peeljax.fit.data.StickSlipTable`), run as :func:`~peeljax.fit.table.fit_stick_slip`

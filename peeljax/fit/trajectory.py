@@ -306,6 +306,10 @@ class FitResult:
         v_range: (min, max) of v visited by the fitted model's runs (or of the data's v,
             steady case): φ is determined by the data only there.
         free: the fitted coefficients' names; settings: the fit's options.
+        uncertainty, stop_reason, residuals, start_losses: least-squares fits
+            (:func:`peeljax.fit.fit_stick_slip`): the coefficients' covariance, standard errors
+            and correlations (:class:`peeljax.fit.uncertainty.Uncertainty`), why it stopped, the
+            residuals at the optimum and every start's final loss.
     """
 
     adhesion: AdhesionLaw
@@ -321,6 +325,10 @@ class FitResult:
     settings: dict
     t_stop: list[float] = dataclasses.field(default_factory=list)
     wall_time_s: float = math.nan
+    uncertainty: object | None = None  # peeljax.fit.uncertainty.Uncertainty (least-squares fits)
+    stop_reason: str = ""
+    residuals: np.ndarray | None = None
+    start_losses: np.ndarray | None = None
 
     @property
     def loss_reduction(self) -> float:
@@ -343,6 +351,10 @@ class FitResult:
             "t_stop": list(self.t_stop),
             "wall_time_s": self.wall_time_s,
             "settings": self.settings,
+            **({} if not self.stop_reason else {"stop_reason": self.stop_reason}),
+            **({} if self.uncertainty is None else {"uncertainty": self.uncertainty.as_dict()}),
+            **({} if self.residuals is None else {"residuals": [float(x) for x in self.residuals]}),
+            **({} if self.start_losses is None else {"start_losses": [float(x) for x in self.start_losses]}),
         }
 
     def to_json(self, path: str | Path | None = None) -> str:

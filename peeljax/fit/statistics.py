@@ -1,0 +1,68 @@
+"""Stick-slip statistics of a simulated run, differentiable: what a stick-slip table is fitted to.
+
+A run carried through the folds (``fold="jump"``) records every jump of v
+(:class:`~peeljax.JumpRecord`); its times and the tension F = (k/l)·u at each jump carry
+derivatives (the implicit function theorem on the fold event, :mod:`peeljax.integrators.events`).
+Over the window [t_start, t_end] (after a transient), with the same definitions as
+:func:`peeljax.fit.data.record_statistics` applies to a measured force record:
+
+* ``F_slip``: the mean of F at the stick → slip jumps (F's maxima: during a stick F rises,
+  during a slip it falls);
+* ``F_stick``: the mean of F at the slip → stick jumps (F's minima);
+* ``period``: the mean time between consecutive stick → slip jumps,
+  (t_last − t_first)/(n − 1) over the n in the window;
+* ``slip_duration``: the mean time from a stick → slip jump to the next slip → stick jump,
+  both in the window;
+* ``F_mean``: the time average of F over the window, the mean of F at ``n_samples`` equally
+  spaced times of the dense output (the trapezoid rule on a periodic sawtooth; its kinks cost
+  O(1/n_samples²)).
+
+A statistic is *available* when the window holds what it needs (two stick → slip jumps for
+``period``, one slip for ``slip_duration``, …); a steady run (no fold of φ at V, or a stable
+steady state) has only ``F_mean``. The number of jumps in the window is held fixed in the
+derivative (it changes only where an event crosses the window's edge).
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
+from ..solution import JumpRecord
+from .data import STATISTICS
+
+__all__ = ["STATISTICS", "jump_statistics"]
+
+
+def jump_statistics(
+    jumps: JumpRecord, F_samples: Float[Array, " n"], t_start, t_end
+) -> tuple[Float[Array, " 5"], Bool[Array, " 5"]]:
+    """(values, available) of :data:`STATISTICS` (``F_mean``, ``F_slip``, ``F_stick``,
+    ``period``, ``slip_duration``) of one run over [t_start, t_end] (module docstring).
+
+    ``F_samples``: F at equally spaced times covering the window (its mean is ``F_mean``).
+    Unavailable statistics are 0 (finite, with zero derivatives).
+    """
+    slot = jnp.arange(jumps.max_jumps)
+    t = jnp.where(slot < jumps.count, jumps.t, jnp.inf)
+    inside = (slot < jumps.count) & (t >= t_start) & (t <= t_end)
+    t_safe = jnp.where(inside, t, 0.0)
+    F = jnp.where(inside, jumps.F, 0.0)
+    up = inside & jumps.up
+    down = inside & ~jumps.up
+
+    def mean_over(mask, values):
+        n = jnp.sum(mask)
+        return jnp.sum(jnp.where(mask, values, 0.0)) / jnp.maximum(n, 1), n
+
+    F_slip, n_up = mean_over(up, F)
+    F_stick, n_down = mean_over(down, F)
+    t_first = jnp.min(jnp.where(up, t_safe, jnp.inf))
+    t_last = jnp.max(jnp.where(up, t_safe, -jnp.inf))
+    period = jnp.where(n_up >= 2, (jnp.where(n_up >= 2, t_last - t_first, 0.0)) / jnp.maximum(n_up - 1, 1), 0.0)
+    # a slip: a stick → slip jump followed by a slip → stick jump, both inside
+    pair = up[:-1] & down[1:]
+    slip_duration, n_slips = mean_over(pair, t_safe[1:] - t_safe[:-1])
+    values = jnp.stack([jnp.mean(F_samples), F_slip, F_stick, period, slip_duration])
+    available = jnp.stack([jnp.asarray(True), n_up >= 1, n_down >= 1, n_up >= 2, n_slips >= 1])
+    return jnp.where(available, values, 0.0), available

@@ -1,0 +1,69 @@
+"""Gradients through the jumps: jump times and forces against central differences.
+
+The derivative of a jump time is the implicit function theorem's on its fold event (on
+ġ = 0 at the tangential first slip); see docs/fitting.md "Gradients through the jumps" for the
+measured agreement at tighter tolerances than run here.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import peeljax as pj
+from peeljax.adhesion import AdhesionLaw
+
+RTOL = 1e-10
+
+
+def _jumps(p, *, t_final, y0=None, adjoint="reverse", rtol=RTOL):
+    law = eqx.tree_at(lambda a: a.c1, AdhesionLaw(), p[0])
+    model = pj.PeelingModel(adhesion=law)
+    sol = pj.simulate(
+        model, V=p[1], tau=0.0, t_final=t_final, rtol=rtol, atol=rtol * 1e-3, ts=jnp.array([0.0, t_final]),
+        adjoint=adjoint, max_jumps=64, max_steps=400_000, y0=y0,
+    )  # fmt: skip
+    return sol.jumps
+
+
+def _central(f, p, k, eps):
+    e = np.zeros(2)
+    e[k] = eps
+    return (np.asarray(f(p + e)) - np.asarray(f(p - e))) / (2 * eps)
+
+
+@pytest.mark.slow
+def test_first_jump_times_and_force_drop_match_central_differences():
+    """From the paper's start (its first slip is tangential: a folded singularity): the first
+    8 jump times and the first slip's force drop, d/dc1 and d/dV, reverse mode."""
+    p0 = jnp.array([400.0, 1.1])
+
+    def quantities(p):
+        jumps = _jumps(p, t_final=0.22)
+        return jnp.concatenate([jumps.t[:8], (jumps.F[0] - jumps.F[1])[None]])
+
+    jac = np.asarray(jax.jacrev(quantities)(p0))
+    for k, eps, tol in ((0, 0.1, 3e-3), (1, 1e-4, 5e-3)):
+        fd = _central(quantities, p0, k, eps)
+        assert np.all(np.isfinite(jac[:, k]))
+        np.testing.assert_allclose(jac[:, k], fd, rtol=tol)
+    # the first slip comes later with a larger c1 (φ's maximum rises)
+    assert jac[0, 0] > 0
+
+
+@pytest.mark.slow
+def test_transversal_jumps_agree_in_both_modes_and_with_differences():
+    """From a state on the cycle every jump is transversal: reverse and forward mode agree,
+    and both match central differences."""
+    start = pj.simulate(V=1.1, tau=0.0, t_final=0.175, rtol=RTOL, atol=RTOL * 1e-3, ts=jnp.array([0.0, 0.175]))
+    y0 = start.ys[-1]
+    p0 = jnp.array([400.0, 1.1])
+
+    def times(p, adjoint="reverse"):
+        return _jumps(p, t_final=0.05, y0=y0, adjoint=adjoint).t[:4]
+
+    reverse = np.asarray(jax.jacrev(times)(p0))[:, 0]
+    forward = np.asarray(jax.jvp(lambda c: times(jnp.array([c, 1.1]), "forward"), (400.0,), (1.0,))[1])
+    np.testing.assert_allclose(reverse, forward, rtol=1e-4)
+    np.testing.assert_allclose(reverse, _central(times, p0, 0, 0.1), rtol=2e-3)
