@@ -13,9 +13,12 @@ Over the window [t_start, t_end] (after a transient), with the same definitions 
   (t_last − t_first)/(n − 1) over the n in the window;
 * ``slip_duration``: the mean time from a stick → slip jump to the next slip → stick jump,
   both in the window;
-* ``F_mean``: the time average of F over the window, the mean of F at ``n_samples`` equally
-  spaced times of the dense output (the trapezoid rule on a periodic sawtooth; its kinks cost
-  O(1/n_samples²)).
+* ``F_mean``: the time average of F over whole cycles, from the first to the last stick → slip
+  jump in the window (over the whole window where there are fewer than two), by the trapezoid
+  rule on F at ``n_samples`` equally spaced times of the dense output (its cumulative integral
+  interpolated at the two jump times, so F_mean moves continuously with them). A mean over
+  the fixed window would follow the phase of its partial cycle, which drifts with every
+  coefficient (``docs/fitting.md``).
 
 A statistic is *available* when the window holds what it needs (two stick → slip jumps for
 ``period``, one slip for ``slip_duration``, …); a steady run (no fold of φ at V, or a stable
@@ -40,7 +43,7 @@ def jump_statistics(
     """(values, available) of :data:`STATISTICS` (``F_mean``, ``F_slip``, ``F_stick``,
     ``period``, ``slip_duration``) of one run over [t_start, t_end] (module docstring).
 
-    ``F_samples``: F at equally spaced times covering the window (its mean is ``F_mean``).
+    ``F_samples``: F at equally spaced times from t_start to t_end (``F_mean`` integrates them).
     Unavailable statistics are 0 (finite, with zero derivatives).
     """
     slot = jnp.arange(jumps.max_jumps)
@@ -63,6 +66,14 @@ def jump_statistics(
     # a slip: a stick → slip jump followed by a slip → stick jump, both inside
     pair = up[:-1] & down[1:]
     slip_duration, n_slips = mean_over(pair, t_safe[1:] - t_safe[:-1])
-    values = jnp.stack([jnp.mean(F_samples), F_slip, F_stick, period, slip_duration])
+    # F_mean over whole cycles, [first slip, last slip] in the window, where there are two:
+    # the mean over a fixed window would follow the phase of its partial cycle, which drifts.
+    t_samples = jnp.linspace(t_start, t_end, F_samples.shape[0])
+    cumulative = jnp.concatenate([jnp.zeros(1), jnp.cumsum(0.5 * (F_samples[1:] + F_samples[:-1]) * jnp.diff(t_samples))])
+    cycles = n_up >= 2
+    a = jnp.where(cycles, t_first, t_start)
+    b = jnp.where(cycles, t_last, t_end)
+    F_mean = (jnp.interp(b, t_samples, cumulative) - jnp.interp(a, t_samples, cumulative)) / jnp.where(b > a, b - a, 1.0)
+    values = jnp.stack([F_mean, F_slip, F_stick, period, slip_duration])
     available = jnp.stack([jnp.asarray(True), n_up >= 1, n_down >= 1, n_up >= 2, n_slips >= 1])
     return jnp.where(available, values, 0.0), available

@@ -55,6 +55,7 @@ from .uncertainty import uncertainty_from_jacobian
 __all__ = ["MISSING_RESIDUAL", "TableFit", "fit_stick_slip", "table_residuals"]
 
 MISSING_RESIDUAL = 10.0
+V_REST = 1e-4  # m/s: the lower end of the reported v range where the tape comes to rest (v = 0)
 
 
 
@@ -212,7 +213,8 @@ def fit_stick_slip(
         A :class:`~peeljax.fit.FitResult`: ``adhesion`` (the fitted law), ``uncertainty``
         (:class:`~peeljax.fit.uncertainty.Uncertainty`), ``stop_reason``, ``residuals`` (the
         measured entries of (model − data)/σ, row by row), ``v_range`` (the v visited in the
-        windows: φ is fixed by the data only there) and ``settings``.
+        windows, from at least ``V_REST`` = 1e-4 m/s where the tape comes to rest: φ is fixed
+        by the data only there) and ``settings``.
     """
     began = time.perf_counter()
     _check_options(table, transient, window, n_samples, tau, n_starts, max_iterations, fit_rtol, fit_atol)
@@ -273,7 +275,7 @@ def fit_stick_slip(
         gradient_norm=float(np.linalg.norm(2 * J.T @ rs[best])),
         steps=int(steps[best]),
         stopped_early=bool(codes[best] == 0),
-        v_range=(float(max(np.min(v_range[:, 0]), 1e-12)), float(np.max(v_range[:, 1]))),
+        v_range=(float(max(np.min(v_range[:, 0]), V_REST)), float(np.max(v_range[:, 1]))),
         free=names,
         settings=settings,
         wall_time_s=time.perf_counter() - began,

@@ -1,0 +1,76 @@
+"""The cost of a gradient through the jumps against the forward run (issue 20: at most 5×).
+
+V = 1.1 m/s, τ = 0 (the DAE with jumps), the paper's start, 3 s (≈ 210 jumps), error control.
+The gradient is d/dc1 of (the sum of the jump times + the mean of F at the slips), reverse mode
+(``adjoint="reverse"``, the checkpointed loop) and forward mode (``jax.jvp``, one tangent).
+Compile time is measured separately (the first call); medians of ``--repeats`` calls after it.
+
+    PYTHONPATH=. python benchmarks/jump_gradient_cost.py [--rtol 1e-6] [--repeats 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+import peeljax as pj
+
+
+def objective(c1, *, rtol, adjoint, t_final=3.0):
+    law = eqx.tree_at(lambda a: a.c1, pj.AdhesionLaw(), c1)
+    sol = pj.simulate(
+        pj.PeelingModel(adhesion=law), V=1.1, tau=0.0, t_final=t_final, rtol=rtol, atol=rtol * 1e-3,
+        ts=jnp.array([0.0, t_final]), adjoint=adjoint, max_jumps=1024, max_steps=1_000_000,
+    )  # fmt: skip
+    jumps = sol.jumps
+    slot = jnp.arange(jumps.max_jumps)
+    valid = slot < jumps.count
+    up = valid & jumps.up
+    return jnp.sum(jnp.where(valid, jumps.t, 0.0)) + jnp.sum(jnp.where(up, jumps.F, 0.0)) / jnp.sum(up), jumps.count
+
+
+def timed(fn, repeats):
+    began = time.perf_counter()
+    jax.block_until_ready(fn())
+    first = time.perf_counter() - began
+    times = []
+    for _ in range(repeats):
+        began = time.perf_counter()
+        jax.block_until_ready(fn())
+        times.append(time.perf_counter() - began)
+    return first, statistics.median(times)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rtol", type=float, default=1e-6)
+    parser.add_argument("--repeats", type=int, default=5)
+    args = parser.parse_args()
+    c1 = jnp.asarray(400.0)
+    forward = jax.jit(lambda c: objective(c, rtol=args.rtol, adjoint="forward"))
+    reverse_run = jax.jit(lambda c: objective(c, rtol=args.rtol, adjoint="reverse"))
+    grad = jax.jit(jax.grad(lambda c: objective(c, rtol=args.rtol, adjoint="reverse")[0]))
+    jvp = jax.jit(lambda c: jax.jvp(lambda x: objective(x, rtol=args.rtol, adjoint="forward")[0], (c,), (1.0,)))
+    rows = []
+    for name, fn in (
+        ("forward run (lax loop)", lambda: forward(c1)),
+        ("forward run (checkpointed loop)", lambda: reverse_run(c1)),
+        ("gradient, reverse mode", lambda: grad(c1)),
+        ("derivative, forward mode (jvp)", lambda: jvp(c1)),
+    ):
+        rows.append((name, *timed(fn, args.repeats)))
+    jumps = int(forward(c1)[1])
+    base = rows[0][2]
+    print(f"V = 1.1, tau = 0, 3 s, {jumps} jumps, rtol {args.rtol:g}; medians of {args.repeats} after the first call")
+    print(f"{'':34} {'first call [s]':>15} {'median [s]':>11} {'/ forward':>10}")
+    for name, first, median in rows:
+        print(f"{name:34} {first:>15.2f} {median:>11.3f} {median / base:>10.2f}")
+
+
+if __name__ == "__main__":
+    main()
