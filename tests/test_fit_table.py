@@ -8,7 +8,7 @@ import scipy.stats
 from peeljax.adhesion import AdhesionLaw
 from peeljax.fit import StickSlipTable, fit_stick_slip, jump_statistics, phi_relative_error
 from peeljax.fit.data import STATISTICS
-from peeljax.fit.plots import model_statistics
+from peeljax.fit.plots import synthetic_table
 from peeljax.fit.uncertainty import quantile, uncertainty_from_jacobian
 from peeljax.solution import JumpRecord
 
@@ -94,14 +94,7 @@ def test_hidden_truth_table_of_one_coefficient_is_recovered_with_an_honest_inter
     with three coefficients 12-15 % off is not met: docs/fitting.md, measured.)"""
     truth = AdhesionLaw(**{**AdhesionLaw().coefficients(), **TRUTH})
     V = np.array([0.8, 1.2, 1.6, 2.0])
-    stats, _ = model_statistics(truth, V, **SETTINGS)
-    rng = np.random.default_rng(1)
-    columns = {}
-    for name in STATISTICS:
-        exact = np.asarray(stats[name])
-        columns[name] = exact * (1 + 0.01 * rng.normal(size=exact.shape))
-        columns[f"{name}_std"] = 0.01 * np.abs(exact)
-    table = StickSlipTable.from_dict(V=V, **columns)
+    table = synthetic_table(truth, V, noise=0.01, seed=1, **SETTINGS)
     result = fit_stick_slip(table, free=("c1",), max_iterations=8, **SETTINGS)
     assert result.final_loss < result.initial_loss / 20
     assert float(result.adhesion.c1) == pytest.approx(TRUTH["c1"], rel=0.01)

@@ -67,20 +67,11 @@ TABLE = {"V": (0.8, 1.2, 1.6, 2.0), "transient": 0.3, "window": 0.5, "rtol": 1e-
 
 def stick_slip_table(path: Path = HERE / "stick_slip_table.csv") -> Path:
     """The hidden-truth stick-slip table (module docstring)."""
-    from peeljax.fit import StickSlipTable
-    from peeljax.fit.data import STATISTICS
-    from peeljax.fit.plots import model_statistics
+    from peeljax.fit.plots import synthetic_table
 
     truth = pj.AdhesionLaw(**{**pj.AdhesionLaw().coefficients(), **HIDDEN})
     settings = {k: v for k, v in TABLE.items() if k != "V"}
-    stats, _ = model_statistics(truth, np.asarray(TABLE["V"]), **settings)
-    rng = np.random.default_rng(1)
-    columns = {}
-    for name in STATISTICS:
-        exact = np.asarray(stats[name])
-        columns[name] = exact * (1 + 0.01 * rng.normal(size=exact.shape))
-        columns[f"{name}_std"] = 0.01 * np.abs(exact)
-    StickSlipTable.from_dict(V=np.asarray(TABLE["V"]), **columns).to_csv(path)
+    synthetic_table(truth, np.asarray(TABLE["V"]), noise=0.01, seed=1, **settings).to_csv(path)
     return path
 
 

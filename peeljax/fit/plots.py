@@ -86,6 +86,20 @@ def model_statistics(
     return {s: values[:, j] for j, s in enumerate(STATISTICS)}, np.asarray(v_range, float)
 
 
+def synthetic_table(law: AdhesionLaw, V, *, noise: float = 0.01, seed: int = 0, **settings) -> StickSlipTable:
+    """A stick-slip table made by the model with φ = ``law`` at the pull velocities ``V``: each
+    statistic of :func:`model_statistics` (``settings`` are its options) times 1 + noise·N(0, 1)
+    (``seed``), with standard deviations noise·|value| — for hidden-truth exercises."""
+    stats, _ = model_statistics(law, V, **settings)
+    rng = np.random.default_rng(seed)
+    columns = {}
+    for name in STATISTICS:
+        exact = np.asarray(stats[name])
+        columns[name] = exact * (1 + noise * rng.normal(size=exact.shape))
+        columns[f"{name}_std"] = noise * np.abs(exact)
+    return StickSlipTable.from_dict(V=np.asarray(V, float), **columns)
+
+
 def _run_options(result) -> dict:
     s = result.settings
     keys = ("tau", "transient", "window", "n_samples", "rtol", "atol")
