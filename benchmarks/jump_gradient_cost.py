@@ -17,6 +17,7 @@ import time
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 import peeljax as pj
 
@@ -25,7 +26,7 @@ def objective(c1, *, rtol, adjoint, t_final=3.0):
     law = eqx.tree_at(lambda a: a.c1, pj.AdhesionLaw(), c1)
     sol = pj.simulate(
         pj.PeelingModel(adhesion=law), V=1.1, tau=0.0, t_final=t_final, rtol=rtol, atol=rtol * 1e-3,
-        ts=jnp.array([0.0, t_final]), adjoint=adjoint, max_jumps=1024, max_steps=1_000_000,
+        ts=np.array([0.0, t_final]), adjoint=adjoint, max_jumps=1024, max_steps=1_000_000,
     )  # fmt: skip
     jumps = sol.jumps
     slot = jnp.arange(jumps.max_jumps)
