@@ -400,7 +400,9 @@ def test_ctrl_c_elsewhere_exits_130_in_one_line(monkeypatch):
 def test_a_real_sigint_during_a_sweep(tmp_path):
     """SIGINT to the running command: exit 130, one line, no traceback, the finished chunks kept."""
     out = tmp_path / "sweep.npz"
-    argv = ["sweep", "--V", *map(str, np.linspace(1.0, 4.0, 16)), "--tau", "0.01", "--dt", "0.001", "--t-final", "3",
+    # 32 chunks of 15 000 steps: seconds of work after the first chunk, so the signal lands
+    # mid-sweep even on a fast machine (16 chunks of 3000 steps finished within one poll in CI).
+    argv = ["sweep", "--V", *map(str, np.linspace(1.0, 4.0, 64)), "--tau", "0.01", "--dt", "0.0002", "--t-final", "3",
             "--chunk", "2", "--no-progress", "--out", str(out)]  # fmt: skip
     process = subprocess.Popen(
         [sys.executable, "-m", "peeljax.cli", *argv],
@@ -412,7 +414,7 @@ def test_a_real_sigint_during_a_sweep(tmp_path):
     chunk = Path(str(out) + ".chunks") / "chunk_00000.npz"
     deadline = time.monotonic() + 240
     while not chunk.exists() and process.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.2)
+        time.sleep(0.02)
     process.send_signal(signal.SIGINT)
     stdout, stderr = process.communicate(timeout=240)
     assert process.returncode == 130, stderr
