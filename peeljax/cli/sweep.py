@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import signal
 import sys
 import time
 from pathlib import Path
@@ -459,8 +460,19 @@ def _sweep_command(args: argparse.Namespace) -> int:
     print(f"{PROG}: sweep of {n} trajectories, {engine_text(kwargs)} (compiling first: a few seconds) ...",
           file=sys.stderr)  # fmt: skip
     start = time.perf_counter()
+    interrupted = []
+
+    def on_sigint(signum, frame):
+        interrupted.append(signum)
+        raise KeyboardInterrupt
+
+    # Python may raise the KeyboardInterrupt inside a callback that swallows it (measured: JAX's
+    # garbage-collection callback), and the sweep then runs on: the flag still says Ctrl-C came.
+    previous = signal.signal(signal.SIGINT, on_sigint)
     try:
         result = _run_sweep(kwargs)
+        if interrupted:
+            raise KeyboardInterrupt
     except ValueError as error:  # e.g. an --out made with other settings, or too much output
         return fail(error)
     except OSError as error:  # the chunk files: written as they finish
@@ -468,6 +480,8 @@ def _sweep_command(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted: {_saved_chunks(args.out)}", file=sys.stderr)
         return 130
+    finally:
+        signal.signal(signal.SIGINT, previous)
     wall = time.perf_counter() - start
     if not kwargs["progress"]:  # the progress bar's own line said it otherwise
         _print_resumed(result, args.out)
