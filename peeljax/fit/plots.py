@@ -23,10 +23,9 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from ..adhesion import AdhesionLaw
-from ..integrators.select import integrator_for
 from ..model import PeelingModel
 from .data import STATISTICS, StickSlipTable
-from .table import TableFit
+from .table import TableFit, build_table_fit
 
 __all__ = ["model_statistics", "plot_table_fit"]
 
@@ -69,17 +68,11 @@ def model_statistics(
     """
     V = np.asarray(V.V if isinstance(V, StickSlipTable) else V, float).reshape(-1)
     model = PeelingModel() if model is None else model
-    dae = tau == 0
-    integrator = integrator_for(
-        None, t_final=transient + window, rtol=rtol, atol=atol, fold="jump", max_jumps=max_jumps,
-        max_steps=max_steps, adjoint="forward", dae=dae,
-    )  # fmt: skip
-    n = V.size
-    fit = TableFit(
-        start=law, model=model, V=jnp.asarray(V), data=jnp.zeros((n, len(STATISTICS))),
-        sigma=jnp.ones((n, len(STATISTICS))), tau=jnp.asarray(float(tau)), integrator=integrator, names=("c1",),
-        measured=tuple(tuple(int(k) for k in a) for a in np.nonzero(np.ones((n, len(STATISTICS)), bool))),
-        transient=float(transient), window=float(window), n_samples=int(n_samples), dae=dae,
+    shape = (V.size, len(STATISTICS))
+    fit = build_table_fit(
+        law, model, V, np.zeros(shape), np.ones(shape), np.ones(shape, bool), names=("c1",), tau=tau,
+        transient=transient, window=window, n_samples=n_samples, rtol=rtol, atol=atol, max_jumps=max_jumps,
+        max_steps=max_steps,
     )  # fmt: skip
     values, available, v_range = _statistics(fit, {"c1": jnp.zeros(())})
     values = np.where(np.asarray(available), np.asarray(values, float), np.nan)

@@ -52,7 +52,7 @@ from .statistics import jump_statistics
 from .trajectory import FitResult, _check_free, _to_law
 from .uncertainty import uncertainty_from_jacobian
 
-__all__ = ["MISSING_RESIDUAL", "TableFit", "fit_stick_slip", "table_residuals"]
+__all__ = ["MISSING_RESIDUAL", "TableFit", "build_table_fit", "fit_stick_slip", "table_residuals"]
 
 MISSING_RESIDUAL = 10.0
 V_REST = 1e-4  # m/s: the lower end of the reported v range where the tape comes to rest (v = 0)
@@ -102,6 +102,26 @@ class TableFit(eqx.Module):
         values, available, _ = self.statistics(theta)
         r = jnp.where(available, (values - self.data) / self.sigma, MISSING_RESIDUAL)
         return r[self.measured]
+
+
+def build_table_fit(
+    start: AdhesionLaw, model: PeelingModel, V, data, sigma, measured, *, names, tau, transient, window,
+    n_samples, rtol, atol, max_jumps, max_steps,
+) -> TableFit:  # fmt: skip
+    """The :class:`TableFit` of (n, 5) ``data``/``sigma``/``measured`` arrays at the pull
+    velocities ``V``, its rows run with the error-controlled α-method through the folds
+    (forward mode: the Jacobian is a tangent per coefficient). Options as :func:`fit_stick_slip`."""
+    dae = tau == 0
+    integrator = integrator_for(
+        None, t_final=transient + window, rtol=rtol, atol=atol, fold="jump", max_jumps=max_jumps,
+        max_steps=max_steps, adjoint="forward", dae=dae,
+    )  # fmt: skip
+    return TableFit(
+        start=start, model=model, V=jnp.asarray(V, float), data=jnp.asarray(data, float),
+        sigma=jnp.asarray(sigma, float), tau=jnp.asarray(float(tau)), integrator=integrator, names=tuple(names),
+        measured=tuple(tuple(int(k) for k in a) for a in np.nonzero(measured)),
+        transient=float(transient), window=float(window), n_samples=int(n_samples), dae=dae,
+    )  # fmt: skip
 
 
 def table_residuals(fit: TableFit, theta) -> Array:
@@ -233,16 +253,9 @@ def fit_stick_slip(
             f"free: {int(measured.sum())} measured values cannot determine {len(names)} coefficients "
             "with an error estimate; fit fewer"
         )
-    dae = tau == 0
-    integrator = integrator_for(
-        None, t_final=transient + window, rtol=rtol, atol=atol, fold="jump", max_jumps=max_jumps,
-        max_steps=max_steps, adjoint="forward", dae=dae,
-    )  # fmt: skip
-    fit = TableFit(
-        start=start, model=model, V=jnp.asarray(table.V), data=jnp.asarray(data), sigma=jnp.asarray(sigma),
-        tau=jnp.asarray(float(tau)), integrator=integrator, names=names,
-        measured=tuple(tuple(int(k) for k in a) for a in np.nonzero(measured)),
-        transient=float(transient), window=float(window), n_samples=n_samples, dae=dae,
+    fit = build_table_fit(
+        start, model, table.V, data, sigma, measured, names=names, tau=tau, transient=transient, window=window,
+        n_samples=n_samples, rtol=rtol, atol=atol, max_jumps=max_jumps, max_steps=max_steps,
     )  # fmt: skip
     offsets = np.zeros((n_starts, len(names)))
     offsets[1:] = np.random.default_rng(seed).normal(0.0, start_spread, size=(n_starts - 1, len(names)))
