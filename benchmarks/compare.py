@@ -98,6 +98,7 @@ sys.path.insert(0, str(HERE))
 from compare_problems import (
     GRID,
     P3_ADAPTIVE_RTOLS,
+    P3_RTOL_LADDER,
     P3_SAVE_DT,
     P3_TAU_RANGE,
     P3_VELOCITIES,
@@ -131,7 +132,7 @@ from peers.peeljax_peer import (
 )
 from peers.petsc_peer import PETSC_DT0, PetscAlphaPeer, petsc_tsalpha
 from peers.scipy_peer import ScipyPeer, dae_index1_ode, radau_y
-from peers.sundials_peer import CvodePeer, cvode_logv, dae_ida
+from peers.sundials_peer import CvodeBatch, CvodePeer, dae_ida
 
 
 # --------------------------------------------------------------------------- (P1, P2) one trajectory
@@ -148,6 +149,9 @@ def check(peer: Peer, v_ref: np.ndarray):
     for setting in peer.settings:
         try:
             started = time.perf_counter()
+            peer.setup(setting)  # the solver object, integrator or compiled program: set-up, not the run
+            setup = time.perf_counter() - started
+            started = time.perf_counter()
             v = peer.run(setting)
             first = time.perf_counter() - started
         except Exception as error:  # noqa: BLE001 (a failing setting is reported)
@@ -156,13 +160,15 @@ def check(peer: Peer, v_ref: np.ndarray):
         finite = np.isfinite(v)
         if not finite.all():
             stop = GRID[np.argmin(finite)] if not finite[0] else GRID[np.argmax(~finite) - 1]
-            rows.append({"setting": setting, "status": f"stopped near t = {stop:.3g} s", "first_s": first})
+            rows.append({"setting": setting, "status": f"stopped near t = {stop:.3g} s", "setup_s": setup,
+                         "first_s": first})  # fmt: skip
             continue
         error = float(np.max(np.abs(v - v_ref)))
         # Wrong: off by 10 % of max|v|, or (adaptive peers) far above what the tolerance asks.
         limit = 0.1 if peer.setting_name != "rtol" else min(0.1, max(1e3 * setting, 1e-4))
         status = "ok" if error <= limit * scale else f"wrong answer (max/Δv/ = {error:.2g})"
-        rows.append({"setting": setting, "status": status, "error": error, "first_s": first, "times": []})
+        rows.append({"setting": setting, "status": status, "error": error, "setup_s": setup, "first_s": first,
+                     "times": []})  # fmt: skip
     return rows
 
 
@@ -246,8 +252,13 @@ def measure_batch(n_tau, per_v, settings, repeats, radau_count):
     if np.any(ref_status != 0):
         raise RuntimeError(f"the P3 reference stopped at (V, τ) = {list(zip(Vs[sub][ref_status != 0], taus[sub]))}")
     print(f"  [P3 reference on {sub.size} trajectories: {time.perf_counter() - started:.0f} s]", file=sys.stderr)
-    casadi = CasadiBatch()
+    casadi, cvode = CasadiBatch(), CvodeBatch()  # their solvers are built by setup(rtol), outside every timing
     calibration = {}
+
+    def looped(batch, Vs_, taus_, rtol):
+        batch.setup(rtol)
+        return _loop(batch, Vs_, taus_, rtol)
+
     radau_pos = np.searchsorted(sub, radau_sub)
     (r_adaptive, _, _), met_adaptive = calibrate(
         "peeljax error control (rtol)", settings["rtols_adaptive"],
@@ -261,10 +272,10 @@ def measure_batch(n_tau, per_v, settings, repeats, radau_count):
         "diffrax", settings["rtols_diffrax"], lambda r: run_diffrax(Vs[sub], taus[sub], r)[0], v_ref, calibration
     )
     (r_cvode, _, _), met_cvode = calibrate(
-        "cvode", settings["rtols_loop"], lambda r: _loop(cvode_logv, Vs[sub], taus[sub], r), v_ref, calibration
+        "cvode", settings["rtols_loop"], lambda r: looped(cvode, Vs[sub], taus[sub], r), v_ref, calibration
     )
     (r_casadi, _, _), met_casadi = calibrate(
-        "casadi", settings["rtols_loop"], lambda r: _loop(casadi, Vs[sub], taus[sub], r), v_ref, calibration
+        "casadi", settings["rtols_loop"], lambda r: looped(casadi, Vs[sub], taus[sub], r), v_ref, calibration
     )
     (r_radau, _, _), met_radau = calibrate(
         "radau", settings["rtols_radau"], lambda r: _loop(radau_y, Vs[radau_sub], taus[radau_sub], r),
@@ -284,6 +295,8 @@ def measure_batch(n_tau, per_v, settings, repeats, radau_count):
     start = time.perf_counter()
     v_dfx, status_dfx = run_diffrax(Vs, taus, r_diffrax)
     first["diffrax"] = time.perf_counter() - start
+    casadi.setup(r_casadi)
+    cvode.setup(r_cvode)
     times = {k: [] for k in ("adaptive", "uniform", "diffrax", "cvode", "casadi", "radau")}
     outputs = {}
     for _ in range(repeats):
@@ -291,7 +304,7 @@ def measure_batch(n_tau, per_v, settings, repeats, radau_count):
             ("adaptive", lambda: peeljax_batch_adaptive(Vs, taus, r_adaptive)),
             ("uniform", lambda: peeljax_batch(Vs, taus, n_alpha)),
             ("diffrax", lambda: run_diffrax(Vs, taus, r_diffrax)),
-            ("cvode", lambda: _loop(cvode_logv, Vs, taus, r_cvode)),
+            ("cvode", lambda: _loop(cvode, Vs, taus, r_cvode)),
             ("casadi", lambda: _loop(casadi, Vs, taus, r_casadi)),
             ("radau", lambda: _loop(radau_y, Vs[radau_sub], taus[radau_sub], r_radau)),
         ):
@@ -323,6 +336,8 @@ def measure_batch(n_tau, per_v, settings, repeats, radau_count):
     methods = {
         key: {"setting": setting, "met": met, "median_s": float(np.median(times[key])), "times": times[key],
               "first_s": first.get(key), "timed_n": radau_sub.size if key == "radau" else B,
+              "setup_s": {"casadi": casadi, "cvode": cvode}[key].setup_seconds[setting] if key in ("casadi", "cvode")
+              else None,
               "check_error": check_error[key]}
         for key, (setting, met) in chosen.items()
     }  # fmt: skip
@@ -514,10 +529,10 @@ def mode_settings(quick, smoke):
     else:
         steps, rtols = (300, 600, 1200, 2400, 4800, 9600, 19200, 38400), (1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9)
         petsc_rtols = (1e-2, 1e-3, 1e-4, 1e-5, 1e-6)  # 1e-7 takes ~10 s a run (ψ and its Jacobian in Python)
-        p3 = {"n_tau": 256, "per_v": 8, "radau_count": 8, "repeats": 1, "settings": {
+        p3 = {"n_tau": 256, "per_v": 8, "radau_count": 8, "repeats": 3, "settings": {
             "rtols_adaptive": P3_ADAPTIVE_RTOLS, "steps": (4800, 9600, 19200),
-            "rtols_diffrax": (1e-2, 1e-3, 1e-4, 1e-5, 1e-6),
-            "rtols_loop": (1e-3, 1e-4, 1e-5, 1e-6, 1e-7), "rtols_radau": (1e-5, 1e-6, 1e-7)}}
+            "rtols_diffrax": tuple(r for r in P3_RTOL_LADDER if r >= 1e-6),
+            "rtols_loop": tuple(r for r in P3_RTOL_LADDER if r <= 1e-3), "rtols_radau": (1e-5, 1e-6, 1e-7)}}
         p4 = {"repeats": 5, "settings": {
             "steps": (82, 820, 8200), "rtols_casadi": (1e-4, 1e-6, 1e-8), "rtols_casadi_fd": (1e-6, 1e-8),
             "rtols_diffrax": (1e-6, 1e-8, 1e-10), "rtols_adaptive": (1e-4, 1e-6, 1e-8)}}

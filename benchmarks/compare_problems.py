@@ -32,7 +32,10 @@ P3_TAU_RANGE = (0.005, 0.5)
 P3_SAVE_DT = 0.01  # output_times(0.01, 3) is GRID (checked by compare.py's P3)
 # Loose to tight, atol = ADAPTIVE_ALPHA_ATOL·rtol. The error falls only about as rtol^(2/3) (P2: error ∝
 # steps^-2, steps ∝ rtol^(-1/3)), so the rungs are half a decade apart.
-P3_ADAPTIVE_RTOLS = (1e-3, 3e-4, 1e-4, 3e-5, 1e-5, 3e-6, 1e-6, 3e-7, 1e-7)
+# One ladder for every error-controlled P3 method (1, 2, 5 per decade): each gets the loosest rung
+# that meets the target, so no method gains from where its rungs happen to fall.
+P3_RTOL_LADDER = tuple(float(f"{m}e{e}") for e in range(-2, -8, -1) for m in (5, 2, 1))
+P3_ADAPTIVE_RTOLS = tuple(r for r in P3_RTOL_LADDER if r <= 1e-3)
 
 # (P4) the gradient of a trajectory loss
 P4_TAU, P4_T_FINAL, P4_DEN = 0.1, 1.0, 82

@@ -87,34 +87,37 @@ def one_trajectory_section(emit, entry):
     emit()
     base = cheapest_at(rows_of[entry["base_peer"]], TARGET)
     base_adaptive = cheapest_at(rows_of[entry["adaptive_peer"]], TARGET)
-    emit("| method | setting | error | median s | time / peeljax's | time / peeljax adaptive α's |")
-    emit("|---|---:|---:|---:|---:|---:|")
+    emit("| method | setting | error | median s | set-up s | time / peeljax's | time / peeljax adaptive α's |")
+    emit("|---|---:|---:|---:|---:|---:|---:|")
     for peer in peers:
         best = cheapest_at(peer["rows"], TARGET)
         if best is None:
             statuses = sorted({r["status"] for r in peer["rows"] if r.get("status") != "ok"})
-            emit(f"| {peer['name']} | – | – | – | not reached ({'; '.join(statuses) or 'error above target'}) | – |")
+            emit(f"| {peer['name']} | – | – | – | – | not reached ({'; '.join(statuses) or 'error above target'}) | – |")
             continue
         ratio = best["median_s"] / base["median_s"] if base else math.nan
         ratio_adaptive = best["median_s"] / base_adaptive["median_s"] if base_adaptive else math.nan
         emit(
             f"| {peer['name']} | {peer['setting_name']} = {best['setting']:g} | {best['error']:.1e} "
-            f"| {best['median_s']:.4f} | {ratio:.2f} | {ratio_adaptive:.2f} |"
+            f"| {best['median_s']:.4f} | {setup_text(best)} | {ratio:.2f} | {ratio_adaptive:.2f} |"
         )
     emit()
-    emit("Both ratios are of medians measured round-robin in this run (> 1: that peeljax method is faster).")
+    emit("Both ratios are of medians measured round-robin in this run (> 1: that peeljax method is faster). "
+         "Set-up s: each peer's one-time work for that setting, outside every timed call (`Peer.setup`): "
+         "the JAX and numba peers' compilation (their first call), CasADi's integrator and CVODE's solver "
+         "object; scipy's `solve_ivp` has no object to build.")  # fmt: skip
     emit()
     emit("### (P2) work-precision: every setting")
     emit()
-    emit("| method | setting | status | error | median s | first call s |")
-    emit("|---|---:|---|---:|---:|---:|")
+    emit("| method | setting | status | error | median s | set-up s | first call s |")
+    emit("|---|---:|---|---:|---:|---:|---:|")
     for peer in peers:
         for r in peer["rows"]:
             setting = "–" if r["setting"] is None else f"{peer['setting_name']} = {r['setting']:g}"
             error = f"{r['error']:.1e}" if "error" in r else "–"
             median = f"{r['median_s']:.4f}" if "median_s" in r else "–"
             first = f"{r['first_s']:.2f}" if "first_s" in r else "–"
-            emit(f"| {peer['name']} | {setting} | {r['status']} | {error} | {median} | {first} |")
+            emit(f"| {peer['name']} | {setting} | {r['status']} | {error} | {median} | {setup_text(r)} | {first} |")
     emit()
     for peer in peers:
         kind = peer.get("info", {}).get("stats")
@@ -134,6 +137,12 @@ def one_trajectory_section(emit, entry):
         emit(f"- {entry['adaptive_peer']}: error ∝ (accepted steps)^{slope:.2f} over rtol "
              f"{adaptive_ok[0]['setting']:g} … {adaptive_ok[-1]['setting']:g} (least squares; −2 for a second-order method)")
     emit()
+
+
+def setup_text(row):
+    """A row's set-up seconds (``Peer.setup``) as the tables write them; "–" for JSON from before it existed."""
+    seconds = row.get("setup_s")
+    return "–" if seconds is None else f"{seconds:.4f}" if seconds < 0.1 else f"{seconds:.2f}"
 
 
 def describe(kind, stats):
@@ -212,18 +221,22 @@ def batch_section(emit, d):
     def compiled(key):  # the first call on the whole batch compiles, unless the check ran the same batch size
         return "in the check" if B == sub_size else f"{m[key]['first_s'] - median[key]:.1f}"
 
+    def setup(key):  # the solver object or integrator, built once outside the timing
+        seconds = m[key].get("setup_s")
+        return "–" if seconds is None else f"{seconds:.4f}"
+
     rows = [
         ("peeljax.sweep, error control (α-method, a step size per trajectory)",
          f"rtol = {r_adaptive:g}, atol = {ADAPTIVE_ALPHA_ATOL:g}·rtol", "adaptive", compiled("adaptive"), ""),
         ("peeljax.sweep, uniform mesh", f"N = {n_alpha} (dt = 1/{n_alpha / T_FINAL:g})", "uniform",
          compiled("uniform"), ""),
         ("diffrax Kvaerno5 under jax.vmap", f"rtol = {m['diffrax']['setting']:g}", "diffrax", compiled("diffrax"), ""),
-        ("SUNDIALS CVODE (BDF) (log v), looped", f"rtol = {m['cvode']['setting']:g}", "cvode", "–", ""),
-        ("CasADi cvodes (log v), looped", f"rtol = {m['casadi']['setting']:g}", "casadi", "–", ""),
+        ("SUNDIALS CVODE (BDF) (log v), looped", f"rtol = {m['cvode']['setting']:g}", "cvode", setup("cvode"), ""),
+        ("CasADi cvodes (log v), looped", f"rtol = {m['casadi']['setting']:g}", "casadi", setup("casadi"), ""),
         ("scipy Radau, looped", f"rtol = {m['radau']['setting']:g}", "radau", "–",
          f" (timed on {radau_size}, × {B / radau_size:g})"),
     ]  # fmt: skip
-    emit("| method | setting | completed | max error (checked) | s per batch | ms per trajectory | compile s "
+    emit("| method | setting | completed | max error (checked) | s per batch | ms per trajectory | set-up / compile s "
          "| time / peeljax's |")  # fmt: skip
     emit("|---|---|---:|---:|---:|---:|---:|---:|")
     per_batch = {}
@@ -247,7 +260,9 @@ def batch_section(emit, d):
     emit()
     emit(f"Times: median of {d['repeats']} timed round-robin round(s) after a first (compiling) call on the whole batch; loops "
          "call one trajectory after another (CasADi: one integrator with (V, τ) as parameters, built outside the "
-         "timing; CVODE: one solver object per trajectory, as in P1). Compile s = first call − median. "
+         "timing; CVODE: one solver object per rtol, built outside the timing, its (V, τ) set per call). Set-up / "
+         "compile s: JAX's compilation (first call − median), CasADi's integrator and CVODE's solver object (their "
+         "construction time). "
          "time / peeljax's: divided by peeljax.sweep with error control (the first row; > 1: it is faster). "
          "Settings tried on the checked trajectories (setting: max error, completed):")  # fmt: skip
     emit()

@@ -1,7 +1,8 @@
 """The peers of ``compare.py``, one module per solver family, each built on :class:`Peer`.
 
-A P1/P2 peer is a method with a list of settings (steps N or a tolerance rtol); ``run(setting)``
-returns v on ``compare_problems.GRID`` (NaN after a stop). The modules also hold each family's
+A P1/P2 peer is a method with a list of settings (steps N or a tolerance rtol); ``setup(setting)``
+builds what a run at that setting needs (outside the timing) and ``run(setting)`` returns v on
+``compare_problems.GRID`` (NaN after a stop). The modules also hold each family's
 batch runner (P3), gradient (P4) and direct-DAE runner (P5):
 
 * ``peeljax_peer``: peeljax's α-method, uniform mesh and error-controlled (``simulate``, ``sweep``, ``jax.grad``);
@@ -31,7 +32,13 @@ class Peer:
         self.settings = list(settings)
 
     def prepare(self) -> None:
-        """Compile or build whatever the runs need (outside the timed region)."""
+        """Import, compile or build what every setting's runs share (outside the timed region)."""
+
+    def setup(self, setting) -> None:
+        """Build what a run at ``setting`` needs (an integrator, a solver object, a compiled program),
+        outside the timed region; ``run`` then only calls it. ``compare.py`` times it apart and reports
+        it in its own column, as peeljax's compilation is (``tests/test_peer_setup.py`` checks that
+        ``run`` constructs no solver). Default: nothing to build."""
 
     def run(self, setting) -> np.ndarray:
         raise NotImplementedError

@@ -1,6 +1,7 @@
 """CasADi: ψ built from CasADi symbols (with its own automatic Jacobian) for its SUNDIALS integrators.
 
-* (P1/P2) :class:`CasadiPeer`: cvodes on y, or on z = (α, ω, u, log v), atol = 1e-2·rtol;
+* (P1/P2) :class:`CasadiPeer`: cvodes on y, or on z = (α, ω, u, log v), atol = 1e-2·rtol; one
+  integrator per rtol, built by ``setup`` outside the timed call;
 * (P3) :class:`CasadiBatch`: cvodes on z, one integrator with (V, τ) as parameters, called per trajectory;
 * (P4) :class:`CasadiLoss`: the loss by cvodes on z and its gradient from the forward sensitivities
   (also the reference gradient at rtol 1e-11 and the data, ``compare_problems.p4_data``);
@@ -10,6 +11,7 @@
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 from compare_problems import COEFFICIENT_NAMES, GRID, P4_TAU, P4_TIMES, PAPER_PHI, T_FINAL, V
@@ -83,19 +85,27 @@ class CasadiPeer(MaybeLog):
         if self.log_v:
             self._y0[3] = math.log(self._y0[3])
 
-    def _integrator(self, rtol):
+        self._integrators = {}
+
+    def setup(self, rtol):
+        """CasADi's integrator for ``rtol``, built once: its construction is set-up, not the run."""
         options = {"abstol": 1e-2 * rtol, "reltol": rtol, "max_num_steps": 200_000, "print_stats": False}
-        return self._ca.integrator("F", "cvodes", {"x": self._y, "ode": self._psi}, 0.0, GRID[1:], options)
+        self._integrators[rtol] = self._ca.integrator(
+            "F", "cvodes", {"x": self._y, "ode": self._psi}, 0.0, GRID[1:], options
+        )
 
     def run(self, rtol):
-        integrator = self._integrator(rtol)
-        out = integrator(x0=self._y0)
+        out = self._integrators[rtol](x0=self._y0)
         xf = np.asarray(out["xf"])
         return physical_v(np.concatenate([[self._y0[3]], xf[3]]), self.log_v)
 
 
 class CasadiBatch:
-    """CasADi cvodes on z = (α, ω, u, log v), one integrator with (V, τ) as parameters, called per trajectory."""
+    """CasADi cvodes on z = (α, ω, u, log v), one integrator with (V, τ) as parameters, called per trajectory.
+
+    ``setup(rtol)`` builds the integrator for ``rtol`` once, outside the timed calls (its time is
+    kept in ``setup_seconds``); ``batch(V, τ, rtol)`` only calls it.
+    """
 
     def __init__(self):
         import casadi as ca
@@ -103,13 +113,15 @@ class CasadiBatch:
         self._ca = ca
         self._z, self._P, self._psi, self._z0 = casadi_parametric(log_v=True)
         self._integrators = {}
+        self.setup_seconds = {}
 
-    def integrator(self, rtol):
+    def setup(self, rtol):
         if rtol not in self._integrators:
+            started = time.perf_counter()
             options = {"abstol": 1e-2 * rtol, "reltol": rtol, "max_num_steps": 200_000, "print_stats": False}
             dae = {"x": self._z, "p": self._P, "ode": self._psi}
             self._integrators[rtol] = self._ca.integrator("F", "cvodes", dae, 0.0, GRID[1:], options)
-        return self._integrators[rtol]
+            self.setup_seconds[rtol] = time.perf_counter() - started
 
     def __call__(self, Vp, tau, rtol):
         from compiled_loop import initial_state, parameters
@@ -117,7 +129,7 @@ class CasadiBatch:
         z0 = initial_state(parameters(Vp, tau))
         z0[3] = math.log(z0[3])
         try:
-            xf = np.asarray(self.integrator(rtol)(x0=z0, p=[Vp, tau, *PAPER_PHI])["xf"])
+            xf = np.asarray(self._integrators[rtol](x0=z0, p=[Vp, tau, *PAPER_PHI])["xf"])
         except RuntimeError:  # CasADi raises when CVODES fails; the trajectory counts as stopped
             return np.full(GRID.size, np.nan)
         return np.exp(np.concatenate([[z0[3]], xf[3]]))

@@ -30,6 +30,9 @@ class DiffraxPeer(Peer):
         self._jax, self._pj = jax, peeljax
         self._solver = getattr(diffrax, self.solver_name)()
 
+    def setup(self, rtol):
+        self.run(rtol)  # compiles
+
     def run(self, rtol):
         sol = self._pj.simulate_reference(
             V=V, tau=self.tau, dt=T_FINAL / 300, t_final=T_FINAL, solver=self._solver, rtol=rtol, atol=1e-2 * rtol

@@ -30,6 +30,9 @@ class NumbaAlpha(Peer):
         self._options = options_of(peeljax.AlphaMethod())
         self._integrate = integrate
 
+    def setup(self, n):
+        self.run(n)  # numba compiles the loop on its first call
+
     def run(self, n):
         ys, _, _, _status, _ = self._integrate(self._y0, self._p, T_FINAL / n, n, **self._options)
         v = ys[:, 3].copy()

@@ -1,0 +1,110 @@
+"""The peers of ``benchmarks/compare.py`` build their solvers in ``setup``, never inside the timed ``run``.
+
+peeljax's compilation is kept out of its timings, so every peer's one-time set-up must be too
+(CasADi's integrator, CVODE's solver object, a JAX or numba compilation). Constructions are
+counted by wrapping the constructors; JAX compilations by JAX's own compile events.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+casadi = pytest.importorskip("casadi")
+cvode_module = pytest.importorskip("sksundae.cvode")
+pytest.importorskip("numba")
+
+RTOL = 1e-4
+
+
+@pytest.fixture
+def constructions(monkeypatch):
+    """Counts of ``casadi.integrator`` and ``sksundae.cvode.CVODE`` constructions."""
+    counts = {"casadi.integrator": 0, "CVODE": 0}
+    integrator, CVODE = casadi.integrator, cvode_module.CVODE
+
+    def counted_integrator(*args, **kwargs):
+        counts["casadi.integrator"] += 1
+        return integrator(*args, **kwargs)
+
+    def counted_cvode(*args, **kwargs):
+        counts["CVODE"] += 1
+        return CVODE(*args, **kwargs)
+
+    monkeypatch.setattr(casadi, "integrator", counted_integrator)
+    monkeypatch.setattr(cvode_module, "CVODE", counted_cvode)
+    return counts
+
+
+@pytest.fixture
+def compilations():
+    """A list that grows by one entry per JAX backend compilation while the test runs."""
+    import jax
+
+    events, active = [], [True]
+
+    def listener(name, duration, **kwargs):
+        if active[0] and name == "/jax/core/compile/backend_compile_duration":
+            events.append(name)
+
+    jax.monitoring.register_event_duration_secs_listener(listener)
+    yield events
+    active[0] = False  # JAX keeps listeners for the process: silence this one
+
+
+def _peers():
+    from peers.casadi_peer import CasadiPeer
+    from peers.sundials_peer import CvodePeer
+
+    return [CasadiPeer(0.1, [RTOL]), CasadiPeer(0.1, [RTOL], log_v=True), CvodePeer(0.1, [RTOL], log_v=True)]
+
+
+@pytest.mark.slow
+def test_p1_peers_construct_their_solver_in_setup_only(constructions):
+    from compare_problems import GRID
+
+    for peer in _peers():
+        peer.prepare()
+        before = dict(constructions)
+        peer.setup(RTOL)
+        built = {k: constructions[k] - before[k] for k in constructions}
+        assert sum(built.values()) == 1, (peer.name, built)  # setup builds the one solver it needs
+        after_setup = dict(constructions)
+        v1, v2 = peer.run(RTOL), peer.run(RTOL)
+        assert constructions == after_setup, f"{peer.name}: run() constructed a solver"
+        assert v1.shape == GRID.shape and np.all(np.isfinite(v1))
+        np.testing.assert_array_equal(v1, v2)  # a reused solver object gives the same answer every call
+
+
+@pytest.mark.slow
+def test_p3_loops_construct_one_solver_per_rtol(constructions):
+    from peers.casadi_peer import CasadiBatch
+    from peers.sundials_peer import CvodeBatch
+
+    for batch in (CasadiBatch(), CvodeBatch()):
+        batch.setup(RTOL)
+        after_setup = dict(constructions)
+        first = batch(1.1, 0.1, RTOL)
+        for Vp, tau in ((2.0, 0.05), (4.0, 0.5)):
+            batch(Vp, tau, RTOL)
+        assert constructions == after_setup, f"{type(batch).__name__}: a call constructed a solver"
+        np.testing.assert_allclose(batch(1.1, 0.1, RTOL), first, rtol=0, atol=0)  # (V, τ) set per call, not stale
+        assert RTOL in batch.setup_seconds
+
+
+@pytest.mark.slow
+def test_jax_peers_compile_in_setup_only(compilations):
+    from peers.diffrax_peer import DiffraxPeer
+    from peers.peeljax_peer import PeeljaxAdaptive
+
+    for peer in (PeeljaxAdaptive(0.1, [RTOL]), DiffraxPeer(0.1, [RTOL], "Kvaerno5")):
+        peer.prepare()
+        peer.setup(RTOL)
+        compiled = len(compilations)
+        peer.run(RTOL)
+        assert len(compilations) == compiled, f"{peer.name}: run() compiled"
