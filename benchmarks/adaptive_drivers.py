@@ -8,10 +8,13 @@ max |Δv| there against diffrax Kvaerno5 at rtol 1e-11. For each rtol (atol = 1e
 * ``diffrax.diffeqsolve`` with ``peeljax.AlphaSolver()`` and ``diffrax.PIDController`` on
   (α, ω, u, log v) (``peeljax.LogTransformedODE``), saving at the grid;
 
-and the fixed cost of a call: ``simulate`` against its compiled run on a 15-step problem.
-Medians of round-robin repeats; ratios are to ``peeljax.simulate`` in the same run.
+and the fixed cost of a call on a 15-step problem: ``simulate``, its compiled run, and a bound
+``peeljax.Simulator`` (options checked and placed on the device once). Medians of round-robin
+repeats; ratios are to ``peeljax.simulate`` in the same run.
 
     python benchmarks/adaptive_drivers.py [--quick]     # writes benchmarks/results/adaptive_drivers.md
+    python benchmarks/adaptive_drivers.py --overhead-only   # the fixed cost alone (seconds):
+                                                            # writes benchmarks/results/adaptive_drivers_overhead.md
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from peeljax.homogenized import HomogenizedODE
 from peeljax.integrators import integrate_alpha_adaptive, integrator_for
 
 RESULTS = Path(__file__).resolve().parent / "results" / "adaptive_drivers.md"
+OVERHEAD_RESULTS = RESULTS.with_name("adaptive_drivers_overhead.md")
 V, T_FINAL = 1.1, 3.0
 GRID = np.linspace(0.0, T_FINAL, 301)
 
@@ -115,8 +119,14 @@ def compare(tau, rtols, repeats):
     return rows
 
 
-def call_overhead(repeats):
-    """simulate() against its own compiled run, on a 15-step problem (t_final = 1e-4 s)."""
+def call_overhead(calls):
+    """simulate(), its own compiled run and a bound Simulator on a 15-step problem (t_final = 1e-4 s).
+
+    Median time of ``calls`` single calls each (every call waits for its result), the variants
+    round robin. A fourth, for reference: simulate's program as an ahead-of-time executable
+    called with its packed arguments already on the device (what a bound call runs; it shares
+    the compilation).
+    """
     simulate_module = importlib.import_module("peeljax.simulate")
     model = pj.PeelingModel()
     ts = np.linspace(0.0, 1e-4, 2)
@@ -124,30 +134,86 @@ def call_overhead(repeats):
     integrator = integrator_for(t_final=1e-4)  # simulate's: error control at the default tolerances
     args = jax.device_put((integrator, ode, None, np.asarray(1e-4), ts))
     compiled = jax.jit(simulate_module._integrate)
-    runs = {
-        "simulate": lambda: pj.simulate(model, V=V, tau=0.1, t_final=1e-4, ts=ts).ys,
+    leaves, treedef = jax.tree_util.tree_flatten((integrator, ode, None, np.asarray(1e-4), ts))
+    scalars = tuple(isinstance(leaf, np.ndarray) and leaf.shape == () for leaf in leaves)  # simulate._run's split
+    packed = jax.device_put(np.array([leaf for leaf, s in zip(leaves, scalars) if s], dtype=float))
+    rest = jax.device_put([leaf for leaf, s in zip(leaves, scalars) if not s])
+    runs = {"simulate": lambda: pj.simulate(model, V=V, tau=0.1, t_final=1e-4, ts=ts).ys}
+    jax.block_until_ready(runs["simulate"]())  # compiles simulate's program, which the last two share
+    executable = simulate_module._packed_jit.lower(packed, rest, treedef=treedef, scalars=scalars).compile()
+    bound = pj.Simulator(model, t_final=1e-4, ts=ts).compile()
+    runs |= {
         "compiled": lambda: compiled(*args).ys,
+        "bound": lambda: bound(V, 0.1).ys,
+        "executable": lambda: executable(packed, rest).ys,
     }
-    for fn in runs.values():
-        jax.block_until_ready(fn())
+    first = {name: np.asarray(jax.block_until_ready(fn())) for name, fn in runs.items()}
+    assert all(np.array_equal(ys, first["simulate"]) for ys in first.values()), "the runs differ"
     times = {name: [] for name in runs}
-    for _ in range(repeats):
+    for _ in range(calls):
         for name, fn in runs.items():
             start = time.perf_counter()
-            for _ in range(50):
-                jax.block_until_ready(fn())
-            times[name].append((time.perf_counter() - start) / 50)
+            jax.block_until_ready(fn())
+            times[name].append(time.perf_counter() - start)
     return {name: statistics.median(t) for name, t in times.items()}
+
+
+def overhead_lines(overhead, calls):
+    simulate, compiled, bound, executable = (
+        overhead[name] * 1e3 for name in ("simulate", "compiled", "bound", "executable")
+    )
+    return [
+        f"Fixed cost of a call (15 accepted steps, t_final = 1e-4 s; medians of {calls} calls each, round robin):",
+        "",
+        "| call | median time | minus the compiled run |",
+        "|---|---:|---:|",
+        f"| `peeljax.simulate(model, V=1.1, tau=0.1, t_final=1e-4, ts=ts)` | {simulate:.3f} ms | {simulate - compiled:+.3f} ms |",
+        f"| its compiled run, `jax.jit` with device-resident arguments | {compiled:.3f} ms | 0 |",
+        (
+            f"| bound `sim = peeljax.Simulator(model, t_final=1e-4, ts=ts)`, `sim(1.1, 0.1)` | {bound:.3f} ms "
+            f"| {bound - compiled:+.3f} ms |"
+        ),
+        (
+            f"| (reference) simulate's program, ahead-of-time executable, packed arguments on the device | "
+            f"{executable:.3f} ms | {executable - compiled:+.3f} ms |"
+        ),
+        "",
+        (
+            f"`simulate` spends {simulate - compiled:.3f} ms on input checks, module building, host-to-device "
+            f"copies and dispatch; the bound simulator {bound - compiled:+.3f} ms (target: at most +0.05 ms), "
+            f"{bound - executable:+.3f} ms beyond the bare executable it runs (the `jax.jit` call of the "
+            "compiled run flattens the equinox modules on every call)."
+        ),
+        "",
+    ]
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="two tolerances, three repeats")
+    parser.add_argument(
+        "--overhead-only", action="store_true", help=f"only the fixed cost of a call (writes {OVERHEAD_RESULTS.name})"
+    )
     args = parser.parse_args()
+    calls = 1000
+    if args.overhead_only:
+        overhead = call_overhead(calls)
+        text = "\n".join(
+            [
+                "# The fixed cost of a call: simulate, its compiled run, a bound Simulator",
+                "",
+                f"`python benchmarks/adaptive_drivers.py --overhead-only` on {cpu_model()}, {jax.devices()[0].platform}.",
+                "",
+                *overhead_lines(overhead, calls),
+            ]
+        )
+        print(text)
+        OVERHEAD_RESULTS.write_text(text)
+        return
     rtols = (1e-4, 1e-6) if args.quick else (1e-3, 1e-4, 1e-5, 1e-6, 1e-7)
     repeats = 3 if args.quick else 9
     rows = compare(0.01, rtols, repeats) + compare(0.1, rtols, repeats)
-    overhead = call_overhead(repeats)
+    overhead = call_overhead(calls)
     lines = [
         "# Error control: peeljax's driver against the α-method inside diffrax",
         "",
@@ -163,14 +229,7 @@ def main():
         lines.append(
             f"| {tau:g} | {rtol:g} | {name} | {error:.2e} | {accepted} | {rejected} | {median * 1e3:.2f} ms | {ratio:.2f} |"
         )
-    lines += [
-        "",
-        "Fixed cost of a call (15 accepted steps, t_final = 1e-4 s): "
-        f"`peeljax.simulate` {overhead['simulate'] * 1e3:.3f} ms, its compiled run with device-resident "
-        f"arguments {overhead['compiled'] * 1e3:.3f} ms: {1e3 * (overhead['simulate'] - overhead['compiled']):.3f} ms "
-        "of input checks, module building, host-to-device copies and dispatch.",
-        "",
-    ]
+    lines += ["", *overhead_lines(overhead, calls)]
     text = "\n".join(lines)
     print(text)
     RESULTS.write_text(text)

@@ -69,6 +69,7 @@ _jax.config.update("jax_enable_x64", True)
 
 from .adhesion import COEFFICIENT_NAMES, PAPER_COEFFICIENTS, AdhesionLaw, safe_pow  # noqa: E402
 from .analysis import StickSlipAnalysis, analyze, bifurcation_diagram, phi_extrema, trajectory_structure  # noqa: E402
+from .bound import Simulator  # noqa: E402
 from .branches import Folds, phi_folds  # noqa: E402
 from .constrained import ConstrainedDAE  # noqa: E402
 from .cycles import CycleStatistics, RepeatPattern, cycle_statistics  # noqa: E402
@@ -134,6 +135,7 @@ __all__ = [
     "PeelingModel",
     "RepeatPattern",
     "SavedRun",
+    "Simulator",
     "Solution",
     "StepDiagnostics",
     "StickSlipAnalysis",

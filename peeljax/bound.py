@@ -1,0 +1,248 @@
+"""A simulator bound to its options: :func:`peeljax.simulate` for callers that run it in a loop.
+
+:func:`peeljax.simulate` checks its options, builds the integrator and the ODE, packs about
+thirty parameters and copies them to the device on every call: ~0.2 ms around a compiled run
+of a few tenths of a millisecond (``benchmarks/results/adaptive_drivers.md``).
+:class:`Simulator` does all of that once, for every option but V, τ and y0; a call checks V
+and τ with plain float comparisons, writes them into the packed parameter vector of
+``simulate._run`` and runs ``simulate``'s own program, compiled ahead of time
+(``jax.jit(...).lower(...).compile()``).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import diffrax
+import jax
+import numpy as np
+from jaxtyping import ArrayLike
+
+from ._arrays import float_array
+from ._validation import TAU_MAX, check_output_times, check_positive, check_tau, check_y0
+from .homogenized import HomogenizedODE
+from .integrators.alpha import AlphaMethod
+from .integrators.base import AbstractIntegrator
+from .integrators.select import DEFAULT_MAX_JUMPS, DEFAULT_MAX_STEPS, integrator_for, refuse_with_dt
+from .model import PeelingModel
+from .simulate import _check_memory, _packed_jit, _prepare, _run, is_dae
+from .solution import Solution
+
+__all__ = ["Simulator"]
+
+_INF = math.inf
+
+
+def _number(value) -> float | None:
+    """A plain host number (Python, NumPy float64, 0-d float array) as a float; else None."""
+    kind = type(value)
+    if kind is float or kind is int or kind is np.float64:
+        return float(value)
+    if kind is np.ndarray and value.shape == () and value.dtype.kind == "f":
+        return float(value)
+    return None
+
+
+def _scalar(name: str, value) -> float:
+    """A concrete V or τ that passed simulate's check, as a float: a call runs one V and one τ."""
+    if np.ndim(value) != 0:
+        raise ValueError(
+            f"{name} must be a scalar for a Simulator call, got shape {np.shape(value)}: "
+            "use jax.vmap over the call, or peeljax.sweep, for many values"
+        )
+    return float(value)
+
+
+class _Program:
+    """The compiled run of one kind of call (τ > 0 or τ = 0, without or with y0), on the device.
+
+    The leaves of ``(integrator, ode, y0, t_final, ts)`` sorted once as ``simulate._run``
+    sorts them on every call: the float64 scalars (the model's, φ's, the integrator's, V, τ,
+    t_final) one host vector, ``template``, in which a call writes V and τ (and y0 into
+    ``rest``); the other arrays (``ts``) copied to the device once. The executable is
+    ``simulate``'s own program (``simulate._packed_jit``), compiled ahead of time on first use:
+    the same computation as ``simulate``'s, and one compilation for both in a process.
+    ``fast`` is False when a leaf is not an array (a diffrax solver's settings, a φ given as
+    a Python function): ``simulate`` then takes ``eqx.filter_jit``, and so does the call.
+    """
+
+    def __init__(self, integrator: AbstractIntegrator, ode, y0, t_final, ts):
+        leaves, self.treedef = jax.tree_util.tree_flatten((integrator, ode, y0, t_final, ts))
+        self.fast = all(isinstance(leaf, (jax.Array, np.ndarray, np.generic)) for leaf in leaves)
+        self.scalars = tuple(
+            isinstance(leaf, (np.ndarray, np.generic)) and leaf.shape == () and leaf.dtype == np.float64
+            for leaf in leaves
+        )
+        packed = [leaf for leaf, is_scalar in zip(leaves, self.scalars) if is_scalar]
+        rest = [leaf for leaf, is_scalar in zip(leaves, self.scalars) if not is_scalar]
+        self.template = np.array(packed, dtype=float)
+        self.i_V = _position(packed, ode.V)
+        self.i_tau = _position(packed, ode.tau) if isinstance(ode, HomogenizedODE) else None
+        self.i_y0 = None if y0 is None else _position(rest, y0)
+        self.rest = jax.device_put(rest) if self.fast else rest
+        self.executable = None
+
+    def compile(self):
+        if self.executable is None:
+            lowered = _packed_jit.lower(self.template, self.rest, treedef=self.treedef, scalars=self.scalars)
+            self.executable = lowered.compile()
+        return self.executable
+
+
+def _position(leaves: list, leaf) -> int:
+    return next(i for i, other in enumerate(leaves) if other is leaf)
+
+
+class Simulator:
+    """:func:`peeljax.simulate` with every option but V, τ and y0 bound: for runs in a loop.
+
+    ``Simulator(model, t_final=..., rtol=..., ts=..., ...)`` takes the options of
+    :func:`peeljax.simulate` but V, tau and y0 (same names, defaults and meaning), checks
+    them once with ``simulate``'s own checks and messages (:func:`integrator_for`,
+    :mod:`peeljax._validation`: bad options raise here, before anything compiles), and builds
+    the integrator, the model's packed parameters and ``ts`` (on the device) once. Then
+    ``sim(V, tau)`` (optionally ``y0=``) returns the :class:`Solution` that
+    ``simulate(model, V=V, tau=tau, y0=y0, **options)`` returns, from the same compiled
+    program: bit-identical ``ys``, ``ts``, ``status`` and jumps. Each call still checks V
+    (finite, > 0) and τ (finite, in [0, 1e6]), as plain float comparisons, raising
+    ``simulate``'s errors.
+
+    τ = 0 selects the DAE (:class:`~peeljax.ConstrainedDAE`), τ > 0 the homogenized ODE:
+    different programs. Each kind (and each with a ``y0``) is compiled ahead of time on the
+    first call that needs it, or by :meth:`compile`, and kept: later calls with other V and τ
+    compile nothing. The program is ``simulate``'s, so a ``simulate`` call with the same
+    options in the same process reuses the compilation, and the other way round. Options
+    that only τ > 0 allows (``dt``, a diffrax ``solver``, ``fold="follow"``, ``truncation``)
+    raise ``simulate``'s error on a call with τ = 0, not at construction.
+
+    A traced V, τ or y0 (inside ``jax.grad``, ``jax.vmap``, ``jax.jit``) takes ``simulate``'s
+    own route (``simulate._run``) with the bound options, so gradients and batches are
+    ``simulate``'s. So does a run with a leaf that is not an array (a diffrax solver; then
+    only the option checks are saved).
+
+    Per-call cost (``python benchmarks/adaptive_drivers.py --overhead-only``: a 15-step run,
+    medians of 1000 calls on 2 shared cores; ``benchmarks/results/adaptive_drivers_overhead.md``):
+    ``simulate`` 0.56 ms, its compiled run called by ``jax.jit`` with device-resident arguments
+    0.36 ms, a ``Simulator`` call 0.31 ms, 0.01–0.03 ms more than the bare executable it runs
+    (0.28 ms, its arguments already on the device; the Python side of a call takes ~1 µs).
+
+    Example::
+
+        import jax
+        import numpy as np
+        import peeljax as pj
+
+        sim = pj.Simulator(t_final=3.0, rtol=1e-6, atol=1e-9, ts=np.linspace(0, 3, 301))
+        for V in (1.1, 2.0, 4.0):
+            sol = sim(V, 0.01)  # what pj.simulate(V=V, tau=0.01, t_final=3.0, ...) returns
+        stick_slip = sim(1.1, 0.0)  # τ = 0: the DAE, v jumping at the folds (its own program)
+        slope = jax.grad(lambda V: sim(V, 0.01).v[-1])(1.1)
+    """
+
+    def __init__(
+        self,
+        model: PeelingModel | None = None,
+        *,
+        t_final: float = 3.0,
+        ts: ArrayLike | None = None,
+        dt: float | None = None,
+        rtol: float | None = None,
+        atol: float | None = None,
+        rho: ArrayLike = 0.0,
+        solver: AlphaMethod | diffrax.AbstractSolver | None = None,
+        fold: str | None = None,
+        max_steps: int = DEFAULT_MAX_STEPS,
+        max_jumps: int = DEFAULT_MAX_JUMPS,
+        dtmin: float | None = None,
+        truncation: int | None = None,
+        adjoint: str = "reverse",
+        checkpoint_every: int | str | None = None,
+        memory_limit: float | None = None,
+    ):
+        # simulate's checks, in its order, for τ > 0 (the homogenized ODE).
+        if dt is not None:
+            refuse_with_dt(dt, ts=ts)
+        integrator_of = functools.partial(
+            integrator_for, solver, rho=rho, dt=dt, t_final=t_final, rtol=rtol, atol=atol, dtmin=dtmin,
+            max_steps=max_steps, adjoint=adjoint, checkpoint_every=checkpoint_every, fold=fold, max_jumps=max_jumps,
+        )  # fmt: skip
+        integrator = integrator_of(dae=False)
+        self.ts = None if ts is None else check_output_times(ts, t_final)
+        _check_memory(integrator, self.ts, max_steps, memory_limit)
+        ode, _ = _prepare(model, 1.0, 1.0, None, truncation, allow_dae=True)  # the model's checks
+        self.model: PeelingModel = ode.model
+        self.truncation = truncation
+        self.t_final = float_array(t_final)
+        self.integrators: dict[bool, AbstractIntegrator] = {False: integrator}
+        # τ = 0 (the DAE): an option it refuses raises simulate's error on a call with τ = 0.
+        self._dae_error = None
+        try:
+            self.integrators[True] = integrator_of(dae=True)
+            _prepare(self.model, 1.0, 0.0, None, truncation, allow_dae=True)
+        except (TypeError, ValueError) as error:
+            self._dae_error = (type(error), error.args)
+        self._programs: dict[tuple[bool, bool], _Program] = {}
+
+    def _refuse_dae(self) -> None:
+        if self._dae_error is not None:
+            kind, args = self._dae_error
+            raise kind(*args)
+
+    def _program(self, dae: bool, with_y0: bool) -> _Program:
+        program = self._programs.get((dae, with_y0))
+        if program is None:
+            if dae:
+                self._refuse_dae()
+            ode, _ = _prepare(self.model, 1.0, 0.0 if dae else 1.0, None, self.truncation, allow_dae=True)
+            y0 = np.zeros(4) if with_y0 else None
+            program = _Program(self.integrators[dae], ode, y0, self.t_final, self.ts)
+            self._programs[(dae, with_y0)] = program
+        return program
+
+    def compile(self, dae: bool = False, with_y0: bool = False) -> Simulator:
+        """Compile now the program of τ > 0 (``dae=False``) or of τ = 0, without or with y0; returns self."""
+        program = self._program(dae, with_y0)
+        if program.fast:
+            program.compile()
+        return self
+
+    def __call__(self, V: ArrayLike, tau: ArrayLike, y0: ArrayLike | None = None) -> Solution:
+        """``simulate(model, V=V, tau=tau, y0=y0, **options)``: V > 0 [m/s] and τ ≥ 0 [s], scalars."""
+        t, v = _number(tau), _number(V)
+        # simulate's checks in its order: a comparison for a plain number, else its own code.
+        if t is None or not 0.0 <= t <= TAU_MAX:
+            if isinstance(tau, jax.core.Tracer):
+                return self._general(V, tau, y0)
+            check_tau(tau, allow_zero=True)
+            t = _scalar("tau", tau)
+        if v is None or not 0.0 < v < _INF:
+            if isinstance(V, jax.core.Tracer):
+                return self._general(V, tau, y0)
+            check_positive("V", V)
+            v = _scalar("V", V)
+        with_y0 = y0 is not None
+        if with_y0 and (isinstance(y0, jax.core.Tracer) or np.shape(y0) != (4,)):
+            return self._general(V, tau, y0)
+        program = self._programs.get((t == 0.0, with_y0)) or self._program(t == 0.0, with_y0)
+        if not program.fast:
+            return self._general(V, tau, y0)
+        packed = program.template.copy()
+        packed[program.i_V] = v
+        if program.i_tau is not None:
+            packed[program.i_tau] = t
+        rest = program.rest
+        if with_y0:
+            check_y0(y0)
+            rest = list(rest)
+            rest[program.i_y0] = np.asarray(y0, dtype=float)
+        return (program.executable or program.compile())(packed, rest)
+
+    def _general(self, V, tau, y0) -> Solution:
+        """simulate's route (a traced V, τ or y0; a batch of y0; a diffrax solver): its checks, ODE, ``_run``."""
+        check_tau(tau, allow_zero=True)
+        dae = is_dae(tau)
+        if dae:
+            self._refuse_dae()
+        ode, y0 = _prepare(self.model, V, tau, y0, self.truncation, allow_dae=True)
+        return _run(self.integrators[dae], ode, y0, self.t_final, self.ts)
