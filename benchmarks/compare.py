@@ -101,6 +101,8 @@ from compare_problems import (
     P3_RTOL_LADDER,
     P3_SAVE_DT,
     P3_TAU_RANGE,
+    P3_TUNED_ATOL,
+    P3_TUNED_RHO,
     P3_VELOCITIES,
     P4_T_FINAL,
     REF_ATOL,
@@ -264,6 +266,11 @@ def measure_batch(n_tau, per_v, settings, repeats, radau_count):
         "peeljax error control (rtol)", settings["rtols_adaptive"],
         lambda r: peeljax_batch_adaptive(Vs[sub], taus[sub], r)[0], v_ref, calibration,
     )  # fmt: skip
+    tuned = lambda V_, tau_, r: peeljax_batch_adaptive(V_, tau_, r, rho=P3_TUNED_RHO, atol_factor=P3_TUNED_ATOL)
+    (r_tuned, _, _), met_tuned = calibrate(
+        f"peeljax error control, ρ = {P3_TUNED_RHO:g}, atol = {P3_TUNED_ATOL:g}·rtol (rtol)", settings["rtols_adaptive"],
+        lambda r: tuned(Vs[sub], taus[sub], r)[0], v_ref, calibration,
+    )  # fmt: skip
     (n_alpha, _, _), met_alpha = calibrate(
         "peeljax uniform mesh (N)", settings["steps"], lambda n: peeljax_batch(Vs[sub], taus[sub], n)[0], v_ref,
         calibration,
@@ -290,6 +297,9 @@ def measure_batch(n_tau, per_v, settings, repeats, radau_count):
     v_adaptive, status_adaptive, accepted, rejected = peeljax_batch_adaptive(Vs, taus, r_adaptive)
     first["adaptive"] = time.perf_counter() - start
     start = time.perf_counter()
+    v_tuned, status_tuned, accepted_tuned, _ = tuned(Vs, taus, r_tuned)
+    first["tuned"] = time.perf_counter() - start
+    start = time.perf_counter()
     v_alpha, status_alpha = peeljax_batch(Vs, taus, n_alpha)
     first["uniform"] = time.perf_counter() - start
     start = time.perf_counter()
@@ -297,11 +307,12 @@ def measure_batch(n_tau, per_v, settings, repeats, radau_count):
     first["diffrax"] = time.perf_counter() - start
     casadi.setup(r_casadi)
     cvode.setup(r_cvode)
-    times = {k: [] for k in ("adaptive", "uniform", "diffrax", "cvode", "casadi", "radau")}
+    times = {k: [] for k in ("adaptive", "tuned", "uniform", "diffrax", "cvode", "casadi", "radau")}
     outputs = {}
     for _ in range(repeats):
         for key, call in (
             ("adaptive", lambda: peeljax_batch_adaptive(Vs, taus, r_adaptive)),
+            ("tuned", lambda: tuned(Vs, taus, r_tuned)),
             ("uniform", lambda: peeljax_batch(Vs, taus, n_alpha)),
             ("diffrax", lambda: run_diffrax(Vs, taus, r_diffrax)),
             ("cvode", lambda: _loop(cvode, Vs, taus, r_cvode)),
@@ -314,6 +325,7 @@ def measure_batch(n_tau, per_v, settings, repeats, radau_count):
         print(f"  [P3 round: { {k: round(t[-1], 2) for k, t in times.items()} }]", file=sys.stderr, flush=True)
     completed = {
         "adaptive": np.asarray(status_adaptive) == 0,
+        "tuned": np.asarray(status_tuned) == 0,
         "uniform": np.asarray(status_alpha) == 0,
         "diffrax": np.asarray(status_dfx) == 0,
         "cvode": np.all(np.isfinite(outputs["cvode"]), axis=1),
@@ -325,12 +337,13 @@ def measure_batch(n_tau, per_v, settings, repeats, radau_count):
     check_error = {
         "adaptive": float(np.max(errors_adaptive)),
         "uniform": float(np.max(errors_alpha)),
+        "tuned": float(np.max(relative_errors(v_tuned[sub], v_ref))),
         "diffrax": float(np.max(relative_errors(v_dfx[sub], v_ref))),
         "cvode": float(np.max(relative_errors(outputs["cvode"][sub], v_ref))),
         "casadi": float(np.max(relative_errors(outputs["casadi"][sub], v_ref))),
         "radau": float(np.max(relative_errors(outputs["radau"], v_ref[radau_pos]))),
     }
-    chosen = {"adaptive": (r_adaptive, met_adaptive), "uniform": (n_alpha, met_alpha),
+    chosen = {"adaptive": (r_adaptive, met_adaptive), "tuned": (r_tuned, met_tuned), "uniform": (n_alpha, met_alpha),
               "diffrax": (r_diffrax, met_diffrax), "cvode": (r_cvode, met_cvode), "casadi": (r_casadi, met_casadi),
               "radau": (r_radau, met_radau)}  # fmt: skip
     methods = {
@@ -356,6 +369,7 @@ def measure_batch(n_tau, per_v, settings, repeats, radau_count):
         "Vs": Vs, "taus": taus, "sub_Vs": Vs[sub],
         "errors_checked": {"adaptive": errors_adaptive, "uniform": errors_alpha},
         "accepted": np.asarray(accepted), "rejected": np.asarray(rejected),
+        "accepted_tuned": np.asarray(accepted_tuned), "tuned": {"rho": P3_TUNED_RHO, "atol_factor": P3_TUNED_ATOL},
         "elapsed_s": time.perf_counter() - started,
     }  # fmt: skip
 

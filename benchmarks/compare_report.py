@@ -228,6 +228,12 @@ def batch_section(emit, d):
     rows = [
         ("peeljax.sweep, error control (α-method, a step size per trajectory)",
          f"rtol = {r_adaptive:g}, atol = {ADAPTIVE_ALPHA_ATOL:g}·rtol", "adaptive", compiled("adaptive"), ""),
+    ]  # fmt: skip
+    if "tuned" in m:  # JSON from before the tuned row had none
+        rows.append((f"peeljax.sweep, error control, ρ = {d['tuned']['rho']:g} (tuned)",
+                     f"rtol = {m['tuned']['setting']:g}, atol = {d['tuned']['atol_factor']:g}·rtol", "tuned",
+                     "in the check" if B == sub_size else f"{m['tuned']['first_s'] - median['tuned']:.1f}", ""))  # fmt: skip
+    rows += [
         ("peeljax.sweep, uniform mesh", f"N = {n_alpha} (dt = 1/{n_alpha / T_FINAL:g})", "uniform",
          compiled("uniform"), ""),
         ("diffrax Kvaerno5 under jax.vmap", f"rtol = {m['diffrax']['setting']:g}", "diffrax", compiled("diffrax"), ""),
@@ -308,6 +314,16 @@ def batch_section(emit, d):
          f"{casadi_shared / per_batch['uniform']:.2f}× CasADi on the same cores. Best looped peer: {best} "
          f"({looped[best]:.2f} s per batch). P3 time: {d['elapsed_s']:.0f} s.")  # fmt: skip
     emit()
+    if "tuned" in m:
+        tuned = per_batch["tuned"]
+        accepted_tuned = np.asarray(d["accepted_tuned"])
+        emit(f"Tuned (ρ = {d['tuned']['rho']:g}, atol = {d['tuned']['atol_factor']:g}·rtol, the peers' atol rule; "
+             f"`benchmarks/lane_levers.py` measures each lever): {tuned:.2f} s per batch at rtol = "
+             f"{m['tuned']['setting']:g}, {np.mean(accepted_tuned):.0f} accepted steps per trajectory (default: "
+             f"{np.mean(accepted):.0f}); {base / tuned:.2f}× the default sweep's speed, {per_batch['diffrax'] / tuned:.2f}× "
+             f"diffrax's, against CasADi's loop split over the same cores {casadi_shared / tuned:.2f}× "
+             f"({'met' if casadi_shared / tuned > 1 else 'missed'}).")  # fmt: skip
+        emit()
 
 
 # --------------------------------------------------------------------------- (P4) the gradient of a trajectory loss

@@ -95,14 +95,14 @@ def peeljax_batch(Vs, taus, n):
     return result.ys[:, :, 3], result.status
 
 
-def peeljax_batch_adaptive(Vs, taus, rtol):
-    """``peeljax.sweep`` with error control (default devices and lane_batch), v at ``GRID``;
-    (v, status, accepted steps, rejected steps)."""
+def peeljax_batch_adaptive(Vs, taus, rtol, rho=0.0, atol_factor=ADAPTIVE_ALPHA_ATOL):
+    """``peeljax.sweep`` with error control (default devices and lane_batch), v at ``GRID``, atol =
+    ``atol_factor``·rtol; (v, status, accepted steps, rejected steps)."""
     import peeljax
 
     result = peeljax.sweep(
-        None, Vs, taus, None, T_FINAL, rtol=rtol, atol=ADAPTIVE_ALPHA_ATOL * rtol, save_dt=P3_SAVE_DT,
-        grid="pairs", progress=False,
+        None, Vs, taus, None, T_FINAL, rtol=rtol, atol=atol_factor * rtol, save_dt=P3_SAVE_DT,
+        grid="pairs", progress=False, rho=rho,
     )  # fmt: skip
     return result.ys[:, :, 3], result.status, result.accepted_steps, result.rejected_steps
 
