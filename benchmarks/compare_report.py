@@ -104,8 +104,9 @@ def one_trajectory_section(emit, entry):
     emit()
     emit("Both ratios are of medians measured round-robin in this run (> 1: that peeljax method is faster). "
          "Set-up s: each peer's one-time work for that setting, outside every timed call (`Peer.setup`): "
-         "the JAX and numba peers' compilation (their first call), CasADi's integrator and CVODE's solver "
-         "object; scipy's `solve_ivp` has no object to build.")  # fmt: skip
+         "the JAX and numba peers' compilation (their first call: a program compiled at an earlier "
+         "setting, or for the reference, is reused, and the column then holds one run), CasADi's integrator "
+         "and CVODE's solver object; scipy's `solve_ivp` has no object to build.")  # fmt: skip
     emit()
     emit("### (P2) work-precision: every setting")
     emit()
