@@ -293,54 +293,15 @@ class CasadiEvents(Peer):
         import casadi as ca
 
         ref = jump_reference()
-        V, c = self.V, ref.PAPER
-        offset = c["c5"] * V ** c["p5"]
-        c9 = c["c6"] - c["c7"] * V ** c["p7"] - c["c8"] * V ** c["p8"]
-
-        def phi(w):
-            v = ca.exp(w)
-            return (
-                c["c1"] * v ** c["p1"]
-                + c["c2"] * v ** c["p2"]
-                + c["c3"] * ca.exp(v / c["c4"])
-                - offset
-                - c9 * v ** c["p9"]
-            )
-
-        v_hat, v_min = ref.fold_velocities(V)
-        phi_max, phi_min = float(ref.phi(v_hat, V)), float(ref.phi(v_min, V))
-        X = ca.SX.sym("X", 5 + self.REGISTER)
-        alpha, omega, u, branch, count = X[0], X[1], X[2], X[3], X[4]
-        G = (1 + ca.sin(alpha)) * ref.K_OVER_L * u
-        slip = branch > 0.5
-        lo = ca.if_else(slip, math.log(v_min), math.log(1e-100))
-        hi = ca.if_else(slip, math.log(100.0), math.log(v_hat))
-        a, b = lo, hi
-        for _ in range(self.BISECTIONS):
-            mid = 0.5 * (a + b)
-            below = phi(mid) < G
-            a, b = ca.if_else(below, mid, a), ca.if_else(below, b, mid)
-        w, ws = 0.5 * (a + b), ca.SX.sym("w")
-        slope = ca.Function("slope", [ws], [ca.jacobian(phi(ws), ws)])
-        for _ in range(2):
-            w = w - (phi(w) - G) / slope(w)
-        phi_lo = ca.if_else(slip, phi_min, phi(math.log(1e-100)))
-        phi_hi = ca.if_else(slip, ca.inf, phi_max)
-        v = ca.exp(ca.if_else(G >= phi_hi, hi, ca.if_else(G <= phi_lo, lo, w)))
-        slip_rate, s = omega - v / ref.R, ca.sin(alpha)
-        ode = ca.vertcat(
-            slip_rate,
-            -ref.R * s * ref.K_OVER_L * u / ref.I,
-            ref.R * s * slip_rate + V - v,
-            ca.SX.zeros(2 + self.REGISTER),
-        )
-        t, index, empty = ca.SX.sym("t"), ca.SX.sym("index"), ca.SX(0, 1)
-        post = ca.vertcat(alpha, omega, u, 1 - branch, count + 1, t, X[5 : 4 + self.REGISTER])
+        v_hat, v_min = ref.fold_velocities(self.V)
+        bounds = (math.log(v_hat), math.log(v_min), float(ref.phi(v_hat, self.V)), float(ref.phi(v_min, self.V)))
+        X, ode, zero, post, t, index = casadi_event_model(ca, ref, self.V, bounds, self.REGISTER, self.BISECTIONS)
+        empty = ca.SX(0, 1)
         self._transition = ca.Function(
             "transition", [index, t, X, empty, empty, empty], [post, empty], ca.event_in(), ca.event_out()
         )
-        self._dae = {"x": X, "ode": ode, "zero": ca.if_else(slip, G - phi_min, phi_max - G)}
-        self._x0 = np.concatenate([ref.initial_state(V)[:3], [0.0, 0.0], np.full(self.REGISTER, -1.0)])
+        self._dae = {"x": X, "ode": ode, "zero": zero}
+        self._x0 = np.concatenate([ref.initial_state(self.V)[:3], [0.0, 0.0], np.full(self.REGISTER, -1.0)])
         self._ca = ca
 
     def _integrator(self, rtol):
@@ -351,15 +312,74 @@ class CasadiEvents(Peer):
         return self._integrators[rtol]
 
     def run(self, rtol):
-        xf = np.asarray(self._integrator(rtol)(x0=self._x0)["xf"])
-        count = np.concatenate([[0], np.round(xf[4]).astype(int)])
-        jumps = []
-        for k in range(1, count.size):
-            new = count[k] - count[k - 1]
-            if new > self.REGISTER:
-                raise RuntimeError(f"{new} jumps between two output times: the register holds {self.REGISTER}")
-            jumps += list(xf[5 : 5 + new, k - 1][::-1])
-        return np.array(jumps)
+        return read_jump_register(np.asarray(self._integrator(rtol)(x0=self._x0)["xf"]), self.REGISTER)
+
+
+def casadi_event_model(ca, ref, V, bounds, register, bisections, dphi_dw=None):
+    """The DAE with jumps as CasADi symbols, for CVODES with CasADi's events (:class:`CasadiEvents`).
+
+    State X = (α, ω, u, b, n, s1 … s_register): b the branch (0 stick, 1 slip), n the jump
+    count, s the last jump times. V and ``bounds`` = (log v̂, log v̌, φ(v̂, V), φ(v̌, V)) are
+    numbers or CasADi symbols (parameters). v(x) on branch b: ``bisections`` bisections in
+    log v and two Newton steps (with ``dphi_dw(w)``, default CasADi's own derivative of φ in
+    w = log v), clamped at the branch's ends.
+    Returns (X, ode, zero, post, t, index): the zero function fires on + → − crossings; post is
+    the state after a jump at time t (branch flipped, count + 1, t pushed into the register).
+    """
+    c = ref.PAPER
+    log_hat, log_min, phi_max, phi_min = bounds
+    offset = c["c5"] * V ** c["p5"]
+    c9 = c["c6"] - c["c7"] * V ** c["p7"] - c["c8"] * V ** c["p8"]
+
+    def phi(w):
+        v = ca.exp(w)
+        return (
+            c["c1"] * v ** c["p1"] + c["c2"] * v ** c["p2"] + c["c3"] * ca.exp(v / c["c4"]) - offset - c9 * v ** c["p9"]
+        )
+
+    X = ca.SX.sym("X", 5 + register)
+    alpha, omega, u, branch, count = X[0], X[1], X[2], X[3], X[4]
+    G = (1 + ca.sin(alpha)) * ref.K_OVER_L * u
+    slip = branch > 0.5
+    lo = ca.if_else(slip, log_min, math.log(1e-100))
+    hi = ca.if_else(slip, math.log(100.0), log_hat)
+    a, b = lo, hi
+    for _ in range(bisections):
+        mid = 0.5 * (a + b)
+        below = phi(mid) < G
+        a, b = ca.if_else(below, mid, a), ca.if_else(below, b, mid)
+    if dphi_dw is None:
+        ws = ca.SX.sym("w")
+        slope = ca.jacobian(phi(ws), ws)  # may hold V as a free symbol: substituted, not a Function
+        dphi_dw = lambda w: ca.substitute(slope, ws, w)
+    w = 0.5 * (a + b)
+    for _ in range(2):
+        w = w - (phi(w) - G) / dphi_dw(w)
+    phi_lo = ca.if_else(slip, phi_min, phi(math.log(1e-100)))
+    phi_hi = ca.if_else(slip, ca.inf, phi_max)
+    v = ca.exp(ca.if_else(G >= phi_hi, hi, ca.if_else(G <= phi_lo, lo, w)))
+    slip_rate, s = omega - v / ref.R, ca.sin(alpha)
+    ode = ca.vertcat(
+        slip_rate,
+        -ref.R * s * ref.K_OVER_L * u / ref.I,
+        ref.R * s * slip_rate + V - v,
+        ca.SX.zeros(2 + register),
+    )
+    t, index = ca.SX.sym("t"), ca.SX.sym("index")
+    post = ca.vertcat(alpha, omega, u, 1 - branch, count + 1, t, X[5 : 4 + register])
+    return X, ode, ca.if_else(slip, G - phi_min, phi_max - G), post, t, index
+
+
+def read_jump_register(xf, register):
+    """The jump times from CasADi's states at the output times (count in row 4, the last times after it)."""
+    count = np.concatenate([[0], np.round(xf[4]).astype(int)])
+    jumps = []
+    for k in range(1, count.size):
+        new = count[k] - count[k - 1]
+        if new > register:
+            raise RuntimeError(f"{new} jumps between two output times: the register holds {register}")
+        jumps += list(xf[5 : 5 + new, k - 1][::-1])
+    return np.array(jumps)
 
 
 # --------------------------------------------------------------------------- the inertial model
