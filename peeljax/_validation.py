@@ -123,9 +123,16 @@ def check_adjoint(adjoint) -> None:
         raise ValueError(f"adjoint must be 'reverse' or 'forward', got {adjoint!r}")
 
 
+MAX_STEPS_LIMIT = 2**31 - 1  # the loop counts attempts in int32
+
+
 def check_max_steps(max_steps) -> None:
-    if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
-        raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+    if (
+        isinstance(max_steps, bool)
+        or not isinstance(max_steps, (int, np.integer))
+        or not 1 <= max_steps <= MAX_STEPS_LIMIT
+    ):
+        raise ValueError(f"max_steps must be an integer in [1, {MAX_STEPS_LIMIT}], got {max_steps!r}")
 
 
 def check_output_times(ts, t_final) -> np.ndarray:

@@ -24,7 +24,7 @@ from ._validation import TAU_MAX, check_output_times, check_positive, check_tau,
 from .homogenized import HomogenizedODE
 from .integrators.alpha import AlphaMethod
 from .integrators.base import AbstractIntegrator
-from .integrators.select import DEFAULT_MAX_JUMPS, DEFAULT_MAX_STEPS, integrator_for, refuse_with_dt
+from .integrators.select import DEFAULT_MAX_JUMPS, integrator_for, refuse_with_dt, resolve_max_steps
 from .model import PeelingModel
 from .simulate import _check_memory, _packed_jit, _prepare, _run, is_dae
 from .solution import Solution
@@ -150,9 +150,9 @@ class Simulator:
         rtol: float | None = None,
         atol: float | None = None,
         rho: ArrayLike = 0.0,
-        solver: AlphaMethod | diffrax.AbstractSolver | None = None,
+        solver: str | AlphaMethod | diffrax.AbstractSolver | None = None,
         fold: str | None = None,
-        max_steps: int = DEFAULT_MAX_STEPS,
+        max_steps: int | None = None,
         max_jumps: int = DEFAULT_MAX_JUMPS,
         dtmin: float | None = None,
         truncation: int | None = None,
@@ -163,6 +163,7 @@ class Simulator:
         # simulate's checks, in its order, for τ > 0 (the homogenized ODE).
         if dt is not None:
             refuse_with_dt(dt, ts=ts)
+        max_steps = resolve_max_steps(max_steps, keeps_steps=ts is None)
         integrator_of = functools.partial(
             integrator_for, solver, rho=rho, dt=dt, t_final=t_final, rtol=rtol, atol=atol, dtmin=dtmin,
             max_steps=max_steps, adjoint=adjoint, checkpoint_every=checkpoint_every, fold=fold, max_jumps=max_jumps,

@@ -46,6 +46,7 @@ STICK, SLIP = 0, 1
 _LOW_V = 1e-100  # × max(V, 1) m/s: the bottom of the stick branch (v^p of φ is ~1e-15 there: φ(0⁺, V))
 _ROOT_ITERATIONS = 80
 _ROOT_TOLERANCE = 1e-14  # in log v
+_PREDICTED_ERROR = 1e-16  # in log v: K·Δ², the error left by a Newton update Δ
 
 
 class Folds(eqx.Module):
@@ -116,11 +117,33 @@ def _stop_gradient(tree):
     return jax.tree_util.tree_map(lambda a: jax.lax.stop_gradient(a) if eqx.is_inexact_array(a) else a, tree)
 
 
-def _root_on(model: PeelingModel, V, target, lo, hi, guess):
+@jax.custom_jvp
+def _tangent_only(r):
+    """0 in value, ``r``'s tangent in derivative: ``r − stop_gradient(r)`` without computing r
+    when no derivative is taken (r's primal is then dead code that XLA drops)."""
+    return jnp.zeros_like(r)
+
+
+@_tangent_only.defjvp
+def _tangent_only_jvp(primals, tangents):
+    return jnp.zeros_like(primals[0]), tangents[0]
+
+
+def _root_on(model: PeelingModel, V, target, lo, hi, guess, clamped=False, *, count: bool = False):
     """log v* with φ(v*, V) = target on [lo, hi] where φ increases, clamped to the ends.
 
     Safeguarded Newton in log v (a bisection step wherever Newton leaves the bracket or the
     slope is not positive), from ``guess``; no derivatives flow (see :func:`branch_velocity`).
+    φ and ∂φ/∂(log v) come from one forward-mode pass (``jax.jvp`` of w ↦ φ(eʷ, V)).
+
+    It stops (i) once a Newton update is below ``_ROOT_TOLERANCE`` (that update is taken: it
+    no longer moves w beyond round-off, and a zero residual is a root), (ii) once the update
+    predicted next, K·Δ² with K ≈ |Δ|/Δ_prev² from the last two Newton updates, is below
+    ``_PREDICTED_ERROR`` (quadratic convergence: the update Δ just taken leaves an error below
+    round-off, so the confirming iteration is skipped), (iii) once an update (bisection
+    included) moves w by at most ``_ROOT_TOLERANCE``, or (iv) after ``_ROOT_ITERATIONS``.
+    ``clamped`` (G outside [φ(lo), φ(hi)]: the caller returns the branch's end) skips the
+    iteration altogether. ``count=True`` also returns the number of φ evaluations.
     """
     log_lo, log_hi = jnp.log(lo), jnp.log(hi)
 
@@ -128,21 +151,29 @@ def _root_on(model: PeelingModel, V, target, lo, hi, guess):
         return model.phi(jnp.exp(w), V) - target
 
     def body(carry):
-        w, a, b, i, _ = carry
-        r, slope = jax.value_and_grad(residual)(w)
+        w, a, b, i, _, step_prev = carry
+        r, slope = jax.jvp(residual, (w,), (jnp.ones_like(w),))
         a = jnp.where(r < 0, w, a)  # φ increases on the branch: r < 0 ⇒ the root is above w
         b = jnp.where(r < 0, b, w)
-        newton = w - r / jnp.where(slope > 0, slope, 1.0)
-        inside = (slope > 0) & (newton > a) & (newton < b)
-        w_new = jnp.where(inside, newton, 0.5 * (a + b))
-        return w_new, a, b, i + 1, jnp.abs(w_new - w)
+        positive = slope > 0
+        step = -r / jnp.where(positive, slope, 1.0)
+        newton = w + step
+        converged = positive & (jnp.abs(step) <= _ROOT_TOLERANCE)  # round-off: take it, clipped
+        inside = positive & (newton > a) & (newton < b)
+        w_new = jnp.where(converged, jnp.clip(newton, a, b), jnp.where(inside, newton, 0.5 * (a + b)))
+        size = jnp.abs(step)
+        predicted = size * size * size <= _PREDICTED_ERROR * step_prev * step_prev  # K·Δ² small
+        done = converged | (inside & predicted) | (jnp.abs(w_new - w) <= _ROOT_TOLERANCE)
+        # a bisection step leaves no Newton update to extrapolate from (0: no prediction)
+        return w_new, a, b, i + 1, done, jnp.where(inside, size, 0.0)
 
     def more(carry):
-        return (carry[3] < _ROOT_ITERATIONS) & (carry[4] > _ROOT_TOLERANCE)
+        return (carry[3] < _ROOT_ITERATIONS) & ~carry[4]
 
     w0 = jnp.clip(jnp.log(jnp.clip(guess, lo, hi)), log_lo, log_hi)
-    w, *_ = jax.lax.while_loop(more, body, (w0, log_lo, log_hi, jnp.asarray(0), jnp.asarray(jnp.inf)))
-    return w
+    init = (w0, log_lo, log_hi, jnp.asarray(0), jnp.asarray(clamped), jnp.zeros_like(w0))
+    w, _, _, i, *_ = jax.lax.while_loop(more, body, init)
+    return (w, i) if count else w
 
 
 def branch_velocity(
@@ -162,17 +193,19 @@ def branch_velocity(
     lo, hi = _bounds(folds, branch)
     target = model.shear_force(x)
     sg = _stop_gradient
-    w = _root_on(sg(model), sg(V), sg(target), sg(lo), sg(hi), sg(guess))
-    v_star = jnp.exp(w)
-    residual = model.phi(v_star, V) - target
-    slope = jax.lax.stop_gradient(jax.grad(lambda v: model.phi(v, V))(v_star))
-    # A root exists iff φ(lo) < G < φ(hi) (φ rises on the branch); else v is clamped at an end.
+    # A root exists iff φ(lo) < G < φ(hi) (φ rises on the branch); else v is clamped at an end
+    # and the root search is skipped.
     past_end = sg(target >= model.phi(hi, V))
     below_start = sg(target <= model.phi(lo, V))
+    w = _root_on(sg(model), sg(V), sg(target), sg(lo), sg(hi), sg(guess), past_end | below_start)
+    v_star = jnp.exp(w)
+    slope = jax.lax.stop_gradient(jax.grad(lambda v: model.phi(v, V))(v_star))
     interior = ~past_end & ~below_start & (slope > 0)
     # Zero in value (round-off in the residual, divided by a slope that vanishes at a fold, must
-    # not move v), −dr/(∂φ/∂v) in derivative: the implicit function theorem.
-    correction = jnp.where(interior, (residual - sg(residual)) / jnp.where(interior, slope, 1.0), 0.0)
+    # not move v), −dr/(∂φ/∂v) in derivative: the implicit function theorem. ``_tangent_only``
+    # is r − r̄ without evaluating r when no derivative is taken.
+    residual = model.phi(v_star, V) - target
+    correction = jnp.where(interior, _tangent_only(residual) / jnp.where(interior, slope, 1.0), 0.0)
     v = jnp.where(past_end, hi, jnp.where(below_start, lo, v_star - correction))
     stuck = (branch == STICK) & (target < folds.phi_zero)
     return jnp.where(stuck, 0.0, v)

@@ -25,7 +25,7 @@ from .homogenized import HomogenizedODE
 from .integrators.alpha import AlphaMethod, UniformMesh
 from .integrators.base import AbstractIntegrator
 from .integrators.reference import integrate_reference
-from .integrators.select import DEFAULT_MAX_JUMPS, DEFAULT_MAX_STEPS, integrator_for, refuse_with_dt
+from .integrators.select import DEFAULT_MAX_JUMPS, integrator_for, refuse_with_dt, resolve_max_steps
 from .model import PeelingModel
 from .solution import Solution
 
@@ -135,9 +135,9 @@ def simulate(
     atol: float | None = None,
     ts: ArrayLike | None = None,
     dtmin: float | None = None,
-    max_steps: int = DEFAULT_MAX_STEPS,
+    max_steps: int | None = None,
     adjoint: str = "reverse",
-    solver: AlphaMethod | diffrax.AbstractSolver | None = None,
+    solver: str | AlphaMethod | diffrax.AbstractSolver | None = None,
     truncation: int | None = None,
     checkpoint_every: int | str | None = None,
     fold: str | None = None,
@@ -189,7 +189,10 @@ def simulate(
             start is about 1e-11 s whatever t_final is, so a dtmin growing with t_final would
             stop a long run at t = 0). Must be < t_final.
         max_steps: error control only: most step attempts (accepted + rejected; static).
-            Reaching it stops the run with its own reason.
+            Reaching it stops the run with its own reason. Default: 100 000 when the
+            accepted steps are the output (``ts=None``: memory grows with it), 10⁷ with
+            output at ``ts`` (nothing is kept per step: the budget only guards against a
+            run that never ends).
         adjoint: error control only: ``"reverse"`` (default; a checkpointed while loop, for
             ``jax.grad``) or ``"forward"`` (a plain while loop, for ``jax.jvp``/``jacfwd``).
         checkpoint_every: uniform mesh only, for reverse-mode gradients of long runs: chunks
@@ -227,6 +230,7 @@ def simulate(
     if dt is not None:
         refuse_with_dt(dt, ts=ts)
     check_tau(tau, allow_zero=True)
+    max_steps = resolve_max_steps(max_steps, keeps_steps=ts is None)
     integrator = integrator_for(
         solver, rho=rho, dt=dt, t_final=t_final, rtol=rtol, atol=atol, dtmin=dtmin, max_steps=max_steps,
         adjoint=adjoint, checkpoint_every=checkpoint_every, fold=fold, max_jumps=max_jumps, dae=is_dae(tau),

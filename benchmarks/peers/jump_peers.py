@@ -4,7 +4,8 @@ Each peer's ``run(rtol)`` returns the jump times over [0, ``T_FINAL``] at V = ``
 stick → slip and slip → stick jumps of v at fixed x, in order); ``prepare()`` builds or
 compiles what the runs need, outside the timed region. Every peer uses atol = ``ATOL_RATIO``·rtol.
 
-* :class:`PeeljaxDAE`: ``peeljax.simulate(tau=0, rtol=…)``, the fold located inside the compiled loop;
+* :class:`PeeljaxDAE`: ``peeljax.simulate(tau=0, rtol=…, solver=…)``, the fold located inside the compiled
+  loop (the α-method by default; ``solver="tsit5"`` etc. for a diffrax stepper);
 * :class:`ScipyEvents`: ``solve_ivp`` (LSODA, Radau, …) on ẋ = f(x, v(x)) with v the root on
   the current branch (plain Python), a terminal event at the fold, restarted after each jump;
   with ``refine=True`` the scipy reference's algorithm (``tests/jump_reference.py``: the last
@@ -12,6 +13,8 @@ compiles what the runs need, outside the timed region. Every peer uses atol = ``
 * :class:`DiffraxEvents`: ``diffrax.diffeqsolve`` with a ``diffrax.Event`` (G(x) reaching the
   fold, located by Newton on the dense output) on ``peeljax.ConstrainedDAE``'s vector field,
   compiled once; the host restarts it after each jump;
+* :class:`DiffraxWhileLoop`: the same ``diffeqsolve`` + ``Event`` restarted inside one
+  ``jax.lax.while_loop`` (diffrax issue #492's recommendation): the whole run one compiled call;
 * :class:`CasadiEvents`: CasADi's cvodes with CasADi's own (experimental, 3.8) zero-crossing
   events: a ``zero`` function and a ``transition`` Function that flips the branch, CasADi
   locating each event and re-initializing CVODES after it, all 210 jumps in one call;
@@ -47,36 +50,64 @@ def jump_reference():
 
 
 # --------------------------------------------------------------------------- peeljax
+SOLVERS = {"alpha": "AlphaMethod", "tsit5": "Tsit5", "dopri5": "Dopri5", "dopri8": "Dopri8", "kvaerno5": "Kvaerno5"}
+
+
+def solver_named(name):
+    """``peeljax.AlphaMethod()`` for "alpha", else the diffrax solver of that name (:data:`SOLVERS`); None → None."""
+    if name is None:
+        return None
+    if name not in SOLVERS:
+        raise ValueError(f"unknown solver {name!r}: one of {', '.join(SOLVERS)}")
+    if name == "alpha":
+        import peeljax
+
+        return peeljax.AlphaMethod()
+    import diffrax
+
+    return getattr(diffrax, SOLVERS[name])()
+
+
 class PeeljaxDAE(Peer):
-    """``peeljax.simulate(V, tau=0, rtol, atol)``: output at [0, t_final] only (``ts``), so no step buffer."""
+    """``peeljax.simulate(V, tau=0, rtol, atol, solver=…)``: output at [0, t_final] only (``ts``), so no step buffer.
 
-    name = "peeljax simulate(tau=0)"
+    ``solver``: None (peeljax's default, the α-method) or a name of :data:`SOLVERS` ("alpha",
+    "tsit5", "dopri5", "dopri8", "kvaerno5"), passed to ``simulate`` as ``peeljax.AlphaMethod()``
+    or the diffrax solver.
+    """
 
-    def __init__(self, settings, V=V, max_steps=1_000_000):
+    def __init__(self, settings, V=V, max_steps=1_000_000, solver=None):
         super().__init__(0.0, settings)
-        self.V, self.max_steps = V, max_steps
+        self.V, self.max_steps, self.solver = V, max_steps, solver
+        if solver is not None and solver not in SOLVERS:
+            raise ValueError(f"unknown solver {solver!r}: one of {', '.join(SOLVERS)}")
+        self.name = "peeljax simulate(tau=0)" if solver is None else f"peeljax simulate(tau=0, {solver})"
 
     def prepare(self):
         import peeljax
 
         self._pj = peeljax
         self._ts = np.array([0.0, T_FINAL])
+        self._solver = solver_named(self.solver)
         self._last = None
 
     def run(self, rtol):
         sol = self._pj.simulate(
-            V=self.V, tau=0, t_final=T_FINAL, rtol=rtol, atol=ATOL_RATIO * rtol, ts=self._ts, max_steps=self.max_steps
-        )
-        jumps = sol.jumps.as_numpy()
+            V=self.V, tau=0, t_final=T_FINAL, rtol=rtol, atol=ATOL_RATIO * rtol, ts=self._ts,
+            max_steps=self.max_steps, solver=self._solver,
+        )  # fmt: skip
         if sol.status_name != "completed":
             raise RuntimeError(f"stopped at t = {float(sol.t_stop):.6g}: {sol.reason}")
+        if sol.jumps is None:
+            raise RuntimeError("no jump record (the folds were not located)")
         self._last = sol.stats
-        return jumps["jump_t"]
+        return sol.jumps.as_numpy()["jump_t"]
 
     def run_stats(self, rtol):
         if self._last is None:
             return None
-        return {key: int(self._last[key]) for key in ("accepted_steps", "rejected_steps", "newton_iterations")}
+        keys = ("accepted_steps", "rejected_steps", "newton_iterations")
+        return {key: int(self._last[key]) for key in keys if key in self._last}
 
 
 # --------------------------------------------------------------------------- scipy
@@ -255,6 +286,93 @@ class DiffraxEvents(Peer):
             jumps.append(t)
         self._last = {"accepted_steps": accepted, "rejected_steps": rejected, "restarts": len(jumps)}
         return np.array(jumps)
+
+    def run_stats(self, rtol):
+        return self._last
+
+
+class DiffraxWhileLoop(Peer):
+    """The loop diffrax's maintainers recommend for restarting after events (diffrax issue #492).
+
+    One compiled function: a ``jax.lax.while_loop`` whose body runs ``diffrax.diffeqsolve``
+    (``solver``, default ``diffrax.Tsit5()``, with ``diffrax.PIDController(rtol, atol)``) from
+    the current time to ``T_FINAL`` with a ``diffrax.Event`` on ``ConstrainedDAE.fold_event``
+    (located by ``optimistix.Newton`` on the step's dense output, as :class:`DiffraxEvents`),
+    applies ``ConstrainedDAE.jump`` at the event's state (``sol.ys[-1]`` with
+    ``SaveAt(t1=True)``), writes the event time into a buffer of ``slots`` jump times and
+    restarts from there, until ``T_FINAL`` (or a failed segment, or a full buffer). rtol and
+    atol are traced: the program is compiled once, ahead of time, in ``prepare``. The vector
+    field is ``ConstrainedDAE.evaluate(y).psi`` on y = (α, ω, u, v) (v solved from the constraint).
+    """
+
+    def __init__(self, settings, solver=None, V=V, max_steps=1_000_000, slots=512):
+        super().__init__(0.0, settings)
+        self.solver, self.V, self.max_steps, self.slots = solver, V, max_steps, slots
+        solver_name = "Tsit5" if solver is None else type(solver).__name__
+        self.name = f"diffrax {solver_name} + Event, one lax.while_loop"
+        self._last = None
+
+    def prepare(self):
+        import diffrax
+        import jax
+        import jax.numpy as jnp
+        import optimistix as optx
+
+        import peeljax
+
+        solver = diffrax.Tsit5() if self.solver is None else self.solver
+        max_steps, slots = self.max_steps, self.slots
+        model = peeljax.PeelingModel()
+        ode = peeljax.ConstrainedDAE(model, self.V).with_folds()
+        y0 = jnp.asarray(model.initial_state(self.V))
+        t_final = jnp.asarray(T_FINAL)
+        term = diffrax.ODETerm(lambda t, y, args: ode.evaluate(y).psi)
+        event = diffrax.Event(
+            lambda t, y, args, **kwargs: ode.fold_event(y), root_finder=optx.Newton(rtol=1e-13, atol=1e-13)
+        )
+
+        def run_all(rtol, atol):
+            controller = diffrax.PIDController(rtol=rtol, atol=atol)
+
+            def cond(carry):
+                t, _, n, _, _, _, ok = carry
+                return ok & (t < t_final) & (n < slots)
+
+            def body(carry):
+                t, y, n, buffer, accepted, rejected, _ = carry
+                sol = diffrax.diffeqsolve(
+                    term, solver, t, t_final, None, y, saveat=diffrax.SaveAt(t1=True),
+                    stepsize_controller=controller, event=event, max_steps=max_steps, throw=False,
+                )  # fmt: skip
+                t1, y1, hit = sol.ts[-1], sol.ys[-1], sol.event_mask
+                ok = hit | (sol.result == diffrax.RESULTS.successful)
+                buffer = jnp.where(hit, buffer.at[jnp.minimum(n, slots - 1)].set(t1), buffer)
+                y = jnp.where(hit, ode.jump(y1).y, y1)
+                return (
+                    t1, y, n + hit.astype(n.dtype), buffer,
+                    accepted + sol.stats["num_accepted_steps"], rejected + sol.stats["num_rejected_steps"], ok,
+                )  # fmt: skip
+
+            zero = jnp.zeros((), jnp.int32)
+            carry = (jnp.zeros(()), y0, zero, jnp.full(slots, jnp.nan), zero, zero, jnp.asarray(True))
+            t, _, n, buffer, accepted, rejected, ok = jax.lax.while_loop(cond, body, carry)
+            return t, n, buffer, accepted, rejected, ok
+
+        rtol = jnp.asarray(float(self.settings[0]))
+        self._run_all = jax.jit(run_all).lower(rtol, ATOL_RATIO * rtol).compile()
+        self._jnp = jnp
+
+    def run(self, rtol):
+        jnp = self._jnp
+        r = jnp.asarray(float(rtol))
+        t, n, buffer, accepted, rejected, ok = self._run_all(r, jnp.asarray(ATOL_RATIO * float(rtol)))
+        t, n, ok = float(t), int(n), bool(ok)
+        self._last = {"accepted_steps": int(accepted), "rejected_steps": int(rejected), "restarts": n}
+        if not ok:
+            raise RuntimeError(f"diffeqsolve stopped at t = {t:.9g} s")
+        if n >= self.slots and t < T_FINAL:
+            raise RuntimeError(f"the buffer of {self.slots} jump times is full at t = {t:.9g} s")
+        return np.asarray(buffer)[:n]
 
     def run_stats(self, rtol):
         return self._last

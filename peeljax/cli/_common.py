@@ -14,6 +14,14 @@ from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw, read_json
 
 PROG = "peeljax"
 
+try:  # the steppers that the error-controlled loop takes (peeljax.integrators.STEPPER_NAMES)
+    from ..integrators import STEPPER_NAMES
+except ImportError:  # a peeljax from before the loop took any stepper: the same names
+    STEPPER_NAMES = ("alpha", "tsit5", "dopri5", "dopri8", "kvaerno3", "kvaerno4", "kvaerno5")
+STEPPERS = tuple(STEPPER_NAMES)
+# --max-steps: the loop counts its step attempts in 32 bits (a larger budget would wrap around).
+MAX_STEPS_LIMIT = 2**31 - 1
+
 # A negative number in any spelling float() reads (-1e-6, -inf, -nan, -.5): argparse's own
 # pattern (-1, -0.5) takes "-1e-6" for an option and answers "expected one argument", so the
 # range check of the option never sees it. No option of peeljax looks like a number.
@@ -126,6 +134,44 @@ def checked(allowed: str, check, *args):
         if "allowed range" in message or allowed in message:
             raise
         raise ValueError(f"{message} (allowed range: {allowed})") from None
+
+
+def solver_for(method: str, rho: float | None):
+    """``--method`` as the ``solver`` argument of :func:`peeljax.simulate` / :func:`peeljax.sweep`:
+    None for "default" (the library's choice), an ``AlphaMethod(rho=rho)`` for "alpha" (so that
+    ``--rho`` reaches it), else the stepper's name."""
+    if method == "default":
+        return None
+    if method == "alpha":
+        from ..integrators import AlphaMethod
+
+        return AlphaMethod(rho=0.0 if rho is None else rho)
+    return method
+
+
+def check_max_steps(max_steps: int | None, uniform_option: str | None) -> None:
+    """--max-steps: None (the library's budget) or an integer in [1, 2**31 - 1]; refused with the
+    uniform mesh (``uniform_option``, e.g. "--dt"), which takes no budget."""
+    if max_steps is None:
+        return
+    if max_steps < 1:
+        raise ValueError(f"--max-steps must be a positive integer (allowed range: [1, inf)), got {max_steps}")
+    if max_steps > MAX_STEPS_LIMIT:
+        raise ValueError(
+            f"--max-steps {max_steps} exceeds the loop's count of step attempts (a 32-bit integer): "
+            f"give at most {MAX_STEPS_LIMIT} (allowed range: [1, inf))"
+        )
+    if uniform_option is not None:
+        raise ValueError(
+            f"--max-steps (allowed range: [1, inf)) is error control's budget of step attempts; {uniform_option} "
+            "asks for a uniform mesh, which takes no budget: give one or the other"
+        )
+
+
+def max_steps_remedy(budget) -> str:
+    """The line after a run that used up its step budget (stderr)."""
+    now = "" if budget is None else f" (now {budget})"
+    return f"{PROG}: the step budget was used up before t_final: raise --max-steps{now} or loosen --rtol"
 
 
 def json_safe(value):

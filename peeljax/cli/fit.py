@@ -19,7 +19,7 @@ A stick-slip table (``--table``, instead of ``--data``; :func:`peeljax.fit.data.
 one row per pull velocity V with any of the statistics ``F_mean``, ``F_slip``, ``F_stick``,
 ``period``, ``slip_duration`` (each optionally with ``<name>_std``). It is fitted by
 Levenberg-Marquardt (:func:`peeljax.fit.table.fit_stick_slip`; ``--transient``, ``--window``,
-``--starts``, ``--max-iterations``, ``--statistics``, ``--tau`` >= 0, default 0: the DAE with
+``--starts``, ``--max-iterations``, ``--max-steps``, ``--statistics``, ``--tau`` >= 0, default 0: the DAE with
 jumps); stdout gets the coefficients' values +- standard errors and why the fit stopped,
 ``--out`` the result with its uncertainty, ``--plot`` :func:`peeljax.fit.plots.plot_table_fit`.
 
@@ -44,7 +44,7 @@ from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw
 from ..fit import QUANTITIES, Observation
 from ..fit.data import DataFileError, read_force_record, read_npz
 from ..integrators.select import DEFAULT_ATOL, DEFAULT_RTOL
-from ._common import PROG, check_output_path, checked, fail, json_safe, load_phi, plot_formats
+from ._common import PROG, check_max_steps, check_output_path, checked, fail, json_safe, load_phi, plot_formats
 
 __all__ = ["add_command", "load_observations"]
 
@@ -115,6 +115,14 @@ def add_command(subparsers) -> None:
         type=int,
         default=None,
         help="--table: Levenberg-Marquardt iterations at most, >= 1 (default 30)",
+    )
+    parser.add_argument(
+        "--max-steps",
+        dest="max_steps",
+        type=int,
+        default=None,
+        metavar="N",
+        help="--table: each run's budget of step attempts, an integer >= 1 (default: the library's)",
     )
     parser.add_argument(
         "--statistics",
@@ -211,7 +219,7 @@ def load_observations(paths: list[str], V=None) -> tuple[list[Observation], dict
     return observations, {k: next(iter(v)) for k, v in defaults.items() if len(v) == 1}
 
 
-_TABLE_ONLY = ("transient", "window", "starts", "max_iterations", "statistics")
+_TABLE_ONLY = ("transient", "window", "starts", "max_iterations", "max_steps", "statistics")
 _DATA_ONLY = ("V", "dt", "t_final", "learning_rate", "quantities")
 
 
@@ -260,6 +268,7 @@ def _validate_table(args: argparse.Namespace) -> dict:
     max_iterations = 30 if args.max_iterations is None else args.max_iterations
     if max_iterations < 1:
         raise ValueError(f"--max-iterations must be >= 1 (allowed range: [1, inf)), got {max_iterations}")
+    check_max_steps(args.max_steps, None)
     rtol = 1e-7 if args.rtol is None else args.rtol
     atol = 1e-10 if args.atol is None else args.atol
     checked("(0, 1)", check_tolerance, "rtol", rtol, 1.0)
@@ -289,6 +298,8 @@ def _validate_table(args: argparse.Namespace) -> dict:
         "table": table, "tau": float(tau), "transient": float(transient), "window": float(window),
         "n_starts": int(starts), "max_iterations": int(max_iterations), "rtol": float(rtol), "atol": float(atol),
         "free": free, "statistics": tuple(statistics), "start": start,
+        # left out: fit_stick_slip's own budget
+        **({} if args.max_steps is None else {"max_steps": int(args.max_steps)}),
     }  # fmt: skip
 
 
@@ -310,6 +321,7 @@ def _table_command(args: argparse.Namespace, config: dict) -> int:
         table, model, free=config["free"], statistics=config["statistics"], tau=config["tau"],
         transient=config["transient"], window=config["window"], rtol=config["rtol"], atol=config["atol"],
         max_iterations=config["max_iterations"], n_starts=config["n_starts"],
+        **({"max_steps": config["max_steps"]} if "max_steps" in config else {}),
     )  # fmt: skip
     result.settings.update({"table": args.table, "phi": args.phi})
     if args.out is not None:

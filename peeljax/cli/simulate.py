@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import math
 import sys
@@ -30,14 +31,34 @@ from ..integrators.select import DEFAULT_MAX_JUMPS, resolve_fold
 from ..integrators.select import DEFAULT_RTOL as _ALPHA_RTOL
 from ..model import GEOMETRIES, PeelingModel
 from ..simulate import check_run_memory, simulate, simulate_reference
-from ..solution import Solution
-from ._common import PROG, check_output_path, checked, fail, json_safe, plot_formats, read_phi, write_failed
+from ..solution import Solution, StopReason
+from ._common import (
+    PROG,
+    STEPPERS,
+    check_max_steps,
+    check_output_path,
+    checked,
+    fail,
+    json_safe,
+    max_steps_remedy,
+    plot_formats,
+    read_phi,
+    solver_for,
+    write_failed,
+)
 
 __all__ = ["add_command", "run", "summarize", "validate_run", "write_npz"]
 
-METHODS = ("alpha", "diffrax")
-_METHOD_TITLES = {"alpha": "alpha-method", "diffrax": "diffrax Kvaerno5 reference"}
-_PLOT_METHODS = {"alpha": "α-method", "diffrax": "diffrax Kvaerno5 reference"}
+# --method: "default" (the library's stepper), "alpha", "diffrax" (the Kvaerno5 reference, on its
+# output grid) and the other steppers of the error-controlled loop.
+METHODS = ("default", "alpha", "diffrax", *(name for name in STEPPERS if name != "alpha"))
+_UNIFORM_METHODS = ("default", "alpha")  # those that run the uniform mesh (--dt) and take --rho
+# The stepper that ran (the Solution's ``method``), in words; other names are shown as they are.
+_METHOD_TITLES = {
+    "alpha": "alpha-method",
+    "alpha-adaptive": "alpha-method",
+    "diffrax": "diffrax Kvaerno5 reference",
+}
 _DEFAULT_RTOL, _DEFAULT_ATOL = 1e-8, 1e-10  # diffrax
 _DIFFRAX_OUTPUT_DT = 1 / 82  # diffrax's output spacing when neither --dt nor --save-dt is given
 _MAX_JUMPS_LIMIT = 10_000_000  # the jump record is allocated in full (5 arrays of max_jumps)
@@ -74,35 +95,52 @@ def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
     )
     solver = parser.add_argument_group("integrator")
     solver.add_argument(
-        "--method", default="alpha", metavar="{alpha,diffrax}", help="alpha-method or diffrax reference (default alpha)"
+        "--method",
+        default="default",
+        metavar="NAME",
+        help=f"the stepper of error control: default (the library's choice), {', '.join(STEPPERS)}; or diffrax "
+        "(the Kvaerno5 reference on its output grid) (default: default)",
     )
     solver.add_argument(
         "--dt",
         type=float,
         default=None,
-        help="alpha: a uniform mesh of N = round(t_final/dt) steps instead of error control; "
-        "diffrax: the output spacing (default: error control for alpha, 1/82 for diffrax)",
+        help="default/alpha: a uniform mesh of N = round(t_final/dt) alpha-method steps instead of error control; "
+        "diffrax: the output spacing (default: error control; 1/82 for diffrax)",
     )
-    solver.add_argument("--rho", type=float, default=None, help="alpha-method's rho in [0, 1) (default 0; alpha only)")
+    solver.add_argument(
+        "--rho", type=float, default=None, help="alpha-method's rho in [0, 1) (default 0; --method default or alpha)"
+    )
     solver.add_argument(
         "--rtol",
         type=float,
         default=None,
-        help=f"relative tolerance in (0, 1) (default {_ALPHA_RTOL:g} for alpha, {_DEFAULT_RTOL:g} for diffrax)",
+        help=f"relative tolerance in (0, 1) (default {_ALPHA_RTOL:g}; {_DEFAULT_RTOL:g} for diffrax; "
+        "not on the uniform mesh)",
     )
     solver.add_argument(
         "--atol",
         type=float,
         default=None,
-        help=f"absolute tolerance, > 0 (default {_ALPHA_ATOL:g} for alpha, {_DEFAULT_ATOL:g} for diffrax)",
+        help=f"absolute tolerance, > 0 (default {_ALPHA_ATOL:g}; {_DEFAULT_ATOL:g} for diffrax; "
+        "not on the uniform mesh)",
+    )
+    solver.add_argument(
+        "--max-steps",
+        dest="max_steps",
+        type=int,
+        default=None,
+        metavar="N",
+        help="error control's budget of step attempts (accepted or rejected), an integer >= 1; not on the uniform "
+        "mesh (default: the library's)",
     )
     solver.add_argument(
         "--save-dt",
         dest="save_dt",
         type=float,
         default=None,
-        help="output at t = 0, S, 2S, ... <= t_final (and t_final) [s] (default: alpha with error control "
-        "writes its accepted steps; diffrax uses --dt)",
+        help="output at t = 0, S, 2S, ... <= t_final (and t_final) [s] (default: error control writes its "
+        "accepted steps; diffrax uses --dt)",
     )
     folds = parser.add_argument_group("folds of phi (stick-slip jumps)")
     folds.add_argument(
@@ -111,8 +149,8 @@ def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="{jump,stop,follow}",
         help="at a fold of phi: 'jump' (v jumps to the other stable branch at fixed alpha, omega, u; the run "
         "goes on), 'stop' (the run ends there, the paper's behaviour) or 'follow' (tau > 0: jump at impasse "
-        "points only, follow singular passages); jump and follow need error control (default: jump with "
-        "error control, stop with --dt or --method diffrax)",
+        "points only, follow singular passages); jump and follow need error control, any stepper (default: "
+        "jump with error control, stop with --dt or --method diffrax)",
     )
     folds.add_argument(
         "--max-jumps",
@@ -167,9 +205,9 @@ class RunConfig:
     dt: float | None  # the α-method's uniform step, or diffrax's output spacing; None: error control
     t_final: float
     n_steps: int | None  # uniform mesh (or diffrax output) intervals; None with error control
-    method: str
-    rho: float | None  # α-method only
-    rtol: float | None  # error control (α-method) or diffrax
+    method: str  # --method: "default", a stepper's name or "diffrax" (the reference)
+    rho: float | None  # --method default or alpha only
+    rtol: float | None  # error control or diffrax
     atol: float | None
     y0: tuple[float, ...] | None
     phi: str | None
@@ -178,10 +216,22 @@ class RunConfig:
     max_jumps: int = DEFAULT_MAX_JUMPS  # the jump record's size (error control)
     transient: float = 0.0  # the cycle statistics' window starts here [s]
     phi_defaults: tuple[str, ...] | None = None  # coefficients --phi left at the paper's values
+    max_steps: int | None = None  # error control's budget of step attempts; None: the library's
 
     @property
     def adaptive(self) -> bool:
-        return self.method == "alpha" and self.dt is None
+        """Error control (any stepper), rather than the uniform mesh or the diffrax reference."""
+        return self.method != "diffrax" and self.dt is None
+
+    @property
+    def uniform(self) -> bool:
+        """The α-method's uniform mesh (--dt)."""
+        return self.method != "diffrax" and self.dt is not None
+
+    @property
+    def solver(self):
+        """The ``solver`` argument of :func:`peeljax.simulate` (error control and the uniform mesh)."""
+        return solver_for(self.method, self.rho)
 
     @property
     def dae(self) -> bool:
@@ -196,7 +246,8 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
         ValueError: naming the option and its allowed range.
     """
     check_choice("geometry", args.geometry, GEOMETRIES)
-    check_choice("method", args.method, METHODS)
+    check_choice("--method", args.method, METHODS)
+    _check_method(args)
     positive = "(0, inf)"
     checked(positive, check_positive, "V", args.V)
     _check_tau(args)
@@ -209,7 +260,7 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
     if args.save_dt is not None:
         if not (math.isfinite(args.save_dt) and 0 < args.save_dt <= args.t_final):
             raise ValueError(f"--save-dt must lie in (0, t_final] = (0, {args.t_final:g}], got {args.save_dt:g}")
-        if args.method == "alpha" and dt is not None:
+        if args.method != "diffrax" and dt is not None:
             raise ValueError("--save-dt sets the output of error control; with --dt the output is the uniform mesh")
         n_save = output_count(args.save_dt, args.t_final)  # counted first: the times themselves could fill memory
         _check_memory(f"--save-dt {args.save_dt:g}", n_save, "ts", "give a larger --save-dt or a shorter --t-final")
@@ -218,12 +269,13 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
         save_ts = tuple(output_times(args.save_dt, args.t_final))
     elif n_steps is not None:
         option = f"--dt {dt:g}" if args.dt is not None else "the diffrax output grid"
-        kind = "mesh" if args.method == "alpha" else "ts"
+        kind = "mesh" if args.method != "diffrax" else "ts"
         _check_memory(option, n_steps + 1, kind, "give a larger --dt or a shorter --t-final")
     rho = rtol = atol = None
-    if args.method == "alpha":
-        rho = 0.0 if args.rho is None else args.rho
-        checked("[0, 1)", check_rho, rho)
+    if args.method != "diffrax":
+        if args.method in _UNIFORM_METHODS:
+            rho = 0.0 if args.rho is None else args.rho
+            checked("[0, 1)", check_rho, rho)
         if dt is not None and (args.rtol is not None or args.atol is not None):
             raise ValueError(
                 "--rtol/--atol set the error control of the alpha-method; --dt asks for a uniform mesh: give one or the other"
@@ -232,15 +284,17 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
             rtol = _ALPHA_RTOL if args.rtol is None else args.rtol
             atol = _ALPHA_ATOL if args.atol is None else args.atol
     else:
-        if args.rho is not None:
-            checked("[0, 1)", check_rho, args.rho)
-            raise ValueError("rho is the alpha-method's parameter: --rho applies with --method alpha only")
         rtol = _DEFAULT_RTOL if args.rtol is None else args.rtol
         atol = _DEFAULT_ATOL if args.atol is None else args.atol
     if rtol is not None:
         checked("(0, 1)", check_tolerance, "rtol", rtol, 1.0)
         checked(positive, check_tolerance, "atol", atol)
     fold, max_jumps, transient = _check_folds(args, dt)
+    max_steps = getattr(args, "max_steps", None)
+    check_max_steps(max_steps, "--dt" if args.method != "diffrax" and dt is not None else None)
+    if max_steps is not None and save_ts is None and args.method != "diffrax":
+        # the accepted steps are the output: max_steps + 1 rows (diffrax's reference keeps its output grid)
+        _check_memory(f"--max-steps {max_steps}", max_steps + 1, "steps", "give a smaller --max-steps or a --save-dt")
     checked("finite (alpha, omega, u, v) with v > 0", check_y0, args.y0)
     adhesion, phi_defaults = (AdhesionLaw(), None) if args.phi is None else read_phi(args.phi)
     check_output_path("--out", args.out)
@@ -265,6 +319,7 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
         max_jumps=max_jumps,
         transient=transient,
         phi_defaults=phi_defaults,
+        max_steps=None if max_steps is None else int(max_steps),
     )
 
 
@@ -272,24 +327,42 @@ def _check_memory(option: str, rows: int, kind: str, remedy: str) -> None:
     """The run's output must fit in memory (the rule of ``peeljax.simulate`` and ``peeljax.sweep``)."""
     try:
         check_run_memory(rows, kind, remedy=remedy)
-    except ValueError as error:
-        raise ValueError(f"{option}: {error}") from None
+    except ValueError as error:  # the library's message names max_steps: here it is --max-steps
+        raise ValueError(f"{option}: {str(error).replace('max_steps', '--max-steps')}") from None
+
+
+def _check_method(args: argparse.Namespace) -> None:
+    """A stepper other than the α-method runs error control only: no uniform mesh, no ρ."""
+    if args.method in (*_UNIFORM_METHODS, "diffrax"):
+        return
+    if args.dt is not None:
+        raise ValueError(
+            f"--dt asks for a uniform mesh, which only the alpha-method runs (--method default or alpha); "
+            f"--method {args.method} runs error control: drop --dt (and set --rtol/--atol), or give --method alpha"
+        )
+    if args.rho is not None:
+        raise ValueError(
+            "--rho is the alpha-method's parameter: it applies with --method default or alpha, "
+            f"not --method {args.method}"
+        )
 
 
 def _without_error_control(args: argparse.Namespace) -> str | None:
-    """The option that takes the run off the α-method's error control (None: it has it)."""
+    """The option that takes the run off error control (None: it has it)."""
     if args.method == "diffrax":
         return "--method diffrax"
     return None if args.dt is None else "--dt"
 
 
 def _remedy(other: str) -> str:
-    return "drop --dt" if other == "--dt" else "use --method alpha"
+    if other == "--dt":
+        return "drop --dt"
+    return "choose a stepper with error control (--method default, or a name such as kvaerno5)"
 
 
 def _check_tau(args: argparse.Namespace) -> None:
-    """τ ∈ [0, 1e6] under error control; τ = 0 (the DAE, with jumps) needs it, so with --dt or
-    diffrax the range is (0, 1e6]."""
+    """τ ∈ [0, 1e6] under error control (any stepper); τ = 0 (the DAE, with jumps) needs it, so
+    with --dt or --method diffrax the range is (0, 1e6]."""
     other = _without_error_control(args)
     if other is None:
         checked(f"[0, {TAU_MAX:g}]", check_tau, args.tau, True)
@@ -297,8 +370,8 @@ def _check_tau(args: argparse.Namespace) -> None:
     if args.tau == 0:
         what = "a uniform mesh (--dt)" if other == "--dt" else "the diffrax reference (--method diffrax)"
         raise ValueError(
-            f"--tau 0 (the DAE itself, with jumps at the folds of phi) runs on the alpha-method with error "
-            f"control, not on {what}: {_remedy(other)}, or give tau in (0, {TAU_MAX:g}] (the homogenized ODE)"
+            f"--tau 0 (the DAE itself, with jumps at the folds of phi) runs with error control (any stepper), "
+            f"not on {what}: {_remedy(other)}, or give tau in (0, {TAU_MAX:g}] (the homogenized ODE)"
         )
     checked(f"(0, {TAU_MAX:g}]", check_tau, args.tau)
 
@@ -312,7 +385,7 @@ def _check_folds(args: argparse.Namespace, dt: float | None) -> tuple[str, int, 
     other = _without_error_control(args)
     if fold not in (None, "stop") and other is not None:
         raise ValueError(
-            f"--fold {fold} needs the alpha-method with error control, which cuts a step at a fold; with "
+            f"--fold {fold} needs error control (any stepper), which cuts a step at a fold; with "
             f"{other} a run can only stop there: give --fold stop, or {_remedy(other)}"
         )
     if fold == "follow" and args.tau == 0:
@@ -348,6 +421,9 @@ def run(config: RunConfig) -> tuple[Solution, float]:
 
     start = time.perf_counter()
     ts = None if config.save_ts is None else np.asarray(config.save_ts)
+    # --max-steps left out: the library's own budget (it depends on the output asked for)
+    budget = {} if config.max_steps is None else {"max_steps": config.max_steps}
+    rho = 0.0 if config.rho is None else config.rho
     if config.adaptive:
         solution = simulate(
             config.model,
@@ -355,18 +431,22 @@ def run(config: RunConfig) -> tuple[Solution, float]:
             config.tau,
             None,
             config.t_final,
-            config.rho,
+            rho,
             config.y0,
             rtol=config.rtol,
             atol=config.atol,
             ts=ts,
             fold=config.fold,
             max_jumps=config.max_jumps,
+            solver=config.solver,
+            **budget,
         )
         if ts is None:  # the accepted steps: only the valid rows (the rest is padding)
             solution = _valid_rows(solution)
-    elif config.method == "alpha":
-        solution = simulate(config.model, config.V, config.tau, config.dt, config.t_final, config.rho, config.y0)
+    elif config.uniform:
+        solution = simulate(
+            config.model, config.V, config.tau, config.dt, config.t_final, rho, config.y0, solver=config.solver
+        )
     else:
         solution = simulate_reference(
             config.model,
@@ -378,6 +458,7 @@ def run(config: RunConfig) -> tuple[Solution, float]:
             rtol=config.rtol,
             atol=config.atol,
             ts=ts,
+            **budget,
         )
     solution = jax.block_until_ready(solution)  # JAX dispatches asynchronously: time the finished run
     return solution, time.perf_counter() - start
@@ -411,7 +492,7 @@ def step_used(solution: Solution, config: RunConfig) -> float:
     """The α-method's uniform step t_final/N, the diffrax output grid's spacing, or NaN (error control)."""
     if config.adaptive:
         return math.nan
-    if config.method == "alpha":
+    if config.uniform:
         return float(solution.stats["step_size"])
     if config.save_ts is not None:
         return float(config.save_ts[1] - config.save_ts[0]) if len(config.save_ts) > 1 else config.t_final
@@ -479,11 +560,12 @@ def write_npz(path: str, solution: Solution, config: RunConfig) -> None:
         "tau": np.float64(config.tau),
         "dt": np.float64(step_used(solution, config)),
         "t_final": np.float64(config.t_final),
-        "rho": np.float64(math.nan if config.rho is None else config.rho),
+        "rho": np.float64(math.nan if _rho_used(solution, config) is None else config.rho),
         "rtol": np.float64(math.nan if config.rtol is None else config.rtol),
         "atol": np.float64(math.nan if config.atol is None else config.atol),
         "geometry": np.asarray(config.model.geometry, dtype=str),
-        "method": np.asarray(config.method, dtype=str),
+        "method": np.asarray(solution.method, dtype=str),  # the stepper that ran
+        "method_option": np.asarray(config.method, dtype=str),  # --method as given
         "phi_json": np.asarray(phi_json, dtype=str),
         "stats_json": np.asarray(json.dumps(json_safe(stats), allow_nan=False), dtype=str),  # strict: NaN -> null
     }
@@ -502,12 +584,31 @@ def write_npz(path: str, solution: Solution, config: RunConfig) -> None:
         np.savez(handle, **arrays)
 
 
+def _ran_alpha(method: str) -> bool:
+    """The Solution's ``method`` names the α-method (uniform or error-controlled)."""
+    return method.startswith("alpha")
+
+
+def _rho_used(solution: Solution, config: RunConfig) -> float | None:
+    """ρ where the α-method ran (--method default may choose another stepper), else None."""
+    return config.rho if config.rho is not None and _ran_alpha(solution.method) else None
+
+
+def method_title(method: str, option: str | None = None) -> str:
+    """The stepper that ran (the Solution's ``method``) in words; "(the default stepper)" when
+    --method left the choice to the library."""
+    title = _METHOD_TITLES.get(method, method)
+    return f"{title} (the default stepper)" if option == "default" else title
+
+
 def _plot_title(config: RunConfig, dt: float, record: dict | None = None) -> str:
     tau = "τ = 0 (the DAE)" if config.dae else f"τ = {config.tau:g} s"
-    parts = [f"V = {config.V:g} m/s", tau, _PLOT_METHODS[config.method]]
+    method = config.method if record is None else record["method"]  # the stepper that ran
+    rho = config.rho if record is None else record.get("rho")
+    parts = [f"V = {config.V:g} m/s", tau, method_title(method, config.method).replace("alpha-method", "α-method")]
     if config.adaptive:
-        parts += [f"rtol = {config.rtol:g}", f"atol = {config.atol:g}", f"ρ = {config.rho:g}"]
-    elif config.method == "alpha":
+        parts += [f"rtol = {config.rtol:g}", f"atol = {config.atol:g}"] + ([] if rho is None else [f"ρ = {rho:g}"])
+    elif config.uniform:
         parts += [f"dt = {dt:.4g} s", f"ρ = {config.rho:g}"]
     else:
         parts += [f"rtol = {config.rtol:g}", f"output every {dt:.4g} s"]
@@ -538,11 +639,12 @@ def _regime_note(config: RunConfig) -> str | None:
 
 def _print_summary(record: dict, config: RunConfig, stats: dict, cycles=None) -> None:
     """A few human-readable lines (ASCII, whatever the terminal's encoding)."""
-    settings = [] if config.rho is None else [f"rho = {config.rho:g}"]
+    settings = [] if record.get("rho") is None else [f"rho = {record['rho']:g}"]
     if config.rtol is not None:
         settings.append(f"rtol = {config.rtol:g}, atol = {config.atol:g}")
     if config.adaptive:
-        settings.append(f"fold {config.fold} (max_jumps {config.max_jumps})")
+        budget = "the default" if config.max_steps is None else str(config.max_steps)
+        settings.append(f"fold {config.fold} (max_jumps {config.max_jumps}, max_steps {budget})")
         mesh = f"error control ({record['accepted_steps']} accepted, {record['rejected_steps']} rejected steps)"
     elif config.n_steps is None:
         mesh = f"output at {len(config.save_ts)} times"
@@ -550,7 +652,7 @@ def _print_summary(record: dict, config: RunConfig, stats: dict, cycles=None) ->
         mesh = f"dt = {record['dt']:.6g} s ({config.n_steps} steps)"
     tau = "tau = 0 (the DAE)" if config.dae else f"tau = {config.tau:g} s"
     print(
-        f"peeljax simulate: {_METHOD_TITLES[config.method]}, V = {config.V:g} m/s, {tau}, "
+        f"peeljax simulate: {method_title(record['method'], config.method)}, V = {config.V:g} m/s, {tau}, "
         f"{mesh}, t_final = {config.t_final:g} s, {', '.join(settings)}, geometry {config.model.geometry}"
     )
     if record["status"] == "completed":
@@ -608,8 +710,9 @@ def _simulate_command(args: argparse.Namespace) -> int:
         mesh = f"output at {len(config.save_ts)} times"
     else:
         mesh = f"{config.n_steps} steps"
+    method = "default stepper" if config.method == "default" else config.method
     print(
-        f"{PROG}: {config.method} run with {mesh} to t = {config.t_final:g} s (compiling first: a few seconds) ...",
+        f"{PROG}: {method} run with {mesh} to t = {config.t_final:g} s (compiling first: a few seconds) ...",
         file=sys.stderr,
     )
     solution, wall = run(config)
@@ -625,9 +728,10 @@ def _simulate_command(args: argparse.Namespace) -> int:
         "save_dt": args.save_dt,
         "t_final": config.t_final,
         "n_steps": config.n_steps,
-        "method": config.method,
+        "method": solution.method,  # the stepper that ran
+        "method_option": config.method,  # --method as given
         "geometry": config.model.geometry,
-        "rho": config.rho,
+        "rho": _rho_used(solution, config),
         "rtol": config.rtol,
         "atol": config.atol,
         "y0": None if config.y0 is None else list(config.y0),
@@ -635,6 +739,7 @@ def _simulate_command(args: argparse.Namespace) -> int:
         "phi_paper_defaults": None if config.phi_defaults is None else list(config.phi_defaults),
         "fold": config.fold,
         "max_jumps": config.max_jumps if config.adaptive else None,
+        "max_steps": config.max_steps,  # --max-steps; null: the library's budget
         "transient": config.transient,
         "stats": stats,
         "wall_time_s": wall,
@@ -669,6 +774,22 @@ def _simulate_command(args: argparse.Namespace) -> int:
         print(json.dumps(json_safe(record), allow_nan=False))
     else:
         _print_summary(record, config, stats, cycles)
+    _print_remedy(solution, config)
     for option, path, error in failed:
         write_failed(option, path, error, "the run's summary is above")
     return 1 if failed else 0
+
+
+def _print_remedy(solution: Solution, config: RunConfig) -> None:
+    """After a run that ran out of its step budget or its jump record: the option to raise (stderr)."""
+    status = int(np.asarray(solution.status))
+    if status == StopReason.MAX_STEPS:
+        budget, stats = config.max_steps, solution.stats
+        if budget is None and "accepted_steps" in stats and "rejected_steps" in stats:
+            # the library's budget: the attempts made, accepted or rejected, each one counts
+            budget = int(np.asarray(stats["accepted_steps"])) + int(np.asarray(stats["rejected_steps"]))
+        elif budget is None and config.method == "diffrax":
+            budget = inspect.signature(simulate_reference).parameters["max_steps"].default
+        print(max_steps_remedy(budget), file=sys.stderr)
+    elif status == StopReason.MAX_JUMPS:
+        print(f"{PROG}: the jump record is full: raise --max-jumps (now {config.max_jumps})", file=sys.stderr)

@@ -15,11 +15,25 @@ import numpy as np
 from .._validation import check_choice, check_mesh, check_positive, check_rho, check_tolerance
 from ..adhesion import AdhesionLaw
 from ..integrators.events import FOLD_MODES
-from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_RTOL
+from ..integrators.select import DEFAULT_ATOL, DEFAULT_RTOL
 from ..model import GEOMETRIES, PeelingModel
+from ..solution import StopReason
 from ..sweeps.engine import STARTS
 from ..sweeps.integrators import DEFAULT_SWEEP_MAX_JUMPS
-from ._common import PROG, check_output_path, checked, fail, json_safe, plot_formats, read_phi, write_failed
+from ._common import (
+    PROG,
+    STEPPERS,
+    check_max_steps,
+    check_output_path,
+    checked,
+    fail,
+    json_safe,
+    max_steps_remedy,
+    plot_formats,
+    read_phi,
+    solver_for,
+    write_failed,
+)
 
 __all__ = ["add_command", "engine_text", "tau_grid", "validate_map", "validate_sweep", "validate_tau_star"]
 
@@ -41,7 +55,7 @@ def _add_model_arguments(parser: argparse.ArgumentParser):
         "--dt",
         type=float,
         default=None,
-        help="uniform-mesh step [s]; without it the error-controlled alpha-method runs (default: error control)",
+        help="uniform-mesh step [s] of the alpha-method (default: error control)",
     )
     solver.add_argument(
         "--rtol",
@@ -55,7 +69,7 @@ def _add_model_arguments(parser: argparse.ArgumentParser):
         default=None,
         help=f"error control's absolute tolerance, > 0 (default {DEFAULT_ATOL:g}; not with --dt)",
     )
-    solver.add_argument("--rho", type=float, default=0.0, help="alpha-method's rho in [0, 1) (default 0)")
+    solver.add_argument("--rho", type=float, default=None, help="alpha-method's rho in [0, 1) (default 0)")
     return solver
 
 
@@ -64,13 +78,21 @@ def add_command(subparsers) -> None:
         "sweep",
         help="batched runs over a grid of V and tau",
         description=(
-            "Integrate every (V, tau) of a grid with the alpha-method in compiled batches (error control by "
-            "default, each trajectory with its own steps; --dt for a uniform mesh); write per-trajectory "
+            "Integrate every (V, tau) of a grid in compiled batches (error control by default, each "
+            "trajectory with its own steps, any stepper: --method; --dt for the alpha-method's uniform mesh); "
+            "write per-trajectory "
             "summaries (completed, t_stop, v mean/std/min/max over a window, stick-slip events, steps taken). "
             "With --out the sweep is written chunk by chunk and a rerun resumes."
         ),
     )
     solver = _add_model_arguments(parser)
+    solver.add_argument(
+        "--method",
+        default="default",
+        metavar="NAME",
+        help=f"the stepper of error control: default (the library's choice) or one of {', '.join(STEPPERS)}; "
+        "--dt and --rho with default or alpha only (default: default)",
+    )
     solver.add_argument(
         "--save-dt",
         dest="save_dt",
@@ -111,8 +133,8 @@ def add_command(subparsers) -> None:
     )  # fmt: skip
     folds.add_argument(
         "--max-steps", dest="max_steps", type=int, default=None, metavar="N",
-        help=f"error control's step attempts per trajectory (default {DEFAULT_MAX_STEPS}); stick-slip takes "
-        "about 50-100 steps a jump",
+        help="error control's budget of step attempts per trajectory, an integer >= 1; not with --dt (default: "
+        "the library's); stick-slip takes about 50-100 steps a jump",
     )  # fmt: skip
     folds.add_argument(
         "--start", default=None, metavar="{paper,steady}",
@@ -204,8 +226,41 @@ def _integrator(args: argparse.Namespace) -> dict:
     """The integrator's options, checked: ``dt`` (uniform mesh) or ``rtol``/``atol`` (error control).
 
     Returns the keyword arguments of :func:`peeljax.sweep` / :func:`peeljax.least_tau` that choose
-    the engine (``save_dt``/``save_every`` only where the namespace has them), all others None.
+    the engine (``save_dt``/``save_every`` only where the namespace has them, ``solver`` where
+    ``--method`` names a stepper), all others None.
     """
+    options = _integrator_options(args)
+    method = getattr(args, "method", "default")
+    if method != "default":
+        options["solver"] = solver_for(method, _rho(args))
+    return options
+
+
+def _rho(args: argparse.Namespace) -> float:
+    return 0.0 if args.rho is None else float(args.rho)
+
+
+def _check_method(args: argparse.Namespace) -> None:
+    """--method: "default" or a stepper; one other than the α-method runs error control only (no
+    uniform mesh, no ρ)."""
+    method = getattr(args, "method", "default")
+    check_choice("--method", method, ("default", *STEPPERS))
+    if method in ("default", "alpha"):
+        return
+    if args.dt is not None:
+        raise ValueError(
+            f"--dt asks for a uniform mesh, which only the alpha-method runs (--method default or alpha); "
+            f"--method {method} runs error control: drop --dt (and set --rtol/--atol), or give --method alpha"
+        )
+    if args.rho is not None:
+        raise ValueError(
+            "--rho is the alpha-method's parameter: it applies with --method default or alpha, "
+            f"not --method {method}"
+        )
+
+
+def _integrator_options(args: argparse.Namespace) -> dict:
+    _check_method(args)
     save_dt = getattr(args, "save_dt", None)
     save_every = getattr(args, "save_every", None)
     if args.dt is not None:
@@ -247,30 +302,48 @@ def _integrator(args: argparse.Namespace) -> dict:
     return options
 
 
-def engine_text(kwargs: dict) -> str:
-    """Which engine runs, in words (ASCII): error control with its tolerances, or the uniform mesh."""
+def _stepper(kwargs: dict, ran: str | None = None) -> str | None:
+    """The stepper's name: the one that ran (a result's ``settings["method"]``), else the one
+    --method chose ("alpha" for an AlphaMethod); None: the library's default, not known before it ran."""
+    if ran is not None:
+        return "alpha" if ran.startswith("alpha") else ran
+    solver = kwargs.get("solver")
+    if kwargs["dt"] is not None or (solver is not None and not isinstance(solver, str)):
+        return "alpha"  # the uniform mesh, or --method alpha's AlphaMethod
+    return solver
+
+
+def engine_text(kwargs: dict, ran: str | None = None) -> str:
+    """Which engine runs, in words (ASCII): the stepper (``ran``: the one that ran, from the
+    result's settings), error control with its tolerances or the uniform mesh, and ρ for the
+    α-method."""
+    stepper = _stepper(kwargs, ran)
+    name = {"alpha": "alpha-method", None: "default stepper"}.get(stepper, stepper)
     if kwargs["dt"] is None:
-        text = f"alpha-method, error control rtol = {kwargs['rtol']:g}, atol = {kwargs['atol']:g}"
+        text = f"{name}, error control rtol = {kwargs['rtol']:g}, atol = {kwargs['atol']:g}"
     else:
         n_steps = check_mesh(kwargs["dt"], kwargs["t_final"])
-        text = f"alpha-method, uniform mesh dt = {kwargs['t_final'] / n_steps:.6g} s ({n_steps} steps)"
-    return f"{text}, rho = {kwargs['rho']:g}"
+        text = f"{name}, uniform mesh dt = {kwargs['t_final'] / n_steps:.6g} s ({n_steps} steps)"
+    return text if stepper not in ("alpha", None) else f"{text}, rho = {kwargs['rho']:g}"
 
 
-def _engine_record(kwargs: dict) -> dict:
-    """The integrator's settings for the JSON output: method, dt (null with error control), rtol, atol."""
+def _engine_record(kwargs: dict, ran: str | None = None) -> dict:
+    """The integrator's settings for the JSON output: method (the stepper that ran, from the
+    result's settings, when given), dt (null with error control), rtol, atol, rho (null when the
+    stepper is not the α-method)."""
+    default = "alpha" if kwargs["dt"] is not None else "alpha-adaptive"
     return {
-        "method": "alpha" if kwargs["dt"] is not None else "alpha-adaptive",
+        "method": default if ran is None else ran,
         "dt": kwargs["dt"],
         "rtol": kwargs["rtol"],
         "atol": kwargs["atol"],
-        "rho": kwargs["rho"],
+        "rho": kwargs["rho"] if _stepper(kwargs, ran) in ("alpha", None) else None,
     }
 
 
 def _model(args) -> PeelingModel:
     check_choice("--geometry", args.geometry, GEOMETRIES)
-    checked("[0, 1)", check_rho, args.rho)
+    checked("[0, 1)", check_rho, _rho(args))
     adhesion, args.phi_defaults = (AdhesionLaw(), None) if args.phi is None else read_phi(args.phi)
     return PeelingModel(adhesion=adhesion, geometry=args.geometry)
 
@@ -290,19 +363,18 @@ def _check_folds(args: argparse.Namespace, tau: list[float], dt: float | None) -
     if dt is not None:
         if dae:
             raise ValueError(
-                "--tau 0 (the DAE itself, with jumps at the folds of phi) runs on the alpha-method with error "
-                "control, not on a uniform mesh (--dt): drop --dt, or give tau > 0 (the homogenized ODE)"
+                "--tau 0 (the DAE itself, with jumps at the folds of phi) runs with error control (any stepper), "
+                "not on a uniform mesh (--dt): drop --dt, or give tau > 0 (the homogenized ODE)"
             )
         if fold not in (None, "stop"):
             raise ValueError(
-                f"--fold {fold} needs the alpha-method with error control, which cuts a step at a fold; on a "
+                f"--fold {fold} needs error control (any stepper), which cuts a step at a fold; on a "
                 "uniform mesh (--dt) a run can only stop there: give --fold stop, or drop --dt"
             )
-        for option, value in (("--max-jumps", args.max_jumps), ("--max-steps", args.max_steps)):
-            if value is not None:
-                raise ValueError(
-                    f"{option} applies to error control; --dt asks for a uniform mesh: give one or the other"
-                )
+        if args.max_jumps is not None:
+            raise ValueError(
+                "--max-jumps applies to error control; --dt asks for a uniform mesh: give one or the other"
+            )
     if fold == "follow" and dae:
         raise ValueError(
             "--fold follow applies to tau > 0 (it follows the homogenized ODE through singular passages); "
@@ -313,13 +385,12 @@ def _check_folds(args: argparse.Namespace, tau: list[float], dt: float | None) -
             f"--max-jumps must be a positive integer of at most {_MAX_JUMPS_LIMIT:.0e} (the record of every "
             f"trajectory is allocated in full), got {args.max_jumps}"
         )
-    if args.max_steps is not None and args.max_steps < 1:
-        raise ValueError(f"--max-steps must be a positive integer (allowed range: [1, inf)), got {args.max_steps}")
+    check_max_steps(args.max_steps, None if dt is None else "--dt")
     if args.start is not None:
         check_choice("--start", args.start, STARTS)
     options = {"fold": fold, "max_jumps": args.max_jumps}
-    if dt is None:
-        options["max_steps"] = DEFAULT_MAX_STEPS if args.max_steps is None else int(args.max_steps)
+    if dt is None and args.max_steps is not None:  # left out: the library's budget
+        options["max_steps"] = int(args.max_steps)
     return options
 
 
@@ -356,7 +427,7 @@ def validate_sweep(args: argparse.Namespace) -> dict:
     _check_outputs(args)
     return {
         "model": model, "V": V, "tau": tau, **options, **folds, "t_final": float(args.t_final), "grid": "outer",
-        "window": (w0, w1), "chunk": args.chunk, "out": args.out, "rho": float(args.rho),
+        "window": (w0, w1), "chunk": args.chunk, "out": args.out, "rho": _rho(args),
         "start": "paper" if args.start is None else args.start, "progress": args.progress and not args.json,
     }  # fmt: skip
 
@@ -388,7 +459,8 @@ def validate_map(args: argparse.Namespace) -> dict:
     return {
         "model": model, "V": V, "tau": tau[0], "t_final": float(args.t_final), "transient": float(transient),
         "starts": STARTS if args.start is None else (args.start,), "rtol": options["rtol"], "atol": options["atol"],
-        **folds, "chunk": args.chunk, "rho": float(args.rho), "progress": args.progress and not args.json,
+        **({"solver": options["solver"]} if "solver" in options else {}),
+        **folds, "chunk": args.chunk, "rho": _rho(args), "progress": args.progress and not args.json,
     }  # fmt: skip
 
 
@@ -404,7 +476,7 @@ def validate_tau_star(args: argparse.Namespace) -> dict:
     if args.n_points < 2:
         raise ValueError(f"--n-points must be an integer >= 2 (allowed range: [2, inf)), got {args.n_points}")
     return {"model": model, "V": V, **options, "t_final": float(args.t_final), "tau_range": (lo, hi),
-                "tau_rtol": float(args.tau_rtol), "n_points": args.n_points, "rho": float(args.rho)}  # fmt: skip
+                "tau_rtol": float(args.tau_rtol), "n_points": args.n_points, "rho": _rho(args)}  # fmt: skip
 
 
 # ---------------------------------------------------------------------------- commands
@@ -495,12 +567,15 @@ def _sweep_command(args: argparse.Namespace) -> int:
             plot_error = error
             args.plot = None
     completed = result.completed
+    ran = result.settings.get("method")  # the stepper that ran (absent on the uniform mesh)
     record = {
         "n": len(result),
         "n_completed": int(completed.sum()),
         "V": kwargs["V"],
         "tau": kwargs["tau"],
-        **_engine_record(kwargs),
+        **_engine_record(kwargs, ran),
+        "method_option": args.method,  # --method as given
+        "max_steps": result.settings.get("max_steps"),  # the budget of step attempts (error control)
         "save_dt": kwargs["save_dt"],
         "save_every": kwargs["save_every"],
         "t_final": kwargs["t_final"],
@@ -520,9 +595,22 @@ def _sweep_command(args: argparse.Namespace) -> int:
         print(json.dumps(json_safe(record), allow_nan=False))
     else:
         _print_sweep(record, result, kwargs, wall)
+    _print_remedy(result.status, result.settings.get("max_steps", kwargs.get("max_steps")))
     if plot_error is not None:
         return write_failed("--plot", record_plot, plot_error, "the sweep's results are above")
     return 0
+
+
+def _print_remedy(status, budget) -> None:
+    """After trajectories that used up their step budget: how many, and the remedy (stderr)."""
+    status = np.asarray(status).ravel()
+    out_of_steps = int(np.count_nonzero(status == int(StopReason.MAX_STEPS)))
+    if out_of_steps:
+        print(
+            f"{PROG}: {out_of_steps} of {status.size} trajectories stopped at their step budget",
+            file=sys.stderr,
+        )
+        print(max_steps_remedy(budget), file=sys.stderr)
 
 
 def _saved_chunks(out: str | None) -> str:
@@ -559,7 +647,8 @@ def _print_sweep(record: dict, result, kwargs: dict, wall: float) -> None:
     folds = (
         "" if jumps is None else f"; start {record['start']}, fold {record['fold']} (max_jumps {record['max_jumps']})"
     )
-    print(f"{engine_text(kwargs)}; v statistics over t in [{w0 * kwargs['t_final']:g}, {w1 * kwargs['t_final']:g}] s"
+    engine = engine_text(kwargs, result.settings.get("method"))
+    print(f"{engine}; v statistics over t in [{w0 * kwargs['t_final']:g}, {w1 * kwargs['t_final']:g}] s"
           f"{folds}")  # fmt: skip
     print(f"{'V':>8} {'tau':>10} {'status':>14} {'t_stop':>8} {'v_mean':>10} {'v_std':>10} {'events':>6} "
           f"{'steps':>8} {'rejected':>8}{'' if jumps is None else f' {chr(32) * 2}jumps'}")  # fmt: skip
@@ -585,19 +674,22 @@ def _map_record(smap, kwargs: dict, args: argparse.Namespace, wall: float) -> di
     """The map as one JSON object: settings, the ranges, and every per-lane field (rows: starts)."""
     from ..sweeps.stick_slip_map import FOLD_FIELDS, LANE_FIELDS
 
+    settings = smap.settings.get("sweep", {})
+    engine = _engine_record({**kwargs, "dt": None}, settings.get("method"))
     return {
         "V": smap.V.tolist(),
         "starts": list(smap.starts),
         "tau": smap.tau,
         "t_final": smap.t_final,
         "transient": smap.transient,
-        "method": "alpha-adaptive",
+        "method": engine["method"],  # the stepper that ran
+        "method_option": args.method,  # --method as given
         "rtol": kwargs["rtol"],
         "atol": kwargs["atol"],
-        "rho": kwargs["rho"],
-        "fold": smap.settings.get("sweep", {}).get("fold"),
-        "max_jumps": smap.settings.get("sweep", {}).get("max_jumps"),
-        "max_steps": kwargs["max_steps"],
+        "rho": engine["rho"],
+        "fold": settings.get("fold"),
+        "max_jumps": settings.get("max_jumps"),
+        "max_steps": settings.get("max_steps", kwargs.get("max_steps")),
         "wall_time_s": wall,
         "phi_paper_defaults": _phi_defaults(args),
         "out": args.out,
@@ -644,10 +736,12 @@ def _map_command(args: argparse.Namespace) -> int:
         print(json.dumps(json_safe(record), allow_nan=False))
     else:
         print(str(smap).translate(_ASCII))
-        print(f"{engine_text({**kwargs, 'dt': None})}, max_steps {kwargs['max_steps']}; wall time {wall:.3g} s")
+        engine = engine_text({**kwargs, "dt": None}, smap.settings.get("sweep", {}).get("method"))
+        print(f"{engine}, max_steps {record['max_steps']}; wall time {wall:.3g} s")
         for key in ("out", "plot"):
             if record[key]:
                 print(f"wrote {record[key]}")
+    _print_remedy(smap.status, record["max_steps"])
     if failed is not None:
         return write_failed(*failed, "the map is above")
     return 0

@@ -1,14 +1,17 @@
 """Time integrators for the homogenized ODE, behind one contract (:mod:`.base`).
 
 - :mod:`.alpha`: the α-method's step and the uniform mesh (:class:`UniformMesh`);
-- :mod:`.adaptive`, :mod:`.controller`, :mod:`.dense`: error control (:class:`ErrorControl`);
+- :mod:`.adaptive`: the one error-controlled loop (:class:`ErrorControl`), with
+  :mod:`.controller` (PI control), :mod:`.dense` (interpolants) and :mod:`.events` (folds, jumps);
+- :mod:`.steppers`: what one step is, for any method of that loop: the α-method
+  (:class:`AlphaStepper`) or a diffrax Runge–Kutta solver (:class:`RungeKutta`);
 - :mod:`.reference`: any diffrax solver (:class:`DiffraxIntegrator`), the reference;
 - :mod:`.observers`: what an adaptive run records of each step (output, a sweep's statistics);
 - :mod:`.select`: the user's options → an integrator (:func:`integrator_for`);
 - :mod:`.diffrax_solver`: the α-method as a diffrax solver (:class:`AlphaSolver`).
 """
 
-from .adaptive import ErrorControl, alpha_attempt, error_constant, integrate_alpha_adaptive
+from .adaptive import ErrorControl, alpha_attempt, error_constant, integrate_adaptive, integrate_alpha_adaptive
 from .alpha import (
     AlphaMethod,
     AlphaState,
@@ -29,9 +32,16 @@ from .diffrax_solver import AlphaSolver
 from .observers import AcceptedStep, DenseOutput, EveryNthPoint, Observer, Observers, StepPoints
 from .reference import DiffraxIntegrator, integrate_reference
 from .select import integrator_for
+from .steppers import STEPPER_NAMES, AbstractStepper, AlphaStepper, RungeKutta, stepper_named
 
 __all__ = [
+    "STEPPER_NAMES",
     "AbstractIntegrator",
+    "AbstractStepper",
+    "AlphaStepper",
+    "RungeKutta",
+    "integrate_adaptive",
+    "stepper_named",
     "AcceptedStep",
     "AlphaMethod",
     "AlphaSolver",

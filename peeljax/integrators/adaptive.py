@@ -49,58 +49,27 @@ from .._validation import check_adjoint, check_max_steps
 from ..homogenized import ODE
 from ..solution import JumpRecord, Solution, StepDiagnostics, StopReason
 from ..structure import local_index
-from .alpha import AlphaMethod, AlphaState, _log_mask, _stop_gradient, alpha_start, to_physical
+from .alpha import AlphaMethod, _log_mask, _stop_gradient
 from .base import AbstractIntegrator, ObservedRun
 from .controller import PIController
-from .events import FoldEvents, FoldHit, find_fold, fold_event
+from .events import FoldEvents, FoldHit, find_fold, fold_event, fold_fraction
 from .observers import AcceptedStep, DenseOutput, Observer, StepPoints
+from .steppers import AbstractStepper, AlphaStepper, RungeKutta, StepperState, alpha_attempt, as_stepper, error_constant, physical
 
 __all__ = [
     "ErrorControl",
     "adaptive_loop",
     "alpha_attempt",
     "error_constant",
+    "integrate_adaptive",
     "integrate_alpha_adaptive",
 ]
-
-
-def error_constant(rho: ArrayLike) -> Array:
-    """C = b/2 + (1/2 − b)(1/2 − γ) − 1/6 of the local error C·h³·y''' (1/3 at ρ = 0)."""
-    rho = jnp.asarray(rho, float)
-    gamma = 2.0 / (rho + 1.0) - 0.5
-    b = (1.0 / (rho + 1.0) ** 2) / gamma
-    return b / 2 + (0.5 - b) * (0.5 - gamma) - 1.0 / 6.0
-
-
-def alpha_attempt(ode: ODE, solver: AlphaMethod, state: AlphaState, h, chord=None) -> tuple[AlphaState, Array, Array, Array]:
-    """One α-method step of size h from ``state`` (carried coordinates) and its error estimate.
-
-    The step is :meth:`AlphaMethod.solve_step`, the one the uniform mesh takes. Returns
-    (candidate state, error estimate e = C·h²·(a_{n+1} − a_n), solved, Newton iterations).
-    ``solved`` is False when Newton did not converge or the result is not finite; the
-    candidate then keeps the incoming ψ, a, J and F̃·f (finite, never used). The candidate's
-    status is 0; the stop tests are the driver's. ``chord``: see :meth:`AlphaMethod.solve_step`
-    (None: full Newton with a fresh Jacobian every iteration).
-    """
-    z, evaluation, a_new, iterations, _, converged, _ = solver.solve_step(ode, state, h, chord=chord)
-    finite = jnp.all(jnp.isfinite(evaluation.psi)) & jnp.all(jnp.isfinite(a_new)) & jnp.isfinite(evaluation.J)
-    solved = converged & finite
-    new = AlphaState(
-        y=solver._to_state(z),
-        psi=jnp.where(solved, evaluation.psi, state.psi),
-        a=jnp.where(solved, a_new, state.a),
-        J=jnp.where(solved, evaluation.J, state.J),
-        drive=jnp.where(solved, evaluation.drive, state.drive),
-        status=jnp.zeros((), jnp.int32),
-    )
-    error = error_constant(solver.rho) * h**2 * (new.a - state.a)
-    return new, error, solved, iterations
 
 
 class _Carry(eqx.Module):
     t: Array
     h: Array  # the step the controller proposes next
-    state: AlphaState
+    state: StepperState
     prev_norm: Array
     attempts: Array
     accepted: Array
@@ -109,11 +78,6 @@ class _Carry(eqx.Module):
     max_newton_iterations: Array
     h_min: Array
     h_max: Array
-    parts: tuple[Array, Array]  # (∂y/∂z, ∂ψ/∂z) of the kept Newton matrix
-    parts_fresh: Array  # computed at the current state
-    refresh: Array  # recompute them before the next attempt
-    parts_age: Array  # accepted steps since they were computed
-    jacobian_evaluations: Array
     record: object  # the observer's
     g: Array  # the fold event at the state (0 without events)
     jumps: JumpRecord | None  # None without events
@@ -121,47 +85,64 @@ class _Carry(eqx.Module):
     # where the branch began: where a tangential fold's time is differentiated (events module).
     reference: Array
     g_scale: Array
+    cut_steps: Array  # rejected attempts over a fold whose retry was cut at the fold
 
 
 _REFERENCE_DEPTH = 1e-8
+# A retry cut at a fold ends this fraction of the step past the fold (the located root is
+# that of a rejected, inexact step): the accepted step then crosses it, and the fold is
+# located on that step's interpolant.
+_CUT_PAST = 1e-3
 
 
-def _initial_step(controller: PIController, state: AlphaState, log_mask, span):
-    """h0 = 0.01·min(1/‖ψ0‖, 1/√‖a0‖) in the error norm's weights (Hairer's first guess)."""
-    d1 = controller.error_norm(state.psi, state.y, state.y, log_mask)
-    d2 = controller.error_norm(state.a, state.y, state.y, log_mask)
-    h1 = jnp.where(d1 > 0, 0.01 / jnp.where(d1 > 0, d1, 1.0), span)
-    h2 = jnp.where(d2 > 0, 0.01 / jnp.sqrt(jnp.where(d2 > 0, d2, 1.0)), span)
-    return jnp.minimum(jnp.minimum(h1, h2), span)
+def _initial_step(stepper: AbstractStepper, controller: PIController, ode, y, log_mask, span):
+    """The first step from y (at t0 and after a jump), in the error norm's weights, from
+    d0 = ‖y‖, d1 = ‖ψ‖ and d2 = ‖dψ/dt‖ (by autodiff):
+
+    * the α-method (q = 3): h = 0.01·min(1/d1, 1/√d2), the guess its controller was tuned
+      with (clipped below at dtmin, it starts small and grows ×10 a step);
+    * a Runge–Kutta solver of error order q: Hairer's (Hairer, Nørsett & Wanner I, II.4),
+      h0 = 0.01·d0/d1, h1 = (0.01/max(d1, d2))^(1/q), h = min(100·h0, h1).
+    """
+    psi = ode.evaluate(y).psi
+    a = jax.jvp(lambda z: ode.evaluate(z).psi, (y,), (psi,))[1]
+    d0 = controller.error_norm(y, y, y, log_mask)
+    d1 = controller.error_norm(psi, y, y, log_mask)
+    d2 = controller.error_norm(jnp.where(jnp.isfinite(a), a, 0.0), y, y, log_mask)
+    if isinstance(stepper, AlphaStepper):
+        h1 = jnp.where(d1 > 0, 0.01 / jnp.where(d1 > 0, d1, 1.0), span)
+        h2 = jnp.where(d2 > 0, 0.01 / jnp.sqrt(jnp.where(d2 > 0, d2, 1.0)), span)
+        return jnp.minimum(jnp.minimum(h1, h2), span)
+    h0 = jnp.where((d0 < 1e-5) | (d1 < 1e-5), 1e-6 * span, 0.01 * d0 / jnp.where(d1 > 0, d1, 1.0))
+    top = jnp.maximum(d1, d2)
+    h1 = jnp.where(
+        top <= 1e-15, jnp.maximum(1e-6 * span, h0 * 1e-3), (0.01 / jnp.where(top > 0, top, 1.0)) ** (1.0 / stepper.order)
+    )
+    return jnp.minimum(jnp.minimum(100.0 * h0, h1), span)
 
 
-def _at_fold(events: FoldEvents, ode, solver: AlphaMethod, fold: FoldHit, new: AlphaState, t_new, g_new, jumps):
+def _at_fold(events: FoldEvents, ode, stepper: AbstractStepper, fold: FoldHit, new: StepperState, t_new, g_new, jumps):
     """The step's outcome at a fold: the state to go on from, its time and event value, the
     jump record, a stop status (0, ``FOLD`` or ``MAX_JUMPS``) and the cut step's end
-    (y, ψ, J) for the observer. Without a fold hit, the step as it was."""
+    (y, J) for the observer. Without a fold hit, the step as it was."""
 
     def at_fold():
         y_fold = ode.complete(fold.y) if getattr(ode, "completes_state", False) else fold.y
         event = ode.evaluate(y_fold)
-        end = (y_fold, event.psi, event.J)
+        end = (y_fold, event.J)
         if events.mode == "stop":
             stopped = eqx.tree_at(lambda s: (s.y, s.psi, s.J, s.drive), new, (y_fold, event.psi, event.J, event.drive))
             return stopped, fold_event(ode, y_fold), jumps, jnp.asarray(StopReason.FOLD, jnp.int32), end
         full = jumps.count >= events.max_jumps
         jump = ode.jump(y_fold)
         y = jnp.where(full, y_fold, jump.y)
-        after = ode.evaluate(y)
-        # a restarts as dψ/dt at the new state, differentiated like the rest of the jump.
-        a = solver.initial_acceleration(ode, y, after.psi)
-        restarted = AlphaState(
-            y=y, psi=after.psi, a=jnp.where(jnp.isfinite(a), a, 0.0), J=after.J, drive=after.drive, status=new.status
-        )
+        restarted = stepper.restart(ode, fold.t, y, new)
         record = jumps.record(~full, fold.t, jump.up, jump.v_before, jump.v_after, jump.G, jump.F)
         status = jnp.where(full, StopReason.MAX_JUMPS, 0).astype(jnp.int32)
         return restarted, fold_event(ode, y), record, status, end
 
     def no_fold():
-        return new, g_new, jumps, jnp.asarray(0, jnp.int32), (new.y, new.psi, new.J)
+        return new, g_new, jumps, jnp.asarray(0, jnp.int32), (new.y, new.J)
 
     state, g, record, status, end = jax.lax.cond(fold.hit, at_fold, no_fold)
     return state, jnp.where(fold.hit, fold.t, t_new), g, record, status, end
@@ -179,7 +160,7 @@ def _events_for(events: FoldEvents | None, ode) -> FoldEvents | None:
 
 def adaptive_loop(
     ode: ODE,
-    solver: AlphaMethod,
+    stepper: AbstractStepper | AlphaMethod,
     y0: Float[Array, " n"],
     t0: ArrayLike,
     t_final: ArrayLike,
@@ -192,13 +173,19 @@ def adaptive_loop(
     kind: Literal["checkpointed", "lax"],
     events: FoldEvents | None = None,
 ):
-    """The error-controlled loop itself; returns (the ODE in carried coordinates, final carry).
+    """The one error-controlled loop; returns (the ODE in carried coordinates, final carry).
 
-    Shared by :func:`integrate_alpha_adaptive` (one trajectory's output) and the sweep engine
+    Shared by :func:`integrate_adaptive` (one trajectory's output) and the sweep engine
     (per-lane summaries), so that a lane of a sweep takes exactly the steps of a single run.
-    ``events``: what to do at the folds of φ (:mod:`peeljax.integrators.events`; the ODE must
-    then be a :class:`~peeljax.homogenized.FoldingODE`); None: the paper's stops (an impasse).
+    ``stepper``: the method's step (:mod:`peeljax.integrators.steppers`; an
+    :class:`AlphaMethod` is taken as its :class:`AlphaStepper`). ``events``: what to do at
+    the folds of φ (:mod:`peeljax.integrators.events`; the ODE must then be a
+    :class:`~peeljax.homogenized.FoldingODE`); None: the paper's stops (an impasse).
     """
+    stepper = as_stepper(stepper)
+    if isinstance(stepper, RungeKutta):
+        stepper = stepper.with_tolerances(controller.rtol, controller.atol).with_loop_kind(kind)
+    order = stepper.order
     t0 = jnp.asarray(t0, float)
     t_final = jnp.asarray(t_final, float)
     span = t_final - t0
@@ -206,12 +193,17 @@ def adaptive_loop(
     events = _events_for(events, ode)
     if events is not None:
         ode = ode.with_folds()
-    ode, state0 = alpha_start(ode, solver, jnp.asarray(y0, float))
+    ode, state0 = stepper.start(ode, t0, jnp.asarray(y0, float))
     n = state0.y.shape[0]
-    log_mask = _log_mask(n, solver.carried_log)
-    h0 = _initial_step(controller, state0, log_mask, span) if dt0 is None else jnp.asarray(dt0, float)
-    h0 = jax.lax.stop_gradient(jnp.clip(h0, dtmin, span))
+    log_mask = _log_mask(n, stepper.carried_log)
+    if dt0 is None:
+        h0 = _initial_step(stepper, controller, _stop_gradient(ode), jax.lax.stop_gradient(state0.y), log_mask, span)
+    else:
+        h0 = jnp.asarray(dt0, float)
+    h0 = jax.lax.stop_gradient(jnp.clip(jnp.where(jnp.isfinite(h0), h0, dtmin), dtmin, span))
     zero = jnp.asarray(0, jnp.int32)
+    completes = getattr(ode, "completes_state", False)
+    schur_event = getattr(ode, "fold_event_is_schur", False)
     init = _Carry(
         t=t0,
         h=h0,
@@ -224,16 +216,12 @@ def adaptive_loop(
         max_newton_iterations=zero,
         h_min=jnp.asarray(jnp.inf),
         h_max=jnp.asarray(0.0),
-        parts=(jnp.eye(n), jnp.zeros((n, n))),
-        parts_fresh=jnp.asarray(False),
-        refresh=jnp.asarray(True),
-        parts_age=zero,
-        jacobian_evaluations=zero,
         record=observer.init(t0, state0.y, state0.J, state0.status == 0),
         g=jnp.zeros(()) if events is None else fold_event(ode, state0.y),
         jumps=None if events is None else JumpRecord.empty(events.max_jumps),
         reference=state0.y,
         g_scale=jnp.zeros(()) if events is None else jnp.abs(fold_event(ode, state0.y)),
+        cut_steps=zero,
     )
 
     def running(c: _Carry):
@@ -244,45 +232,56 @@ def adaptive_loop(
         remaining = t_final - c.t
         last = c.h >= remaining
         h = jnp.where(last, remaining, c.h)
-        z_n = jax.lax.stop_gradient(solver._to_unknown(state.y))
-        parts = jax.lax.cond(c.refresh, lambda: solver.linearize(_stop_gradient(ode), z_n), lambda: c.parts)
-        fresh = c.refresh | c.parts_fresh
-        age = jnp.where(c.refresh, 0, c.parts_age)  # accepted steps since the parts were computed
-        scale = controller.scale(z_n, z_n, log_mask)
-        chord = (parts, scale, solver.newton_kappa, solver.chord_iterations)
-        new, error, solved, iterations = alpha_attempt(ode, solver, state, h, chord)
-        norm = jax.lax.stop_gradient(controller.error_norm(error, state.y, new.y, log_mask))
+        y_n = jax.lax.stop_gradient(state.y)
+        attempt = stepper.attempt(ode, c.t, h, state, controller.scale(y_n, y_n, log_mask))
+        new, solved = attempt.candidate, attempt.solved
+        norm = jax.lax.stop_gradient(controller.error_norm(attempt.error, state.y, new.y, log_mask))
         norm = jnp.where(solved, norm, jnp.inf)
-        # A Newton failure with a kept matrix is retried at the same h with a fresh one.
-        retry_fresh = ~solved & ~fresh
         accept = solved & (norm <= 1.0)
         t_new = jnp.where(last, t_final, c.t + h)  # exactly t_final at the end
-        factor = controller.factor(norm, c.prev_norm, accept, solved | retry_fresh)
-        factor = jnp.where(retry_fresh, 1.0, factor)
+        factor = controller.factor(norm, c.prev_norm, accept, solved | attempt.retry, order)
+        factor = jnp.where(attempt.retry, 1.0, factor)
         h_next = jax.lax.stop_gradient(jnp.minimum(h * factor, span))
+        cut = jnp.asarray(False)
         if events is None:
             impasse = accept & (state.J * new.J < 0) & (state.drive * new.drive > 0)
             fold_status, g, jumps, restarted, g_scale = 0, c.g, None, jnp.asarray(False), c.g_scale
-            step_end = (new.y, new.psi, new.J)
+            step_end = (new.y, new.J)
         else:
             impasse = jnp.asarray(False)
-            if getattr(ode, "completes_state", False):  # the DAE's v, solved anew at the step's end
+            if completes:  # the DAE's v, solved anew at the step's end
                 new = eqx.tree_at(lambda s: s.y, new, jnp.where(accept, ode.complete(new.y), new.y))
-            g_new = jax.lax.stop_gradient(new.J) if getattr(ode, "fold_event_is_schur", False) else fold_event(ode, new.y)
-            fold = find_fold(events, ode, c.t, h, state, new, accept, c.g, g_new, c.reference)
-            new, t_new, g, jumps, fold_status, step_end = _at_fold(
-                events, ode, solver, fold, new, t_new, g_new, c.jumps
-            )
+            g_new = jax.lax.stop_gradient(new.J) if schur_event else fold_event(ode, new.y)
+            if stepper.cuts_at_folds and not schur_event:
+                # A rejected attempt over the fold: its error holds the kink of v clamped past the
+                # fold, not the accuracy the controller needs before it. Retry up to just past
+                # the fold located on its interpolant, rather than with the controller's shrunk h.
+                over = solved & ~accept & (c.g < 0) & (g_new >= 0)
+                theta = jax.lax.cond(
+                    over, lambda: fold_fraction(ode, c.t, h, attempt.interpolant), lambda: jnp.ones(())
+                )
+                h_cut = jax.lax.stop_gradient(theta * h * (1.0 + _CUT_PAST))
+                cut = over & (h_cut < 0.9 * h) & (h_cut > h_next)
+                h_next = jnp.where(cut, h_cut, h_next)
+            fold = find_fold(events, ode, c.t, h, state, new, attempt.interpolant, accept, c.g, g_new, c.reference)
+            new, t_new, g, jumps, fold_status, step_end = _at_fold(events, ode, stepper, fold, new, t_new, g_new, c.jumps)
             restarted = fold.hit & (fold_status == 0)
             g_scale = jnp.where(restarted, jnp.abs(g), c.g_scale)
             # After a jump the motion changes scale: restart the step size as at t0.
-            h_restart = jnp.clip(_initial_step(controller, new, log_mask, span), dtmin, span)
-            h_next = jax.lax.stop_gradient(jnp.where(restarted, h_restart, h_next))
+            h_next = jax.lax.cond(
+                restarted,
+                lambda: jnp.maximum(
+                    _initial_step(stepper, controller, _stop_gradient(ode), jax.lax.stop_gradient(new.y), log_mask, span),
+                    dtmin,
+                ),
+                lambda: h_next,
+            )
+            h_next = jax.lax.stop_gradient(jnp.minimum(jnp.where(jnp.isfinite(h_next), h_next, dtmin), span))
             last = last & ~fold.hit
         advance = accept & ~impasse
         step = AcceptedStep(
-            t0=c.t, t1=t_new, h=t_new - c.t, y0=state.y, psi0=state.psi,
-            y1=step_end[0], psi1=step_end[1], J1=step_end[2], iterations=iterations, advance=advance,
+            t0=c.t, t1=t_new, h=t_new - c.t, y0=state.y, y1=step_end[0], J1=step_end[1],
+            iterations=attempt.iterations, advance=advance, interpolant=attempt.interpolant,
         )  # fmt: skip
         record = observer.update(c.record, step, kind)
 
@@ -292,7 +291,7 @@ def adaptive_loop(
         status = jnp.where(accept & (fold_status != 0), fold_status, status)
         attempts = c.attempts + 1
         status = jnp.where((status == 0) & ~done & (attempts >= max_steps), StopReason.MAX_STEPS, status)
-        kept = jax.tree_util.tree_map(lambda a, b: jnp.where(advance, a, b), new, state)
+        kept = jax.tree_util.tree_map(lambda a, b: jnp.where(advance, a, b), new, attempt.retained)
         kept = eqx.tree_at(lambda s: s.status, kept, status.astype(jnp.int32))
         h_taken = jax.lax.stop_gradient(h)
         return _Carry(
@@ -303,29 +302,25 @@ def adaptive_loop(
             attempts=attempts,
             accepted=c.accepted + advance,
             rejected=c.rejected + ~accept,
-            newton_iterations=c.newton_iterations + iterations,
-            max_newton_iterations=jnp.maximum(c.max_newton_iterations, iterations),
+            newton_iterations=c.newton_iterations + attempt.iterations,
+            max_newton_iterations=jnp.maximum(c.max_newton_iterations, attempt.iterations),
             h_min=jnp.where(advance, jnp.minimum(c.h_min, h_taken), c.h_min),
             h_max=jnp.where(advance, jnp.maximum(c.h_max, h_taken), c.h_max),
-            parts=parts,
-            parts_fresh=fresh & ~advance,
-            refresh=retry_fresh | restarted | (advance & (age + 1 >= solver.jacobian_max_age)),
-            parts_age=age + advance,
-            jacobian_evaluations=c.jacobian_evaluations + c.refresh,
             record=record,
             g=jnp.where(advance, g, c.g),
             jumps=jumps,
             reference=jnp.where(advance & (g <= -_REFERENCE_DEPTH * g_scale), kept.y, c.reference),
             g_scale=g_scale,
+            cut_steps=c.cut_steps + cut,
         )
 
     buffers = None if events is None else (lambda c: c.jumps.buffers())
     return ode, eqxi.while_loop(running, body, init, max_steps=max_steps, kind=kind, buffers=buffers)
 
 
-def integrate_alpha_adaptive(
+def integrate_adaptive(
     ode: ODE,
-    solver: AlphaMethod,
+    stepper: AbstractStepper | AlphaMethod,
     y0: Float[Array, " n"],
     t0: ArrayLike,
     t_final: ArrayLike,
@@ -338,17 +333,20 @@ def integrate_alpha_adaptive(
     adjoint: Literal["reverse", "forward"] = "reverse",
     events: FoldEvents | None = None,
 ) -> Solution:
-    """Integrate y' = ψ(y) from t0 to t_final with the error-controlled α-method.
+    """Integrate y' = ψ(y) from t0 to t_final with error control, any stepper.
 
     Args:
-        ode: the ODE: a :class:`~peeljax.HomogenizedODE`, or anything that meets the
-            :class:`~peeljax.ODE` contract (``evaluate(y)`` returning ψ, J and F̃·f; ``tau``).
-        solver: the :class:`AlphaMethod` (ρ, Newton tolerances, log components).
+        ode: the ODE: a :class:`~peeljax.HomogenizedODE`, a :class:`~peeljax.ConstrainedDAE`,
+            or anything that meets the :class:`~peeljax.ODE` contract (``evaluate(y)``
+            returning ψ, J and F̃·f; ``tau``).
+        stepper: the method's step (:mod:`peeljax.integrators.steppers`): an
+            :class:`AlphaMethod` (the α-method), or a :class:`~peeljax.integrators.RungeKutta`
+            around a diffrax Runge–Kutta solver.
         y0: initial state (physical coordinates).
         controller: tolerances and step-size update (default ``PIController()``).
         ts: output times in [t0, t_final], increasing (static shape); None: the accepted
             step points, ``max_steps + 1`` rows NaN-padded (``valid`` marks the rows).
-        dt0: first step (default: Hairer's estimate from ψ0 and a0, :func:`_initial_step`).
+        dt0: first step (default: Hairer's estimate from ψ0 and dψ/dt, :func:`_initial_step`).
         dtmin: a proposed step below this stops the run (``STALLED``; default
             1e-12·(t_final − t0), at most 3e-12: the first steps from the paper's start and after
             a jump are ~1e-11 s however long the run, so a dtmin ∝ t_final would stop a long one).
@@ -363,18 +361,24 @@ def integrate_alpha_adaptive(
         ``newton_iterations`` and the smallest, mean and largest accepted step.
     """
     check_adjoint(adjoint)
+    stepper = as_stepper(stepper)
     controller = PIController() if controller is None else controller
     step_points = ts is None
     observer = StepPoints(max_steps + 1) if step_points else DenseOutput(jnp.asarray(ts, float))
     ode, final = adaptive_loop(
-        ode, solver, y0, t0, t_final, observer,
+        ode, stepper, y0, t0, t_final, observer,
         controller=controller, dt0=dt0, dtmin=dtmin, max_steps=max_steps,
         kind="checkpointed" if adjoint == "reverse" else "lax", events=events,
     )  # fmt: skip
-    return _solution(ode, solver, final, step_points, jnp.asarray(t0, float), final.jumps is not None)
+    return _solution(ode, stepper, final, step_points, jnp.asarray(t0, float), final.jumps is not None)
 
 
-def _solution(ode, solver, final: _Carry, step_points: bool, t0, folding: bool = False) -> Solution:
+def integrate_alpha_adaptive(ode: ODE, solver: AlphaMethod, y0, t0, t_final, **options) -> Solution:
+    """:func:`integrate_adaptive` with the α-method (its name before other steppers joined the loop)."""
+    return integrate_adaptive(ode, solver, y0, t0, t_final, **options)
+
+
+def _solution(ode, stepper: AbstractStepper, final: _Carry, step_points: bool, t0, folding: bool = False) -> Solution:
     out = final.record
     valid = out.valid
     ys_carried = out.y
@@ -383,11 +387,11 @@ def _solution(ode, solver, final: _Carry, step_points: bool, t0, folding: bool =
         safe = jnp.where(valid[:, None], ys_carried, final.state.y)
         ys_carried = jax.vmap(ode.complete)(safe)
     ys_carried = jnp.where(valid[:, None], ys_carried, jnp.nan)
-    ys = to_physical(solver, ys_carried)
-    if step_points:
+    ys = physical(stepper, ys_carried)
+    if step_points and isinstance(stepper, AlphaStepper):
         Js = out.J
     else:
-        # J_t at the interpolated states (evaluated at the last state where invalid, then masked).
+        # J_t at the output states (evaluated at the last state where invalid, then masked).
         safe = jnp.where(valid[:, None], ys_carried, final.state.y)
         Js = jax.vmap(lambda z: ode.evaluate(z).J)(safe)
     Js = jnp.where(valid, Js, jnp.nan)
@@ -409,10 +413,11 @@ def _solution(ode, solver, final: _Carry, step_points: bool, t0, folding: bool =
         "step_size_max": jnp.where(accepted > 0, final.h_max, jnp.nan),
         "newton_iterations": final.newton_iterations,
         "max_newton_iterations": final.max_newton_iterations,
-        "jacobian_evaluations": final.jacobian_evaluations,
+        **stepper.statistics(final.state),
     }
     if final.jumps is not None:
         stats["jumps"] = final.jumps.count
+        stats["steps_cut_at_folds"] = final.cut_steps
     return Solution(
         ts=out.t,
         ys=ys,
@@ -421,29 +426,31 @@ def _solution(ode, solver, final: _Carry, step_points: bool, t0, folding: bool =
         t_stop=final.t,
         stats=stats,
         diagnostics=diagnostics,
-        method="alpha-adaptive",
+        method=stepper.name,
         jumps=final.jumps,
     )
 
 
 class ErrorControl(AbstractIntegrator):
-    """The error-controlled α-method as an integrator (:mod:`peeljax.integrators.base`).
+    """The one error-controlled loop with a stepper, as an integrator (:mod:`peeljax.integrators.base`).
 
-    :meth:`integrate` is :func:`integrate_alpha_adaptive`; :meth:`observe` runs the same loop
+    :meth:`integrate` is :func:`integrate_adaptive`; :meth:`observe` runs the same loop
     (:func:`adaptive_loop`) with a sweep lane's observer, so a lane takes exactly the steps of
     a single run.
 
     Attributes:
-        method: the :class:`AlphaMethod` (ρ, Newton's settings, log components).
+        method: the step: an :class:`AlphaMethod` (ρ, Newton's settings, log components) or a
+            stepper (:class:`~peeljax.integrators.RungeKutta`: a diffrax Runge–Kutta solver).
         controller: the :class:`PIController` (rtol, atol, step-size update).
         dtmin: a proposed step below it stops the run (``STALLED``); None: 1e-12·(t_final − t0), at most 3e-12.
         max_steps: most step attempts, accepted or rejected (static).
         adjoint: ``"reverse"`` (a checkpointed while loop, for ``jax.grad``) or ``"forward"``
             (a plain while loop: ``jax.jvp``, and the fastest run when nothing is differentiated).
+        events: what happens at the folds of φ (None: the paper's impasse stop).
     """
 
     dense_output: ClassVar[bool] = True
-    method: AlphaMethod = AlphaMethod()
+    method: AlphaMethod | AbstractStepper = AlphaMethod()
     controller: PIController = PIController()
     dtmin: Float[Array, ""] | None = eqx.field(converter=optional_float_array, default=None)
     max_steps: int = eqx.field(static=True, default=100_000)
@@ -453,20 +460,26 @@ class ErrorControl(AbstractIntegrator):
     def __check_init__(self):
         check_adjoint(self.adjoint)
         check_max_steps(self.max_steps)
+        as_stepper(self.method)
+
+    @property
+    def stepper(self) -> AbstractStepper:
+        return as_stepper(self.method)
 
     @property
     def carried_log(self) -> tuple[int, ...]:
-        return self.method.carried_log
+        return self.stepper.carried_log
 
     def integrate(self, ode, y0, t0, t_final, ts=None) -> Solution:
-        return integrate_alpha_adaptive(
-            ode, self.method, y0, t0, t_final, controller=self.controller, ts=ts, dtmin=self.dtmin,
+        return integrate_adaptive(
+            ode, self.stepper, y0, t0, t_final, controller=self.controller, ts=ts, dtmin=self.dtmin,
             max_steps=self.max_steps, adjoint=self.adjoint, events=self.events,
         )  # fmt: skip
 
     def observe(self, ode, y0, t0, t_final, observer) -> ObservedRun:
+        stepper = self.stepper
         _, final = adaptive_loop(
-            ode, self.method, y0, t0, t_final, observer, controller=self.controller, dt0=None, dtmin=self.dtmin,
+            ode, stepper, y0, t0, t_final, observer, controller=self.controller, dt0=None, dtmin=self.dtmin,
             max_steps=self.max_steps, kind="checkpointed" if self.adjoint == "reverse" else "lax",
             events=self.events,
         )  # fmt: skip
@@ -475,7 +488,7 @@ class ErrorControl(AbstractIntegrator):
             record=final.record,
             status=final.state.status,
             t_stop=final.t,
-            y_final=jnp.where(start_failed, jnp.nan, to_physical(self.method, final.state.y)),
+            y_final=jnp.where(start_failed, jnp.nan, physical(stepper, final.state.y)),
             accepted_steps=final.accepted,
             rejected_steps=final.rejected,
             newton_iterations=final.newton_iterations,
@@ -485,12 +498,13 @@ class ErrorControl(AbstractIntegrator):
         )
 
     def settings(self) -> dict:
+        stepper = self.stepper
         return {
-            "method": "alpha-adaptive",
+            "method": stepper.name,
             "rtol": float(self.controller.rtol),
             "atol": float(self.controller.atol),
             "dtmin": None if self.dtmin is None else float(self.dtmin),
             "max_steps": self.max_steps,
-            "solver": self.method.settings(),
+            "solver": stepper.settings(),
             **({} if self.events is None else self.events.settings()),
         }

@@ -59,6 +59,7 @@ from ..homogenized import ODE, HomogenizedODE
 from ..solution import Solution, StepDiagnostics, StopReason, mask_after_stop
 from ..structure import local_index
 from .base import AbstractIntegrator, ObservedRun
+from .dense import HermiteInterpolant
 from .observers import AcceptedStep
 
 __all__ = [
@@ -851,8 +852,8 @@ class UniformMesh(AbstractIntegrator):
             new, info, ok = alpha_advance(ode, self.method, state, h)
             t1 = t0 + h * (index + 1)
             step = AcceptedStep(
-                t0=t1 - h, t1=t1, h=h, y0=state.y, psi0=state.psi, y1=new.y, psi1=new.psi, J1=new.J,
-                iterations=info.newton_iterations, advance=ok,
+                t0=t1 - h, t1=t1, h=h, y0=state.y, y1=new.y, J1=new.J, iterations=info.newton_iterations, advance=ok,
+                interpolant=HermiteInterpolant(t1 - h, h, state.y, state.psi, new.y, new.psi),
             )  # fmt: skip
             carry = (
                 new, observer.update(record, step, "lax"), jnp.where(ok, t1, t_last), accepted + ok,

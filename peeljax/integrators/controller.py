@@ -1,4 +1,4 @@
-"""Step-size control for the adaptive α-method: the error norm and a PI controller.
+"""Step-size control of the one error-controlled loop: the error norm and a PI controller.
 
 The controller follows diffrax's ``PIDController`` (without its derivative term): with the
 scaled error norm ‖e‖ of a step of size h and the norm ‖e‖_prev of the last accepted step,
@@ -6,7 +6,9 @@ scaled error norm ‖e‖ of a step of size h and the norm ‖e‖_prev of the l
     h_next = h · clip(safety · ‖e‖^(−β₁) · ‖e‖_prev^(β₂), factormin, factormax),
     β₁ = (pcoeff + icoeff)/q,   β₂ = pcoeff/q,
 
-with q = 3 the order of the local error estimate (the α-method's local error is O(h³)).
+with q the order of the stepper's local error estimate (err ∝ h^q: 3 for the α-method,
+whose local error is O(h³); a Runge–Kutta solver's order for its embedded estimate, 5 for
+Tsit5).
 A step is accepted when ‖e‖ ≤ 1; a rejected step is retried with a factor ≤ ``safety``
 (never grown), and a step whose Newton iteration failed with ``newton_failure_factor``.
 """
@@ -81,10 +83,11 @@ class PIController(eqx.Module):
         norm = jnp.sqrt(jnp.mean((error / self.scale(y0, y1, log_mask)) ** 2))
         return jnp.where(jnp.isfinite(norm), norm, jnp.inf)
 
-    def factor(self, norm: Array, prev_norm: Array, accepted: Array, solved: Array) -> Array:
-        """h_next/h after a step with error ``norm`` (the last accepted step had ``prev_norm``)."""
-        beta1 = (self.pcoeff + self.icoeff) / ERROR_ORDER
-        beta2 = self.pcoeff / ERROR_ORDER
+    def factor(self, norm: Array, prev_norm: Array, accepted: Array, solved: Array, order: int = ERROR_ORDER) -> Array:
+        """h_next/h after a step with error ``norm`` (the last accepted step had ``prev_norm``);
+        ``order``: q of the stepper's error estimate ∝ h^q."""
+        beta1 = (self.pcoeff + self.icoeff) / order
+        beta2 = self.pcoeff / order
         # A zero error (a linear stretch of the solution) asks for the largest growth.
         safe_norm = jnp.where(jnp.isfinite(norm) & (norm > 0), norm, 1.0)
         raw = self.safety * safe_norm ** (-beta1) * jnp.maximum(prev_norm, 1e-10) ** beta2

@@ -1,5 +1,11 @@
-"""Dense output: the cubic Hermite interpolant of a step (as diffrax's
-``ThirdOrderHermitePolynomialInterpolation``).
+"""Dense output: a step's interpolant, evaluated anywhere inside the step.
+
+Every stepper hands the loop an interpolant of each step with ``evaluate(ts)`` (times in
+[t, t + h], shape (m,) → (m, n)): the α-method the cubic Hermite one below
+(:class:`HermiteInterpolant`, as diffrax's ``ThirdOrderHermitePolynomialInterpolation``), a
+diffrax solver its own (:class:`SolverInterpolant`: Tsit5's and Dopri5's fourth-order,
+Dopri8's seventh-order, Kvaerno's Hermite). Output, a sweep's statistics and the fold events
+all read it.
 
 On [t_n, t_n + h], with θ = (t − t_n)/h,
 
@@ -14,10 +20,12 @@ from __future__ import annotations
 
 import math
 
+import equinox as eqx
+import jax
 import numpy as np
 from jaxtyping import Array, Float
 
-__all__ = ["hermite", "output_count", "output_times"]
+__all__ = ["HermiteInterpolant", "SolverInterpolant", "hermite", "output_count", "output_times"]
 
 
 def hermite(
@@ -38,6 +46,29 @@ def hermite(
     h01 = -2 * theta3 + 3 * theta2
     h11 = theta3 - theta2
     return h00 * y0 + h10 * (h * psi0) + h01 * y1 + h11 * (h * psi1)
+
+
+class HermiteInterpolant(eqx.Module):
+    """The cubic Hermite interpolant of a step (:func:`hermite`) through (y0, ψ0) at t0 and (y1, ψ1) at t0 + h."""
+
+    t0: Array
+    h: Array
+    y0: Array
+    psi0: Array
+    y1: Array
+    psi1: Array
+
+    def evaluate(self, t: Float[Array, " m"]) -> Float[Array, "m n"]:
+        return hermite(self.t0, self.h, self.y0, self.psi0, self.y1, self.psi1, t)
+
+
+class SolverInterpolant(eqx.Module):
+    """A diffrax solver's own interpolant of a step (``solver.interpolation_cls(t0, t1, **dense_info)``)."""
+
+    interpolation: eqx.Module
+
+    def evaluate(self, t: Float[Array, " m"]) -> Float[Array, "m n"]:
+        return jax.vmap(self.interpolation.evaluate)(t)
 
 
 def output_count(save_dt: float, t_final: float) -> int:

@@ -5,7 +5,8 @@ The error-controlled loop (:func:`peeljax.integrators.adaptive.adaptive_loop`) a
 before the current branch's fold, g = 0 at it.
 
 * A step whose end has g ≥ 0 crossed the fold: the event time is the root of g on the
-  step's cubic Hermite interpolant (:func:`locate_fold`, bisection to round-off), the step is
+  step's interpolant — the stepper's own dense output: the α-method's cubic Hermite one, a
+  diffrax solver's (:func:`locate_fold`, bisection to round-off) — the step is
   cut there (the observer sees the cut step) and the jump applies at the root — as diffrax's
   ``Event`` locates a root on its dense output. The DAE (τ = 0,
   :class:`~peeljax.ConstrainedDAE`) always crosses this way: its v is clamped past the fold,
@@ -44,9 +45,8 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from .._arrays import float_array
-from .dense import hermite
 
-__all__ = ["FOLD_MODES", "FoldEvents", "FoldHit", "event_rate", "find_fold", "fold_event", "locate_fold"]
+__all__ = ["FOLD_MODES", "FoldEvents", "FoldHit", "event_rate", "find_fold", "fold_event", "fold_fraction", "locate_fold"]
 
 FOLD_MODES = ("jump", "stop", "follow")
 _BISECTIONS = 60
@@ -108,14 +108,15 @@ def event_rate(ode, y) -> Array:
     return jax.jvp(ode.fold_event, (y,), (ode.evaluate(y).psi,))[1]
 
 
-def locate_fold(ode, t0, h, y0, psi0, y1, psi1, reference=None) -> Array:
-    """θ ∈ [0, 1] with g(hermite(t0 + θh)) = 0, given g(y0) < 0 ≤ g(y1).
+def locate_fold(ode, t0, h, interpolant, reference=None) -> Array:
+    """θ ∈ [0, 1] with g(y(t0 + θh)) = 0 on the step's interpolant y(·), given g < 0 at t0 ≤ g at t0 + h.
 
     The root θ* is found by bisection to round-off with nothing differentiated; what is
     returned equals θ* in value and carries the implicit function theorem's derivative
-    through the interpolant's end points (y0, ψ0, y1, ψ1) and the ODE's parameters (φ's
-    coefficients, V, the model), as diffrax differentiates an ``Event``'s time; ``h`` is held
-    fixed (the controller's step sizes are constants of the derivative):
+    through the interpolant (its end points and, for a Runge–Kutta solver, its stages) and
+    the ODE's parameters (φ's coefficients, V, the model), as diffrax differentiates an
+    ``Event``'s time; ``h`` is held fixed (the controller's step sizes are constants of the
+    derivative):
 
     * a transversal crossing (ġ > 0 at the root): dθ = −(∂g at fixed θ)/g'(θ*);
     * a tangential one, ġ at the root below half the mean rate since the step's start: the
@@ -129,10 +130,10 @@ def locate_fold(ode, t0, h, y0, psi0, y1, psi1, reference=None) -> Array:
     """
     h = jax.lax.stop_gradient(h)
 
-    def g(ode, t0, y0, psi0, y1, psi1, theta):
-        return ode.fold_event(hermite(t0, h, y0, psi0, y1, psi1, (t0 + theta * h)[None])[0])
+    def g(ode, t0, interpolant, theta):
+        return ode.fold_event(interpolant.evaluate((t0 + theta * h)[None])[0])
 
-    frozen = _stop((ode, t0, y0, psi0, y1, psi1))
+    frozen = _stop((ode, t0, interpolant))
 
     def bisect(_, bracket):
         lo, hi = bracket
@@ -143,12 +144,12 @@ def locate_fold(ode, t0, h, y0, psi0, y1, psi1, reference=None) -> Array:
     _, root = jax.lax.fori_loop(0, _BISECTIONS, bisect, (jnp.zeros(()), jnp.ones(())))
     root = jax.lax.stop_gradient(root)
     _, slope = jax.jvp(lambda theta: g(*frozen, theta), (root,), (jnp.ones(()),))
-    residual = g(ode, t0, y0, psi0, y1, psi1, root)
+    residual = g(ode, t0, interpolant, root)
     transversal = root - (residual - jax.lax.stop_gradient(residual)) / jnp.where(slope > 0, slope, 1.0)
     if reference is None:
         return transversal
     frozen_ode = frozen[0]
-    y_root = hermite(frozen[1], h, *frozen[2:], (frozen[1] + root * h)[None])[0]
+    y_root = frozen[2].evaluate((frozen[1] + root * h)[None])[0]
     mean_rate = -g(*frozen, jnp.zeros(())) / jnp.maximum(root * h, jnp.finfo(float).tiny)
     tangential = event_rate(frozen_ode, y_root) < 0.5 * mean_rate
     g_ref = ode.fold_event(reference)
@@ -159,10 +160,16 @@ def locate_fold(ode, t0, h, y0, psi0, y1, psi1, reference=None) -> Array:
     return jnp.where(jax.lax.stop_gradient(tangential), tangent, transversal)
 
 
-def find_fold(events: FoldEvents, ode, t0, h, state, new, accept, g0, g1, reference=None) -> FoldHit:
+def fold_fraction(ode, t0, h, interpolant) -> Array:
+    """θ* ∈ [0, 1] of :func:`locate_fold` in value only (a step-size decision: nothing differentiated)."""
+    return jax.lax.stop_gradient(locate_fold(_stop(ode), _stop(t0), h, _stop(interpolant)))
+
+
+def find_fold(events: FoldEvents, ode, t0, h, state, new, interpolant, accept, g0, g1, reference=None) -> FoldHit:
     """Did the accepted step from ``state`` (at t0) to ``new`` (at t0 + h) reach a fold?
 
-    ``g0``, ``g1``: the fold event at both ends; ``reference``: see :func:`locate_fold`. A crossing (g1 ≥ 0) is located on the step's
+    ``g0``, ``g1``: the fold event at both ends; ``interpolant``: the step's dense output;
+    ``reference``: see :func:`locate_fold`. A crossing (g1 ≥ 0) is located on the step's
     interpolant; an impasse of the homogenized ODE is predicted from g² (module docstring).
     In ``"follow"`` mode a crossing where F̃·f changes sign too (a singular passage) is none.
     """
@@ -180,8 +187,8 @@ def find_fold(events: FoldEvents, ode, t0, h, state, new, accept, g0, g1, refere
         delta = jnp.where(predicted, j1 * h / jnp.where(predicted, j0 - j1, 1.0), 0.0)
 
     def on_crossing():
-        theta = locate_fold(ode, t0, h, state.y, state.psi, new.y, new.psi, reference)
-        return t0 + theta * h, hermite(t0, h, state.y, state.psi, new.y, new.psi, (t0 + theta * h)[None])[0]
+        theta = locate_fold(ode, t0, h, interpolant, reference)
+        return t0 + theta * h, interpolant.evaluate((t0 + theta * h)[None])[0]
 
     def otherwise():
         return t0 + h + jnp.where(predicted, delta, 0.0), new.y

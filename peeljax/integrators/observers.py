@@ -2,9 +2,9 @@
 
 Every integrator (:meth:`peeljax.integrators.base.AbstractIntegrator.observe`: the uniform
 mesh, the error-controlled α-method, a diffrax solver) can hand every step attempt to an
-:class:`Observer` as an :class:`AcceptedStep`: the step's ends (t, y, ψ) in the integrator's
-carried coordinates, so that the observer can evaluate the step's cubic Hermite interpolant
-(:func:`~peeljax.integrators.dense.hermite`) anywhere inside it. Output is an observer
+:class:`Observer` as an :class:`AcceptedStep`: the step's ends (t, y) in the integrator's carried
+coordinates and its interpolant (:mod:`peeljax.integrators.dense`: the α-method's cubic
+Hermite one, a diffrax solver's own), which the observer can evaluate anywhere inside it. Output is an observer
 (:class:`StepPoints`, :class:`DenseOutput`, :class:`EveryNthPoint`); so are a sweep's per-lane
 statistics (:mod:`peeljax.sweeps.engine`). Nothing is stored per step unless an
 observer stores it, so a sweep lane's memory does not grow with its number of steps.
@@ -17,7 +17,6 @@ import equinox.internal as eqxi
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from .dense import hermite
 
 __all__ = ["AcceptedStep", "DenseOutput", "EveryNthPoint", "Observer", "Observers", "StepPoints"]
 
@@ -27,19 +26,24 @@ class AcceptedStep(eqx.Module):
 
     ``advance`` is False for a rejected attempt (or the step onto an impasse point): the
     observer must then leave its record unchanged. ``iterations`` is the attempt's Newton
-    iterations (0 where the integrator does not report them).
+    iterations (0 where the integrator does not report them). ``interpolant.evaluate(ts)``
+    gives the states at times ts in [t0, t1] (a step cut at a fold ends at t1 < t0 + h, its
+    interpolant being the whole attempt's).
     """
 
     t0: Array
     t1: Array
     h: Array
     y0: Array
-    psi0: Array
     y1: Array
-    psi1: Array
     J1: Array
     iterations: Array
     advance: Array
+    interpolant: object
+
+    def evaluate(self, ts: Float[Array, " m"]) -> Float[Array, "m n"]:
+        """The step's dense output at times ``ts`` (carried coordinates)."""
+        return self.interpolant.evaluate(ts)
 
 
 class Observer(eqx.Module):
@@ -109,7 +113,7 @@ class StepPoints(Observer):
 
 
 class DenseOutput(Observer):
-    """The cubic Hermite interpolant of each accepted step at the given times ``ts``."""
+    """Each accepted step's interpolant at the given times ``ts``."""
 
     ts: Array
 
@@ -135,7 +139,7 @@ class DenseOutput(Observer):
 
         def fill(d):
             k, y, iterations, valid = d
-            y_k = hermite(step.t0, step.h, step.y0, step.psi0, step.y1, step.psi1, self.ts[k][None])[0]
+            y_k = step.evaluate(self.ts[k][None])[0]
             return k + 1, y.at[k].set(y_k), iterations.at[k].set(step.iterations), valid.at[k].set(True)
 
         k, y, iterations, valid = eqxi.while_loop(

@@ -26,6 +26,7 @@ from ..homogenized import HomogenizedODE
 from ..solution import Solution, StepDiagnostics, StopReason, mask_after_stop
 from ..structure import local_index
 from .base import AbstractIntegrator, ObservedRun
+from .dense import HermiteInterpolant
 from .observers import AcceptedStep
 
 __all__ = ["DiffraxIntegrator", "integrate_reference", "solution_from_diffrax"]
@@ -186,9 +187,10 @@ class DiffraxIntegrator(AbstractIntegrator):
             record, psi0 = carry
             y1 = sol.ys[k + 1]
             end = ode.evaluate(y1)
+            h = sol.ts[k + 1] - sol.ts[k]
             accepted = AcceptedStep(
-                t0=sol.ts[k], t1=sol.ts[k + 1], h=sol.ts[k + 1] - sol.ts[k], y0=sol.ys[k], psi0=psi0, y1=y1,
-                psi1=end.psi, J1=end.J, iterations=jnp.asarray(0, jnp.int32), advance=jnp.asarray(True),
+                t0=sol.ts[k], t1=sol.ts[k + 1], h=h, y0=sol.ys[k], y1=y1, J1=end.J, iterations=jnp.asarray(0, jnp.int32),
+                advance=jnp.asarray(True), interpolant=HermiteInterpolant(sol.ts[k], h, sol.ys[k], psi0, y1, end.psi),
             )  # fmt: skip
             return observer.update(record, accepted, "lax"), end.psi
 

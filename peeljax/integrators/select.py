@@ -5,20 +5,23 @@
 :func:`peeljax.least_tau` and :func:`peeljax.fit_adhesion` become an integrator
 (:mod:`peeljax.integrators.base`):
 
-==============================  ==========  ==========================================
-``solver``                      ``dt``      integrator
-==============================  ==========  ==========================================
-None or an :class:`AlphaMethod`  a number    :class:`UniformMesh` (the paper's mesh)
-None or an :class:`AlphaMethod`  None        :class:`ErrorControl` (rtol, atol)
-a ``diffrax.AbstractSolver``     None        :class:`DiffraxIntegrator` (rtol, atol)
-==============================  ==========  ==========================================
+===========================================  ==========  ==============================================
+``solver``                                   ``dt``      integrator
+===========================================  ==========  ==============================================
+None, ``"alpha"`` or an :class:`AlphaMethod`  a number    :class:`UniformMesh` (the paper's mesh)
+None or a name of ``STEPPER_NAMES``          None        :class:`ErrorControl` with that stepper
+an :class:`AlphaMethod`                      None        :class:`ErrorControl` (the α-method)
+a diffrax Runge–Kutta solver (``Tsit5()``)   None        :class:`ErrorControl` (:class:`RungeKutta`)
+another ``diffrax.AbstractSolver``           None        :class:`DiffraxIntegrator` (diffrax's own loop)
+===========================================  ==========  ==============================================
 
-``fold`` says what happens at a fold of φ (:mod:`peeljax.integrators.events`): ``"jump"``
-(the default under error control: v jumps to the other stable branch and the run goes on),
-``"stop"`` (the paper's behaviour; the default, and the only choice, on the uniform mesh and
-with a diffrax solver, which cannot yet cut a step at an event) or ``"follow"`` (τ > 0 only).
-``dae=True`` (τ = 0: the DAE itself, :class:`~peeljax.ConstrainedDAE`) needs error control
-with the α-method, which then carries v as it is (v = 0 on a fully stuck tape).
+Every stepper of the one error-controlled loop goes through the folds of φ: ``fold`` says
+what happens there (:mod:`peeljax.integrators.events`): ``"jump"`` (the default under error
+control: v jumps to the other stable branch and the run goes on), ``"stop"`` (the paper's
+behaviour; the default, and the only choice, on the uniform mesh and with a diffrax solver
+that is not a Runge–Kutta method, whose steps diffrax's own loop takes) or ``"follow"``
+(τ > 0 only). ``dae=True`` (τ = 0: the DAE itself, :class:`~peeljax.ConstrainedDAE`) needs
+error control; the stepper then carries v as it is (v = 0 on a fully stuck tape).
 """
 
 from __future__ import annotations
@@ -45,22 +48,44 @@ from .base import AbstractIntegrator
 from .controller import PIController
 from .events import FoldEvents, check_fold, check_max_jumps
 from .reference import DiffraxIntegrator
+from .steppers import STEPPER_NAMES, RungeKutta, stepper_named
 
 __all__ = [
     "DEFAULT_ATOL",
+    "DEFAULT_DAE_STEPPER",
+    "DEFAULT_ODE_STEPPER",
     "DEFAULT_MAX_JUMPS",
     "DEFAULT_MAX_STEPS",
+    "DEFAULT_MAX_STEPS_DENSE",
     "DEFAULT_RTOL",
+    "STEPPER_NAMES",
     "check_error_control",
     "checked_solver",
     "integrator_for",
     "refuse_with_dt",
     "resolve_fold",
+    "resolve_max_steps",
 ]
 
 DEFAULT_RTOL, DEFAULT_ATOL = 1e-6, 1e-9
-DEFAULT_MAX_STEPS = 100_000
+DEFAULT_MAX_STEPS = 100_000  # where every accepted step is kept (output at the steps: max_steps + 1 rows)
+# Where nothing is kept per step (output at given times, a sweep's lanes) the budget only
+# guards against a run that never ends: 10⁷ attempts is ~1 min of Tsit5 on the DAE.
+DEFAULT_MAX_STEPS_DENSE = 10_000_000
+
+
+def resolve_max_steps(max_steps: int | None, keeps_steps: bool) -> int:
+    """``max_steps``, or its default: ``DEFAULT_MAX_STEPS`` where the accepted steps are the
+    output (memory grows with it), ``DEFAULT_MAX_STEPS_DENSE`` where nothing is kept per step."""
+    if max_steps is None:
+        return DEFAULT_MAX_STEPS if keeps_steps else DEFAULT_MAX_STEPS_DENSE
+    check_max_steps(max_steps)
+    return max_steps
 DEFAULT_MAX_JUMPS = 10_000
+# The default stepper of the DAE (τ = 0) and of the homogenized ODE (τ > 0), chosen by
+# measurement (docs/theory.md, "Choosing the stepper"); ρ ≠ 0 (an α-method setting) keeps the α-method.
+DEFAULT_DAE_STEPPER = "tsit5"
+DEFAULT_ODE_STEPPER = "alpha"
 
 
 @functools.lru_cache(maxsize=64)
@@ -68,18 +93,36 @@ def _default_solver(rho: float) -> AlphaMethod:
     return AlphaMethod(rho=rho)
 
 
-def checked_solver(solver: AlphaMethod | diffrax.AbstractSolver | None, rho: ArrayLike = 0.0):
-    """``solver``, or ``AlphaMethod(rho=rho)`` when it is None, with ρ checked (before compiling)."""
-    if solver is None:
+def checked_solver(solver, rho: ArrayLike = 0.0):
+    """``solver`` as a method of the loop (an :class:`AlphaMethod` or a :class:`RungeKutta`),
+    or a diffrax solver for diffrax's own loop; ``AlphaMethod(rho=rho)`` when it is None; ρ
+    checked (before compiling)."""
+    if solver is None or (isinstance(solver, str) and solver == "alpha"):
         check_rho(rho)
         # Modules are immutable: one per ρ serves every call, instead of one built per call.
         return _default_solver(float(rho)) if type(rho) in (float, int) else AlphaMethod(rho=rho)
+    if isinstance(solver, str):
+        if solver not in STEPPER_NAMES:
+            raise ValueError(f"solver must be one of {list(STEPPER_NAMES)} or a solver object, got {solver!r}")
+        return _named(solver)
     if isinstance(solver, AlphaMethod):
         check_rho(solver.rho)
         return solver
+    if isinstance(solver, RungeKutta):
+        return solver
+    if isinstance(solver, diffrax.AbstractRungeKutta):
+        return RungeKutta(solver)
     if isinstance(solver, diffrax.AbstractSolver):
         return solver
-    raise TypeError(f"solver must be an AlphaMethod or a diffrax.AbstractSolver, got {type(solver).__name__}")
+    raise TypeError(
+        f"solver must be one of {list(STEPPER_NAMES)}, an AlphaMethod or a diffrax solver, got {type(solver).__name__}"
+    )
+
+
+@functools.lru_cache(maxsize=16)
+def _named(name: str):
+    stepper = stepper_named(name)
+    return stepper.method if name == "alpha" else stepper
 
 
 def refuse_with_dt(dt, **options) -> None:
@@ -118,18 +161,31 @@ def _error_control(rho, rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps, 
     return _with_events(ErrorControl(_default_solver(rho), _controller(rtol, atol), dtmin, max_steps, adjoint), fold, max_jumps, dae)
 
 
+@functools.lru_cache(maxsize=64)
+def _error_control_dae(rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps) -> ErrorControl:
+    # τ = 0's default stepper (measured: docs/theory.md, "Choosing the stepper").
+    stepper = _named(DEFAULT_DAE_STEPPER)
+    return _with_events(ErrorControl(stepper, _controller(rtol, atol), dtmin, max_steps, adjoint), fold, max_jumps, True)
+
+
 def _with_events(integrator: ErrorControl, fold: str, max_jumps: int, dae: bool) -> ErrorControl:
     method = dataclasses.replace(integrator.method, log_components=()) if dae else integrator.method
     return dataclasses.replace(integrator, method=method, events=FoldEvents(fold, max_jumps))
 
 
+def _own_loop(solver) -> bool:
+    """A diffrax solver that diffrax's own loop runs (not a Runge–Kutta method of the one loop)."""
+    return isinstance(solver, diffrax.AbstractSolver) and not isinstance(solver, diffrax.AbstractRungeKutta)
+
+
 def resolve_fold(fold: str | None, *, dt=None, solver=None, dae: bool = False) -> str:
     """``fold`` checked against the integrator it will run on; None → its default (module docstring)."""
-    diffrax_solver = isinstance(solver, diffrax.AbstractSolver)
+    diffrax_solver = _own_loop(solver)
     if dae and (dt is not None or diffrax_solver):
         what = f"dt={dt!r} (a uniform mesh)" if dt is not None else f"a diffrax solver ({type(solver).__name__})"
         raise ValueError(
-            f"tau=0 (the DAE with jumps at the folds of phi) runs on the error-controlled α-method, not on {what}"
+            f"tau=0 (the DAE with jumps at the folds of phi) runs in the error-controlled loop (the alpha-method or "
+            f"a diffrax Runge-Kutta solver), not on {what}"
         )
     if fold is None:
         return "stop" if dt is not None or diffrax_solver else "jump"
@@ -137,8 +193,8 @@ def resolve_fold(fold: str | None, *, dt=None, solver=None, dae: bool = False) -
     if fold != "stop" and (dt is not None or diffrax_solver):
         what = f"dt={dt!r} (a uniform mesh)" if dt is not None else f"a diffrax solver ({type(solver).__name__})"
         raise ValueError(
-            f"fold={fold!r} needs the error-controlled α-method, which cuts a step at a fold; {what} "
-            "can only stop there: give fold='stop', or drop dt/solver"
+            f"fold={fold!r} needs the error-controlled loop (the alpha-method or a diffrax Runge-Kutta solver), "
+            f"which cuts a step at a fold; {what} can only stop there: give fold='stop', or drop dt/solver"
         )
     if fold == "follow" and dae:
         raise ValueError("fold='follow' applies to tau > 0 (the homogenized ODE's singular passages); with tau=0 use 'jump' or 'stop'")
@@ -146,7 +202,7 @@ def resolve_fold(fold: str | None, *, dt=None, solver=None, dae: bool = False) -
 
 
 def integrator_for(
-    solver: AlphaMethod | diffrax.AbstractSolver | None = None,
+    solver: str | AlphaMethod | RungeKutta | diffrax.AbstractSolver | None = None,
     *,
     rho: ArrayLike = 0.0,
     dt: float | None = None,
@@ -154,7 +210,7 @@ def integrator_for(
     rtol: float | None = None,
     atol: float | None = None,
     dtmin: float | None = None,
-    max_steps: int = DEFAULT_MAX_STEPS,
+    max_steps: int | None = DEFAULT_MAX_STEPS,
     adjoint: str = "reverse",
     checkpoint_every: int | str | None = None,
     fold: str | None = None,
@@ -168,6 +224,7 @@ def integrator_for(
     """
     check_adjoint(adjoint)
     check_max_jumps(max_jumps)
+    max_steps = resolve_max_steps(max_steps, keeps_steps=True)
     fold = resolve_fold(fold, dt=dt, solver=solver, dae=dae)
     method = checked_solver(solver, rho)
     if dt is not None:
@@ -185,8 +242,10 @@ def integrator_for(
         )
     rtol, atol = check_error_control(t_final, rtol, atol, dtmin, max_steps)
     dtmin = None if dtmin is None else float(dtmin)
-    if isinstance(method, diffrax.AbstractSolver):
+    if _own_loop(method):
         return DiffraxIntegrator(method, rtol, atol, dtmin, None, max_steps, adjoint)
+    if solver is None and dae and type(rho) in (float, int) and float(rho) == 0.0:
+        return _error_control_dae(rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps)
     if solver is None and type(rho) in (float, int):
         return _error_control(float(rho), rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps, dae)
     return _with_events(ErrorControl(method, _controller(rtol, atol), dtmin, max_steps, adjoint), fold, max_jumps, dae)

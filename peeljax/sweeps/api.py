@@ -23,7 +23,7 @@ from .._memory import check_output_memory
 from .._validation import check_choice, check_truncation
 from ..adhesion import AdhesionLaw
 from ..integrators.alpha import AlphaMethod
-from ..integrators.select import DEFAULT_MAX_STEPS
+
 from ..model import PeelingModel
 from ..solution import StopReason
 from .devices import batch_mesh, deal, default_lane_batch, put_lanes, to_host
@@ -203,11 +203,11 @@ def sweep(
     chunk: int = 256,
     out: str | os.PathLike | None = None,
     progress: bool = True,
-    solver: AlphaMethod | diffrax.AbstractSolver | None = None,
+    solver: str | AlphaMethod | diffrax.AbstractSolver | None = None,
     rho: float = 0.0,
     truncation: int | None = None,
     dtmin: float | None = None,
-    max_steps: int = DEFAULT_MAX_STEPS,
+    max_steps: int | None = None,
     memory_limit: float | None = None,
     devices: Sequence | None = None,
     lane_batch: int | None = None,

@@ -47,7 +47,6 @@ from ..constrained import ConstrainedDAE
 from ..homogenized import HomogenizedODE
 from ..integrators.alpha import from_log
 from ..integrators.base import AbstractIntegrator
-from ..integrators.dense import hermite
 from ..integrators.observers import Observer, Observers
 from ..model import PAPER_ALPHA0, PeelingModel
 from ..solution import JumpRecord
@@ -190,7 +189,7 @@ class WindowStatistics(Observer):
         length = b - a
         inside = step.advance & (length > 0)
         times = jnp.stack([a, *(a + node * length for node in _GAUSS_NODES), b])
-        ys = hermite(step.t0, step.h, step.y0, step.psi0, step.y1, step.psi1, times)
+        ys = step.evaluate(times)
         v = from_log(ys, self.carried_log)[:, 3]
         time, mean, m2 = record.time, record.mean, record.m2
         for weight, v_node in zip(_GAUSS_WEIGHTS, v[1:4]):

@@ -21,7 +21,7 @@ from ..integrators.base import AbstractIntegrator
 from ..integrators.dense import output_count, output_times
 from ..integrators.observers import DenseOutput, EveryNthPoint, Observer
 from ..integrators.reference import DiffraxIntegrator
-from ..integrators.select import integrator_for, refuse_with_dt
+from ..integrators.select import integrator_for, refuse_with_dt, resolve_max_steps
 from . import engine
 
 __all__ = ["DEFAULT_SWEEP_MAX_JUMPS", "SweepPlan", "sweep_plan"]
@@ -105,6 +105,8 @@ def sweep_plan(
     if dt is not None:
         refuse_with_dt(dt, rtol=rtol, atol=atol, save_dt=save_dt, dtmin=dtmin)
     check_choice("start", start, engine.STARTS)
+    # A sweep keeps nothing per step: the budget only guards against runs that never end.
+    max_steps = resolve_max_steps(max_steps, keeps_steps=False)
     # A sweep differentiates nothing: the plain while loop is the fastest.
     integrator = integrator_for(
         solver, rho=rho, dt=dt, t_final=t_final, rtol=rtol, atol=atol, dtmin=dtmin, max_steps=max_steps,

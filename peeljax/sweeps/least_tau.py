@@ -38,7 +38,7 @@ from jaxtyping import ArrayLike, Bool, Float
 
 from .._validation import check_truncation
 from ..integrators.alpha import AlphaMethod
-from ..integrators.select import DEFAULT_MAX_STEPS
+
 from ..model import PeelingModel
 from .devices import batch_mesh, default_lane_batch, put_lanes, to_host
 from .grid import axis, check_parameter
@@ -87,7 +87,7 @@ def least_tau(
     rtol: float | None = None,
     atol: float | None = None,
     dtmin: float | None = None,
-    max_steps: int = DEFAULT_MAX_STEPS,
+    max_steps: int | None = None,
     max_rounds: int = 40,
     devices=None,
     lane_batch: int | None = None,
