@@ -132,7 +132,7 @@ def check_max_steps(max_steps) -> None:
         or not isinstance(max_steps, (int, np.integer))
         or not 1 <= max_steps <= MAX_STEPS_LIMIT
     ):
-        raise ValueError(f"max_steps must be an integer in [1, {MAX_STEPS_LIMIT}], got {max_steps!r}")
+        raise ValueError(f"max_steps must be a positive integer (allowed range: [1, {MAX_STEPS_LIMIT}]), got {max_steps!r}")
 
 
 def check_output_times(ts, t_final) -> np.ndarray:

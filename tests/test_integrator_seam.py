@@ -18,6 +18,7 @@ from peeljax.integrators import (
     AbstractIntegrator,
     DenseOutput,
     DiffraxIntegrator,
+    RungeKutta,
     ErrorControl,
     EveryNthPoint,
     UniformMesh,
@@ -38,16 +39,23 @@ def test_integrator_for_builds_each_integrator_and_checks_its_options():
     assert isinstance(integrator_for(dt=0.01, t_final=1.0), UniformMesh)
     control = integrator_for(rtol=1e-5, t_final=1.0)
     assert isinstance(control, ErrorControl) and float(control.controller.rtol) == 1e-5
+    # a diffrax Runge–Kutta solver is a stepper of the one loop; other diffrax solvers run in diffrax's
     reference = integrator_for(diffrax.Kvaerno5(), rtol=1e-5, t_final=1.0)
-    assert isinstance(reference, DiffraxIntegrator) and float(reference.rtol) == 1e-5
+    assert isinstance(reference, ErrorControl) and isinstance(reference.method, RungeKutta)
+    assert float(reference.controller.rtol) == 1e-5 and reference.settings()["method"] == "diffrax-Kvaerno5"
+    assert isinstance(integrator_for("kvaerno5").method, RungeKutta)
+    own = integrator_for(diffrax.ImplicitEuler(), rtol=1e-5, t_final=1.0)
+    assert isinstance(own, DiffraxIntegrator) and float(own.rtol) == 1e-5
     for integrator in (control, reference):
         assert isinstance(integrator, AbstractIntegrator) and integrator.dense_output
     assert isinstance(integrator_for(dt=0.01), AbstractIntegrator) and not UniformMesh.dense_output
-    assert integrator_for(dt=0.01).carried_log == (3,) and reference.carried_log == ()
+    assert integrator_for(dt=0.01).carried_log == (3,) and reference.carried_log == (3,) and own.carried_log == ()
     with pytest.raises(ValueError, match="dt .*α-method's"):
         integrator_for(diffrax.Kvaerno5(), dt=0.01)
-    with pytest.raises(TypeError, match="solver must be an AlphaMethod or a diffrax.AbstractSolver"):
+    with pytest.raises(ValueError, match="solver must be one of .*'tsit5'"):
         integrator_for("Kvaerno5")
+    with pytest.raises(TypeError, match="solver must be one of"):
+        integrator_for(3.0)
     with pytest.raises(ValueError, match="adjoint"):
         integrator_for(adjoint="backward")
     with pytest.raises(ValueError, match="rho"):

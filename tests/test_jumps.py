@@ -243,7 +243,9 @@ def test_sweep_lanes_jump_as_simulate_does():
         sol = pj.simulate(V=V, tau=0, t_final=1.0, adjoint="forward", max_jumps=2048)
         n = int(sol.jumps.count)
         assert int(res.jumps["jump_count"][i]) == n
-        np.testing.assert_allclose(res.jumps["jump_t"][i, :n], _jumps(sol)["jump_t"], rtol=0, atol=1e-9)
+        # The same steps; a lane's branch roots are computed batched, which rounds differently
+        # (~1e-12 in log v), and a jump time moves like the square root of a state's error.
+        np.testing.assert_allclose(res.jumps["jump_t"][i, :n], _jumps(sol)["jump_t"], rtol=0, atol=1e-7)
     assert int(res.jumps["jump_count"][1]) > 50
     # The window's events are its slips: each stick → slip jump in [0.5, 1] s, counted once.
     up, t = res.jumps["jump_up"], res.jumps["jump_t"]

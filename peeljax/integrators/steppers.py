@@ -309,7 +309,7 @@ class RungeKutta(AbstractStepper):
 
     @property
     def name(self) -> str:
-        return type(self.solver).__name__.lower()
+        return f"diffrax-{type(self.solver).__name__}"
 
     def with_tolerances(self, rtol, atol) -> "RungeKutta":
         """An implicit solver's Newton tolerances left to the step-size controller's (diffrax's
@@ -317,7 +317,7 @@ class RungeKutta(AbstractStepper):
         if not isinstance(self.solver, diffrax.AbstractImplicitSolver):
             return self
         finder = self.solver.root_finder
-        values = {"rtol": rtol, "atol": atol, "norm": optx.rms_norm}
+        values = {"rtol": jnp.asarray(rtol), "atol": jnp.asarray(atol), "norm": optx.rms_norm}
         names = [name for name in values if getattr(finder, name, None) is use_stepsize_tol]
         if not names:
             return self

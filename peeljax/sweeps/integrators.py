@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import diffrax
 import jax.numpy as jnp
 import numpy as np
 
@@ -21,6 +22,7 @@ from ..integrators.base import AbstractIntegrator
 from ..integrators.dense import output_count, output_times
 from ..integrators.observers import DenseOutput, EveryNthPoint, Observer
 from ..integrators.reference import DiffraxIntegrator
+from ..integrators.steppers import RungeKutta
 from ..integrators.select import integrator_for, refuse_with_dt, resolve_max_steps
 from . import engine
 
@@ -87,7 +89,9 @@ class SweepPlan:
     def run(self, model, V, tau, params, t_final, window, truncation, mesh, lane_batch) -> engine.BatchSummary:
         if self.uniform:
             lane_batch = V.shape[0]  # every lane takes the same steps: one vmap
-        if isinstance(self.integrator, DiffraxIntegrator):
+        method = getattr(self.integrator, "method", None)
+        implicit_rk = isinstance(method, RungeKutta) and isinstance(method.solver, diffrax.AbstractImplicitSolver)
+        if isinstance(self.integrator, DiffraxIntegrator) or implicit_rk:
             # diffrax's implicit solvers fail to trace under shard_map (lineax's structure
             # check); without the mesh, XLA partitions the run over the sharded lanes itself.
             mesh = None
