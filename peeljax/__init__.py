@@ -72,6 +72,7 @@ from .analysis import StickSlipAnalysis, analyze, bifurcation_diagram, phi_extre
 from .bound import Simulator  # noqa: E402
 from .branches import Folds, phi_folds  # noqa: E402
 from .constrained import ConstrainedDAE  # noqa: E402
+from .desingularized import DesingularizedDAE  # noqa: E402
 from .cycles import CycleStatistics, RepeatPattern, cycle_statistics  # noqa: E402
 from .fit import (  # noqa: E402
     FitResult,
@@ -122,6 +123,7 @@ __all__ = [
     "AlphaMethod",
     "AlphaSolver",
     "ConstrainedDAE",
+    "DesingularizedDAE",
     "CycleStatistics",
     "FitResult",
     "Folds",

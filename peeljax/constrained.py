@@ -29,6 +29,7 @@ from jaxtyping import Array, Float
 
 from ._arrays import float_array
 from .branches import Folds, branch_of, branch_velocity, fold_distance
+from .desingularized import DesingularizedDAE
 from .homogenized import Evaluation, Jump, _jump, _with_folds
 from .model import PeelingModel
 from .structure import jacobians
@@ -86,6 +87,11 @@ class ConstrainedDAE(eqx.Module):
     def complete(self, y: Float[Array, "4"]) -> Float[Array, "4"]:
         """y with v solved from the constraint on its branch."""
         return y.at[3].set(self.velocity(y))
+
+    def in_pseudo_time(self, time_scale) -> DesingularizedDAE:
+        """The same DAE in pseudo-time (:class:`~peeljax.DesingularizedDAE`): the folds regular,
+        no root of φ solved per evaluation, t carried as a fifth component."""
+        return DesingularizedDAE(self.model, self.V, time_scale, self.folds)
 
     def constraint(self, y) -> Array:
         """Residual of (sac) at y (zero to the root finder's precision along a run)."""

@@ -141,9 +141,9 @@ def add_command(subparsers) -> None:
         "--rtol",
         type=float,
         default=None,
-        help="error control's relative tolerance in (0, 1) (default 1e-6, --table 1e-7; not with --dt)",
+        help="error control's relative tolerance in (0, 1) (default 1e-6; --table: 1e-9 at tau 0, else 1e-7; not with --dt)",
     )
-    parser.add_argument("--atol", type=float, default=None, help="its absolute tolerance, > 0 (default 1e-9, --table 1e-10; not with --dt)")
+    parser.add_argument("--atol", type=float, default=None, help="its absolute tolerance, > 0 (default 1e-9; --table: 1e-12 at tau 0, else 1e-10; not with --dt)")
     parser.add_argument(
         "--t-final", dest="t_final", type=float, default=None, help="end time (default: last observation)"
     )
@@ -244,6 +244,7 @@ def _check_source(args: argparse.Namespace) -> None:
 def _validate_table(args: argparse.Namespace) -> dict:
     """--table's options, all checked before anything is compiled."""
     from ..fit.data import STATISTICS, read_stick_slip_table
+    from ..fit.table import table_tolerances
 
     if not Path(args.table).is_file():
         raise ValueError(f"--table: file {args.table!r} does not exist")
@@ -269,8 +270,7 @@ def _validate_table(args: argparse.Namespace) -> dict:
     if max_iterations < 1:
         raise ValueError(f"--max-iterations must be >= 1 (allowed range: [1, inf)), got {max_iterations}")
     check_max_steps(args.max_steps, None)
-    rtol = 1e-7 if args.rtol is None else args.rtol
-    atol = 1e-10 if args.atol is None else args.atol
+    rtol, atol = table_tolerances(tau, args.rtol, args.atol)
     checked("(0, 1)", check_tolerance, "rtol", rtol, 1.0)
     checked("(0, inf)", check_tolerance, "atol", atol)
     free = ("c1", "c3", "c6") if args.free is None else tuple(args.free)

@@ -36,6 +36,7 @@ Derivatives: the loop is equinox's checkpointed while loop (reverse mode, as dif
 
 from __future__ import annotations
 
+import functools
 from typing import ClassVar, Literal
 
 import equinox as eqx
@@ -49,9 +50,11 @@ from .._validation import check_adjoint, check_max_steps
 from ..homogenized import ODE
 from ..solution import JumpRecord, Solution, StepDiagnostics, StopReason
 from ..structure import local_index
-from .alpha import AlphaMethod, _log_mask, _stop_gradient
+from ..desingularized import tangential_fold
+from .alpha import AlphaMethod, _log_mask, _stop_gradient, _to_log, from_log
 from .base import AbstractIntegrator, ObservedRun
 from .controller import PIController
+from .dense import PhysicalTimeInterpolant
 from .events import FoldEvents, FoldHit, find_fold, fold_event, fold_fraction
 from .observers import AcceptedStep, DenseOutput, Observer, StepPoints
 from .steppers import AbstractStepper, AlphaStepper, RungeKutta, StepperState, alpha_attempt, as_stepper, error_constant, physical
@@ -88,7 +91,12 @@ class _Carry(eqx.Module):
     cut_steps: Array  # rejected attempts over a fold whose retry was cut at the fold
 
 
-_REFERENCE_DEPTH = 1e-8
+_REFERENCE_DEPTH = 1e-5
+# In pseudo-time the tangents stay resolved much closer to a tangential fold, and the
+# reference's tangents are carried to the fold by f·dt* alone: the closer the better
+# (measured on the paper's first slip: dt*/dc1 within 1e-5 of the converged value at rtol
+# 1e-6 and 1e-8 with 1e-8, 3e-4 with 1e-5; tangential_fold).
+_PSEUDO_TIME_REFERENCE_DEPTH = 1e-8
 # A retry cut at a fold ends this fraction of the step past the fold (the located root is
 # that of a rejected, inexact step): the accepted step then crosses it, and the fold is
 # located on that step's interpolant.
@@ -121,7 +129,9 @@ def _initial_step(stepper: AbstractStepper, controller: PIController, ode, y, lo
     return jnp.minimum(jnp.minimum(100.0 * h0, h1), span)
 
 
-def _at_fold(events: FoldEvents, ode, stepper: AbstractStepper, fold: FoldHit, new: StepperState, t_new, g_new, jumps):
+def _at_fold(
+    events: FoldEvents, ode, stepper: AbstractStepper, fold: FoldHit, new: StepperState, t_new, g_new, jumps, clock
+):
     """The step's outcome at a fold: the state to go on from, its time and event value, the
     jump record, a stop status (0, ``FOLD`` or ``MAX_JUMPS``) and the cut step's end
     (y, J) for the observer. Without a fold hit, the step as it was."""
@@ -137,7 +147,7 @@ def _at_fold(events: FoldEvents, ode, stepper: AbstractStepper, fold: FoldHit, n
         jump = ode.jump(y_fold)
         y = jnp.where(full, y_fold, jump.y)
         restarted = stepper.restart(ode, fold.t, y, new)
-        record = jumps.record(~full, fold.t, jump.up, jump.v_before, jump.v_after, jump.G, jump.F)
+        record = jumps.record(~full, clock(fold.t, y_fold), jump.up, jump.v_before, jump.v_after, jump.G, jump.F)
         status = jnp.where(full, StopReason.MAX_JUMPS, 0).astype(jnp.int32)
         return restarted, fold_event(ode, y), record, status, end
 
@@ -194,8 +204,37 @@ def adaptive_loop(
     if events is not None:
         ode = ode.with_folds()
     ode, state0 = stepper.start(ode, t0, jnp.asarray(y0, float))
+    # An ODE in pseudo-time s (DesingularizedDAE) carries t as a component: the loop steps in s.
+    time_index = getattr(ode, "time_index", None)
+    timed = time_index is not None
+
+    def clock(s, y):
+        """Physical time at the loop's independent variable s and state y."""
+        return y[time_index] if timed else s
+
     n = state0.y.shape[0]
     log_mask = _log_mask(n, stepper.carried_log)
+    if timed:
+        # The reference state of a tangential fold is tracked on the DAE-in-time's event
+        # G − φ(v̂), in the physical coordinates of the DesingularizedDAE.
+        base = getattr(ode, "ode", ode)
+
+        def reference_event(y):
+            return jax.lax.stop_gradient(_stop_gradient(base).fold_distance(jax.lax.stop_gradient(from_log(y, stepper.carried_log))))
+
+        def tangential(y_fold, y_ref):
+            to = functools.partial(from_log, log_components=stepper.carried_log)
+            is_tangential, y = tangential_fold(base, to(y_fold), to(y_ref))
+            return jnp.where(jax.lax.stop_gradient(is_tangential), _to_log(y, stepper.carried_log), y_fold)
+
+        reference_depth = _PSEUDO_TIME_REFERENCE_DEPTH
+    else:
+
+        def reference_event(y):
+            return fold_event(ode, y)
+
+        reference_depth = _REFERENCE_DEPTH
+    increment_mask = _log_mask(n, (time_index,)) if timed else None
     if dt0 is None:
         h0 = _initial_step(stepper, controller, _stop_gradient(ode), jax.lax.stop_gradient(state0.y), log_mask, span)
     else:
@@ -220,28 +259,46 @@ def adaptive_loop(
         g=jnp.zeros(()) if events is None else fold_event(ode, state0.y),
         jumps=None if events is None else JumpRecord.empty(events.max_jumps),
         reference=state0.y,
-        g_scale=jnp.zeros(()) if events is None else jnp.abs(fold_event(ode, state0.y)),
+        g_scale=jnp.zeros(()) if events is None else jnp.abs(reference_event(state0.y)),
         cut_steps=zero,
     )
 
     def running(c: _Carry):
-        return (c.state.status == 0) & (c.t < t_final)
+        return (c.state.status == 0) & (clock(c.t, c.state.y) < t_final)
 
     def body(c: _Carry) -> _Carry:
         state = c.state
-        remaining = t_final - c.t
-        last = c.h >= remaining
-        h = jnp.where(last, remaining, c.h)
+        if timed:  # the last step is found by its end's time, then cut (below)
+            last = jnp.asarray(False)
+            h = c.h
+        else:
+            remaining = t_final - c.t
+            last = c.h >= remaining
+            h = jnp.where(last, remaining, c.h)
         y_n = jax.lax.stop_gradient(state.y)
         attempt = stepper.attempt(ode, c.t, h, state, controller.scale(y_n, y_n, log_mask))
         new, solved = attempt.candidate, attempt.solved
-        norm = jax.lax.stop_gradient(controller.error_norm(attempt.error, state.y, new.y, log_mask))
+        norm = jax.lax.stop_gradient(controller.error_norm(attempt.error, state.y, new.y, log_mask, increment_mask))
         norm = jnp.where(solved, norm, jnp.inf)
         accept = solved & (norm <= 1.0)
         t_new = jnp.where(last, t_final, c.t + h)  # exactly t_final at the end
         factor = controller.factor(norm, c.prev_norm, accept, solved | attempt.retry, order)
         factor = jnp.where(attempt.retry, 1.0, factor)
         h_next = jax.lax.stop_gradient(jnp.minimum(h * factor, span))
+        if timed:
+            # In pseudo-time the step whose end passes t_final ends at t_final: cut where t(s) = t_final
+            # on its interpolant (the state there carries the implicit function theorem's derivative).
+            reach = accept & (new.y[time_index] >= t_final)
+            in_time = PhysicalTimeInterpolant(attempt.interpolant, c.t, c.t + h, time_index)
+            s_end, y_end = jax.lax.cond(
+                reach,
+                lambda: (in_time.pseudo_time(t_final), in_time.evaluate(t_final[None])[0].at[time_index].set(t_final)),
+                lambda: (c.t + h, new.y),
+            )
+            new = eqx.tree_at(lambda s: s.y, new, y_end)
+            h = jnp.where(reach, s_end - c.t, h)
+            t_new = c.t + h
+            last = reach
         cut = jnp.asarray(False)
         if events is None:
             impasse = accept & (state.J * new.J < 0) & (state.drive * new.drive > 0)
@@ -252,7 +309,7 @@ def adaptive_loop(
             if completes:  # the DAE's v, solved anew at the step's end
                 new = eqx.tree_at(lambda s: s.y, new, jnp.where(accept, ode.complete(new.y), new.y))
             g_new = jax.lax.stop_gradient(new.J) if schur_event else fold_event(ode, new.y)
-            if stepper.cuts_at_folds and not schur_event:
+            if stepper.cuts_at_folds and not schur_event and not timed:
                 # A rejected attempt over the fold: its error holds the kink of v clamped past the
                 # fold, not the accuracy the controller needs before it. Retry up to just past
                 # the fold located on its interpolant, rather than with the controller's shrunk h.
@@ -263,10 +320,21 @@ def adaptive_loop(
                 h_cut = jax.lax.stop_gradient(theta * h * (1.0 + _CUT_PAST))
                 cut = over & (h_cut < 0.9 * h) & (h_cut > h_next)
                 h_next = jnp.where(cut, h_cut, h_next)
-            fold = find_fold(events, ode, c.t, h, state, new, attempt.interpolant, accept, c.g, g_new, c.reference)
-            new, t_new, g, jumps, fold_status, step_end = _at_fold(events, ode, stepper, fold, new, t_new, g_new, c.jumps)
+            # In pseudo-time the fold is a transversal zero whose time t(s*) does not move with s* to
+            # first order: no reference state for tangential folds is needed.
+            fold = find_fold(
+                events, ode, c.t, h, state, new, attempt.interpolant, accept, c.g, g_new,
+                None if timed else c.reference, -reference_depth * c.g_scale,
+            )  # fmt: skip
+            if timed:  # a tangential fold's derivatives from the reference state (tangential_fold)
+                fold = eqx.tree_at(
+                    lambda f: f.y, fold, jax.lax.cond(fold.hit, lambda: tangential(fold.y, c.reference), lambda: fold.y)
+                )
+            new, t_new, g, jumps, fold_status, step_end = _at_fold(
+                events, ode, stepper, fold, new, t_new, g_new, c.jumps, clock
+            )
             restarted = fold.hit & (fold_status == 0)
-            g_scale = jnp.where(restarted, jnp.abs(g), c.g_scale)
+            g_scale = jnp.where(restarted, jnp.abs(reference_event(new.y)), c.g_scale)
             # After a jump the motion changes scale: restart the step size as at t0.
             h_next = jax.lax.cond(
                 restarted,
@@ -279,9 +347,14 @@ def adaptive_loop(
             h_next = jax.lax.stop_gradient(jnp.minimum(jnp.where(jnp.isfinite(h_next), h_next, dtmin), span))
             last = last & ~fold.hit
         advance = accept & ~impasse
+        if timed:  # observers see physical time
+            step_t0, step_t1 = clock(c.t, state.y), clock(t_new, step_end[0])
+            seen = PhysicalTimeInterpolant(attempt.interpolant, c.t, t_new, time_index)
+        else:
+            step_t0, step_t1, seen = c.t, t_new, attempt.interpolant
         step = AcceptedStep(
-            t0=c.t, t1=t_new, h=t_new - c.t, y0=state.y, y1=step_end[0], J1=step_end[1],
-            iterations=attempt.iterations, advance=advance, interpolant=attempt.interpolant,
+            t0=step_t0, t1=step_t1, h=step_t1 - step_t0, y0=state.y, y1=step_end[0], J1=step_end[1],
+            iterations=attempt.iterations, advance=advance, interpolant=seen,
         )  # fmt: skip
         record = observer.update(c.record, step, kind)
 
@@ -309,7 +382,9 @@ def adaptive_loop(
             record=record,
             g=jnp.where(advance, g, c.g),
             jumps=jumps,
-            reference=jnp.where(advance & (g <= -_REFERENCE_DEPTH * g_scale), kept.y, c.reference),
+            reference=c.reference
+            if events is None
+            else jnp.where(advance & (reference_event(kept.y) <= -reference_depth * g_scale), kept.y, c.reference),
             g_scale=g_scale,
             cut_steps=c.cut_steps + cut,
         )
@@ -373,6 +448,12 @@ def integrate_adaptive(
     return _solution(ode, stepper, final, step_points, jnp.asarray(t0, float), final.jumps is not None)
 
 
+def _time_of(ode, final: _Carry) -> Array:
+    """The physical time the loop ended at (s itself, or the t component in pseudo-time)."""
+    index = getattr(ode, "time_index", None)
+    return final.t if index is None else final.state.y[index]
+
+
 def integrate_alpha_adaptive(ode: ODE, solver: AlphaMethod, y0, t0, t_final, **options) -> Solution:
     """:func:`integrate_adaptive` with the α-method (its name before other steppers joined the loop)."""
     return integrate_adaptive(ode, solver, y0, t0, t_final, **options)
@@ -423,7 +504,7 @@ def _solution(ode, stepper: AbstractStepper, final: _Carry, step_points: bool, t
         ys=ys,
         valid=valid,
         status=final.state.status,
-        t_stop=final.t,
+        t_stop=_time_of(ode, final),
         stats=stats,
         diagnostics=diagnostics,
         method=stepper.name,
@@ -478,7 +559,7 @@ class ErrorControl(AbstractIntegrator):
 
     def observe(self, ode, y0, t0, t_final, observer) -> ObservedRun:
         stepper = self.stepper
-        _, final = adaptive_loop(
+        carried_ode, final = adaptive_loop(
             ode, stepper, y0, t0, t_final, observer, controller=self.controller, dt0=None, dtmin=self.dtmin,
             max_steps=self.max_steps, kind="checkpointed" if self.adjoint == "reverse" else "lax",
             events=self.events,
@@ -487,7 +568,7 @@ class ErrorControl(AbstractIntegrator):
         return ObservedRun(
             record=final.record,
             status=final.state.status,
-            t_stop=final.t,
+            t_stop=_time_of(carried_ode, final),
             y_final=jnp.where(start_failed, jnp.nan, physical(stepper, final.state.y)),
             accepted_steps=final.accepted,
             rejected_steps=final.rejected,

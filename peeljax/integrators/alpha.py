@@ -153,7 +153,7 @@ class LogTransformedODE(eqx.Module):
         y = from_log(z, self.log_components)
         evaluation = self.ode.evaluate(y)
         mask = _log_mask(z.shape[-1], self.log_components)
-        psi = jnp.where(mask, evaluation.psi / y, evaluation.psi)
+        psi = jnp.where(mask, evaluation.psi / jnp.where(mask, y, 1.0), evaluation.psi)  # no 0·∞ in reverse mode
         return eqx.tree_at(lambda e: e.psi, evaluation, psi)
 
     def __call__(self, z):
@@ -171,6 +171,11 @@ class LogTransformedODE(eqx.Module):
     @property
     def completes_state(self) -> bool:
         return getattr(self.ode, "completes_state", False)
+
+    @property
+    def time_index(self) -> int | None:
+        """The component holding the time, for an ODE in pseudo-time (never a log component)."""
+        return getattr(self.ode, "time_index", None)
 
     def with_folds(self):
         return LogTransformedODE(self.ode.with_folds(), self.log_components)

@@ -68,9 +68,21 @@ class PIController(eqx.Module):
         if is_concrete(self.factormax) and not float(self.factormax) > 1:
             raise ValueError(f"factormax must be > 1, got {float(self.factormax)!r}")
 
-    def scale(self, y0: Float[Array, " n"], y1: Float[Array, " n"], log_mask: Bool[Array, " n"]) -> Float[Array, " n"]:
-        """The error weights s_i: atol + rtol·max(|y0_i|, |y1_i|), or rtol for a log component."""
-        return jnp.where(log_mask, self.rtol, self.atol + self.rtol * jnp.maximum(jnp.abs(y0), jnp.abs(y1)))
+    def scale(
+        self,
+        y0: Float[Array, " n"],
+        y1: Float[Array, " n"],
+        log_mask: Bool[Array, " n"],
+        increment_mask: Bool[Array, " n"] | None = None,
+    ) -> Float[Array, " n"]:
+        """The error weights s_i: atol + rtol·max(|y0_i|, |y1_i|), or rtol for a log component,
+        or atol + rtol·|y1_i − y0_i| for an ``increment_mask`` component (the time carried by a
+        run in pseudo-time: its error is a phase error, relative to the step's time increment,
+        not to the time elapsed since t = 0, which would allow a drift growing with t)."""
+        magnitude = jnp.maximum(jnp.abs(y0), jnp.abs(y1))
+        if increment_mask is not None:
+            magnitude = jnp.where(increment_mask, jnp.abs(y1 - y0), magnitude)
+        return jnp.where(log_mask, self.rtol, self.atol + self.rtol * magnitude)
 
     def error_norm(
         self,
@@ -78,9 +90,10 @@ class PIController(eqx.Module):
         y0: Float[Array, " n"],
         y1: Float[Array, " n"],
         log_mask: Bool[Array, " n"],
+        increment_mask: Bool[Array, " n"] | None = None,
     ) -> Float[Array, ""]:
         """Weighted RMS norm of ``error`` (≤ 1: within tolerance); inf when not finite."""
-        norm = jnp.sqrt(jnp.mean((error / self.scale(y0, y1, log_mask)) ** 2))
+        norm = jnp.sqrt(jnp.mean((error / self.scale(y0, y1, log_mask, increment_mask)) ** 2))
         return jnp.where(jnp.isfinite(norm), norm, jnp.inf)
 
     def factor(self, norm: Array, prev_norm: Array, accepted: Array, solved: Array, order: int = ERROR_ORDER) -> Array:

@@ -22,10 +22,18 @@ import math
 
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-__all__ = ["HermiteInterpolant", "SolverInterpolant", "hermite", "output_count", "output_times"]
+__all__ = [
+    "HermiteInterpolant",
+    "PhysicalTimeInterpolant",
+    "SolverInterpolant",
+    "hermite",
+    "output_count",
+    "output_times",
+]
 
 
 def hermite(
@@ -69,6 +77,53 @@ class SolverInterpolant(eqx.Module):
 
     def evaluate(self, t: Float[Array, " m"]) -> Float[Array, "m n"]:
         return jax.vmap(self.interpolation.evaluate)(t)
+
+
+def _stop(tree):
+    """``lax.stop_gradient`` on a pytree's inexact arrays."""
+    return jax.tree_util.tree_map(lambda a: jax.lax.stop_gradient(a) if eqx.is_inexact_array(a) else a, tree)
+
+
+_TIME_ITERATIONS = 56  # bisection halvings of [s0, s1]: to round-off in double precision
+
+
+class PhysicalTimeInterpolant(eqx.Module):
+    """A step in pseudo-time s (:class:`~peeljax.DesingularizedDAE`) as an interpolant in time.
+
+    The step's own interpolant z(s) on [s0, s1] carries the time t(s) as component
+    ``time_index``, increasing in s; ``evaluate(ts)`` returns z at the s where t(s) = ts
+    (found by bisection, as the fold events are), with the implicit function theorem's
+    derivative ds = −(∂t/∂p − dts)/(dt/ds) (as :func:`peeljax.integrators.events.locate_fold`).
+    """
+
+    interpolant: eqx.Module
+    s0: Array
+    s1: Array
+    time_index: int = eqx.field(static=True)
+
+    def pseudo_time(self, t: Float[Array, ""]) -> Array:
+        """The s in [s0, s1] with t(s) = t (value only)."""
+        interpolant, s0, s1, target = _stop((self.interpolant, self.s0, self.s1, t))
+
+        def bisect(_, bracket):
+            lo, hi = bracket
+            mid = 0.5 * (lo + hi)
+            past = interpolant.evaluate(mid[None])[0, self.time_index] >= target
+            return jnp.where(past, lo, mid), jnp.where(past, mid, hi)
+
+        lo, hi = jax.lax.fori_loop(0, _TIME_ITERATIONS, bisect, (s0, s1))
+        return 0.5 * (lo + hi)
+
+    def _at(self, t):
+        s = self.pseudo_time(t)
+        frozen = _stop(self.interpolant)
+        _, rate = jax.jvp(lambda s: frozen.evaluate(s[None])[0, self.time_index], (s,), (jnp.ones_like(s),))
+        residual = self.interpolant.evaluate(s[None])[0, self.time_index] - t
+        correction = -(residual - jax.lax.stop_gradient(residual)) / jnp.where(rate > 0, rate, 1.0)
+        return self.interpolant.evaluate((s + correction)[None])[0]
+
+    def evaluate(self, t: Float[Array, " m"]) -> Float[Array, "m n"]:
+        return jax.vmap(self._at)(jnp.asarray(t, float))
 
 
 def output_count(save_dt: float, t_final: float) -> int:

@@ -108,7 +108,7 @@ def event_rate(ode, y) -> Array:
     return jax.jvp(ode.fold_event, (y,), (ode.evaluate(y).psi,))[1]
 
 
-def locate_fold(ode, t0, h, interpolant, reference=None) -> Array:
+def locate_fold(ode, t0, h, interpolant, reference=None, reference_g=None) -> Array:
     """θ ∈ [0, 1] with g(y(t0 + θh)) = 0 on the step's interpolant y(·), given g < 0 at t0 ≤ g at t0 + h.
 
     The root θ* is found by bisection to round-off with nothing differentiated; what is
@@ -124,9 +124,17 @@ def locate_fold(ode, t0, h, interpolant, reference=None) -> Array:
       ∂φ/∂v = 0 together; the first slip from the paper's slow creep does, see
       ``docs/fitting.md``). There g ≈ −a·(t* − t)², its root moves like the square root of the
       state's error, and ∂g/∂p and ġ both vanish at it; their ratio does not, and is taken at
-      ``reference`` (a state of the same branch a little before the fold, where both are
-      well-conditioned): dt* = −(∂g/∂p)/ġ there. Measured on the paper's first slip, the
-      ratio is constant to 1e-6 from 30 µs before the fold on, and to 1e-4 from 100 µs.
+      a reference state of the same branch a little before the fold, where both are
+      resolved: dt* = −(∂g/∂p)/ġ there. The reference is the point of this step's
+      interpolant where g = ``reference_g`` (the loop passes −1e-5·|g| at the branch's
+      start: ~0.35 ms before the paper's first slip), or ``reference`` (the latest accepted
+      state with g below it) where the step starts above that level. The depth is a measured
+      balance: closer to the fold ∂g/∂p is a small difference of O(1) tangents, swamped by
+      the step's error (1e-8: Tsit5's derivative 0.6 % off at rtol 1e-8 and 70 % off at
+      1e-7); farther, the ratio drifts (the step's start, ~1 ms before the fold with Tsit5:
+      off by up to 2×). At 1e-5 the paper's first slip's dt*/dc1 is within 0.01 % of its
+      converged value at rtol 1e-9, 0.2 % at 1e-7 and 0.7 % at 1e-6, for Tsit5 and the
+      α-method alike (``tests/test_steppers.py``).
     """
     h = jax.lax.stop_gradient(h)
 
@@ -135,25 +143,34 @@ def locate_fold(ode, t0, h, interpolant, reference=None) -> Array:
 
     frozen = _stop((ode, t0, interpolant))
 
-    def bisect(_, bracket):
-        lo, hi = bracket
-        mid = 0.5 * (lo + hi)
-        past = g(*frozen, mid) >= 0
-        return jnp.where(past, lo, mid), jnp.where(past, mid, hi)
+    def bisect_for(level):
+        def bisect(_, bracket):
+            lo, hi = bracket
+            mid = 0.5 * (lo + hi)
+            past = g(*frozen, mid) >= level
+            return jnp.where(past, lo, mid), jnp.where(past, mid, hi)
 
-    _, root = jax.lax.fori_loop(0, _BISECTIONS, bisect, (jnp.zeros(()), jnp.ones(())))
+        return bisect
+
+    _, root = jax.lax.fori_loop(0, _BISECTIONS, bisect_for(0.0), (jnp.zeros(()), jnp.ones(())))
     root = jax.lax.stop_gradient(root)
     _, slope = jax.jvp(lambda theta: g(*frozen, theta), (root,), (jnp.ones(()),))
     residual = g(ode, t0, interpolant, root)
     transversal = root - (residual - jax.lax.stop_gradient(residual)) / jnp.where(slope > 0, slope, 1.0)
     if reference is None:
         return transversal
+    g_start = g(*frozen, jnp.zeros(()))
+    mean_rate = -g_start / jnp.maximum(root * h, jnp.finfo(float).tiny)
     frozen_ode = frozen[0]
-    y_root = frozen[2].evaluate((frozen[1] + root * h)[None])[0]
-    mean_rate = -g(*frozen, jnp.zeros(())) / jnp.maximum(root * h, jnp.finfo(float).tiny)
-    tangential = event_rate(frozen_ode, y_root) < 0.5 * mean_rate
-    g_ref = ode.fold_event(reference)
-    rate_ref = jax.lax.stop_gradient(event_rate(ode, reference))
+    tangential = event_rate(frozen_ode, frozen[2].evaluate((frozen[1] + root * h)[None])[0]) < 0.5 * mean_rate
+    level = jnp.zeros(()) if reference_g is None else jax.lax.stop_gradient(reference_g)
+    inside = (reference_g is not None) & (g_start < level)
+    _, theta_ref = jax.lax.fori_loop(0, _BISECTIONS, bisect_for(level), (jnp.zeros(()), root))
+    theta_ref = jax.lax.stop_gradient(theta_ref)
+    # the reference with its derivative: on this step's interpolant at fixed θ_ref, or the state kept
+    y_ref = jnp.where(inside, interpolant.evaluate((t0 + theta_ref * h)[None])[0], reference)
+    g_ref = ode.fold_event(y_ref)
+    rate_ref = jax.lax.stop_gradient(event_rate(frozen_ode, jax.lax.stop_gradient(y_ref)))
     rate_ref = jnp.where(rate_ref > 0, rate_ref, 1.0)
     # dθ = −(∂g/∂p)/(ġ·h) at the reference (zero in value)
     tangent = root - (g_ref - jax.lax.stop_gradient(g_ref)) / (rate_ref * h)
@@ -165,11 +182,13 @@ def fold_fraction(ode, t0, h, interpolant) -> Array:
     return jax.lax.stop_gradient(locate_fold(_stop(ode), _stop(t0), h, _stop(interpolant)))
 
 
-def find_fold(events: FoldEvents, ode, t0, h, state, new, interpolant, accept, g0, g1, reference=None) -> FoldHit:
+def find_fold(
+    events: FoldEvents, ode, t0, h, state, new, interpolant, accept, g0, g1, reference=None, reference_g=None
+) -> FoldHit:
     """Did the accepted step from ``state`` (at t0) to ``new`` (at t0 + h) reach a fold?
 
     ``g0``, ``g1``: the fold event at both ends; ``interpolant``: the step's dense output;
-    ``reference``: see :func:`locate_fold`. A crossing (g1 ≥ 0) is located on the step's
+    ``reference``, ``reference_g``: see :func:`locate_fold`. A crossing (g1 ≥ 0) is located on the step's
     interpolant; an impasse of the homogenized ODE is predicted from g² (module docstring).
     In ``"follow"`` mode a crossing where F̃·f changes sign too (a singular passage) is none.
     """
@@ -187,7 +206,7 @@ def find_fold(events: FoldEvents, ode, t0, h, state, new, interpolant, accept, g
         delta = jnp.where(predicted, j1 * h / jnp.where(predicted, j0 - j1, 1.0), 0.0)
 
     def on_crossing():
-        theta = locate_fold(ode, t0, h, interpolant, reference)
+        theta = locate_fold(ode, t0, h, interpolant, reference, reference_g)
         return t0 + theta * h, interpolant.evaluate((t0 + theta * h)[None])[0]
 
     def otherwise():

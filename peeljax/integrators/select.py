@@ -48,6 +48,7 @@ from .base import AbstractIntegrator
 from .controller import PIController
 from .events import FoldEvents, check_fold, check_max_jumps
 from .reference import DiffraxIntegrator
+from ..desingularized import DEFAULT_TIME_SCALE
 from .steppers import STEPPER_NAMES, RungeKutta, stepper_named
 
 __all__ = [
@@ -165,11 +166,20 @@ def _error_control(rho, rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps, 
 def _error_control_dae(rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps) -> ErrorControl:
     # τ = 0's default stepper (measured: docs/theory.md, "Choosing the stepper").
     stepper = _named(DEFAULT_DAE_STEPPER)
-    return _with_events(ErrorControl(stepper, _controller(rtol, atol), dtmin, max_steps, adjoint), fold, max_jumps, True)
+    integrator = ErrorControl(stepper, _controller(rtol, atol), dtmin, max_steps, adjoint)
+    return _with_events(integrator, fold, max_jumps, True, pseudo_time=True)
 
 
-def _with_events(integrator: ErrorControl, fold: str, max_jumps: int, dae: bool) -> ErrorControl:
-    method = dataclasses.replace(integrator.method, log_components=()) if dae else integrator.method
+def _with_events(integrator: ErrorControl, fold: str, max_jumps: int, dae: bool, pseudo_time: bool = False) -> ErrorControl:
+    """The integrator with its fold events. For the DAE (``dae``) a Runge–Kutta stepper runs in
+    pseudo-time where ``pseudo_time`` (it was named, or given as a diffrax solver: the default
+    formulation, measured in docs/theory.md) and as given otherwise (a :class:`RungeKutta` of
+    the user's); in time, v is carried as it is (solved from the constraint, never integrated)."""
+    method = integrator.method
+    if dae and isinstance(method, RungeKutta) and method.time_scale is None and pseudo_time:
+        method = dataclasses.replace(method, log_components=(3,), time_scale=DEFAULT_TIME_SCALE)
+    elif dae and not (isinstance(method, RungeKutta) and method.time_scale is not None):
+        method = dataclasses.replace(method, log_components=())
     return dataclasses.replace(integrator, method=method, events=FoldEvents(fold, max_jumps))
 
 
@@ -248,4 +258,5 @@ def integrator_for(
         return _error_control_dae(rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps)
     if solver is None and type(rho) in (float, int):
         return _error_control(float(rho), rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps, dae)
-    return _with_events(ErrorControl(method, _controller(rtol, atol), dtmin, max_steps, adjoint), fold, max_jumps, dae)
+    integrator = ErrorControl(method, _controller(rtol, atol), dtmin, max_steps, adjoint)
+    return _with_events(integrator, fold, max_jumps, dae, pseudo_time=not isinstance(solver, RungeKutta))

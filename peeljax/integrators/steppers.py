@@ -38,6 +38,7 @@ import optimistix as optx
 from diffrax._root_finder import use_stepsize_tol  # diffrax's marker: "the controller's tolerances"
 from jaxtyping import Array, Float
 
+from .._arrays import optional_float_array
 from ..solution import StopReason
 from .alpha import AlphaMethod, AlphaState, LogTransformedODE, _log_mask, _stop_gradient, _to_log, alpha_start, from_log
 from .dense import HermiteInterpolant, SolverInterpolant
@@ -285,12 +286,16 @@ class RungeKutta(AbstractStepper):
             e.g. ``Kvaerno5()``).
         log_components: components carried as their logarithm (default v: the homogenized
             ODE from the paper's start, v0 = 1e-10·V, is smooth in log v only); ``()`` for
-            the DAE, whose v is solved from the constraint, never integrated.
+            the DAE in time, whose v is solved from the constraint, never integrated.
+        time_scale: None, or ε [s]: the DAE (a :class:`~peeljax.ConstrainedDAE`) is integrated
+            in pseudo-time (:class:`~peeljax.DesingularizedDAE`, its folds regular points, t a
+            fifth carried component), with log v carried (``log_components`` (3,)).
     """
 
     cuts_at_folds: ClassVar[bool] = True
     solver: diffrax.AbstractSolver = diffrax.Tsit5()
     log_components: tuple[int, ...] = eqx.field(static=True, default=(3,))
+    time_scale: Float[Array, ""] | None = eqx.field(converter=optional_float_array, default=None)
 
     def __check_init__(self):
         if not isinstance(self.solver, diffrax.AbstractRungeKutta):
@@ -348,6 +353,13 @@ class RungeKutta(AbstractStepper):
 
     def start(self, ode, t0, y0):
         y0 = jnp.asarray(y0, float)
+        if self.time_scale is not None:
+            if not hasattr(ode, "in_pseudo_time"):
+                raise TypeError(f"time_scale: pseudo-time needs the DAE (ConstrainedDAE), got {type(ode).__name__}")
+            if getattr(ode, "folds", None) is not None:
+                y0 = ode.complete(y0)  # v on its stable branch, as the DAE in time starts
+            ode = ode.in_pseudo_time(self.time_scale)
+            y0 = ode.extend(y0, t0)
         positive = jnp.all(jnp.where(_log_mask(y0.shape[0], self.log_components), y0 > 0, True))
         ode = _carried(ode, self.log_components)
         z0 = _to_log(y0, self.log_components) if self.log_components else y0
@@ -374,7 +386,10 @@ class RungeKutta(AbstractStepper):
         return StepperState(y, jnp.zeros_like(y), J, drive, state.status, inner)
 
     def settings(self) -> dict:
-        return {"name": type(self.solver).__name__, "log_components": list(self.log_components)}
+        settings = {"name": type(self.solver).__name__, "log_components": list(self.log_components)}
+        if self.time_scale is not None:
+            settings["pseudo_time_scale"] = float(self.time_scale)
+        return settings
 
 
 def stepper_named(name: str, *, dae: bool = False) -> AbstractStepper:
@@ -395,6 +410,7 @@ def as_stepper(method) -> AbstractStepper:
     raise TypeError(f"expected an AlphaMethod or a stepper, got {type(method).__name__}")
 
 
-def physical(stepper: AbstractStepper, y: Float[Array, "... n"]) -> Float[Array, "... n"]:
-    """Carried states (log v) back to y = (α, ω, u, v)."""
-    return from_log(y, stepper.carried_log) if stepper.carried_log else y
+def physical(stepper: AbstractStepper, y: Float[Array, "... n"]) -> Float[Array, "... m"]:
+    """Carried states (log v; the time of a run in pseudo-time) back to y = (α, ω, u, v)."""
+    y = from_log(y, stepper.carried_log) if stepper.carried_log else y
+    return y[..., :-1] if getattr(stepper, "time_scale", None) is not None else y

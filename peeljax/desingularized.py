@@ -1,0 +1,200 @@
+"""The DAE (τ = 0) in pseudo-time: the folds of φ become regular points (structure layer).
+
+Between jumps the peeling DAE (``peel``) is of index 1 on a stable branch of φ, but its
+solution is not smooth up to a fold: approaching the fold v̂ (or v̌) at a rate Ġ ≠ 0,
+v ≈ v̂ − c·√(t* − t), so x = (α, ω, u) has a (t* − t)^{3/2} term that no step in t resolves
+without shrinking towards t* (measured with Tsit5 on the paper's V = 1.1: ~25 attempts per
+fold approach, half of a run's work), and the fold time moves like the square root of the
+state's error.
+
+Here the constraint (sac) is differentiated once (Ġ = F̃·f = ∂φ/∂v·v̇, the index-1 form) and
+time is changed to a pseudo-time s in which v moves at a bounded rate through the fold:
+
+    dt/ds = φ_w / N,   dx/ds = f(x, v)·dt/ds,   d(log v)/ds = Ġ / N,
+    N = √(φ_w² + (ε·Ġ)²),   φ_w = v·∂φ/∂v  (∂φ/∂(log v)),
+
+so that dv/dt = Ġ/∂φ/∂v, and t = s wherever |v̇/v| ≪ 1/ε (``time_scale`` ε). At a fold
+∂φ/∂v = 0: t stops (dt/ds = 0) while log v passes at the rate 1/ε — every component is a
+smooth function of s there, and the fold is the zero of ∂φ/∂v along the solution, crossed
+transversally. This is the classical blow-up of a fold by a time change (the arclength
+continuation of Keller, the "arclength refinement" of ``tests/jump_reference.py``), made
+global: the fold needs no graded mesh, its event is a transversal zero of −φ_w, and the jump
+time t* = t(s*) is insensitive to the event's position in s to first order (dt/ds = 0 there).
+
+The carried state is y = (α, ω, u, v, t): t is a component (the loop's independent variable
+is s, :func:`peeljax.integrators.adaptive.adaptive_loop` reads t from ``time_index``). u is
+kept on the constraint: the field takes u = U(α, φ(v)) in closed form (F(u, α) is invertible:
+:meth:`PeelingModel.stretch_for_force`), so an evaluation solves nothing — no root of φ is
+searched, unlike :class:`~peeljax.ConstrainedDAE`'s v(x) — and ``complete`` projects the
+carried u back onto the constraint after every step. The fully stuck tape (v = 0 while
+G(x) < φ(0⁺, V): the constraint is then an inequality) is carried at v = v_low (the bottom of
+the stick branch, 1e-100·max(V, 1) m/s) with its own field, dt/ds = 1, ẋ = f(x, 0), and leaves
+it continuously once G(x) rises above φ(v_low, V).
+
+Every derivative is autodiff's (∂φ/∂(log v) and Ġ by ``jax.jvp``).
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from ._arrays import float_array
+from .branches import Folds, branch_of, fold_distance, jump_velocity
+from .homogenized import Evaluation, Jump, _with_folds
+from .model import PeelingModel
+
+__all__ = ["DEFAULT_TIME_SCALE", "DesingularizedDAE", "tangential_fold"]
+
+DEFAULT_TIME_SCALE = 1e-2  # ε [s]: chosen by measurement (docs/theory.md, "The DAE in pseudo-time")
+
+
+class DesingularizedDAE(eqx.Module):
+    """The DAE (τ = 0) in pseudo-time s (module docstring): y = (α, ω, u, v, t).
+
+    Meets the :class:`~peeljax.ODE` and :class:`~peeljax.homogenized.FoldingODE` contracts in
+    pseudo-time (``evaluate(y).psi`` is dy/ds; ``time_index`` names t's component). Built by
+    :meth:`peeljax.ConstrainedDAE.in_pseudo_time`; a stepper does that when asked
+    (:class:`~peeljax.integrators.RungeKutta` ``time_scale``).
+
+    Attributes:
+        model, V, folds: as :class:`~peeljax.ConstrainedDAE`.
+        time_scale: ε [s]: t = s where v changes by a factor e in much more than ε.
+    """
+
+    model: PeelingModel
+    V: Float[Array, ""] = eqx.field(converter=float_array)
+    time_scale: Float[Array, ""] = eqx.field(converter=float_array, default=DEFAULT_TIME_SCALE)
+    folds: Folds | None = None
+    completes_state: ClassVar[bool] = True
+    time_index: ClassVar[int] = 4
+
+    @property
+    def tau(self) -> Array:
+        return jnp.zeros(())
+
+    def with_folds(self) -> DesingularizedDAE:
+        return _with_folds(self)
+
+    def extend(self, y0: Float[Array, "4"], t0) -> Float[Array, "5"]:
+        """The carried state at t0 of a physical state y0 = (α, ω, u, v)."""
+        y0 = jnp.asarray(y0, float)
+        return jnp.concatenate([y0, jnp.asarray(t0, float)[None]])
+
+    def _v_low(self) -> Array:
+        return self.folds.v_low if self.folds is not None else 1e-100 * jnp.maximum(self.V, 1.0)
+
+    def _stuck(self, y) -> Array:
+        """The tape is fully stuck: v at the bottom of the stick branch with G below φ(v_low)."""
+        v_low = self._v_low()
+        G = self.model.shear_force(y[:3])
+        return (y[3] <= v_low * (1.0 + 1e-9)) & (G <= self.model.phi(v_low, self.V))
+
+    def _phi_and_slope(self, v):
+        """φ(v, V) and φ_w = ∂φ/∂(log v) at v."""
+        return jax.jvp(lambda w: self.model.phi(jnp.exp(w), self.V), (jnp.log(v),), (jnp.ones_like(v),))
+
+    def evaluate(self, y: Float[Array, "5"]) -> Evaluation:
+        """dy/ds, J = −∂φ/∂v and Ġ = F̃·f (module docstring)."""
+        alpha, omega, v = y[0], y[1], y[3]
+        stuck = self._stuck(y)
+        phi, phi_w = self._phi_and_slope(v)
+        x = jnp.stack([alpha, omega, jnp.where(stuck, y[2], self.model.stretch_for_force(alpha, phi))])
+        v_field = jnp.where(stuck, 0.0, v)
+        f = self.model.f(x, v_field, self.V)
+        G_dot = jax.jvp(self.model.shear_force, (x,), (f,))[1]
+        scale = jnp.sqrt(phi_w**2 + (self.time_scale * G_dot) ** 2)
+        regular = ~stuck & (scale > 0)
+        safe = jnp.where(regular, scale, 1.0)
+        dt = jnp.where(regular, phi_w / safe, 1.0)
+        dv = jnp.where(regular, v * G_dot / safe, 0.0)
+        psi = jnp.concatenate([f * dt, jnp.stack([dv, dt])])
+        return Evaluation(psi=psi, J=-phi_w / v, drive=G_dot)
+
+    def __call__(self, y: Float[Array, "5"]) -> Float[Array, "5"]:
+        return self.evaluate(y).psi
+
+    def fold_event(self, y: Float[Array, "5"]) -> Array:
+        """−∂φ/∂(log v) at v (N): negative on both stable branches, zero at a fold; −inf where
+        φ has no fold or the tape is fully stuck."""
+        _, phi_w = self._phi_and_slope(y[3])
+        return jnp.where(self.folds.exist & ~self._stuck(y), -phi_w, -jnp.inf)
+
+    def fold_distance(self, y: Float[Array, "5"]) -> Array:
+        """How far G(x) is from the current branch's fold in N (:func:`peeljax.branches.fold_distance`):
+        the DAE-in-time's fold event, whose rate in time is ±Ġ."""
+        y = self.complete(y)
+        return fold_distance(self.model, y[:3], self.V, branch_of(y[3], self.folds), self.folds)
+
+    def velocity_field(self, y: Float[Array, "5"]) -> Float[Array, "3"]:
+        """ẋ = f(x, v) in time at y (v = 0 on a fully stuck tape)."""
+        y = self.complete(y)
+        return self.model.f(y[:3], jnp.where(self._stuck(y), 0.0, y[3]), self.V)
+
+    def complete(self, y: Float[Array, "5"]) -> Float[Array, "5"]:
+        """y with u on the constraint, G(x) = φ(v, V), unless the tape is fully stuck."""
+        u = self.model.stretch_for_force(y[0], self.model.phi(y[3], self.V))
+        return y.at[2].set(jnp.where(self._stuck(y), y[2], u))
+
+    def jump(self, y: Float[Array, "5"]) -> Jump:
+        """v⁺ on the other branch at fixed x (the tape landing fully stuck: v_low, recorded as 0)."""
+        y = self.complete(y)
+        x, v = y[:3], y[3]
+        branch = branch_of(v, self.folds)
+        v_after = jump_velocity(self.model, x, self.V, branch, self.folds)
+        carried = jnp.maximum(v_after, self._v_low())
+        return Jump(
+            y=y.at[3].set(carried), up=branch == 0, v_before=v, v_after=v_after,
+            G=self.model.shear_force(x), F=self.model.tension(x[2], x[0]),
+        )  # fmt: skip
+
+    def constraint(self, y) -> Array:
+        """Residual of (sac) at y (zero to round-off at the step ends: ``complete``)."""
+        y = jnp.asarray(y)
+        return self.model.constraint(y[..., :3].T if y.ndim > 1 else y[:3], y[..., 3], self.V)
+
+
+def _tangent(a: Array) -> Array:
+    """Zero in value, ``a``'s derivative in derivative."""
+    return a - jax.lax.stop_gradient(a)
+
+
+def tangential_fold(ode: DesingularizedDAE, y_fold: Float[Array, "5"], y_ref: Float[Array, "5"]):
+    """(Whether the fold at ``y_fold`` is reached tangentially, ``y_fold`` with the derivatives
+    of a tangential fold taken from ``y_ref``.)
+
+    At a tangential fold (G reaches φ's extremum with Ġ → 0: a folded singularity, the paper's
+    first slip from its slow creep) the pseudo-time field (Ġ, ∂φ/∂v)/N is a ratio of two
+    vanishing quantities, and the derivative of t(s) accumulated through its last stretch is
+    not the solution's: measured on the paper's first slip, dt*/dc1 off by 5× (the values are
+    right). There, as for the DAE in time (:func:`peeljax.integrators.events.locate_fold`), the
+    fold's time is differentiated at a reference state of the branch before it, where g =
+    G − φ(v̂) (:meth:`DesingularizedDAE.fold_distance`) and Ġ are resolved:
+    dt* = dt_ref − dg_ref/ġ_ref (the tangents of y_ref are in pseudo-time: dg at fixed t is
+    dg − ġ·dt); x at the fold gets dx_ref at fixed t (dx − f·dt) plus f·dt*, and v the
+    derivative of the fold velocity v̂ (or v̌). The values of ``y_fold`` are unchanged.
+
+    Tangential: ġ at the fold below half the mean rate since the reference.
+    """
+    sg = jax.lax.stop_gradient
+    index = ode.time_index
+    ref = ode.complete(y_ref)
+    slip = branch_of(sg(y_fold[3]), ode.folds) == 1
+    sign = jnp.where(slip, -1.0, 1.0)
+    g_ref = ode.fold_distance(ref)
+    rate_ref = sg(sign * ode.evaluate(ref).drive)
+    rate_fold = sg(sign * ode.evaluate(y_fold).drive)
+    elapsed = sg(y_fold[index] - ref[index])
+    mean_rate = sg(-g_ref) / jnp.where(elapsed > 0, elapsed, 1.0)
+    tangential = (elapsed > 0) & (rate_ref > 0) & (rate_fold < 0.5 * mean_rate)
+    dt_star = _tangent(ref[index]) - _tangent(g_ref) / jnp.where(rate_ref > 0, rate_ref, 1.0)
+    dx_ref = _tangent(ref[:3]) - ode.velocity_field(sg(ref)) * _tangent(ref[index])
+    x = sg(y_fold[:3]) + dx_ref + ode.velocity_field(sg(y_fold)) * dt_star
+    v_fold = jnp.where(slip, ode.folds.v_min, ode.folds.v_max)
+    v = sg(y_fold[3]) + _tangent(v_fold)
+    t = sg(y_fold[index]) + dt_star
+    return tangential, jnp.concatenate([x, jnp.stack([v, t])])
