@@ -1,12 +1,16 @@
 """Which stepper the one error-controlled loop should run by default: every stepper at equal accuracy.
 
-    python benchmarks/steppers.py            # ~4 min on 2 cores; writes results/steppers.md
+    python benchmarks/steppers.py            # ~6 min on 2 cores; writes results/steppers.md
     python benchmarks/steppers.py --quick    # P6 to 1e-5 s and P1 at τ = 0.01 only
 
 * P6 (τ = 0, the DAE with jumps): V = 1.1, [0, 3] s, 210 jumps; error = the largest |Δt| over
   every jump against ``tests/jump_reference.py`` (scipy LSODA events with the arclength
   refinement, rtol 1e-12); per stepper, the loosest rtol of a half-decade ladder whose error
   is ≤ the target (1e-5 s, 1e-6 s), and its median time (``simulate`` with output at [0, 3]).
+  Rows: the α-method and Tsit5 on the DAE in time (v solved from the constraint at every
+  evaluation, :class:`peeljax.ConstrainedDAE`), and the Runge–Kutta steppers on the DAE in
+  pseudo-time (:class:`peeljax.DesingularizedDAE`, the default formulation of a named
+  Runge–Kutta solver), Tsit5 at several time scales ε.
 * P1 (τ > 0, the homogenized ODE): V = 1.1, τ = 0.01 and 0.1, [0, 3] s, error = the largest
   relative error in v on 301 output times against Dopri8 at rtol 1e-11; the loosest rtol of
   a decade ladder with error ≤ 1e-3, and its median time.
@@ -28,6 +32,22 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
 
 STEPPERS = ("alpha", "tsit5", "dopri5", "dopri8", "kvaerno5")
+TIME_SCALES = (1e-3, 3e-3, 3e-2, 1e-1)  # ε of the pseudo-time, beside the default (DEFAULT_TIME_SCALE)
+
+
+def p6_steppers():
+    """(label, solver) of every P6 row: the formulations of the DAE and the steppers."""
+    import diffrax
+
+    from peeljax.desingularized import DEFAULT_TIME_SCALE
+    from peeljax.integrators import RungeKutta
+
+    rows = [("alpha (in time)", "alpha"), ("tsit5 in time", RungeKutta(diffrax.Tsit5(), ()))]
+    rows += [(f"{name} (pseudo-time, ε = {DEFAULT_TIME_SCALE:g} s)", name) for name in STEPPERS[1:]]
+    rows += [
+        (f"tsit5 (pseudo-time, ε = {eps:g} s)", RungeKutta(diffrax.Tsit5(), (3,), time_scale=eps)) for eps in TIME_SCALES
+    ]
+    return rows
 P6_LADDER = tuple(m * 10.0**-e for e in range(4, 11) for m in (1.0, 0.3))[:-1]
 P1_LADDER = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7)
 
@@ -49,14 +69,16 @@ def p6(repeats, targets):
 
     reference = jump_reference.reference_jump_run(1.1, 3.0, rtol=1e-12, atol=1e-14, method="LSODA")["jump_t"]
     rows = []
-    for name in STEPPERS:
+    for name, solver in p6_steppers():
         remaining = sorted(targets, reverse=True)
         for rtol in P6_LADDER:
             if not remaining:
                 break
 
-            def call(rtol=rtol, name=name):
-                sol = pj.simulate(V=1.1, tau=0, t_final=3.0, rtol=rtol, atol=1e-3 * rtol, ts=np.array([0.0, 3.0]), solver=name)
+            def call(rtol=rtol, solver=solver):
+                sol = pj.simulate(
+                    V=1.1, tau=0, t_final=3.0, rtol=rtol, atol=1e-3 * rtol, ts=np.array([0.0, 3.0]), solver=solver
+                )
                 sol.ys.block_until_ready()
                 return sol
 

@@ -171,12 +171,16 @@ def _error_control_dae(rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps) -
 
 
 def _with_events(integrator: ErrorControl, fold: str, max_jumps: int, dae: bool, pseudo_time: bool = False) -> ErrorControl:
-    """The integrator with its fold events. For the DAE (``dae``) a Runge–Kutta stepper runs in
-    pseudo-time where ``pseudo_time`` (it was named, or given as a diffrax solver: the default
-    formulation, measured in docs/theory.md) and as given otherwise (a :class:`RungeKutta` of
-    the user's); in time, v is carried as it is (solved from the constraint, never integrated)."""
+    """The integrator with its fold events. For the DAE (``dae``) an explicit Runge–Kutta
+    stepper runs in pseudo-time where ``pseudo_time`` (it was named, or given as a diffrax
+    solver: the default formulation, measured in docs/theory.md) and as given otherwise (a
+    :class:`RungeKutta` of the user's). Implicit ones (Kvaerno) run in time: in pseudo-time
+    their Newton iteration fails at the paper's first slip, a folded singularity where the
+    pseudo-time field's Jacobian is unbounded. In time, v is carried as it is (solved from the
+    constraint, never integrated)."""
     method = integrator.method
-    if dae and isinstance(method, RungeKutta) and method.time_scale is None and pseudo_time:
+    explicit = isinstance(method, RungeKutta) and not isinstance(method.solver, diffrax.AbstractImplicitSolver)
+    if dae and explicit and method.time_scale is None and pseudo_time:
         method = dataclasses.replace(method, log_components=(3,), time_scale=DEFAULT_TIME_SCALE)
     elif dae and not (isinstance(method, RungeKutta) and method.time_scale is not None):
         method = dataclasses.replace(method, log_components=())
