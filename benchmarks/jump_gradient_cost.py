@@ -5,14 +5,19 @@ The gradient is d/dc1 of (the sum of the jump times + the mean of F at the slips
 (``adjoint="reverse"``, the checkpointed loop) and forward mode (``jax.jvp``, one tangent).
 Compile time is measured separately (the first call); medians of ``--repeats`` calls after it.
 
-    PYTHONPATH=. python benchmarks/jump_gradient_cost.py [--rtol 1e-6] [--repeats 5]
+    python benchmarks/jump_gradient_cost.py [--rtol 1e-6] [--repeats 5]   # writes results/jump_gradient_cost.md
+
+The run is ``simulate``'s default at τ = 0 (Tsit5 on the DAE in pseudo-time).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import platform
 import statistics
 import time
+from pathlib import Path
 
 import equinox as eqx
 import jax
@@ -67,10 +72,29 @@ def main():
         rows.append((name, *timed(fn, args.repeats)))
     jumps = int(forward(c1)[1])
     base = rows[0][2]
-    print(f"V = 1.1, tau = 0, 3 s, {jumps} jumps, rtol {args.rtol:g}; medians of {args.repeats} after the first call")
-    print(f"{'':34} {'first call [s]':>15} {'median [s]':>11} {'/ forward':>10}")
-    for name, first, median in rows:
-        print(f"{name:34} {first:>15.2f} {median:>11.3f} {median / base:>10.2f}")
+    table = [
+        f"V = 1.1, tau = 0, 3 s, {jumps} jumps, rtol {args.rtol:g}; medians of {args.repeats} after the first call",
+        f"{'':34} {'first call [s]':>15} {'median [s]':>11} {'/ forward':>10}",
+        *(f"{name:34} {first:>15.2f} {median:>11.3f} {median / base:>10.2f}" for name, first, median in rows),
+    ]
+    print("\n".join(table))
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    command = "python benchmarks/jump_gradient_cost.py" + "".join(
+        f" --{k} {v:g}" for k, v in (("rtol", args.rtol), ("repeats", args.repeats)) if v != {"rtol": 1e-6, "repeats": 5}[k]
+    )
+    text = "\n".join([
+        "# Gradient cost through jumps (issue 27: target <= 5x the forward run; compile <= 5 s forward, <= 20 s gradient)",
+        "",
+        f"Made by `{command}` ({os.cpu_count()} cores, {platform.machine()}, jax {jax.__version__}, load {load:.1f} "
+        "at the end). 'first call' includes the compilation in this process.",
+        "",
+        "```",
+        *table,
+        "```",
+        "",
+    ])
+    out = Path(__file__).resolve().parent / "results" / "jump_gradient_cost.md"
+    out.write_text(text)
 
 
 if __name__ == "__main__":

@@ -81,8 +81,10 @@ class DesingularizedDAE(eqx.Module):
         return _with_folds(self)
 
     def extend(self, y0: Float[Array, "4"], t0) -> Float[Array, "5"]:
-        """The carried state at t0 of a physical state y0 = (α, ω, u, v)."""
+        """The carried state at t0 of a physical state y0 = (α, ω, u, v) (a fully stuck tape,
+        v = 0, at v_low)."""
         y0 = jnp.asarray(y0, float)
+        y0 = y0.at[3].set(jnp.maximum(y0[3], self._v_low()))
         return jnp.concatenate([y0, jnp.asarray(t0, float)[None]])
 
     def _v_low(self) -> Array:

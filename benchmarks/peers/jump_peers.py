@@ -5,7 +5,8 @@ stick → slip and slip → stick jumps of v at fixed x, in order); ``prepare()`
 compiles what the runs need, outside the timed region. Every peer uses atol = ``ATOL_RATIO``·rtol.
 
 * :class:`PeeljaxDAE`: ``peeljax.simulate(tau=0, rtol=…, solver=…)``, the fold located inside the compiled
-  loop (the α-method by default; ``solver="tsit5"`` etc. for a diffrax stepper);
+  loop (the default: Tsit5 on the DAE in pseudo-time; ``solver="alpha"``, ``"dopri5"`` etc.;
+  ``in_time=True``: a Runge–Kutta solver on the DAE in time, v solved at every evaluation);
 * :class:`ScipyEvents`: ``solve_ivp`` (LSODA, Radau, …) on ẋ = f(x, v(x)) with v the root on
   the current branch (plain Python), a terminal event at the fold, restarted after each jump;
   with ``refine=True`` the scipy reference's algorithm (``tests/jump_reference.py``: the last
@@ -76,19 +77,25 @@ class PeeljaxDAE(Peer):
     or the diffrax solver.
     """
 
-    def __init__(self, settings, V=V, max_steps=1_000_000, solver=None):
+    def __init__(self, settings, V=V, max_steps=1_000_000, solver=None, in_time=False):
         super().__init__(0.0, settings)
-        self.V, self.max_steps, self.solver = V, max_steps, solver
+        self.V, self.max_steps, self.solver, self.in_time = V, max_steps, solver, in_time
         if solver is not None and solver not in SOLVERS:
             raise ValueError(f"unknown solver {solver!r}: one of {', '.join(SOLVERS)}")
-        self.name = "peeljax simulate(tau=0)" if solver is None else f"peeljax simulate(tau=0, {solver})"
+        if in_time and solver in (None, "alpha"):
+            raise ValueError("in_time applies to a Runge-Kutta solver (the α-method runs in time)")
+        what = "" if solver is None else f", {solver}{' in time' if in_time else ''}"
+        self.name = f"peeljax simulate(tau=0{what})"
 
     def prepare(self):
         import peeljax
+        from peeljax.integrators import RungeKutta
 
         self._pj = peeljax
         self._ts = np.array([0.0, T_FINAL])
         self._solver = solver_named(self.solver)
+        if self.in_time:  # the DAE in time (v solved from the constraint), not in pseudo-time
+            self._solver = RungeKutta(self._solver, ())
         self._last = None
 
     def run(self, rtol):
