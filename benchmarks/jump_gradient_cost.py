@@ -5,7 +5,7 @@ The gradient is d/dc1 of (the sum of the jump times + the mean of F at the slips
 (``adjoint="reverse"``, the checkpointed loop) and forward mode (``jax.jvp``, one tangent).
 Compile time is measured separately (the first call); medians of ``--repeats`` calls after it.
 
-    python benchmarks/jump_gradient_cost.py [--rtol 1e-6] [--repeats 5]   # writes results/jump_gradient_cost.md
+    python benchmarks/jump_gradient_cost.py [--rtol 1e-6] [--repeats 15]   # writes results/jump_gradient_cost.md
 
 The run is ``simulate``'s default at τ = 0 (Tsit5 on the DAE in pseudo-time).
 """
@@ -55,7 +55,7 @@ def timed(fn, repeats):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rtol", type=float, default=1e-6)
-    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--repeats", type=int, default=15)
     args = parser.parse_args()
     c1 = jnp.asarray(400.0)
     forward = jax.jit(lambda c: objective(c, rtol=args.rtol, adjoint="forward"))
@@ -80,7 +80,7 @@ def main():
     print("\n".join(table))
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     command = "python benchmarks/jump_gradient_cost.py" + "".join(
-        f" --{k} {v:g}" for k, v in (("rtol", args.rtol), ("repeats", args.repeats)) if v != {"rtol": 1e-6, "repeats": 5}[k]
+        f" --{k} {v:g}" for k, v in (("rtol", args.rtol), ("repeats", args.repeats)) if v != {"rtol": 1e-6, "repeats": 15}[k]
     )
     text = "\n".join([
         "# Gradient cost through jumps (issue 27: target <= 5x the forward run; compile <= 5 s forward, <= 20 s gradient)",

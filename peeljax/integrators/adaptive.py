@@ -290,11 +290,8 @@ def adaptive_loop(
             # on its interpolant (the state there carries the implicit function theorem's derivative).
             reach = accept & (new.y[time_index] >= t_final)
             in_time = PhysicalTimeInterpolant(attempt.interpolant, c.t, c.t + h, time_index)
-            s_end, y_end = jax.lax.cond(
-                reach,
-                lambda: (in_time.pseudo_time(t_final), in_time.evaluate(t_final[None])[0].at[time_index].set(t_final)),
-                lambda: (c.t + h, new.y),
-            )
+            s_end, y_end = jax.lax.cond(reach, lambda: in_time.at(t_final), lambda: (c.t + h, new.y))
+            y_end = jnp.where(reach, y_end.at[time_index].set(t_final), y_end)
             new = eqx.tree_at(lambda s: s.y, new, y_end)
             h = jnp.where(reach, s_end - c.t, h)
             t_new = c.t + h

@@ -114,16 +114,17 @@ class PhysicalTimeInterpolant(eqx.Module):
         lo, hi = jax.lax.fori_loop(0, _TIME_ITERATIONS, bisect, (s0, s1))
         return 0.5 * (lo + hi)
 
-    def _at(self, t):
+    def at(self, t: Float[Array, ""]) -> tuple[Array, Float[Array, " n"]]:
+        """(s in value, z(s)) where t(s) = t, z with the implicit function theorem's derivative."""
         s = self.pseudo_time(t)
         frozen = _stop(self.interpolant)
         _, rate = jax.jvp(lambda s: frozen.evaluate(s[None])[0, self.time_index], (s,), (jnp.ones_like(s),))
         residual = self.interpolant.evaluate(s[None])[0, self.time_index] - t
         correction = -(residual - jax.lax.stop_gradient(residual)) / jnp.where(rate > 0, rate, 1.0)
-        return self.interpolant.evaluate((s + correction)[None])[0]
+        return s, self.interpolant.evaluate((s + correction)[None])[0]
 
     def evaluate(self, t: Float[Array, " m"]) -> Float[Array, "m n"]:
-        return jax.vmap(self._at)(jnp.asarray(t, float))
+        return jax.vmap(lambda t: self.at(t)[1])(jnp.asarray(t, float))
 
 
 def output_count(save_dt: float, t_final: float) -> int:
