@@ -243,11 +243,11 @@ def test_gradients_agree_with_central_differences():
     """Reverse (checkpointed loop) and forward (plain loop) mode against central differences,
     with respect to V, τ and a coefficient of φ, at rtol = 1e-10."""
     params = jnp.array([1.1, 0.1, 400.0])
-    grad = np.asarray(jax.grad(_loss)(params, "reverse"))
-    forward = np.asarray(jax.jacfwd(_loss)(params, "forward"))
+    grad = np.asarray(jax.grad(_loss)(params, "reverse", 0.25))
+    forward = np.asarray(jax.jacfwd(_loss)(params, "forward", 0.25))
     for k, step in enumerate((1e-5, 1e-6, 1e-3)):
-        up = float(_loss(params.at[k].add(step), "forward"))
-        down = float(_loss(params.at[k].add(-step), "forward"))
+        up = float(_loss(params.at[k].add(step), "forward", 0.25))
+        down = float(_loss(params.at[k].add(-step), "forward", 0.25))
         fd = (up - down) / (2 * step)
         assert grad[k] == pytest.approx(fd, rel=1e-5), k
         assert forward[k] == pytest.approx(fd, rel=1e-5), k
