@@ -1,5 +1,6 @@
-"""The data layer of the fit (``peeljax.fit.data``): force records (text and .npz), stick-slip
-tables, the statistics of a measured sawtooth, and ``peeljax fit --data`` reading them."""
+"""The data layer of the fit (``peeljax.fit.records``, ``.stick_slip_table``,
+``.measured_statistics``, ``.text_tables``): force records (text and .npz), stick-slip tables,
+the statistics of a measured sawtooth, and ``peeljax fit --data`` reading them."""
 
 from __future__ import annotations
 
@@ -11,17 +12,16 @@ import pytest
 from conftest import assert_refused, forbid, run_cli
 
 from peeljax.cli.fit import load_observations
-from peeljax.fit.data import (
-    STATISTICS,
+from peeljax.fit import (
     DataFileError,
     StickSlipTable,
-    _V_from_name,
     read_force_record,
-    read_npz,
     read_observations,
     read_stick_slip_table,
     record_statistics,
 )
+from peeljax.fit.records import _V_from_name, read_npz
+from peeljax.fit.stick_slip_table import STATISTICS
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "docs" / "examples"
 
@@ -642,3 +642,18 @@ def test_cli_fits_a_csv_force_record_end_to_end(tmp_path):
     # noise-free data from c1 = 440, the start (the paper's 400) 10 % off
     assert record["final_loss"] < 1e-4 * record["initial_loss"]
     assert record["c1"] == pytest.approx(440.0, rel=1e-3)
+
+
+def test_the_old_module_peeljax_fit_data_warns_and_re_exports_the_same_names():
+    import importlib
+    import sys
+
+    import peeljax.fit as fit
+
+    sys.modules.pop("peeljax.fit.data", None)
+    with pytest.warns(DeprecationWarning, match="peeljax.fit.data is deprecated: import from peeljax.fit"):
+        data = importlib.import_module("peeljax.fit.data")
+    for name in ("DataFileError", "StickSlipTable", "read_force_record", "read_observations",
+                 "read_stick_slip_table", "record_statistics"):  # fmt: skip
+        assert getattr(data, name) is getattr(fit, name)
+    assert data.STATISTICS == STATISTICS and data.read_npz is read_npz

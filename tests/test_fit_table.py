@@ -7,7 +7,7 @@ import scipy.stats
 
 from peeljax.adhesion import AdhesionLaw
 from peeljax.fit import StickSlipTable, fit_stick_slip, jump_statistics, phi_relative_error
-from peeljax.fit.data import STATISTICS
+from peeljax.fit.stick_slip_table import STATISTICS
 from peeljax.fit.plots import synthetic_table
 from peeljax.fit.uncertainty import quantile, uncertainty_from_jacobian
 from peeljax.solution import JumpRecord

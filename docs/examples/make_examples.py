@@ -6,7 +6,7 @@
   φ and model, τ = 0 (the DAE itself, v jumping at the folds of φ), from the paper's initial
   data, t in [0, 1] s every 0.5 ms, the tension F = (k/l)·u that a load cell on the tape
   measures. The pull velocity is in the file name (``peeljax fit --data`` and
-  ``peeljax.fit.data.read_force_record`` read it from there). No noise is added.
+  ``peeljax.fit.read_force_record`` read it from there). No noise is added.
 * ``stick_slip_table.csv``: a stick-slip table at 4 pull velocities (0.8 … 2 m/s) from a
   hidden φ — the paper's with c1 × 1.1 — with 1 % Gaussian noise (seed 1) and its 1 %
   standard deviations: the statistics of

@@ -1,6 +1,6 @@
 """``peeljax fit``: fit the adhesion law's coefficients to observed runs.
 
-Data files (``--data``, repeatable; read by :mod:`peeljax.fit.data`, never executed):
+Data files (``--data``, repeatable; read by :mod:`peeljax.fit.records`, never executed):
 
 * a force record: CSV or whitespace-separated text, ``#`` comment lines, a header naming the
   columns ``t`` [s] and ``F`` [N] (the tension), optionally ``v`` [m/s], ``alpha`` [rad] and a
@@ -15,7 +15,7 @@ Data files (``--data``, repeatable; read by :mod:`peeljax.fit.data`, never execu
   - several pull velocities in one file: ``V_0, t_0, v_0`` (and ``F_0, alpha_0, t_F_0,
     t_alpha_0``), ``V_1, t_1, v_1``, … with consecutive indices from 0.
 
-A stick-slip table (``--table``, instead of ``--data``; :func:`peeljax.fit.data.read_stick_slip_table`):
+A stick-slip table (``--table``, instead of ``--data``; :func:`peeljax.fit.read_stick_slip_table`):
 one row per pull velocity V with any of the statistics ``F_mean``, ``F_slip``, ``F_stick``,
 ``period``, ``slip_duration`` (each optionally with ``<name>_std``). It is fitted by
 Levenberg-Marquardt (:func:`peeljax.fit.table.fit_stick_slip`; ``--transient``, ``--window``,
@@ -42,7 +42,8 @@ import numpy as np
 from .._validation import check_mesh, check_positive, check_tolerance
 from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw
 from ..fit import QUANTITIES, Observation
-from ..fit.data import DataFileError, read_force_record, read_npz
+from ..fit.records import read_force_record, read_npz
+from ..fit.text_tables import DataFileError
 from ..integrators.select import DEFAULT_ATOL, DEFAULT_RTOL
 from ._common import PROG, check_max_steps, check_output_path, checked, fail, json_safe, load_phi, plot_formats
 
@@ -194,7 +195,7 @@ def load_observations(paths: list[str], V=None) -> tuple[list[Observation], dict
     """Observations from the --data files and the .npz files' tau/dt where they agree.
 
     ``.npz`` files keep their layouts (module docstring); any other file is a text force
-    record (:func:`peeljax.fit.data.read_force_record`: a CSV or whitespace table with columns
+    record (:func:`peeljax.fit.read_force_record`: a CSV or whitespace table with columns
     t, F and optionally v, alpha, V). ``V`` (``--V``): the pull velocity of text files that carry
     it neither in a V column nor in their name, one value for all files or one per file.
 
@@ -243,7 +244,7 @@ def _check_source(args: argparse.Namespace) -> None:
 
 def _validate_table(args: argparse.Namespace) -> dict:
     """--table's options, all checked before anything is compiled."""
-    from ..fit.data import STATISTICS, read_stick_slip_table
+    from ..fit.stick_slip_table import STATISTICS, read_stick_slip_table
     from ..fit.table import table_tolerances
 
     if not Path(args.table).is_file():

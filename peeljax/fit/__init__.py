@@ -1,7 +1,10 @@
 """Fitting the adhesion law φ(v, V) to what a peel test measures.
 
-* :mod:`.data` — the lab's files: force records (CSV/whitespace text, ``.npz``) and
-  stick-slip tables, and the statistics of a measured sawtooth;
+* :mod:`.text_tables` — the reader of a lab's text files (header with units, cells, the
+  :class:`DataFileError` naming file, line and column);
+* :mod:`.records` — measured runs from files: force records (CSV/whitespace text) and ``.npz``;
+* :mod:`.stick_slip_table` — :class:`StickSlipTable`, statistics against V, and its file;
+* :mod:`.measured_statistics` — the stick-slip statistics of a measured sawtooth F(t);
 * :mod:`.statistics` — the same statistics of a simulated run, differentiable through its jumps;
 * :mod:`.table` — Levenberg–Marquardt on a stick-slip table (:func:`fit_stick_slip`);
 * :mod:`.uncertainty` — covariance, standard errors, correlations, undetermined coefficients,
@@ -9,18 +12,16 @@
 * :mod:`.trajectory` — point-wise fits of smooth runs v(t), F(t), α(t) (optax), and of
   steady peeling (φ's own branch);
 * :mod:`.plots` — data against fit, residuals, φ with its band and folds.
+
+(``peeljax.fit.data``, which held the first four in one file, is deprecated: it re-exports them.)
 """
 
-from .data import (
-    DataFileError,
-    StickSlipTable,
-    read_force_record,
-    read_observations,
-    read_stick_slip_table,
-    record_statistics,
-)
+from .measured_statistics import record_statistics
+from .records import read_force_record, read_observations
 from .statistics import jump_statistics
+from .stick_slip_table import StickSlipTable, read_stick_slip_table
 from .table import fit_stick_slip
+from .text_tables import DataFileError
 from .trajectory import (
     QUANTITIES,
     FitResult,

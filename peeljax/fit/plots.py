@@ -24,7 +24,7 @@ from matplotlib.figure import Figure
 
 from ..adhesion import AdhesionLaw
 from ..model import PeelingModel
-from .data import STATISTICS, StickSlipTable
+from .stick_slip_table import STATISTICS, StickSlipTable
 from .table import TableFit, build_table_fit
 
 __all__ = ["model_statistics", "plot_table_fit"]
@@ -59,7 +59,7 @@ def model_statistics(
     max_steps: int = 400_000,
 ) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """The model's stick-slip statistics at the pull velocities ``V`` (a sequence, or a
-    :class:`~peeljax.fit.data.StickSlipTable`), run as :func:`~peeljax.fit.table.fit_stick_slip`
+    :class:`~peeljax.fit.StickSlipTable`), run as :func:`~peeljax.fit.table.fit_stick_slip`
     runs them, with φ = ``law``.
 
     Returns:

@@ -4,7 +4,7 @@ A run carried through the folds (``fold="jump"``) records every jump of v
 (:class:`~peeljax.JumpRecord`); its times and the tension F = (k/l)·u at each jump carry
 derivatives (the implicit function theorem on the fold event, :mod:`peeljax.integrators.events`).
 Over the window [t_start, t_end] (after a transient), with the same definitions as
-:func:`peeljax.fit.data.record_statistics` applies to a measured force record:
+:func:`peeljax.fit.record_statistics` applies to a measured force record:
 
 * ``F_slip``: the mean of F at the stick → slip jumps (F's maxima: during a stick F rises,
   during a slip it falls);
@@ -32,7 +32,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 from ..solution import JumpRecord
-from .data import STATISTICS
+from .stick_slip_table import STATISTICS
 
 __all__ = ["STATISTICS", "jump_statistics"]
 

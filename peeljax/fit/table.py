@@ -1,6 +1,6 @@
 """Fitting φ to a stick-slip table: Levenberg–Marquardt on the cycle statistics, with uncertainties.
 
-Each row of a :class:`~peeljax.fit.data.StickSlipTable` is one pull velocity V_i; the model
+Each row of a :class:`~peeljax.fit.StickSlipTable` is one pull velocity V_i; the model
 runs there from the paper's initial data through the folds (τ = 0 by default: the DAE with
 jumps), and its statistics over the window [transient, transient + window]
 (:func:`peeljax.fit.statistics.jump_statistics`: ``F_mean``, ``F_slip``, ``F_stick``,
@@ -49,8 +49,8 @@ from ..homogenized import HomogenizedODE
 from ..integrators.base import AbstractIntegrator
 from ..integrators.select import integrator_for
 from ..model import PeelingModel
-from .data import STATISTICS, StickSlipTable
 from .statistics import jump_statistics
+from .stick_slip_table import STATISTICS, StickSlipTable
 from .trajectory import FitResult, _check_free, _to_law
 from .uncertainty import uncertainty_from_jacobian
 

@@ -1,0 +1,287 @@
+"""Measured runs read from a lab's files: text force records and ``.npz`` observations.
+
+Plain NumPy on the host, in float64; a data file is only ever read as numbers
+(``np.load(..., allow_pickle=False)`` for ``.npz``), never executed.
+
+**Force records** (:func:`read_force_record`, :func:`read_observations`): one run at one
+pull velocity V, as a CSV (comma-separated) or whitespace-separated text file
+(:mod:`.text_tables`: ``#`` comments, a header naming the columns, each name optionally
+followed by its unit in brackets, ``t [s]``, ``F[N]``; a different unit is refused, not
+converted):
+
+======== ======= =========================================================================
+column   unit    what
+======== ======= =========================================================================
+``t``    s       time, ≥ 0 and strictly increasing (required)
+``F``    N       the tape tension (k/l)·u, what a load cell on the tape measures (required)
+``v``    m/s     peeling velocity (optional)
+``alpha``rad     peel-front angle (optional)
+``V``    m/s     pull velocity (optional; constant over the file)
+======== ======= =========================================================================
+
+Every cell must be a finite number: NaN, ``inf``, text and empty cells are refused. The pull
+velocity comes from, in this order of agreement, a ``V`` column, the file name, or the ``V``
+argument (``--V`` on the command line); where several are given they must agree (to 1e-9
+relative), and a file with none of them is refused. **The file-name pattern**
+(:data:`FILE_NAME_V`): the name without its suffix contains ``V`` as a word of its own (at the
+start or after ``_``, ``-`` or a space), then an optional ``=`` or ``_``, then a number
+(digits with an optional decimal point), then the end of the name or ``_``, ``-``, a space:
+``peel_V=1.1.csv``, ``run_V1.10.txt``, ``V_2.csv`` and ``2024-05-01_V0.8_take3.csv`` give
+V = 1.1, 1.1, 2 and 0.8 m/s; ``TV2.csv`` and ``run_v2.csv`` (lower case: that is the peeling
+velocity, or a version) give none.
+
+``.npz`` files (:func:`read_npz`) keep the layouts of ``peeljax fit --data`` (scalar ``V`` and
+1-D ``t``, ``v``, optional ``F``, ``alpha`` with optional own times ``t_F``, ``t_alpha``; or
+``V_0, t_0, v_0``, ``V_1``, … for several V in one file). NaN in a *quantity* marks a missing
+value there (a ``peeljax simulate --out`` file after a stop); times must be finite and ≥ 0,
+and an optional ``tau`` must be a finite number ≥ 0.
+
+Every refusal of a file is a :class:`~peeljax.fit.DataFileError` (a ``ValueError``) whose
+message names the file, the line and the column, or for ``.npz`` the field.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+from .text_tables import DataFileError, column_numbers, read_text_table
+from .trajectory import Observation
+
+__all__ = ["FILE_NAME_V", "FORCE_COLUMNS", "read_force_record", "read_npz", "read_observations"]
+
+# Columns of a force record and their units (the header may repeat the unit in brackets).
+FORCE_COLUMNS: dict[str, str] = {"t": "s", "F": "N", "v": "m/s", "alpha": "rad", "V": "m/s"}
+_FORCE_REQUIRED = ("t", "F")
+
+# The pull velocity in a file name: see the module docstring.
+FILE_NAME_V = re.compile(r"(?:^|(?<=[_\-\s]))V[=_]?(\d+(?:\.\d*)?)(?=$|[_\-\s])")
+_SUFFIX = re.compile(r"\.[A-Za-z][A-Za-z0-9]*$")
+_V_RTOL = 1e-9  # V from two sources must agree to this
+
+
+def _V_from_name(path) -> float | None:
+    """The pull velocity in the file's name (:data:`FILE_NAME_V`), or None."""
+    name = _SUFFIX.sub("", Path(str(path)).name)
+    found = {float(m.group(1)) for m in FILE_NAME_V.finditer(name)}
+    if len(found) > 1:
+        raise DataFileError(path, f"the file name gives V twice, differently: {sorted(found)} m/s")
+    return found.pop() if found else None
+
+
+def _resolve_V(path, sources: dict[str, float]) -> float:
+    if not sources:
+        raise DataFileError(
+            path,
+            "no pull velocity V: give the file a constant 'V' column [m/s], put V in its name "
+            "(e.g. peel_V=1.1.csv, run_V1.10.txt, V_2.csv), or pass it (V= in Python, --V on the command line)",
+        )
+    for source, value in sources.items():
+        if not (math.isfinite(value) and value > 0):
+            raise DataFileError(path, f"V from the {source} must be > 0 (allowed range: (0, inf)), got {value:g}")
+    (first, V), *others = sources.items()
+    for source, value in others:
+        if abs(value - V) > _V_RTOL * max(abs(value), abs(V)):
+            raise DataFileError(path, f"V conflicts: {V:g} m/s from the {first}, {value:g} m/s from the {source}")
+    return float(V)
+
+
+def _check_V_argument(V) -> float | None:
+    if V is None:
+        return None
+    try:
+        V = float(V)
+    except (TypeError, ValueError):
+        raise ValueError(f"V must be a number [m/s], got {V!r}") from None
+    if not (math.isfinite(V) and V > 0):
+        raise ValueError(f"V must be > 0 (allowed range: (0, inf)), got {V!r}")
+    return V
+
+
+def read_force_record(path, *, V: float | None = None) -> Observation:
+    """One measured run at one pull velocity, from a CSV or whitespace-separated text file.
+
+    The format, units and refusals are in the module docstring: columns ``t`` [s] and ``F``
+    [N] (the tension) required, ``v`` [m/s], ``alpha`` [rad] and a constant ``V`` [m/s]
+    optional; V from the ``V`` column, the file name (``peel_V=1.1.csv``) or ``V`` here,
+    which must agree where several are given.
+
+    Returns:
+        an :class:`~peeljax.fit.Observation` with ``t`` and ``F``, and ``v``/``alpha`` where
+        the file has them (``v`` is None otherwise), all float64 on the times ``t``.
+
+    Raises:
+        DataFileError: a malformed file, named with the line and column at fault.
+        ValueError: a ``V`` argument that is not a number > 0.
+    """
+    V = _check_V_argument(V)
+    text = read_text_table(path, FORCE_COLUMNS, _FORCE_REQUIRED, "force record")
+    if len(text.lines) < 2:
+        raise text.fail("one data row: a force record needs at least 2", row=0)
+    columns = {name: column_numbers(text, name, missing_ok=False) for name in text.names}
+    t = columns["t"]
+    if np.any(t < 0):
+        row = int(np.flatnonzero(t < 0)[0])
+        raise text.fail(f"negative time {t[row]:g} s (times are >= 0)", row=row, column="t")
+    if np.any(np.diff(t) <= 0):
+        row = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
+        raise text.fail(
+            f"t must increase strictly: {t[row]:g} s after {t[row - 1]:g} s (line {text.lines[row - 1]})",
+            row=row, column="t",
+        )  # fmt: skip
+    sources = {}
+    if "V" in columns:
+        column = columns["V"]
+        if np.any(column != column[0]):
+            row = int(np.flatnonzero(column != column[0])[0])
+            raise text.fail(
+                f"V must be constant over the file: {column[row]:g} here, {column[0]:g} on line {text.lines[0]}",
+                row=row, column="V",
+            )  # fmt: skip
+        sources["'V' column"] = float(column[0])
+    from_name = _V_from_name(path)
+    if from_name is not None:
+        sources["file name"] = from_name
+    if V is not None:
+        sources["V argument"] = V
+    V = _resolve_V(path, sources)
+    return Observation(V=V, t=t, v=columns.get("v"), F=columns["F"], alpha=columns.get("alpha"))
+
+
+def read_observations(path, *, V: float | None = None) -> list[Observation]:
+    """The observations in one data file: a ``.npz`` (either layout; every pull velocity in it)
+    or, for any other suffix, a text force record (:func:`read_force_record`, one observation).
+
+    ``V`` is the pull velocity for a text file without a ``V`` column or V in its name; for a
+    ``.npz`` (which carries its own) it must agree with every V in the file.
+    """
+    if Path(str(path)).suffix.lower() == ".npz":
+        return read_npz(path, V=V)[0]
+    return [read_force_record(path, V=V)]
+
+
+# ---------------------------------------------------------------------------- .npz files
+def read_npz(path, *, V: float | None = None) -> tuple[list[Observation], dict[str, float]]:
+    """The observations of an ``.npz`` data file and its settings: ``{"tau": …, "dt": …}``
+    where the file has a usable one (``tau`` ≥ 0; ``dt`` finite and > 0 — a ``simulate --out``
+    file under error control stores NaN there, which is skipped)."""
+    V = _check_V_argument(V)
+    path = str(path)
+    if not Path(path).is_file():
+        raise DataFileError(path, "no such file")
+    try:
+        data = np.load(path, allow_pickle=False)
+    except Exception as error:  # noqa: BLE001  (any failure to parse the file is bad input)
+        raise DataFileError(path, f"not a readable .npz without pickles ({type(error).__name__})") from None
+    if not hasattr(data, "files"):
+        raise DataFileError(path, "expected an .npz archive of named arrays")
+    with data:
+        try:
+            return _read_npz_file(data, path, V)
+        except ValueError as error:
+            if not isinstance(error, DataFileError) and "allow_pickle" in str(error):
+                raise DataFileError(path, "not a readable .npz without pickles (object arrays)") from None
+            raise
+
+
+def _npz_error(path, key, reason) -> DataFileError:
+    return DataFileError(path, reason, column=key, field=True)
+
+
+def _scalar(data, key: str, path: str) -> float:
+    value = np.asarray(data[key])
+    if value.size != 1 or not np.issubdtype(value.dtype, np.number) or np.issubdtype(value.dtype, np.complexfloating):
+        raise _npz_error(path, key, f"{key!r} must be a number")
+    return float(value.reshape(()))
+
+
+def _array(data, key: str, path: str) -> np.ndarray:
+    value = np.asarray(data[key])
+    if value.ndim != 1 or not np.issubdtype(value.dtype, np.number) or value.size < 2:
+        raise _npz_error(path, key, f"{key!r} must be a 1-D numeric array of at least 2 entries")
+    return value.astype(np.float64)
+
+
+def _check_series(path: str, key: str, time_key: str, times: np.ndarray, values: np.ndarray) -> None:
+    """NaN in a quantity marks a missing entry (ignored); an infinite value, or times that are
+    not finite, are negative or do not increase, mean a broken file."""
+    if np.any(np.isinf(values)):
+        raise _npz_error(path, key, f"{key!r} has infinite entries (NaN marks a missing value; inf is not one)")
+    if not np.all(np.isfinite(times)):
+        kind = "NaN" if np.any(np.isnan(times)) else "infinite"
+        i = int(np.flatnonzero(~np.isfinite(times))[0])
+        raise _npz_error(
+            path, time_key, f"{time_key!r} has {kind} entries (first at index {i}): every time must be given"
+        )
+    if np.any(times < 0):
+        i = int(np.flatnonzero(times < 0)[0])
+        raise _npz_error(
+            path, time_key, f"{time_key!r} has negative times ({times[i]:g} s at index {i}); times are >= 0"
+        )
+    if np.any(np.diff(times) <= 0):
+        i = int(np.flatnonzero(np.diff(times) <= 0)[0])
+        raise _npz_error(
+            path, time_key, f"the times {time_key!r} must increase strictly, got {times[i]:g} then {times[i + 1]:g}"
+        )
+
+
+def _npz_observation(data, path: str, suffix: str, V_argument: float | None) -> Observation:
+    keys = set(data.files)
+    for key in ("V", "t", "v"):
+        if key + suffix not in keys:
+            raise _npz_error(
+                path, key + suffix,
+                f"missing {key + suffix!r} (keys: t, v, V and optional F, alpha; or V_0, t_0, v_0, ...)",
+            )  # fmt: skip
+    V = _scalar(data, "V" + suffix, path)
+    if not (math.isfinite(V) and V > 0):
+        raise _npz_error(path, "V" + suffix, f"V{suffix} must be > 0 (allowed range: (0, inf)), got {V}")
+    if V_argument is not None and abs(V - V_argument) > _V_RTOL * max(V, V_argument):
+        raise _npz_error(path, "V" + suffix, f"V conflicts: {V:g} m/s in the file, {V_argument:g} m/s given")
+    t = _array(data, "t" + suffix, path)
+    fields = {"v": _array(data, "v" + suffix, path)}
+    if fields["v"].shape != t.shape:
+        raise _npz_error(path, "v" + suffix, f"'t{suffix}' and 'v{suffix}' must have one length")
+    _check_series(path, "v" + suffix, "t" + suffix, t, fields["v"])
+    for q in ("F", "alpha"):
+        if q + suffix in keys:
+            values = _array(data, q + suffix, path)
+            time_key = f"t_{q}{suffix}" if f"t_{q}{suffix}" in keys else "t" + suffix
+            times = _array(data, time_key, path)
+            if times.shape != values.shape:
+                raise _npz_error(path, q + suffix, f"{q}{suffix} and its times {time_key!r} must have one length")
+            _check_series(path, q + suffix, time_key, times, values)
+            fields[q], fields[f"t_{q}"] = values, times
+    observation = Observation(V=V, t=t, **fields)
+    if len(observation.series("v")[0]) < 2:
+        raise _npz_error(path, "v" + suffix, f"fewer than 2 finite v{suffix} values")
+    return observation
+
+
+def _read_npz_file(data, path, V_argument) -> tuple[list[Observation], dict[str, float]]:
+    observations = []
+    if "V_0" in data.files:
+        i = 0
+        while f"V_{i}" in data.files:
+            observations.append(_npz_observation(data, path, f"_{i}", V_argument))
+            i += 1
+    else:
+        observations.append(_npz_observation(data, path, "", V_argument))
+    settings = {}
+    if "tau" in data.files:
+        tau = _scalar(data, "tau", path)
+        if not math.isfinite(tau) or tau < 0:
+            raise _npz_error(path, "tau", f"tau must be a finite number >= 0 (allowed range: [0, inf)), got {tau}")
+        settings["tau"] = tau
+    if "dt" in data.files:
+        try:
+            dt = _scalar(data, "dt", path)
+        except ValueError:
+            dt = math.nan
+        if math.isfinite(dt) and dt > 0:  # NaN: the run had error control, no uniform step
+            settings["dt"] = dt
+    return observations, settings
+
