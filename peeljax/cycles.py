@@ -20,13 +20,17 @@ give the cycle statistics, on the host, without the trajectory:
   intervals between them repeats (:func:`repeat_pattern`), with its period. A period is
   reported only together with its k — a period alone says little without its orbit: on the
   paper's V = 1.1 m/s an orbit of 8 events per repeat (T ≈ 0.2183 s) coexists with one of 9
-  (T ≈ 0.2362 s) — or the run is called "irregular" when no repeat is found within it.
+  (T ≈ 0.2362 s). Without a repeat the window is either **too short to tell**
+  (:class:`TooFewRepeats`: a near repeat still settling, with a window that would show it, or
+  fewer than 31 stick → slip events) or **irregular**: measured as such, no repeat forming
+  (:func:`repeat_outlook`).
 
 Only the window [transient, t_end] counts: jumps before ``transient`` (the approach to the
 attractor) and after ``t_end`` are left out, and a duration counts only when both of its jumps
 lie in the window (a stick under way at ``t_end`` is not a stick duration). The repeat is
-searched on the stick → slip times in the window, and every interval there has to match: cut
-the settling transient away, or the run reads as irregular.
+searched on the stick → slip times in the window, and every interval there has to match: a
+window that still holds the settling reads as "too few repeats to tell", with the window (after
+the settling) that would show the repeat.
 
 Everything here is plain NumPy on the host; a batched record has to be indexed first.
 """
@@ -41,7 +45,22 @@ import numpy as np
 
 from .solution import JumpRecord, Solution
 
-__all__ = ["CycleStatistics", "RepeatPattern", "Spread", "cycle_statistics", "repeat_pattern"]
+__all__ = [
+    "CycleStatistics",
+    "RepeatPattern",
+    "Spread",
+    "TooFewRepeats",
+    "cycle_statistics",
+    "repeat_outlook",
+    "repeat_pattern",
+]
+
+# repeat_outlook: a near repeat matches its last repeat to within NEAR of the intervals' range, and a
+# settling one shrinks its deviation by at least CONTRACTION per repeat; below MIN_EVENTS stick →
+# slip events (each k ≤ 10 seen three times) nothing is called irregular.
+NEAR = 0.05
+CONTRACTION = 0.8
+MIN_EVENTS = 31
 
 _KEYS = ("jump_t", "jump_up", "jump_v_before", "jump_v_after", "jump_G")
 
@@ -114,6 +133,59 @@ class RepeatPattern:
 
 
 @dataclass(frozen=True)
+class TooFewRepeats:
+    """No repeat confirmed, and the window too short to call the run irregular.
+
+    Either a near repeat of ``events`` events is in the window, not matched over all of it (it
+    matches at the end of the window but not from its start, or its latest repeat matches the
+    one before to within 5 % of the intervals' range and the deviation shrinks), or there is none
+    and the window holds fewer than ``MIN_EVENTS`` (31) stick → slip events (``events`` 0): too
+    few to call it irregular. See :func:`repeat_outlook`.
+
+    Attributes:
+        events: k of the near repeat (0: too few events to try one).
+        period: its period estimate, the sum of the last k intervals [s] (NaN for k = 0).
+        spread: max |d_{i+k} − d_i| over its last k matched intervals [s] (NaN for k = 0).
+        tolerance: what a repeat has to match, rtol·mean interval [s] (NaN for k = 0).
+        start, end: a window [s] that would show the repeat: from where it has settled (seen, or
+            extrapolated from the shrinking deviation) over 2.5 periods; NaN where it cannot be
+            estimated (see ``length``).
+        length: the least window length that could show it [s]: 2.5 periods, or one period
+            more than the window seen when it gives no rate; for k = 0 the length holding
+            31 events at the mean interval seen (NaN with a single event).
+    """
+
+    events: int
+    period: float
+    spread: float
+    tolerance: float
+    start: float
+    end: float
+    length: float
+
+    def as_dict(self) -> dict:
+        """The fields as a dict, JSON-able (NaN -> None)."""
+        return {"events": self.events, "period": _json_float(self.period), "spread": _json_float(self.spread),
+                "tolerance": _json_float(self.tolerance), "start": _json_float(self.start),
+                "end": _json_float(self.end), "length": _json_float(self.length)}  # fmt: skip
+
+    def __str__(self) -> str:
+        if math.isfinite(self.start):
+            would = f"a window [{self.start:.3g}, {self.end:.3g}] s would do"
+        elif math.isfinite(self.length):
+            would = f"a window of at least {self.length:.3g} s would do"
+        else:
+            would = "a longer window would do"
+        if self.events == 0:
+            return f"too few repeats to tell (no near repeat in fewer than {MIN_EVENTS} stick → slip events; {would})"
+        events = "event" if self.events == 1 else "events"
+        return (
+            f"too few repeats to tell (near repeat: T ≈ {self.period:.4g} s with {self.events} stick → slip "
+            f"{events}, matched to {self.spread:.2g} s of {self.tolerance:.2g} s; {would})"
+        )
+
+
+@dataclass(frozen=True)
 class CycleStatistics:
     """The stick-slip cycles of one run in the window [``transient``, ``t_end``].
 
@@ -137,8 +209,9 @@ class CycleStatistics:
             at ``transient`` is inferred from the first jump in the window (stuck before a
             stick → slip jump, slipping before a slip → stick one), else from the last jump
             before it; NaN when the run has no jump at all (the branch is unknown).
-        repeat: the repeat of the stick → slip events (:func:`repeat_pattern`), or None:
-            "irregular", no repeat found within the window.
+        repeat: the repeat of the stick → slip events (:func:`repeat_pattern`), or None.
+        too_few: without a repeat, :class:`TooFewRepeats` when the window is too short to tell
+            (:func:`repeat_outlook`); None otherwise (a repeat, "irregular", or no stick → slip).
     """
 
     transient: float
@@ -155,15 +228,28 @@ class CycleStatistics:
     v_slip: tuple[float, float]
     stick_fraction: float
     repeat: RepeatPattern | None
+    too_few: TooFewRepeats | None = None
 
     @property
     def regular(self) -> bool:
         """True when a repeat was found."""
         return self.repeat is not None
 
+    @property
+    def verdict(self) -> str:
+        """``"regular"`` (a repeat), ``"too few repeats to tell"``, ``"irregular"`` (measured: no
+        repeat forming) or ``"none"`` (no stick → slip event in the window)."""
+        if self.repeat is not None:
+            return "regular"
+        if self.too_few is not None:
+            return "too few repeats to tell"
+        return "none" if self.slips == 0 else "irregular"
+
     def as_dict(self) -> dict:
         """The statistics as plain JSON-able values: NaN -> None, each :class:`Spread` a dict,
-        ``"repeat"`` a dict (period, events, repeats, spread) or the string ``"irregular"``."""
+        ``"repeat"`` a dict (period, events, repeats, spread) or the :attr:`verdict` string
+        (``"too few repeats to tell"``, ``"irregular"``, ``"none"``); ``"too_few_repeats"`` the
+        :class:`TooFewRepeats` dict or None."""
         return {
             "transient": float(self.transient),
             "t_end": float(self.t_end),
@@ -178,13 +264,21 @@ class CycleStatistics:
             "v_stick": [_json_float(v) for v in self.v_stick],
             "v_slip": [_json_float(v) for v in self.v_slip],
             "stick_fraction": _json_float(self.stick_fraction),
-            "repeat": "irregular" if self.repeat is None else self.repeat.as_dict(),
+            "repeat": self.verdict if self.repeat is None else self.repeat.as_dict(),
+            "too_few_repeats": None if self.too_few is None else self.too_few.as_dict(),
         }
 
     def __str__(self) -> str:
         fraction = "—" if math.isnan(self.stick_fraction) else f"{self.stick_fraction:.3f}"
         head = f"cycles in [{self.transient:.6g}, {self.t_end:.6g}] s: {self.jumps} jumps, {self.slips} stick → slip"
-        repeat = f"  repeat: {'irregular' if self.repeat is None else self.repeat}"
+        if self.repeat is not None:
+            repeat = f"  repeat: {self.repeat}"
+        elif self.too_few is not None:
+            repeat = f"  repeat: {self.too_few}"
+        elif self.slips == 0:
+            repeat = "  repeat: none (no stick → slip in the window)"
+        else:
+            repeat = "  repeat: irregular (no repeat forming)"
         times = (
             f"  stick {self.stick_duration._ms()}, slip {self.slip_duration._ms()}, "
             f"between slips {self.slip_interval._ms()}; stick fraction {fraction}"
@@ -241,6 +335,86 @@ def repeat_pattern(up_times, *, rtol: float = 1e-3) -> RepeatPattern | None:
     return None
 
 
+def repeat_outlook(up_times, *, rtol: float = 1e-3, t_end: float | None = None) -> TooFewRepeats | None:
+    """Whether a sequence of stick → slip times without a repeat is too short to tell.
+
+    For a sequence where :func:`repeat_pattern` finds no repeat: :class:`TooFewRepeats` when
+    the window cannot tell, None when it is measured irregular. With the intervals d_i and, for
+    each k ≤ len(d)/2, the deviations e_i = |d_{i+k} − d_i|, the last repeat's deviation
+    L_k = max of the last k of them, its rate q_k = the median of e_i / e_{i−k} over the
+    window (a settling orbit shrinks every one of them, a chance match does not), the tolerance
+    rtol·mean(d):
+
+    * a near repeat forming: some L_k within 5 % of the range of the intervals (``NEAR``), no
+      larger than the largest e_i of any earlier repeat, and shrinking, q_k ≤ 0.8
+      (``CONTRACTION``), or without a q_k. Too few: if L_k is within the tolerance, the repeat
+      settled inside the window (its start still holds the settling) and the window from the
+      first interval after the last mismatch shows it; else L_k·q_k^n is extrapolated to the
+      repeat n where it meets the tolerance;
+    * otherwise, fewer than 31 events (``MIN_EVENTS``: every k up to 10 seen three times):
+      too few (k = 0);
+    * otherwise irregular (None): no repeat of up to len(d)/2 events forming.
+
+    The window proposed holds 2.5 periods from where the repeat has settled (a repeat needs
+    two full ones, 2k + 1 events). Among several k: the smallest that settled, else the one
+    with the smallest L_k.
+
+    Args:
+        up_times: the stick → slip times [s] (as :func:`repeat_pattern`).
+        rtol: the tolerance of the repeat (as :func:`repeat_pattern`).
+        t_end: the end of the window [s] (default the last event): a settling repeat is
+            extrapolated from here.
+    """
+    _check_rtol(rtol)
+    t = np.asarray(up_times, dtype=float)
+    if t.ndim != 1 or not np.all(np.isfinite(t)) or np.any(np.diff(t) < 0):
+        raise ValueError("up_times must be 1-d, finite and non-decreasing")
+    if t.size == 0:
+        return None
+    d = np.diff(t)
+    end = float(t[-1]) if t_end is None else _finite("t_end", t_end)
+    scale = float(d.mean()) if d.size else math.nan
+    if t.size >= 3 and not scale > 0:  # times that do not advance
+        return None
+    tolerance = rtol * scale
+    spread = float(d.max() - d.min()) if d.size else math.nan  # how much the intervals differ
+    near = []  # (L_k, k, q_k) of the near repeats forming
+    for k in range(1, d.size // 2 + 1):
+        e = np.abs(d[k:] - d[:-k])
+        last = float(e[-k:].max())
+        if last > max(NEAR * spread, tolerance):
+            continue
+        # settling: the last repeat matched best of all (block maxima from the end) ...
+        blocks = [float(e[max(0, j - k) : j].max()) for j in range(e.size - k, 0, -k)]
+        if blocks and last > max(min(blocks), tolerance):
+            continue
+        # ... at a rate per repeat, the median of e_i / e_{i−k} over the window (chance matches do not shrink)
+        now, before = e[k:], e[:-k]
+        ok = before > 0
+        rate = float(np.median(now[ok] / before[ok])) if ok.any() else math.nan
+        if not rate > CONTRACTION:
+            if last <= tolerance:  # matched at the end of the window, not from its start: settled in it
+                mismatched = np.flatnonzero(e > tolerance)
+                start = float(t[int(mismatched[-1]) + 1]) if mismatched.size else float(t[0])
+                period = float(d[-k:].sum())
+                return TooFewRepeats(k, period, last, tolerance, start, start + 2.5 * period, 2.5 * period)
+            near.append((last, k, rate))
+    if near:
+        last, k, rate = min(near)
+        period = float(d[-k:].sum())
+        if math.isnan(rate):  # one repeat of comparisons: no rate to extrapolate
+            return TooFewRepeats(k, period, last, tolerance, math.nan, math.nan,
+                                 max(2.5 * period, end - float(t[0]) + period))  # fmt: skip
+        # deviation ∝ rate^n after n more repeats: within the tolerance after ⌈log(tol/L)/log rate⌉
+        more = math.ceil(math.log(tolerance / last) / math.log(rate)) if rate > 0 else 1
+        start = end + more * period
+        return TooFewRepeats(k, period, last, tolerance, start, start + 2.5 * period, 2.5 * period)
+    if t.size < MIN_EVENTS:
+        length = (MIN_EVENTS - 1) * scale if scale > 0 else math.nan  # MIN_EVENTS events at the mean interval
+        return TooFewRepeats(0, math.nan, math.nan, math.nan, math.nan, math.nan, length)
+    return None
+
+
 # ---------------------------------------------------------------------------- the statistics
 def cycle_statistics(jumps, t_end: float, *, transient: float = 0.0, rtol: float = 1e-3) -> CycleStatistics:
     """The stick-slip cycle statistics of one run from its jumps (see :class:`CycleStatistics`).
@@ -283,6 +457,7 @@ def cycle_statistics(jumps, t_end: float, *, transient: float = 0.0, rtol: float
     gaps = np.diff(t)
 
     up_times = t[up]
+    repeat = repeat_pattern(up_times, rtol=rtol)
     # The branch at the start of the window: stuck if the first jump in it is stick → slip;
     # without one, where the last jump before it landed; without any jump, unknown.
     if t.size:
@@ -304,7 +479,8 @@ def cycle_statistics(jumps, t_end: float, *, transient: float = 0.0, rtol: float
         v_stick=(_extreme(np.min, v_after[down]), _extreme(np.max, v_before[up])),
         v_slip=(_extreme(np.min, v_before[down]), _extreme(np.max, v_after[up])),
         stick_fraction=_stick_fraction(t, up, stuck, transient, t_end),
-        repeat=repeat_pattern(up_times, rtol=rtol),
+        repeat=repeat,
+        too_few=None if repeat is not None else repeat_outlook(up_times, rtol=rtol, t_end=t_end),
     )
 
 

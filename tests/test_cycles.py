@@ -10,7 +10,15 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from peeljax.cycles import CycleStatistics, RepeatPattern, Spread, cycle_statistics, repeat_pattern
+from peeljax.cycles import (
+    CycleStatistics,
+    RepeatPattern,
+    Spread,
+    TooFewRepeats,
+    cycle_statistics,
+    repeat_outlook,
+    repeat_pattern,
+)
 from peeljax.solution import JumpRecord, Solution
 
 T8 = 0.2182711  # V = 1.1 m/s: 8 stick → slip events per repeat
@@ -104,14 +112,70 @@ def test_jittering_one_interval_beyond_rtol_makes_it_irregular():
         assert (found is not None) == regular
         if regular:
             assert found.events == 8 and found.period == pytest.approx(T8, abs=jitter)
-    # the same through cycle_statistics: "irregular"
+    # the same through cycle_statistics: no repeat over the window, but the orbit repeats after the
+    # jittered interval: "too few repeats to tell", with the window from there
     arrays = orbit(8, T8, repeats=5)
     jittered = arrays[0].copy()
     jittered[40:] += 3.0 * tolerance
     stats = cycle_statistics(as_mapping(jittered, *arrays[1:]), t_end=jittered[-1] + 0.05)
     assert stats.repeat is None and not stats.regular
-    assert stats.as_dict()["repeat"] == "irregular"
-    assert "irregular" in str(stats)
+    assert stats.verdict == "too few repeats to tell" and stats.too_few.events == 8
+    assert stats.too_few.start == jittered[2 * 20]  # the orbit repeats from the jittered event on
+    assert stats.as_dict()["repeat"] == "too few repeats to tell"
+    assert stats.as_dict()["too_few_repeats"]["events"] == 8
+    assert "too few repeats to tell" in str(stats) and "irregular" not in str(stats)
+    shown = repeat_pattern(jittered[::2][jittered[::2] >= stats.too_few.start])
+    assert shown.events == 8 and shown.period == pytest.approx(T8, rel=1e-12)
+
+
+def settling_orbit(n_up: int, rate: float = 0.5, first: float = 1e-3):
+    """Stick → slip times of the 8-event orbit approached geometrically: interval i is off by
+    ``first·rate^(i // 8)`` (alternating sign within a repeat)."""
+    short = np.linspace(0.0125, 0.0171, 7)
+    pattern = np.append(short, T8 - short.sum())
+    i = np.arange(n_up - 1)
+    d = np.resize(pattern, n_up - 1) + first * rate ** (i // 8) * np.where(i % 2, 1.0, -1.0)
+    return 0.5 + np.concatenate([[0.0], np.cumsum(d)])
+
+
+def test_a_settling_repeat_is_too_few_to_tell_with_the_window_that_shows_it():
+    """Three repeats of the 8-event orbit still settling (deviation halving per repeat): not
+    "irregular" but too few repeats; the window it proposes does show the repeat."""
+    t = settling_orbit(3 * 8 + 1)
+    assert repeat_pattern(t) is None
+    outlook = repeat_outlook(t, t_end=t[-1])
+    assert isinstance(outlook, TooFewRepeats) and outlook.events == 8
+    assert outlook.period == pytest.approx(T8, rel=1e-2)
+    assert outlook.spread > outlook.tolerance and outlook.start > t[-1]
+    longer = settling_orbit(20 * 8 + 1)
+    assert longer[-1] > outlook.end
+    shown = repeat_pattern(longer[(longer >= outlook.start) & (longer <= outlook.end)])
+    assert shown is not None and shown.events == 8 and shown.period == pytest.approx(T8, rel=1e-4)
+    # through cycle_statistics and its text
+    up = np.ones(t.size, bool)
+    stats = cycle_statistics(as_mapping(t, up, 0.05 + 0 * t, 0.9 + 0 * t, 2.0 + 0 * t), t_end=t[-1] + 0.01)
+    assert stats.verdict == "too few repeats to tell" and stats.too_few.events == 8
+    assert "too few repeats to tell (near repeat: T ≈ 0.218" in str(stats)
+    assert f"a window [{stats.too_few.start:.3g}, {stats.too_few.end:.3g}] s would do" in str(stats)
+
+
+def test_irregular_is_measured_and_short_windows_are_too_few():
+    """Intervals from the logistic map (chaotic): with ≥ 31 events "irregular"; the same
+    intervals with fewer events: too few to tell, with the length that would do."""
+    x = np.empty(60)
+    x[0] = 0.3
+    for i in range(1, x.size):
+        x[i] = 4.0 * x[i - 1] * (1.0 - x[i - 1])
+    t = np.concatenate([[0.0], np.cumsum(0.02 * (1.0 + 0.5 * x))])
+    assert repeat_pattern(t) is None and repeat_outlook(t) is None
+    stats = cycle_statistics(as_mapping(t, np.ones(t.size, bool), *(np.ones(t.size),) * 3), t_end=t[-1] + 0.01)
+    assert stats.verdict == "irregular" and stats.too_few is None
+    assert stats.as_dict()["repeat"] == "irregular" and "irregular (no repeat forming)" in str(stats)
+    short = repeat_outlook(t[:12])
+    assert short.events == 0 and short.length == pytest.approx(30 * np.diff(t[:12]).mean())
+    assert "fewer than 31 stick → slip events; a window of at least" in str(short)
+    assert repeat_outlook(t[:1]).events == 0 and math.isnan(repeat_outlook(t[:1]).length)
+    assert repeat_outlook([]) is None
 
 
 def test_regular_stick_slip_has_one_event_per_repeat():
@@ -153,7 +217,7 @@ def test_durations_forces_and_velocity_ranges_by_hand():
     assert stats.G_stick == Spread(pytest.approx(1.1), 1.0, 1.2, 3)
     assert stats.v_stick == (0.0, 0.06)  # lands fully stuck: v_after = 0
     assert stats.v_slip == (0.40, 1.00)
-    assert stats.repeat is None  # two slips only
+    assert stats.repeat is None and stats.verdict == "too few repeats to tell"  # two slips only
 
 
 def test_stick_fraction_by_hand():
@@ -213,8 +277,9 @@ def test_empty_record():
     assert all(math.isnan(v) for v in stats.v_stick + stats.v_slip)
     assert math.isnan(stats.stick_fraction)  # no jump at all: the branch is unknown
     out = stats.as_dict()
-    assert out["repeat"] == "irregular" and out["stick_fraction"] is None and out["G_slip"]["mean"] is None
-    assert "0 jumps" in str(stats) and "irregular" in str(stats)
+    assert out["repeat"] == "none" and out["stick_fraction"] is None and out["G_slip"]["mean"] is None
+    assert out["too_few_repeats"] is None and stats.verdict == "none"
+    assert "0 jumps" in str(stats) and "repeat: none (no stick → slip in the window)" in str(stats)
 
 
 def test_record_built_jump_by_jump_and_other_inputs_agree(tmp_path):
