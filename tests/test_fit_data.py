@@ -442,6 +442,50 @@ def test_statistics_with_noise_recover_the_sawtooth():
     assert 0 < r["F_slip_std"] < 2 * sigma and 0 < r["period_std"] < 1e-3
 
 
+def _hysteresis_extrema(F, drop):
+    """The definition of record_statistics' slips, sample by sample (the hand-written loop that
+    scipy.signal.find_peaks replaced): a maximum is confirmed by a fall of more than ``drop``
+    below the running maximum, a minimum by a rise of more than ``drop``; the first one found
+    is left out."""
+    found, i_max, i_min, mode = [], 0, 0, 0  # mode +1: seeking a maximum, -1: a minimum, 0: either
+    for i in range(1, F.size):
+        if mode >= 0:
+            i_max = i if F[i] > F[i_max] else i_max
+            if F[i_max] - F[i] > drop:
+                found.append((i_max, True))
+                mode, i_min = -1, i
+                continue
+        if mode <= 0:
+            i_min = i if F[i] < F[i_min] else i_min
+            if F[i] - F[i_min] > drop:
+                found.append((i_min, False))
+                mode, i_max = 1, i
+    found = found[1:]
+    return [i for i, up in found if up], [i for i, up in found if not up]
+
+
+def test_slips_are_the_hysteresis_extrema_also_on_quantized_records():
+    """find_peaks by prominence gives the hysteresis definition's extrema exactly, ties included:
+    of a flat top its first sample, of equal maxima with a shallow dip between them the first."""
+    t = np.arange(12.0)
+    F = np.array([0, 5, 5, 5, 0, 4, 6, 5.5, 6, 1, 3, 0])  # a flat top; two equal maxima, dip 0.5
+    r = record_statistics(t, F, min_drop=2.0)
+    np.testing.assert_array_equal(r["t_slip"], [1.0, 6.0])  # the flat top's first sample; the first 6
+    # the first minimum (t = 0) is left out; the rise 1 → 3 is not more than min_drop: 9 is none
+    np.testing.assert_array_equal(r["t_stick"], [4.0])
+    rng = np.random.default_rng(3)
+    for case in range(300):  # quantized random walks and sawtooths: plateaus and equal extrema
+        n = int(rng.integers(2, 120))
+        walk = np.round(np.cumsum(rng.normal(size=n)) * 2) / 2
+        saw = np.round((np.linspace(0, 5, n) % 1.0) * 8 + rng.normal(scale=0.7, size=n))
+        F = walk if case % 2 else saw
+        drop = float(rng.choice([0.5, 1.0, 2.0, rng.uniform(0.1, 3.0)]))
+        r = record_statistics(np.arange(n, dtype=float), F, min_drop=drop)
+        up, down = _hysteresis_extrema(F, drop)
+        np.testing.assert_array_equal(r["t_slip"], up)
+        np.testing.assert_array_equal(r["t_stick"], down)
+
+
 def test_steady_record_gives_only_F_mean():
     t = np.linspace(0, 2, 4001)
     F = 250.0 + 0.5 * np.sin(3 * t) + np.random.default_rng(0).normal(scale=1.0, size=t.size)

@@ -33,29 +33,26 @@ def _noise(F: np.ndarray) -> float:
 def _extrema(F: np.ndarray, drop: float) -> tuple[np.ndarray, np.ndarray]:
     """Hysteresis extrema: indices of the maxima (each followed by a fall of more than ``drop``
     below it) and of the minima (each followed by a rise of more than ``drop``), alternating.
-    The first extremum found is left out: the window may have cut its rise or fall."""
-    peaks, troughs = [], []
-    i_max = i_min = 0
-    mode = 0  # 0: neither found yet; +1: after a minimum, seeking a maximum; -1: after a maximum
-    for i in range(1, F.size):
-        x = F[i]
-        if mode >= 0:
-            if x > F[i_max]:
-                i_max = i
-            if F[i_max] - x > drop:
-                peaks.append(i_max)
-                mode, i_min = -1, i
-                continue
-        if mode <= 0:
-            if x < F[i_min]:
-                i_min = i
-            if x - F[i_min] > drop:
-                troughs.append(i_min)
-                mode, i_max = 1, i
-    found = sorted([(p, 1) for p in peaks] + [(q, -1) for q in troughs])[1:]
-    return np.asarray([i for i, kind in found if kind == 1], int), np.asarray(
-        [i for i, kind in found if kind == -1], int
-    )
+    The first extremum of the window is left out: the window may have cut its rise or fall.
+
+    These are the samples whose topographic prominence exceeds ``drop`` (``find_peaks`` on F
+    and −F: both the rise before and the fall after a maximum exceed ``drop``, which also leaves
+    out the first extremum, whose rise the window cut). Of a flat top (or bottom) the first
+    sample is taken; of equal maxima with no minimum deeper than ``drop`` between them (a
+    quantized record), the first.
+    """
+    from scipy.signal import find_peaks  # here, not at the top: scipy.signal takes seconds to import
+
+    bound = np.nextafter(drop, np.inf)  # find_peaks keeps prominence >= bound; a swing must exceed drop
+    peaks = find_peaks(F, prominence=bound, plateau_size=1)[1]["left_edges"]
+    troughs = find_peaks(-F, prominence=bound, plateau_size=1)[1]["left_edges"]
+    index = np.concatenate([peaks, troughs])
+    is_peak = np.concatenate([np.ones(peaks.size, bool), np.zeros(troughs.size, bool)])
+    order = np.argsort(index, kind="stable")
+    index, is_peak = index[order], is_peak[order]
+    first = np.ones(index.size, bool)  # equal extrema of one kind in a row: one slip, the first
+    first[1:] = is_peak[1:] != is_peak[:-1]
+    return index[first & is_peak].astype(int), index[first & ~is_peak].astype(int)
 
 
 def _integral(F: np.ndarray, t: np.ndarray) -> float:
@@ -128,7 +125,8 @@ def record_statistics(t, F, *, transient: float = 0.0, min_drop: float | None = 
     **Slips.** A slip is a fall of F by more than ``min_drop`` [N] below its running maximum;
     the next one counts only after F has risen by more than ``min_drop`` above its running
     minimum (hysteresis: noise smaller than ``min_drop`` neither makes nor splits a slip). The
-    first extremum found in the window is left out (the window may cut it). Default
+    first extremum found in the window is left out (the window may cut it). These are the
+    maxima and minima of prominence above ``min_drop`` (``scipy.signal.find_peaks``). Default
     ``min_drop``: the larger of 10 times the record's white-noise level (estimated from the
     median absolute deviation of its second differences, which assumes samples dense enough
     that F changes smoothly between slips) and 1 % of its peak-to-peak range. Not a fixed
