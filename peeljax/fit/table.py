@@ -30,6 +30,7 @@ at every step) and the best is kept.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Sequence
@@ -39,7 +40,6 @@ import jax
 import jax.flatten_util
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 from jaxtyping import Array, Float
 
 from .._validation import check_positive
@@ -54,7 +54,7 @@ from .stick_slip_table import STATISTICS, StickSlipTable
 from .trajectory import FitResult, _check_free, _to_law
 from .uncertainty import uncertainty_from_jacobian
 
-__all__ = ["MISSING_RESIDUAL", "TableFit", "build_table_fit", "fit_stick_slip", "table_residuals"]
+__all__ = ["MISSING_RESIDUAL", "TableFit", "TableFitResult", "build_table_fit", "fit_stick_slip", "table_residuals"]
 
 MISSING_RESIDUAL = 10.0
 V_REST = 1e-4  # m/s: the lower end of the reported v range where the tape comes to rest (v = 0)
@@ -152,36 +152,153 @@ def _residuals_and_jacobian(fit: TableFit, theta):
 
 
 @eqx.filter_jit
-def _solve(fit: TableFit, thetas, rtol, atol, max_iterations: int):
-    """Levenberg–Marquardt from each start (a batch): θ, the residuals at the start and at θ, the
-    Jacobian and the v range at θ, result code, steps."""
-    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+def _evaluate(fit: TableFit, thetas):
+    """For a batch of θ (each leaf (B,)), one after another (``lax.map``) in one compiled program:
+    r (B, m), J (B, m, p; columns in ``fit.names`` order) and the v range (B, n, 2). The coarse
+    batch and every Levenberg–Marquardt iteration call this one program (one compilation: a
+    second, runs-only program for the coarse batch would cost more to compile than its
+    tangents cost to run). ``lax.map``, not ``vmap``: under ``vmap`` every lax.cond of the loop
+    (the fold location, the jump, the output) runs at every step."""
 
-    def one(theta0):
-        start = fit.residuals(theta0)
-        sol = optx.least_squares(
-            fit.residuals, solver, theta0, options={"jac": "fwd"}, max_steps=max_iterations, throw=False
-        )
-        theta = sol.value
-        residuals, jacobian, v_range = _residuals_and_jacobian(fit, theta)
-        return theta, start, residuals, jacobian, v_range, sol.result._value, sol.stats["num_steps"]
+    def one(theta):
+        r, jacobian, v_range = _residuals_and_jacobian(fit, theta)
+        return r, jnp.stack([jacobian[n] for n in fit.names], axis=1), v_range
 
-    # One start after another (lax.map), not vmap: under vmap every lax.cond of the loop (the fold
-    # location, the jump, the output) becomes a select that runs at every step (measured: 3
-    # iterations from one start 18 s under vmap, against a fraction of a second).
     return jax.lax.map(one, thetas)
 
 
-def _reason(code: int, steps: int, max_iterations: int) -> str:
-    """Why the fit stopped, in words."""
-    if code == 0:
-        return "converged: the relative changes of the coefficients and of the loss fell below fit_rtol/fit_atol"
-    if steps >= max_iterations:
-        return f"max_iterations ({max_iterations}) reached before convergence"
-    for item in (optx.RESULTS.nonlinear_divergence, optx.RESULTS.nonfinite, optx.RESULTS.nonlinear_max_steps_reached):
-        if int(item._value) == code:
-            return f"stopped by optimistix: {optx.RESULTS[item]}"
-    return f"stopped by optimistix (result code {code})"
+def _missing(r) -> int:
+    """The entries at ``MISSING_RESIDUAL``: statistics the runs did not produce."""
+    return int(np.sum(np.asarray(r) == MISSING_RESIDUAL))
+
+
+# Why Levenberg–Marquardt stopped: the converged reasons first.
+CONVERGED = ("gauss-newton", "loss")
+_REASONS = {
+    "gauss-newton": "converged: the Gauss-Newton step would lower chi2 by less than fit_atol "
+    "(the optimum within sqrt(fit_atol) standard errors)",
+    "loss": "converged: the last step and the Gauss-Newton step lower chi2 by less than fit_rtol (relative)",
+    "max_iterations": "not converged: max_iterations model evaluations reached",
+    "stalled": "not converged: no step lowers chi2 any more (the damping grew past 1e12): the "
+    "residuals' own numerical noise, or a start where the runs lose their stick-slip",
+    "nonfinite": "not converged: the residuals or the Jacobian at the start are not finite",
+}
+
+
+class _Marquardt:
+    """One Levenberg–Marquardt run on χ²(z) = ‖r(z)‖² (Nielsen's damping update, Marquardt's
+    diagonal scaling), driven from outside: :meth:`trial` proposes the next point, :meth:`take`
+    judges r and J there (every evaluation gives both from one forward-mode trace, so an
+    accepted trial point needs no second run). ``reason`` is set once it stops, on the first of:
+
+    * ``gauss-newton``: the Gauss–Newton step's predicted decrease of χ², ‖J·δ_GN‖², is at most
+      fit_atol·max(1, χ²/dof) — the optimum is within √fit_atol standard errors;
+    * ``loss``: an accepted step lowered χ² by at most fit_rtol·χ², and the Gauss–Newton
+      step would too;
+    * ``max_iterations`` evaluations; ``stalled``: the damping past 1e12 of its start (no descent
+      found); ``nonfinite`` r or J at the start.
+
+    A trial point where the runs lose a statistic the current point has (no slip in a window) is
+    refused whatever its χ².
+    """
+
+    def __init__(self, z, r, J, v_range, *, fit_rtol, fit_atol, max_iterations):
+        self.z, self.r, self.J, self.v_range = np.asarray(z, float), r, J, v_range
+        self.fit_rtol, self.fit_atol, self.max_iterations = fit_rtol, fit_atol, max_iterations
+        self.evaluations, self.chi2 = 1, float(r @ r)
+        self.history, self.reason, self.step = [self.chi2], None, None
+        if not (np.isfinite(self.chi2) and np.all(np.isfinite(J))):
+            self.reason = "nonfinite"
+            return
+        diag = np.diag(J.T @ J)
+        self.lam = 1e-3 * float(np.max(diag)) if np.max(diag) > 0 else 1e-3
+        self.lam_max, self.nu = 1e12 * self.lam, 2.0
+        self._check()
+
+    def _check(self):
+        """Set ``reason`` where the Gauss–Newton test or the budget stops the run."""
+        m, p = self.J.shape
+        gauss_newton = np.linalg.lstsq(self.J, -self.r, rcond=None)[0]
+        self.predicted_gn = float(np.sum((self.J @ gauss_newton) ** 2))
+        if self.predicted_gn <= self.fit_atol * max(1.0, self.chi2 / max(m - p, 1)):
+            self.reason = "gauss-newton"
+        elif self.evaluations >= self.max_iterations:
+            self.reason = "max_iterations"
+
+    def trial(self) -> np.ndarray:
+        """The next point to evaluate (the current one once stopped)."""
+        if self.reason is not None:
+            return self.z
+        A, g = self.J.T @ self.J, self.J.T @ self.r
+        D = np.maximum(np.diag(A), 1e-12 * max(float(np.max(np.diag(A))), 1e-300))
+        self.step = np.linalg.solve(A + self.lam * np.diag(D), -g)
+        self.predicted = float(-(2 * g @ self.step + self.step @ A @ self.step))
+        return self.z + self.step
+
+    def take(self, r, J, v_range) -> None:
+        """r, J and the v range at :meth:`trial`'s point."""
+        if self.reason is not None:
+            return
+        self.evaluations += 1
+        chi2 = float(r @ r)
+        rho = (self.chi2 - chi2) / self.predicted if self.predicted > 0 else -1.0
+        keeps = _missing(r) <= _missing(self.r)
+        if keeps and np.isfinite(chi2) and np.all(np.isfinite(J)) and rho > 1e-4:
+            decrease = self.chi2 - chi2
+            self.z, self.r, self.J, self.v_range, self.chi2 = self.z + self.step, r, J, v_range, chi2
+            self.history.append(chi2)
+            self.lam *= max(1 / 3, 1 - (2 * rho - 1) ** 3)
+            self.nu = 2.0
+            self._check()
+            if self.reason is None and decrease <= self.fit_rtol * chi2 and self.predicted_gn <= self.fit_rtol * chi2:
+                self.reason = "loss"
+        else:
+            self.lam *= self.nu
+            self.nu *= 2.0
+            if self.lam > self.lam_max:
+                self.reason = "stalled"
+            elif self.evaluations >= self.max_iterations:
+                self.reason = "max_iterations"
+
+
+def _evaluate_batch(fit: TableFit, zs: np.ndarray, batch: int):
+    """r, J, v range at the rows of ``zs`` (θ in ``fit.names`` order), ``batch`` at a time
+    through the one compiled program :func:`_evaluate` (the last chunk padded)."""
+    out = []
+    for begin in range(0, len(zs), batch):
+        chunk = zs[begin : begin + batch]
+        padded = np.concatenate([chunk, np.repeat(chunk[-1:], batch - len(chunk), axis=0)])
+        r, J, v = _evaluate(fit, {n: jnp.asarray(padded[:, k]) for k, n in enumerate(fit.names)})
+        out += list(zip(np.asarray(r), np.asarray(J), np.asarray(v)))[: len(chunk)]
+    return out
+
+
+def _solve(fit: TableFit, starts, evaluated, *, fit_rtol, fit_atol, max_iterations, progress=None) -> list[_Marquardt]:
+    """Levenberg–Marquardt from each start (rows of ``starts``, already ``evaluated``: (r, J, v
+    range) each) in lockstep: each iteration evaluates every run's trial point in one call of
+    :func:`_evaluate`."""
+    runs = [
+        _Marquardt(z, *e, fit_rtol=fit_rtol, fit_atol=fit_atol, max_iterations=max_iterations)
+        for z, e in zip(starts, evaluated)
+    ]  # fmt: skip
+    iteration = 0
+    while any(run.reason is None for run in runs):
+        trials = np.stack([run.trial() for run in runs])
+        for run, e in zip(runs, _evaluate_batch(fit, trials, len(runs))):
+            run.take(*e)
+        iteration += 1
+        if progress is not None:  # on the host, between iterations: the lowest chi2 so far
+            progress(iteration, min(run.chi2 for run in runs))
+    return runs
+
+
+def _coarse_starts(n_coarse: int, p: int, spread: float, seed: int) -> np.ndarray:
+    """θ = 0 (the start itself) and n_coarse − 1 points of a Latin hypercube on [−spread, spread]^p
+    (log c: each coefficient within a factor exp(±spread) of its start)."""
+    rng = np.random.default_rng(seed)
+    n = n_coarse - 1
+    cube = (np.stack([rng.permutation(n) for _ in range(p)], axis=1) + rng.uniform(size=(n, p))) / max(n, 1)
+    return np.concatenate([np.zeros((1, p)), spread * (2 * cube - 1)])
 
 
 def _table_arrays(table: StickSlipTable, wanted) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
@@ -200,7 +317,10 @@ def _table_arrays(table: StickSlipTable, wanted) -> tuple[np.ndarray, np.ndarray
     return data, sigma, measured, has_std
 
 
-def _check_options(table, transient, window, n_samples, tau, n_starts, max_iterations, fit_rtol, fit_atol):
+def _check_options(
+    table, transient, window, n_samples, tau, n_starts, max_iterations, fit_rtol, fit_atol, n_coarse, coarse_spread,
+    scale_covariance,
+):  # fmt: skip
     if not isinstance(table, StickSlipTable):
         raise TypeError(f"table must be a StickSlipTable (read_stick_slip_table), got {type(table).__name__}")
     check_positive("window", window)
@@ -208,11 +328,19 @@ def _check_options(table, transient, window, n_samples, tau, n_starts, max_itera
         raise ValueError(f"transient must be a number >= 0, got {transient!r}")
     if not (isinstance(tau, (int, float)) and math.isfinite(tau) and tau >= 0):
         raise ValueError(f"tau must be a number >= 0, got {tau!r}")
-    for name, value, least in (("n_samples", n_samples, 2), ("n_starts", n_starts, 1), ("max_iterations", max_iterations, 1)):
+    for name, value, least in (
+        ("n_samples", n_samples, 2), ("n_starts", n_starts, 1), ("max_iterations", max_iterations, 1),
+        ("n_coarse", n_coarse, 1),
+    ):  # fmt: skip
         if isinstance(value, bool) or not isinstance(value, int) or value < least:
             raise ValueError(f"{name} must be an integer >= {least}, got {value!r}")
+    if n_starts > n_coarse:
+        raise ValueError(f"n_starts must be <= n_coarse ({n_coarse}): the starts are the best of the coarse batch")
     check_positive("fit_rtol", fit_rtol)
     check_positive("fit_atol", fit_atol)
+    check_positive("coarse_spread", coarse_spread)
+    if not (scale_covariance is True or scale_covariance is False or scale_covariance == "auto"):
+        raise ValueError(f"scale_covariance must be 'auto', True or False, got {scale_covariance!r}")
 
 
 def table_tolerances(tau: float, rtol: float | None = None, atol: float | None = None) -> tuple[float, float]:
@@ -230,6 +358,74 @@ def table_tolerances(tau: float, rtol: float | None = None, atol: float | None =
     )
 
 
+OUTLIER_SIGMA = 5.0  # |residual| in σ from which a table entry is named in the result
+EQUAL_CHI2 = 1.0  # optima within χ²_min + 1 fit equally well (a 68 % joint region's edge for one coefficient)
+
+
+@dataclasses.dataclass
+class TableFitResult(FitResult):
+    """:class:`~peeljax.fit.FitResult` of a table fit, with what a least-squares fit reports.
+
+    Attributes (besides :class:`~peeljax.fit.FitResult`'s):
+        chi2, dof: χ² = Σ r² at the optimum and m − p; ``chi2 / dof`` ≈ 1 when the table's σ
+            are right (``uncertainty.scaled``: whether the covariance was scaled by it).
+        outliers: entries with |r| > 5 σ, as (row, V, statistic, r in σ), largest first.
+        missing: entries the fitted model does not produce (no slip in the window), as
+            (row, V, statistic); each costs ``MISSING_RESIDUAL`` in χ².
+        optima: every LM run's end (coefficients, χ², stop reason), best first;
+            ``equivalent_optima`` those distinct from the best (> 1 standard error apart in some
+            coefficient) with χ² within χ²_min + 1: the data do not choose between them.
+        coarse_losses: χ² of every point of the coarse batch (the start first).
+        converged: the best run stopped on a convergence criterion with every statistic produced.
+    """
+
+    chi2: float = math.nan
+    dof: int = 0
+    outliers: list = dataclasses.field(default_factory=list)
+    missing: list = dataclasses.field(default_factory=list)
+    optima: list = dataclasses.field(default_factory=list)
+    equivalent_optima: list = dataclasses.field(default_factory=list)
+    coarse_losses: np.ndarray | None = None
+    converged: bool = False
+
+    @property
+    def chi2_dof(self) -> float:
+        return self.chi2 / self.dof if self.dof > 0 else math.nan
+
+    def to_dict(self) -> dict:
+        return {
+            **super().to_dict(),
+            "chi2": self.chi2, "dof": self.dof, "chi2_dof": self.chi2_dof, "converged": self.converged,
+            "outliers": [{"row": i, "V": V, "statistic": s, "residual_sigma": x} for i, V, s, x in self.outliers],
+            "missing": [{"row": i, "V": V, "statistic": s} for i, V, s in self.missing],
+            "optima": self.optima, "equivalent_optima": self.equivalent_optima,
+            "coarse_losses": None if self.coarse_losses is None else [float(x) for x in self.coarse_losses],
+        }  # fmt: skip
+
+    def summary(self) -> str:
+        """The fit in a few lines: stop reason, χ²/dof, coefficients ± standard errors, the
+        residuals beyond 5 σ, equally good optima."""
+        lines = [
+            f"Levenberg-Marquardt: {self.steps} model evaluations, chi2 {self.initial_loss:.4g} -> {self.final_loss:.4g}",
+            f"stopped: {self.stop_reason}",
+            self.uncertainty.table(),
+        ]
+        if self.outliers:
+            lines.append(f"residuals beyond {OUTLIER_SIGMA:g} sigma:")
+            lines += [f"  row {i} (V = {V:g}) {s}: {x:+.1f} sigma" for i, V, s, x in self.outliers]
+        if self.missing:
+            lines.append("not produced by the fitted model (no slip in the window; each costs "
+                         f"{MISSING_RESIDUAL:g} sigma):")  # fmt: skip
+            lines += [f"  row {i} (V = {V:g}) {s}" for i, V, s in self.missing]
+        if self.equivalent_optima:
+            lines.append(f"other optima within chi2_min + {EQUAL_CHI2:g} (the data do not choose between them):")
+            lines += [
+                "  " + ", ".join(f"{n} = {c:.6g}" for n, c in o["coefficients"].items()) + f" (chi2 {o['chi2']:.4g})"
+                for o in self.equivalent_optima
+            ]
+        return "\n".join(lines)
+
+
 def fit_stick_slip(
     table: StickSlipTable,
     model: PeelingModel | None = None,
@@ -244,14 +440,17 @@ def fit_stick_slip(
     rtol: float | None = None,
     atol: float | None = None,
     fit_rtol: float = 1e-6,
-    fit_atol: float = 1e-8,
+    fit_atol: float = 1e-6,
     max_iterations: int = 30,
-    n_starts: int = 1,
-    start_spread: float = 0.05,
+    n_starts: int = 2,
+    n_coarse: int = 32,
+    coarse_spread: float = 0.2,
     seed: int = 0,
+    scale_covariance: bool | str = "auto",
     max_jumps: int = 4096,
     max_steps: int = 400_000,
-) -> FitResult:
+    progress=None,
+) -> TableFitResult:
     """Fit φ's free coefficients to a stick-slip table by Levenberg–Marquardt (module docstring).
 
     Args:
@@ -266,23 +465,36 @@ def fit_stick_slip(
         n_samples: dense-output times in the window (``F_mean`` is their mean).
         rtol, atol: the integrator's tolerances; None: :func:`table_tolerances` (τ = 0: rtol
             1e-9, atol 1e-12 for the default Tsit5 stepper; τ > 0: 1e-7, 1e-10).
-        fit_rtol, fit_atol: Levenberg–Marquardt's convergence tolerances (optimistix's Cauchy
-            test on the coefficients and the loss); ``max_iterations``: its budget.
-        n_starts: starts run one after another in one program: the first at ``start``, the others with each free
-            coefficient scaled by exp(N(0, start_spread²)) (``seed``); the best is kept,
-            ``result.start_losses`` holds every start's final loss.
+        fit_rtol, fit_atol: Levenberg–Marquardt's convergence tolerances (``_REASONS``:
+            fit_atol on the Gauss–Newton step's predicted χ² decrease, fit_rtol on the relative
+            step and χ² decrease); ``max_iterations``: its budget of model evaluations per start.
+        n_coarse, coarse_spread, seed: the coarse batch — χ² at the start and at n_coarse − 1
+            points of a Latin hypercube with each free coefficient within exp(±coarse_spread)
+            of its start (``seed``), all in one compiled call, runs only.
+        n_starts: Levenberg–Marquardt runs from the n_starts best points of the coarse batch;
+            the best end is kept, the others are reported (``result.optima``).
+        scale_covariance: ``"auto"`` (scale by χ²/dof where it exceeds 1: the table's σ too
+            small), True (always, as ``curve_fit``), False (never);
+            :mod:`peeljax.fit.uncertainty`. A table without σ is always scaled.
         max_jumps, max_steps: each run's jump record and step budget.
+        progress: None, or ``progress(iteration, chi2)`` called on the host after each
+            Levenberg–Marquardt iteration (chi2: the lowest of the starts so far).
 
     Returns:
-        A :class:`~peeljax.fit.FitResult`: ``adhesion`` (the fitted law), ``uncertainty``
-        (:class:`~peeljax.fit.uncertainty.Uncertainty`), ``stop_reason``, ``residuals`` (the
-        measured entries of (model − data)/σ, row by row), ``v_range`` (the v visited in the
-        windows, from at least ``V_REST`` = 1e-4 m/s where the tape comes to rest: φ is fixed
-        by the data only there) and ``settings``.
+        A :class:`TableFitResult`: ``adhesion`` (the fitted law), ``uncertainty``
+        (:class:`~peeljax.fit.uncertainty.Uncertainty`, χ²/dof and the singular directions
+        included), ``stop_reason``, ``converged``, ``chi2``/``dof``, ``outliers`` (entries beyond
+        5 σ), ``optima``/``equivalent_optima``, ``residuals`` (the measured entries of
+        (model − data)/σ, row by row), ``v_range`` (the v visited in the windows, from at least
+        ``V_REST`` = 1e-4 m/s where the tape comes to rest: φ is fixed by the data only there)
+        and ``settings``; ``summary()`` prints it.
     """
     began = time.perf_counter()
     rtol, atol = table_tolerances(tau, rtol, atol)
-    _check_options(table, transient, window, n_samples, tau, n_starts, max_iterations, fit_rtol, fit_atol)
+    _check_options(
+        table, transient, window, n_samples, tau, n_starts, max_iterations, fit_rtol, fit_atol, n_coarse,
+        coarse_spread, scale_covariance,
+    )  # fmt: skip
     names = _check_free(free)
     model = PeelingModel() if model is None else model
     start = model.adhesion if start is None else start
@@ -302,43 +514,73 @@ def fit_stick_slip(
         start, model, table.V, data, sigma, measured, names=names, tau=tau, transient=transient, window=window,
         n_samples=n_samples, rtol=rtol, atol=atol, max_jumps=max_jumps, max_steps=max_steps,
     )  # fmt: skip
-    offsets = np.zeros((n_starts, len(names)))
-    offsets[1:] = np.random.default_rng(seed).normal(0.0, start_spread, size=(n_starts - 1, len(names)))
-    thetas, starts, rs, Js, v_ranges, codes, steps = _solve(
-        fit, {n: jnp.asarray(offsets[:, k]) for k, n in enumerate(names)}, fit_rtol, fit_atol, max_iterations
-    )
-    rs, codes, steps = np.asarray(rs), np.asarray(codes), np.asarray(steps)
-    losses = np.sum(rs**2, axis=1)
-    best = int(np.argmin(np.where(np.isfinite(losses), losses, np.inf)))
-    theta = {n: thetas[n][best] for n in names}
-    J = np.stack([np.asarray(Js[n][best]) for n in names], axis=1)
+    # The coarse batch, n_starts points per call of the one compiled program; LM from its best.
+    coarse = _coarse_starts(n_coarse, len(names), coarse_spread, seed)
+    evaluated = _evaluate_batch(fit, coarse, n_starts)
+    coarse_losses = np.asarray([float(r @ r) for r, _, _ in evaluated])
+    coarse_missing = np.asarray([_missing(r) for r, _, _ in evaluated])
+    # fewest missing statistics first (a point where the runs lose their stick-slip is worse
+    # than any that keeps it, whatever its χ²), then χ²
+    order = np.lexsort((np.where(np.isfinite(coarse_losses), coarse_losses, np.inf), coarse_missing))[:n_starts]
+    runs = _solve(fit, coarse[order], [evaluated[k] for k in order], fit_rtol=fit_rtol, fit_atol=fit_atol,
+                  max_iterations=max_iterations, progress=progress)  # fmt: skip
+    runs.sort(key=lambda run: (_missing(run.r), run.chi2 if np.isfinite(run.chi2) else np.inf))
+    best = runs[0]
+    theta = {n: jnp.asarray(best.z[k]) for k, n in enumerate(names)}
     law = _to_law(theta, start)
     values = np.asarray([float(getattr(law, n)) for n in names])
-    initial = np.asarray(starts[0])  # the first start is at ``start`` itself
-    v_range = np.asarray(v_ranges[best])
+    scale = True if not has_std else scale_covariance
+    uncertainty = uncertainty_from_jacobian(best.J, best.r, values, names, scaled=scale)
+    rows, columns = fit.measured
+    entries = [(int(i), float(table.V[i]), STATISTICS[j], float(x)) for i, j, x in zip(rows, columns, best.r)]
+    missing = [e[:3] for e in entries if e[3] == MISSING_RESIDUAL]
+    outliers = sorted((e for e in entries if abs(e[3]) > OUTLIER_SIGMA and e[3] != MISSING_RESIDUAL),
+                      key=lambda e: -abs(e[3]))  # fmt: skip
+    optima = [
+        {"coefficients": {n: float(getattr(start, n)) * math.exp(run.z[k]) for k, n in enumerate(names)},
+         "chi2": run.chi2, "stop_reason": run.reason, "evaluations": run.evaluations}
+        for run in runs
+    ]  # fmt: skip
+    se_log = np.sqrt(np.maximum(np.diag(uncertainty.covariance_log), 0.0))
+    equivalent = [
+        o for run, o in zip(runs[1:], optima[1:])
+        if run.chi2 <= best.chi2 + EQUAL_CHI2 and np.any(np.abs(run.z - best.z) > np.maximum(se_log, 1e-12))
+    ]  # fmt: skip
+    v_range = np.asarray(best.v_range)
     settings = {
         "kind": "stick-slip table", "V": [float(v) for v in table.V], "statistics": list(wanted), "tau": float(tau),
         "transient": float(transient), "window": float(window), "n_samples": n_samples, "rtol": rtol, "atol": atol,
         "fit_rtol": fit_rtol, "fit_atol": fit_atol, "max_iterations": max_iterations, "n_starts": n_starts,
-        "start_spread": start_spread, "seed": seed, "method": "levenberg-marquardt (optimistix)",
-        "weights": "the table's standard deviations" if has_std else "column RMS; covariance scaled by s^2",
+        "n_coarse": n_coarse, "coarse_spread": coarse_spread, "seed": seed,
+        "method": "levenberg-marquardt (forward-mode Jacobian) from the best of a coarse batch",
+        "weights": "the table's standard deviations" if has_std else "column RMS",
+        "scale_covariance": scale if isinstance(scale, str) else bool(scale),
         "parametrisation": "c = c_start*exp(theta)",
     }  # fmt: skip
-    return FitResult(
+    initial = float(coarse_losses[0])  # the coarse batch's first point is ``start`` itself
+    return TableFitResult(
         adhesion=law,
         start=start,
-        loss_history=np.asarray([float(initial @ initial), float(losses[best])]),
-        initial_loss=float(initial @ initial),
-        final_loss=float(losses[best]),
-        gradient_norm=float(np.linalg.norm(2 * J.T @ rs[best])),
-        steps=int(steps[best]),
-        stopped_early=bool(codes[best] == 0),
+        loss_history=np.asarray(best.history),
+        initial_loss=initial,
+        final_loss=best.chi2,
+        gradient_norm=float(np.linalg.norm(2 * best.J.T @ best.r)),
+        steps=int(max(run.evaluations for run in runs)),
+        stopped_early=best.reason in CONVERGED,
         v_range=(float(max(np.min(v_range[:, 0]), V_REST)), float(np.max(v_range[:, 1]))),
         free=names,
         settings=settings,
         wall_time_s=time.perf_counter() - began,
-        uncertainty=uncertainty_from_jacobian(J, rs[best], values, names, scaled=not has_std),
-        stop_reason=_reason(int(codes[best]), int(steps[best]), max_iterations),
-        residuals=rs[best],
-        start_losses=losses,
+        uncertainty=uncertainty,
+        stop_reason=_REASONS[best.reason],
+        residuals=best.r,
+        start_losses=np.asarray([run.chi2 for run in runs]),
+        chi2=best.chi2,
+        dof=uncertainty.dof,
+        outliers=outliers,
+        missing=missing,
+        optima=optima,
+        equivalent_optima=equivalent,
+        coarse_losses=coarse_losses,
+        converged=best.reason in CONVERGED and not missing,
     )

@@ -5,10 +5,25 @@ coefficients θ, c = c_start·exp(θ)) and Jacobian J = ∂r/∂θ = U·S·Vᵀ:
 
     Cov(θ) = s²·(JᵀJ)⁻¹ = s²·V·S⁻²·Vᵀ,   Cov(c) = diag(c)·Cov(θ)·diag(c),
 
-with s² = ‖r‖²/(m − p) where the data carry no standard deviations (the residuals are then
-in units of each column's RMS and the fit's own scatter estimates the noise), and s² = 1 where
-they do (the residuals are already (model − data)/σ). Standard errors are √diag(Cov(c)), the
-correlation Cov_ij/(σ_i·σ_j).
+χ² = ‖r‖², dof = m − p, and s² the covariance's scale (``scaled``):
+
+* ``"auto"`` (the table fit's default): s² = max(1, χ²/dof) where the data carry standard
+  deviations — the residuals are (model − data)/σ, so χ²/dof ≈ 1 when the σ are right, and a
+  larger χ²/dof says they are too small (or the model misses something): the covariance is
+  inflated by it as ``scipy.optimize.curve_fit`` (``absolute_sigma=False``) and lmfit
+  (``scale_covar=True``) do, but never shrunk below the σ given;
+* ``True``: s² = χ²/dof always (curve_fit's default; the data without standard deviations,
+  whose residuals are in units of each column's RMS);
+* ``False``: s² = 1 (the σ taken as exact: curve_fit's ``absolute_sigma=True``).
+
+Standard errors are √diag(Cov(c)), the correlation Cov_ij/(σ_i·σ_j).
+
+**Singular directions** (:attr:`Uncertainty.directions`): the columns V_k of V are the
+combinations Σ_j V_jk·log c_j the data determine independently, each to the standard error
+s/S_k (relative: a change of the product Π_j c_j^V_jk by that fraction). Where coefficients are
+strongly correlated, a coefficient alone is poorly determined while a combination (typically
+along the valley of two terms of φ that compensate) is determined well; the summary then lists
+the directions from the best to the worst determined.
 
 **Undetermined coefficients**: a singular value below ``rcond``·S_max means a direction in
 θ the data do not fix; the coefficients that make up that direction (|V_ij| ≥ 0.3) are named
@@ -37,6 +52,8 @@ from ..adhesion import AdhesionLaw
 __all__ = ["Uncertainty", "quantile", "uncertainty_from_jacobian"]
 
 UNDETERMINED_RCOND = 1e-6
+CORRELATED = 0.9  # |correlation| from which the summary lists the singular directions
+SCALE_RULES = ("auto", True, False)
 _MEMBER = 0.3  # |V_ij| from which a coefficient is part of an undetermined direction
 
 
@@ -68,9 +85,12 @@ class Uncertainty:
         correlation: Cov_ij/(σ_i·σ_j) (NaN where a σ is infinite or zero).
         singular_values: of J = ∂r/∂θ, decreasing.
         undetermined: the coefficients the data do not determine (module docstring).
-        residual_variance: s² (1 where the data carry standard deviations).
+        residual_variance: s², the covariance's scale (module docstring).
         dof: m − p, the residuals minus the free coefficients.
-        scaled: whether s² was estimated from the residuals.
+        scaled: whether the covariance was scaled by χ²/dof (s² ≠ 1).
+        chi2: χ² = ‖r‖² at the optimum.
+        directions: V (p × p, column k the k-th singular direction of J in log c).
+        scale_rule: how s² was chosen (``"auto"``, ``"always"``, ``"never"``).
     """
 
     names: tuple[str, ...]
@@ -84,6 +104,42 @@ class Uncertainty:
     residual_variance: float
     dof: int
     scaled: bool
+    chi2: float = math.nan
+    directions: np.ndarray | None = None
+    scale_rule: str = "always"
+
+    @property
+    def chi2_dof(self) -> float:
+        """χ²/dof (NaN without degrees of freedom)."""
+        return self.chi2 / self.dof if self.dof > 0 else math.nan
+
+    def direction_errors(self) -> np.ndarray:
+        """The standard error s/S_k of each singular direction's combination Σ_j V_jk·log c_j
+        (inf for an undetermined one)."""
+        S = np.asarray(self.singular_values, float)
+        with np.errstate(divide="ignore"):
+            return np.where(S > 0, math.sqrt(self.residual_variance) / np.where(S > 0, S, 1.0), np.inf)
+
+    def combinations(self) -> list[tuple[str, float]]:
+        """The singular directions as text, ``"+0.71·log c1 −0.70·log c6"``, with their
+        standard errors; from the best to the worst determined."""
+        if self.directions is None:
+            return []
+        out = []
+        for k, err in enumerate(self.direction_errors()):
+            w = self.directions[:, k]
+            w = w if w[np.argmax(np.abs(w))] > 0 else -w  # sign: the largest weight positive
+            terms = [f"{x:+.2f}·log {n}" for n, x in zip(self.names, w) if abs(x) >= 0.05]
+            out.append((" ".join(terms), float(err)))
+        return out
+
+    def max_correlation(self) -> float:
+        """The largest |correlation| between two different coefficients (0 for one)."""
+        p = len(self.names)
+        if p < 2:
+            return 0.0
+        off = np.abs(self.correlation[~np.eye(p, dtype=bool)])
+        return float(np.nanmax(off)) if np.any(np.isfinite(off)) else math.nan
 
     def quantile(self, level: float = 0.95) -> float:
         return quantile(level, self.dof if self.scaled else None)
@@ -126,6 +182,13 @@ class Uncertainty:
             "residual_variance": self.residual_variance,
             "dof": self.dof,
             "scaled": self.scaled,
+            "scale_rule": self.scale_rule,
+            "chi2": None if not math.isfinite(self.chi2) else float(self.chi2),
+            "chi2_dof": None if not math.isfinite(self.chi2_dof) else float(self.chi2_dof),
+            "singular_directions": [
+                {"combination": text, "standard_error": None if not math.isfinite(err) else err}
+                for text, err in self.combinations()
+            ],
             "intervals_95": {k: list(v) for k, v in self.intervals(0.95).items()},
         }
 
@@ -137,6 +200,19 @@ class Uncertainty:
             lines.append(f"{n:<12} {v:>14.6g} {s:>14.3g} {rel:>9.2%}")
         if self.undetermined:
             lines.append(f"not determined by the data: {', '.join(self.undetermined)}")
+        if math.isfinite(self.chi2):
+            how = (
+                f"covariance scaled by chi2/dof = {self.residual_variance:.3g}"
+                if self.scaled
+                else "covariance not scaled (the table's standard deviations taken as they are)"
+            )
+            lines.append(f"chi2 = {self.chi2:.4g}, dof = {self.dof}, chi2/dof = {self.chi2_dof:.3g}; {how}")
+        if self.undetermined or self.max_correlation() >= CORRELATED:
+            lines.append(
+                f"coefficients correlated (max |correlation| {self.max_correlation():.3f}): "
+                "the combinations the data determine (singular directions, relative standard error):"
+            )
+            lines += [f"  {text}: ± {err:.3g}" for text, err in self.combinations()]
         return "\n".join(lines)
 
     def __str__(self) -> str:
@@ -149,15 +225,21 @@ def _scaled(law: AdhesionLaw, name: str, theta):
 
 
 def uncertainty_from_jacobian(
-    jacobian, residuals, values, names, *, scaled: bool, rcond: float = UNDETERMINED_RCOND
+    jacobian, residuals, values, names, *, scaled: bool | str, rcond: float = UNDETERMINED_RCOND
 ) -> Uncertainty:
-    """:class:`Uncertainty` from J = ∂r/∂θ (m × p) and r at the optimum, c = ``values``."""
+    """:class:`Uncertainty` from J = ∂r/∂θ (m × p) and r at the optimum, c = ``values``;
+    ``scaled``: ``"auto"``, True or False (module docstring)."""
+    if not any(scaled is rule or (isinstance(scaled, str) and scaled == rule) for rule in SCALE_RULES):
+        raise ValueError(f"scale_covariance must be 'auto', True or False, got {scaled!r}")
     J = np.asarray(jacobian, float)
     r = np.asarray(residuals, float)
     c = np.asarray(values, float)
     m, p = J.shape
     dof = m - p
-    s2 = float(r @ r / dof) if (scaled and dof > 0) else 1.0
+    chi2 = float(r @ r)
+    ratio = chi2 / dof if dof > 0 else 1.0
+    rule = "auto" if isinstance(scaled, str) else ("always" if scaled else "never")
+    s2 = {"auto": max(1.0, ratio), "always": ratio, "never": 1.0}[rule]
     _, S, Vt = np.linalg.svd(J, full_matrices=False)
     keep = S > rcond * (S[0] if S.size and S[0] > 0 else 1.0)
     inv = np.where(keep, 1.0 / np.where(keep, S, 1.0) ** 2, 0.0)
@@ -175,5 +257,5 @@ def uncertainty_from_jacobian(
     return Uncertainty(
         names=tuple(names), values=c, covariance=cov, covariance_log=cov_log, standard_errors=se,
         correlation=corr, singular_values=S, undetermined=tuple(n for n in names if n in undetermined),
-        residual_variance=s2, dof=int(dof), scaled=bool(scaled and dof > 0),
+        residual_variance=s2, dof=int(dof), scaled=bool(s2 != 1.0), chi2=chi2, directions=Vt.T, scale_rule=rule,
     )  # fmt: skip
