@@ -1,6 +1,6 @@
 """A saved run read back: the ``.npz`` of ``peeljax simulate --out`` as a :class:`Solution`.
 
-``peeljax.load(path)`` (or ``Solution.load(path)``) returns a :class:`SavedRun`, a
+``peeljax.load(path)`` returns a :class:`SavedRun`, a
 :class:`Solution` that also carries what the file says about the run: its model (geometry and
 φ's coefficients), V, τ, t_final and the other settings. :func:`peeljax.analyze` takes those
 from it, so ``analyze(peeljax.load("run.npz"))`` analyzes the run as it was made, and

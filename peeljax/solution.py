@@ -241,11 +241,17 @@ class Solution(eqx.Module):
 
     @classmethod
     def load(cls, path) -> Solution:
-        """The run saved by ``peeljax simulate --out path``: :func:`peeljax.load` (a
-        :class:`~peeljax.saved.SavedRun`, which :func:`peeljax.analyze` reads with its V, τ and model)."""
-        from .saved import load
+        """Removed: use :func:`peeljax.load` (``peeljax.load(path)``), which returns the same
+        :class:`~peeljax.saved.SavedRun`. Reading a file here made this module import
+        :mod:`peeljax.saved`, which imports this one: an import circle.
 
-        return load(path)
+        Raises:
+            AttributeError: always, naming the replacement.
+        """
+        raise AttributeError(
+            "Solution.load was removed: use peeljax.load(path), which returns the same SavedRun "
+            "(a Solution with the run's model, V and tau)"
+        )
 
 
 def _to_python(value):
