@@ -114,14 +114,13 @@ from compare_problems import (
     p3_grid,
     p3_subsample,
     p4_coefficients,
-    p4_data,
     reference,
     relative_errors,
     scaled_error,
 )
-from machine import cpu_model
+from machine import command, cpu_model
 from peers import NotRun, Peer
-from peers.casadi_peer import CasadiBatch, CasadiLoss, CasadiPeer, dae_casadi_idas
+from peers.casadi_peer import CasadiBatch, CasadiLoss, CasadiPeer, dae_casadi_idas, p4_data
 from peers.diffrax_peer import DiffraxPeer, dae_diffrax_index1, diffrax_loss_of, diffrax_vmap
 from peers.numba_peer import NumbaAlpha
 from peers.peeljax_peer import (
@@ -564,6 +563,7 @@ def measure(args):
     started = time.perf_counter()
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     data = {
+        "command": command(),  # first: the JSON's header, and the report's
         "mode": "quick" if args.quick else "smoke" if args.smoke else "full",
         "only": list(args.only),
         "plot": f"work_precision{suffix}.png",

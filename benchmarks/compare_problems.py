@@ -4,9 +4,12 @@ Nothing here is timed. P1/P2 integrate one trajectory at V = ``V`` on t ∈ [0, 
 compared at the 301 times ``GRID`` against :func:`reference` (diffrax Kvaerno5 at ``REF_RTOL``);
 P3 is the batch ``p3_grid`` (``P3_VELOCITIES`` × τ log-spaced in ``P3_TAU_RANGE``), checked on
 ``p3_subsample`` with :func:`relative_errors` and each method's setting picked by :func:`calibrate`;
-P4 is the loss of v at ``P4_TIMES`` (data :func:`p4_data`, taken at :func:`p4_coefficients`) whose
+P4 is the loss of v at ``P4_TIMES`` (data ``peers.casadi_peer.p4_data``, taken at :func:`p4_coefficients`) whose
 gradient with respect to φ's 14 coefficients (``COEFFICIENT_NAMES``) is measured by
 :func:`scaled_error`; P5 runs the direct DAE at a few V (``compare.py``).
+
+This module is the floor of the suite: it imports no other module of ``benchmarks/`` (the peers,
+``compare.py`` and ``compare_report.py`` import it), so the imports have no circle.
 """
 
 from __future__ import annotations
@@ -123,14 +126,6 @@ def p4_coefficients():
     c = np.array(PAPER_PHI)
     c[COEFFICIENT_NAMES.index(P4_PERTURBATION[0])] *= P4_PERTURBATION[1]
     return c
-
-
-def p4_data():
-    """v_data at ``P4_TIMES``: the paper's φ, CasADi cvodes at rtol 1e-11 (log v)."""
-    from peers.casadi_peer import CasadiLoss
-
-    v = np.asarray(CasadiLoss(1e-11).trajectory(np.array(PAPER_PHI))).ravel()
-    return np.concatenate([[1e-10 * V], v])
 
 
 def central_differences(value, c):

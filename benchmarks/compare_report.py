@@ -40,6 +40,9 @@ from compare_problems import (
     cheapest_at,
     scaled_error,
 )
+from machine import made_by
+
+DEFAULT_COMMAND = "python benchmarks/compare.py"  # for a JSON written before it kept its command
 
 
 def render(data) -> list[str]:
@@ -49,6 +52,8 @@ def render(data) -> list[str]:
     def emit(line=""):
         out.append(line)
 
+    emit(made_by(data.get("command", DEFAULT_COMMAND)))
+    emit()
     header(emit, data)
     for entry in data.get("p1") or ():
         one_trajectory_section(emit, entry)
@@ -153,7 +158,7 @@ def describe(kind, stats):
     return f"{stats['steps']}/{stats['rejected']}, {stats['snes_iterations']} ({stats['snes_failures']} failed)"
 
 
-def work_precision_plot(p1, path):
+def work_precision_plot(p1, path, cmd=DEFAULT_COMMAND):
     """Wall time against error of every ok (peer, setting), one panel per τ."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -176,7 +181,7 @@ def work_precision_plot(p1, path):
         ax.set_title(f"V = {V} m/s, τ = {entry['tau']} s, t ∈ [0, {T_FINAL:g}] s")
         ax.grid(True, which="both", alpha=0.3)
     axes[-1].legend(fontsize=8)
-    FigureCanvasAgg(fig).print_figure(path, dpi=120)
+    FigureCanvasAgg(fig).print_figure(path, dpi=120, metadata={"Description": made_by(cmd)})  # the PNG's header
 
 
 # --------------------------------------------------------------------------- (P3) a batch of trajectories
@@ -319,7 +324,7 @@ def batch_section(emit, d):
         tuned = per_batch["tuned"]
         accepted_tuned = np.asarray(d["accepted_tuned"])
         emit(f"Tuned (ρ = {d['tuned']['rho']:g}, atol = {d['tuned']['atol_factor']:g}·rtol, the peers' atol rule; "
-             f"`benchmarks/lane_levers.py` measures each lever): {tuned:.2f} s per batch at rtol = "
+             f"`benchmarks/studies/lane_levers.py` measures each lever): {tuned:.2f} s per batch at rtol = "
              f"{m['tuned']['setting']:g}, {np.mean(accepted_tuned):.0f} accepted steps per trajectory (default: "
              f"{np.mean(accepted):.0f}); {base / tuned:.2f}× the default sweep's speed, {per_batch['diffrax'] / tuned:.2f}× "
              f"diffrax's, against CasADi's loop split over the same cores {casadi_shared / tuned:.2f}× "
@@ -446,7 +451,7 @@ def write_report(data, md_path, echo=False):
     """``md_path`` and, when P1 ran, the work-precision plot beside it (its name is in ``data["plot"]``)."""
     md_path = Path(md_path)
     if data.get("p1"):
-        work_precision_plot(data["p1"], md_path.parent / data["plot"])
+        work_precision_plot(data["p1"], md_path.parent / data["plot"], data.get("command", DEFAULT_COMMAND))
     lines = render(data)
     if echo:
         print("\n".join(lines), flush=True)

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -31,6 +32,9 @@ import jax.numpy as jnp
 
 import peeljax as pj
 from peeljax.integrators.alpha import integrate_alpha
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from machine import write_result  # noqa: E402
 
 V, TAU, T_FINAL = 1.1, 0.1, 3.0
 RESULTS = Path(__file__).parent / "results"
@@ -136,11 +140,11 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def main() -> None:
+def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="N = 10^3 and 10^4 only")
     parser.add_argument("--no-diffrax", action="store_true")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     sizes = (1_000, 10_000) if args.quick else (1_000, 10_000, 100_000)
     rows = [measure(n, not args.no_diffrax, repeats=1 if n >= 100_000 else 3) for n in sizes]
     text = (
@@ -150,9 +154,7 @@ def main() -> None:
         + table(rows)
         + "\n"
     )
-    RESULTS.mkdir(exist_ok=True)
-    out = RESULTS / ("gradient_cost_quick.md" if args.quick else "gradient_cost.md")
-    out.write_text(text)
+    out = write_result(RESULTS / ("gradient_cost_quick.md" if args.quick else "gradient_cost.md"), text)
     print(text)
     print(f"wrote {out}")
 

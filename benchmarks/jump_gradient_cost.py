@@ -16,6 +16,7 @@ import argparse
 import os
 import platform
 import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -25,6 +26,9 @@ import jax.numpy as jnp
 import numpy as np
 
 import peeljax as pj
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from machine import write_result  # noqa: E402
 
 
 def objective(c1, *, rtol, adjoint, t_final=3.0):
@@ -52,11 +56,11 @@ def timed(fn, repeats):
     return first, statistics.median(times)
 
 
-def main():
+def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rtol", type=float, default=1e-6)
     parser.add_argument("--repeats", type=int, default=15)
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     c1 = jnp.asarray(400.0)
     forward = jax.jit(lambda c: objective(c, rtol=args.rtol, adjoint="forward"))
     reverse_run = jax.jit(lambda c: objective(c, rtol=args.rtol, adjoint="reverse"))
@@ -79,22 +83,18 @@ def main():
     ]
     print("\n".join(table))
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    command = "python benchmarks/jump_gradient_cost.py" + "".join(
-        f" --{k} {v:g}" for k, v in (("rtol", args.rtol), ("repeats", args.repeats)) if v != {"rtol": 1e-6, "repeats": 15}[k]
-    )
     text = "\n".join([
         "# Gradient cost through jumps (issue 27: target <= 5x the forward run; compile <= 5 s forward, <= 20 s gradient)",
         "",
-        f"Made by `{command}` ({os.cpu_count()} cores, {platform.machine()}, jax {jax.__version__}, load {load:.1f} "
-        "at the end). 'first call' includes the compilation in this process.",
+        f"{os.cpu_count()} cores, {platform.machine()}, jax {jax.__version__}, load {load:.1f} "
+        "at the end. 'first call' includes the compilation in this process.",
         "",
         "```",
         *table,
         "```",
         "",
     ])
-    out = Path(__file__).resolve().parent / "results" / "jump_gradient_cost.md"
-    out.write_text(text)
+    write_result(Path(__file__).resolve().parent / "results" / "jump_gradient_cost.md", text)
 
 
 if __name__ == "__main__":

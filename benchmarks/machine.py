@@ -1,9 +1,18 @@
-"""What the benchmark scripts print about the machine they ran on."""
+"""What the benchmark scripts print about the machine they ran on, and the command that made a result.
+
+Every file under ``benchmarks/results/`` and ``benchmarks/studies/results/`` starts with the line
+:func:`made_by` writes, naming the command that produced it (``tests/test_compare_script.py`` checks
+it), so a table can always be traced to, and remade by, one command.
+"""
 
 from __future__ import annotations
 
 import platform
+import shlex
+import sys
 from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]  # the repository
 
 
 def cpu_model() -> str:
@@ -15,3 +24,27 @@ def cpu_model() -> str:
     except OSError:
         pass
     return platform.processor() or "unknown"
+
+
+def command(argv=None) -> str:
+    """This process's command as typed from the repository root: ``python benchmarks/….py ARGS``."""
+    argv = sys.argv if argv is None else argv
+    script = Path(argv[0]).resolve()
+    try:
+        script = script.relative_to(ROOT)
+    except ValueError:
+        pass
+    return shlex.join(["python", str(script), *argv[1:]])
+
+
+def made_by(cmd: str | None = None) -> str:
+    """The header line of a result file: ``Made by `COMMAND`.`` (default: this process's command)."""
+    return f"Made by `{cmd or command()}`."
+
+
+def write_result(path, text: str, cmd: str | None = None) -> Path:
+    """``text`` to ``path`` under its :func:`made_by` header line (a blank line between them)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(f"{made_by(cmd)}\n\n{text}", encoding="utf-8")
+    return path

@@ -73,7 +73,7 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from machine import cpu_model
+from machine import command, cpu_model, made_by
 from peers.jump_peers import (
     ATOL_RATIO,
     T_FINAL,
@@ -270,7 +270,7 @@ def measure(args):
     import peeljax
 
     data = {
-        "command": " ".join(["python benchmarks/stick_slip.py", *sys.argv[1:]]),
+        "command": command(),
         "machine": {"cpu": cpu_model(), "cores": os.cpu_count(), "load_start": load()},
         "versions": f"jax {jax.__version__}, diffrax {diffrax.__version__}, scipy {__import__('scipy').__version__}, "
         f"numpy {np.__version__}, peeljax {getattr(peeljax, '__version__', '?')}",
@@ -374,9 +374,11 @@ def report(data) -> str:
     names = {key: entry["name"] for key, entry in checks.items()}
     peer_keys = [k for k in checks if not k.startswith("inertial")]
     lines = [
+        made_by(data["command"]),
+        "",
         "# (P6) Stick-slip through the folds of φ: jump times at equal accuracy",
         "",
-        (f"`{data['command']}`: {data['machine']['cpu']}, {data['machine']['cores']} cores shared with other jobs "
+        (f"{data['machine']['cpu']}, {data['machine']['cores']} cores shared with other jobs "
         f"(load average {data['machine']['load_start']:.1f} at the start, {data['machine']['load_end']:.1f} at the "
         f"end); {data['versions']}. Medians of {data['repeats']} round-robin runs; the whole run took "
         f"{data['total_s'] / 60:.1f} min."),

@@ -2,7 +2,7 @@
 
 :func:`peeljax.simulate` checks its options, builds the integrator and the ODE, packs about
 thirty parameters and copies them to the device on every call: ~0.2 ms around a compiled run
-of a few tenths of a millisecond (``benchmarks/results/adaptive_drivers.md``).
+of a few tenths of a millisecond (``benchmarks/studies/results/adaptive_drivers.md``).
 :class:`Simulator` does all of that once, for every option but V, τ and y0; a call checks V
 and τ with plain float comparisons, writes them into the packed parameter vector of
 ``simulate._run`` and runs ``simulate``'s own program, compiled ahead of time
@@ -121,8 +121,8 @@ class Simulator:
     ``simulate``'s. So does a run with a leaf that is not an array (a diffrax solver; then
     only the option checks are saved).
 
-    Per-call cost (``python benchmarks/adaptive_drivers.py --overhead-only``: a 15-step run,
-    medians of 1000 calls on 2 shared cores; ``benchmarks/results/adaptive_drivers_overhead.md``):
+    Per-call cost (``python benchmarks/studies/adaptive_drivers.py --overhead-only``: a 15-step run,
+    medians of 1000 calls on 2 shared cores; ``benchmarks/studies/results/adaptive_drivers_overhead.md``):
     ``simulate`` 0.56 ms, its compiled run called by ``jax.jit`` with device-resident arguments
     0.36 ms, a ``Simulator`` call 0.31 ms, 0.01–0.03 ms more than the bare executable it runs
     (0.28 ms, its arguments already on the device; the Python side of a call takes ~1 µs).

@@ -1,4 +1,4 @@
-"""``benchmarks/vmap_lane_cost.py`` keeps working (its numbers are not asserted: speed is a benchmark)."""
+"""``benchmarks/studies/vmap_lane_cost.py`` keeps working (its numbers are not asserted: speed is a benchmark)."""
 
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ PEERS = (
 def test_vmap_lane_cost_tiny_writes_every_peer_row(tmp_path):
     out = tmp_path / "vmap_lane_cost.md"
     subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "vmap_lane_cost.py"), "--tiny", "--out", str(out)],
+        [sys.executable, str(ROOT / "benchmarks" / "studies" / "vmap_lane_cost.py"), "--tiny", "--out", str(out)],
         check=True,
         capture_output=True,
         text=True,
@@ -52,7 +52,7 @@ def test_vmap_lane_cost_tiny_writes_every_peer_row(tmp_path):
     subprocess.run(
         [
             sys.executable,
-            str(ROOT / "benchmarks" / "vmap_lane_cost.py"),
+            str(ROOT / "benchmarks" / "studies" / "vmap_lane_cost.py"),
             "--report-only",
             str(out.with_suffix(".json")),
             "--out",

@@ -4,7 +4,7 @@
   integrator per rtol, built by ``setup`` outside the timed call;
 * (P3) :class:`CasadiBatch`: cvodes on z, one integrator with (V, τ) as parameters, called per trajectory;
 * (P4) :class:`CasadiLoss`: the loss by cvodes on z and its gradient from the forward sensitivities
-  (also the reference gradient at rtol 1e-11 and the data, ``compare_problems.p4_data``);
+  (also the reference gradient at rtol 1e-11 and the data, :func:`p4_data`);
 * (P5) :func:`dae_casadi_idas`: idas on the direct DAE with v algebraic.
 """
 
@@ -77,7 +77,7 @@ class CasadiPeer(MaybeLog):
 
     def prepare(self):
         import casadi as ca
-        from compiled_loop import initial_state, parameters
+        from peers.compiled_loop import initial_state, parameters
 
         self._ca = ca
         self._y, self._psi = casadi_psi(self.tau, self.log_v)
@@ -124,7 +124,7 @@ class CasadiBatch:
             self.setup_seconds[rtol] = time.perf_counter() - started
 
     def __call__(self, Vp, tau, rtol):
-        from compiled_loop import initial_state, parameters
+        from peers.compiled_loop import initial_state, parameters
 
         z0 = initial_state(parameters(Vp, tau))
         z0[3] = math.log(z0[3])
@@ -170,10 +170,16 @@ class CasadiLoss:
         return float(self.loss(c))
 
 
+def p4_data():
+    """v_data at ``P4_TIMES``: the paper's φ, CasADi cvodes at rtol 1e-11 (log v)."""
+    v = np.asarray(CasadiLoss(1e-11).trajectory(np.array(PAPER_PHI))).ravel()
+    return np.concatenate([[1e-10 * V], v])
+
+
 def dae_casadi_idas(Vp, rtol):
     """CasADi's IDAS on the same DAE with v algebraic; returns (t_stop, v there, message)."""
     import casadi as ca
-    from compiled_loop import initial_state, parameters
+    from peers.compiled_loop import initial_state, parameters
 
     R, I, K, _, _, c1, p1, c2, p2, c3, c4, C6, p9 = parameters(Vp, 0.0)
     x = ca.SX.sym("x", 3)

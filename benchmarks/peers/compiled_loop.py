@@ -1,6 +1,6 @@
 """The α-method of ``peeljax.integrators.alpha`` as a compiled scalar loop (numba), paper geometry.
 
-This is the *practical limit* that ``benchmarks/step_cost.py`` compares peeljax against: the
+This is the *practical limit* that ``benchmarks/studies/step_cost.py`` compares peeljax against: the
 same algorithm, step for step, written as plain scalar code that LLVM compiles into one loop.
 
 Same algorithm as ``AlphaMethod`` (defaults ρ = 0, rtol = 1e-10, atol = 1e-12, 25 Newton
@@ -33,7 +33,7 @@ chord iteration with the kept ∂ψ_z/∂z), error estimate C·h²·(a_{n+1} −
 refresh rules, stops and Hermite output as peeljax, step for step; checked by
 :func:`compare_adaptive_with_peeljax` (same accepted/rejected/Newton/Jacobian counts).
 
-Run ``python benchmarks/compiled_loop.py`` to check the Jacobian against autodiff and both
+Run ``python benchmarks/peers/compiled_loop.py`` to check the Jacobian against autodiff and both
 loops against ``peeljax.simulate``.
 """
 

@@ -21,7 +21,7 @@ class NumbaAlpha(Peer):
     setting_name = "N"
 
     def prepare(self):
-        from compiled_loop import initial_state, integrate, options_of, parameters
+        from peers.compiled_loop import initial_state, integrate, options_of, parameters
 
         import peeljax
 
@@ -41,7 +41,7 @@ class NumbaAlpha(Peer):
 
 def compiled_rhs(tau, log_v, Vp=V):
     """Compiled ψ and ψ' in y = (α, ω, u, v), or in z = (α, ω, u, log v) when ``log_v``; (rhs, jacobian, y0)."""
-    from compiled_loop import evaluate_carried, initial_state, parameters
+    from peers.compiled_loop import evaluate_carried, initial_state, parameters
 
     p = parameters(Vp, tau)
     psi = np.empty(4)

@@ -19,7 +19,7 @@ from compare_problems import GRID, T_FINAL, V, one_line
 
 from peers import NotRun, Peer
 
-HERE = Path(__file__).resolve().parents[1]  # benchmarks/, where petsc_tsalpha.py is
+HERE = Path(__file__).resolve().parent  # benchmarks/peers/, where petsc_tsalpha.py is
 PETSC_DT0 = 1e-8  # TSALPHA's first step [s]; TSAdapt basic grows it by at most 10× a step
 
 

@@ -55,7 +55,7 @@ def radau_y(Vp, tau, rtol):
 
 def dae_index1_ode(Vp, rtol, method="Radau"):
     """scipy ``method`` on the index-1 ODE v' = F̃·f/∂φ/∂v (eq. ``hv`` at τ = 0)."""
-    from compiled_loop import evaluate, initial_state, parameters
+    from peers.compiled_loop import evaluate, initial_state, parameters
     from scipy.integrate import solve_ivp
 
     p = parameters(Vp, 0.0)

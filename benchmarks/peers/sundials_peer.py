@@ -21,7 +21,7 @@ class CvodePeer(MaybeLog):
     base_name = "SUNDIALS CVODE (BDF)"
 
     def prepare(self):
-        from compiled_loop import evaluate_carried, parameters
+        from peers.compiled_loop import evaluate_carried, parameters
         from sksundae.cvode import CVODE
 
         _, _, self._y0 = compiled_rhs(self.tau, self.log_v)
@@ -61,7 +61,7 @@ class CvodeBatch:
     """
 
     def __init__(self):
-        from compiled_loop import evaluate_carried, parameters
+        from peers.compiled_loop import evaluate_carried, parameters
 
         self._p = np.array(parameters(V, 0.01), dtype=float)
         p, psi, yy, scratch = self._p, np.empty(4), np.empty(4), np.empty((4, 4))
@@ -86,7 +86,7 @@ class CvodeBatch:
             self.setup_seconds[rtol] = time.perf_counter() - started
 
     def __call__(self, Vp, tau, rtol):
-        from compiled_loop import initial_state, parameters
+        from peers.compiled_loop import initial_state, parameters
 
         self._p[:] = parameters(Vp, tau)
         z0 = initial_state(self._p)
@@ -99,7 +99,7 @@ class CvodeBatch:
 
 def dae_functions(Vp):
     """f(x, v), G(x) − φ(v, V) of the DAE (paper geometry, the paper's φ) in plain Python."""
-    from compiled_loop import parameters
+    from peers.compiled_loop import parameters
 
     R, I, K, _, _, c1, p1, c2, p2, c3, c4, C6, p9 = parameters(Vp, 0.0)
     c5, p5 = 2.0, 1.5
@@ -120,7 +120,7 @@ def dae_functions(Vp):
 
 def dae_ida(Vp, rtol):
     """SUNDIALS IDA on the semi-explicit index-1 DAE (x' = f, 0 = G − φ); returns (t_stop, v there, message)."""
-    from compiled_loop import initial_state, parameters
+    from peers.compiled_loop import initial_state, parameters
     from sksundae.ida import IDA
 
     f, g = dae_functions(Vp)

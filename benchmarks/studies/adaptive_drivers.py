@@ -12,9 +12,9 @@ and the fixed cost of a call on a 15-step problem: ``simulate``, its compiled ru
 ``peeljax.Simulator`` (options checked and placed on the device once). Medians of round-robin
 repeats; ratios are to ``peeljax.simulate`` in the same run.
 
-    python benchmarks/adaptive_drivers.py [--quick]     # writes benchmarks/results/adaptive_drivers.md
-    python benchmarks/adaptive_drivers.py --overhead-only   # the fixed cost alone (seconds):
-                                                            # writes benchmarks/results/adaptive_drivers_overhead.md
+    python benchmarks/studies/adaptive_drivers.py [--quick]     # writes benchmarks/studies/results/adaptive_drivers.md
+    python benchmarks/studies/adaptive_drivers.py --overhead-only   # the fixed cost alone (seconds):
+                                                            # writes benchmarks/studies/results/adaptive_drivers_overhead.md
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -29,7 +30,9 @@ import diffrax
 import jax
 import jax.numpy as jnp
 import numpy as np
-from machine import cpu_model
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: machine
+from machine import cpu_model, write_result  # noqa: E402
 
 import peeljax as pj
 from peeljax.homogenized import HomogenizedODE
@@ -188,13 +191,13 @@ def overhead_lines(overhead, calls):
     ]
 
 
-def main():
+def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="two tolerances, three repeats")
     parser.add_argument(
         "--overhead-only", action="store_true", help=f"only the fixed cost of a call (writes {OVERHEAD_RESULTS.name})"
     )
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     calls = 1000
     if args.overhead_only:
         overhead = call_overhead(calls)
@@ -202,13 +205,13 @@ def main():
             [
                 "# The fixed cost of a call: simulate, its compiled run, a bound Simulator",
                 "",
-                f"`python benchmarks/adaptive_drivers.py --overhead-only` on {cpu_model()}, {jax.devices()[0].platform}.",
+                f"On {cpu_model()}, {jax.devices()[0].platform}.",
                 "",
                 *overhead_lines(overhead, calls),
             ]
         )
         print(text)
-        OVERHEAD_RESULTS.write_text(text)
+        write_result(OVERHEAD_RESULTS, text)
         return
     rtols = (1e-4, 1e-6) if args.quick else (1e-3, 1e-4, 1e-5, 1e-6, 1e-7)
     repeats = 3 if args.quick else 9
@@ -217,7 +220,7 @@ def main():
     lines = [
         "# Error control: peeljax's driver against the α-method inside diffrax",
         "",
-        f"`python benchmarks/adaptive_drivers.py{' --quick' if args.quick else ''}` on {cpu_model()}, "
+        f"On {cpu_model()}, "
         f"{jax.devices()[0].platform}. V = 1.1 m/s, t ∈ [0, 3 s], 301 output times, error = max |Δv| "
         "against diffrax Kvaerno5 at rtol 1e-11; atol = 1e-3·rtol; medians of "
         f"{repeats} round-robin repeats; ratio = time / `peeljax.simulate`'s.",
@@ -232,7 +235,7 @@ def main():
     lines += ["", *overhead_lines(overhead, calls)]
     text = "\n".join(lines)
     print(text)
-    RESULTS.write_text(text)
+    write_result(RESULTS, text)
 
 
 if __name__ == "__main__":

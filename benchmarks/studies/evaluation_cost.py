@@ -21,10 +21,10 @@ median over ``REPEATS`` runs of ``jax.jit`` of a ``fori_loop`` of ``N`` evaluati
 Newton iteration counts (φ evaluations) are printed too, and their mean/max over the stages
 x + c·h·f (Tsit5's c) at the 51 output states.
 
-    python benchmarks/evaluation_cost.py           # ~2 min on 2 cores
-    python benchmarks/evaluation_cost.py --quick   # fewer evaluations and repeats
+    python benchmarks/studies/evaluation_cost.py           # ~2 min on 2 cores
+    python benchmarks/studies/evaluation_cost.py --quick   # fewer evaluations and repeats
 
-Output: a markdown table on stdout and ``benchmarks/results/evaluation_cost[_quick].md``.
+Output: a markdown table on stdout and ``benchmarks/studies/results/evaluation_cost[_quick].md``.
 """
 
 from __future__ import annotations
@@ -39,6 +39,8 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))  # benchmarks/: machine
+from machine import write_result  # noqa: E402
 V = 1.1
 H_STAGE = 1e-4
 TSIT5_C = (0.161, 0.327, 0.9, 0.9800255409045097, 1.0)
@@ -371,11 +373,10 @@ def main(argv=None) -> int:
                 results[situation, index, key] = timer(y)
 
     # ---- table
-    command = "python benchmarks/evaluation_cost.py" + (" --quick" if args.quick else "")
     lines = [
         "# Cost per evaluation of ConstrainedDAE (τ = 0, V = 1.1)",
         "",
-        f"Made by `{command}` on {platform.processor() or platform.machine()}, {platform.system()}, "
+        f"On {platform.processor() or platform.machine()}, {platform.system()}, "
         f"jax {jax.__version__}, numba {numba.__version__}, Python {platform.python_version()}; "
         f"median of {repeats} runs of {n} evaluations in a jitted `fori_loop`, compile excluded.",
         "",
@@ -427,8 +428,7 @@ def main(argv=None) -> int:
     text = "\n".join(lines)
     print(text)
     out = HERE / "results" / ("evaluation_cost_quick.md" if args.quick else "evaluation_cost.md")
-    out.parent.mkdir(exist_ok=True)
-    out.write_text(text)
+    write_result(out, text)
     print(f"written to {out.relative_to(HERE.parent)}", file=sys.stderr)
     return 0
 

@@ -46,10 +46,10 @@ workers' own); core-s = wall × cores the method holds (JAX devices: one per cor
 workers); µs·core/attempt = core-s / step attempts (accepted + rejected). On a shared machine a two-core
 figure is only as good as the second core the other jobs leave: compare it with the one-device row.
 
-    python benchmarks/lane_levers.py            # P3, 1024 lanes: 6-7 min on 2 shared cores (load 2-3)
-    python benchmarks/lane_levers.py --quick    # the 64-lane slice: ~3 min
+    python benchmarks/studies/lane_levers.py            # P3, 1024 lanes: 6-7 min on 2 shared cores (load 2-3)
+    python benchmarks/studies/lane_levers.py --quick    # the 64-lane slice: ~3 min
 
-Writes ``benchmarks/results/lane_levers[_quick].md``. Speed is reported, never asserted.
+Writes ``benchmarks/studies/results/lane_levers[_quick].md``. Speed is reported, never asserted.
 """
 
 from __future__ import annotations
@@ -71,7 +71,7 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE.parent))  # benchmarks/: machine, compare_problems, peers
 from compare_problems import (
     GRID,
     P3_SAVE_DT,
@@ -83,7 +83,7 @@ from compare_problems import (
     p3_subsample,
     relative_errors,
 )
-from machine import cpu_model
+from machine import cpu_model, write_result
 
 LADDER = tuple(float(f"{m}e{e}") for e in range(-3, -8, -1) for m in (5, 2, 1))[1:]  # 2e-3 … 1e-7
 PER_V = 8  # checked trajectories per V
@@ -297,7 +297,7 @@ def bare_runner():
 # --------------------------------------------------------------------------- the numba loop and CasADi
 def numba_options(lane: Lane, rtol):
     """``compiled_loop.integrate_adaptive``'s keywords for ``lane``'s settings (``adaptive_options_of``)."""
-    from compiled_loop import adaptive_options_of
+    from peers.compiled_loop import adaptive_options_of
 
     import peeljax
     from peeljax.integrators.controller import PIController
@@ -309,7 +309,7 @@ def numba_options(lane: Lane, rtol):
 
 def numba_loop(Vs, taus, options):
     """v (B, 301) and the counts summed over the lanes [accepted, rejected, Newton, Jacobian, attempts]."""
-    from compiled_loop import initial_state, integrate_adaptive, parameters
+    from peers.compiled_loop import initial_state, integrate_adaptive, parameters
 
     v = np.empty((len(Vs), GRID.size))
     counts = np.zeros(5, np.int64)
@@ -628,10 +628,9 @@ def main(argv=None):
         print(line, flush=True)
         out.append(line)
 
-    command = " ".join(["python benchmarks/lane_levers.py", *(sys.argv[1:] if argv is None else argv)])
     emit(f"# What a sweep lane costs: the levers of the error-controlled α-method on P3 ({B} lanes)")
     emit()
-    emit(f"`{command.strip()}` (`PYTHONPATH=.`), {time.strftime('%Y-%m-%d %H:%M')}; the whole run took "
+    emit(f"{time.strftime('%Y-%m-%d %H:%M')}; the whole run took "
          f"{total_s / 60:.1f} min (reference {ref_s:.0f} s, calibration {calibration_s:.0f} s, step_cost {step_cost_s:.0f} s).")  # fmt: skip
     emit()
     emit(f"- machine: {cpu_model()}, {workers} cores (shared with other jobs), {n_dev} JAX devices "
@@ -865,8 +864,7 @@ def main(argv=None):
         "per worker, results pickled back (included in the wall time)."
     )
     path = args.out or HERE / "results" / f"lane_levers{'_quick' if args.quick else ''}.md"
-    path.parent.mkdir(exist_ok=True)
-    path.write_text("\n".join(out) + "\n")
+    write_result(path, "\n".join(out) + "\n")
     print(f"(written to {path}; total {total_s:.0f} s)")
 
 

@@ -4,19 +4,24 @@ For V = 1.1, 2, 4 m/s (t ∈ [0, 3] s, τ searched in [1e-4, 1] to 5 %), ``peelj
 on the error-controlled α-method at several tolerances and on uniform meshes h = 1/82 … 1/1312.
 It prints τ*, where the run just below τ* stopped, and the search's wall time.
 
-    python benchmarks/least_tau_mesh.py        # ~1 min on 2 cores
+    python benchmarks/studies/least_tau_mesh.py        # ~1 min on 2 cores
 
-The table goes to ``benchmarks/results/least_tau_mesh.md``.
+The table goes to ``benchmarks/studies/results/least_tau_mesh.md``.
 """
 
 from __future__ import annotations
 
+import argparse
+import sys
 import time
 from pathlib import Path
 
 import jax
 
 import peeljax as pj
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: machine
+from machine import write_result  # noqa: E402
 
 VELOCITIES = (1.1, 2.0, 4.0)
 SETTINGS = (
@@ -29,11 +34,12 @@ SETTINGS = (
 )
 
 
-def main() -> None:
+def main(argv=None) -> None:
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args(argv)  # --help; no options
     lines = [
         "# τ* with error control and on uniform meshes",
         "",
-        f"`python benchmarks/least_tau_mesh.py`; jax {jax.__version__}, {len(jax.devices())} "
+        f"jax {jax.__version__}, {len(jax.devices())} "
         f"{jax.devices()[0].platform} device(s). τ searched in [1e-4, 1] to tau_rtol = 0.05, t ∈ [0, 3] s.",
         "",
         "| engine | " + " | ".join(f"τ* at V = {V:g}" for V in VELOCITIES) + " | "
@@ -53,7 +59,7 @@ def main() -> None:
         "Search s includes compilation (one program per engine and batch shape).",
     ]
     path = Path(__file__).resolve().parent / "results" / "least_tau_mesh.md"
-    path.write_text("\n".join(lines) + "\n")
+    write_result(path, "\n".join(lines) + "\n")
     print(f"wrote {path}")
 
 

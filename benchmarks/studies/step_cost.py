@@ -9,7 +9,7 @@ prints one row per h:
   defaults of ``peeljax.simulate``; ``time.perf_counter`` around the call and
   ``block_until_ready``), and its error in v: max over the grid of |v − v_ref|, v_ref from
   ``peeljax.simulate_reference`` (Kvaerno5, rtol = 1e-12, atol = 1e-14);
-* numba: the same algorithm as a compiled loop (``benchmarks/compiled_loop.py``), timed
+* numba: the same algorithm as a compiled loop (``benchmarks/peers/compiled_loop.py``), timed
   round-robin with peeljax so that load on the machine hits both alike;
 * diffrax Kvaerno5 (``peeljax.integrate_reference``, i.e. ``simulate_reference``, output on the
   same grid): the loosest rtol in 1e-1 … 1e-12 (atol = 1e-2·rtol) whose error in v on the grid
@@ -28,19 +28,19 @@ simulate's default, and, full mode only, "forward") and of ``compiled_loop.integ
 τ = 0.01 (and 0.1, full mode) and must agree (v at the output times within 1e-6 relative; the
 accepted/rejected/Newton/Jacobian counts are printed side by side). Full mode also gives the
 error in v at the output times against Kvaerno5 at rtol 1e-12. The table goes to
-``benchmarks/results/step_cost_adaptive[_quick].md``.
+``benchmarks/studies/results/step_cost_adaptive[_quick].md``.
 
-    python benchmarks/step_cost.py            # ~3-5 min on 2 cores
-    python benchmarks/step_cost.py --quick    # ~1 min: h = 1/82 and 1/820, fewer repeats
-    python benchmarks/step_cost.py --default-xla-flags   # without peeljax's XLA:CPU flag
-    python benchmarks/step_cost.py --adaptive [--quick]  # error control (~25 s; quick ~15 s)
+    python benchmarks/studies/step_cost.py            # ~3-5 min on 2 cores
+    python benchmarks/studies/step_cost.py --quick    # ~1 min: h = 1/82 and 1/820, fewer repeats
+    python benchmarks/studies/step_cost.py --default-xla-flags   # without peeljax's XLA:CPU flag
+    python benchmarks/studies/step_cost.py --adaptive [--quick]  # error control (~25 s; quick ~15 s)
 
 Importing peeljax adds ``--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=
 1000000000`` to ``XLA_FLAGS`` (XLA:CPU then compiles each while loop into one function instead
 of dispatching every kernel of its body separately); ``--default-xla-flags`` sets
 ``PEELJAX_KEEP_XLA_FLAGS=1`` to measure without it. diffrax runs in the same process, so it
 gets the same flags. The table goes to
-``benchmarks/results/step_cost[_quick][_default_xla_flags].md``.
+``benchmarks/studies/results/step_cost[_quick][_default_xla_flags].md``.
 """
 
 from __future__ import annotations
@@ -53,6 +53,9 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))  # benchmarks/: machine, peers
+from machine import write_result  # noqa: E402
+
 V, TAU, T_FINAL = 1.1, 0.01, 3.0
 REF_RTOL, REF_ATOL = 1e-12, 1e-14
 CHECK_LIMIT = 1e-6
@@ -119,13 +122,12 @@ def main():
     denominators = (82, 820) if args.quick else (82, 820, 8200)
     started = time.perf_counter()
 
-    sys.path.insert(0, str(HERE))
     import diffrax
     import equinox as eqx
     import jax
     import jax.numpy as jnp
     import numpy as np
-    from compiled_loop import check_jacobian, compare_with_peeljax, initial_state, integrate, options_of, parameters
+    from peers.compiled_loop import check_jacobian, compare_with_peeljax, initial_state, integrate, options_of, parameters
 
     import peeljax
 
@@ -346,14 +348,13 @@ def main():
     emit(f"Total benchmark time: {time.perf_counter() - started:.0f} s.")
 
     results = HERE / "results"
-    results.mkdir(exist_ok=True)
     name = (
         "step_cost"
         + ("_quick" if args.quick else "")
         + ("_default_xla_flags" if args.default_xla_flags else "")
         + ".md"
     )
-    (results / name).write_text("\n".join(out) + "\n")
+    write_result(results / name, "\n".join(out) + "\n")
     print(f"(written to {results / name})")
 
 
@@ -367,12 +368,11 @@ def adaptive_main(args):
     repeats = args.repeats or (11 if args.quick else 31)  # a run takes milliseconds
     started = time.perf_counter()
 
-    sys.path.insert(0, str(HERE))
     import equinox as eqx
     import jax
     import jax.numpy as jnp
     import numpy as np
-    from compiled_loop import (
+    from peers.compiled_loop import (
         adaptive_options_of,
         compare_adaptive_with_peeljax,
         initial_state,
@@ -512,7 +512,7 @@ def adaptive_main(args):
 
     # For comparison on the same machine: the uniform mesh at h = 1/820 (Newton with a fresh
     # autodiff Jacobian every iteration), as in the table without --adaptive.
-    from compiled_loop import integrate, options_of
+    from peers.compiled_loop import integrate, options_of
 
     n_uniform = round(T_FINAL * 820)
     dyn_u, static_u = eqx.partition((ode, solver), eqx.is_array)
@@ -611,14 +611,13 @@ def adaptive_main(args):
     )
 
     results = HERE / "results"
-    results.mkdir(exist_ok=True)
     name = (
         "step_cost_adaptive"
         + ("_quick" if args.quick else "")
         + ("_default_xla_flags" if args.default_xla_flags else "")
         + ".md"
     )
-    (results / name).write_text("\n".join(out) + "\n")
+    write_result(results / name, "\n".join(out) + "\n")
     print(f"(written to {results / name})")
 
 

@@ -1,7 +1,7 @@
 """Which stepper the one error-controlled loop should run by default: every stepper at equal accuracy.
 
-    python benchmarks/steppers.py            # ~6 min on 2 cores; writes results/steppers.md
-    python benchmarks/steppers.py --quick    # P6 to 1e-5 s and P1 at τ = 0.01 only
+    python benchmarks/studies/steppers.py            # ~6 min on 2 cores; writes results/steppers.md
+    python benchmarks/studies/steppers.py --quick    # P6 to 1e-5 s and P1 at τ = 0.01 only
 
 * P6 (τ = 0, the DAE with jumps): V = 1.1, [0, 3] s, 210 jumps; error = the largest |Δt| over
   every jump against ``tests/jump_reference.py`` (scipy LSODA events with the arclength
@@ -29,7 +29,9 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE.parent / "tests"))
+sys.path.insert(0, str(HERE.parents[1] / "tests"))  # jump_reference
+sys.path.insert(0, str(HERE.parent))  # benchmarks/: machine
+from machine import write_result  # noqa: E402
 
 STEPPERS = ("alpha", "tsit5", "dopri5", "dopri8", "kvaerno5")
 TIME_SCALES = (1e-3, 3e-3, 3e-2, 1e-1)  # ε of the pseudo-time, beside the default (DEFAULT_TIME_SCALE)
@@ -136,12 +138,12 @@ def p1(repeats, taus):
     return rows
 
 
-def report(p6_rows, p1_rows, command, seconds):
+def report(p6_rows, p1_rows, seconds):
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     lines = [
         "# Choosing the stepper: every stepper of the one loop at equal accuracy",
         "",
-        f"`{command}` ({seconds:.0f} s, {os.cpu_count()} cores, load {load:.1f} at the end). "
+        f"{seconds:.0f} s, {os.cpu_count()} cores, load {load:.1f} at the end. "
         "atol = 1e-3·rtol; compile apart; medians.",
         "",
         "## P6: the DAE (τ = 0) with jumps, V = 1.1, [0, 3] s, every one of the 210 jump times",
@@ -190,9 +192,8 @@ def main(argv=None):
     started = time.perf_counter()
     p6_rows = p6(args.repeats, (1e-5,) if args.quick else (1e-5, 1e-6))
     p1_rows = p1(args.repeats, (0.01,) if args.quick else (0.01, 0.1))
-    command = " ".join(["python benchmarks/steppers.py", *sys.argv[1:]])
-    text = report(p6_rows, p1_rows, command, time.perf_counter() - started)
-    Path(args.out).write_text(text)
+    text = report(p6_rows, p1_rows, time.perf_counter() - started)
+    write_result(args.out, text)
     print(text)
 
 

@@ -7,13 +7,15 @@ paper's φ and initial data, rtol 1e-6): for each (V, τ), completed or where it
 the stick-slip events (upward crossings of v̂, the maximum of φ) in the window [1.5, 3] s.
 Prints the counts and every completed run with events.
 
-    python benchmarks/stick_slip_map.py      # ~10 s on 2 cores
+    python benchmarks/studies/stick_slip_map.py      # ~10 s on 2 cores
 
-The table goes to ``benchmarks/results/stick_slip_map.md``.
+The table goes to ``benchmarks/studies/results/stick_slip_map.md``.
 """
 
 from __future__ import annotations
 
+import argparse
+import sys
 from pathlib import Path
 
 import jax
@@ -21,8 +23,12 @@ import numpy as np
 
 import peeljax as pj
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: machine
+from machine import write_result  # noqa: E402
 
-def main() -> None:
+
+def main(argv=None) -> None:
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args(argv)  # --help; no options
     Vs, taus = np.geomspace(0.3, 10.0, 24), np.geomspace(1e-4, 0.5, 24)
     r = pj.sweep(
         V=Vs, tau=taus, t_final=3.0, window=(0.5, 1.0), progress=False, chunk=Vs.size * taus.size, fold="stop"
@@ -31,7 +37,7 @@ def main() -> None:
     lines = [
         "# Stick-slip that completes, error control (rtol 1e-6)",
         "",
-        f"`python benchmarks/stick_slip_map.py`; jax {jax.__version__}, {len(jax.devices())} {jax.devices()[0].platform} "
+        f"jax {jax.__version__}, {len(jax.devices())} {jax.devices()[0].platform} "
         "device(s). V ∈ [0.3, 10] m/s × τ ∈ [1e-4, 0.5] s, 24 × 24 log-spaced, t ∈ [0, 3] s, events in [1.5, 3] s.",
         "",
         f"- completed: {int(r.completed.sum())} of {len(r)}; stopped: "
@@ -54,7 +60,7 @@ def main() -> None:
     text = "\n".join(lines) + "\n"
     print(text)
     path = Path(__file__).resolve().parent / "results" / "stick_slip_map.md"
-    path.write_text(text)
+    write_result(path, text)
 
 
 if __name__ == "__main__":

@@ -28,11 +28,11 @@ sweeps run each batch as one chunk (``--chunk`` caps it); the numba loop over ba
 than 1024 is timed on 1024 τ spread over the batch and scaled to B, and diffrax is skipped above
 ``--diffrax-max-batch`` (—). Speed is reported, never asserted.
 
-    python benchmarks/sweep_throughput.py --quick   # B = 1, 64, 256, 2 timed runs: a few minutes on 2 cores
-    python benchmarks/sweep_throughput.py           # B = 1, 64, 1024, 4096
-    python benchmarks/sweep_throughput.py --batches 1 10000 100000 1000000 --chunk 100000   # e.g. on a GPU
+    python benchmarks/studies/sweep_throughput.py --quick   # B = 1, 64, 256, 2 timed runs: a few minutes on 2 cores
+    python benchmarks/studies/sweep_throughput.py           # B = 1, 64, 1024, 4096
+    python benchmarks/studies/sweep_throughput.py --batches 1 10000 100000 1000000 --chunk 100000   # e.g. on a GPU
 
-The tables go to ``benchmarks/results/sweep_throughput[_quick].md``.
+The tables go to ``benchmarks/studies/results/sweep_throughput[_quick].md``.
 """
 
 from __future__ import annotations
@@ -47,8 +47,8 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-from machine import cpu_model
+sys.path.insert(0, str(HERE.parent))  # benchmarks/: machine, compare_problems, peers
+from machine import cpu_model, write_result
 
 V, T_FINAL, SAVE_DT = 1.1, 3.0, 0.01
 GRID = np.linspace(0.0, T_FINAL, 301)
@@ -90,7 +90,7 @@ def main():
     import jax
     import jax.numpy as jnp
     import numba
-    from compiled_loop import adaptive_options_of, initial_state, integrate_adaptive, parameters
+    from peers.compiled_loop import adaptive_options_of, initial_state, integrate_adaptive, parameters
 
     import peeljax
     from peeljax.integrators.dense import output_times
@@ -318,8 +318,7 @@ def main():
     emit()
     emit(f"Total time: {time.perf_counter() - started:.0f} s.")
     out = HERE / "results" / f"sweep_throughput{'_quick' if args.quick else ''}.md"
-    out.parent.mkdir(exist_ok=True)
-    out.write_text("\n".join(lines) + "\n")
+    write_result(out, "\n".join(lines) + "\n")
     print(f"wrote {out}")
 
 

@@ -39,10 +39,10 @@ stands for the map's); medians. Per lane: wall s / lanes; core-seconds per lane:
 the call used (the sweep: its JAX devices; a loop: 1), beside the process CPU time measured
 (user + system, all threads). Ratio: core-s per lane / the sweep's.
 
-    python benchmarks/vmap_lane_cost.py           # ~10 min on 2 shared cores -> results/vmap_lane_cost.md (+ .json)
-    python benchmarks/vmap_lane_cost.py --quick   # 40 lanes, 4 calibration V -> results/vmap_lane_cost_quick.md
-    python benchmarks/vmap_lane_cost.py --tiny --out /tmp/x.md   # the test's run (4 lanes, ~25 s)
-    python benchmarks/vmap_lane_cost.py --report-only benchmarks/results/vmap_lane_cost.json   # the report alone
+    python benchmarks/studies/vmap_lane_cost.py           # ~10 min on 2 shared cores -> results/vmap_lane_cost.md (+ .json)
+    python benchmarks/studies/vmap_lane_cost.py --quick   # 40 lanes, 4 calibration V -> results/vmap_lane_cost_quick.md
+    python benchmarks/studies/vmap_lane_cost.py --tiny --out /tmp/x.md   # the test's run (4 lanes, ~25 s)
+    python benchmarks/studies/vmap_lane_cost.py --report-only benchmarks/studies/results/vmap_lane_cost.json   # the report alone
 """
 
 from __future__ import annotations
@@ -59,8 +59,8 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-from machine import cpu_model
+sys.path.insert(0, str(HERE.parent))  # benchmarks/: machine, compare_problems, peers
+from machine import command, cpu_model, made_by
 from peers.jump_peers import ATOL_RATIO, T_FINAL
 from peers.vmap_peers import CvodeEvents, Isolated, PeeljaxSimulate, ScipyLoop, reference_jumps
 
@@ -217,7 +217,7 @@ def measure(args):
     k = min(args.subset, args.n_v)  # the middle lane of each of k equal stretches of the map
     subset = np.unique(np.floor((np.arange(k) + 0.5) * args.n_v / k).astype(int))
     data = {
-        "command": " ".join(["python benchmarks/vmap_lane_cost.py", *sys.argv[1:]]),
+        "command": command(),
         "machine": {"cpu": cpu_model(), "cores": os.cpu_count(), "load_start": load()},
         "versions": versions(),
         "n_v": args.n_v,
@@ -491,9 +491,11 @@ def mix_line(data, index) -> str:
 def report(data) -> str:
     n_sub = len(data["subset"])
     lines = [
+        made_by(data["command"]),
+        "",
         "# The V-map's cost per lane, per core (τ = 0, jumps at φ's folds)",
         "",
-        (f"`{data['command']}`: {data['machine']['cpu']}, {data['machine']['cores']} cores shared with other jobs "
+        (f"{data['machine']['cpu']}, {data['machine']['cores']} cores shared with other jobs "
          f"(load average {data['machine']['load_start']:.1f} at the start, {data['machine']['load_end']:.1f} at the end; "
          f"after each timed round: {', '.join(f'{x:.1f}' for x in data['machine']['loads'][1:-1])}); {data['versions']}. "
          f"The whole run took {data['total_s'] / 60:.1f} min (calibration {data['calibration_s'] / 60:.1f} min)."),
