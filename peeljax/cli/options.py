@@ -1,0 +1,387 @@
+"""The options the ``peeljax`` subcommands share, each declared once and checked once.
+
+Every ``add_*`` function declares one option (or one pair, such as ``--rtol``/``--atol``) with
+its help text, which states the default and the allowed range; the matching ``check_*``
+function validates the value in plain Python, before anything is compiled, and raises a
+``ValueError`` that names the option (``--max-jumps``, never the Python parameter
+``max_jumps``). A subcommand module adds what it shares from here and declares only what is
+its own.
+
+One vocabulary across the commands:
+
+* ``--t-final`` is the end of each run [s]; ``--transient T`` [s] is where the statistics start
+  and ``--window W`` [s] their length: they cover [T, T + W]. The default rule is the same
+  everywhere: the statistics cover the second half of the run (T = t_final/2, and W up to
+  t_final). ``fit --table``, whose runs end at T + W, has the same rule: W defaults to T
+  (T defaults to 0.5 s). The old ``sweep --window W0 W1`` (two fractions of t_final) is read
+  with a deprecation note naming the new form.
+* ``--V`` takes numbers separated by spaces or ranges ``START:STOP:COUNT`` (``--V 0.2:8:40``:
+  40 values from 0.2 to 8 m/s, equally spaced).
+* ``--n-*`` options are counts, each with its default in its help line.
+* ``--max-steps`` is error control's budget of step attempts (accepted or rejected) per run;
+  every command that runs error control takes it.
+* ``--no-progress`` turns off the progress shown on stderr (bars, fit iterations, elapsed time).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import re
+import sys
+
+import numpy as np
+
+from .._validation import TAU_MAX, check_choice, check_tolerance
+from ..integrators.select import DEFAULT_MAX_STEPS, DEFAULT_MAX_STEPS_DENSE
+from ..model import GEOMETRIES, PeelingModel
+from ._common import PROG, check_output_path, plot_formats, read_phi
+
+__all__ = [
+    "MAX_JUMPS_LIMIT",
+    "MAX_STEPS_LIMIT",
+    "MAX_VALUES",
+    "add_geometry_and_phi",
+    "add_json",
+    "add_max_jumps",
+    "add_max_steps",
+    "add_outputs",
+    "add_progress",
+    "add_statistics_window",
+    "add_t_final",
+    "add_tolerances",
+    "add_V",
+    "check_max_jumps",
+    "check_max_steps",
+    "check_outputs",
+    "check_positive_values",
+    "check_statistics_window",
+    "check_tolerances",
+    "deprecated",
+    "model_from",
+    "number",
+    "numbers",
+    "progress_on",
+    "transient_default",
+]
+
+# --max-steps: the loop counts its step attempts in 32 bits (a larger budget would wrap around).
+MAX_STEPS_LIMIT = 2**31 - 1
+# --max-jumps: the jump record is allocated in full (5 arrays of max_jumps, per trajectory).
+MAX_JUMPS_LIMIT = 10_000_000
+# A range START:STOP:COUNT makes at most this many values (a typo must not fill the memory).
+MAX_VALUES = 1_000_000
+
+
+# ---------------------------------------------------------------------------- values
+def _as_number(option: str, token: str, many: bool) -> float:
+    """One number of ``option``; a comma-separated list or a range gets a message saying how."""
+    try:
+        return float(token)
+    except ValueError:
+        pass
+    if "," in token:
+        parts = " ".join(part.strip() for part in token.split(",") if part.strip())
+        how = f"separate values by spaces: {option} {parts}" if many else "it takes one value"
+        raise argparse.ArgumentTypeError(f"{token!r} is not a number: {how}")
+    raise argparse.ArgumentTypeError(f"{token!r} is not a number")
+
+
+def number(option: str):
+    """An argparse ``type`` for an option that takes one number (``--V 1,2`` says it takes one)."""
+
+    def parse(token: str) -> float:
+        if ":" in token:
+            raise argparse.ArgumentTypeError(
+                f"{token!r}: this command runs one value; a range START:STOP:COUNT is for peeljax sweep"
+            )
+        return _as_number(option, token, many=False)
+
+    return parse
+
+
+def numbers(option: str, ranges: bool = True):
+    """An argparse ``type`` for one token of an ``nargs="+"`` option: a number, or (``ranges``)
+    ``START:STOP:COUNT``, COUNT equally spaced values from START to STOP; returns a list (the
+    lists of the tokens are joined by :func:`flatten`)."""
+
+    def parse(token: str) -> list[float]:
+        if ":" not in token:
+            return [_as_number(option, token, many=True)]
+        if not ranges:
+            raise argparse.ArgumentTypeError(
+                f"{token!r}: {option} takes numbers separated by spaces, not a range"
+                + ("; a log-spaced grid is --tau LO HI --n-tau N" if option == "--tau" else "")
+            )
+        parts = token.split(":")
+        if len(parts) != 3:
+            raise argparse.ArgumentTypeError(
+                f"{token!r} is not a range START:STOP:COUNT (e.g. {option} 0.2:8:40, 40 values from 0.2 to 8)"
+            )
+        try:
+            start, stop = float(parts[0]), float(parts[1])
+            count = int(parts[2])
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{token!r} is not a range START:STOP:COUNT: START and STOP numbers, COUNT an integer "
+                f"(e.g. {option} 0.2:8:40)"
+            ) from None
+        if not 2 <= count <= MAX_VALUES:
+            raise argparse.ArgumentTypeError(
+                f"{token!r}: COUNT must be an integer in [2, {MAX_VALUES}] (allowed range), got {count}"
+            )
+        if not (math.isfinite(start) and math.isfinite(stop) and start < stop):
+            raise argparse.ArgumentTypeError(f"{token!r}: a range needs finite START < STOP")
+        return np.linspace(start, stop, count).tolist()
+
+    return parse
+
+
+def flatten(values) -> list[float]:
+    """The values of an ``nargs="+"`` option parsed by :func:`numbers` (a default may be plain)."""
+    out: list[float] = []
+    for value in values:
+        out.extend(value if isinstance(value, list) else [value])
+    return [float(v) for v in out]
+
+
+def check_positive_values(option: str, values) -> list[float]:
+    """Finite values > 0, at least one."""
+    values = flatten(values)
+    if not values:
+        raise ValueError(f"{option}: give at least one value (allowed range: (0, inf))")
+    bad = [v for v in values if not math.isfinite(v) or v <= 0]
+    if bad:
+        raise ValueError(f"{option} must be finite and > 0 (allowed range: (0, inf)), got {bad[:3]}")
+    return values
+
+
+# ---------------------------------------------------------------------------- the problem
+def add_V(group, *, many: bool, default, help: str | None = None) -> None:
+    """--V: one pull velocity (simulate) or several (sweep, tau-star, fit), > 0."""
+    if many:
+        shown = " ".join(f"{v:g}" for v in default) if default else "none"
+        group.add_argument(
+            "--V", type=numbers("--V"), nargs="+", default=default, metavar="V",
+            help=(help or "pull velocities [m/s]") + ", each > 0: numbers separated by spaces, or START:STOP:COUNT "
+            f"for COUNT equally spaced values (--V 0.2:8:40) (default {shown})",
+        )  # fmt: skip
+    else:
+        group.add_argument(
+            "--V", type=number("--V"), default=default, help=f"{help or 'pull velocity [m/s]'}, > 0 (default {default:g})"
+        )
+
+
+def add_t_final(group, *, default: float | None = 3.0, help: str | None = None) -> None:
+    group.add_argument(
+        "--t-final",
+        dest="t_final",
+        type=float,
+        default=default,
+        help=help or f"end time of each run [s], > 0 (default {default:g})",
+    )
+
+
+def add_geometry_and_phi(group, *, phi_meta: str = "COEFFS.json", phi_help: str | None = None) -> None:
+    """--geometry and --phi: the model's spool approximations and its adhesion law."""
+    group.add_argument(
+        "--geometry", default="paper", metavar="{paper,full}",
+        help="'paper' (the paper's approximations) or 'full' (default paper)",
+    )  # fmt: skip
+    group.add_argument(
+        "--phi", metavar=phi_meta,
+        help=phi_help or "adhesion coefficients c1..p9 as JSON; those left out keep the paper's values "
+        "(default: the paper's law)",
+    )  # fmt: skip
+
+
+def model_from(args: argparse.Namespace) -> tuple[PeelingModel, tuple[str, ...] | None]:
+    """--geometry and --phi checked: the model and the coefficients --phi left at the paper's
+    values (None without --phi)."""
+    check_choice("--geometry", args.geometry, GEOMETRIES)
+    if args.phi is None:
+        from ..adhesion import AdhesionLaw
+
+        return PeelingModel(adhesion=AdhesionLaw(), geometry=args.geometry), None
+    law, kept = read_phi(args.phi)
+    return PeelingModel(adhesion=law, geometry=args.geometry), kept
+
+
+def tau_help(allowed: str) -> str:
+    return f"tau [s] in {allowed}: 0 is the DAE itself (v from G = phi(v, V), jumping at the folds of phi)"
+
+
+TAU_RANGE = f"[0, {TAU_MAX:.0e}]".replace("e+0", "e")
+
+
+# ---------------------------------------------------------------------------- the integrator
+def add_tolerances(group, *, rtol_default: str, atol_default: str, note: str = "not with --dt") -> None:
+    """--rtol and --atol: error control's tolerances."""
+    group.add_argument(
+        "--rtol", type=float, default=None,
+        help=f"error control's relative tolerance in (0, 1) (default {rtol_default}; {note})",
+    )  # fmt: skip
+    group.add_argument(
+        "--atol", type=float, default=None,
+        help=f"error control's absolute tolerance in (0, inf) (default {atol_default}; {note})",
+    )  # fmt: skip
+
+
+def check_tolerances(rtol: float | None, atol: float | None, defaults: tuple[float, float]) -> tuple[float, float]:
+    """--rtol in (0, 1) and --atol in (0, inf), each its default when not given."""
+    rtol = defaults[0] if rtol is None else rtol
+    atol = defaults[1] if atol is None else atol
+    check_tolerance("--rtol", rtol, 1.0)
+    check_tolerance("--atol", atol)
+    return float(rtol), float(atol)
+
+
+def add_max_steps(group, *, default: str | None = None) -> None:
+    """--max-steps: error control's budget of step attempts per run."""
+    default = default or (
+        f"{DEFAULT_MAX_STEPS} where the accepted steps are the output, {DEFAULT_MAX_STEPS_DENSE:.0e} with "
+        "--save-dt"
+    )
+    group.add_argument(
+        "--max-steps", dest="max_steps", type=int, default=None, metavar="N",
+        help=f"error control's budget of step attempts (accepted or rejected) per run, an integer in "
+        f"[1, {MAX_STEPS_LIMIT}]; a run that uses it up stops, and stderr says so; not with --dt (default "
+        f"{default})",
+    )  # fmt: skip
+
+
+def check_max_steps(max_steps: int | None, uniform_option: str | None = None) -> None:
+    """--max-steps: None (the library's budget) or an integer in [1, 2**31 - 1]; refused with the
+    uniform mesh (``uniform_option``, e.g. "--dt"), which takes no budget."""
+    if max_steps is None:
+        return
+    if max_steps < 1:
+        raise ValueError(f"--max-steps must be a positive integer (allowed range: [1, inf)), got {max_steps}")
+    if max_steps > MAX_STEPS_LIMIT:
+        raise ValueError(
+            f"--max-steps {max_steps} exceeds the loop's count of step attempts (a 32-bit integer): "
+            f"give at most {MAX_STEPS_LIMIT} (allowed range: [1, inf))"
+        )
+    if uniform_option is not None:
+        raise ValueError(
+            f"--max-steps (allowed range: [1, inf)) is error control's budget of step attempts; {uniform_option} "
+            "asks for a uniform mesh, which takes no budget: give one or the other"
+        )
+
+
+def add_max_jumps(group, *, default: int, per: str = "run") -> None:
+    group.add_argument(
+        "--max-jumps", dest="max_jumps", type=int, default=None, metavar="N",
+        help=f"slots of each {per}'s jump record, an integer in [1, {MAX_JUMPS_LIMIT:.0e}]; one more jump "
+        f"stops the run; error control only (default {default})",
+    )  # fmt: skip
+
+
+def check_max_jumps(max_jumps: int | None, default: int, uniform_option: str | None = None) -> int:
+    """--max-jumps in [1, 1e7] (the record is allocated in full); its default when not given."""
+    if max_jumps is None:
+        return default
+    if uniform_option is not None:
+        raise ValueError(
+            f"--max-jumps sizes the jump record of error control (any stepper), which {uniform_option} does not "
+            "run: give one or the other"
+        )
+    if isinstance(max_jumps, bool) or not 1 <= max_jumps <= MAX_JUMPS_LIMIT:
+        raise ValueError(
+            f"--max-jumps must be a positive integer (allowed range: [1, {MAX_JUMPS_LIMIT:.0e}]; the jump record "
+            f"is allocated in full), got {max_jumps}"
+        )
+    return int(max_jumps)
+
+
+# ---------------------------------------------------------------------------- statistics window
+def transient_default(t_final: float) -> float:
+    """The one default rule: the statistics cover the second half of the run."""
+    return t_final / 2.0
+
+
+def add_statistics_window(group, *, window: bool = True, transient: str = "t_final/2",
+                          window_default: str = "up to --t-final", what: str = "the statistics") -> None:  # fmt: skip
+    """--transient T and (``window``) --window W: ``what`` covers [T, T + W] [s]."""
+    group.add_argument(
+        "--transient", type=float, default=None, metavar="T",
+        help=f"{what} start at T [s], >= 0: what comes before (the approach to the attractor) is left out "
+        f"(default {transient}: the second half of the run)",
+    )  # fmt: skip
+    if window:
+        group.add_argument(
+            "--window", type=float, nargs="+", default=None, metavar="W",
+            help=f"{what} cover [T, T + W]: W [s] > 0 (default {window_default})",
+        )  # fmt: skip
+
+
+def check_statistics_window(transient: float | None, window: float | None, t_final: float) -> tuple[float, float]:
+    """[T, T + W] within [0, t_final] (the defaults: T = t_final/2, W = t_final - T)."""
+    T = transient_default(t_final) if transient is None else transient
+    if not (math.isfinite(T) and 0 <= T < t_final):
+        raise ValueError(f"--transient must lie in [0, --t-final) = [0, {t_final:g}) [s], got {T:g}")
+    W = t_final - T if window is None else window
+    if not (math.isfinite(W) and 0 < W <= t_final - T * (1 - 1e-12)):
+        raise ValueError(
+            f"--window must lie in (0, {t_final - T:g}] [s] (allowed range: the statistics cover [--transient, "
+            f"--transient + --window] within the run, [0, --t-final]), got {W:g}"
+        )
+    return float(T), float(min(W, t_final - T))
+
+
+def one_window(window: list[float] | None, *, fractions_allowed: bool, t_final: float | None = None):
+    """--window as given: None, one length [s], or (``fractions_allowed``: sweep) the old form
+    W0 W1, two fractions of t_final, returned as (transient, window) in seconds with a
+    deprecation note on stderr."""
+    if window is None:
+        return None, None
+    if len(window) == 1:
+        return None, float(window[0])
+    if len(window) == 2 and fractions_allowed:
+        w0, w1 = window
+        if not (math.isfinite(w0) and math.isfinite(w1) and 0 <= w0 < w1 <= 1):
+            raise ValueError(
+                f"--window W0 W1 (the deprecated form: fractions of t_final) must satisfy 0 <= W0 < W1 <= 1, got "
+                f"{w0:g} {w1:g}; give --transient T --window W in seconds"
+            )
+        T, W = w0 * t_final, (w1 - w0) * t_final
+        deprecated(f"--window {w0:g} {w1:g}", f"--transient {T:g} --window {W:g}", "(fractions of t_final)")
+        return T, W
+    raise ValueError(
+        f"--window takes one length W [s] (the statistics cover [--transient, --transient + W]), got {len(window)} "
+        "values" + ("" if fractions_allowed else "; sweep's old form W0 W1 is --transient T --window W here")
+    )
+
+
+# ---------------------------------------------------------------------------- output and progress
+def add_outputs(parser, *, out_meta: str, out_help: str, plot_meta: str = "FILE.png", plot_help: str) -> None:
+    parser.add_argument("--out", metavar=out_meta, help=out_help)
+    parser.add_argument("--plot", metavar=plot_meta, help=f"{plot_help} (format from the suffix; default: none)")
+
+
+def check_outputs(args: argparse.Namespace) -> None:
+    """--out and --plot: the folder exists and is writable, the image format known."""
+    check_output_path("--out", getattr(args, "out", None))
+    if getattr(args, "plot", None) is not None:
+        check_output_path("--plot", args.plot, plot_formats())
+
+
+def add_json(parser) -> None:
+    parser.add_argument("--json", action="store_true", help="print one JSON object on stdout instead of a summary")
+
+
+def add_progress(parser, what: str = "progress") -> None:
+    parser.add_argument(
+        "--no-progress", dest="progress", action="store_false",
+        help=f"no {what} on stderr (default: shown; what runs and how it ended are always said)",
+    )  # fmt: skip
+
+
+def progress_on(args: argparse.Namespace) -> bool:
+    return bool(getattr(args, "progress", True))
+
+
+def deprecated(old: str, new: str, what: str = "") -> None:
+    """One line on stderr: ``old`` still works for one release; ``new`` is its spelling now."""
+    what = f" {what}" if what else ""
+    print(f"{PROG}: note: {old}{what} is deprecated and goes in the next release: give {new}", file=sys.stderr)
