@@ -14,8 +14,19 @@ Along a trajectory y_t = (α, ω, u, v) at pull velocity V and homogenization ti
   threshold (default 1 N·s/m: the boundary of the fast scale of Lemma 2, index ≥ 2);
 * **events**: stick → slip (∂φ/∂v crosses zero downwards: the maximum of φ, adhesion yields) and
   slip → stick (upwards), by linear interpolation between output times;
-* **oscillation** of v after a transient: the period (median spacing of the upward crossings
-  of the late mean), the amplitude (half the late peak-to-peak range) and the local extrema.
+* **τ = 0 runs with jumps** (the DAE, ``fold="jump"``): v never sits on the middle branch, it
+  jumps from the stick branch to the fast one (both with ∂φ/∂v > 0), so the sign rule cannot
+  see the phases there. The jump record can, exactly: phases, events and the stick fraction
+  come from it (:func:`peeljax.cycle_statistics`);
+* **means over time**: output times are not uniform (error control saves its accepted steps),
+  so every mean is a time average, the trapezoid rule in t (:func:`time_average`), with each
+  recorded jump of v inserted at its time (v_before, v_after) so that the jump is exact;
+  fractions of phases are fractions of time;
+* **cycle measures** of v after a transient: ``period`` is one thing, the mean time between
+  stick → slip events (the jump record's ``slip_interval``; for τ > 0 the downward crossings of
+  ∂φ/∂v), and ``repeat`` is the repeat of those events (:func:`peeljax.cycles.repeat_pattern`,
+  k events every T, or :class:`~peeljax.cycles.TooFewRepeats`, or None: irregular or no slips);
+  the amplitude (half the late peak-to-peak range, jump values included) and the local extrema.
 
 :func:`trajectory_structure` is pure JAX (``jit``/``vmap``-able, any leading batch axes);
 :func:`analyze` runs it and extracts the events on the host (one :class:`StickSlipAnalysis` per
@@ -32,6 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+from .cycles import CycleStatistics, RepeatPattern, TooFewRepeats, cycle_statistics, repeat_outlook, repeat_pattern
 from .homogenized import HomogenizedODE
 from .model import PeelingModel
 from .saved import SavedRun
@@ -47,6 +59,7 @@ __all__ = [
     "local_extrema",
     "oscillation",
     "phi_extrema",
+    "time_average",
     "trajectory_structure",
 ]
 
@@ -131,20 +144,102 @@ def local_extrema(ts: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.nd
     return ts[imax], values[imax], ts[imin], values[imin]
 
 
+def _with_jumps(ts, values, jumps):
+    """The series with each jump (t_j, before_j, after_j) inserted as two points at t_j, in time
+    order (a sample at t_j holds the state before the jump: it goes first)."""
+    ts, values = np.asarray(ts, float), np.asarray(values, float)
+    if jumps is None or np.size(jumps[0]) == 0:
+        return ts, values
+    t_j, before, after = (np.asarray(a, float).ravel() for a in jumps)
+    t = np.concatenate([ts, t_j, t_j])
+    x = np.concatenate([values, before, after])
+    rank = np.concatenate([np.zeros(ts.size), np.ones(t_j.size), np.full(t_j.size, 2.0)])
+    order = np.lexsort((rank, t))
+    return t[order], x[order]
+
+
+def time_average(
+    ts: np.ndarray,
+    values: np.ndarray,
+    t_start: float | None = None,
+    t_end: float | None = None,
+    jumps: tuple | None = None,
+) -> float:
+    """(1/(t_end − t_start))·∫ x dt over [t_start, t_end] by the trapezoid rule on the samples.
+
+    The samples need not be uniform (error control's accepted steps are not): the unweighted
+    mean of such samples over-weights where the steps are short. NaN samples are left out.
+
+    Args:
+        ts, values: the samples (t ascending where finite).
+        t_start, t_end: the window (default: the first and last finite sample); the ends are
+            interpolated linearly.
+        jumps: ``(t_j, before_j, after_j)`` of jumps of x between samples (a run's jump record:
+            v jumps at a fold), inserted so that the integral sees the jump where it happened.
+
+    Returns:
+        The time average; NaN when fewer than two finite samples lie in the window or it is empty.
+    """
+    ts, values = np.asarray(ts, float), np.asarray(values, float)
+    ok = np.isfinite(ts) & np.isfinite(values)
+    t, x = _with_jumps(ts[ok], values[ok], jumps)
+    if t.size < 2:
+        return float("nan")
+    a = float(t[0]) if t_start is None else max(float(t_start), float(t[0]))
+    b = float(t[-1]) if t_end is None else min(float(t_end), float(t[-1]))
+    if not b > a:
+        return float("nan")
+    # the piecewise-linear interpolant cut to [a, b]: the ends interpolated, the samples between kept
+    inside = (t > a) & (t < b)
+    t_cut = np.concatenate([[a], t[inside], [b]])
+    x_cut = np.concatenate([[_interp_right(t, x, a)], x[inside], [_interp_left(t, x, b)]])
+    return float(np.sum(0.5 * (x_cut[1:] + x_cut[:-1]) * np.diff(t_cut)) / (b - a))
+
+
+def _interp_right(t, x, q):
+    """The linear interpolant at q, taking the value after a jump when q is a jump's time."""
+    i = int(np.searchsorted(t, q, side="right")) - 1
+    if i >= t.size - 1:
+        return float(x[-1])
+    return float(x[i] + (q - t[i]) / (t[i + 1] - t[i]) * (x[i + 1] - x[i])) if t[i + 1] > t[i] else float(x[i + 1])
+
+
+def _interp_left(t, x, q):
+    """The linear interpolant at q, taking the value before a jump when q is a jump's time."""
+    i = int(np.searchsorted(t, q, side="left"))
+    if i == 0:
+        return float(x[0])
+    return float(x[i - 1] + (q - t[i - 1]) / (t[i] - t[i - 1]) * (x[i] - x[i - 1])) if t[i] > t[i - 1] else float(x[i - 1])
+
+
+def _time_weights(ts: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """The trapezoid weight of each valid sample (half of each neighbouring interval), 0 elsewhere:
+    Σ w·mask / Σ w is the fraction of time where a 0/1 mask holds."""
+    w = np.zeros(ts.size)
+    i = np.flatnonzero(valid & np.isfinite(ts))
+    if i.size >= 2:
+        gaps = np.diff(ts[i])
+        w[i[:-1]] += 0.5 * gaps
+        w[i[1:]] += 0.5 * gaps
+    elif i.size == 1:
+        w[i] = 1.0
+    return w
+
+
 def oscillation(ts: np.ndarray, values: np.ndarray, t_start: float = 0.0) -> dict[str, float]:
     """Period, amplitude and mean of an oscillating series over t ≥ ``t_start``.
 
-    The period is the median spacing of the upward crossings of the late mean (NaN with fewer
-    than two); the amplitude is half the late peak-to-peak range; ``decay`` is the ratio of the
-    last to the first late half-range (< 1 for a damped oscillation), NaN with fewer than two
-    cycles.
+    The mean is the time average (:func:`time_average`: samples need not be uniform); the
+    period is the median spacing of the upward crossings of that mean (NaN with fewer than
+    two); the amplitude is half the late peak-to-peak range; ``decay`` is the ratio of the last
+    to the first late half-range (< 1 for a damped oscillation), NaN with fewer than two cycles.
     """
     ts, values = np.asarray(ts, float), np.asarray(values, float)
     late = (ts >= t_start) & np.isfinite(values)
     if late.sum() < 3:
         return {"period": float("nan"), "amplitude": float("nan"), "mean": float("nan"), "decay": float("nan")}
     t, x = ts[late], values[late]
-    mean = float(np.mean(x))
+    mean = time_average(t, x)
     ups = crossings(t, x - mean, "up")
     period = float(np.median(np.diff(ups))) if ups.size >= 2 else float("nan")
     amplitude = 0.5 * float(np.max(x) - np.min(x))
@@ -164,11 +259,16 @@ class StickSlipAnalysis:
 
     Per output time: ``ts``, ``v``, ``valid``, ``phi_v``, ``stick``, ``slip``, ``branch``,
     ``schur`` (J_t), ``local_index``, ``near_singular`` (|J_t| < threshold), ``constraint_residual``.
-    Events: ``stick_to_slip`` and ``slip_to_stick`` times, ``schur_sign_changes`` (J_t = 0 crossed
-    between samples), ``bifurcation_times`` (those and the local minima of |J_t| below the
-    threshold: Theorem 3's points, as far as the output grid resolves them). Cycle measures of
-    v after ``t_transient``: ``period``, ``amplitude``, ``v_mean``, ``decay``, and the extrema
-    ``v_max_times``/``v_max``/``v_min_times``/``v_min``.
+    Events: ``stick_to_slip`` and ``slip_to_stick`` times (on a τ = 0 run with jumps: the jump
+    record's), ``schur_sign_changes`` (J_t = 0 crossed between samples), ``bifurcation_times``
+    (those and the local minima of |J_t| below the threshold: Theorem 3's points, as far as the
+    output grid resolves them). Over the run: ``stick_fraction``, ``slip_fraction`` (of time;
+    from the jump record on τ = 0 runs with jumps). Cycle measures of v after ``t_transient``:
+    ``period`` (the mean time between stick → slip events), ``repeat`` (their repeat: a
+    :class:`~peeljax.cycles.RepeatPattern`, a :class:`~peeljax.cycles.TooFewRepeats`, or None:
+    ``repeat_verdict`` says irregular or none), ``amplitude``, ``v_mean`` (time average),
+    ``decay``, the extrema ``v_max_times``/``v_max``/``v_min_times``/``v_min``, and ``cycles``
+    (the jump record's :class:`~peeljax.cycles.CycleStatistics` after the transient, or None).
     """
 
     V: float
@@ -200,6 +300,11 @@ class StickSlipAnalysis:
     amplitude: float
     v_mean: float
     decay: float
+    stick_fraction: float = float("nan")
+    slip_fraction: float = float("nan")
+    repeat: RepeatPattern | TooFewRepeats | None = None
+    slips: int = 0
+    cycles: CycleStatistics | None = None
     extra: dict = field(default_factory=dict)
 
     @property
@@ -213,47 +318,73 @@ class StickSlipAnalysis:
         values = self.local_index[self.valid]
         return int(values.max()) if values.size else 0
 
+    @property
+    def repeat_verdict(self) -> str:
+        """``"regular"``, ``"too few repeats to tell"``, ``"irregular"`` or ``"none"`` (no
+        stick → slip after the transient), as :attr:`peeljax.CycleStatistics.verdict`."""
+        if isinstance(self.repeat, RepeatPattern):
+            return "regular"
+        if isinstance(self.repeat, TooFewRepeats):
+            return "too few repeats to tell"
+        return "none" if self.slips == 0 else "irregular"
+
     def fraction(self, mask_name: str) -> float:
-        """Fraction of the valid output times where ``stick``, ``slip`` or ``near_singular`` holds."""
-        mask = getattr(self, mask_name)
-        n = int(self.valid.sum())
-        return float((mask & self.valid).sum() / n) if n else float("nan")
+        """Fraction of the time (trapezoid weights of the valid output times) where ``stick``,
+        ``slip`` or ``near_singular`` holds; for ``stick``/``slip`` the run's
+        ``stick_fraction``/``slip_fraction`` (exact from the jump record on τ = 0 runs)."""
+        if mask_name in ("stick", "slip"):
+            return self.stick_fraction if mask_name == "stick" else self.slip_fraction
+        return _mask_fraction(self.ts, self.valid, getattr(self, mask_name))
 
     def __repr__(self) -> str:
         """A few lines: the run, its phases and events, the cycle measures (``summary()``: all numbers)."""
         valid = int(self.valid.sum())
         outcome = "completed" if self.completed else "stopped"
+        if isinstance(self.repeat, RepeatPattern):
+            repeat = f"repeat T = {self.repeat.period:.4g} s with {self.repeat.events} slips"
+        else:
+            repeat = f"repeat: {self.repeat_verdict}"
         return (
             f"StickSlipAnalysis(V = {self.V:g} m/s, tau = {self.tau:g} s, {outcome} at t = {self.t_stop:.6g} s, "
             f"{valid} valid of {self.ts.size} output times,\n"
-            f"  stick {self.fraction('stick'):.0%}, slip {self.fraction('slip'):.0%} of the time; "
+            f"  stick {self.stick_fraction:.1%}, slip {self.slip_fraction:.1%} of the time; "
             f"{self.stick_to_slip.size} stick -> slip and {self.slip_to_stick.size} slip -> stick events; "
             f"{self.bifurcation_times.size} near-singular points (min |J_t| = {self.min_abs_schur:.3g} N s/m, "
             f"local index <= {self.max_local_index}),\n"
-            f"  v after t = {self.t_transient:.4g} s: mean {self.v_mean:.4g} m/s, amplitude {self.amplitude:.4g} m/s, "
-            f"period {self.period:.4g} s, decay {self.decay:.3g})"
+            f"  after t = {self.t_transient:.4g} s: v time-mean {self.v_mean:.4g} m/s, amplitude {self.amplitude:.4g} m/s, "
+            f"{self.slips} slips, period (time between slips) {self.period:.4g} s, {repeat}, decay {self.decay:.3g})"
         )
 
     def summary(self) -> dict:
         """Plain-Python numbers for JSON output and tables."""
+        repeat = self.repeat.as_dict() if self.repeat is not None else None
         return {
             "V": self.V,
             "tau": self.tau,
             "t_stop": self.t_stop,
             "completed": self.completed,
-            "stick_fraction": self.fraction("stick"),
-            "slip_fraction": self.fraction("slip"),
+            "stick_fraction": self.stick_fraction,
+            "slip_fraction": self.slip_fraction,
             "n_stick_to_slip": int(self.stick_to_slip.size),
             "n_slip_to_stick": int(self.slip_to_stick.size),
             "n_bifurcation_points": int(self.bifurcation_times.size),
             "bifurcation_times": [float(t) for t in self.bifurcation_times],
             "min_abs_schur": self.min_abs_schur,
             "max_local_index": self.max_local_index,
+            "slips": self.slips,
             "period": self.period,
+            "repeat": repeat,
+            "repeat_verdict": self.repeat_verdict,
             "amplitude": self.amplitude,
             "v_mean": self.v_mean,
             "decay": self.decay,
         }
+
+
+def _mask_fraction(ts, valid, mask) -> float:
+    w = _time_weights(np.asarray(ts, float), np.asarray(valid, bool))
+    total = w.sum()
+    return float(np.sum(w * np.asarray(mask, bool)) / total) if total > 0 else float("nan")
 
 
 def _branch(v: np.ndarray, v_top: float, v_bottom: float) -> np.ndarray:
@@ -261,7 +392,19 @@ def _branch(v: np.ndarray, v_top: float, v_bottom: float) -> np.ndarray:
     return np.where(np.isfinite(v), branch, -1).astype(np.int8)
 
 
-def _analyze_one(ts, ys, valid, t_stop, completed, struct, model, V, tau, threshold, t_transient, v_ext):
+def _jump_phases(ts, valid, t_j, up, branch):
+    """stick, slip per output time on a τ = 0 run from its jumps: after the last jump strictly
+    before t (a sample at a jump's time holds the state before it) the tape is where that jump
+    landed; before the first, on the branch it leaves; without jumps, where v is (branch 0:
+    the stick branch, else the fast one)."""
+    if t_j.size == 0:
+        return valid & (branch == 0), valid & (branch >= 1)
+    n_before = np.searchsorted(t_j, np.where(np.isfinite(ts), ts, np.inf), side="left")
+    stuck = np.where(n_before == 0, bool(up[0]), ~up[np.maximum(n_before - 1, 0)])
+    return valid & stuck, valid & ~stuck
+
+
+def _analyze_one(ts, ys, valid, t_stop, completed, struct, model, V, tau, threshold, t_transient, v_ext, jumps):
     v = np.where(valid, ys[:, 3], np.nan)
     phi_v = np.where(valid, struct["phi_v"], np.nan)
     J = np.where(valid, struct["schur"], np.nan)
@@ -276,9 +419,50 @@ def _analyze_one(ts, ys, valid, t_stop, completed, struct, model, V, tau, thresh
         if near[last] and (last == 0 or absJ[last] <= absJ[last - 1]):
             dips = np.append(dips, ts[last])
     bif = np.unique(np.concatenate([sign_changes, dips]))
+    branch = _branch(v, *v_ext)
+    t_first = float(ts[valid][0]) if valid.any() else float("nan")
+    t_end = float(t_stop) if np.isfinite(t_stop) else float(np.nanmax(ts[valid])) if valid.any() else float("nan")
+    t_j = up = None
+    jump_points = None
+    if jumps is not None:
+        t_j, up = jumps["jump_t"], jumps["jump_up"].astype(bool)
+        jump_points = (t_j, jumps["jump_v_before"], jumps["jump_v_after"])
+    cycles = None
+    if jumps is not None and tau == 0:
+        # the DAE: the phases, events and stick fraction from the jump record, exactly
+        stick, slip = _jump_phases(ts, valid, t_j, up, branch)
+        to_slip, to_stick = t_j[up], t_j[~up]
+        whole = cycle_statistics(jumps, t_end, transient=t_first) if t_end > t_first else None
+        stick_fraction = whole.stick_fraction if whole is not None else float("nan")
+        if np.isnan(stick_fraction):  # no jump: the branch v is on
+            stick_fraction = _mask_fraction(ts, valid, stick)
+        if t_transient < t_end:
+            cycles = cycle_statistics(jumps, t_end, transient=max(t_transient, 0.0))
+        late_up = to_slip[(to_slip >= t_transient) & (to_slip <= t_end)]
+    else:
+        stick, slip = valid & (phi_v > 0), valid & (phi_v < 0)
+        to_slip, to_stick = crossings(ts, phi_v, "down"), crossings(ts, phi_v, "up")
+        stick_fraction = _mask_fraction(ts, valid, stick)
+        late_up = to_slip[to_slip >= t_transient]
+    slip_fraction = 1.0 - stick_fraction if jumps is not None and tau == 0 else _mask_fraction(ts, valid, slip)
+    # period: the mean time between stick → slip events after the transient; their repeat
+    period = float(np.mean(np.diff(late_up))) if late_up.size >= 2 else float("nan")
+    if cycles is not None:
+        repeat = cycles.repeat if cycles.repeat is not None else cycles.too_few
+    elif late_up.size:
+        repeat = repeat_pattern(late_up)
+        repeat = repeat if repeat is not None else repeat_outlook(late_up, t_end=t_end)
+    else:
+        repeat = None
     t_max, x_max, t_min, x_min = local_extrema(ts, v)
     late_max, late_min = t_max >= t_transient, t_min >= t_transient
     osc = oscillation(ts, v, t_transient)
+    late = valid & (ts >= t_transient)
+    late_v = v[late]
+    if jump_points is not None:  # the values v jumps from and to are part of its range
+        in_late = (t_j >= t_transient) & (t_j <= t_end)
+        late_v = np.concatenate([late_v, jump_points[1][in_late], jump_points[2][in_late]])
+    amplitude = 0.5 * float(np.ptp(late_v)) if late_v.size else float("nan")
     return StickSlipAnalysis(
         V=float(V),
         tau=float(tau),
@@ -290,25 +474,30 @@ def _analyze_one(ts, ys, valid, t_stop, completed, struct, model, V, tau, thresh
         v=v,
         valid=valid,
         phi_v=phi_v,
-        stick=valid & (phi_v > 0),
-        slip=valid & (phi_v < 0),
-        branch=_branch(v, *v_ext),
+        stick=stick,
+        slip=slip,
+        branch=branch,
         schur=J,
         local_index=np.where(valid, struct["local_index"], 0).astype(np.int32),
         near_singular=near,
         constraint_residual=np.where(valid, struct["constraint_residual"], np.nan),
-        stick_to_slip=crossings(ts, phi_v, "down"),
-        slip_to_stick=crossings(ts, phi_v, "up"),
+        stick_to_slip=to_slip,
+        slip_to_stick=to_stick,
         schur_sign_changes=sign_changes,
         bifurcation_times=bif,
         v_max_times=t_max[late_max],
         v_max=x_max[late_max],
         v_min_times=t_min[late_min],
         v_min=x_min[late_min],
-        period=osc["period"],
-        amplitude=osc["amplitude"],
-        v_mean=osc["mean"],
+        period=period,
+        amplitude=amplitude,
+        v_mean=time_average(ts, v, t_transient, t_end, jumps=jump_points),
         decay=osc["decay"],
+        stick_fraction=float(stick_fraction),
+        slip_fraction=float(slip_fraction),
+        repeat=repeat,
+        slips=int(late_up.size),
+        cycles=cycles,
     )
 
 
@@ -338,7 +527,8 @@ def analyze(
             α-method's ``diagnostics.schur`` holds the same values).
         truncation: with a model: the run's (see :class:`~peeljax.HomogenizedODE`).
         threshold: |J_t| below this [N·s/m] marks the fast scale / a near-singular point.
-        t_transient: cycle measures use t ≥ this (default: the second half of the output span).
+        t_transient: cycle measures (period, repeat, time-mean, amplitude) use t ≥ this
+            (default: the second half of the output span); phase fractions cover the whole run.
 
     Returns:
         A :class:`StickSlipAnalysis`, or a flat list of them for a batch (row-major order).
@@ -374,6 +564,7 @@ def analyze(
     completed_all = np.asarray(solution.completed)
     n = int(np.prod(batch_shape)) if batch_shape else 1
     ts_flat = ts_all.reshape(n, -1)
+    jumps_flat = _jump_arrays(solution.jumps, n)
     out = []
     extrema_cache: dict[float, tuple[float, float]] = {}
     for i in range(n):
@@ -400,9 +591,21 @@ def analyze(
                 threshold,
                 t_tr,
                 extrema_cache[Vi],
+                None if jumps_flat is None else jumps_flat[i],
             )
         )
     return out if batch_shape else out[0]
+
+
+def _jump_arrays(record, n: int) -> list[dict] | None:
+    """The recorded jumps of each of the n trajectories as host arrays (first ``count`` slots)."""
+    if record is None:
+        return None
+    count = np.asarray(record.count).reshape(n)
+    fields = {"jump_t": record.t, "jump_up": record.up, "jump_v_before": record.v_before,
+              "jump_v_after": record.v_after, "jump_G": record.G}  # fmt: skip
+    arrays = {key: np.asarray(value).reshape(n, -1) for key, value in fields.items()}
+    return [{key: value[i, : int(count[i])] for key, value in arrays.items()} for i in range(n)]
 
 
 # ---------------------------------------------------------------------------- bifurcation diagram

@@ -347,10 +347,11 @@ def repeat_outlook(up_times, *, rtol: float = 1e-3, t_end: float | None = None) 
 
     * a near repeat forming: some L_k within 5 % of the range of the intervals (``NEAR``), no
       larger than the largest e_i of any earlier repeat, and shrinking, q_k ≤ 0.8
-      (``CONTRACTION``), or without a q_k. Too few: if L_k is within the tolerance, the repeat
-      settled inside the window (its start still holds the settling) and the window from the
-      first interval after the last mismatch shows it; else L_k·q_k^n is extrapolated to the
-      repeat n where it meets the tolerance;
+      (``CONTRACTION``). Too few: if L_k is within the tolerance, the repeat settled inside the
+      window (its start still holds the settling) and the window from the first interval after
+      the last mismatch shows it; else, with q_k from three ratios at least, L_k·q_k^n is
+      extrapolated to the repeat n where it meets the tolerance, and without any ratio (one
+      repeat of comparisons) k ≥ 3 intervals have to match;
     * otherwise, fewer than 31 events (``MIN_EVENTS``: every k up to 10 seen three times):
       too few (k = 0);
     * otherwise irregular (None): no repeat of up to len(d)/2 events forming.
@@ -392,12 +393,16 @@ def repeat_outlook(up_times, *, rtol: float = 1e-3, t_end: float | None = None) 
         now, before = e[k:], e[:-k]
         ok = before > 0
         rate = float(np.median(now[ok] / before[ok])) if ok.any() else math.nan
-        if not rate > CONTRACTION:
-            if last <= tolerance:  # matched at the end of the window, not from its start: settled in it
-                mismatched = np.flatnonzero(e > tolerance)
-                start = float(t[int(mismatched[-1]) + 1]) if mismatched.size else float(t[0])
-                period = float(d[-k:].sum())
-                return TooFewRepeats(k, period, last, tolerance, start, start + 2.5 * period, 2.5 * period)
+        if rate > CONTRACTION:
+            continue
+        if last <= tolerance:  # matched at the end of the window, not from its start: settled in it
+            mismatched = np.flatnonzero(e > tolerance)
+            start = float(t[int(mismatched[-1]) + 1]) if mismatched.size else float(t[0])
+            period = float(d[-k:].sum())
+            return TooFewRepeats(k, period, last, tolerance, start, start + 2.5 * period, 2.5 * period)
+        # not yet within the tolerance: a rate from three ratios at least, or without any, k ≥ 3
+        # matched intervals (a burst's smoothly levelling intervals look like k = 1 settling)
+        if (ok.sum() >= 3) if ok.any() else k >= 3:
             near.append((last, k, rate))
     if near:
         last, k, rate = min(near)

@@ -16,6 +16,8 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import FixedLocator, FormatStrFormatter, NullFormatter
 
+from .cycles import MIN_EVENTS
+
 __all__ = ["plot_stick_slip_map"]
 
 # One colour per start and jump direction: the slips in reds, the re-sticks in blues, the
@@ -93,11 +95,13 @@ def plot_stick_slip_map(smap, *, title: str | None = None, path: str | Path | No
         stick; filled: the first start, open: the second) over φ's fold forces φ(v̂, V) (where
         it slips) and φ(v̌, V) (where it re-sticks). The V range where φ(·, V) has no fold is
         shaded and labelled.
-    (b) The repeat period T of the stick → slip events (markers; the number k of events per
-        repeat on the right axis, small markers) and the mean time between slips (lines), log
-        time axis. Stick-slip lanes without a repeat ("irregular") get a × on the strip at the
-        top; lanes that stopped before t_final a ▾ on the strip at the bottom (their statistics
-        cover what they ran, see ``StickSlipMap.window_start``).
+    (b) The repeat period T of the stick → slip events (markers) and the mean time between
+        slips (lines), log time axis; below it, on its own axis, the number k of events per
+        repeat; below that a strip with one row each for the stick-slip lanes without a repeat
+        (○ fewer than 31 slips in the window: too few repeats to tell, as
+        :func:`peeljax.cycles.repeat_outlook` has it; × no repeat in more: irregular or still
+        settling, the map does not keep the times to tell) and the lanes that stopped before
+        t_final (▾; their statistics cover what they ran, see ``StickSlipMap.window_start``).
     (c) The v amplitude: the range of v on the stick branch (blues) and on the slip branch
         (reds) seen at the jumps, one bar per V and start (the starts side by side), with
         v̂(V), v̌(V) and v = V. Lanes without jumps (steady peeling) show their v range over the
@@ -125,14 +129,14 @@ def plot_stick_slip_map(smap, *, title: str | None = None, path: str | Path | No
 
     fig = Figure(figsize=(12.5, 12.0), layout="constrained")
     FigureCanvasAgg(fig)
-    ax_G, ax_T, ax_v = fig.subplots(3, 1, sharex=True, height_ratios=(1.0, 1.0, 1.1))
+    ax_G, ax_T, ax_k, ax_S, ax_v = fig.subplots(5, 1, sharex=True, height_ratios=(1.0, 0.8, 0.3, 0.22, 1.1))
     density = float(np.clip(60.0 / V.size, 0.45, 1.0))  # marker scale: smaller beyond 60 values of V
     margin = max(float(room.max()), 0.01 * span)
     x_lo = max(float(V.min()) - margin, 0.5 * float(V.min()))
     x_hi = float(V.max()) + margin
     shifts = [0.0] if len(starts) == 1 else np.linspace(-0.22, 0.22, len(starts))  # the starts side by side
     no_fold = _spans(V, ~has_folds, x_lo, x_hi)
-    for ax in (ax_G, ax_T, ax_v):
+    for ax in (ax_G, ax_T, ax_k, ax_S, ax_v):
         for a, b in no_fold:
             ax.axvspan(a, b, color=_NO_FOLD_COLOR, zorder=0, lw=0)
         ax.grid(True, alpha=0.3)
@@ -170,13 +174,15 @@ def plot_stick_slip_map(smap, *, title: str | None = None, path: str | Path | No
     ax_G.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, framealpha=0.95, borderaxespad=0)
 
     # (b) the repeat period, the events per repeat and the time between slips ----------------
-    ax_k = ax_T.twinx()
     period = np.asarray(smap.period, float)
     events = np.asarray(smap.events)
     interval = np.asarray(smap.slip_interval, float)
-    irregular = np.asarray(smap.stick_slip) & (events == 0)
+    no_repeat = np.asarray(smap.stick_slip) & (events == 0)
+    # fewer slips in the window than peeljax.cycles needs to call a run irregular: too few to tell
+    few = no_repeat & (np.asarray(smap.slips) < MIN_EVENTS)
+    no_repeat &= ~few
     stopped = np.asarray(smap.status) != 0
-    shown_any = {"interval": False, "period": False, "k": False, "irregular": False, "stopped": False}
+    shown_any = {"interval": False, "period": False}
     for s, start in enumerate(starts):
         style = _start_style(start, s, density)
         color = _START_COLORS.get(start, f"C{s}")
@@ -189,53 +195,60 @@ def plot_stick_slip_map(smap, *, title: str | None = None, path: str | Path | No
         if regular.any():
             ax_T.plot(V[regular], period[s][regular], "D", ls="none", ms=style["ms"] + 1.8, mec=color, mfc=face,
                       mew=1.0, zorder=4)  # fmt: skip
-            ax_k.plot(V[regular] + shifts[s] * room[regular], events[s][regular], "_", ls="none", ms=8 * density, mew=2.0,
-                      color=color, alpha=0.8)  # fmt: skip
-            shown_any["period"] = shown_any["k"] = True
-        if irregular[s].any():
-            ax_T.plot(V[irregular[s]], np.full(int(irregular[s].sum()), 0.965 - 0.05 * s), "x", ls="none", ms=5,
-                      mew=1.2, color=color, transform=ax_T.get_xaxis_transform(), clip_on=False)  # fmt: skip
-            shown_any["irregular"] = True
-        if stopped[s].any():
-            ax_T.plot(V[stopped[s]], np.full(int(stopped[s].sum()), 0.035 + 0.05 * s), "v", ls="none", ms=5,
-                      mec=color, mfc=face, mew=1.0, transform=ax_T.get_xaxis_transform(), clip_on=False)  # fmt: skip
-            shown_any["stopped"] = True
+            ax_k.plot(V[regular] + shifts[s] * room[regular], events[s][regular], "D", ls="none",
+                      ms=style["ms"] + 1.0, mec=color, mfc=face, mew=1.0)  # fmt: skip
+            shown_any["period"] = True
+        # the lanes without a repeat and the stopped ones on their own strip, one row each
+        x = V + shifts[s] * room
+        for row, mask, marker in ((2, few[s], "o"), (1, no_repeat[s], "x"), (0, stopped[s], "v")):
+            if mask.any():
+                ax_S.plot(x[mask], np.full(int(mask.sum()), row), marker, ls="none", ms=5, mec=color,
+                          mfc=face if marker != "x" else color, mew=1.2, color=color)  # fmt: skip
     ax_T.set_yscale("log")
     finite = np.concatenate([period[np.isfinite(period)], interval[np.isfinite(interval)]])
-    if finite.size:  # room above and below for the strips of markers
+    if finite.size:  # the data and a little room
         lo, hi = float(finite.min()), float(finite.max())
-        ax_T.set_ylim(lo / 5.0, hi * 5.0)
+        ax_T.set_ylim(lo / 1.6, hi * 1.6)
+    else:
+        ax_T.text(0.5, 0.5, "no stick-slip after the transient", transform=ax_T.transAxes, ha="center", va="center")
     ax_T.set_ylabel("time [s]")
-    ax_k.set_yscale("log")
-    k_max = float(events.max(initial=1))
-    ax_k.set_ylim(0.25, max(4.0, 4.0 * k_max))  # k = 1 clear of the strip at the bottom
-    ax_k.yaxis.set_major_locator(FixedLocator([k for k in (1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000)
-                                               if k <= 4.0 * max(k_max, 1.0)]))  # integers only  # fmt: skip
-    ax_k.yaxis.set_major_formatter(FormatStrFormatter("%g"))
-    ax_k.yaxis.set_minor_formatter(NullFormatter())
-    ax_k.set_ylabel("k: stick → slip events per repeat (dashes)")
-    ax_k.grid(False)
     ax_T.set_title("(b) the repeat of the stick → slip events (period T, k events per repeat) and the mean time "
                    "between slips", fontsize=10, loc="left")  # fmt: skip
+    # k: its own axis (integers, log), limits from the data
+    k_seen = events[events > 0]
+    k_max = float(k_seen.max()) if k_seen.size else 1.0
+    ax_k.set_yscale("log")
+    ax_k.set_ylim(0.7, max(3.0, 1.6 * k_max))
+    ax_k.yaxis.set_major_locator(FixedLocator([k for k in (1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000)
+                                               if k <= max(3.0, 1.6 * k_max)]))  # integers only  # fmt: skip
+    ax_k.yaxis.set_major_formatter(FormatStrFormatter("%g"))
+    ax_k.yaxis.set_minor_formatter(NullFormatter())
+    ax_k.set_ylabel("k per repeat")
+    if not k_seen.size:
+        ax_k.text(0.5, 0.5, "no repeat found", transform=ax_k.transAxes, ha="center", va="center", fontsize=8)
+    # the status strip: rows, not values
+    ax_S.set_ylim(-0.6, 2.6)
+    ax_S.set_yticks([0, 1, 2], ["stopped", "no repeat", "too few"], fontsize=8)
+    ax_S.grid(False, axis="y")
     grey = "0.35"
     entries = {
         "interval": Line2D([], [], color=grey, lw=1.1, label="mean time between slips"),
-        "period": Line2D([], [], color=grey, marker="D", ls="none", ms=6, label="repeat period T"),
-        "k": Line2D([], [], color=grey, marker="_", ls="none", ms=8, mew=2.0, label="k events per repeat (right axis)"),
-        "irregular": Line2D([], [], color=grey, marker="x", ls="none", ms=5, mew=1.2,
-                            label="irregular: stick-slip, no repeat found"),
-        "stopped": Line2D([], [], color=grey, marker="v", ls="none", ms=5,
-                          label="stopped before t_final (statistics up to t_stop)"),
-    }  # fmt: skip
+        "period": Line2D([], [], color=grey, marker="D", ls="none", ms=6, label="repeat period T; below: its k"),
+    }
     handles = [entries[key] for key, shown_key in shown_any.items() if shown_key]
+    handles += [
+        Line2D([], [], color=grey, marker="o", ls="none", ms=5, mfc="none",
+               label=f"too few repeats to tell: no repeat, < {MIN_EVENTS} slips in the window"),
+        Line2D([], [], color=grey, marker="x", ls="none", ms=5, mew=1.2,
+               label=f"no repeat found in ≥ {MIN_EVENTS} slips (irregular, or still settling)"),
+        Line2D([], [], color=grey, marker="v", ls="none", ms=5, label="stopped before t_final (statistics up to t_stop)"),
+    ]  # fmt: skip
     for s, start in enumerate(starts):
         style = _start_style(start, s, density)
         color = _START_COLORS.get(start, f"C{s}")
         handles.append(Line2D([], [], color=color, lw=1.1, ls="-" if s == 0 else "--", marker="D", ms=6,
                               mfc=color if style["filled"] else "none", label=_START_WORDS.get(start, start)))  # fmt: skip
-    if not any(shown_any.values()):
-        ax_T.text(0.5, 0.5, "no stick-slip after the transient", transform=ax_T.transAxes, ha="center", va="center")
-    ax_T.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.09, 1.0), fontsize=8, framealpha=0.95,
+    ax_T.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, framealpha=0.95,
                 borderaxespad=0)  # fmt: skip
 
     # (c) the v amplitude on each branch -----------------------------------------------------

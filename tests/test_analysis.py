@@ -155,3 +155,92 @@ def test_analyze_takes_the_runs_ode_truncation_included():
     assert np.nanmax(np.abs(exact.schur[valid] - a.schur[valid])) > 0  # the truncation is not ignored
     with pytest.raises(ValueError, match="not both"):
         A.analyze(sol, ode, tau=0.1)
+
+
+# ---------------------------------------------------------------------------- time averages and τ = 0
+def test_time_average_weights_by_time_and_takes_jumps_exactly():
+    """x = t on [0, 0.5), 3 + t after (a jump of 3 at 0.5, between samples); samples crowded
+    in [0.4, 0.5): the trapezoid in t with the jump inserted is exact for this piecewise-linear
+    x, the plain mean of the samples is not."""
+    ts = np.concatenate([np.linspace(0.0, 0.4, 3), np.linspace(0.41, 0.49, 50), [0.7, 1.0]])
+    x = np.where(ts < 0.5, ts, 3.0 + ts)
+    jump = (np.array([0.5]), np.array([0.5]), np.array([3.5]))
+    exact = 0.5 + 3.0 * 0.5  # ∫_0^1 t dt + 3·0.5
+    assert A.time_average(ts, x, jumps=jump) == pytest.approx(exact, rel=1e-12)
+    assert abs(A.time_average(ts, x) - exact) > 0.1  # the jump drawn as a ramp from 0.49 to 0.7
+    assert abs(np.mean(x) - exact) > 1.0
+    # a window cut inside: [0.2, 0.6] and [0.5, 1] (the window starts on the jump: after it)
+    assert A.time_average(ts, x, 0.2, 0.6, jumps=jump) == pytest.approx(((0.36 - 0.04) / 2 + 3 * 0.1) / 0.4)
+    assert A.time_average(ts, x, 0.5, 1.0, jumps=jump) == pytest.approx(3.75)
+    # NaN samples are left out; too few samples give NaN
+    x_nan = x.copy()
+    x_nan[-1] = np.nan
+    assert A.time_average(ts, x_nan, jumps=jump) == pytest.approx(A.time_average(ts[:-1], x[:-1], jumps=jump))
+    assert np.isnan(A.time_average(ts[:1], x[:1]))
+
+
+@pytest.fixture(scope="module")
+def dae_runs():
+    """V = 1.1 at τ = 0 (the DAE with jumps) to t = 0.3 s (18 jumps): error control's accepted
+    steps, and the same run on a uniform output grid of 1e-5 s (the reference)."""
+    steps = pj.simulate(V=1.1, tau=0.0, t_final=0.3)
+    fine = pj.simulate(V=1.1, tau=0.0, t_final=0.3, ts=np.linspace(0.0, 0.3, 30001))
+    return steps, fine
+
+
+@pytest.mark.slow
+def test_tau0_analysis_agrees_with_the_jump_record(dae_runs):
+    """On the DAE the sign rule sees no slip (v jumps over the middle branch): phases, events,
+    the stick fraction, the period and the repeat come from the jump record."""
+    steps, _ = dae_runs
+    a = A.analyze(steps, V=1.1, tau=0.0, t_transient=0.1)
+    record = steps.jumps.as_numpy()
+    whole = pj.cycle_statistics(steps, float(steps.t_stop))
+    late = pj.cycle_statistics(steps, float(steps.t_stop), transient=0.1)
+    assert whole.slips >= 8 and late.slips >= 5
+    assert a.stick_fraction == pytest.approx(whole.stick_fraction, rel=1e-12)
+    assert a.slip_fraction == pytest.approx(1.0 - whole.stick_fraction, rel=1e-12)
+    assert 0.85 < a.stick_fraction < 0.97  # stuck most of the time, not 100 %
+    np.testing.assert_array_equal(a.stick_to_slip, record["jump_t"][record["jump_up"]])
+    np.testing.assert_array_equal(a.slip_to_stick, record["jump_t"][~record["jump_up"]])
+    assert a.slips == late.slips and a.period == pytest.approx(late.slip_interval.mean, rel=1e-12)
+    assert a.repeat_verdict == late.verdict and a.cycles == late
+    # each output time on the branch the jumps say: slipping between an up jump and the next down one
+    i_up = np.searchsorted(a.ts, record["jump_t"][record["jump_up"]], side="right")
+    assert a.slip[i_up].all() and (a.v[i_up] > 1.0).all()
+    assert not (a.stick & a.slip).any() and (a.stick | a.slip)[a.valid].all()
+    assert a.fraction("stick") == a.stick_fraction
+    summary = a.summary()
+    assert summary["stick_fraction"] == a.stick_fraction and summary["repeat_verdict"] == late.verdict
+
+
+@pytest.mark.slow
+def test_tau0_time_mean_matches_the_fine_uniform_output(dae_runs):
+    """v's mean over error control's steps is the time average: within 1 % of ∫v dt/T on a
+    uniform 1e-5 s grid of the same run (measured 0.4 %); the plain mean of the steps is 3×."""
+    steps, fine = dae_runs
+    j = fine.jumps.as_numpy()
+    reference = A.time_average(fine.ts, fine.ys[:, 3], 0.0, 0.3, jumps=(j["jump_t"], j["jump_v_before"], j["jump_v_after"]))
+    a = A.analyze(steps, V=1.1, tau=0.0, t_transient=0.0)
+    assert a.v_mean == pytest.approx(reference, rel=1e-2)
+    assert np.nanmean(np.where(steps.valid, steps.ys[:, 3], np.nan)) > 2 * reference
+    # the uniform run's own analysis: the same jump-record numbers
+    b = A.analyze(fine, V=1.1, tau=0.0, t_transient=0.0)
+    assert b.v_mean == pytest.approx(reference, rel=1e-12)
+    assert b.stick_fraction == pytest.approx(a.stick_fraction, rel=1e-6)
+
+
+def test_tau_positive_phases_are_time_fractions(stopping_run):
+    """τ > 0 keeps the sign rule; on its uniform mesh the time fractions are the count fractions
+    but for the half weights of the two end points."""
+    _, a = stopping_run
+    ok = a.valid
+    n = int(ok.sum())
+    w = np.ones(n)
+    w[[0, -1]] = 0.5
+    assert a.stick_fraction == pytest.approx(np.sum(w * a.stick[ok]) / w.sum(), rel=1e-12)
+    assert a.stick_fraction + a.slip_fraction == pytest.approx(1.0)
+    # one stick → slip after the transient (v passes v̂ once): no period, too few to tell a repeat
+    assert a.cycles is None and a.slips == 1 and np.isnan(a.period)
+    assert a.repeat_verdict == "too few repeats to tell"
+    assert a.v_mean == pytest.approx(A.time_average(a.ts, a.v, a.t_transient, a.t_stop), rel=1e-12)
