@@ -6,7 +6,10 @@ run's outputs serve several tests.
 
 from __future__ import annotations
 
+import argparse
+import contextlib
 import importlib
+import io
 import json
 import math
 import subprocess
@@ -197,7 +200,7 @@ BAD_INPUT = [
     (["--tau=-1"], "tau", "(0, 1e+06]"),
     (["--V", "0"], "V", "(0, inf)"),
     (["--dt", "0"], "dt", "(0, inf)"),
-    (["--t-final", "0"], "t_final", "(0, inf)"),
+    (["--t-final", "0"], "--t-final", "(0, inf)"),
     (["--dt", "1", "--t-final", "0.5"], "dt", "(0, 0.5]"),
     (["--rho", "1"], "rho", "[0, 1)"),
     (["--rho=-0.1"], "rho", "[0, 1)"),
@@ -345,3 +348,189 @@ def test_a_v_without_stick_slip_is_said(tmp_path):
     assert "no maximum" in json.loads(out)["note"]
     code, out, err = run_cli(["simulate", "--V", "1.1", "--t-final", "0.05", "--json"])
     assert code == 0 and "note" not in json.loads(out)
+
+
+# ---------------------------------------------------------------------------- one vocabulary (issues 29, 30)
+def test_V_takes_a_range_and_suggests_spaces(no_compilation):
+    from peeljax.cli import sweep as sweep_cli
+
+    args = build_parser().parse_args(["sweep", "--V", "0.2:8:40", "1.1", "--tau", "0.01", "--t-final", "0.3"])
+    V = sweep_cli.validate_sweep(args)["V"]
+    np.testing.assert_allclose(V, [*np.linspace(0.2, 8.0, 40), 1.1])
+    for argv, words in (
+        (["sweep", "--V", "1,2"], ["--V", "'1,2'", "--V 1 2"]),
+        (["simulate", "--V", "1,2"], ["--V", "one value"]),
+        (["simulate", "--V", "0.2:8:40"], ["--V", "peeljax sweep"]),
+        (["sweep", "--V", "0.2:8"], ["--V", "START:STOP:COUNT"]),
+        (["sweep", "--V", "1:2:1"], ["--V", "COUNT", "[2, 1000000]"]),
+        (["sweep", "--V", "-1:2:3"], ["--V", "(0, inf)"]),
+        (["sweep", "--tau", "1e-3,1e-1"], ["--tau", "--tau 1e-3 1e-1"]),
+        (["fit", "--data", "x.npz", "--V", "1,2"], ["--V", "--V 1 2"]),
+    ):
+        code, out, err = run_cli(argv)
+        assert code == 2 and out == "" and "Traceback" not in err, err
+        last = err.strip().splitlines()[-1]
+        assert all(word in last for word in words), last
+
+
+@pytest.mark.parametrize(("value", "shown"), [("null", "got null"), ("true", "got true"), ('"abc"', 'got the string "abc"')])
+def test_phi_says_what_it_got_in_json_terms(value, shown, tmp_path, no_compilation):
+    path = tmp_path / "phi.json"
+    path.write_text(f'{{"c1": {value}}}')
+    code, out, err = run_cli(["simulate", *SHORT, "--phi", str(path)])
+    message = assert_refused(code, err, "--phi", "'c1'", shown, stdout=out)
+    assert "None" not in message and "True" not in message
+
+
+@pytest.mark.parametrize(
+    ("argv", "words"),
+    [
+        (["simulate", "--max-jumps", "0"], ["--max-jumps"]),
+        (["simulate", "--t-final", "0"], ["--t-final"]),
+        (["simulate", "--max-steps", "0"], ["--max-steps"]),
+        (["sweep", "--n-tau", "1"], ["--n-tau"]),
+        (["tau-star", "--max-steps", "0"], ["--max-steps"]),
+        (["fit", "--data", "x.npz", "--out", "x.json", "--learning-rate", "-1"], ["--learning-rate"]),
+    ],
+)
+def test_refusals_name_options_not_python_parameters(argv, words, no_compilation):
+    code, out, err = run_cli(argv)
+    message = assert_refused(code, err, *words, stdout=out)
+    assert not any(name in message for name in ("max_jumps", "t_final", "max_steps", "n_tau", "learning_rate"))
+
+
+_PROCESS_OPTIONS = ("coordinator", "num_processes", "process_id")  # sweep's processes: peeljax/cli/_distributed.py
+
+
+def test_help_states_every_default_and_the_shared_options():
+    """Every option's help line states its default; --max-steps and --no-progress everywhere that runs."""
+    parser = build_parser()
+    commands = parser._subparsers._group_actions[0].choices
+    for name in ("simulate", "sweep", "tau-star", "fit"):
+        actions = {a.option_strings[-1]: a for a in commands[name]._actions if a.option_strings}
+        assert "--max-steps" in actions and "--no-progress" in actions, name
+        for option, action in actions.items():
+            if action.help in (None, argparse.SUPPRESS) or option in ("--help", "--version"):
+                continue
+            if action.nargs == 0 or action.dest in _PROCESS_OPTIONS:  # a flag: off unless given
+                continue
+            assert "default" in action.help, (name, option, action.help)
+    y0 = next(a for a in commands["simulate"]._actions if "--y0" in a.option_strings)
+    assert y0.metavar[3] == "v0" and "peeling velocity v0" in y0.help
+    assert "t_final/2" in next(a for a in commands["simulate"]._actions if "--transient" in a.option_strings).help
+
+
+def test_transient_and_window_mean_the_same_everywhere(no_compilation, capsys):
+    """--transient T and --window W [s]: statistics over [T, T + W]; default the run's second half."""
+    from peeljax.cli import sweep as sweep_cli
+    from peeljax.cli.fit import _table_window
+
+    def window(*options):
+        args = build_parser().parse_args(["sweep", "--V", "1.1", "--tau", "0.01", "--t-final", "2", *options])
+        return sweep_cli.validate_sweep(args)["window"]
+
+    assert window() == (0.5, 1.0)
+    assert window("--transient", "0.5", "--window", "1") == pytest.approx((0.25, 0.75))
+    assert window("--transient", "1.5") == pytest.approx((0.75, 1.0))
+    assert window("--window", "0.25", "1") == (0.25, 1.0)  # the old form, W0 W1 fractions: a note names the new
+    assert "--transient 0.5 --window 1.5" in capsys.readouterr().err
+    simulate = validate_run(build_parser().parse_args(["simulate", "--tau", "0", "--t-final", "2"]))
+    assert simulate.transient == 1.0
+    args = build_parser().parse_args(["sweep", "--V", "1.1", "--stick-slip-map", "--t-final", "2"])
+    assert sweep_cli.validate_map(args)["transient"] == 1.0
+
+    def table(*options):
+        return _table_window(build_parser().parse_args(["fit", "--table", "t.csv", *options]))
+
+    assert table() == (0.5, 0.5) and table("--transient", "1") == (1.0, 1.0) and table("--window", "0.3") == (0.3, 0.3)
+    assert table("--transient", "0.2", "--window", "0.3") == (0.2, 0.3)
+    code, out, err = run_cli(["sweep", "--t-final", "2", "--transient", "1.5", "--window", "1"])
+    assert_refused(code, err, "--window", "(0, 0.5]", stdout=out)
+
+
+# ---------------------------------------------------------------------------- progress on stderr
+def test_simulate_shows_progress_unless_no_progress(alpha_run):
+    # the same compiled program as alpha_run: no new compilation
+    code, _out, err = run_cli(["simulate", *SHORT])
+    assert code == 0 and "simulating to t = 0.2 s: done in" in err
+    code, _out, err = run_cli(["simulate", *SHORT, "--no-progress"])
+    assert code == 0 and "done in" not in err and "still running" not in err
+    assert "compiling first" in err  # what runs is always said
+
+
+def test_elapsed_reports_while_a_compiled_run_goes_on(monkeypatch, capsys):
+    import time
+
+    from peeljax.cli import _common
+
+    monkeypatch.setattr(_common, "HEARTBEAT_S", 0.02)
+    with _common.Elapsed(True, "simulating to t = 30 s"):
+        time.sleep(0.2)
+    err = capsys.readouterr().err
+    assert "simulating to t = 30 s: still running, 0 s elapsed" in err and "done in" in err
+    with _common.Elapsed(False, "quiet"):
+        time.sleep(0.1)
+    assert capsys.readouterr().err == ""
+
+
+class _Stop(Exception):
+    """Raised by a stand-in for a fit once it has seen its arguments."""
+
+
+def test_fits_show_iterations_and_loss_unless_no_progress(monkeypatch, tmp_path):
+    import peeljax.fit as fit
+
+    seen = {}
+
+    def table_fit(*args, **kwargs):
+        seen.update(kwargs)
+        if kwargs.get("progress") is not None:
+            kwargs["progress"](1, 2.5)
+        raise _Stop
+
+    def data_fit(*args, **kwargs):
+        seen.update(kwargs)
+        raise _Stop
+
+    monkeypatch.setattr(fit, "fit_stick_slip", table_fit)
+    monkeypatch.setattr(fit, "fit_adhesion", data_fit)
+    table = tmp_path / "table.csv"
+    table.write_text("V,F_mean\n1.1,5\n2,6\n3,7\n")
+    for extra, shown in (([], True), (["--no-progress"], False)):
+        seen.clear()
+        err = io.StringIO()
+        with pytest.raises(_Stop), contextlib.redirect_stderr(err):
+            cli.main(["fit", "--table", str(table), "--free", "c1", *extra])
+        assert ("progress" in seen) is shown
+        assert ("iteration 1, loss 2.5" in err.getvalue()) is shown
+    npz = tmp_path / "run.npz"
+    np.savez(npz, t=np.linspace(0, 0.2, 21), v=np.linspace(0.1, 0.3, 21), V=1.1)
+    for extra, shown in (([], True), (["--no-progress"], False)):
+        with pytest.raises(_Stop):
+            run_cli(["fit", "--data", str(npz), "--out", str(tmp_path / "f.json"), "--max-steps", "77", *extra])
+        assert seen["progress"] is shown and seen["max_steps"] == 77  # the step budget reaches the fit
+
+
+def test_trajectory_fit_prints_its_uncertainties(monkeypatch, tmp_path):
+    import peeljax.fit as fit
+    from peeljax.fit import FitResult
+    from peeljax.fit.uncertainty import uncertainty_from_jacobian
+
+    law = AdhesionLaw(c1=440.0)
+    uncertainty = uncertainty_from_jacobian(np.array([[2.0], [1.0], [0.5]]), np.array([0.1, -0.1, 0.05]),
+                                            [440.0], ["c1"], scaled=True)  # fmt: skip
+    result = FitResult(
+        adhesion=law, start=AdhesionLaw(), loss_history=np.array([1.0, 0.1]), initial_loss=1.0, final_loss=0.1,
+        gradient_norm=1e-3, steps=1, stopped_early=False, v_range=(0.1, 2.0), free=("c1",), settings={},
+        uncertainty=uncertainty,
+    )  # fmt: skip
+    monkeypatch.setattr(fit, "fit_adhesion", lambda *args, **kwargs: result)
+    npz = tmp_path / "run.npz"
+    np.savez(npz, t=np.linspace(0, 0.2, 21), v=np.linspace(0.1, 0.3, 21), V=1.1)
+    argv = ["fit", "--data", str(npz), "--out", str(tmp_path / "f.json"), "--free", "c1", "--no-progress"]
+    code, out, err = run_cli(argv)
+    assert code == 0, err
+    assert "+- std. error" in out and "c1" in out and f"{uncertainty.standard_errors[0]:.3g}" in out
+    assert out.isascii()
+    code, out, err = run_cli([*argv, "--json"])
+    assert json.loads(out)["uncertainty"]["names"] == ["c1"]

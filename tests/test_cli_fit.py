@@ -106,11 +106,11 @@ def _bad_files(tmp_path):
 
 BAD = [
     (["--steps", "0"], "--steps", "[1, inf)"),
-    (["--tau", "0"], "tau", "(0, inf)"),
+    (["--tau", "0"], "--tau", "(0, 1e+06]"),
     (["--dt", "5"], "dt", "(0, 0.2]"),
     (["--optimizer", "sgd"], "--optimizer", "adam, lbfgs"),
     (["--free", "c1", "zz"], "--free", "c1, p1"),
-    (["--learning-rate", "-1"], "learning_rate", "(0, inf)"),
+    (["--learning-rate", "-1"], "--learning-rate", "(0, inf)"),
     (["--out", "/nonexistent-folder/x.json"], "--out", "does not exist"),
     (["--plot", "fit.xyz"], "--plot", "png"),
     (["--data", "/nonexistent.npz"], "--data", "does not exist"),

@@ -84,7 +84,7 @@ def test_fit_max_steps_refusals(tmp_path, nothing_runs):
     table.write_text("V,F_mean\n1.1,5\n2,6\n3,7\n4,8\n")
     _refused(["fit", "--table", str(table), "--free", "c1", "--max-steps", "0"], "--max-steps", "[1, inf)")
     data = ["fit", "--data", str(tmp_path / "run.npz"), "--out", str(tmp_path / "fit.json")]
-    _refused([*data, "--max-steps", "100"], "--max-steps", "does not apply to --data")
+    _refused([*data, "--max-steps", "0"], "--max-steps", "[1, inf)")  # --data takes it too (error control)
 
 
 # ---------------------------------------------------------------------------- options reach the API
@@ -146,6 +146,12 @@ def test_max_steps_stop_prints_the_remedy():
     assert record["status"] == "stopped" and record["reason"] == "max_steps step attempts were used up before t_final"
     assert record["t_stop"] < 0.3 and record["max_steps"] == 50
     assert REMEDY.format(50) in err
+    # the plain summary (the same compiled program): the remedy on the stop line, and no cycle count
+    code, out, err = run_cli(["simulate", "--tau", "0", "--t-final", "0.3", "--max-steps", "50", "--transient", "0.2"])
+    assert code == 0, err
+    assert "step budget (50 step attempts, --max-steps) was used up before t_final: raise --max-steps" in out
+    assert "before its transient ended (--transient 0.2 s): no cycle statistics" in out
+    assert "none counted" not in out and "max_steps" not in out
 
 
 def test_sweep_max_steps_stop_prints_the_remedy():

@@ -20,9 +20,9 @@ from peeljax.cli import sweep as sweep_cli
 from peeljax.sweeps import LeastTau, least_tau, sweep
 
 SWEEP = ["sweep", "--V", "1.1", "2", "--tau", "1e-3", "1e-2", "--n-tau", "2", "--dt", "0.01", "--t-final", "0.4",
-         "--chunk", "4", "--save-every", "5", "--window", "0.25", "1", "--no-progress"]  # fmt: skip
+         "--chunk", "4", "--save-every", "5", "--transient", "0.1", "--window", "0.3", "--no-progress"]  # fmt: skip
 SWEEP_ADAPTIVE = ["sweep", "--V", "1.1", "2", "--tau", "1e-3", "1e-2", "--t-final", "0.4", "--chunk", "4",
-                  "--save-dt", "0.05", "--window", "0.25", "1", "--no-progress"]  # fmt: skip
+                  "--save-dt", "0.05", "--window", "0.25", "1", "--no-progress"]  # fmt: skip (the old --window W0 W1)
 NPZ_KEYS = {"V", "tau", "completed", "status", "t_stop", "v_mean", "v_std", "v_min", "v_max", "events", "ts", "ys",
             "accepted_steps", "rejected_steps", "window_time"}  # fmt: skip
 
@@ -39,6 +39,7 @@ def test_sweep_json_and_files(swept):
     assert record["tau"] == pytest.approx([1e-3, 1e-2])
     assert record["method"] == "alpha" and record["dt"] == 0.01 and record["rtol"] is None and record["atol"] is None
     assert record["save_every"] == 5 and record["save_dt"] is None
+    assert record["window"] == [0.25, 1.0] and record["transient"] == pytest.approx(0.1)  # --transient 0.1 --window 0.3
     assert set(record["trajectories"]) >= {"V", "tau", "completed", "t_stop", "v_mean", "v_std", "events",
                                            "accepted_steps", "rejected_steps", "window_time"}  # fmt: skip
     assert record["trajectories"]["rejected_steps"] == [0, 0, 0, 0]  # the uniform mesh rejects nothing
@@ -71,7 +72,7 @@ def test_sweep_refuses_other_settings(swept):
     argv = [*SWEEP, "--out", str(swept["npz"])]
     argv[argv.index("0.4")] = "0.5"  # another t_final
     code, _out, err = run_cli(argv)
-    assert code == 2 and "different settings" in err and "t_final" in err
+    assert code == 2 and "different settings" in err and "--t-final" in err
 
 
 @pytest.fixture(scope="module")
@@ -82,6 +83,8 @@ def swept_adaptive(tmp_path_factory):
 def test_sweep_without_dt_runs_error_control(swept_adaptive):
     assert swept_adaptive["code"] == 0, swept_adaptive["stderr"]
     assert "error control rtol = 1e-06, atol = 1e-09" in swept_adaptive["stderr"]
+    assert "--window 0.25 1 (fractions of t_final) is deprecated" in swept_adaptive["stderr"]
+    assert "give --transient 0.1 --window 0.3" in swept_adaptive["stderr"]
     record = json.loads(swept_adaptive["stdout"])
     assert record["n"] == 4 and record["computed_chunks"] == [0]
     assert record["method"] == "alpha-adaptive" and record["dt"] is None
@@ -183,8 +186,8 @@ def test_tau_star_json(monkeypatch):
         (["sweep", "--tau", "1e-1", "1e-3", "--n-tau", "4"], "LO < HI"),
         (["sweep", "--n-tau", "1"], "--n-tau must be an integer >= 2"),
         (["sweep", "--dt", "0"], "dt must be > 0"),
-        (["sweep", "--dt", "5"], "dt must be <= t_final"),
-        (["sweep", "--t-final", "nan"], "t_final must be finite"),
+        (["sweep", "--dt", "5"], "--dt must be <= --t-final"),
+        (["sweep", "--t-final", "nan"], "--t-final must be finite"),
         (["sweep", "--rho", "1"], "rho"),
         (["sweep", "--chunk", "0"], "--chunk must be a positive integer"),
         (["sweep", "--window", "0.5", "2"], "--window"),
@@ -198,11 +201,11 @@ def test_tau_star_json(monkeypatch):
         (["sweep", "--rtol", "1"], "--rtol must lie in (0, 1)"),
         (["sweep", "--atol=-1e-9"], "--atol must lie in (0, inf)"),
         (["sweep", "--atol", "nan"], "--atol must lie in (0, inf)"),
-        (["sweep", "--save-dt", "0"], "--save-dt must lie in (0, t_final]"),
-        (["sweep", "--save-dt", "5"], "--save-dt must lie in (0, t_final]"),
+        (["sweep", "--save-dt", "0"], "--save-dt must lie in (0, --t-final]"),
+        (["sweep", "--save-dt", "5"], "--save-dt must lie in (0, --t-final]"),
         (["sweep", "--save-dt", "1e-12"], "the limit is 1e7"),
-        (["sweep", "--window", "0.5", "0.5"], "W0 < W1 with error control"),
-        (["sweep", "--t-final", "0"], "t_final must be > 0"),
+        (["sweep", "--window", "0.5", "0.5"], "0 <= W0 < W1 <= 1"),
+        (["sweep", "--t-final", "0"], "--t-final must be > 0"),
         (["sweep", "--out", "/nonexistent/folder/x.npz"], "does not exist"),
         (["sweep", "--plot", "map.xyz"], "unknown image format"),
         (["tau-star", "--V", "1.1", "0"], "--V must be finite and > 0"),

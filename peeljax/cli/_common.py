@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import re
 import sys
 import tempfile
+import threading
+import time
 from pathlib import Path
 
 from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw, read_json
@@ -19,13 +22,14 @@ try:  # the steppers that the error-controlled loop takes (peeljax.integrators.S
 except ImportError:  # a peeljax from before the loop took any stepper: the same names
     STEPPER_NAMES = ("alpha", "tsit5", "dopri5", "dopri8", "kvaerno3", "kvaerno4", "kvaerno5")
 STEPPERS = tuple(STEPPER_NAMES)
-# --max-steps: the loop counts its step attempts in 32 bits (a larger budget would wrap around).
-MAX_STEPS_LIMIT = 2**31 - 1
 
 # A negative number in any spelling float() reads (-1e-6, -inf, -nan, -.5): argparse's own
 # pattern (-1, -0.5) takes "-1e-6" for an option and answers "expected one argument", so the
 # range check of the option never sees it. No option of peeljax looks like a number.
-_NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*(e[+-]?\d+)?|\.\d+(e[+-]?\d+)?|inf(inity)?|nan)$", re.IGNORECASE)
+# A range START:STOP:COUNT that starts below zero (--V -1:2:4) is a value too, refused by its check.
+_NEGATIVE_NUMBER = re.compile(
+    r"^-(\d+\.?\d*(e[+-]?\d+)?|\.\d+(e[+-]?\d+)?|inf(inity)?|nan)(:[^\s]*)?$", re.IGNORECASE
+)
 
 
 class Parser(argparse.ArgumentParser):
@@ -46,7 +50,7 @@ def read_phi(path: str) -> tuple[AdhesionLaw, tuple[str, ...]]:
     except OSError as error:  # a directory, no permission, …: read_json handles only a missing file
         raise ValueError(f"--phi: cannot read {path!r} ({error.strerror or error})") from None
     except ValueError as error:
-        message = str(error)
+        message = _in_json_terms(str(error), path)
         raise ValueError(message if message.startswith("--phi") else f"--phi: {message}") from None
     if kept:
         given = [name for name in COEFFICIENT_NAMES if name not in kept]
@@ -55,6 +59,35 @@ def read_phi(path: str) -> tuple[AdhesionLaw, tuple[str, ...]]:
             file=sys.stderr,
         )
     return law, kept
+
+
+_GOT = re.compile(r"coefficient '(\w+)' (.*), got '[^']*'$")
+
+
+def _in_json_terms(message: str, path: str) -> str:
+    """A coefficient that is no number, said as JSON spells it (``got null``, ``got true``,
+    ``got the string "abc"``), not as Python does (``'None'``, ``'True'``)."""
+    found = _GOT.search(message)
+    if found is None:
+        return message
+    try:
+        if os.path.getsize(path) > 1_000_000:  # read_json has read it already; a huge file keeps the message
+            return message
+        with open(path, encoding="utf-8") as handle:
+            value = json.load(handle)[found.group(1)]
+    except (OSError, ValueError, KeyError, TypeError):
+        return message
+    if value is None or isinstance(value, bool):
+        shown = json.dumps(value)
+    elif isinstance(value, str):
+        shown = f"the string {json.dumps(value)}"
+    elif isinstance(value, list):
+        shown = f"the array {json.dumps(value)[:40]}"
+    elif isinstance(value, dict):
+        shown = "an object"
+    else:
+        shown = json.dumps(value)  # NaN, Infinity: JSON extensions Python reads
+    return f"{message[: found.start()]}coefficient '{found.group(1)}' {found.group(2)}, got {shown} (JSON)"
 
 
 def load_phi(path: str) -> AdhesionLaw:
@@ -149,25 +182,6 @@ def solver_for(method: str, rho: float | None):
     return method
 
 
-def check_max_steps(max_steps: int | None, uniform_option: str | None) -> None:
-    """--max-steps: None (the library's budget) or an integer in [1, 2**31 - 1]; refused with the
-    uniform mesh (``uniform_option``, e.g. "--dt"), which takes no budget."""
-    if max_steps is None:
-        return
-    if max_steps < 1:
-        raise ValueError(f"--max-steps must be a positive integer (allowed range: [1, inf)), got {max_steps}")
-    if max_steps > MAX_STEPS_LIMIT:
-        raise ValueError(
-            f"--max-steps {max_steps} exceeds the loop's count of step attempts (a 32-bit integer): "
-            f"give at most {MAX_STEPS_LIMIT} (allowed range: [1, inf))"
-        )
-    if uniform_option is not None:
-        raise ValueError(
-            f"--max-steps (allowed range: [1, inf)) is error control's budget of step attempts; {uniform_option} "
-            "asks for a uniform mesh, which takes no budget: give one or the other"
-        )
-
-
 def max_steps_remedy(budget) -> str:
     """The line after a run that used up its step budget (stderr)."""
     now = "" if budget is None else f" (now {budget})"
@@ -186,5 +200,65 @@ def json_safe(value):
 
 
 def fail(error: Exception) -> int:
-    print(f"{PROG}: error: {error}", file=sys.stderr)
+    """A refusal: ``peeljax: error: <message>`` on stderr, in the command line's words; exit 2."""
+    print(f"{PROG}: error: {option_names(str(error))}", file=sys.stderr)
     return 2
+
+
+# Python parameter names (with an underscore: never a word of prose) and their options.
+_PARAMETERS = {
+    "max_jumps": "--max-jumps", "max_steps": "--max-steps", "t_final": "--t-final", "save_dt": "--save-dt",
+    "save_every": "--save-every", "n_tau": "--n-tau", "n_points": "--n-points", "n_starts": "--n-starts",
+    "max_iterations": "--max-iterations", "learning_rate": "--learning-rate", "tau_rtol": "--tau-rtol",
+    "tau_range": "--tau-range",
+}  # fmt: skip
+_UNDERSCORED = re.compile(r"(?<![\w-])(" + "|".join(_PARAMETERS) + r")\b")
+# Names that open a library message ("tau must be ...", "y0: ...").
+_LEADING = re.compile(r"^(V|tau|dt|rtol|atol|rho|y0|geometry|transient|window|fold|start|free|statistics)\b(?![-=])")
+
+
+def option_names(message: str) -> str:
+    """A library message in the command line's words: ``max_jumps`` → ``--max-jumps``, and a
+    message that opens with a parameter's name (``tau must be ...``) opens with its option."""
+    message = _UNDERSCORED.sub(lambda m: _PARAMETERS[m.group(1)], message)
+    return _LEADING.sub(lambda m: "--" + m.group(1), message)
+
+
+# Seconds between two "still running" lines of a long compiled run (tests make it short).
+HEARTBEAT_S = 30.0
+
+
+class Elapsed:
+    """While a compiled run goes on (it cannot report from inside without a host callback in
+    its loop), a line on stderr every :data:`HEARTBEAT_S` seconds with the wall time elapsed,
+    and on leaving one with the total; nothing when ``on`` is False."""
+
+    def __init__(self, on: bool, what: str):
+        self.on, self.what = on, what
+        self._stop = threading.Event()
+        self._thread = None
+        self._start = 0.0
+
+    def __enter__(self):
+        self._start = time.perf_counter()
+        if self.on:
+            self._thread = threading.Thread(target=self._beat, args=(sys.stderr,), daemon=True)
+            self._thread.start()
+        return self
+
+    def _beat(self, stream) -> None:
+        while not self._stop.wait(HEARTBEAT_S):
+            print(f"{PROG}: {self.what}: still running, {time.perf_counter() - self._start:.0f} s elapsed",
+                  file=stream, flush=True)  # fmt: skip
+
+    def __exit__(self, kind, value, traceback):
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        if self.on and kind is None:
+            print(f"{PROG}: {self.what}: done in {time.perf_counter() - self._start:.3g} s", file=sys.stderr)
+        return False
+
+
+# The summaries use a few non-ASCII signs; the plain output promises ASCII.
+ASCII = str.maketrans({"→": "->", "—": "-", "–": "-", "≈": "~", "τ": "tau", "φ": "phi", "≥": ">=", "±": "+-"})

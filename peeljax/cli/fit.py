@@ -32,24 +32,28 @@ Output (``--out``): a JSON object with the 14 coefficients ``c1, p1, …, p9`` a
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import math
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 
-from .._validation import check_mesh, check_positive, check_tolerance
+from .._validation import TAU_MAX, check_mesh, check_positive, check_tau
 from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw
-from ..fit import QUANTITIES, Observation
-from ..fit.records import read_force_record, read_npz
-from ..fit.text_tables import DataFileError
-from ..integrators.select import DEFAULT_ATOL, DEFAULT_RTOL
-from ._common import PROG, check_max_steps, check_output_path, checked, fail, json_safe, load_phi, plot_formats
+from ..fit import QUANTITIES, DataFileError, Observation, fit_stick_slip, read_force_record
+from ..fit.records import read_npz
+from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_RTOL
+from . import options
+from ._common import ASCII, PROG, checked, fail, json_safe, load_phi
 
 __all__ = ["add_command", "load_observations"]
 
 OPTIMIZERS = ("adam", "lbfgs")
+TABLE_TRANSIENT = 0.5  # s: fit --table's --transient (its --window defaults to it: the runs' second half)
+_TABLE_DEFAULTS = {name: p.default for name, p in inspect.signature(fit_stick_slip).parameters.items()}
 
 
 def add_command(subparsers) -> None:
@@ -58,119 +62,93 @@ def add_command(subparsers) -> None:
         help="fit the adhesion law phi to observed runs",
         description=(
             "Fit phi's coefficients to observed v(t) (and F(t), alpha(t)) at one or more pull velocities "
-            "with exact gradients through the alpha-method. Data keys: t, v, V (optional F, alpha, t_F, t_alpha) "
-            "per file, or V_0, t_0, v_0, V_1, ... for several V in one file."
+            "with exact gradients through the alpha-method (--data), or to a stick-slip table by "
+            "Levenberg-Marquardt with uncertainties (--table). Data keys: t, v, V (optional F, alpha, t_F, "
+            "t_alpha) per file, or V_0, t_0, v_0, V_1, ... for several V in one file."
         ),
     )
-    parser.add_argument(
-        "--data",
-        action="append",
-        default=None,
-        metavar="FILE",
+    source = parser.add_argument_group("what is fitted (one of --data and --table)")
+    source.add_argument(
+        "--data", action="append", default=None, metavar="FILE",
         help="observations (repeatable): .npz, or a force record as CSV / whitespace text with a header naming "
-        "its columns: t [s], F [N] (the tension), optional v [m/s], alpha [rad], V [m/s]",
-    )
-    parser.add_argument(
-        "--V",
-        dest="V",
-        type=float,
-        nargs="+",
-        default=None,
-        metavar="V",
-        help="pull velocity [m/s] of text --data files that carry it neither in a V column nor in their name "
-        "(peel_V=1.1.csv): one value for all files, or one per --data file in order",
-    )
-    parser.add_argument(
-        "--table",
-        default=None,
-        metavar="TABLE.csv",
+        "its columns: t [s], F [N] (the tension), optional v [m/s], alpha [rad], V [m/s] (default: none)",
+    )  # fmt: skip
+    source.add_argument(
+        "--table", default=None, metavar="TABLE.csv",
         help="instead of --data: a stick-slip table (CSV / whitespace text, columns V and any of F_mean, F_slip, "
         "F_stick, period, slip_duration, each optionally with <name>_std), fitted by Levenberg-Marquardt with "
-        "uncertainties",
+        "uncertainties (default: none)",
+    )  # fmt: skip
+    options.add_V(source, many=True, default=None, help="--data: the pull velocity [m/s] of text files that carry it "
+                  "neither in a V column nor in their name (peel_V=1.1.csv), one value for all or one per file")  # fmt: skip
+    problem = parser.add_argument_group("the model's runs")
+    problem.add_argument(
+        "--tau", type=options.number("--tau"), default=None,
+        help="tau [s]: --data in (0, 1e6] (default: the data files' tau, else 0.01); --table in [0, 1e6] "
+        "(default 0: the DAE with jumps)",
+    )  # fmt: skip
+    options.add_t_final(
+        problem, default=None, help="--data: end time of the runs [s], > 0 (default: the last observation)"
     )
-    parser.add_argument(
-        "--out",
-        default=None,
-        metavar="FITTED.json",
-        help="the fitted coefficients, loss history and settings (required with --data; with --table also the "
-        "uncertainty, residuals and stop reason)",
+    problem.add_argument(
+        "--dt", type=float, default=None,
+        help="--data: run the model on the uniform mesh of this step [s], in (0, t_final] (default: error control)",
+    )  # fmt: skip
+    options.add_tolerances(
+        problem, rtol_default=f"{DEFAULT_RTOL:g}; --table: 1e-9 at tau 0, else 1e-7",
+        atol_default=f"{DEFAULT_ATOL:g}; --table: 1e-12 at tau 0, else 1e-10",
+    )  # fmt: skip
+    options.add_max_steps(
+        problem, default=f"{DEFAULT_MAX_STEPS} with --data, {_table_default('max_steps')} with --table"
     )
-    parser.add_argument(
-        "--tau",
-        type=float,
-        default=None,
-        help="tau [s]: --data > 0 (default: the data files' tau, else 0.01); --table >= 0 (default 0: the DAE with jumps)",
-    )
-    parser.add_argument(
-        "--transient", type=float, default=None, help="--table: statistics from this time on [s], >= 0 (default 0.5)"
-    )
-    parser.add_argument(
-        "--window", type=float, default=None, help="--table: over a window of this length [s], > 0 (default 1)"
-    )
-    parser.add_argument(
-        "--starts", type=int, default=None, help="--table: perturbed starts run as one batch, >= 1 (default 1)"
-    )
-    parser.add_argument(
-        "--max-iterations",
-        dest="max_iterations",
-        type=int,
-        default=None,
+    options.add_statistics_window(
+        problem, transient="0.5 s with --table, where the runs end at T + W", window_default="T: the runs' "
+        "second half", what="--table: the statistics",
+    )  # fmt: skip
+    fit = parser.add_argument_group("the fit")
+    fit.add_argument("--phi", metavar="START.json", help="start coefficients as JSON (default: the paper's law)")
+    fit.add_argument(
+        "--free", nargs="+", metavar="NAME", default=None,
+        help="coefficients to fit, of c1, p1, ..., p9 (default all 14; --table: c1 c3 c6)",
+    )  # fmt: skip
+    fit.add_argument(
+        "--quantities", nargs="+", metavar="Q", default=None,
+        help="--data: the subset of v F alpha to fit (default: all in the data)",
+    )  # fmt: skip
+    fit.add_argument(
+        "--statistics", nargs="+", metavar="S", default=None,
+        help="--table: the table's statistics to fit (default: all it has)",
+    )  # fmt: skip
+    fit.add_argument("--steps", type=int, default=500, help="--data: optimizer iterations, >= 1 (default %(default)s)")
+    fit.add_argument("--optimizer", default="adam", metavar="{adam,lbfgs}", help="--data: adam or lbfgs (default adam)")
+    fit.add_argument(
+        "--learning-rate", dest="learning_rate", type=float, default=None,
+        help="--data: > 0 (default adam 0.02, lbfgs its line search)",
+    )  # fmt: skip
+    fit.add_argument(
+        "--patience", type=int, default=50,
+        help="--data: stop after this many iterations without progress, >= 1 (default %(default)s)",
+    )  # fmt: skip
+    fit.add_argument(
+        "--max-iterations", dest="max_iterations", type=int, default=None,
         help="--table: Levenberg-Marquardt iterations at most, >= 1 (default 30)",
-    )
-    parser.add_argument(
-        "--max-steps",
-        dest="max_steps",
-        type=int,
-        default=None,
-        metavar="N",
-        help="--table: each run's budget of step attempts, an integer >= 1 (default: the library's)",
-    )
-    parser.add_argument(
-        "--statistics",
-        nargs="+",
-        metavar="S",
-        default=None,
-        help="--table: the table's statistics to fit (default all it has)",
-    )
-    parser.add_argument(
-        "--dt",
-        type=float,
-        default=None,
-        help="run the model on the uniform mesh of this step [s] (default: the error-controlled alpha-method)",
-    )
-    parser.add_argument(
-        "--rtol",
-        type=float,
-        default=None,
-        help="error control's relative tolerance in (0, 1) (default 1e-6; --table: 1e-9 at tau 0, else 1e-7; not with --dt)",
-    )
-    parser.add_argument("--atol", type=float, default=None, help="its absolute tolerance, > 0 (default 1e-9; --table: 1e-12 at tau 0, else 1e-10; not with --dt)")
-    parser.add_argument(
-        "--t-final", dest="t_final", type=float, default=None, help="end time (default: last observation)"
-    )
-    parser.add_argument("--steps", type=int, default=500, help="optimizer iterations, >= 1 (default %(default)s)")
-    parser.add_argument("--optimizer", default="adam", metavar="{adam,lbfgs}", help="adam (default) or lbfgs")
-    parser.add_argument(
-        "--learning-rate",
-        dest="learning_rate",
-        type=float,
-        default=None,
-        help="> 0 (default adam 0.02, lbfgs line search)",
-    )
-    parser.add_argument("--patience", type=int, default=50, help="early stopping patience, >= 1 (default %(default)s)")
-    parser.add_argument("--free", nargs="+", metavar="NAME", default=None,
-                        help="coefficients to fit (default all 14; --table: c1 c3 c6)")
-    parser.add_argument(
-        "--quantities",
-        nargs="+",
-        metavar="Q",
-        default=None,
-        help="subset of v F alpha to fit (default: all in the data)",
-    )
-    parser.add_argument("--phi", metavar="START.json", help="start coefficients (default: the paper's law)")
-    parser.add_argument("--plot", metavar="FIT.png", help="data vs fitted model, and fitted phi vs start (--table: with residuals and phi's 95%% band)")
-    parser.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
-    parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    )  # fmt: skip
+    fit.add_argument(
+        "--n-starts", dest="n_starts", type=int, default=None, metavar="N",
+        help="--table: Levenberg-Marquardt runs from the N best starting points, >= 1 (default: the library's, "
+        f"{_table_default('n_starts')})",
+    )  # fmt: skip
+    fit.add_argument("--starts", dest="starts_deprecated", type=int, default=None, help=argparse.SUPPRESS)
+    output = parser.add_argument_group("output")
+    options.add_outputs(
+        output, out_meta="FITTED.json",
+        out_help="the fitted coefficients, loss history and settings (required with --data; with --table also the "
+        "uncertainty, residuals and stop reason) (default: none)",
+        plot_meta="FIT.png", plot_help="data vs fitted model, and fitted phi vs start (--table: with residuals and "
+        "phi's 95%% band)",
+    )  # fmt: skip
+    options.add_json(output)
+    options.add_progress(output, "progress (iterations and loss)")
     parser.set_defaults(handler=_fit_command)
 
 
@@ -178,7 +156,7 @@ def _V_per_file(paths: list[str], V) -> list[float | None]:
     """--V: one pull velocity for every --data file, or one per file in order (None: not given)."""
     if V is None:
         return [None] * len(paths)
-    values = list(V) if isinstance(V, (list, tuple)) else [V]
+    values = options.flatten(V) if isinstance(V, (list, tuple)) else [V]
     for value in values:
         if not (math.isfinite(value) and value > 0):
             raise ValueError(f"--V must be > 0 [m/s] (allowed range: (0, inf)), got {value:g}")
@@ -220,12 +198,12 @@ def load_observations(paths: list[str], V=None) -> tuple[list[Observation], dict
     return observations, {k: next(iter(v)) for k, v in defaults.items() if len(v) == 1}
 
 
-_TABLE_ONLY = ("transient", "window", "starts", "max_iterations", "max_steps", "statistics")
+_TABLE_ONLY = ("transient", "window", "n_starts", "starts_deprecated", "max_iterations", "statistics")
 _DATA_ONLY = ("V", "dt", "t_final", "learning_rate", "quantities")
 
 
 def _option(name: str) -> str:
-    return "--" + name.replace("_", "-")
+    return "--starts" if name == "starts_deprecated" else "--" + name.replace("_", "-")
 
 
 def _check_source(args: argparse.Namespace) -> None:
@@ -242,9 +220,47 @@ def _check_source(args: argparse.Namespace) -> None:
         raise ValueError("--out FITTED.json is required with --data")
 
 
+def _table_default(name: str):
+    """A default of :func:`peeljax.fit.fit_stick_slip` (the help and the checks state it)."""
+    return _TABLE_DEFAULTS[name]
+
+
+def _table_window(args: argparse.Namespace) -> tuple[float, float]:
+    """--transient T and --window W of the table fit: statistics over [T, T + W], the runs end
+    at T + W; the same rule as the other commands' (the second half of the run): W defaults
+    to T, T to 0.5 s (or to W when only --window is given)."""
+    _, window = options.one_window(args.window, fractions_allowed=False)
+    if window is not None and not (math.isfinite(window) and window > 0):
+        raise ValueError(f"--window must be > 0 [s] (allowed range: (0, inf)), got {window:g}")
+    transient = args.transient
+    if transient is None:
+        transient = TABLE_TRANSIENT if window is None else window
+    if not (math.isfinite(transient) and transient >= 0):
+        raise ValueError(f"--transient must be >= 0 [s] (allowed range: [0, inf)), got {transient:g}")
+    if window is None and transient == 0:
+        raise ValueError("--window must be > 0 [s] (allowed range: (0, inf)): with --transient 0 give --window")
+    window = transient if window is None else window
+    return float(transient), float(window)
+
+
+def _n_starts(args: argparse.Namespace) -> int:
+    if args.starts_deprecated is not None:
+        options.deprecated(f"--starts {args.starts_deprecated}", f"--n-starts {args.starts_deprecated}")
+        if args.n_starts is not None:
+            raise ValueError("--starts is the old spelling of --n-starts: give --n-starts only")
+    n = args.n_starts if args.starts_deprecated is None else args.starts_deprecated
+    if n is None:
+        return int(_table_default("n_starts"))
+    if n < 1:
+        spelled = "--n-starts" if args.starts_deprecated is None else "--starts (now --n-starts)"
+        raise ValueError(f"{spelled} must be >= 1 (allowed range: [1, inf)), got {n}")
+    return int(n)
+
+
 def _validate_table(args: argparse.Namespace) -> dict:
     """--table's options, all checked before anything is compiled."""
-    from ..fit.stick_slip_table import STATISTICS, read_stick_slip_table
+    from ..fit import read_stick_slip_table
+    from ..fit.stick_slip_table import STATISTICS
     from ..fit.table import table_tolerances
 
     if not Path(args.table).is_file():
@@ -256,24 +272,15 @@ def _validate_table(args: argparse.Namespace) -> dict:
     except OSError as error:
         raise ValueError(f"--table: cannot read {args.table!r} ({error.strerror or error})") from None
     tau = 0.0 if args.tau is None else args.tau
-    if not (math.isfinite(tau) and tau >= 0):
-        raise ValueError(f"--tau must be >= 0 with --table (allowed range: [0, inf)), got {tau:g}")
-    transient = 0.5 if args.transient is None else args.transient
-    if not (math.isfinite(transient) and transient >= 0):
-        raise ValueError(f"--transient must be >= 0 [s] (allowed range: [0, inf)), got {transient:g}")
-    window = 1.0 if args.window is None else args.window
-    if not (math.isfinite(window) and window > 0):
-        raise ValueError(f"--window must be > 0 [s] (allowed range: (0, inf)), got {window:g}")
-    starts = 1 if args.starts is None else args.starts
-    if starts < 1:
-        raise ValueError(f"--starts must be >= 1 (allowed range: [1, inf)), got {starts}")
+    if not (math.isfinite(tau) and 0 <= tau <= TAU_MAX):
+        raise ValueError(f"--tau must lie in [0, {TAU_MAX:g}] with --table (allowed range), got {tau:g}")
+    transient, window = _table_window(args)
+    n_starts = _n_starts(args)
     max_iterations = 30 if args.max_iterations is None else args.max_iterations
     if max_iterations < 1:
         raise ValueError(f"--max-iterations must be >= 1 (allowed range: [1, inf)), got {max_iterations}")
-    check_max_steps(args.max_steps, None)
-    rtol, atol = table_tolerances(tau, args.rtol, args.atol)
-    checked("(0, 1)", check_tolerance, "rtol", rtol, 1.0)
-    checked("(0, inf)", check_tolerance, "atol", atol)
+    options.check_max_steps(args.max_steps)
+    rtol, atol = options.check_tolerances(*table_tolerances(tau, args.rtol, args.atol), (None, None))
     free = ("c1", "c3", "c6") if args.free is None else tuple(args.free)
     unknown = [n for n in free if n not in COEFFICIENT_NAMES]
     if unknown:
@@ -292,37 +299,48 @@ def _validate_table(args: argparse.Namespace) -> dict:
             "with an error estimate; fit fewer"
         )
     start = AdhesionLaw() if args.phi is None else load_phi(args.phi)
-    check_output_path("--out", args.out)
-    if args.plot is not None:
-        check_output_path("--plot", args.plot, plot_formats())
+    options.check_outputs(args)
     return {
-        "table": table, "tau": float(tau), "transient": float(transient), "window": float(window),
-        "n_starts": int(starts), "max_iterations": int(max_iterations), "rtol": float(rtol), "atol": float(atol),
+        "table": table, "tau": float(tau), "transient": transient, "window": window,
+        "n_starts": n_starts, "max_iterations": int(max_iterations), "rtol": rtol, "atol": atol,
         "free": free, "statistics": tuple(statistics), "start": start,
         # left out: fit_stick_slip's own budget
         **({} if args.max_steps is None else {"max_steps": int(args.max_steps)}),
     }  # fmt: skip
 
 
+def _iteration_line(what: str):
+    """A progress callable for the table fit: one line per iteration on stderr."""
+    began = time.perf_counter()
+
+    def progress(iteration: int, loss: float) -> None:
+        print(f"{PROG}: {what}: iteration {iteration}, loss {loss:.6g} ({time.perf_counter() - began:.0f} s)",
+              file=sys.stderr, flush=True)  # fmt: skip
+
+    return progress
+
+
 def _table_command(args: argparse.Namespace, config: dict) -> int:
     """``peeljax fit --table``: Levenberg-Marquardt on the stick-slip statistics, with uncertainties."""
-    from ..fit.table import fit_stick_slip
+    from ..fit import fit_stick_slip
     from ..model import PeelingModel
 
     table = config["table"]
     print(
         f"{PROG}: fitting {', '.join(config['free'])} to the stick-slip table {args.table} "
         f"({len(table)} rows, V = {', '.join(f'{V:g}' for V in table.V)}; {', '.join(config['statistics'])}), "
-        f"tau {config['tau']:g}, window [{config['transient']:g}, {config['transient'] + config['window']:g}] s; "
-        "compiling first ...",
+        f"tau {config['tau']:g}, statistics over [{config['transient']:g}, {config['transient'] + config['window']:g}] s "
+        f"(--transient {config['transient']:g} --window {config['window']:g}), at most {config['max_iterations']} "
+        "iterations; compiling first ...",
         file=sys.stderr,
     )
     model = PeelingModel(adhesion=config["start"])
+    progress = {"progress": _iteration_line("Levenberg-Marquardt")} if options.progress_on(args) else {}
     result = fit_stick_slip(
         table, model, free=config["free"], statistics=config["statistics"], tau=config["tau"],
         transient=config["transient"], window=config["window"], rtol=config["rtol"], atol=config["atol"],
         max_iterations=config["max_iterations"], n_starts=config["n_starts"],
-        **({"max_steps": config["max_steps"]} if "max_steps" in config else {}),
+        **({"max_steps": config["max_steps"]} if "max_steps" in config else {}), **progress,
     )  # fmt: skip
     result.settings.update({"table": args.table, "phi": args.phi})
     if args.out is not None:
@@ -341,7 +359,7 @@ def _table_command(args: argparse.Namespace, config: dict) -> int:
         f"{result.final_loss:.4g}"
     )
     print(f"stopped: {result.stop_reason}")
-    print(result.uncertainty.table())
+    print(_ascii(result.uncertainty.table()))
     print(
         f"visited v in [{result.v_range[0]:.3g}, {result.v_range[1]:.3g}] m/s: phi is determined by the data only there"
     )
@@ -351,6 +369,10 @@ def _table_command(args: argparse.Namespace, config: dict) -> int:
     return 0
 
 
+def _ascii(text: str) -> str:
+    return text.translate(ASCII).encode("ascii", "replace").decode("ascii")
+
+
 def _validate(args: argparse.Namespace) -> dict:
     if args.optimizer not in OPTIMIZERS:
         raise ValueError(f"--optimizer must be one of {', '.join(OPTIMIZERS)}, got {args.optimizer!r}")
@@ -358,8 +380,9 @@ def _validate(args: argparse.Namespace) -> dict:
         raise ValueError(f"--steps must be >= 1 (allowed range: [1, inf)), got {args.steps}")
     if args.patience < 1:
         raise ValueError(f"--patience must be >= 1 (allowed range: [1, inf)), got {args.patience}")
+    options.check_max_steps(args.max_steps, None if args.dt is None else "--dt")
     if args.learning_rate is not None:
-        checked("(0, inf)", check_positive, "learning_rate", args.learning_rate)
+        checked("(0, inf)", check_positive, "--learning-rate", args.learning_rate)
     if args.free is not None:
         unknown = [n for n in args.free if n not in COEFFICIENT_NAMES]
         if unknown:
@@ -374,7 +397,7 @@ def _validate(args: argparse.Namespace) -> dict:
         observations = [Observation(**{**o.__dict__, **drop}) for o in observations]
     tau = args.tau if args.tau is not None else defaults.get("tau", 0.01)
     dt = args.dt
-    checked("(0, inf)", check_positive, "tau", tau)
+    checked(f"(0, {TAU_MAX:g}]", check_tau, tau)
     t_last = max(float(np.nanmax(o.t)) for o in observations)
     t_final = args.t_final if args.t_final is not None else t_last
     rtol, atol = args.rtol, args.atol
@@ -384,16 +407,11 @@ def _validate(args: argparse.Namespace) -> dict:
                 raise ValueError(f"{option} sets the error control that --dt replaces by a uniform mesh: give one of them")
         n_steps = checked("dt in (0, t_final], t_final in (0, inf)", check_mesh, dt, t_final)
     else:
-        checked("(0, inf)", check_positive, "t_final", t_final)
-        rtol = DEFAULT_RTOL if rtol is None else rtol
-        atol = DEFAULT_ATOL if atol is None else atol
-        checked("(0, 1)", check_tolerance, "rtol", rtol, 1.0)
-        checked("(0, inf)", check_tolerance, "atol", atol)
+        checked("(0, inf)", check_positive, "--t-final", t_final)
+        rtol, atol = options.check_tolerances(rtol, atol, (DEFAULT_RTOL, DEFAULT_ATOL))
         n_steps = None
     start = AdhesionLaw() if args.phi is None else load_phi(args.phi)
-    check_output_path("--out", args.out)
-    if args.plot is not None:
-        check_output_path("--plot", args.plot, plot_formats())
+    options.check_outputs(args)
     weights = {q: (1.0 if args.quantities is None or q in args.quantities else 0.0) for q in QUANTITIES}
     return {
         "observations": observations,
@@ -405,12 +423,14 @@ def _validate(args: argparse.Namespace) -> dict:
         "atol": atol,
         "start": start,
         "weights": weights,
+        **({} if args.max_steps is None else {"max_steps": int(args.max_steps)}),  # left out: the library's
     }
 
 
 def _engine(config: dict) -> str:
     if config["dt"] is None:
-        return f"error control rtol {config['rtol']:g}, atol {config['atol']:g}"
+        budget = config.get("max_steps", DEFAULT_MAX_STEPS)
+        return f"error control rtol {config['rtol']:g}, atol {config['atol']:g}, at most {budget} step attempts a run"
     return f"uniform mesh of {config['n_steps']} steps"
 
 
@@ -447,9 +467,10 @@ def _fit_command(args: argparse.Namespace) -> int:
         learning_rate=args.learning_rate,
         weights=config["weights"],
         patience=args.patience,
-        progress=args.progress,
+        progress=options.progress_on(args),  # a bar with the iterations and the loss (stderr)
         rtol=config["rtol"],
         atol=config["atol"],
+        **({"max_steps": config["max_steps"]} if "max_steps" in config else {}),
     )
     record = result.to_dict()
     record["settings"] = {**record["settings"], "data": list(args.data), "phi": args.phi}
@@ -458,6 +479,7 @@ def _fit_command(args: argparse.Namespace) -> int:
         from ..plots import plot_fit
 
         plot_fit(result, observations, path=args.plot)
+    uncertainty = getattr(result, "uncertainty", None)
     summary = {
         "out": args.out,
         "plot": args.plot,
@@ -469,18 +491,22 @@ def _fit_command(args: argparse.Namespace) -> int:
         "v_range": list(result.v_range),
         "free": list(result.free),
         "coefficients": result.adhesion.coefficients(),
+        "uncertainty": None if uncertainty is None else uncertainty.as_dict(),
         "wall_time_s": result.wall_time_s,
     }
     if args.json:
         print(json.dumps(json_safe(summary), allow_nan=False))
+        return 0
+    print(
+        f"peeljax fit: {result.steps} iterations ({args.optimizer}), loss {result.initial_loss:.4g} -> {result.final_loss:.4g} "
+        f"({result.loss_reduction:.3g}x), gradient norm {result.gradient_norm:.3g}"
+    )
+    print(
+        f"visited v in [{result.v_range[0]:.3g}, {result.v_range[1]:.3g}] m/s: phi is determined by the data only there"
+    )
+    if uncertainty is not None:  # values +- standard errors, correlations
+        print(_ascii(uncertainty.table()))
     else:
-        print(
-            f"peeljax fit: {result.steps} iterations ({args.optimizer}), loss {result.initial_loss:.4g} -> {result.final_loss:.4g} "
-            f"({result.loss_reduction:.3g}x), gradient norm {result.gradient_norm:.3g}"
-        )
-        print(
-            f"visited v in [{result.v_range[0]:.3g}, {result.v_range[1]:.3g}] m/s: phi is determined by the data only there"
-        )
         print("fitted: " + ", ".join(f"{n} {result.adhesion.coefficients()[n]:.6g}" for n in result.free))
-        print(f"wrote {args.out}" + (f" and {args.plot}" if args.plot else ""))
+    print(f"wrote {args.out}" + (f" and {args.plot}" if args.plot else ""))
     return 0

@@ -19,30 +19,28 @@ from .._validation import (
     check_positive,
     check_rho,
     check_tau,
-    check_tolerance,
     check_y0,
 )
 from ..adhesion import AdhesionLaw
 from ..cycles import cycle_statistics
 from ..integrators.dense import output_count, output_times
-from ..integrators.events import FOLD_MODES, check_max_jumps
+from ..integrators.events import FOLD_MODES
 from ..integrators.select import DEFAULT_ATOL as _ALPHA_ATOL
-from ..integrators.select import DEFAULT_MAX_JUMPS, resolve_fold
+from ..integrators.select import DEFAULT_MAX_JUMPS, resolve_fold, resolve_max_steps
 from ..integrators.select import DEFAULT_RTOL as _ALPHA_RTOL
 from ..model import GEOMETRIES, PeelingModel
 from ..simulate import check_run_memory, simulate, simulate_reference
 from ..solution import Solution, StopReason
+from . import options
 from ._common import (
+    ASCII,
     PROG,
     STEPPERS,
-    check_max_steps,
-    check_output_path,
+    Elapsed,
     checked,
     fail,
     json_safe,
     max_steps_remedy,
-    plot_formats,
-    read_phi,
     solver_for,
     write_failed,
 )
@@ -61,87 +59,48 @@ _METHOD_TITLES = {
 }
 _DEFAULT_RTOL, _DEFAULT_ATOL = 1e-8, 1e-10  # diffrax
 _DIFFRAX_OUTPUT_DT = 1 / 82  # diffrax's output spacing when neither --dt nor --save-dt is given
-_MAX_JUMPS_LIMIT = 10_000_000  # the jump record is allocated in full (5 arrays of max_jumps)
-# The cycle statistics' text uses a few non-ASCII signs; the plain summary promises ASCII.
-_ASCII = str.maketrans({"→": "->", "—": "-", "–": "-", "≈": "~", "τ": "tau", "φ": "phi"})
 
 
 def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
-    """Physics and integrator options shared by the commands that run the model."""
+    """The problem's and the integrator's options of ``simulate`` (shared ones from :mod:`.options`)."""
     physics = parser.add_argument_group("problem")
-    physics.add_argument("--V", type=float, default=1.1, help="pull velocity [m/s], > 0 (default %(default)s)")
+    options.add_V(physics, many=False, default=1.1)
     physics.add_argument(
-        "--tau",
-        type=float,
-        default=0.01,
-        help="homogenization time scale tau [s] in [0, 1e6]; 0: the DAE itself (v solved from G = phi(v, V), "
-        "jumping at the folds of phi; error control only) (default %(default)s)",
-    )
+        "--tau", type=options.number("--tau"), default=0.01,
+        help=f"{options.tau_help(options.TAU_RANGE)}; 0 needs error control) (default %(default)s)",
+    )  # fmt: skip
+    options.add_t_final(physics)
     physics.add_argument(
-        "--t-final", dest="t_final", type=float, default=3.0, help="end time [s], >= dt (default %(default)s)"
-    )
-    physics.add_argument(
-        "--geometry", default="paper", metavar="{paper,full}", help="'paper' approximations or 'full' (default paper)"
-    )
-    physics.add_argument(
-        "--y0",
-        type=float,
-        nargs=4,
-        metavar=("ALPHA", "OMEGA", "U", "V"),
-        help="initial state with v > 0 (default: the paper's consistent data, v0 = 1e-10*V)",
-    )
-    physics.add_argument(
-        "--phi", metavar="COEFFS.json", help="adhesion coefficients c1..p9 as JSON (default: the paper's law)"
-    )
+        "--y0", type=float, nargs=4, metavar=("ALPHA0", "OMEGA0", "U0", "v0"),
+        help="initial state: peel angle alpha0 [rad], spool speed omega0 [rad/s], tape stretch u0 [m] and "
+        "peeling velocity v0 [m/s] > 0 (not the pull velocity --V) (default: the paper's consistent data, "
+        "v0 = 1e-10*V)",
+    )  # fmt: skip
+    options.add_geometry_and_phi(physics)
     solver = parser.add_argument_group("integrator")
     solver.add_argument(
-        "--method",
-        default="default",
-        metavar="NAME",
+        "--method", default="default", metavar="NAME",
         help=f"the stepper of error control: default (the library's choice), {', '.join(STEPPERS)}; or diffrax "
         "(the Kvaerno5 reference on its output grid) (default: default)",
-    )
+    )  # fmt: skip
     solver.add_argument(
-        "--dt",
-        type=float,
-        default=None,
-        help="default/alpha: a uniform mesh of N = round(t_final/dt) alpha-method steps instead of error control; "
-        "diffrax: the output spacing (default: error control; 1/82 for diffrax)",
-    )
+        "--dt", type=float, default=None,
+        help="default/alpha: a uniform mesh of N = round(t_final/dt) alpha-method steps instead of error control, "
+        "dt in (0, t_final]; diffrax: the output spacing (default: error control; 1/82 for diffrax)",
+    )  # fmt: skip
     solver.add_argument(
         "--rho", type=float, default=None, help="alpha-method's rho in [0, 1) (default 0; --method default or alpha)"
     )
+    options.add_tolerances(
+        solver, rtol_default=f"{_ALPHA_RTOL:g}; {_DEFAULT_RTOL:g} for diffrax",
+        atol_default=f"{_ALPHA_ATOL:g}; {_DEFAULT_ATOL:g} for diffrax", note="not on the uniform mesh",
+    )  # fmt: skip
+    options.add_max_steps(solver)
     solver.add_argument(
-        "--rtol",
-        type=float,
-        default=None,
-        help=f"relative tolerance in (0, 1) (default {_ALPHA_RTOL:g}; {_DEFAULT_RTOL:g} for diffrax; "
-        "not on the uniform mesh)",
-    )
-    solver.add_argument(
-        "--atol",
-        type=float,
-        default=None,
-        help=f"absolute tolerance, > 0 (default {_ALPHA_ATOL:g}; {_DEFAULT_ATOL:g} for diffrax; "
-        "not on the uniform mesh)",
-    )
-    solver.add_argument(
-        "--max-steps",
-        dest="max_steps",
-        type=int,
-        default=None,
-        metavar="N",
-        help="error control's budget of step attempts (accepted or rejected), an integer >= 1; not on the uniform "
-        "mesh (default: the library's)",
-    )
-    solver.add_argument(
-        "--save-dt",
-        dest="save_dt",
-        type=float,
-        default=None,
-        help="output at t = 0, S, 2S, ... <= t_final (and t_final) [s] (default: error control writes its "
-        "accepted steps; diffrax uses --dt)",
-    )
+        "--save-dt", dest="save_dt", type=float, default=None,
+        help="output at t = 0, S, 2S, ... <= t_final (and t_final) [s], S in (0, t_final] (default: error "
+        "control writes its accepted steps; diffrax uses --dt)",
+    )  # fmt: skip
     folds = parser.add_argument_group("folds of phi (stick-slip jumps)")
     folds.add_argument(
         "--fold",
@@ -152,34 +111,19 @@ def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
         "points only, follow singular passages); jump and follow need error control, any stepper (default: "
         "jump with error control, stop with --dt or --method diffrax)",
     )
-    folds.add_argument(
-        "--max-jumps",
-        dest="max_jumps",
-        type=int,
-        default=DEFAULT_MAX_JUMPS,
-        metavar="N",
-        help="size of the jump record, a positive integer; one more jump stops the run (default %(default)s)",
-    )
-    folds.add_argument(
-        "--transient",
-        type=float,
-        default=None,
-        metavar="T",
-        help="cycle statistics over [T, t_stop] [s], 0 <= T < t_final: the jumps before T (the approach to "
-        "the attractor) are left out (default t_final/3)",
-    )
+    options.add_max_jumps(folds, default=DEFAULT_MAX_JUMPS)
+    options.add_statistics_window(folds, window=False, what="the cycle statistics (over [T, t_stop])")
 
 
 def _add_output_arguments(parser: argparse.ArgumentParser) -> None:
     output = parser.add_argument_group("output")
-    output.add_argument("--out", metavar="FILE.npz", help="write t, alpha, omega, u, v, F and the parameters (numpy)")
-    output.add_argument(
-        "--plot",
-        metavar="FILE.png",
-        help="write v(t), alpha(t), F(t) panels, or for a run with jumps v(t), G(t) and the G-v loop over "
-        "phi(v, V) (format from suffix)",
-    )
-    output.add_argument("--json", action="store_true", help="print one JSON object on stdout instead of a summary")
+    options.add_outputs(
+        output, out_meta="FILE.npz", out_help="write t, alpha, omega, u, v, F and the parameters (numpy; default: none)",
+        plot_help="write v(t), alpha(t), F(t) panels, or for a run with jumps v(t), G(t) and the G-v loop over "
+        "phi(v, V)",
+    )  # fmt: skip
+    options.add_json(output)
+    options.add_progress(output, "progress (the elapsed wall time of a long run)")
 
 
 def add_command(subparsers) -> None:
@@ -234,6 +178,17 @@ class RunConfig:
         return solver_for(self.method, self.rho)
 
     @property
+    def budget(self) -> int | None:
+        """The step budget the run gets: --max-steps, else the library's (None on the uniform mesh)."""
+        if self.uniform:
+            return None
+        if self.max_steps is not None:
+            return self.max_steps
+        if self.method == "diffrax":
+            return inspect.signature(simulate_reference).parameters["max_steps"].default
+        return resolve_max_steps(None, keeps_steps=self.save_ts is None)
+
+    @property
     def dae(self) -> bool:
         """τ = 0: the DAE itself rather than the homogenized ODE."""
         return self.tau == 0.0
@@ -245,13 +200,13 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
     Raises:
         ValueError: naming the option and its allowed range.
     """
-    check_choice("geometry", args.geometry, GEOMETRIES)
+    check_choice("--geometry", args.geometry, GEOMETRIES)
     check_choice("--method", args.method, METHODS)
     _check_method(args)
     positive = "(0, inf)"
-    checked(positive, check_positive, "V", args.V)
+    checked(positive, check_positive, "--V", args.V)
     _check_tau(args)
-    checked(positive, check_positive, "t_final", args.t_final)
+    checked(positive, check_positive, "--t-final", args.t_final)
     dt = args.dt
     if args.method == "diffrax" and dt is None and args.save_dt is None:
         dt = _DIFFRAX_OUTPUT_DT
@@ -287,20 +242,16 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
         rtol = _DEFAULT_RTOL if args.rtol is None else args.rtol
         atol = _DEFAULT_ATOL if args.atol is None else args.atol
     if rtol is not None:
-        checked("(0, 1)", check_tolerance, "rtol", rtol, 1.0)
-        checked(positive, check_tolerance, "atol", atol)
+        rtol, atol = options.check_tolerances(rtol, atol, (rtol, atol))
     fold, max_jumps, transient = _check_folds(args, dt)
     max_steps = getattr(args, "max_steps", None)
-    check_max_steps(max_steps, "--dt" if args.method != "diffrax" and dt is not None else None)
+    options.check_max_steps(max_steps, "--dt" if args.method != "diffrax" and dt is not None else None)
     if max_steps is not None and save_ts is None and args.method != "diffrax":
         # the accepted steps are the output: max_steps + 1 rows (diffrax's reference keeps its output grid)
         _check_memory(f"--max-steps {max_steps}", max_steps + 1, "steps", "give a smaller --max-steps or a --save-dt")
-    checked("finite (alpha, omega, u, v) with v > 0", check_y0, args.y0)
-    adhesion, phi_defaults = (AdhesionLaw(), None) if args.phi is None else read_phi(args.phi)
-    check_output_path("--out", args.out)
-    if args.plot is not None:
-        check_output_path("--plot", args.plot, plot_formats())
-    model = PeelingModel(adhesion=adhesion, geometry=args.geometry)
+    checked("finite (alpha0, omega0, u0, v0) with v0 > 0", check_y0, args.y0)
+    model, phi_defaults = options.model_from(args)
+    options.check_outputs(args)
     return RunConfig(
         model=model,
         V=float(args.V),
@@ -381,7 +332,7 @@ def _check_folds(args: argparse.Namespace, dt: float | None) -> tuple[str, int, 
     and --transient; returns the fold mode (its default when not given), max_jumps and the transient."""
     fold = getattr(args, "fold", None)
     if fold is not None:
-        check_choice("fold", fold, FOLD_MODES)
+        check_choice("--fold", fold, FOLD_MODES)
     other = _without_error_control(args)
     if fold not in (None, "stop") and other is not None:
         raise ValueError(
@@ -400,18 +351,9 @@ def _check_folds(args: argparse.Namespace, dt: float | None) -> tuple[str, int, 
         fold = resolve_fold(fold, solver=diffrax.Kvaerno5(), dae=args.tau == 0)
     else:
         fold = resolve_fold(fold, dt=dt, dae=args.tau == 0)
-    max_jumps = getattr(args, "max_jumps", DEFAULT_MAX_JUMPS)
-    checked("integers >= 1", check_max_jumps, max_jumps)
-    if max_jumps > _MAX_JUMPS_LIMIT:
-        raise ValueError(
-            f"--max-jumps {max_jumps} allocates a record of that many jumps; the limit is {_MAX_JUMPS_LIMIT:.0e}"
-        )
-    transient = getattr(args, "transient", None)
-    if transient is None:
-        transient = args.t_final / 3.0
-    elif not (math.isfinite(transient) and 0 <= transient < args.t_final):
-        raise ValueError(f"--transient must lie in [0, t_final) = [0, {args.t_final:g}), got {transient:g}")
-    return fold, int(max_jumps), float(transient)
+    max_jumps = options.check_max_jumps(getattr(args, "max_jumps", None), DEFAULT_MAX_JUMPS, other)
+    transient, _ = options.check_statistics_window(getattr(args, "transient", None), None, args.t_final)
+    return fold, max_jumps, transient
 
 
 # ---------------------------------------------------------------------------- running and reporting
@@ -643,8 +585,7 @@ def _print_summary(record: dict, config: RunConfig, stats: dict, cycles=None) ->
     if config.rtol is not None:
         settings.append(f"rtol = {config.rtol:g}, atol = {config.atol:g}")
     if config.adaptive:
-        budget = "the default" if config.max_steps is None else str(config.max_steps)
-        settings.append(f"fold {config.fold} (max_jumps {config.max_jumps}, max_steps {budget})")
+        settings.append(f"fold {config.fold} (--max-jumps {config.max_jumps}, --max-steps {config.budget})")
         mesh = f"error control ({record['accepted_steps']} accepted, {record['rejected_steps']} rejected steps)"
     elif config.n_steps is None:
         mesh = f"output at {len(config.save_ts)} times"
@@ -657,6 +598,11 @@ def _print_summary(record: dict, config: RunConfig, stats: dict, cycles=None) ->
     )
     if record["status"] == "completed":
         print(f"completed: reached t = {record['t_stop']:.6g} s")
+    elif record.get("status_code") == int(StopReason.MAX_STEPS):
+        print(
+            f"stopped at t = {record['t_stop']:.6g} s: the step budget ({config.budget} step attempts, --max-steps) "
+            "was used up before t_final: raise --max-steps or loosen --rtol"
+        )
     else:
         print(f"stopped at t = {record['t_stop']:.6g} s: {record['reason']}")
     print(f"v [m/s]: final {record['v_final']:.6g}, min {record['v_min']:.6g}, max {record['v_max']:.6g}")
@@ -666,9 +612,9 @@ def _print_summary(record: dict, config: RunConfig, stats: dict, cycles=None) ->
             f"{record['jumps'] - record['jumps_up']} slip -> stick)"
         )
         if cycles is not None:
-            print(str(cycles).translate(_ASCII).encode("ascii", "replace").decode("ascii"))
+            print(str(cycles).translate(ASCII).encode("ascii", "replace").decode("ascii"))
         else:
-            print(f"cycles: none counted ({record['cycles_note']})")
+            print(f"cycles: {record['cycles_note']}")
     if record.get("note"):
         print(f"note: {record['note']}")
     print("stats: " + ", ".join(f"{key} {value}" for key, value in stats.items()))
@@ -691,7 +637,8 @@ def _cycles(solution: Solution, config: RunConfig, record: dict):
     if not config.transient < t_stop:
         record["cycles"] = None
         record["cycles_note"] = (
-            f"the run stopped at t = {t_stop:.6g} s, before the transient ended (--transient {config.transient:g} s)"
+            f"the run stopped at t = {t_stop:.6g} s, before its transient ended (--transient {config.transient:g} s): "
+            "no cycle statistics"
         )
         return None
     cycles = cycle_statistics(jumps, t_stop, transient=config.transient)
@@ -711,16 +658,21 @@ def _simulate_command(args: argparse.Namespace) -> int:
     else:
         mesh = f"{config.n_steps} steps"
     method = "default stepper" if config.method == "default" else config.method
+    budget = "" if config.budget is None else f", at most {config.budget} step attempts (--max-steps)"
     print(
-        f"{PROG}: {method} run with {mesh} to t = {config.t_final:g} s (compiling first: a few seconds) ...",
+        f"{PROG}: {method} run with {mesh} to t = {config.t_final:g} s{budget} (compiling first: a few seconds) ...",
         file=sys.stderr,
     )
-    solution, wall = run(config)
+    # The run is one compiled loop: it reports its simulated time only at the end (a report from
+    # inside would be a host callback in the integrator's loop); meanwhile the wall time is shown.
+    with Elapsed(options.progress_on(args), f"simulating to t = {config.t_final:g} s"):
+        solution, wall = run(config)
     dt = step_used(solution, config)
     summary = summarize(solution)
     stats = {key: summary[key] for key in solution.stats if key in summary}
     record = {
         **summary,
+        "status_code": int(np.asarray(solution.status)),  # the StopReason (as in the .npz)
         "V": config.V,
         "tau": config.tau,
         "dt": dt,
@@ -784,12 +736,6 @@ def _print_remedy(solution: Solution, config: RunConfig) -> None:
     """After a run that ran out of its step budget or its jump record: the option to raise (stderr)."""
     status = int(np.asarray(solution.status))
     if status == StopReason.MAX_STEPS:
-        budget, stats = config.max_steps, solution.stats
-        if budget is None and "accepted_steps" in stats and "rejected_steps" in stats:
-            # the library's budget: the attempts made, accepted or rejected, each one counts
-            budget = int(np.asarray(stats["accepted_steps"])) + int(np.asarray(stats["rejected_steps"]))
-        elif budget is None and config.method == "diffrax":
-            budget = inspect.signature(simulate_reference).parameters["max_steps"].default
-        print(max_steps_remedy(budget), file=sys.stderr)
+        print(max_steps_remedy(config.budget), file=sys.stderr)
     elif status == StopReason.MAX_JUMPS:
         print(f"{PROG}: the jump record is full: raise --max-jumps (now {config.max_jumps})", file=sys.stderr)

@@ -12,25 +12,23 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validation import check_choice, check_mesh, check_positive, check_rho, check_tolerance
-from ..adhesion import AdhesionLaw
+from .._validation import TAU_MAX, check_choice, check_mesh, check_positive, check_rho
 from ..integrators.events import FOLD_MODES
-from ..integrators.select import DEFAULT_ATOL, DEFAULT_RTOL
-from ..model import GEOMETRIES, PeelingModel
+from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS_DENSE, DEFAULT_RTOL
+from ..model import PeelingModel
 from ..solution import StopReason
 from ..sweeps.engine import STARTS
 from ..sweeps.integrators import DEFAULT_SWEEP_MAX_JUMPS
+from . import options
 from ._common import (
+    ASCII,
     PROG,
     STEPPERS,
-    check_max_steps,
-    check_output_path,
+    Elapsed,
     checked,
     fail,
     json_safe,
     max_steps_remedy,
-    plot_formats,
-    read_phi,
     solver_for,
     write_failed,
 )
@@ -40,36 +38,25 @@ __all__ = ["add_command", "engine_text", "tau_grid", "validate_map", "validate_s
 
 # ---------------------------------------------------------------------------- parsers
 def _add_model_arguments(parser: argparse.ArgumentParser):
-    """The problem's and the integrator's options; returns the integrator's argument group."""
+    """The problem's and the integrator's options (shared ones from :mod:`.options`); returns the
+    integrator's argument group."""
     group = parser.add_argument_group("problem")
-    group.add_argument(
-        "--V", type=float, nargs="+", default=[1.1, 2.0, 4.0], help="pull velocities [m/s], > 0 (default 1.1 2 4)"
-    )
-    group.add_argument("--t-final", dest="t_final", type=float, default=3.0, help="end time [s] (default 3)")
-    group.add_argument("--geometry", default="paper", metavar="{paper,full}", help="'paper' or 'full' (default paper)")
-    group.add_argument(
-        "--phi", metavar="COEFFS.json", help="adhesion coefficients c1..p9 as JSON (default: the paper's)"
-    )
+    options.add_V(group, many=True, default=[1.1, 2.0, 4.0])
+    options.add_t_final(group)
+    options.add_geometry_and_phi(group)
     solver = parser.add_argument_group("integrator")
     solver.add_argument(
-        "--dt",
-        type=float,
-        default=None,
-        help="uniform-mesh step [s] of the alpha-method (default: error control)",
-    )
-    solver.add_argument(
-        "--rtol",
-        type=float,
-        default=None,
-        help=f"error control's relative tolerance in (0, 1) (default {DEFAULT_RTOL:g}; not with --dt)",
-    )
-    solver.add_argument(
-        "--atol",
-        type=float,
-        default=None,
-        help=f"error control's absolute tolerance, > 0 (default {DEFAULT_ATOL:g}; not with --dt)",
-    )
+        "--dt", type=float, default=None,
+        help="uniform-mesh step [s] of the alpha-method, in (0, t_final] (default: error control)",
+    )  # fmt: skip
+    options.add_tolerances(solver, rtol_default=f"{DEFAULT_RTOL:g}", atol_default=f"{DEFAULT_ATOL:g}")
     solver.add_argument("--rho", type=float, default=None, help="alpha-method's rho in [0, 1) (default 0)")
+    solver.add_argument(
+        "--method", default="default", metavar="NAME",
+        help=f"the stepper of error control: default (the library's choice) or one of {', '.join(STEPPERS)}; "
+        "--dt and --rho with default or alpha only (default: default)",
+    )  # fmt: skip
+    options.add_max_steps(solver, default=f"{DEFAULT_MAX_STEPS_DENSE:.0e}; stick-slip takes about 50-100 a jump")
     return solver
 
 
@@ -80,45 +67,34 @@ def add_command(subparsers) -> None:
         description=(
             "Integrate every (V, tau) of a grid in compiled batches (error control by default, each "
             "trajectory with its own steps, any stepper: --method; --dt for the alpha-method's uniform mesh); "
-            "write per-trajectory "
-            "summaries (completed, t_stop, v mean/std/min/max over a window, stick-slip events, steps taken). "
-            "With --out the sweep is written chunk by chunk and a rerun resumes."
+            "write per-trajectory summaries (completed, t_stop, v mean/std/min/max over [--transient, "
+            "--transient + --window], stick-slip events, steps taken). With --out the sweep is written chunk "
+            "by chunk and a rerun resumes."
         ),
     )
     solver = _add_model_arguments(parser)
     solver.add_argument(
-        "--method",
-        default="default",
-        metavar="NAME",
-        help=f"the stepper of error control: default (the library's choice) or one of {', '.join(STEPPERS)}; "
-        "--dt and --rho with default or alpha only (default: default)",
-    )
-    solver.add_argument(
-        "--save-dt",
-        dest="save_dt",
-        type=float,
-        default=None,
-        help="error control only: also save the states at t = 0, S, 2S, ... and t_final [s] (dense output)",
-    )
-    solver.add_argument(
-        "--save-every",
-        dest="save_every",
-        type=int,
-        default=None,
-        help="uniform mesh only (with --dt): also save the states every N steps",
-    )
-    parser.add_argument(
-        "--tau", type=float, nargs="+", default=None,
-        help="tau values [s]: all > 0 (the homogenized ODE) or 0 (the DAE itself, jumping at the folds of phi; "
-        "error control only); with --n-tau, two numbers LO HI give a log-spaced grid (default 1e-3 1e-1; "
-        "with --stick-slip-map 0)",
+        "--save-dt", dest="save_dt", type=float, default=None,
+        help="error control only: also save the states at t = 0, S, 2S, ... and t_final [s], S in (0, t_final] "
+        "(default: none)",
     )  # fmt: skip
-    parser.add_argument(
-        "--n-tau", dest="n_tau", type=int, default=None, help="points of the log-spaced tau grid (>= 2)"
-    )
-    parser.add_argument("--window", type=float, nargs=2, default=None, metavar=("W0", "W1"),
-                        help="window of the v statistics, fractions of t_final (default 0.5 1)")  # fmt: skip
-    parser.add_argument("--chunk", type=int, default=256, help="trajectories per compiled batch (default 256)")
+    solver.add_argument(
+        "--save-every", dest="save_every", type=int, default=None,
+        help="uniform mesh only (with --dt): also save the states every N steps, N >= 1 (default: none)",
+    )  # fmt: skip
+    grid = parser.add_argument_group("the grid of tau")
+    grid.add_argument(
+        "--tau", type=options.numbers("--tau", ranges=False), nargs="+", default=None,
+        help="tau values [s]: all in (0, 1e6] (the homogenized ODE) or 0 (the DAE itself, jumping at the folds "
+        "of phi; error control only); with --n-tau, two numbers LO HI give a log-spaced grid (default 1e-3 "
+        "1e-1; with --stick-slip-map 0)",
+    )  # fmt: skip
+    grid.add_argument(
+        "--n-tau", dest="n_tau", type=int, default=None,
+        help="points of a log-spaced tau grid from --tau LO to HI, an integer >= 2 (default: none, the --tau "
+        "values as given)",
+    )  # fmt: skip
+    grid.add_argument("--chunk", type=int, default=256, help="trajectories per compiled batch, >= 1 (default 256)")
     folds = parser.add_argument_group("folds of phi (stick-slip jumps; error control only)")
     folds.add_argument(
         "--fold", default=None, metavar="{jump,stop,follow}",
@@ -126,20 +102,16 @@ def add_command(subparsers) -> None:
         "ends there) or 'follow' (tau > 0: jump at impasse points only); jump and follow need error control "
         "(default: jump with error control, stop with --dt)",
     )  # fmt: skip
-    folds.add_argument(
-        "--max-jumps", dest="max_jumps", type=int, default=None, metavar="N",
-        help=f"slots of each trajectory's jump record, a positive integer; one more jump stops the run (default "
-        f"{DEFAULT_SWEEP_MAX_JUMPS})",
-    )  # fmt: skip
-    folds.add_argument(
-        "--max-steps", dest="max_steps", type=int, default=None, metavar="N",
-        help="error control's budget of step attempts per trajectory, an integer >= 1; not with --dt (default: "
-        "the library's); stick-slip takes about 50-100 steps a jump",
-    )  # fmt: skip
+    options.add_max_jumps(folds, default=DEFAULT_SWEEP_MAX_JUMPS, per="trajectory")
     folds.add_argument(
         "--start", default=None, metavar="{paper,steady}",
         help="each trajectory's initial state: 'paper' (the tape at rest) or 'steady' (steady peeling, v = V) "
         "(default paper; with --stick-slip-map both, one after the other)",
+    )  # fmt: skip
+    statistics = parser.add_argument_group("statistics")
+    options.add_statistics_window(
+        statistics, window_default="t_final - T; with --stick-slip-map the statistics run to each run's end",
+        what="the v statistics (the stick-slip map's cycle statistics)",
     )  # fmt: skip
     ssm = parser.add_argument_group("the stick-slip map over V")
     ssm.add_argument(
@@ -149,17 +121,15 @@ def add_command(subparsers) -> None:
         "writes the map's arrays (.npz), --plot its figure against V (forces at the jumps over phi's folds, "
         "repeat period, v amplitude)",
     )  # fmt: skip
-    ssm.add_argument(
-        "--transient", type=float, default=None, metavar="T",
-        help="with --stick-slip-map: the statistics cover [T, t_stop] [s], 0 <= T < t_final (default t_final/2)",
+    output = parser.add_argument_group("output")
+    options.add_outputs(
+        output, out_meta="FILE.npz",
+        out_help="results (numpy, with each trajectory's jump record); chunks in FILE.npz.chunks/, resumable; "
+        "with --stick-slip-map the map's arrays (default: none)",
+        plot_help="the stick-slip map over (V, tau) (tau > 0); with --stick-slip-map the map against V",
     )  # fmt: skip
-    parser.add_argument("--out", metavar="FILE.npz",
-                        help="results (numpy, with each trajectory's jump record); chunks in FILE.npz.chunks/, "
-                        "resumable; with --stick-slip-map the map's arrays")  # fmt: skip
-    parser.add_argument("--plot", metavar="FILE.png",
-                        help="the stick-slip map over (V, tau) (tau > 0); with --stick-slip-map the map against V")  # fmt: skip
-    parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
-    parser.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
+    options.add_json(output)
+    options.add_progress(output, "progress bar")
     parser.set_defaults(handler=_sweep_command)
 
     star = subparsers.add_parser(
@@ -172,32 +142,31 @@ def add_command(subparsers) -> None:
         ),
     )
     _add_model_arguments(star)
-    star.add_argument("--tau-range", dest="tau_range", type=float, nargs=2, default=[1e-5, 1.0], metavar=("LO", "HI"),
-                      help="search interval, 0 < LO < HI (default 1e-5 1)")  # fmt: skip
-    star.add_argument(
-        "--tau-rtol",
-        dest="tau_rtol",
-        type=float,
-        default=0.05,
+    search = star.add_argument_group("the search")
+    search.add_argument("--tau-range", dest="tau_range", type=float, nargs=2, default=[1e-5, 1.0], metavar=("LO", "HI"),
+                        help="search interval [s], 0 < LO < HI (default 1e-5 1)")  # fmt: skip
+    search.add_argument(
+        "--tau-rtol", dest="tau_rtol", type=float, default=0.05,
         help="relative resolution of tau* in (0, 1), not an integrator tolerance (default 0.05)",
-    )
-    star.add_argument("--n-points", dest="n_points", type=int, default=8, help="tau values per V and round (>= 2)")
-    star.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    )  # fmt: skip
+    search.add_argument(
+        "--n-points", dest="n_points", type=int, default=8,
+        help="tau values per V and round, an integer >= 2 (default 8)",
+    )  # fmt: skip
+    output = star.add_argument_group("output")
+    options.add_json(output)
+    options.add_progress(output, "progress (the elapsed wall time)")
     star.set_defaults(handler=_tau_star_command)
 
 
 # ---------------------------------------------------------------------------- validation
-def _positive_list(option: str, values: list[float]) -> list[float]:
-    if not values:
-        raise ValueError(f"{option}: give at least one value (allowed range: (0, inf))")
-    bad = [v for v in values if not math.isfinite(v) or v <= 0]
-    if bad:
-        raise ValueError(f"{option} must be finite and > 0 (allowed range: (0, inf)), got {bad[:3]}")
-    return [float(v) for v in values]
+def _positive_list(option: str, values) -> list[float]:
+    return options.check_positive_values(option, values)
 
 
 def tau_grid(tau: list[float], n_tau: int | None) -> list[float]:
     """--tau values as given (all > 0, or all 0: the DAE), or with --n-tau a log-spaced grid between two values."""
+    tau = options.flatten(tau)
     if tau and all(value == 0 for value in tau):
         if n_tau is not None:
             raise ValueError("--n-tau spaces tau logarithmically between LO > 0 and HI; --tau 0 is the DAE itself")
@@ -208,6 +177,8 @@ def tau_grid(tau: list[float], n_tau: int | None) -> list[float]:
             "the two are different problems, sweep them separately"
         )
     tau = _positive_list("--tau", tau)
+    if any(value > TAU_MAX for value in tau):
+        raise ValueError(f"--tau must lie in (0, {TAU_MAX:g}] (allowed range), got {max(tau):g}")
     if n_tau is None:
         return tau
     if isinstance(n_tau, bool) or n_tau < 2:
@@ -229,11 +200,11 @@ def _integrator(args: argparse.Namespace) -> dict:
     the engine (``save_dt``/``save_every`` only where the namespace has them, ``solver`` where
     ``--method`` names a stepper), all others None.
     """
-    options = _integrator_options(args)
+    chosen = _integrator_options(args)
     method = getattr(args, "method", "default")
     if method != "default":
-        options["solver"] = solver_for(method, _rho(args))
-    return options
+        chosen["solver"] = solver_for(method, _rho(args))
+    return chosen
 
 
 def _rho(args: argparse.Namespace) -> float:
@@ -274,21 +245,18 @@ def _integrator_options(args: argparse.Namespace) -> dict:
         n_steps = checked("dt in (0, t_final], t_final in (0, inf)", check_mesh, args.dt, args.t_final)
         if save_every is not None and not 1 <= save_every <= n_steps:
             raise ValueError(f"--save-every must lie in [1, {n_steps}] (the number of steps), got {save_every}")
-        options = {"dt": float(args.dt), "rtol": None, "atol": None}
+        chosen = {"dt": float(args.dt), "rtol": None, "atol": None}
         if hasattr(args, "save_every"):
-            options.update(save_every=save_every, save_dt=None)
-        return options
+            chosen.update(save_every=save_every, save_dt=None)
+        return chosen
     if save_every is not None:
         raise ValueError(
             "--save-every counts the steps of a uniform mesh and needs --dt; "
             "with error control (no --dt) save on times with --save-dt"
         )
-    checked("(0, inf)", check_positive, "t_final", args.t_final)
-    rtol = DEFAULT_RTOL if args.rtol is None else args.rtol
-    atol = DEFAULT_ATOL if args.atol is None else args.atol
-    checked("(0, 1)", check_tolerance, "--rtol", rtol, 1.0)
-    checked("(0, inf)", check_tolerance, "--atol", atol)
-    options = {"dt": None, "rtol": float(rtol), "atol": float(atol)}
+    checked("(0, inf)", check_positive, "--t-final", args.t_final)
+    rtol, atol = options.check_tolerances(args.rtol, args.atol, (DEFAULT_RTOL, DEFAULT_ATOL))
+    chosen = {"dt": None, "rtol": rtol, "atol": atol}
     if hasattr(args, "save_dt"):
         if save_dt is not None:
             if not (math.isfinite(save_dt) and 0 < save_dt <= args.t_final):
@@ -298,8 +266,8 @@ def _integrator_options(args: argparse.Namespace) -> dict:
                 raise ValueError(
                     f"--save-dt {save_dt:g} gives {n_save:.3g} save times per trajectory; the limit is 1e7"
                 )
-        options.update(save_every=None, save_dt=None if save_dt is None else float(save_dt))
-    return options
+        chosen.update(save_every=None, save_dt=None if save_dt is None else float(save_dt))
+    return chosen
 
 
 def _stepper(kwargs: dict, ran: str | None = None) -> str | None:
@@ -342,13 +310,9 @@ def _engine_record(kwargs: dict, ran: str | None = None) -> dict:
 
 
 def _model(args) -> PeelingModel:
-    check_choice("--geometry", args.geometry, GEOMETRIES)
     checked("[0, 1)", check_rho, _rho(args))
-    adhesion, args.phi_defaults = (AdhesionLaw(), None) if args.phi is None else read_phi(args.phi)
-    return PeelingModel(adhesion=adhesion, geometry=args.geometry)
-
-
-_MAX_JUMPS_LIMIT = 10_000_000  # each trajectory's record is allocated in full (5 arrays of max_jumps)
+    model, args.phi_defaults = options.model_from(args)
+    return model
 
 
 def _check_folds(args: argparse.Namespace, tau: list[float], dt: float | None) -> dict:
@@ -371,54 +335,36 @@ def _check_folds(args: argparse.Namespace, tau: list[float], dt: float | None) -
                 f"--fold {fold} needs error control (any stepper), which cuts a step at a fold; on a "
                 "uniform mesh (--dt) a run can only stop there: give --fold stop, or drop --dt"
             )
-        if args.max_jumps is not None:
-            raise ValueError(
-                "--max-jumps applies to error control; --dt asks for a uniform mesh: give one or the other"
-            )
     if fold == "follow" and dae:
         raise ValueError(
             "--fold follow applies to tau > 0 (it follows the homogenized ODE through singular passages); "
             "with --tau 0 give --fold jump or --fold stop"
         )
-    if args.max_jumps is not None and not 1 <= args.max_jumps <= _MAX_JUMPS_LIMIT:
-        raise ValueError(
-            f"--max-jumps must be a positive integer of at most {_MAX_JUMPS_LIMIT:.0e} (the record of every "
-            f"trajectory is allocated in full), got {args.max_jumps}"
-        )
-    check_max_steps(args.max_steps, None if dt is None else "--dt")
+    # None: the library's record size (DEFAULT_SWEEP_MAX_JUMPS), as an --out written before knows it
+    options.check_max_jumps(args.max_jumps, DEFAULT_SWEEP_MAX_JUMPS, None if dt is None else "--dt")
+    options.check_max_steps(args.max_steps, None if dt is None else "--dt")
     if args.start is not None:
         check_choice("--start", args.start, STARTS)
-    options = {"fold": fold, "max_jumps": args.max_jumps}
+    chosen = {"fold": fold, "max_jumps": args.max_jumps}
     if dt is None and args.max_steps is not None:  # left out: the library's budget
-        options["max_steps"] = int(args.max_steps)
-    return options
+        chosen["max_steps"] = int(args.max_steps)
+    return chosen
 
 
 def _check_outputs(args: argparse.Namespace) -> None:
     if args.chunk < 1:
         raise ValueError(f"--chunk must be a positive integer (allowed range: [1, inf)), got {args.chunk}")
-    if args.out is not None:
-        check_output_path("--out", args.out)
-    if args.plot is not None:
-        check_output_path("--plot", args.plot, plot_formats())
+    options.check_outputs(args)
 
 
 def validate_sweep(args: argparse.Namespace) -> dict:
     """Every option checked, nothing compiled; returns the keyword arguments of :func:`peeljax.sweep`."""
     V = _positive_list("--V", args.V)
     tau = tau_grid([1e-3, 1e-1] if args.tau is None else args.tau, args.n_tau)
-    options = _integrator(args)
-    folds = _check_folds(args, tau, options["dt"])
+    chosen = _integrator(args)
+    folds = _check_folds(args, tau, chosen["dt"])
     model = _model(args)
-    w0, w1 = (0.5, 1.0) if args.window is None else args.window
-    if not (math.isfinite(w0) and math.isfinite(w1) and 0 <= w0 <= w1 <= 1):
-        raise ValueError(f"--window W0 W1 must satisfy 0 <= W0 <= W1 <= 1, got {w0:g} {w1:g}")
-    if options["dt"] is None and w0 == w1:
-        raise ValueError(
-            f"--window W0 W1 needs W0 < W1 with error control (its statistics are time integrals), got {w0:g} {w1:g}"
-        )
-    if args.transient is not None:
-        raise ValueError("--transient sets where the stick-slip map's statistics start: it needs --stick-slip-map")
+    window = _window(args)
     if args.plot is not None and tau == [0.0]:
         raise ValueError(
             "--plot draws the (V, tau) map, whose tau axis is logarithmic: with --tau 0 (the DAE) add "
@@ -426,10 +372,23 @@ def validate_sweep(args: argparse.Namespace) -> dict:
         )
     _check_outputs(args)
     return {
-        "model": model, "V": V, "tau": tau, **options, **folds, "t_final": float(args.t_final), "grid": "outer",
-        "window": (w0, w1), "chunk": args.chunk, "out": args.out, "rho": _rho(args),
+        "model": model, "V": V, "tau": tau, **chosen, **folds, "t_final": float(args.t_final), "grid": "outer",
+        "window": window, "chunk": args.chunk, "out": args.out, "rho": _rho(args),
         "start": "paper" if args.start is None else args.start, "progress": args.progress and not args.json,
     }  # fmt: skip
+
+
+def _window(args: argparse.Namespace) -> tuple[float, float]:
+    """--transient T and --window W [s] as :func:`peeljax.sweep`'s ``window``, two fractions of
+    t_final (the statistics cover [T, T + W]); the old --window W0 W1 read with a note."""
+    T, W = options.one_window(args.window, fractions_allowed=True, t_final=args.t_final)
+    if T is not None:  # the old form: its fractions as given (an --out written with them resumes)
+        if args.transient is not None:
+            raise ValueError("--window W0 W1 (the deprecated form) sets the transient too: give --transient T --window W")
+        return (float(args.window[0]), float(args.window[1]))
+    T, W = options.check_statistics_window(args.transient, W, args.t_final)
+    t_final = args.t_final
+    return (T / t_final, min(1.0, (T + W) / t_final))
 
 
 def validate_map(args: argparse.Namespace) -> dict:
@@ -446,27 +405,31 @@ def validate_map(args: argparse.Namespace) -> dict:
             what = "a uniform mesh, which keeps no jumps" if option != "--save-dt" else "saved states"
             raise ValueError(f"{option} asks for {what}; --stick-slip-map reads the jumps of error-controlled runs")
     if args.window is not None:
-        raise ValueError("--window: the stick-slip map's statistics cover [--transient, t_final]; give --transient")
-    options = _integrator(args)
+        raise ValueError(
+            "--window: the stick-slip map's cycle statistics run from --transient to each run's end; give "
+            "--transient (and --t-final)"
+        )
+    chosen = _integrator(args)
     folds = _check_folds(args, tau, None)
     if folds["fold"] == "stop":
         raise ValueError("--fold stop ends every run at its first fold: --stick-slip-map needs --fold jump (or follow)")
     model = _model(args)
-    transient = args.t_final / 2 if args.transient is None else args.transient
-    if not (math.isfinite(transient) and 0 <= transient < args.t_final):
-        raise ValueError(f"--transient must lie in [0, t_final) = [0, {args.t_final:g}), got {transient:g}")
+    transient, _ = options.check_statistics_window(args.transient, None, args.t_final)
     _check_outputs(args)
     return {
-        "model": model, "V": V, "tau": tau[0], "t_final": float(args.t_final), "transient": float(transient),
-        "starts": STARTS if args.start is None else (args.start,), "rtol": options["rtol"], "atol": options["atol"],
-        **({"solver": options["solver"]} if "solver" in options else {}),
+        "model": model, "V": V, "tau": tau[0], "t_final": float(args.t_final), "transient": transient,
+        "starts": STARTS if args.start is None else (args.start,), "rtol": chosen["rtol"], "atol": chosen["atol"],
+        **({"solver": chosen["solver"]} if "solver" in chosen else {}),
         **folds, "chunk": args.chunk, "rho": _rho(args), "progress": args.progress and not args.json,
     }  # fmt: skip
 
 
 def validate_tau_star(args: argparse.Namespace) -> dict:
     V = _positive_list("--V", args.V)
-    options = _integrator(args)
+    chosen = _integrator(args)
+    options.check_max_steps(args.max_steps, None if chosen["dt"] is None else "--dt")
+    if args.max_steps is not None:  # left out: the library's budget
+        chosen["max_steps"] = int(args.max_steps)
     model = _model(args)
     lo, hi = args.tau_range
     if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
@@ -475,7 +438,7 @@ def validate_tau_star(args: argparse.Namespace) -> dict:
         raise ValueError(f"--tau-rtol must lie in (0, 1), got {args.tau_rtol:g}")
     if args.n_points < 2:
         raise ValueError(f"--n-points must be an integer >= 2 (allowed range: [2, inf)), got {args.n_points}")
-    return {"model": model, "V": V, **options, "t_final": float(args.t_final), "tau_range": (lo, hi),
+    return {"model": model, "V": V, **chosen, "t_final": float(args.t_final), "tau_range": (lo, hi),
                 "tau_rtol": float(args.tau_rtol), "n_points": args.n_points, "rho": _rho(args)}  # fmt: skip
 
 
@@ -579,7 +542,9 @@ def _sweep_command(args: argparse.Namespace) -> int:
         "save_dt": kwargs["save_dt"],
         "save_every": kwargs["save_every"],
         "t_final": kwargs["t_final"],
-        "window": list(kwargs["window"]),
+        "window": list(kwargs["window"]),  # fractions of t_final, as pj.sweep takes them
+        "transient": kwargs["window"][0] * kwargs["t_final"],  # [s]: --transient
+        "window_s": (kwargs["window"][1] - kwargs["window"][0]) * kwargs["t_final"],  # [s]: --window
         "fold": result.settings.get("fold"),
         "max_jumps": result.settings.get("max_jumps"),
         "start": kwargs["start"],
@@ -648,8 +613,8 @@ def _print_sweep(record: dict, result, kwargs: dict, wall: float) -> None:
         "" if jumps is None else f"; start {record['start']}, fold {record['fold']} (max_jumps {record['max_jumps']})"
     )
     engine = engine_text(kwargs, result.settings.get("method"))
-    print(f"{engine}; v statistics over t in [{w0 * kwargs['t_final']:g}, {w1 * kwargs['t_final']:g}] s"
-          f"{folds}")  # fmt: skip
+    print(f"{engine}; v statistics over t in [{w0 * kwargs['t_final']:g}, {w1 * kwargs['t_final']:g}] s "
+          f"(--transient {w0 * kwargs['t_final']:g} --window {(w1 - w0) * kwargs['t_final']:g}){folds}")  # fmt: skip
     print(f"{'V':>8} {'tau':>10} {'status':>14} {'t_stop':>8} {'v_mean':>10} {'v_std':>10} {'events':>6} "
           f"{'steps':>8} {'rejected':>8}{'' if jumps is None else f' {chr(32) * 2}jumps'}")  # fmt: skip
     for i in range(len(result)):
@@ -735,7 +700,7 @@ def _map_command(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(json_safe(record), allow_nan=False))
     else:
-        print(str(smap).translate(_ASCII))
+        print(str(smap).translate(ASCII))
         engine = engine_text({**kwargs, "dt": None}, smap.settings.get("sweep", {}).get("method"))
         print(f"{engine}, max_steps {record['max_steps']}; wall time {wall:.3g} s")
         for key in ("out", "plot"):
@@ -747,9 +712,6 @@ def _map_command(args: argparse.Namespace) -> int:
     return 0
 
 
-# The map's summary uses a few non-ASCII signs; the plain output promises ASCII.
-_ASCII = str.maketrans({"→": "->", "—": "-", "–": "-", "τ": "tau", "φ": "phi", "≥": ">="})
-
 
 def _tau_star_command(args: argparse.Namespace) -> int:
     try:
@@ -759,7 +721,9 @@ def _tau_star_command(args: argparse.Namespace) -> int:
     print(f"{PROG}: searching tau* for V = {kwargs['V']}, {engine_text(kwargs)} (compiling first: a few seconds) ...",
           file=sys.stderr)  # fmt: skip
     start = time.perf_counter()
-    result = _run_tau_star(kwargs)
+    # least_tau runs its rounds as compiled batches and reports nothing in between: the wall time is shown
+    with Elapsed(options.progress_on(args), "searching tau*"):
+        result = _run_tau_star(kwargs)
     wall = time.perf_counter() - start
     record = {
         "V": result.V.tolist(),
@@ -772,6 +736,7 @@ def _tau_star_command(args: argparse.Namespace) -> int:
         "t_final": kwargs["t_final"],
         "tau_range": list(kwargs["tau_range"]),
         "tau_rtol": kwargs["tau_rtol"],
+        "max_steps": kwargs.get("max_steps"),  # --max-steps; null: the library's budget
         "wall_time_s": wall,
         "phi_paper_defaults": _phi_defaults(args),
     }

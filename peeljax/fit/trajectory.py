@@ -571,6 +571,7 @@ def fit_adhesion(
     batch: str = "map",
     rtol: float | None = None,
     atol: float | None = None,
+    max_steps: int | None = None,
 ) -> FitResult:
     """Fit φ's coefficients to observed runs (v(t), optionally F(t) and α(t)) at one or more V.
 
@@ -611,6 +612,8 @@ def fit_adhesion(
         rtol, atol: error control's tolerances (default 1e-6, 1e-9; not with ``dt``): exact
             reverse-mode gradients through its checkpointed loop (step sizes held constant),
             the model evaluated at the observation times by the dense output.
+        max_steps: error control's budget of step attempts per run (None: the library's,
+            ``peeljax.integrators.select.DEFAULT_MAX_STEPS``); a run that uses it up stops there.
 
     Returns:
         A :class:`FitResult` with the best iterate, the loss history, the gradient norm and
@@ -639,8 +642,9 @@ def fit_adhesion(
     opt, learning_rate = _check_options(steps, optimizer, learning_rate)
     # fold="stop": gradients do not yet follow the jump times (a separate piece of work), so the
     # fit integrates up to the first fold, as before runs were carried through the folds.
+    budget = {} if max_steps is None else {"max_steps": max_steps}  # None: integrator_for's default
     integrator = integrator_for(
-        solver, dt=dt, t_final=t_final, rtol=rtol, atol=atol, checkpoint_every=checkpoint_every, fold="stop"
+        solver, dt=dt, t_final=t_final, rtol=rtol, atol=atol, checkpoint_every=checkpoint_every, fold="stop", **budget
     )
     loss_fn = _TrajectoryLoss(
         start=start,
