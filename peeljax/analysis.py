@@ -267,7 +267,9 @@ class StickSlipAnalysis:
     ``period`` (the mean time between stick → slip events), ``repeat`` (their repeat: a
     :class:`~peeljax.cycles.RepeatPattern`, a :class:`~peeljax.cycles.TooFewRepeats`, or None:
     ``repeat_verdict`` says irregular or none), ``amplitude``, ``v_mean`` (time average),
-    ``decay``, the extrema ``v_max_times``/``v_max``/``v_min_times``/``v_min``, and ``cycles``
+    ``decay``, ``oscillation_period`` (of v about its time-mean, :func:`oscillation`: what a
+    run without slips, a damped oscillation, has), the extrema
+    ``v_max_times``/``v_max``/``v_min_times``/``v_min``, and ``cycles``
     (the jump record's :class:`~peeljax.cycles.CycleStatistics` after the transient, or None).
     """
 
@@ -302,6 +304,7 @@ class StickSlipAnalysis:
     decay: float
     stick_fraction: float = float("nan")
     slip_fraction: float = float("nan")
+    oscillation_period: float = float("nan")
     repeat: RepeatPattern | TooFewRepeats | None = None
     slips: int = 0
     cycles: CycleStatistics | None = None
@@ -378,6 +381,7 @@ class StickSlipAnalysis:
             "amplitude": self.amplitude,
             "v_mean": self.v_mean,
             "decay": self.decay,
+            "oscillation_period": self.oscillation_period,
         }
 
 
@@ -493,6 +497,7 @@ def _analyze_one(ts, ys, valid, t_stop, completed, struct, model, V, tau, thresh
         amplitude=amplitude,
         v_mean=time_average(ts, v, t_transient, t_end, jumps=jump_points),
         decay=osc["decay"],
+        oscillation_period=osc["period"],
         stick_fraction=float(stick_fraction),
         slip_fraction=float(slip_fraction),
         repeat=repeat,

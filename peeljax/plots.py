@@ -163,6 +163,7 @@ def plot_run(
 
 # ---------------------------------------------------------------------------- stick-slip with jumps
 _UP_COLOR, _DOWN_COLOR = "C3", "C0"  # stick → slip, slip → stick
+_V_DECADES = 1e-12  # the log axes of v reach down to this fraction of the largest v, no further
 _UP_LABEL, _DOWN_LABEL = "stick → slip jump (v up)", "slip → stick jump (v down)"
 
 
@@ -200,7 +201,12 @@ def plot_stick_slip(
        fold forces φ(v̌, V) and φ(v̂, V)); G is continuous across a jump (x is unchanged).
     3. The G–v loop: G against v (log axis) over the curve φ(v, V) (dashed), with the folds
        (v̂, φ(v̂, V)) and (v̌, φ(v̌, V)) marked and the jumps as horizontal segments at constant G.
-       With ``transient``, only t ≥ transient (the settled loop).
+       With ``transient``, only t ≥ transient (the settled loop); without one, or for a run
+       that stopped before it, from the first jump on (the approach from rest is no part of
+       the loop; the title says which).
+
+    The v axes reach down to the lowest v of the cycles, never below 1e-12 of the largest v
+    (lower v is drawn at the bottom, with a note); legends sit outside the data.
 
     Args:
         solution: a single run with a jump record (:attr:`Solution.jumps`).
@@ -212,7 +218,8 @@ def plot_stick_slip(
 
     Returns:
         The figure. v = 0 (a fully stuck tape) is drawn at the bottom of the log axes. A run
-        that stopped gets a dotted vertical line at ``t_stop`` with the shortened reason.
+        that stopped gets a dotted vertical line at ``t_stop``, its shortened reason in the
+        legend above the panels.
     """
     if np.ndim(solution.status) != 0:
         raise ValueError("plot a single trajectory: index the batch of a vmapped Solution first")
@@ -232,17 +239,23 @@ def plot_stick_slip(
     folds = phi_folds(model, V)
     v_hat, phi_hat, v_check, phi_check = (float(x) for x in (folds.v_max, folds.phi_max, folds.v_min, folds.phi_min))
     has_folds = bool(np.isfinite(v_hat) and np.isfinite(v_check))
-    if transient is not None and not np.any(t >= transient):
-        transient = None  # nothing after it: show the whole run
+    # The loop: after the transient; without one, or where the run stopped before it, from the
+    # first jump on (the approach from the paper's v0 = 1e-10·V is no part of the loop).
+    early = transient is not None and not np.any(t >= transient)
+    loop_start = transient if transient is not None and not early else (float(jt[0]) if jt.size else None)
     # The log axis of v: down to the lowest v once stick-slip has begun, so that the approach
-    # from the paper's v0 = 1e-10·V does not squash the cycles (a note says where v starts).
+    # from the paper's v0 = 1e-10·V does not squash the cycles (a note says where v starts),
+    # and never below 1e-12 of the top (a tape stuck at v → 1e-54 would take 60 decades).
+    top = float(np.nanmax(np.concatenate([v[np.isfinite(v)], vb, va, [V]])))
     low_all = _positive_floor(v, vb, va)
     low_cycles = _positive_floor(v[t >= jt[0]], vb, va) if jt.size else low_all
     cropped = low_all < low_cycles / 30.0
-    v_bottom = low_cycles / 3.0 if cropped else low_all
-    floor = v_bottom * 1.5  # where v = 0 (fully stuck) is drawn
+    v_bottom = max(low_cycles / 3.0 if cropped else low_all, top * _V_DECADES)
+    floor = v_bottom * 1.5  # where v = 0 (fully stuck), or v below the axis, is drawn
+    clip = top * _V_DECADES
+    below = v[np.isfinite(v) & (v > 0) & (v < clip)]
     stuck = bool(np.any(v[np.isfinite(v)] <= 0) or np.any(va <= 0))
-    shown = lambda values: np.where(np.asarray(values) > 0, values, floor)
+    shown = lambda values: np.where(np.asarray(values) >= clip, values, floor)  # v = 0 too
 
     fig = Figure(figsize=(13.0, 7.6), layout="constrained")
     FigureCanvasAgg(fig)
@@ -265,7 +278,9 @@ def plot_stick_slip(
     ax_v.set_ylabel("peeling velocity v [m/s]")
     ax_v.set_ylim(bottom=v_bottom)
     notes = []
-    if cropped:
+    if below.size:
+        notes.append(f"v below {clip:.2g} m/s (down to {below.min():.2g}) drawn at the bottom")
+    elif cropped:
         first = v[np.isfinite(v) & (v > 0)]
         notes.append(f"axis cut: v starts at {first[0]:.2g} m/s" if first.size else "axis cut")
     if stuck:
@@ -293,34 +308,42 @@ def plot_stick_slip(
         ax.grid(True, alpha=0.3)
     ax_v.tick_params(labelbottom=False)
     if int(np.asarray(solution.status)) != 0:
+        # the line in both panels, the words in the legend above them (a box would cover G(t))
         t_stop = float(solution.t_stop)
         for ax in (ax_v, ax_G):
-            ax.axvline(t_stop, color="k", ls=":", lw=1.2)
-        ax_G.annotate(
-            f"stopped at t = {t_stop:.4g} s\n{short_reason(solution)}", xy=(t_stop, 0.5),
-            xycoords=("data", "axes fraction"), xytext=(-4, 0), textcoords="offset points", ha="right",
-            va="center", fontsize=8, bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "k", "alpha": 0.85},
-        )  # fmt: skip
-    # room above the slip branch for the legend (v's data stay below it)
-    top = float(np.nanmax(np.concatenate([v[np.isfinite(v)], vb, va, [V]])))
-    ax_v.set_ylim(top=top * (top / v_bottom) ** 0.45)
-    ax_v.legend(loc="upper center", ncols=3, fontsize=7, framealpha=0.9)
-    ax_G.legend(loc="lower right", fontsize=7, framealpha=0.9)
+            ax.axvline(t_stop, color="k", ls=":", lw=1.2,
+                       label=f"stopped at t = {t_stop:.4g} s: {short_reason(solution)}" if ax is ax_v else None)  # fmt: skip
+    # the data and a little room; the legends outside the axes, above them
+    ax_v.set_ylim(top=top * 2.0)
+    handles, labels = [], []
+    for ax in (ax_v, ax_G):  # one legend for both panels: none of it over G's sawtooth
+        h, lab = ax.get_legend_handles_labels()
+        handles += h
+        labels += lab
+    ax_v.legend(handles, labels, loc="lower left", bbox_to_anchor=(0.0, 1.01), ncols=3, fontsize=7, framealpha=0.9,
+                borderaxespad=0)  # fmt: skip
 
     # 3. the G–v loop over φ(v, V)
-    start = -np.inf if transient is None else transient
+    start = -np.inf if loop_start is None else loop_start
     rows, kept = t >= start, jt >= start
     _, vl, Gl = _broken_at(t[rows], jt[kept], v[rows], G[rows])
     up_k, vb_k, va_k, G_k = up[kept], vb[kept], va[kept], jG[kept]
     span = np.concatenate([vl[np.isfinite(vl)], vb_k, va_k] + ([[v_hat, v_check]] if has_folds else []))
-    lo, hi = _positive_floor(span) * 3.0, float(np.nanmax(span)) if span.size else 10.0
+    hi = float(np.nanmax(span)) if span.size else 10.0
+    lo = max(_positive_floor(span) * 3.0, hi * _V_DECADES)
     grid = np.geomspace(lo / 2.0, hi * 1.5, 400)
     import jax.numpy as jnp
 
     ax_loop.plot(grid, np.asarray(model.phi(jnp.asarray(grid), V), dtype=float), color="k", ls="--", lw=1.0,
                  label=f"φ(v, V = {V:g} m/s)", zorder=3)  # fmt: skip
-    window = "the run" if transient is None else f"t ≥ {transient:.3g} s"
-    ax_loop.plot(shown(vl), Gl, color="C2", lw=3.0, alpha=0.55, label=f"the run: G against v ({window})")
+    if loop_start is None:
+        window = "the run"
+    elif loop_start == transient:
+        window = f"t ≥ {transient:.3g} s"
+    else:
+        window = f"from the first jump, t ≥ {loop_start:.3g} s" + (
+            f"; stopped before the transient {transient:.3g} s" if early else "")
+    ax_loop.plot(shown(vl), Gl, color="C2", lw=3.0, alpha=0.55, label="the run: G against v (the window in the title)")
     for mask, color, label in ((up_k, _UP_COLOR, _UP_LABEL), (~up_k, _DOWN_COLOR, _DOWN_LABEL)):
         if mask.any():
             ax_loop.hlines(G_k[mask], shown(vb_k[mask]), shown(va_k[mask]), colors=color, lw=1.4, label=label,
@@ -346,7 +369,7 @@ def plot_stick_slip(
     ax_loop.set_xscale("log")
     ax_loop.set_xlabel("peeling velocity v [m/s]")
     ax_loop.set_ylabel("shear force G [N]")
-    ax_loop.set_title(f"G–v loop ({window}) over φ(v, V)", fontsize=10)
+    ax_loop.set_title(f"G–v loop over φ(v, V)\n({window})", fontsize=10)
     ax_loop.grid(True, alpha=0.3)
     ax_loop.legend(loc="upper left", fontsize=7, framealpha=0.9)
     if title:

@@ -181,3 +181,71 @@ def test_time_figure_legends_sit_below_the_axes(early_stop):
     (legend,) = fig.legends
     assert ax.get_legend() is None and len(legend.get_texts()) == 3
     assert legend.get_window_extent().y1 <= ax.get_window_extent().y0  # outside the data, below the axes
+
+
+# ---------------------------------------------------------------------------- the stick-slip run figure
+def _stuck_run():
+    """By hand (no integration): v from the paper's 1e-10 up to v̂, a jump up at 0.1 s, down at
+    0.12 s to 1e-54 m/s (a stuck tape), still stuck when max_jumps stops it at 0.3 s."""
+    import jax.numpy as jnp
+
+    from peeljax import PeelingModel
+    from peeljax.solution import JumpRecord, Solution, StopReason
+
+    ts = jnp.array([0.0, 0.05, 0.1, 0.11, 0.12, 0.2, 0.3])
+    v = jnp.array([1.1e-10, 1e-3, 0.524, 12.0, 8.49, 1e-54, 1e-50])
+    u = jnp.array([0.13, 0.2, 0.29, 0.25, 0.21, 0.24, 0.27])
+    ys = jnp.stack([jnp.full(7, 0.05), jnp.zeros(7), u, v], axis=1)
+    G = PeelingModel().shear_force(ys[jnp.array([2, 4]), :3].T)
+    jumps = JumpRecord.empty(4).record(True, 0.1, True, 0.524, 15.0, G[0]).record(True, 0.12, False, 8.49, 1e-54, G[1])
+    return Solution(ts=ts, ys=ys, valid=jnp.ones(7, bool), status=jnp.asarray(int(StopReason.MAX_JUMPS)),
+                    t_stop=jnp.asarray(0.3), stats={}, diagnostics=None, jumps=jumps)  # fmt: skip
+
+
+@pytest.mark.slow
+def test_stick_slip_figure_keeps_notes_off_the_data_and_axes_near_it(tmp_path):
+    """#30 item 5: the stop note in the legend above the panels (no box over G(t)), the v axis
+    fitted to the data (no empty decades on top, not 60 decades down to 1e-54), and a run that
+    stopped before its transient draws its loop from the first jump, not from v = 1e-10."""
+    from peeljax import PeelingModel
+    from peeljax.plots import plot_stick_slip
+
+    fig = plot_stick_slip(_stuck_run(), PeelingModel(), 1.1, transient=1.0, path=tmp_path / "stuck.png")
+    assert (tmp_path / "stuck.png").read_bytes()[:8] == PNG_MAGIC
+    fig.canvas.draw()
+    by_label = {ax.get_ylabel(): ax for ax in fig.axes}
+    ax_v, ax_loop = by_label["peeling velocity v [m/s]"], by_label["shear force G [N]"]
+    (ax_G,) = (ax for ax in fig.axes if ax.get_ylabel().startswith("shear force G = "))
+    assert not ax_G.texts and ax_G.get_legend() is None  # nothing drawn over the sawtooth
+    legend = ax_v.get_legend()
+    assert legend.get_window_extent().y0 >= ax_v.get_window_extent().y1 - 1  # above the axes
+    labels = [text.get_text() for text in legend.get_texts()]
+    assert any(label.startswith("stopped at t = 0.3 s: reached max_jumps") for label in labels)
+    assert any(label.startswith("G(t)") for label in labels)  # the G panel's entries too
+    bottom, top = ax_v.get_ylim()
+    assert 15.0 < top <= 3 * 15.0 and bottom >= 1e-12 * 15.0  # the data's decades, 1e-12 of the top at most
+    assert any("v below" in t.get_text() and "1e-54" in t.get_text() for t in ax_v.texts)
+    (loop,) = (line for line in ax_loop.get_lines() if line.get_label().startswith("the run"))
+    xs = np.asarray(loop.get_xdata(), float)
+    assert xs[0] == pytest.approx(0.524)  # from the first jump: the approach from 1e-10 is no part of it
+    assert ax_loop.get_xlim()[0] >= 0.5e-12 * 15.0  # the stuck 1e-54 drawn at the clipped bottom
+    assert "from the first jump" in ax_loop.get_title() and "stopped before the transient" in ax_loop.get_title()
+
+
+def test_stick_slip_map_panel_b_keeps_k_and_the_status_apart(tmp_path):
+    """#30 item 5: k per repeat on its own axis (no twin of the time axis), the lanes without
+    a repeat and the stopped ones on a strip of named rows, not at heights of the time axis."""
+    from test_stick_slip_map import _hand_made_map
+
+    from peeljax.stick_slip_plots import plot_stick_slip_map
+
+    fig = plot_stick_slip_map(_hand_made_map(), path=tmp_path / "map.png")
+    fig.canvas.draw()
+    ax_G, ax_T, ax_k, ax_S, ax_v = fig.axes[:5]
+    assert len(fig.axes) == 5  # no twin axis
+    assert ax_k.get_ylabel() == "k per repeat" and ax_k.get_ylim()[0] < 1 < 22 < ax_k.get_ylim()[1] <= 1.6 * 22
+    assert [t.get_text() for t in ax_S.get_yticklabels()] == ["stopped", "no repeat", "too few"]
+    rows = {round(float(y)) for line in ax_S.get_lines() for y in line.get_ydata()}
+    assert rows <= {0, 1, 2} and 0 in rows and 1 in rows  # a stopped lane and lanes without a repeat
+    lo, hi = ax_T.get_ylim()
+    assert lo >= 2e-3 / 1.7 and hi <= 0.233 * 1.7  # the periods and intervals, no room kept for markers

@@ -154,7 +154,7 @@ def test_summary_and_figure(smap, tmp_path):
     path = tmp_path / "map.png"
     fig = plot_stick_slip_map(smap, title="test map", path=path)
     assert path.read_bytes()[:8] == PNG_MAGIC
-    assert len(fig.axes) == 4  # three panels and the right axis of (b)
+    assert len(fig.axes) == 5  # three panels, and (b)'s k axis and status strip
 
 
 @pytest.mark.slow
