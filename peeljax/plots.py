@@ -621,30 +621,43 @@ def plot_sweep_map(result, *, title: str | None = None, path: str | Path | None 
 
 
 def plot_fit(result, observations, *, model: PeelingModel | None = None, title: str | None = None, path: str | Path | None = None) -> Figure:
-    """A fit (:func:`peeljax.fit_adhesion`): observed v(t) (and F(t)) against the fitted
-    model's run at each V, and the fitted φ(v, V) against the start over the visited v range."""
+    """A trajectory fit (:func:`peeljax.fit_adhesion`): each observed quantity (v, the tension F,
+    the angle α: those the observations hold, one row each) against the fitted model's run at
+    each V (one column each), and the fitted φ(v, V) against the start over the visited v range."""
     import jax.numpy as jnp
 
+    from .fit.trajectory import QUANTITIES
     from .simulate import simulate
 
     model = PeelingModel() if model is None else model
     settings = result.settings
     n = len(observations)
-    fig = Figure(figsize=(4.2 * (n + 1), 3.4), layout="constrained")
+    quantities = [q for q in QUANTITIES if any(obs.series(q) is not None for obs in observations)]
+    units = {"v": "v [m/s]", "F": "tension F [N]", "alpha": "angle α [rad]"}
+    mosaic = [[f"{q}{j}" for j in range(n)] + ["phi"] for q in quantities]
+    fig = Figure(figsize=(4.2 * (n + 1), 2.6 * len(quantities) + 0.8), layout="constrained")
     FigureCanvasAgg(fig)
-    axes = fig.subplots(1, n + 1, squeeze=False)[0]
-    for ax, obs in zip(axes, observations):
-        fitted = PeelingModel(R=model.R, I=model.I, k=model.k, l=model.l, adhesion=result.adhesion, geometry=model.geometry)
-        engine = {"dt": settings["dt"]} if settings.get("dt") is not None else {"rtol": settings["rtol"], "atol": settings["atol"]}
+    panels = fig.subplot_mosaic(mosaic)
+    fitted = PeelingModel(R=model.R, I=model.I, k=model.k, l=model.l, adhesion=result.adhesion, geometry=model.geometry)
+    engine = {"dt": settings["dt"]} if settings.get("dt") is not None else {"rtol": settings["rtol"], "atol": settings["atol"]}
+    for j, obs in enumerate(observations):
         run = simulate(fitted, V=obs.V, tau=settings["tau"], t_final=settings["t_final"], **engine)
-        t, v = obs.series("v")
-        ax.plot(t, v, ".", ms=2, color="0.5", label="data v")
-        ax.plot(np.asarray(run.ts), np.asarray(run.v), "-", color="C0", label="fitted model v")
-        ax.set_xlabel("t [s]")
-        ax.set_ylabel("v [m/s]")
-        ax.set_title(f"V = {obs.V:g} m/s")
-        ax.legend(fontsize=7)
-    ax = axes[-1]
+        series = _host_series(run, fitted)
+        for q in quantities:
+            ax = panels[f"{q}{j}"]
+            data = obs.series(q)
+            if data is not None:
+                ax.plot(*data, ".", ms=2, color="0.5", label=f"data {q}")
+            else:
+                ax.text(0.5, 0.9, f"no {q} observed at this V", transform=ax.transAxes, ha="center", fontsize=7)
+            ax.plot(series["t"], series[q], "-", color="C0", label=f"fitted model {q}")
+            ax.set_ylabel(units[q])
+            if q == quantities[0]:
+                ax.set_title(f"V = {obs.V:g} m/s")
+            if q == quantities[-1]:
+                ax.set_xlabel("t [s]")
+            ax.legend(fontsize=7)
+    ax = panels["phi"]
     lo, hi = result.v_range
     lo = max(lo, 1e-12)
     v = np.geomspace(lo, max(hi, lo * 10), 300)

@@ -249,3 +249,31 @@ def test_stick_slip_map_panel_b_keeps_k_and_the_status_apart(tmp_path):
     assert rows <= {0, 1, 2} and 0 in rows and 1 in rows  # a stopped lane and lanes without a repeat
     lo, hi = ax_T.get_ylim()
     assert lo >= 2e-3 / 1.7 and hi <= 0.233 * 1.7  # the periods and intervals, no room kept for markers
+
+
+@pytest.mark.slow
+def test_trajectory_fit_plot_shows_every_fitted_quantity(tmp_path):
+    """#30 item 8: the fit figure has a row per observed quantity (v, F, α), data and the fitted
+    model's run, not v alone; a quantity one observation lacks says so."""
+    from types import SimpleNamespace
+
+    from peeljax import AdhesionLaw, PeelingModel, simulate
+    from peeljax.fit import Observation
+    from peeljax.plots import plot_fit
+
+    model = PeelingModel()
+    run = simulate(model, V=1.1, tau=0.01, dt=0.01, t_final=0.3)
+    t, ys = np.asarray(run.ts), np.asarray(run.ys)
+    F = np.asarray(model.tension(ys[:, 2], ys[:, 0]))
+    observations = [Observation(V=1.1, t=t, v=ys[:, 3], F=F, alpha=ys[:, 0]), Observation(V=1.1, t=t, v=ys[:, 3], F=F)]
+    law = AdhesionLaw()
+    result = SimpleNamespace(settings={"dt": 0.01, "tau": 0.01, "t_final": 0.3}, adhesion=law, start=law,
+                             v_range=(1e-3, 10.0), initial_loss=1.0, final_loss=0.1, steps=3)  # fmt: skip
+    fig = plot_fit(result, observations, path=tmp_path / "fit.png")
+    assert (tmp_path / "fit.png").read_bytes()[:8] == PNG_MAGIC
+    ylabels = [ax.get_ylabel() for ax in fig.axes]
+    for label in ("v [m/s]", "tension F [N]", "angle α [rad]"):
+        assert ylabels.count(label) == 2, label  # one panel per observation
+    assert ylabels.count("φ(v, V) [N]") == 1
+    texts = [text.get_text() for ax in fig.axes for text in ax.texts]
+    assert texts == ["no alpha observed at this V"]
