@@ -51,7 +51,7 @@ def test_npz_holds_the_jumps(dae_run):
         assert arrays[key].shape == (record["jumps"],), key
     assert arrays["jump_up"].dtype == bool and arrays["jump_t"].dtype == np.float64
     assert str(arrays["fold"]) == "jump" and int(arrays["max_jumps"]) == 10_000
-    assert float(arrays["transient"]) == pytest.approx(0.5 / 3)
+    assert float(arrays["transient"]) == pytest.approx(0.5 / 2)
     t = arrays["jump_t"]
     assert np.all(np.isfinite(arrays["jump_G"])) and np.all(np.diff(t) > 0)
     assert 0 < t[0] and t[-1] <= float(arrays["t_stop"])
@@ -88,7 +88,7 @@ def test_G_is_continuous_across_the_jumps(dae_run):
 def test_json_cycles_match_the_npz(dae_run):
     record, arrays = dae_run["record"], dae_run["arrays"]
     cycles = record["cycles"]
-    assert cycles["transient"] == pytest.approx(0.5 / 3) and cycles["t_end"] == pytest.approx(record["t_stop"])
+    assert cycles["transient"] == pytest.approx(0.5 / 2) and cycles["t_end"] == pytest.approx(record["t_stop"])
     assert 0 < cycles["jumps"] <= record["jumps"]
     # what the npz holds gives the same statistics
     again = cycle_statistics(arrays, float(arrays["t_stop"]), transient=float(arrays["transient"])).as_dict()

@@ -78,6 +78,7 @@ def test_fit_table_end_to_end(tmp_path):
          "--max-iterations", "3", "--out", str(out), "--plot", str(png), "--json"]
     )  # fmt: skip
     assert code == 0, err
+    assert "Levenberg-Marquardt: iteration 1, loss" in err  # progress on stderr (no --no-progress)
     record = json.loads(stdout)
     assert record["stop_reason"]
     assert record["uncertainty"]["names"] == ["c1"]

@@ -335,7 +335,9 @@ def _table_command(args: argparse.Namespace, config: dict) -> int:
         file=sys.stderr,
     )
     model = PeelingModel(adhesion=config["start"])
-    progress = {"progress": _iteration_line("Levenberg-Marquardt")} if options.progress_on(args) else {}
+    # the hook of fit_stick_slip (progress(iteration, chi2)); left out where it has none
+    hooked = options.progress_on(args) and "progress" in _TABLE_DEFAULTS
+    progress = {"progress": _iteration_line("Levenberg-Marquardt")} if hooked else {}
     result = fit_stick_slip(
         table, model, free=config["free"], statistics=config["statistics"], tau=config["tau"],
         transient=config["transient"], window=config["window"], rtol=config["rtol"], atol=config["atol"],
