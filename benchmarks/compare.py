@@ -58,8 +58,8 @@ unless marked "(log v)"; peeljax and the numba loop discretise (α, ω, u, log v
 
     python benchmarks/compare.py                  # full: ~5.5 min on a 2-core Intel Xeon (9-14 min on a 2-core
                                                   # AMD EPYC); P3 on 1024 trajectories
-    python benchmarks/compare.py --quick          # ~2.5 min: τ = 0.01 only, P3 on 16 trajectories, fewer settings;
-                                                  # --smoke (the test): ~1.3 min, one setting per peer
+    python benchmarks/compare.py --quick          # ~2.5 min: τ = 0.01 only, P3 on 16 trajectories, fewer settings
+    python benchmarks/compare.py --smoke          # the test: one setting per peer, its times mean nothing
     python benchmarks/compare.py --only P3 P4     # some problems only (P1 includes P2)
     python benchmarks/compare.py --report-only benchmarks/results/latest.json   # the report alone, from the JSON
 
@@ -71,6 +71,14 @@ Times are medians of repeated runs after a warm-up run, measured round-robin so 
 the shared machine hits every peer alike; compile times are listed apart. Much of --quick and
 --smoke is compilation (peeljax's gradient alone compiles for ~1–1.5 min here). Nothing here is
 asserted by a test except that the script runs (``tests/test_compare_script.py``).
+
+``--smoke`` checks that every peer runs and is reported, as cheaply as that can be shown: one
+setting per peer family (diffrax: Kvaerno5 only; P3 on 4 trajectories, one per V; P4 without the
+error-controlled gradient, whose compilation alone takes minutes and whose derivatives
+``tests/test_adaptive.py`` checks), and XLA compiling without LLVM optimization
+(``--xla_backend_optimization_level=0``: a third less compile time, slower runs), so its times mean
+nothing. In every mode the JAX compilations inside each P1 peer's timed calls are counted
+(``compiles_in_run``, 0 when its ``setup`` built everything; the test asserts it).
 
 Modules: this file measures (P1–P5) and writes the JSON; ``compare_problems.py`` holds the
 problems (constants, grids, references, calibration helpers); ``peers/`` one module per peer
@@ -136,6 +144,20 @@ from peers.scipy_peer import ScipyPeer, dae_index1_ode, radau_y
 from peers.sundials_peer import CvodeBatch, CvodePeer, dae_ida
 
 
+_COMPILES = [0]  # JAX backend compilations in this process so far (``count_compilations``)
+
+
+def count_compilations():
+    """Count JAX's backend compilations from now on in ``_COMPILES`` (JAX's own monitoring events)."""
+    import jax
+
+    def listener(name, duration, **kwargs):
+        if name == "/jax/core/compile/backend_compile_duration":
+            _COMPILES[0] += 1
+
+    jax.monitoring.register_event_duration_secs_listener(listener)
+
+
 # --------------------------------------------------------------------------- (P1, P2) one trajectory
 def check(peer: Peer, v_ref: np.ndarray):
     """Prepare the peer and run each setting once (warm-up, compilation), checking its answer."""
@@ -152,9 +174,10 @@ def check(peer: Peer, v_ref: np.ndarray):
             started = time.perf_counter()
             peer.setup(setting)  # the solver object, integrator or compiled program: set-up, not the run
             setup = time.perf_counter() - started
-            started = time.perf_counter()
+            compiled, started = _COMPILES[0], time.perf_counter()
             v = peer.run(setting)
             first = time.perf_counter() - started
+            compiled = _COMPILES[0] - compiled  # after setup, a run compiles nothing
         except Exception as error:  # noqa: BLE001 (a failing setting is reported)
             rows.append({"setting": setting, "status": f"failed: {one_line(error)}"})
             continue
@@ -162,14 +185,14 @@ def check(peer: Peer, v_ref: np.ndarray):
         if not finite.all():
             stop = GRID[np.argmin(finite)] if not finite[0] else GRID[np.argmax(~finite) - 1]
             rows.append({"setting": setting, "status": f"stopped near t = {stop:.3g} s", "setup_s": setup,
-                         "first_s": first})  # fmt: skip
+                         "first_s": first, "compiles_in_run": compiled})  # fmt: skip
             continue
         error = float(np.max(np.abs(v - v_ref)))
         # Wrong: off by 10 % of max|v|, or (adaptive peers) far above what the tolerance asks.
         limit = 0.1 if peer.setting_name != "rtol" else min(0.1, max(1e3 * setting, 1e-4))
         status = "ok" if error <= limit * scale else f"wrong answer (max/Δv/ = {error:.2g})"
         rows.append({"setting": setting, "status": status, "error": error, "setup_s": setup, "first_s": first,
-                     "times": []})  # fmt: skip
+                     "times": [], "compiles_in_run": compiled})  # fmt: skip
     return rows
 
 
@@ -179,24 +202,24 @@ def time_round_robin(peers, rows_of, repeats):
         for peer in peers:
             for row in rows_of[peer.name]:
                 if row.get("status") == "ok":
-                    started = time.perf_counter()
+                    compiled, started = _COMPILES[0], time.perf_counter()
                     peer.run(row["setting"])
                     row["times"].append(time.perf_counter() - started)
+                    row["compiles_in_run"] += _COMPILES[0] - compiled
     for rows in rows_of.values():
         for row in rows:
             if row.get("times"):
                 row["median_s"] = float(np.median(row["times"]))
 
 
-def measure_one_trajectory(tau, steps, rtols, adaptive_rtols, petsc_rtols, repeats):
+def measure_one_trajectory(tau, steps, rtols, adaptive_rtols, petsc_rtols, repeats, diffrax_solvers):
     """(P1, P2) at τ: every peer checked against the reference at each setting, then timed round-robin."""
     v_ref = reference(tau)
     peers = [
         PeeljaxAlpha(tau, steps),
         PeeljaxAdaptive(tau, adaptive_rtols),
         NumbaAlpha(tau, steps),
-        DiffraxPeer(tau, rtols, "Kvaerno5"),
-        DiffraxPeer(tau, rtols, "Kvaerno3"),
+        *(DiffraxPeer(tau, rtols, solver) for solver in diffrax_solvers),
         ScipyPeer(tau, rtols, "Radau"),
         ScipyPeer(tau, rtols, "BDF"),
         ScipyPeer(tau, rtols, "BDF", log_v=True),
@@ -521,12 +544,12 @@ def mode_settings(quick, smoke):
     if smoke:
         steps, rtols = (300,), (1e-4,)
         adaptive_rtols, petsc_rtols = (1e-5,), (1e-3,)
-        p3 = {"n_tau": 2, "per_v": 2, "radau_count": 2, "repeats": 1, "settings": {
+        p3 = {"n_tau": 1, "per_v": 1, "radau_count": 1, "repeats": 1, "settings": {
             "rtols_adaptive": (1e-4,), "steps": (300,), "rtols_diffrax": (1e-3,), "rtols_loop": (1e-4,),
             "rtols_radau": (1e-5,)}}
         p4 = {"repeats": 1, "settings": {
             "steps": (82,), "rtols_casadi": (1e-6,), "rtols_casadi_fd": (1e-8,), "rtols_diffrax": (),
-            "rtols_adaptive": (1e-6,)}}
+            "rtols_adaptive": ()}}
         p5 = {"velocities": (1.1,), "rtols": (1e-6,)}
     elif quick:
         steps, rtols = (300, 1200, 4800, 9600), (1e-3, 1e-5, 1e-7)
@@ -551,13 +574,15 @@ def mode_settings(quick, smoke):
             "rtols_diffrax": (1e-6, 1e-8, 1e-10), "rtols_adaptive": (1e-4, 1e-6, 1e-8)}}
         p5 = {"velocities": (1.1, 2.0, 4.0), "rtols": (1e-4, 1e-6, 1e-8)}
     p1 = {"taus": (0.01,) if (quick or smoke) else (0.01, 0.1), "steps": steps, "rtols": rtols,
-          "adaptive_rtols": adaptive_rtols, "petsc_rtols": petsc_rtols}  # fmt: skip
+          "adaptive_rtols": adaptive_rtols, "petsc_rtols": petsc_rtols,
+          "diffrax": ("Kvaerno5",) if smoke else ("Kvaerno5", "Kvaerno3")}  # fmt: skip
     return p1, p3, p4, p5
 
 
 def measure(args):
     """Run the problems of ``args.only`` in the mode of ``args``; the JSON-able results."""
     p1, p3, p4, p5 = mode_settings(args.quick, args.smoke)
+    count_compilations()
     repeats = args.repeats or (1 if args.smoke else 3 if args.quick else 5)
     suffix = "_quick" if args.quick else "_smoke" if args.smoke else ""
     started = time.perf_counter()
@@ -577,7 +602,7 @@ def measure(args):
     }
     for tau in p1["taus"] if "P1" in args.only else ():
         data["p1"].append(measure_one_trajectory(
-            tau, p1["steps"], p1["rtols"], p1["adaptive_rtols"], p1["petsc_rtols"], repeats))  # fmt: skip
+            tau, p1["steps"], p1["rtols"], p1["adaptive_rtols"], p1["petsc_rtols"], repeats, p1["diffrax"]))  # fmt: skip
     if "P3" in args.only:
         data["p3"] = measure_batch(p3["n_tau"], p3["per_v"], p3["settings"], args.repeats or p3["repeats"],
                                    p3["radau_count"])  # fmt: skip
@@ -608,6 +633,8 @@ def main(argv=None):
     parser.add_argument("--report-only", metavar="FILE.json", default=None,
                         help="measure nothing: write the report (markdown and plot) from this JSON")  # fmt: skip
     args = parser.parse_args(argv)
+    if args.smoke and not args.report_only:  # before JAX's backend starts; the smoke's times are not read
+        os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=0").strip()
     import compare_report
 
     if args.report_only:

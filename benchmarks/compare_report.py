@@ -112,6 +112,13 @@ def one_trajectory_section(emit, entry):
          "the JAX and numba peers' compilation (their first call: a program compiled at an earlier "
          "setting, or for the reference, is reused, and the column then holds one run), CasADi's integrator "
          "and CVODE's solver object; scipy's `solve_ivp` has no object to build.")  # fmt: skip
+    counted = [r for peer in peers for r in peer["rows"] if "compiles_in_run" in r]
+    if counted:  # JSON files from before the count have none
+        compiling = [f"{peer['name']} at {r['setting']:g} ({r['compiles_in_run']})" for peer in peers
+                     for r in peer["rows"] if r.get("compiles_in_run")]  # fmt: skip
+        emit()
+        emit("JAX compilations inside the timed calls (the checking run and the timed runs, after `setup`): "
+             + ("none." if not compiling else "**" + ", ".join(compiling) + "**: their times include compilation."))
     emit()
     emit("### (P2) work-precision: every setting")
     emit()

@@ -2,7 +2,9 @@
 
 peeljax's compilation is kept out of its timings, so every peer's one-time set-up must be too
 (CasADi's integrator, CVODE's solver object, a JAX or numba compilation). Constructions are
-counted by wrapping the constructors; JAX compilations by JAX's own compile events.
+counted here by wrapping the constructors. JAX compilations are counted by ``compare.py`` itself,
+in every run, from JAX's own compile events (``compiles_in_run``): ``tests/test_compare_script.py``
+asserts none for its JAX peers in the smoke run, which compiles them anyway.
 """
 
 from __future__ import annotations
@@ -39,22 +41,6 @@ def constructions(monkeypatch):
     monkeypatch.setattr(casadi, "integrator", counted_integrator)
     monkeypatch.setattr(cvode_module, "CVODE", counted_cvode)
     return counts
-
-
-@pytest.fixture
-def compilations():
-    """A list that grows by one entry per JAX backend compilation while the test runs."""
-    import jax
-
-    events, active = [], [True]
-
-    def listener(name, duration, **kwargs):
-        if active[0] and name == "/jax/core/compile/backend_compile_duration":
-            events.append(name)
-
-    jax.monitoring.register_event_duration_secs_listener(listener)
-    yield events
-    active[0] = False  # JAX keeps listeners for the process: silence this one
 
 
 def _peers():
@@ -95,16 +81,3 @@ def test_p3_loops_construct_one_solver_per_rtol(constructions):
         assert constructions == after_setup, f"{type(batch).__name__}: a call constructed a solver"
         np.testing.assert_allclose(batch(1.1, 0.1, RTOL), first, rtol=0, atol=0)  # (V, τ) set per call, not stale
         assert RTOL in batch.setup_seconds
-
-
-@pytest.mark.slow
-def test_jax_peers_compile_in_setup_only(compilations):
-    from peers.diffrax_peer import DiffraxPeer
-    from peers.peeljax_peer import PeeljaxAdaptive
-
-    for peer in (PeeljaxAdaptive(0.1, [RTOL]), DiffraxPeer(0.1, [RTOL], "Kvaerno5")):
-        peer.prepare()
-        peer.setup(RTOL)
-        compiled = len(compilations)
-        peer.run(RTOL)
-        assert len(compilations) == compiled, f"{peer.name}: run() compiled"

@@ -68,12 +68,14 @@ def test_targets_state_both_ratios():
 
 @pytest.mark.slow
 def test_the_while_loop_peer_finds_every_jump():
+    # Over [0, 0.5] s: the first stick → slip and 15 more cycles, 32 jumps (P6's 3 s hold 210; the
+    # restarts are the same, and the reference and the run take a sixth of the time).
     ref = jump_reference()
-    reference = ref.reference_jump_run(1.1, 3.0, rtol=1e-12, atol=1e-14, method="LSODA")["jump_t"]
-    peer = DiffraxWhileLoop([1e-8])
+    reference = ref.reference_jump_run(1.1, 0.5, rtol=1e-12, atol=1e-14, method="LSODA")["jump_t"]
+    peer = DiffraxWhileLoop([1e-8], t_final=0.5)
     peer.prepare()
     jumps = peer.run(1e-8)
-    assert jumps.size == reference.size == 210
+    assert jumps.size == reference.size == 32
     assert np.max(np.abs(jumps - reference)) < 2e-6
     stats = peer.run_stats(1e-8)
-    assert stats["restarts"] == 210 and stats["accepted_steps"] > 1000 and stats["rejected_steps"] >= 0
+    assert stats["restarts"] == 32 and stats["accepted_steps"] > 500 and stats["rejected_steps"] >= 0

@@ -836,7 +836,11 @@ def compare_adaptive_with_peeljax(V=1.1, tau=0.01, rtol=1e-6, atol=None, t_final
     }
 
 
-if __name__ == "__main__":
+def main(argv=None):
+    """The checks: ψ' against autodiff, the loops against ``peeljax.simulate`` (uniform and error control)."""
+    import argparse
+
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args(argv)
     print("max rel. difference of ψ, ψ' vs jax autodiff:", check_jacobian())
     import peeljax
 
@@ -852,3 +856,15 @@ if __name__ == "__main__":
     for tau in (0.01, 0.1):  # error control
         for rtol in (1e-4, 1e-6):
             print(f"error control, τ = {tau:g}, rtol = {rtol:g}:", compare_adaptive_with_peeljax(tau=tau, rtol=rtol))
+
+
+if __name__ == "__main__":
+    # Run as the module the peers import (``peers.compiled_loop``): numba's on-disk cache rebuilds a
+    # function's environment by its module's name, which a ``__main__`` copy would not match.
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from peers.compiled_loop import main as _main
+
+    _main()

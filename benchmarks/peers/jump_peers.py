@@ -307,14 +307,14 @@ class DiffraxWhileLoop(Peer):
     (located by ``optimistix.Newton`` on the step's dense output, as :class:`DiffraxEvents`),
     applies ``ConstrainedDAE.jump`` at the event's state (``sol.ys[-1]`` with
     ``SaveAt(t1=True)``), writes the event time into a buffer of ``slots`` jump times and
-    restarts from there, until ``T_FINAL`` (or a failed segment, or a full buffer). rtol and
+    restarts from there, until ``t_final`` (default ``T_FINAL``; or a failed segment, or a full buffer). rtol and
     atol are traced: the program is compiled once, ahead of time, in ``prepare``. The vector
     field is ``ConstrainedDAE.evaluate(y).psi`` on y = (α, ω, u, v) (v solved from the constraint).
     """
 
-    def __init__(self, settings, solver=None, V=V, max_steps=1_000_000, slots=512):
+    def __init__(self, settings, solver=None, V=V, max_steps=1_000_000, slots=512, t_final=T_FINAL):
         super().__init__(0.0, settings)
-        self.solver, self.V, self.max_steps, self.slots = solver, V, max_steps, slots
+        self.solver, self.V, self.max_steps, self.slots, self.t_final = solver, V, max_steps, slots, t_final
         solver_name = "Tsit5" if solver is None else type(solver).__name__
         self.name = f"diffrax {solver_name} + Event, one lax.while_loop"
         self._last = None
@@ -332,7 +332,7 @@ class DiffraxWhileLoop(Peer):
         model = peeljax.PeelingModel()
         ode = peeljax.ConstrainedDAE(model, self.V).with_folds()
         y0 = jnp.asarray(model.initial_state(self.V))
-        t_final = jnp.asarray(T_FINAL)
+        t_final = jnp.asarray(self.t_final)
         term = diffrax.ODETerm(lambda t, y, args: ode.evaluate(y).psi)
         event = diffrax.Event(
             lambda t, y, args, **kwargs: ode.fold_event(y), root_finder=optx.Newton(rtol=1e-13, atol=1e-13)
@@ -377,7 +377,7 @@ class DiffraxWhileLoop(Peer):
         self._last = {"accepted_steps": int(accepted), "rejected_steps": int(rejected), "restarts": n}
         if not ok:
             raise RuntimeError(f"diffeqsolve stopped at t = {t:.9g} s")
-        if n >= self.slots and t < T_FINAL:
+        if n >= self.slots and t < self.t_final:
             raise RuntimeError(f"the buffer of {self.slots} jump times is full at t = {t:.9g} s")
         return np.asarray(buffer)[:n]
 

@@ -41,7 +41,7 @@ the call used (the sweep: its JAX devices; a loop: 1), beside the process CPU ti
 
     python benchmarks/studies/vmap_lane_cost.py           # ~10 min on 2 shared cores -> results/vmap_lane_cost.md (+ .json)
     python benchmarks/studies/vmap_lane_cost.py --quick   # 40 lanes, 4 calibration V -> results/vmap_lane_cost_quick.md
-    python benchmarks/studies/vmap_lane_cost.py --tiny --out /tmp/x.md   # the test's run (4 lanes, ~25 s)
+    python benchmarks/studies/vmap_lane_cost.py --tiny --out /tmp/x.md   # the test's run (4 lanes; XLA unoptimized)
     python benchmarks/studies/vmap_lane_cost.py --report-only benchmarks/studies/results/vmap_lane_cost.json   # the report alone
 """
 
@@ -657,6 +657,8 @@ def parse(argv=None):
 
 def main(argv=None):
     args = parse(argv)
+    if args.tiny and not args.report_only:  # before JAX starts; the test's run reads no time
+        os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=0").strip()
     if args.report_only:
         data = json.loads(args.report_only.read_text())
     else:
