@@ -1,16 +1,23 @@
 """Stick-slip statistics of a run, the uncertainties of a least-squares fit, and the table fit."""
 
+import sys
+from pathlib import Path
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import scipy.optimize
 import scipy.stats
 
 from peeljax.adhesion import AdhesionLaw
 from peeljax.fit import StickSlipTable, fit_stick_slip, jump_statistics, phi_relative_error
+from peeljax.fit.statistics import window_scatter
 from peeljax.fit.stick_slip_table import STATISTICS
-from peeljax.fit.plots import synthetic_table
+from peeljax.fit.table import _REASONS, CONVERGED, _Marquardt
 from peeljax.fit.uncertainty import quantile, uncertainty_from_jacobian
 from peeljax.solution import JumpRecord
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 
 def _record(events):
@@ -34,6 +41,19 @@ def test_jump_statistics_of_a_known_record():
     assert got["F_stick"] == pytest.approx(5.0)
     assert got["period"] == pytest.approx(1.0)
     assert got["slip_duration"] == pytest.approx(0.25)
+
+
+def test_window_scatter_is_the_spread_over_the_cycles_per_cycle():
+    """s/n: the record above: F at the slips 10, 12, 14 → 2/3; at the re-sticks 4, 6 → √2/2; equal
+    gaps and slip durations → 0; F_mean (whole cycles) → 0."""
+    events = [(0.5, False, 0.0), (1.0, True, 10.0), (1.25, False, 4.0), (2.0, True, 12.0), (2.25, False, 6.0),
+              (3.0, True, 14.0), (3.5, False, 100.0)]  # fmt: skip
+    got = np.asarray(window_scatter(_record(events), 0.9, 3.2))
+    np.testing.assert_allclose(got, [0.0, 2 / 3, np.sqrt(2) / 2, 0.0, 0.0], atol=1e-12)
+    uneven = [(1.0, True, 10.0), (1.2, False, 4.0), (2.0, True, 12.0), (2.5, False, 6.0), (4.0, True, 14.0)]
+    gaps, durations = np.array([1.0, 2.0]), np.array([0.2, 0.5])
+    got = np.asarray(window_scatter(_record(uneven), 0.0, 5.0))
+    np.testing.assert_allclose(got[3:], [np.std(gaps, ddof=1) / 2, np.std(durations, ddof=1) / 2])
 
 
 def test_jump_statistics_without_slips_has_only_the_mean_force():
@@ -64,6 +84,76 @@ def test_a_coefficient_the_data_cannot_see_is_named():
     assert "not determined by the data: c3" in unc.table()
 
 
+def test_covariance_is_scaled_by_chi2_per_dof_only_where_the_sigma_are_too_small():
+    """'auto' scales by max(1, χ²/dof) (curve_fit's scaling, never below the σ given); True always
+    (curve_fit's default), False never; the summary says which."""
+    rng = np.random.default_rng(1)
+    J = rng.normal(size=(40, 2))
+    unit = np.linalg.inv(J.T @ J)
+    for factor in (3.0, 0.5):
+        r = factor * rng.normal(size=40)
+        ratio = float(r @ r) / 38
+        got = {rule: uncertainty_from_jacobian(J, r, np.ones(2), ("a", "b"), scaled=rule) for rule in ("auto", True, False)}
+        np.testing.assert_allclose(got["auto"].covariance, max(1.0, ratio) * unit, rtol=1e-10)
+        np.testing.assert_allclose(got[True].covariance, ratio * unit, rtol=1e-10)
+        np.testing.assert_allclose(got[False].covariance, unit, rtol=1e-10)
+        assert got["auto"].chi2_dof == pytest.approx(ratio) and got["auto"].scaled == (ratio > 1)
+        assert ("covariance scaled by chi2/dof" in got["auto"].table()) == (ratio > 1)
+        assert (ratio > 1) == (factor > 1)  # the draws are what they claim
+    with pytest.raises(ValueError, match="scale_covariance"):
+        uncertainty_from_jacobian(J, r, np.ones(2), ("a", "b"), scaled="sometimes")
+
+
+def test_singular_directions_name_the_combination_the_data_determine():
+    """Two coefficients seen only through their product: log a + log b is determined (its standard
+    error 1/S_1), log a − log b is not; the summary lists the combinations."""
+    J = np.zeros((20, 2))
+    J[:, 0] = J[:, 1] = np.linspace(1.0, 2.0, 20)
+    J[:, 1] += 1e-3 * np.linspace(-1.0, 1.0, 20)  # nearly, not exactly, one direction
+    unc = uncertainty_from_jacobian(J, np.zeros(20), np.ones(2), ("c1", "c6"), scaled=False)
+    (best, best_err), (worst, worst_err) = unc.combinations()
+    assert best == "+0.71·log c1 +0.71·log c6" and worst == "+0.71·log c1 -0.71·log c6"
+    assert best_err == pytest.approx(1 / np.linalg.svd(J, compute_uv=False)[0], rel=1e-12)
+    assert worst_err > 1e3 * best_err and unc.max_correlation() > 0.99
+    assert "+0.71·log c1 +0.71·log c6" in unc.table()
+
+
+def _marquardt(residuals, z0, **options):
+    """Drive _Marquardt to its end on an analytic problem (J by finite differences of 1e-7)."""
+
+    def evaluate(z):
+        r = residuals(z)
+        J = np.stack([(residuals(z + 1e-7 * e) - r) / 1e-7 for e in np.eye(len(z))], axis=1)
+        return r, J, np.zeros((1, 2))
+
+    run = _Marquardt(np.asarray(z0, float), *evaluate(np.asarray(z0, float)), **options)
+    while run.reason is None:
+        run.take(*evaluate(run.trial()))
+    return run
+
+
+def test_levenberg_marquardt_runs_to_convergence_and_says_which_test_stopped_it():
+    """An exponential decay y = a·exp(−b·t) with noise: converged by the Gauss–Newton test at the
+    least-squares optimum (scipy's), from a start 50 % off; a budget of 3 evaluations stops it
+    with that reason; a residual that cannot be lowered stalls."""
+    t = np.linspace(0.0, 3.0, 30)
+    y = 2.0 * np.exp(-1.3 * t) + 0.01 * np.random.default_rng(0).normal(size=30)
+
+    def residuals(z):
+        return (np.exp(z[0]) * np.exp(-np.exp(z[1]) * t) - y) / 0.01
+
+    options = {"fit_rtol": 1e-10, "fit_atol": 1e-6, "max_iterations": 50}
+    run = _marquardt(residuals, np.log([3.0, 0.65]), **options)
+    expected = scipy.optimize.least_squares(residuals, np.log([3.0, 0.65]), xtol=1e-14, ftol=1e-14).x
+    assert run.reason == "gauss-newton" and run.reason in CONVERGED
+    np.testing.assert_allclose(run.z, expected, atol=1e-5)
+    assert np.all(np.diff(run.history) < 0) and run.evaluations < 20
+    assert _marquardt(residuals, np.log([3.0, 0.65]), **{**options, "max_iterations": 3}).reason == "max_iterations"
+    assert "not converged" in _REASONS["max_iterations"] and "converged" in _REASONS["gauss-newton"]
+    flat = _marquardt(lambda z: np.array([1.0 + 1e-300 * z[0], 2.0]), [0.0], **options)
+    assert flat.reason == "gauss-newton"  # nothing to gain: converged at once, not an endless loop
+
+
 @pytest.mark.parametrize("dof", [5, 20, 100])
 def test_student_quantile(dof):
     assert quantile(0.95, dof) == pytest.approx(scipy.stats.t.ppf(0.975, dof), rel=1.2e-3)
@@ -76,6 +166,8 @@ def test_bad_options_are_refused_before_compiling():
         ({"window": -1.0}, "window"), ({"transient": -0.1}, "transient"), ({"n_starts": 0}, "n_starts"),
         ({"max_iterations": 0}, "max_iterations"), ({"tau": -1.0}, "tau"), ({"free": ["c99"]}, "c99"),
         ({"statistics": ["F_slip"]}, "F_slip"), ({"free": ["c1", "c3", "c6", "c5"]}, "free"),
+        ({"n_coarse": 0}, "n_coarse"), ({"n_starts": 5, "n_coarse": 4}, "n_starts"),
+        ({"coarse_spread": 0.0}, "coarse_spread"), ({"scale_covariance": "yes"}, "scale_covariance"),
     ):  # fmt: skip
         with pytest.raises(ValueError, match=name):
             fit_stick_slip(table, **kwargs)
@@ -83,24 +175,30 @@ def test_bad_options_are_refused_before_compiling():
         fit_stick_slip({"V": [1.0]})
 
 
-TRUTH = {"c1": 400 * 1.1}
-SETTINGS = {"transient": 0.3, "window": 0.5, "rtol": 1e-6, "atol": 1e-9}
+SETTINGS = {"transient": 0.3, "window": 0.5}
 
 
 @pytest.mark.slow
-def test_hidden_truth_table_of_one_coefficient_is_recovered():
-    """A table at 4 V from a φ with c1 10 % off the paper's (1 % noise), fitted from the paper's
-    φ: c1 within 1 %, the loss down 20×, a finite standard error. (Issue 20's acceptance
-    with three coefficients 12-15 % off is not met: docs/fitting.md, measured.)"""
-    truth = AdhesionLaw(**{**AdhesionLaw().coefficients(), **TRUTH})
-    V = np.array([0.8, 1.2, 1.6, 2.0])
-    table = synthetic_table(truth, V, noise=0.01, seed=1, **SETTINGS)
-    result = fit_stick_slip(table, free=("c1",), max_iterations=8, **SETTINGS)
+def test_hidden_truth_table_of_three_coefficients_is_recovered():
+    """Issue 28's target on its smallest problem (benchmarks/fit_acceptance.py --table runs it at
+    8 V): φ with c1 × 1.12, c3 × 1.06, c6 × 1.10, a table at 6 V (1 % noise and its σ, made at
+    the fit's tolerances, [0.5, 1.5] s), fitted from the paper's φ from the best of 4 coarse
+    points: every coefficient within 2 % of the truth and within 3 standard errors,
+    Levenberg–Marquardt converged (its stop reason names the test), χ²/dof reported, no residual
+    beyond 5 σ, φ within 2 % over the v visited. (At 4 V it ends at c1 + 2.3 %, 3.2 SE: measured.)"""
+    import fit_acceptance  # benchmarks/
+
+    V = (0.8, 1.0, 1.5, 2.2, 2.6, 3.0)
+    out = fit_acceptance.run_table(V=V, n_coarse=4, n_starts=1, max_iterations=15)
+    result, truth = out["result"], out["truth"]
+    u = result.uncertainty
+    assert result.converged and result.stop_reason.startswith("converged"), result.stop_reason
+    for name, value, se in zip(u.names, u.values, u.standard_errors):
+        true = float(getattr(truth, name))
+        assert abs(value / true - 1) < 0.02 and abs(value - true) < 3 * se, (name, value, true, se)
     assert result.final_loss < result.initial_loss / 20
-    assert float(result.adhesion.c1) == pytest.approx(TRUTH["c1"], rel=0.01)
-    # The interval is not asserted: for this draw the truth lies outside even the 99 % one
-    # (measured, docs/fitting.md): the standard errors are too small; issue 20 stays open on it.
-    se = float(result.uncertainty.standard_errors[0])
-    assert 0 < se < 0.01 * TRUTH["c1"]
-    assert result.stop_reason and result.uncertainty.undetermined == ()
-    assert phi_relative_error(result.adhesion, truth, V, result.v_range) < 0.01
+    assert result.dof == 6 * 5 - 3 and result.chi2_dof == pytest.approx(result.final_loss / 27)
+    assert f"chi2/dof = {result.chi2_dof:.3g}" in result.summary() and not result.outliers
+    assert phi_relative_error(result.adhesion, truth, V, result.v_range) < 0.02
+    record = result.to_dict()
+    assert record["chi2_dof"] == pytest.approx(result.chi2_dof) and len(record["optima"]) == 1

@@ -20,6 +20,15 @@ Over the window [t_start, t_end] (after a transient), with the same definitions 
   the fixed window would follow the phase of its partial cycle, which drifts with every
   coefficient (``docs/fitting.md``).
 
+**Cycle-to-cycle scatter** (:func:`window_scatter`): the model's slips come in bursts of
+unequal size, so a window statistic depends on which slips fall in the window: it jumps where
+a slip crosses the window's edge, by about s/n — s the sample standard deviation of the
+per-cycle values (F at each stick → slip / slip → stick jump, each time between consecutive
+stick → slip jumps, each slip's duration; 0 for ``F_mean``, a mean over whole cycles), n their
+number: one cycle more or less in a mean of n. That is what a table fit adds to the table's σ
+(:mod:`peeljax.fit.table`). Not s/√n: the cycles are not independent draws but a
+deterministic sequence, of which the window mean differs from the long-run one by its edges.
+
 A statistic is *available* when the window holds what it needs (two stick → slip jumps for
 ``period``, one slip for ``slip_duration``, …); a steady run (no fold of φ at V, or a stable
 steady state) has only ``F_mean``. The number of jumps in the window is held fixed in the
@@ -28,13 +37,14 @@ derivative (it changes only where an event crosses the window's edge).
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 from ..solution import JumpRecord
 from .stick_slip_table import STATISTICS
 
-__all__ = ["STATISTICS", "jump_statistics"]
+__all__ = ["STATISTICS", "jump_statistics", "window_scatter"]
 
 
 def jump_statistics(
@@ -77,3 +87,32 @@ def jump_statistics(
     values = jnp.stack([F_mean, F_slip, F_stick, period, slip_duration])
     available = jnp.stack([jnp.asarray(True), n_up >= 1, n_down >= 1, n_up >= 2, n_slips >= 1])
     return jnp.where(available, values, 0.0), available
+
+
+def window_scatter(jumps: JumpRecord, t_start, t_end) -> Float[Array, " 5"]:
+    """s/n over the window's cycles for each of :data:`STATISTICS` (module docstring; 0 where
+    fewer than two values): how much the window statistic moves with one cycle more or less in
+    the window. Not differentiated (a weight, as the table's σ)."""
+    jumps = jax.tree_util.tree_map(jax.lax.stop_gradient, jumps)
+    slot = jnp.arange(jumps.max_jumps)
+    inside = (slot < jumps.count) & (jumps.t >= t_start) & (jumps.t <= t_end)
+    up = inside & jumps.up
+    down = inside & ~jumps.up
+
+    def edge_error(mask, values):
+        n = jnp.sum(mask)
+        mean = jnp.sum(jnp.where(mask, values, 0.0)) / jnp.maximum(n, 1)
+        var = jnp.sum(jnp.where(mask, (values - mean) ** 2, 0.0)) / jnp.maximum(n - 1, 1)
+        return jnp.where(n >= 2, jnp.sqrt(var) / jnp.maximum(n, 1), 0.0)
+
+    # the stick → slip times in order (jumps are recorded in time order), then their gaps
+    t_up = jnp.sort(jnp.where(up, jumps.t, jnp.inf))
+    gaps = jnp.where(jnp.isfinite(t_up[1:]), t_up[1:] - jnp.where(jnp.isfinite(t_up[:-1]), t_up[:-1], 0.0), 0.0)
+    pair = up[:-1] & down[1:]
+    return jnp.stack([
+        jnp.asarray(0.0),
+        edge_error(up, jumps.F),
+        edge_error(down, jumps.F),
+        edge_error(jnp.isfinite(t_up[1:]), gaps),
+        edge_error(pair, jnp.where(pair, jumps.t[1:] - jumps.t[:-1], 0.0)),
+    ])  # fmt: skip

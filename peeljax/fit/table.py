@@ -49,7 +49,7 @@ from ..homogenized import HomogenizedODE
 from ..integrators.base import AbstractIntegrator
 from ..integrators.select import integrator_for
 from ..model import PeelingModel
-from .statistics import jump_statistics
+from .statistics import jump_statistics, window_scatter
 from .stick_slip_table import STATISTICS, StickSlipTable
 from .trajectory import FitResult, _check_free, _to_law
 from .uncertainty import uncertainty_from_jacobian
@@ -78,9 +78,15 @@ class TableFit(eqx.Module):
     window: float = eqx.field(static=True)
     n_samples: int = eqx.field(static=True)
     dae: bool = eqx.field(static=True)
+    cycle_scatter: bool = eqx.field(static=True, default=True)
 
     def run(self, law: AdhesionLaw, V) -> tuple[Array, Array, Array]:
         """One row: (statistics (5,), available (5,), (v_lo, v_hi) visited in the window)."""
+        return self.run_with_scatter(law, V)[:3]
+
+    def run_with_scatter(self, law: AdhesionLaw, V) -> tuple[Array, Array, Array, Array]:
+        """:meth:`run` and the statistics' cycle-to-cycle standard errors over the window
+        (:func:`peeljax.fit.statistics.window_scatter`)."""
         model = eqx.tree_at(lambda m: m.adhesion, self.model, law)
         ode = ConstrainedDAE(model, V) if self.dae else HomogenizedODE(model, V, self.tau)
         t_end = self.transient + self.window
@@ -89,30 +95,37 @@ class TableFit(eqx.Module):
         ys = jnp.where(sol.valid[:, None], sol.ys, 1.0)
         F = model.tension(ys[:, 2], ys[:, 0])
         values, available = jump_statistics(sol.jumps, F, self.transient, t_end)
+        scatter = window_scatter(sol.jumps, self.transient, t_end)
         v = jax.lax.stop_gradient(ys[:, 3])
-        return values, available & (sol.status == 0), jnp.stack([jnp.min(v), jnp.max(v)])
+        return values, available & (sol.status == 0), jnp.stack([jnp.min(v), jnp.max(v)]), scatter
 
     def statistics(self, theta) -> tuple[Array, Array, Array]:
         """Per row: the model's statistics, which are available, and the v range visited."""
+        return self.statistics_with_scatter(theta)[:3]
+
+    def statistics_with_scatter(self, theta) -> tuple[Array, Array, Array, Array]:
+        """:meth:`statistics` and each row's cycle-to-cycle standard errors (n, 5)."""
         law = _to_law(theta, self.start)
         # One row after another (lax.map), not vmap: under vmap the jump branch of every step
         # (root search, bisection) runs for all rows at every step, measured 20x slower.
-        return jax.lax.map(lambda V: self.run(law, V), self.V)
+        return jax.lax.map(lambda V: self.run_with_scatter(law, V), self.V)
 
     def residuals(self, theta, args=None) -> Float[Array, " m"]:
         """r(θ): the measured entries of (model − data)/σ, row by row."""
         return self.residuals_and_range(theta)[0]
 
     def residuals_and_range(self, theta) -> tuple[Float[Array, " m"], Float[Array, "n 2"]]:
-        """r(θ) and each row's (v_lo, v_hi) visited in its window (no derivative)."""
-        values, available, v_range = self.statistics(theta)
-        r = jnp.where(available, (values - self.data) / self.sigma, MISSING_RESIDUAL)
+        """r(θ) and each row's (v_lo, v_hi) visited in its window (no derivative); σ² is the
+        table's plus the model window's cycle-to-cycle scatter (``cycle_scatter``)."""
+        values, available, v_range, scatter = self.statistics_with_scatter(theta)
+        sigma = jnp.sqrt(self.sigma**2 + jnp.where(self.cycle_scatter, scatter**2, 0.0))
+        r = jnp.where(available, (values - self.data) / sigma, MISSING_RESIDUAL)
         return r[self.measured], jax.lax.stop_gradient(v_range)
 
 
 def build_table_fit(
     start: AdhesionLaw, model: PeelingModel, V, data, sigma, measured, *, names, tau, transient, window,
-    n_samples, rtol, atol, max_jumps, max_steps,
+    n_samples, rtol, atol, max_jumps, max_steps, cycle_scatter=True,
 ) -> TableFit:  # fmt: skip
     """The :class:`TableFit` of (n, 5) ``data``/``sigma``/``measured`` arrays at the pull
     velocities ``V``, its rows run with the error-controlled α-method through the folds
@@ -127,6 +140,7 @@ def build_table_fit(
         sigma=jnp.asarray(sigma, float), tau=jnp.asarray(float(tau)), integrator=integrator, names=tuple(names),
         measured=tuple(tuple(int(k) for k in a) for a in np.nonzero(measured)),
         transient=float(transient), window=float(window), n_samples=int(n_samples), dae=dae,
+        cycle_scatter=bool(cycle_scatter),
     )  # fmt: skip
 
 
@@ -173,13 +187,16 @@ def _missing(r) -> int:
 
 
 # Why Levenberg–Marquardt stopped: the converged reasons first.
-CONVERGED = ("gauss-newton", "loss")
+CONVERGED = ("gauss-newton", "loss", "floor")
+FLOOR = 0.25  # ‖J·δ‖²: a step this small is within 0.5 standard errors
 _REASONS = {
     "gauss-newton": "converged: the Gauss-Newton step would lower chi2 by less than fit_atol "
     "(the optimum within sqrt(fit_atol) standard errors)",
+    "floor": f"converged to the rough floor of chi2: a step of at most {FLOOR**0.5:g} standard errors "
+    "(|J step|^2 <= 0.25) does not lower chi2 (the window statistics jump where a slip crosses the window's edge)",
     "loss": "converged: the last step and the Gauss-Newton step lower chi2 by less than fit_rtol (relative)",
     "max_iterations": "not converged: max_iterations model evaluations reached",
-    "stalled": "not converged: no step lowers chi2 any more (the damping grew past 1e12): the "
+    "stalled": "not converged: no step lowers chi2 any more (the damping grew past 1e9): the "
     "residuals' own numerical noise, or a start where the runs lose their stick-slip",
     "nonfinite": "not converged: the residuals or the Jacobian at the start are not finite",
 }
@@ -195,8 +212,11 @@ class _Marquardt:
       fit_atol·max(1, χ²/dof) — the optimum is within √fit_atol standard errors;
     * ``loss``: an accepted step lowered χ² by at most fit_rtol·χ², and the Gauss–Newton
       step would too;
-    * ``max_iterations`` evaluations; ``stalled``: the damping past 1e12 of its start (no descent
-      found); ``nonfinite`` r or J at the start.
+    * ``floor``: a trial refused whose step moves the linearised residuals by ‖J·δ‖² ≤ ``FLOOR``
+      = 0.25, half a standard error: χ² is rough at that scale (the window statistics jump where
+      a slip crosses the window's edge) and the optimum is found to it;
+    * ``max_iterations`` evaluations; ``stalled``: the damping λ past 1e9 (no descent found);
+      ``nonfinite`` r or J at the start.
 
     A trial point where the runs lose a statistic the current point has (no slip in a window) is
     refused whatever its χ².
@@ -210,9 +230,8 @@ class _Marquardt:
         if not (np.isfinite(self.chi2) and np.all(np.isfinite(J))):
             self.reason = "nonfinite"
             return
-        diag = np.diag(J.T @ J)
-        self.lam = 1e-3 * float(np.max(diag)) if np.max(diag) > 0 else 1e-3
-        self.lam_max, self.nu = 1e12 * self.lam, 2.0
+        self.lam = 1e-3  # dimensionless: the damping is λ·diag(JᵀJ) (Marquardt's scaling)
+        self.lam_max, self.nu = 1e9, 2.0
         self._check()
 
     def _check(self):
@@ -255,7 +274,11 @@ class _Marquardt:
         else:
             self.lam *= self.nu
             self.nu *= 2.0
-            if self.lam > self.lam_max:
+            # the refused step moves the linearised residuals by at most √FLOOR σ in all: χ² is
+            # rough at this scale (a slip crossing a window's edge), the optimum found to it
+            if float(np.sum((self.J @ self.step) ** 2)) <= FLOOR:
+                self.reason = "floor"
+            elif self.lam > self.lam_max:
                 self.reason = "stalled"
             elif self.evaluations >= self.max_iterations:
                 self.reason = "max_iterations"
@@ -441,12 +464,13 @@ def fit_stick_slip(
     atol: float | None = None,
     fit_rtol: float = 1e-6,
     fit_atol: float = 1e-6,
-    max_iterations: int = 30,
-    n_starts: int = 2,
-    n_coarse: int = 32,
-    coarse_spread: float = 0.2,
+    max_iterations: int = 20,
+    n_starts: int = 3,
+    n_coarse: int = 16,
+    coarse_spread: float = 0.15,
     seed: int = 0,
     scale_covariance: bool | str = "auto",
+    cycle_scatter: bool = True,
     max_jumps: int = 4096,
     max_steps: int = 400_000,
     progress=None,
@@ -476,6 +500,9 @@ def fit_stick_slip(
         scale_covariance: ``"auto"`` (scale by χ²/dof where it exceeds 1: the table's σ too
             small), True (always, as ``curve_fit``), False (never);
             :mod:`peeljax.fit.uncertainty`. A table without σ is always scaled.
+        cycle_scatter: add to each σ² the model window's cycle-to-cycle standard error² of the
+            statistic (:func:`peeljax.fit.statistics.window_scatter`: which slips fall in the
+            window moves it); False: the table's σ alone.
         max_jumps, max_steps: each run's jump record and step budget.
         progress: None, or ``progress(iteration, chi2)`` called on the host after each
             Levenberg–Marquardt iteration (chi2: the lowest of the starts so far).
@@ -513,6 +540,7 @@ def fit_stick_slip(
     fit = build_table_fit(
         start, model, table.V, data, sigma, measured, names=names, tau=tau, transient=transient, window=window,
         n_samples=n_samples, rtol=rtol, atol=atol, max_jumps=max_jumps, max_steps=max_steps,
+        cycle_scatter=cycle_scatter,
     )  # fmt: skip
     # The coarse batch, n_starts points per call of the one compiled program; LM from its best.
     coarse = _coarse_starts(n_coarse, len(names), coarse_spread, seed)
@@ -554,7 +582,7 @@ def fit_stick_slip(
         "n_coarse": n_coarse, "coarse_spread": coarse_spread, "seed": seed,
         "method": "levenberg-marquardt (forward-mode Jacobian) from the best of a coarse batch",
         "weights": "the table's standard deviations" if has_std else "column RMS",
-        "scale_covariance": scale if isinstance(scale, str) else bool(scale),
+        "scale_covariance": scale if isinstance(scale, str) else bool(scale), "cycle_scatter": bool(cycle_scatter),
         "parametrisation": "c = c_start*exp(theta)",
     }  # fmt: skip
     initial = float(coarse_losses[0])  # the coarse batch's first point is ``start`` itself
