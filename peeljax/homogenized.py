@@ -13,22 +13,43 @@ Variants, chosen by ``truncation``:
 
 Along the exact flow, d/dt[G(x) − φ] = F̃·f·τ·c/J_t with c = F̃(𝐈 − τ∂f/∂x)⁻¹∂f/∂v: the
 constraint is kept exactly only in the index-1 limit; τ > 0 relaxes it and smooths v.
+
+The fully stuck tape. Below φ(0⁺, V) the stick branch has no root: the DAE (τ = 0) holds v = 0
+until G(x) rises back above φ(0⁺, V) (:mod:`peeljax.branches`). Eq. ``hv`` with φ itself would
+instead drive v to 0 in finite time: near v = 0, φ ≈ φ(0⁺) + c₂·v^p₂ (p₂ = 0.15), so
+d(log v)/dt ≈ F̃·f/(p₂·c₂·v^p₂) → −∞ while G falls, and the step size collapses (issue 30:
+V = 1.1, τ = 3.3e-3 stopped at t = 0.388 s with v = 5e-54). Below the floor v_s = 1e-10·V (the
+paper's starting velocity) ψ therefore uses φ's C¹ continuation linear in log v,
+
+    Φ(v, V) = φ(v_s, V) + K·log(v/v_s)  (v < v_s),   K = ∂φ/∂(log v) at v_s,
+
+and φ itself for v ≥ v_s. Then d(log v)/dt ≈ F̃·f/K stays bounded: while G falls below φ(v_s),
+log v falls with it (v < 1e-10·V: x moves as with v = 0, the stuck tape to O(v_s)); once G is
+back at φ(v_s), v is back at v_s and goes on up the stick branch as the DAE's does — the depth
+log(v/v_s) records how far G went below φ(v_s). ψ is continuous across v_s (Φ is C¹ there): the
+error control passes the floor without a switch, and autodiff differentiates through a stuck
+phase as through any smooth flow (the time the tape leaves needs no event). A run that stays
+above the floor is unchanged. A jump landing below φ(v_s) lands on Φ (:meth:`HomogenizedODE.jump`),
+as the DAE's lands on v = 0; a fully stuck start is given at
+v = :meth:`HomogenizedODE.resting_velocity`.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import ClassVar, Protocol, runtime_checkable
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from ._arrays import float_array
-from .branches import Folds, branch_of, jump_velocity, phi_folds
+from .branches import SLIP, STICK, Folds, branch_of, jump_velocity, phi_folds
 from .model import PAPER_V0_FACTOR, PeelingModel
 from .structure import jacobians, schur_complement, truncated_schur_complement
 
-__all__ = ["ODE", "Evaluation", "HomogenizedODE", "Jump"]
+__all__ = ["ODE", "ContinuedAdhesion", "Evaluation", "HomogenizedODE", "Jump", "floor_of"]
 
 
 class Evaluation(eqx.Module):
@@ -86,6 +107,36 @@ class FoldingODE(ODE, Protocol):
     def complete(self, y: Float[Array, " n"]) -> Float[Array, " n"]: ...
 
 
+# K ≥ this × |φ(v_s, V)|, for a law nearly flat at v_s (not the paper's: K = 0.53 N against
+# 0.26 N at V = 1.1): with G ≥ 0 a stuck phase then stays within 500 e-folds of the floor
+# (v ≥ 1e-227·V), where exp(log v) does not underflow.
+_SLOPE_FLOOR = 2e-3
+
+
+def floor_of(law: Callable, V: ArrayLike) -> tuple[Array, Array, Array]:
+    """(v_s, φ(v_s, V), K): the floor v_s = 1e-10·V below which ψ continues φ linearly in log v
+    (module docstring), φ there and the slope K = ∂φ/∂(log v) at v_s (at least 2e-3·|φ(v_s, V)|)."""
+    v_s = PAPER_V0_FACTOR * jnp.asarray(V, float)
+    phi_s, slope = jax.jvp(lambda v: law(v, V), (v_s,), (v_s,))  # v·∂φ/∂v = ∂φ/∂(log v)
+    return v_s, phi_s, jnp.maximum(slope, _SLOPE_FLOOR * jnp.abs(phi_s))
+
+
+class ContinuedAdhesion(eqx.Module):
+    """Φ(v, V): the adhesion law ``law`` for v ≥ v_s = 1e-10·V, φ(v_s) + K·log(v/v_s) below
+    (module docstring, :func:`floor_of`); C¹ at v_s, increasing, unbounded below as v → 0."""
+
+    law: Callable
+
+    def __call__(self, v: ArrayLike, V: ArrayLike) -> Array:
+        v = jnp.asarray(v, float)
+        v_s, phi_s, slope = floor_of(self.law, V)
+        above = v >= v_s
+        # Double wheres: neither branch sees the other's arguments (no log of v ≤ 0, no φ'' at v → 0).
+        phi = self.law(jnp.where(above, v, v_s), V)
+        depth = jnp.log(jnp.where(above, v_s, jnp.maximum(v, jnp.finfo(float).tiny)) / v_s)
+        return jnp.where(above, phi, phi_s + slope * depth)
+
+
 class HomogenizedODE(eqx.Module):
     """ψ(y; τ) of eq. ``hv`` for a model at pull velocity V.
 
@@ -106,18 +157,39 @@ class HomogenizedODE(eqx.Module):
     def evaluate(self, y: Float[Array, "4"]) -> Evaluation:
         """ψ(y) together with J_t and F̃·f (the stop tests and diagnostics need them)."""
         x, v = y[:3], y[3]
-        jac = jacobians(self.model, x, v, self.V)
+        jac = jacobians(self.continued_model, x, v, self.V)
         if self.truncation is None:
             J = schur_complement(jac, self.tau)
         else:
             J = truncated_schur_complement(jac, self.tau, self.truncation)
         drive = jnp.dot(jac.F_tilde, jac.f)
         psi = jnp.concatenate([jac.f, (-drive / J)[None]])
+        # Below the floor J_t ≈ −K/v grows as v falls: reported as J_t·v/v_s (its value at the
+        # floor, same sign), so that the impasse predictor's secant of J_t² (events module) does
+        # not read a stuck tape's departure, J_t² falling by e² per e-fold of v, as an impasse.
+        floor = PAPER_V0_FACTOR * self.V
+        J = jnp.where(v >= floor, J, J * (v / floor))
         return Evaluation(psi=psi, J=J, drive=drive)
 
     def __call__(self, y: Float[Array, "4"]) -> Float[Array, "4"]:
         """ψ(y) (eq. ``hv``)."""
         return self.evaluate(y).psi
+
+    @property
+    def continued_model(self) -> PeelingModel:
+        """The model with φ continued below the floor v_s (:class:`ContinuedAdhesion`): what ψ uses."""
+        return eqx.tree_at(lambda m: m.adhesion, self.model, ContinuedAdhesion(self.model.adhesion))
+
+    def stuck_velocity(self, x: Float[Array, "3"]) -> Array:
+        """v of the fully stuck tape at x: the root of G(x) = Φ(v, V) below the floor,
+        v_s·exp((G(x) − φ(v_s, V))/K) (v_s where G(x) is above φ(v_s, V)).
+
+        The state (x, stuck_velocity(x)) is a fully stuck start: the tape leaves when G rises
+        to φ(v_s, V), as the DAE's leaves v = 0 at φ(0⁺, V) ≈ φ(v_s, V) − 3.7 N (V = 1.1).
+        """
+        _, phi_s, slope = floor_of(self.model.adhesion, self.V)
+        v_s = PAPER_V0_FACTOR * self.V
+        return v_s * jnp.exp(jnp.minimum(self.model.shear_force(x) - phi_s, 0.0) / slope)
 
     # ------------------------------------------------------------------ folds (fold="jump")
     def with_folds(self) -> HomogenizedODE:
@@ -132,11 +204,20 @@ class HomogenizedODE(eqx.Module):
     def jump(self, y: Float[Array, "4"]) -> Jump:
         """v⁺ on the other stable branch of G(x) = φ(v, V), x unchanged.
 
-        The homogenized ODE carries log v, so a landing on the fully stuck tape (v⁺ = 0) is
-        at the paper's starting velocity 1e-10·V instead, from which the ODE sticks as it does
-        at t = 0.
+        A landing below the floor (G(x) < φ(v_s, V): the DAE's v⁺ is below 1e-10·V, or 0 where
+        the tape lands fully stuck) is on ψ's continuation Φ, at :meth:`stuck_velocity`; the
+        record keeps the DAE's v⁺ (0: fully stuck), as at τ = 0.
         """
-        return _jump(self.model, self.V, self.folds, y, floor=PAPER_V0_FACTOR * self.V)
+        x, v = y[:3], y[3]
+        branch = branch_of(v, self.folds)
+        v_after = jump_velocity(self.model, x, self.V, branch, self.folds)
+        G = self.model.shear_force(x)
+        _, phi_s, _ = floor_of(self.model.adhesion, self.V)
+        carried = jnp.where((branch == SLIP) & (G < phi_s), self.stuck_velocity(x), v_after)
+        return Jump(
+            y=y.at[3].set(carried), up=branch == STICK, v_before=v, v_after=v_after, G=G,
+            F=self.model.tension(x[2], x[0]),
+        )  # fmt: skip
 
     def complete(self, y: Float[Array, "4"]) -> Float[Array, "4"]:
         """y itself: the homogenized state is the output state (the integrator need not call it)."""
