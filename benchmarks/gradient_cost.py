@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 
 import peeljax as pj
-from peeljax.integrators.alpha import integrate_alpha
+from peeljax.integrators.uniform_mesh import integrate_alpha
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import write_result  # noqa: E402

@@ -22,7 +22,8 @@ from ._validation import (
 )
 from .constrained import ConstrainedDAE
 from .homogenized import HomogenizedODE
-from .integrators.alpha import AlphaMethod, UniformMesh
+from .integrators.alpha import AlphaMethod
+from .integrators.uniform_mesh import UniformMesh
 from .integrators.base import AbstractIntegrator
 from .integrators.reference import integrate_reference
 from .integrators.select import DEFAULT_MAX_JUMPS, integrator_for, refuse_with_dt, resolve_max_steps

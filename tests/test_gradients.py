@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import peeljax as pj
-from peeljax.integrators.alpha import integrate_alpha
+from peeljax.integrators.uniform_mesh import integrate_alpha
 
 T_FINAL, N_STEPS = 0.5, 41  # h = 1/82, the paper's step
 NAMES = ("c1", "p1", "c3", "c6", "p9", "V", "tau", "R", "I", "k", "l", "y0")

@@ -120,7 +120,7 @@ def alpha_loss_of(v_data):
     import jax.numpy as jnp
 
     import peeljax
-    from peeljax.integrators.alpha import integrate_alpha
+    from peeljax.integrators.uniform_mesh import integrate_alpha
 
     vd = jnp.asarray(v_data)
 

@@ -1,6 +1,8 @@
 """Time integrators for the homogenized ODE, behind one contract (:mod:`.base`).
 
-- :mod:`.alpha`: the α-method's step and the uniform mesh (:class:`UniformMesh`);
+- :mod:`.alpha`: the α-method's step (Newton, its implicit-function-theorem derivatives);
+- :mod:`.uniform_mesh`: the paper's uniform mesh (:class:`UniformMesh`, :func:`integrate_alpha`);
+- :mod:`.log_variables`: the state carried with log v (:class:`LogTransformedODE`);
 - :mod:`.adaptive`: the one error-controlled loop (:class:`ErrorControl`), with
   :mod:`.controller` (PI control), :mod:`.dense` (interpolants) and :mod:`.events` (folds, jumps);
 - :mod:`.steppers`: what one step is, for any method of that loop: the α-method
@@ -15,24 +17,23 @@ from .adaptive import ErrorControl, alpha_attempt, error_constant, integrate_ada
 from .alpha import (
     AlphaMethod,
     AlphaState,
-    LogTransformedODE,
     StepInfo,
-    UniformMesh,
     alpha_advance,
     alpha_coefficients,
     alpha_start,
     amplification_matrix,
-    integrate_alpha,
     to_physical,
 )
 from .base import AbstractIntegrator, ObservedRun
 from .controller import PIController
 from .dense import hermite
 from .diffrax_solver import AlphaSolver
+from .log_variables import LogTransformedODE
 from .observers import AcceptedStep, DenseOutput, EveryNthPoint, Observer, Observers, StepPoints
 from .reference import DiffraxIntegrator, integrate_reference
 from .select import integrator_for
 from .steppers import STEPPER_NAMES, AbstractStepper, AlphaStepper, RungeKutta, stepper_named
+from .uniform_mesh import UniformMesh, integrate_alpha
 
 __all__ = [
     "STEPPER_NAMES",

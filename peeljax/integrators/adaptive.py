@@ -51,7 +51,8 @@ from ..homogenized import ODE
 from ..solution import JumpRecord, Solution, StepDiagnostics, StopReason
 from ..structure import local_index
 from ..desingularized import tangential_fold
-from .alpha import AlphaMethod, _log_mask, _stop_gradient, _to_log, from_log
+from .alpha import AlphaMethod, _stop_gradient
+from .log_variables import from_log, log_mask, to_log
 from .base import AbstractIntegrator, ObservedRun
 from .controller import PIController
 from .dense import PhysicalTimeInterpolant
@@ -103,7 +104,7 @@ _PSEUDO_TIME_REFERENCE_DEPTH = 1e-8
 _CUT_PAST = 1e-3
 
 
-def _initial_step(stepper: AbstractStepper, controller: PIController, ode, y, log_mask, span):
+def _initial_step(stepper: AbstractStepper, controller: PIController, ode, y, is_log, span):
     """The first step from y (at t0 and after a jump), in the error norm's weights, from
     d0 = ‖y‖, d1 = ‖ψ‖ and d2 = ‖dψ/dt‖ (by autodiff):
 
@@ -114,9 +115,9 @@ def _initial_step(stepper: AbstractStepper, controller: PIController, ode, y, lo
     """
     psi = ode.evaluate(y).psi
     a = jax.jvp(lambda z: ode.evaluate(z).psi, (y,), (psi,))[1]
-    d0 = controller.error_norm(y, y, y, log_mask)
-    d1 = controller.error_norm(psi, y, y, log_mask)
-    d2 = controller.error_norm(jnp.where(jnp.isfinite(a), a, 0.0), y, y, log_mask)
+    d0 = controller.error_norm(y, y, y, is_log)
+    d1 = controller.error_norm(psi, y, y, is_log)
+    d2 = controller.error_norm(jnp.where(jnp.isfinite(a), a, 0.0), y, y, is_log)
     if isinstance(stepper, AlphaStepper):
         h1 = jnp.where(d1 > 0, 0.01 / jnp.where(d1 > 0, d1, 1.0), span)
         h2 = jnp.where(d2 > 0, 0.01 / jnp.sqrt(jnp.where(d2 > 0, d2, 1.0)), span)
@@ -213,7 +214,7 @@ def adaptive_loop(
         return y[time_index] if timed else s
 
     n = state0.y.shape[0]
-    log_mask = _log_mask(n, stepper.carried_log)
+    is_log = log_mask(n, stepper.carried_log)
     if timed:
         # The reference state of a tangential fold is tracked on the DAE-in-time's event
         # G − φ(v̂), in the physical coordinates of the DesingularizedDAE.
@@ -225,7 +226,7 @@ def adaptive_loop(
         def tangential(y_fold, y_ref):
             to = functools.partial(from_log, log_components=stepper.carried_log)
             is_tangential, y = tangential_fold(base, to(y_fold), to(y_ref))
-            return jnp.where(jax.lax.stop_gradient(is_tangential), _to_log(y, stepper.carried_log), y_fold)
+            return jnp.where(jax.lax.stop_gradient(is_tangential), to_log(y, stepper.carried_log), y_fold)
 
         reference_depth = _PSEUDO_TIME_REFERENCE_DEPTH
     else:
@@ -234,9 +235,9 @@ def adaptive_loop(
             return fold_event(ode, y)
 
         reference_depth = _REFERENCE_DEPTH
-    increment_mask = _log_mask(n, (time_index,)) if timed else None
+    increment_mask = log_mask(n, (time_index,)) if timed else None
     if dt0 is None:
-        h0 = _initial_step(stepper, controller, _stop_gradient(ode), jax.lax.stop_gradient(state0.y), log_mask, span)
+        h0 = _initial_step(stepper, controller, _stop_gradient(ode), jax.lax.stop_gradient(state0.y), is_log, span)
     else:
         h0 = jnp.asarray(dt0, float)
     h0 = jax.lax.stop_gradient(jnp.clip(jnp.where(jnp.isfinite(h0), h0, dtmin), dtmin, span))
@@ -276,9 +277,9 @@ def adaptive_loop(
             last = c.h >= remaining
             h = jnp.where(last, remaining, c.h)
         y_n = jax.lax.stop_gradient(state.y)
-        attempt = stepper.attempt(ode, c.t, h, state, controller.scale(y_n, y_n, log_mask))
+        attempt = stepper.attempt(ode, c.t, h, state, controller.scale(y_n, y_n, is_log))
         new, solved = attempt.candidate, attempt.solved
-        norm = jax.lax.stop_gradient(controller.error_norm(attempt.error, state.y, new.y, log_mask, increment_mask))
+        norm = jax.lax.stop_gradient(controller.error_norm(attempt.error, state.y, new.y, is_log, increment_mask))
         norm = jnp.where(solved, norm, jnp.inf)
         accept = solved & (norm <= 1.0)
         t_new = jnp.where(last, t_final, c.t + h)  # exactly t_final at the end
@@ -336,7 +337,7 @@ def adaptive_loop(
             h_next = jax.lax.cond(
                 restarted,
                 lambda: jnp.maximum(
-                    _initial_step(stepper, controller, _stop_gradient(ode), jax.lax.stop_gradient(new.y), log_mask, span),
+                    _initial_step(stepper, controller, _stop_gradient(ode), jax.lax.stop_gradient(new.y), is_log, span),
                     dtmin,
                 ),
                 lambda: h_next,

@@ -43,7 +43,8 @@ from .._validation import (
     is_concrete,
 )
 from .adaptive import ErrorControl
-from .alpha import AlphaMethod, UniformMesh
+from .alpha import AlphaMethod
+from .uniform_mesh import UniformMesh
 from .base import AbstractIntegrator
 from .controller import PIController
 from .events import FoldEvents, check_fold, check_max_jumps

@@ -40,7 +40,8 @@ from jaxtyping import Array, Float
 
 from .._arrays import optional_float_array
 from ..solution import StopReason
-from .alpha import AlphaMethod, AlphaState, LogTransformedODE, _log_mask, _stop_gradient, _to_log, alpha_start, from_log
+from .alpha import AlphaMethod, AlphaState, _stop_gradient, alpha_start
+from .log_variables import LogTransformedODE, from_log, log_mask, to_log
 from .dense import HermiteInterpolant, SolverInterpolant
 
 __all__ = [
@@ -360,9 +361,9 @@ class RungeKutta(AbstractStepper):
                 y0 = ode.complete(y0)  # v on its stable branch, as the DAE in time starts
             ode = ode.in_pseudo_time(self.time_scale)
             y0 = ode.extend(y0, t0)
-        positive = jnp.all(jnp.where(_log_mask(y0.shape[0], self.log_components), y0 > 0, True))
+        positive = jnp.all(jnp.where(log_mask(y0.shape[0], self.log_components), y0 > 0, True))
         ode = _carried(ode, self.log_components)
-        z0 = _to_log(y0, self.log_components) if self.log_components else y0
+        z0 = to_log(y0, self.log_components) if self.log_components else y0
         psi = ode.evaluate(z0).psi
         _, J, drive = self._ends(ode, z0)
         ok = positive & jnp.all(jnp.isfinite(psi)) & jnp.all(jnp.isfinite(z0))

@@ -45,7 +45,7 @@ from jaxtyping import Array, Float, Int
 from ..adhesion import COEFFICIENT_NAMES
 from ..constrained import ConstrainedDAE
 from ..homogenized import HomogenizedODE
-from ..integrators.alpha import from_log
+from ..integrators.log_variables import from_log
 from ..integrators.base import AbstractIntegrator
 from ..integrators.observers import Observer, Observers
 from ..model import PAPER_ALPHA0, PeelingModel

@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._validation import check_choice, check_positive
-from ..integrators.alpha import UniformMesh
+from ..integrators.uniform_mesh import UniformMesh
 from ..integrators.base import AbstractIntegrator
 from ..integrators.dense import output_count, output_times
 from ..integrators.observers import DenseOutput, EveryNthPoint, Observer
