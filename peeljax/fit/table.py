@@ -9,8 +9,8 @@ jumps), and its statistics over the window [transient, transient + window]
 
     r_is = (model_s(V_i; θ) − data_is)/σ_is,
 
-σ_is the table's standard deviation where given, else the RMS of column s (the covariance is
-then scaled by the residual variance, :mod:`peeljax.fit.uncertainty`). A statistic the table
+σ_is² the table's variance (else the RMS of column s, and the covariance is then scaled by the
+residual variance) plus the model window's cycle-to-cycle scatter². A statistic the table
 has but the model run does not produce (no slip in the window) costs a fixed residual
 ``MISSING_RESIDUAL`` with zero derivative, so that a trial step that loses the stick-slip is
 never mistaken for a better fit.
@@ -20,12 +20,13 @@ A force record in the stick-slip range is fitted through these statistics
 and a point-wise misfit of two sawtooths with slightly different periods is dominated by that
 drift (``docs/fitting.md`` measures it).
 
-Solver: optimistix's Levenberg–Marquardt with the Jacobian by forward-mode autodiff (one
-tangent per free coefficient, through every jump by the implicit function theorem), stopped
-when the relative change of the parameters and of the loss fall below ``rtol``/``atol``
-(optimistix's Cauchy test) or after ``max_iterations``; ``n_starts`` perturbed starts run one
-after another in one compiled program (``lax.map``: under ``vmap`` every branch of the loop runs
-at every step) and the best is kept.
+Solver: a coarse batch of starts (χ² at the start and at a Latin hypercube around it), then
+Levenberg–Marquardt from the best few (:class:`_Marquardt`, host-driven, the runs of every start
+in lockstep through one compiled program that gives r and its forward-mode Jacobian — one
+tangent per free coefficient, through every jump by the implicit function theorem); its stop
+reason names the test that stopped it. σ² is the table's plus the model window's
+cycle-to-cycle scatter (:func:`peeljax.fit.statistics.window_scatter`); χ²/dof is reported and
+scales the covariance where it exceeds 1 (:mod:`peeljax.fit.uncertainty`).
 """
 
 from __future__ import annotations
@@ -357,8 +358,6 @@ def _check_options(
     ):  # fmt: skip
         if isinstance(value, bool) or not isinstance(value, int) or value < least:
             raise ValueError(f"{name} must be an integer >= {least}, got {value!r}")
-    if n_starts > n_coarse:
-        raise ValueError(f"n_starts must be <= n_coarse ({n_coarse}): the starts are the best of the coarse batch")
     check_positive("fit_rtol", fit_rtol)
     check_positive("fit_atol", fit_atol)
     check_positive("coarse_spread", coarse_spread)
@@ -494,7 +493,8 @@ def fit_stick_slip(
             step and χ² decrease); ``max_iterations``: its budget of model evaluations per start.
         n_coarse, coarse_spread, seed: the coarse batch — χ² at the start and at n_coarse − 1
             points of a Latin hypercube with each free coefficient within exp(±coarse_spread)
-            of its start (``seed``), all in one compiled call, runs only.
+            of its start (``seed``), ``n_starts`` at a time through the one compiled program;
+            raised to ``n_starts`` where smaller.
         n_starts: Levenberg–Marquardt runs from the n_starts best points of the coarse batch;
             the best end is kept, the others are reported (``result.optima``).
         scale_covariance: ``"auto"`` (scale by χ²/dof where it exceeds 1: the table's σ too
@@ -543,6 +543,7 @@ def fit_stick_slip(
         cycle_scatter=cycle_scatter,
     )  # fmt: skip
     # The coarse batch, n_starts points per call of the one compiled program; LM from its best.
+    n_coarse = max(n_coarse, n_starts)  # the starts are the best of the coarse batch
     coarse = _coarse_starts(n_coarse, len(names), coarse_spread, seed)
     evaluated = _evaluate_batch(fit, coarse, n_starts)
     coarse_losses = np.asarray([float(r @ r) for r, _, _ in evaluated])
