@@ -27,6 +27,7 @@ from ..integrators.alpha import AlphaMethod
 from ..model import PeelingModel
 from ..solution import StopReason
 from .devices import batch_mesh, deal, default_lane_batch, put_lanes, to_host
+from .distributed import check_same_settings, is_multiprocess, open_shared_store
 from .grid import axis, check_window, trajectories
 from .integrators import sweep_plan
 from .storage import ChunkStore
@@ -261,7 +262,10 @@ def sweep(
         dtmin, max_steps: error control only, as in :func:`peeljax.simulate`.
         memory_limit: bytes the results may take in host memory (default: half the RAM).
         devices: the devices to shard each chunk over (default: ``jax.devices()``; on a CPU
-            peeljax asks JAX for one device per core, see :mod:`peeljax`).
+            peeljax asks JAX for one device per core, see :mod:`peeljax`). After
+            ``jax.distributed.initialize`` that is every process's devices: call ``sweep`` with
+            the same arguments in every process; only process 0 writes ``out``, which must be on
+            a file system they share (:mod:`peeljax.sweeps.distributed`, ``docs/sweeps.md``).
         lane_batch: error control only: lanes run together under ``vmap`` (groups run one
             after another); default 1 on CPUs and the whole chunk on GPUs
             (:func:`default_lane_batch`). It changes the speed, not the steps taken.
@@ -306,7 +310,9 @@ def sweep(
     Vs, taus, param_values, grid_shape = trajectories(V, tau, params, grid)
     n = Vs.size
     devices = list(jax.devices()) if devices is None else list(devices)
-    devices = devices[: max(1, min(len(devices), n))]  # no device with only padding to run
+    multiprocess = is_multiprocess()  # jax.distributed: every process's devices, one program
+    if not multiprocess:  # (there every process must keep its devices, even with padding only)
+        devices = devices[: max(1, min(len(devices), n))]  # no device with only padding to run
     n_dev = len(devices)
     chunk = min(chunk, n)
     chunk = -(-chunk // n_dev) * n_dev  # a multiple of the device count
@@ -337,15 +343,22 @@ def sweep(
     keys += JUMP_KEYS if plan.max_jumps is not None else ()
     store = None
     chunks: list[dict | None] = [None] * n_chunks
+    if multiprocess:
+        check_same_settings(settings)
+        progress = progress and jax.process_index() == 0  # one bar, not one a process
     if out is not None:
         store = ChunkStore(out, settings, n_chunks, sizes, keys)
-        merged = store.finished_output()
+        if multiprocess:  # process 0 opens the folder; all skip the chunks it found
+            merged, chunks = open_shared_store(store, n_chunks)
+        else:
+            merged = store.finished_output()
         if merged is not None:
             if progress:
                 print(f"resumed: the finished sweep loaded from {str(store.out)!r}", file=sys.stderr)
             return _result(merged, Vs, taus, param_values, save_ts, t_final, window, grid_shape, settings, ())
-        store.open()
-        chunks = [store.load(i) for i in range(n_chunks)]
+        if not multiprocess:
+            store.open()
+            chunks = [store.load(i) for i in range(n_chunks)]
         loaded = sum(c is not None for c in chunks)
         if loaded and progress:
             print(f"resumed: {loaded} of {n_chunks} chunks loaded from {str(store.folder)!r}", file=sys.stderr)

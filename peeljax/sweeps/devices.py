@@ -2,7 +2,9 @@
 
 A sweep shards each chunk's lanes over a one-axis mesh ("batch") of all devices JAX sees (on
 a CPU, one per core: see :mod:`peeljax`), deals neighbouring lanes to different devices, and
-chooses how many lanes a device runs together under ``vmap`` (error control).
+chooses how many lanes a device runs together under ``vmap`` (error control). After
+``jax.distributed.initialize`` the devices are every process's: each supplies its own shards
+and gets all results back (:mod:`.distributed` has what the processes must agree on).
 """
 
 from __future__ import annotations
@@ -35,6 +37,8 @@ def put_lanes(arrays, devices):
 
 
 def to_host(tree):
+    """The (sharded) results as NumPy arrays; across processes (jax.distributed) every process
+    gets every lane, by one ``process_allgather`` (gloo on CPUs)."""
     if jax.process_count() > 1:
         from jax.experimental import multihost_utils
 
