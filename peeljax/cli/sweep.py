@@ -32,6 +32,7 @@ from ._common import (
     solver_for,
     write_failed,
 )
+from ._distributed import add_distributed_options, distributed_settings, join_processes
 
 __all__ = ["add_command", "engine_text", "tau_grid", "validate_map", "validate_sweep", "validate_tau_star"]
 
@@ -130,6 +131,7 @@ def add_command(subparsers) -> None:
     )  # fmt: skip
     options.add_json(output)
     options.add_progress(output, "progress bar")
+    add_distributed_options(parser)
     parser.set_defaults(handler=_sweep_command)
 
     star = subparsers.add_parser(
@@ -485,12 +487,19 @@ def _jump_record(jumps: dict | None) -> dict | None:
 
 
 def _sweep_command(args: argparse.Namespace) -> int:
+    try:
+        processes = distributed_settings(args)  # checked first, joined after the sweep's own checks
+    except ValueError as error:
+        return fail(error)
     if args.stick_slip_map:
         return _map_command(args)
     try:
         kwargs = validate_sweep(args)
     except (ValueError, TypeError) as error:
         return fail(error)
+    joined = join_processes(processes, args)
+    if joined is not None:
+        return joined
     n = len(kwargs["V"]) * len(kwargs["tau"])
     print(f"{PROG}: sweep of {n} trajectories, {engine_text(kwargs)} (compiling first: a few seconds) ...",
           file=sys.stderr)  # fmt: skip
