@@ -24,7 +24,7 @@ import numpy as np
 
 import peeljax as pj
 from peeljax.fit import StickSlipTable, fit_stick_slip
-from peeljax.fit.data import STATISTICS
+from peeljax.fit.statistics import STATISTICS
 from peeljax.fit.plots import model_statistics
 from peeljax.fit.table import table_tolerances
 
