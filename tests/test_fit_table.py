@@ -56,6 +56,25 @@ def test_window_scatter_is_the_spread_over_the_cycles_per_cycle():
     np.testing.assert_allclose(got[3:], [np.std(gaps, ddof=1) / 2, np.std(durations, ddof=1) / 2])
 
 
+def test_tapered_statistics_are_continuous_where_a_slip_crosses_the_window_edge():
+    """A slip (F 30 at its jump, against 10 and 12 inside) moving from just inside the window's
+    end to just outside: the plain mean of F_slip jumps by 6, the tapered one by < 1e-6; the
+    gaps' mean likewise. With no slip near an edge, taper and plain means agree."""
+    def stats(t_last, taper):
+        events = [(1.0, True, 10.0), (1.25, False, 4.0), (2.0, True, 12.0), (2.25, False, 6.0), (t_last, True, 30.0)]
+        return np.asarray(jump_statistics(_record(events), jnp.ones(101), 0.5, 3.0, taper=taper)[0])
+
+    inside, outside = stats(3.0 - 1e-9, 0.0), stats(3.0 + 1e-9, 0.0)
+    assert inside[1] - outside[1] == pytest.approx(52 / 3 - 11)
+    inside, outside = stats(3.0 - 1e-9, 0.25), stats(3.0 + 1e-9, 0.25)
+    np.testing.assert_allclose(inside[1:4], outside[1:4], atol=1e-6)
+    middle = [(1.5, True, 10.0), (1.6, False, 4.0), (1.75, True, 12.0), (1.85, False, 6.0), (2.0, True, 14.0)]
+    plain, tapered = (np.asarray(jump_statistics(_record(middle), jnp.ones(101), 0.0, 3.5, taper=x)[0]) for x in (0, 0.2))
+    np.testing.assert_allclose(tapered[1:], plain[1:], rtol=1e-12)
+    with pytest.raises(ValueError, match="taper"):
+        fit_stick_slip(StickSlipTable.from_dict(V=[1.0, 2.0], F_mean=[200.0, 220.0], period=[0.05, 0.02]), taper=0.7)
+
+
 def test_jump_statistics_without_slips_has_only_the_mean_force():
     values, available = jump_statistics(JumpRecord.empty(4), jnp.asarray([3.0, 5.0]), 0.0, 1.0)
     assert np.asarray(available).tolist() == [True, False, False, False, False]

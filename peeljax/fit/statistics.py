@@ -29,6 +29,12 @@ number: one cycle more or less in a mean of n. That is what a table fit adds to 
 (:mod:`peeljax.fit.table`). Not s/√n: the cycles are not independent draws but a
 deterministic sequence, of which the window mean differs from the long-run one by its edges.
 
+**Tapered statistics** (``taper`` > 0): every per-slip value weighted by w(t), 0 at the window's
+edges and rising as ½(1 − cos) over the first and last ``taper`` of its length — F_slip, F_stick
+at their jump times, each gap between consecutive stick → slip jumps and each slip duration at
+its midpoint, F_mean the w-weighted time average of F. A slip crossing an edge then enters with
+weight 0, so the statistics are continuous in the coefficients (with taper 0 they jump there).
+
 A statistic is *available* when the window holds what it needs (two stick → slip jumps for
 ``period``, one slip for ``slip_duration``, …); a steady run (no fold of φ at V, or a stable
 steady state) has only ``F_mean``. The number of jumps in the window is held fixed in the
@@ -47,14 +53,57 @@ from .stick_slip_table import STATISTICS
 __all__ = ["STATISTICS", "jump_statistics", "window_scatter"]
 
 
+def _taper(t, t_start, t_end, taper: float):
+    """w(t): 0 at the window's edges, rising as ½(1 − cos) over the first and last ``taper`` of
+    its length, 1 between."""
+    width = taper * (t_end - t_start)
+    rise = jnp.clip((t - t_start) / width, 0.0, 1.0)
+    fall = jnp.clip((t_end - t) / width, 0.0, 1.0)
+    return (0.5 - 0.5 * jnp.cos(jnp.pi * rise)) * (0.5 - 0.5 * jnp.cos(jnp.pi * fall))
+
+
+def _tapered(jumps: JumpRecord, F_samples, t_start, t_end, taper: float):
+    """The statistics as weighted means, each slip (gap, re-stick, sample of F) weighted by
+    :func:`_taper` at its time: a slip crossing the window's edge enters with weight 0, so the
+    statistics are continuous in the coefficients (module docstring)."""
+    slot = jnp.arange(jumps.max_jumps)
+    inside = (slot < jumps.count) & (jumps.t >= t_start) & (jumps.t <= t_end)
+    t = jnp.where(inside, jumps.t, 0.5 * (t_start + t_end))
+    F = jnp.where(inside, jumps.F, 0.0)
+    up = inside & jumps.up
+    down = inside & ~jumps.up
+    w = _taper(t, t_start, t_end, taper)
+
+    def weighted(mask, values, weights):
+        total = jnp.sum(jnp.where(mask, weights, 0.0))
+        return jnp.sum(jnp.where(mask, weights * values, 0.0)) / jnp.where(total > 0, total, 1.0)
+
+    t_up = jnp.sort(jnp.where(up, t, jnp.inf))
+    gap = jnp.isfinite(t_up[1:])
+    t_up = jnp.where(jnp.isfinite(t_up), t_up, 0.0)
+    gaps = t_up[1:] - t_up[:-1]
+    pair = up[:-1] & down[1:]
+    t_samples = jnp.linspace(t_start, t_end, F_samples.shape[0])
+    ws = _taper(t_samples, t_start, t_end, taper)
+    F_mean = jnp.sum(ws * F_samples) / jnp.sum(ws)
+    return jnp.stack([
+        F_mean,
+        weighted(up, F, w),
+        weighted(down, F, w),
+        weighted(gap, gaps, _taper(0.5 * (t_up[1:] + t_up[:-1]), t_start, t_end, taper)),
+        weighted(pair, t[1:] - t[:-1], _taper(0.5 * (t[1:] + t[:-1]), t_start, t_end, taper)),
+    ])  # fmt: skip
+
+
 def jump_statistics(
-    jumps: JumpRecord, F_samples: Float[Array, " n"], t_start, t_end
+    jumps: JumpRecord, F_samples: Float[Array, " n"], t_start, t_end, taper: float = 0.0
 ) -> tuple[Float[Array, " 5"], Bool[Array, " 5"]]:
     """(values, available) of :data:`STATISTICS` (``F_mean``, ``F_slip``, ``F_stick``,
     ``period``, ``slip_duration``) of one run over [t_start, t_end] (module docstring).
 
     ``F_samples``: F at equally spaced times from t_start to t_end (``F_mean`` integrates them).
-    Unavailable statistics are 0 (finite, with zero derivatives).
+    Unavailable statistics are 0 (finite, with zero derivatives). ``taper`` > 0: the weighted
+    means of the module docstring (each edge's ramp that fraction of the window).
     """
     slot = jnp.arange(jumps.max_jumps)
     t = jnp.where(slot < jumps.count, jumps.t, jnp.inf)
@@ -85,6 +134,8 @@ def jump_statistics(
     b = jnp.where(cycles, t_last, t_end)
     F_mean = (jnp.interp(b, t_samples, cumulative) - jnp.interp(a, t_samples, cumulative)) / jnp.where(b > a, b - a, 1.0)
     values = jnp.stack([F_mean, F_slip, F_stick, period, slip_duration])
+    if taper > 0:
+        values = _tapered(jumps, F_samples, t_start, t_end, taper)
     available = jnp.stack([jnp.asarray(True), n_up >= 1, n_down >= 1, n_up >= 2, n_slips >= 1])
     return jnp.where(available, values, 0.0), available
 

@@ -80,6 +80,7 @@ class TableFit(eqx.Module):
     n_samples: int = eqx.field(static=True)
     dae: bool = eqx.field(static=True)
     cycle_scatter: bool = eqx.field(static=True, default=True)
+    taper: float = eqx.field(static=True, default=0.0)
 
     def run(self, law: AdhesionLaw, V) -> tuple[Array, Array, Array]:
         """One row: (statistics (5,), available (5,), (v_lo, v_hi) visited in the window)."""
@@ -95,7 +96,7 @@ class TableFit(eqx.Module):
         sol = self.integrator.integrate(ode, model.initial_state(V), 0.0, t_end, ts)
         ys = jnp.where(sol.valid[:, None], sol.ys, 1.0)
         F = model.tension(ys[:, 2], ys[:, 0])
-        values, available = jump_statistics(sol.jumps, F, self.transient, t_end)
+        values, available = jump_statistics(sol.jumps, F, self.transient, t_end, taper=self.taper)
         scatter = window_scatter(sol.jumps, self.transient, t_end)
         v = jax.lax.stop_gradient(ys[:, 3])
         return values, available & (sol.status == 0), jnp.stack([jnp.min(v), jnp.max(v)]), scatter
@@ -126,7 +127,7 @@ class TableFit(eqx.Module):
 
 def build_table_fit(
     start: AdhesionLaw, model: PeelingModel, V, data, sigma, measured, *, names, tau, transient, window,
-    n_samples, rtol, atol, max_jumps, max_steps, cycle_scatter=True,
+    n_samples, rtol, atol, max_jumps, max_steps, cycle_scatter=True, taper=0.0,
 ) -> TableFit:  # fmt: skip
     """The :class:`TableFit` of (n, 5) ``data``/``sigma``/``measured`` arrays at the pull
     velocities ``V``, its rows run with the error-controlled α-method through the folds
@@ -141,7 +142,7 @@ def build_table_fit(
         sigma=jnp.asarray(sigma, float), tau=jnp.asarray(float(tau)), integrator=integrator, names=tuple(names),
         measured=tuple(tuple(int(k) for k in a) for a in np.nonzero(measured)),
         transient=float(transient), window=float(window), n_samples=int(n_samples), dae=dae,
-        cycle_scatter=bool(cycle_scatter),
+        cycle_scatter=bool(cycle_scatter), taper=float(taper),
     )  # fmt: skip
 
 
@@ -343,7 +344,7 @@ def _table_arrays(table: StickSlipTable, wanted) -> tuple[np.ndarray, np.ndarray
 
 def _check_options(
     table, transient, window, n_samples, tau, n_starts, max_iterations, fit_rtol, fit_atol, n_coarse, coarse_spread,
-    scale_covariance,
+    scale_covariance, taper=0.0,
 ):  # fmt: skip
     if not isinstance(table, StickSlipTable):
         raise TypeError(f"table must be a StickSlipTable (read_stick_slip_table), got {type(table).__name__}")
@@ -361,6 +362,8 @@ def _check_options(
     check_positive("fit_rtol", fit_rtol)
     check_positive("fit_atol", fit_atol)
     check_positive("coarse_spread", coarse_spread)
+    if not (isinstance(taper, (int, float)) and 0 <= taper <= 0.5):
+        raise ValueError(f"taper must be a number in [0, 0.5], got {taper!r}")
     if not (scale_covariance is True or scale_covariance is False or scale_covariance == "auto"):
         raise ValueError(f"scale_covariance must be 'auto', True or False, got {scale_covariance!r}")
 
@@ -470,6 +473,7 @@ def fit_stick_slip(
     seed: int = 0,
     scale_covariance: bool | str = "auto",
     cycle_scatter: bool = True,
+    taper: float = 0.0,
     max_jumps: int = 4096,
     max_steps: int = 400_000,
     progress=None,
@@ -503,6 +507,9 @@ def fit_stick_slip(
         cycle_scatter: add to each σ² the model window's cycle-to-cycle standard error² of the
             statistic (:func:`peeljax.fit.statistics.window_scatter`: which slips fall in the
             window moves it); False: the table's σ alone.
+        taper: 0 (default) or the fraction of the window over which each edge's weight ramps
+            (:func:`peeljax.fit.statistics.jump_statistics`: tapered statistics, continuous in
+            the coefficients; the table must be made with the same taper). In [0, 0.5].
         max_jumps, max_steps: each run's jump record and step budget.
         progress: None, or ``progress(iteration, chi2)`` called on the host after each
             Levenberg–Marquardt iteration (chi2: the lowest of the starts so far).
@@ -520,7 +527,7 @@ def fit_stick_slip(
     rtol, atol = table_tolerances(tau, rtol, atol)
     _check_options(
         table, transient, window, n_samples, tau, n_starts, max_iterations, fit_rtol, fit_atol, n_coarse,
-        coarse_spread, scale_covariance,
+        coarse_spread, scale_covariance, taper,
     )  # fmt: skip
     names = _check_free(free)
     model = PeelingModel() if model is None else model
@@ -540,7 +547,7 @@ def fit_stick_slip(
     fit = build_table_fit(
         start, model, table.V, data, sigma, measured, names=names, tau=tau, transient=transient, window=window,
         n_samples=n_samples, rtol=rtol, atol=atol, max_jumps=max_jumps, max_steps=max_steps,
-        cycle_scatter=cycle_scatter,
+        cycle_scatter=cycle_scatter, taper=taper,
     )  # fmt: skip
     # The coarse batch, n_starts points per call of the one compiled program; LM from its best.
     n_coarse = max(n_coarse, n_starts)  # the starts are the best of the coarse batch
@@ -584,6 +591,7 @@ def fit_stick_slip(
         "method": "levenberg-marquardt (forward-mode Jacobian) from the best of a coarse batch",
         "weights": "the table's standard deviations" if has_std else "column RMS",
         "scale_covariance": scale if isinstance(scale, str) else bool(scale), "cycle_scatter": bool(cycle_scatter),
+        "taper": float(taper),
         "parametrisation": "c = c_start*exp(theta)",
     }  # fmt: skip
     initial = float(coarse_losses[0])  # the coarse batch's first point is ``start`` itself
