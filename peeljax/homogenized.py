@@ -18,20 +18,20 @@ The fully stuck tape. Below φ(0⁺, V) the stick branch has no root: the DAE (�
 until G(x) rises back above φ(0⁺, V) (:mod:`peeljax.branches`). Eq. ``hv`` with φ itself would
 instead drive v to 0 in finite time: near v = 0, φ ≈ φ(0⁺) + c₂·v^p₂ (p₂ = 0.15), so
 d(log v)/dt ≈ F̃·f/(p₂·c₂·v^p₂) → −∞ while G falls, and the step size collapses (issue 30:
-V = 1.1, τ = 3.3e-3 stopped at t = 0.388 s with v = 5e-54). Below the floor v_s = 1e-10·V (the
-paper's starting velocity) ψ therefore uses φ's C¹ continuation linear in log v,
+V = 1.1, τ = 3.3e-3 stopped at t = 0.388 s with v = 5e-54). Below the floor v_s = 1e-12·V (under the
+paper's starting velocity 1e-10·V, so that its start is on φ itself) ψ therefore uses φ's C¹ continuation linear in log v,
 
     Φ(v, V) = φ(v_s, V) + K·log(v/v_s)  (v < v_s),   K = ∂φ/∂(log v) at v_s,
 
 and φ itself for v ≥ v_s. Then d(log v)/dt ≈ F̃·f/K stays bounded: while G falls below φ(v_s),
-log v falls with it (v < 1e-10·V: x moves as with v = 0, the stuck tape to O(v_s)); once G is
+log v falls with it (v < 1e-12·V: x moves as with v = 0, the stuck tape to O(v_s)); once G is
 back at φ(v_s), v is back at v_s and goes on up the stick branch as the DAE's does — the depth
 log(v/v_s) records how far G went below φ(v_s). ψ is continuous across v_s (Φ is C¹ there): the
 error control passes the floor without a switch, and autodiff differentiates through a stuck
 phase as through any smooth flow (the time the tape leaves needs no event). A run that stays
 above the floor is unchanged. A jump landing below φ(v_s) lands on Φ (:meth:`HomogenizedODE.jump`),
 as the DAE's lands on v = 0; a fully stuck start is given at
-v = :meth:`HomogenizedODE.resting_velocity`.
+v = :meth:`HomogenizedODE.stuck_velocity`.
 """
 
 from __future__ import annotations
@@ -46,10 +46,10 @@ from jaxtyping import Array, ArrayLike, Float
 
 from ._arrays import float_array
 from .branches import SLIP, STICK, Folds, branch_of, jump_velocity, phi_folds
-from .model import PAPER_V0_FACTOR, PeelingModel
+from .model import PeelingModel
 from .structure import jacobians, schur_complement, truncated_schur_complement
 
-__all__ = ["ODE", "ContinuedAdhesion", "Evaluation", "HomogenizedODE", "Jump", "floor_of"]
+__all__ = ["ODE", "STUCK_FLOOR_FACTOR", "ContinuedAdhesion", "Evaluation", "HomogenizedODE", "Jump", "floor_of"]
 
 
 class Evaluation(eqx.Module):
@@ -112,17 +112,22 @@ class FoldingODE(ODE, Protocol):
 # (v ≥ 1e-227·V), where exp(log v) does not underflow.
 _SLOPE_FLOOR = 2e-3
 
+# v_s / V. Below the paper's start v0 = 1e-10·V, so that start lies on φ itself: a start on the
+# floor would sit where ∂²Φ/∂v² jumps, and the start's a_0 = ψ'(y_0)·ψ(y_0) would be one-sided
+# in V (measured: d/dV of a run from a fixed y0, 4.7 by autodiff against −97 by differences).
+STUCK_FLOOR_FACTOR = 1e-12
+
 
 def floor_of(law: Callable, V: ArrayLike) -> tuple[Array, Array, Array]:
-    """(v_s, φ(v_s, V), K): the floor v_s = 1e-10·V below which ψ continues φ linearly in log v
+    """(v_s, φ(v_s, V), K): the floor v_s = 1e-12·V below which ψ continues φ linearly in log v
     (module docstring), φ there and the slope K = ∂φ/∂(log v) at v_s (at least 2e-3·|φ(v_s, V)|)."""
-    v_s = PAPER_V0_FACTOR * jnp.asarray(V, float)
+    v_s = STUCK_FLOOR_FACTOR * jnp.asarray(V, float)
     phi_s, slope = jax.jvp(lambda v: law(v, V), (v_s,), (v_s,))  # v·∂φ/∂v = ∂φ/∂(log v)
     return v_s, phi_s, jnp.maximum(slope, _SLOPE_FLOOR * jnp.abs(phi_s))
 
 
 class ContinuedAdhesion(eqx.Module):
-    """Φ(v, V): the adhesion law ``law`` for v ≥ v_s = 1e-10·V, φ(v_s) + K·log(v/v_s) below
+    """Φ(v, V): the adhesion law ``law`` for v ≥ v_s = 1e-12·V, φ(v_s) + K·log(v/v_s) below
     (module docstring, :func:`floor_of`); C¹ at v_s, increasing, unbounded below as v → 0."""
 
     law: Callable
@@ -167,7 +172,7 @@ class HomogenizedODE(eqx.Module):
         # Below the floor J_t ≈ −K/v grows as v falls: reported as J_t·v/v_s (its value at the
         # floor, same sign), so that the impasse predictor's secant of J_t² (events module) does
         # not read a stuck tape's departure, J_t² falling by e² per e-fold of v, as an impasse.
-        floor = PAPER_V0_FACTOR * self.V
+        floor = STUCK_FLOOR_FACTOR * self.V
         J = jnp.where(v >= floor, J, J * (v / floor))
         return Evaluation(psi=psi, J=J, drive=drive)
 
@@ -188,7 +193,7 @@ class HomogenizedODE(eqx.Module):
         to φ(v_s, V), as the DAE's leaves v = 0 at φ(0⁺, V) ≈ φ(v_s, V) − 3.7 N (V = 1.1).
         """
         _, phi_s, slope = floor_of(self.model.adhesion, self.V)
-        v_s = PAPER_V0_FACTOR * self.V
+        v_s = STUCK_FLOOR_FACTOR * self.V
         return v_s * jnp.exp(jnp.minimum(self.model.shear_force(x) - phi_s, 0.0) / slope)
 
     # ------------------------------------------------------------------ folds (fold="jump")
@@ -204,7 +209,7 @@ class HomogenizedODE(eqx.Module):
     def jump(self, y: Float[Array, "4"]) -> Jump:
         """v⁺ on the other stable branch of G(x) = φ(v, V), x unchanged.
 
-        A landing below the floor (G(x) < φ(v_s, V): the DAE's v⁺ is below 1e-10·V, or 0 where
+        A landing below the floor (G(x) < φ(v_s, V): the DAE's v⁺ is below 1e-12·V, or 0 where
         the tape lands fully stuck) is on ψ's continuation Φ, at :meth:`stuck_velocity`; the
         record keeps the DAE's v⁺ (0: fully stuck), as at τ = 0.
         """

@@ -1,4 +1,4 @@
-"""The fully stuck tape at τ > 0 (issue 30, item 3): below the floor v_s = 1e-10·V the
+"""The fully stuck tape at τ > 0 (issue 30, item 3): below the floor v_s = 1e-12·V the
 homogenized ODE continues φ linearly in log v (``peeljax.homogenized``), so a run through a
 stuck phase neither stalls nor differs from the DAE's (τ = 0) by more than O(τ), a run that
 stays above the floor is unchanged bit for bit, and gradients through a stuck phase are finite
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import peeljax as pj
-from peeljax.homogenized import Evaluation, _jump, floor_of
+from peeljax.homogenized import STUCK_FLOOR_FACTOR, Evaluation, _jump, floor_of
 from peeljax.integrators import integrator_for
 from peeljax.model import PAPER_ALPHA0, PAPER_V0_FACTOR
 from peeljax.simulate import _run
@@ -24,7 +24,7 @@ from peeljax._arrays import float_array
 
 MODEL = pj.PeelingModel()
 V = 1.1
-FLOOR = PAPER_V0_FACTOR * V
+FLOOR = STUCK_FLOOR_FACTOR * V
 
 
 @functools.cache
@@ -67,13 +67,13 @@ def test_phi_is_continued_below_the_floor_c1_and_linear_in_log_v():
     for v in (1e-20, 1e-60, 1e-200):
         np.testing.assert_allclose(float(continued.phi(v, V)), float(phi_s + slope * np.log(v / FLOOR)), rtol=1e-12)
         np.testing.assert_allclose(log_slope(continued.phi, v), float(slope), rtol=1e-12)
-    # the slope at the floor (0.53 N): 3.7 N of φ lie between v_s and v → 0⁺ (φ(0⁺) = 127.69 N at V = 1.1)
-    assert 0.5 < float(slope) < 0.6 and 3.5 < float(phi_s - _folds().phi_zero) < 3.8
+    # the slope at the floor (0.27 N): 1.8 N of φ lie between v_s and v → 0⁺ (φ(0⁺) = 127.69 N at V = 1.1)
+    assert 0.25 < float(slope) < 0.3 and 1.7 < float(phi_s - _folds().phi_zero) < 1.9
 
 
 def test_a_stuck_state_moves_as_with_v_zero_at_a_bounded_rate_and_a_jump_lands_on_it():
     tau = 3.3e-3
-    y = _stuck_start(100.0, tau)  # 31 N below φ(v_s): 59 e-folds below the floor
+    y = _stuck_start(100.0, tau)  # 29.5 N below φ(v_s): 108 e-folds below the floor
     v = float(y[3])
     _, phi_s, slope = floor_of(MODEL.adhesion, V)
     np.testing.assert_allclose(np.log(v / FLOOR), (100.0 - float(phi_s)) / float(slope), rtol=1e-12)
@@ -89,7 +89,7 @@ def test_a_stuck_state_moves_as_with_v_zero_at_a_bounded_rate_and_a_jump_lands_o
     # d(log v)/dt = F̃·f/(K + O(τ·v)): G's rate over the continuation's slope, not ~v^(−0.15)
     np.testing.assert_allclose(float(evaluation.psi[3]) / v, float(evaluation.drive) / float(slope), rtol=1e-9)
     # J_t reported at its floor value (same sign, bounded): the impasse predictor sees no impasse
-    assert -1e10 < float(evaluation.J) < -1e9
+    assert -1e12 < float(evaluation.J) < -1e11  # −K/v_s
     # a jump down from the slip branch at this x lands there; the record says "fully stuck" (0)
     assert not bool(jump.up) and float(jump.v_after) == 0.0
     np.testing.assert_allclose(float(jump.y[3]), v, rtol=1e-12)
@@ -166,7 +166,7 @@ class _PlainODE(pj.HomogenizedODE):
 
 @pytest.mark.slow
 def test_a_run_that_never_sticks_is_unchanged():
-    """V = 2, τ = 3e-3 from the paper's start (at the floor itself) over 0.15 s: stick, slip at
+    """V = 2, τ = 3e-3 from the paper's start (100× above the floor) over 0.15 s: stick, slip at
     0.139 s and re-stick above the floor at 0.144 s; every state and jump time is the same bit for
     bit with and without the floor."""
     t_final, V_ = 0.15, 2.0
@@ -184,7 +184,8 @@ def test_a_run_that_never_sticks_is_unchanged():
 def test_gradients_through_a_stuck_phase_are_finite_and_match_central_differences():
     """jax.grad with respect to c1 and V of a loss at 0.03 s, after a stuck phase of ~0.011 s
     from G = 115 N (τ = 3e-3): the depth below the floor, the time the tape leaves and its climb
-    are all differentiated (asserted to 1e-4 of central differences)."""
+    are all differentiated (asserted to 1e-4 of central differences at rtol 1e-10: 5e-5 measured;
+    at rtol 1e-8 the differences' own noise is 2e-4)."""
     tau, t_final = 3e-3, 0.03
 
     def loss(params):
@@ -193,15 +194,20 @@ def test_gradients_through_a_stuck_phase_are_finite_and_match_central_difference
         x0 = jnp.array([PAPER_ALPHA0, 0.0, model.stretch_for_force(PAPER_ALPHA0, 115.0)])
         y0 = jnp.concatenate([x0, pj.HomogenizedODE(model, V_, tau).stuck_velocity(x0)[None]])
         ts = np.linspace(0.0, t_final, 1001)
-        sol = pj.simulate(model, V_, tau, t_final=t_final, y0=y0, ts=ts, rtol=1e-8, atol=1e-11)
+        sol = pj.simulate(model, V_, tau, t_final=t_final, y0=y0, ts=ts, rtol=1e-10, atol=1e-13)
         y = sol.ys[-1]
         return jnp.log(y[3]) + 1e3 * y[2], y[3]
 
     p0 = jnp.array([400.0, V])
-    (_, v_final), grad = jax.value_and_grad(loss, has_aux=True)(p0)
+    value_and_grad = jax.jit(jax.value_and_grad(loss, has_aux=True))  # one program: also the differences' values
+    (_, v_final), grad = value_and_grad(p0)
     assert float(v_final) > 1e-7  # it left the floor
     grad = np.asarray(grad)
     assert np.all(np.isfinite(grad))
     eps = np.array([0.04, 1e-4])
-    central = [(float(loss(p0.at[k].add(eps[k]))[0]) - float(loss(p0.at[k].add(-eps[k]))[0])) / (2 * eps[k]) for k in range(2)]
+
+    def value(p):
+        return float(value_and_grad(p)[0][0])
+
+    central = [(value(p0.at[k].add(eps[k])) - value(p0.at[k].add(-eps[k]))) / (2 * eps[k]) for k in range(2)]
     np.testing.assert_allclose(grad, central, rtol=1e-4)
