@@ -32,8 +32,8 @@ def test_figures_writes_every_png_and_captions(tmp_path):
 @pytest.mark.parametrize(
     "argv, message",
     [
-        (["--t-final", "-1"], "t_final must be > 0"),
-        (["--t-final", "0.01"], "t_final must be >= 0.05"),
+        (["--t-final", "-1"], "--t-final must be > 0"),
+        (["--t-final", "0.01"], "--t-final must be >= 0.05"),
         (["--format", "xyz"], "unknown image format"),
     ],
 )
