@@ -237,7 +237,7 @@ def test_stick_slip_map_panel_b_keeps_k_and_the_status_apart(tmp_path):
     a repeat and the stopped ones on a strip of named rows, not at heights of the time axis."""
     from test_stick_slip_map import _hand_made_map
 
-    from peeljax.stick_slip_plots import plot_stick_slip_map
+    from peeljax.plots import plot_stick_slip_map
 
     fig = plot_stick_slip_map(_hand_made_map(), path=tmp_path / "map.png")
     fig.canvas.draw()
@@ -277,3 +277,15 @@ def test_trajectory_fit_plot_shows_every_fitted_quantity(tmp_path):
     assert ylabels.count("φ(v, V) [N]") == 1
     texts = [text.get_text() for ax in fig.axes for text in ax.texts]
     assert texts == ["no alpha observed at this V"]
+
+
+def test_the_old_module_peeljax_stick_slip_plots_warns_and_re_exports():
+    import importlib
+    import sys
+
+    import peeljax.plots as plots
+
+    sys.modules.pop("peeljax.stick_slip_plots", None)
+    with pytest.warns(DeprecationWarning, match="peeljax.stick_slip_plots is deprecated: import plot_stick_slip_map from peeljax.plots"):
+        old = importlib.import_module("peeljax.stick_slip_plots")
+    assert old.plot_stick_slip_map is plots.plot_stick_slip_map

@@ -23,7 +23,7 @@ LAYERS = [
     ("integrators", {"integrators"}),
     ("one run", {"simulate", "bound", "saved"}),
     ("many runs, fit, analysis", {"sweeps", "fit", "analysis", "cycles", "alternatives"}),
-    ("CLI and plots", {"cli", "plots", "stick_slip_plots", "figures"}),
+    ("CLI and plots", {"cli", "plots", "stick_slip_plots", "figures"}),  # stick_slip_plots: a deprecated alias
     ("the package's public names", {""}),
 ]
 

@@ -21,7 +21,7 @@ from conftest import PNG_MAGIC, assert_refused, forbid, run_cli
 from peeljax import PeelingModel, StopReason, phi_folds
 from peeljax.cli import build_parser
 from peeljax.cli import sweep as sweep_cli
-from peeljax.stick_slip_plots import plot_stick_slip_map
+from peeljax.plots import plot_stick_slip_map
 from peeljax.sweeps import StickSlipMap, stick_slip_map, sweep
 from peeljax.sweeps.stick_slip_map import FOLD_FIELDS, LANE_FIELDS
 

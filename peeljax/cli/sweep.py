@@ -698,7 +698,7 @@ def _map_command(args: argparse.Namespace) -> int:
             failed = ("--out", args.out, error)
             args.out = None
     if args.plot is not None and failed is None:
-        from ..stick_slip_plots import plot_stick_slip_map
+        from ..plots import plot_stick_slip_map
 
         try:
             plot_stick_slip_map(smap, path=args.plot)

@@ -11,7 +11,7 @@ slips and the range of v on each branch; with φ's folds per V alongside.
 Stick-slip is *computed* here, not read off φ: with the paper's φ, stick-slip and steady
 peeling coexist for some V (from the paper's start V = 0.35 m/s, below v̂(V), still jumps,
 while V = 0.2–0.3 m/s peel steadily), so the starting state decides which one a run shows and
-the map keeps one row per start. :func:`peeljax.stick_slip_plots.plot_stick_slip_map` draws it.
+the map keeps one row per start. :func:`peeljax.plots.plot_stick_slip_map` draws it.
 
 Definitions (per V and start, over the lane's window [window_start, t_stop]; see
 :mod:`peeljax.cycles`):

@@ -17,8 +17,8 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from .model import PeelingModel
-from .solution import Solution, StopReason
+from ..model import PeelingModel
+from ..solution import Solution, StopReason
 
 __all__ = ["plot_fit", "plot_run", "plot_runs", "plot_stick_slip", "plot_sweep_map", "short_reason"]
 
@@ -225,7 +225,7 @@ def plot_stick_slip(
         raise ValueError("plot a single trajectory: index the batch of a vmapped Solution first")
     if solution.jumps is None:
         raise ValueError("plot_stick_slip: this run has no jump record (run it with fold='jump')")
-    from .branches import phi_folds
+    from ..branches import phi_folds
 
     model = PeelingModel() if model is None else model
     V = float(V)
@@ -626,8 +626,8 @@ def plot_fit(result, observations, *, model: PeelingModel | None = None, title: 
     each V (one column each), and the fitted φ(v, V) against the start over the visited v range."""
     import jax.numpy as jnp
 
-    from .fit.trajectory import QUANTITIES
-    from .simulate import simulate
+    from ..fit.trajectory import QUANTITIES
+    from ..simulate import simulate
 
     model = PeelingModel() if model is None else model
     settings = result.settings

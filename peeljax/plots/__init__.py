@@ -1,0 +1,21 @@
+"""The pictures, one module per kind (matplotlib only; nothing is computed beyond what is drawn):
+
+- :mod:`.runs`: runs in the style of the paper's Figs. 2–3, a run carried through the folds of
+  φ (:func:`plot_stick_slip`), a sweep's map (:func:`plot_sweep_map`) and a trajectory fit
+  (:func:`plot_fit`);
+- :mod:`.stick_slip_map`: the stick-slip map over V (:func:`plot_stick_slip_map`).
+"""
+
+from .runs import SWEEP_MAP_MAX_LINES, plot_fit, plot_run, plot_runs, plot_stick_slip, plot_sweep_map, short_reason
+from .stick_slip_map import plot_stick_slip_map
+
+__all__ = [
+    "SWEEP_MAP_MAX_LINES",
+    "plot_fit",
+    "plot_run",
+    "plot_runs",
+    "plot_stick_slip",
+    "plot_stick_slip_map",
+    "plot_sweep_map",
+    "short_reason",
+]
