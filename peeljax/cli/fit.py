@@ -212,12 +212,26 @@ def _check_source(args: argparse.Namespace) -> None:
         raise ValueError("--table and --data exclude each other: fit a stick-slip table or runs, not both")
     if args.data is None and args.table is None:
         raise ValueError("give --data FILE (runs to fit) or --table TABLE.csv (a stick-slip table to fit)")
-    source, others = ("--table", _DATA_ONLY) if args.table is not None else ("--data", _TABLE_ONLY)
-    for name in others:
-        if getattr(args, name) is not None:
-            raise ValueError(f"{_option(name)} does not apply to {source}")
+    if args.table is not None:
+        _refuse(args, _DATA_ONLY, "--table")
     if args.data is not None and args.out is None:
         raise ValueError("--out FITTED.json is required with --data")
+
+
+def _refuse(args: argparse.Namespace, names: tuple[str, ...], source: str) -> None:
+    for name in names:
+        if getattr(args, name) is not None:
+            raise ValueError(f"{_option(name)} does not apply to {source}")
+
+
+def force_records_only(observations: list[Observation]) -> bool:
+    """True where no observation has v or α: force records (t, F), what a load cell gives."""
+
+    def has(o, quantity):
+        series = o.series(quantity)
+        return series is not None and bool(np.any(np.isfinite(series[1])))
+
+    return all(not has(o, "v") and not has(o, "alpha") and has(o, "F") for o in observations)
 
 
 def _table_default(name: str):
@@ -257,23 +271,49 @@ def _n_starts(args: argparse.Namespace) -> int:
     return int(n)
 
 
-def _validate_table(args: argparse.Namespace) -> dict:
-    """--table's options, all checked before anything is compiled."""
+def _read_table(args: argparse.Namespace):
     from ..fit import read_stick_slip_table
-    from ..fit.stick_slip_table import STATISTICS
-    from ..fit.table import table_tolerances
 
     if not Path(args.table).is_file():
         raise ValueError(f"--table: file {args.table!r} does not exist")
     try:
-        table = read_stick_slip_table(args.table)
+        return read_stick_slip_table(args.table)
     except DataFileError as error:
         raise ValueError(f"--table: {error}") from None
     except OSError as error:
         raise ValueError(f"--table: cannot read {args.table!r} ({error.strerror or error})") from None
+
+
+def _records_table(args: argparse.Namespace, observations: list[Observation]):
+    """The stick-slip table of force records (``StickSlipTable.from_force_records``): each
+    record's statistics after --transient, one row per V."""
+    from ..fit import StickSlipTable
+
+    _refuse(args, _DATA_ONLY[1:], "force records (t, F) fitted through their statistics")
+    transient, _ = _table_window(args)
+    t_end = min(float(np.nanmax(o.series("F")[0])) for o in observations)
+    if transient >= t_end:
+        raise ValueError(
+            f"--transient must lie in [0, {t_end:g}) [s] for these records (their statistics are taken after it), "
+            f"got {transient:g}"
+        )
+    try:
+        return StickSlipTable.from_force_records(observations, transient=transient)
+    except ValueError as error:
+        raise ValueError(f"--data: {error}") from None
+
+
+def _validate_table(args: argparse.Namespace, table=None, source: str | None = None) -> dict:
+    """--table's options (or those of force records fitted through their ``table``), all
+    checked before anything is compiled."""
+    from ..fit.stick_slip_table import STATISTICS
+    from ..fit.table import table_tolerances
+
+    if table is None:
+        table, source = _read_table(args), f"the stick-slip table {args.table}"
     tau = 0.0 if args.tau is None else args.tau
     if not (math.isfinite(tau) and 0 <= tau <= TAU_MAX):
-        raise ValueError(f"--tau must lie in [0, {TAU_MAX:g}] with --table (allowed range), got {tau:g}")
+        raise ValueError(f"--tau must lie in [0, {TAU_MAX:g}] with a stick-slip table (allowed range), got {tau:g}")
     transient, window = _table_window(args)
     n_starts = _n_starts(args)
     max_iterations = 30 if args.max_iterations is None else args.max_iterations
@@ -289,19 +329,19 @@ def _validate_table(args: argparse.Namespace) -> dict:
     unknown = [s for s in statistics if s not in table.statistics]
     if unknown:
         raise ValueError(
-            f"--statistics: {unknown} not in the table {args.table!r}, which has {', '.join(table.statistics)} "
+            f"--statistics: {unknown} not in {source}, which has {', '.join(table.statistics)} "
             f"(of {', '.join(STATISTICS)})"
         )
     n_measured = sum(int(np.sum(~np.isnan(table.values[s]))) for s in statistics)
     if n_measured <= len(free):
         raise ValueError(
-            f"--free: {n_measured} measured values in --table cannot determine {len(free)} coefficient(s) "
+            f"--free: {n_measured} measured values in {source} cannot determine {len(free)} coefficient(s) "
             "with an error estimate; fit fewer"
         )
     start = AdhesionLaw() if args.phi is None else load_phi(args.phi)
     options.check_outputs(args)
     return {
-        "table": table, "tau": float(tau), "transient": transient, "window": window,
+        "table": table, "source": source, "tau": float(tau), "transient": transient, "window": window,
         "n_starts": n_starts, "max_iterations": int(max_iterations), "rtol": rtol, "atol": atol,
         "free": free, "statistics": tuple(statistics), "start": start,
         # left out: fit_stick_slip's own budget
@@ -327,7 +367,7 @@ def _table_command(args: argparse.Namespace, config: dict) -> int:
 
     table = config["table"]
     print(
-        f"{PROG}: fitting {', '.join(config['free'])} to the stick-slip table {args.table} "
+        f"{PROG}: fitting {', '.join(config['free'])} to {config['source']} "
         f"({len(table)} rows, V = {', '.join(f'{V:g}' for V in table.V)}; {', '.join(config['statistics'])}), "
         f"tau {config['tau']:g}, statistics over [{config['transient']:g}, {config['transient'] + config['window']:g}] s "
         f"(--transient {config['transient']:g} --window {config['window']:g}), at most {config['max_iterations']} "
@@ -344,7 +384,7 @@ def _table_command(args: argparse.Namespace, config: dict) -> int:
         max_iterations=config["max_iterations"], n_starts=config["n_starts"],
         **({"max_steps": config["max_steps"]} if "max_steps" in config else {}), **progress,
     )  # fmt: skip
-    result.settings.update({"table": args.table, "phi": args.phi})
+    result.settings.update({"table": args.table, "data": args.data, "phi": args.phi})
     if args.out is not None:
         result.to_json(args.out)
     if args.plot is not None:
@@ -357,7 +397,7 @@ def _table_command(args: argparse.Namespace, config: dict) -> int:
         print(json.dumps(json_safe(record), allow_nan=False))
         return 0
     print(
-        f"peeljax fit --table: {result.steps} iterations (Levenberg-Marquardt), loss {result.initial_loss:.4g} -> "
+        f"peeljax fit: {result.steps} iterations (Levenberg-Marquardt), loss {result.initial_loss:.4g} -> "
         f"{result.final_loss:.4g}"
     )
     print(f"stopped: {result.stop_reason}")
@@ -375,7 +415,8 @@ def _ascii(text: str) -> str:
     return text.translate(ASCII).encode("ascii", "replace").decode("ascii")
 
 
-def _validate(args: argparse.Namespace) -> dict:
+def _validate(args: argparse.Namespace, observations: list[Observation], defaults: dict) -> dict:
+    _refuse(args, _TABLE_ONLY, "--data with v or alpha (a point-by-point fit of the runs)")
     if args.optimizer not in OPTIMIZERS:
         raise ValueError(f"--optimizer must be one of {', '.join(OPTIMIZERS)}, got {args.optimizer!r}")
     if args.steps < 1:
@@ -393,7 +434,6 @@ def _validate(args: argparse.Namespace) -> dict:
         unknown = [q for q in args.quantities if q not in QUANTITIES]
         if unknown or "v" not in args.quantities and not args.quantities:
             raise ValueError(f"--quantities: unknown {unknown}; allowed: {', '.join(QUANTITIES)}")
-    observations, defaults = load_observations(args.data, args.V)
     if args.quantities is not None:
         drop = {q: None for q in ("F", "alpha") if q not in args.quantities}
         observations = [Observation(**{**o.__dict__, **drop}) for o in observations]
@@ -441,14 +481,25 @@ def _fit_command(args: argparse.Namespace) -> int:
         _check_source(args)
         if args.table is not None:
             config = _validate_table(args)
+        else:
+            observations, defaults = load_observations(args.data, args.V)
+            if force_records_only(observations):
+                config = _validate_table(
+                    args, _records_table(args, observations), f"the statistics of {len(observations)} force record(s)"
+                )
+            else:
+                config = _validate(args, observations, defaults)
     except (ValueError, TypeError) as error:
         return fail(error)
-    if args.table is not None:
+    if "table" in config:
+        if args.data is not None:
+            print(
+                f"{PROG}: the --data files hold t and F only (force records): fitting their stick-slip statistics "
+                f"per V after --transient {config['transient']:g} s (StickSlipTable.from_force_records: "
+                f"{', '.join(config['table'].statistics)}), not the records point by point",
+                file=sys.stderr,
+            )
         return _table_command(args, config)
-    try:
-        config = _validate(args)
-    except (ValueError, TypeError) as error:
-        return fail(error)
     from ..fit import fit_adhesion
 
     observations = config["observations"]
