@@ -3,15 +3,39 @@ pickles, and one clear ValueError naming the file for each way it can be unreada
 
 from __future__ import annotations
 
+import math
 import zipfile
 import zlib
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["read_npz"]
+__all__ = ["check_declared_sizes", "read_npz"]
 
 _ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")  # a zip archive's first bytes (an empty one: its end record)
+
+
+def check_declared_sizes(path: str | Path) -> None:
+    """Refuse (ValueError) an archive whose member's .npy header declares more bytes than the
+    member holds: numpy would allocate the declared size first (a damaged or hostile header of
+    a few bytes can ask for terabytes). Read: the zip directory and each header, no data."""
+    with zipfile.ZipFile(path) as archive:
+        for info in archive.infolist():
+            if not info.filename.endswith(".npy"):
+                continue
+            with archive.open(info) as member:
+                version = np.lib.format.read_magic(member)
+                if version == (1, 0):
+                    shape, _, dtype = np.lib.format.read_array_header_1_0(member)
+                else:
+                    shape, _, dtype = np.lib.format.read_array_header_2_0(member)
+                declared = math.prod(shape) * dtype.itemsize
+                held = info.file_size - member.tell()
+            if declared > held and not dtype.hasobject:  # object arrays: pickles, refused when read
+                raise ValueError(
+                    f"damaged: its array {info.filename[:-4]!r} declares {declared} bytes (shape {shape}), "
+                    f"the archive holds {held}"
+                )
 
 
 def read_npz(path: str | Path, required: tuple[str, ...] = (), *, fix: str = "") -> dict[str, np.ndarray]:
@@ -32,9 +56,11 @@ def read_npz(path: str | Path, required: tuple[str, ...] = (), *, fix: str = "")
         what = "it is empty" if not head else "it does not start as a zip archive does"
         raise ValueError(f"{name} is not a readable .npz file: {what} (damaged, or another kind of file){tail}")
     try:
+        check_declared_sizes(path)
         with np.load(path, allow_pickle=False) as data:
             arrays = {key: data[key] for key in data.files}
-    except (zipfile.BadZipFile, zlib.error, EOFError) as error:
+    except (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, RuntimeError) as error:
+        # the last two: zipfile's "compression method not supported" and "encrypted" (damaged flag bits)
         raise ValueError(
             f"{name} is not a readable .npz file: it is damaged (truncated or corrupt: {error}){tail}"
         ) from None

@@ -595,7 +595,7 @@ def _saved_chunks(out: str | None) -> str:
     saved = len(list(folder.glob("chunk_*.npz"))) if folder.is_dir() else 0
     try:
         total = f" of {int(json.loads((folder / 'meta.json').read_text())['n_chunks'])}"
-    except (OSError, ValueError, KeyError, TypeError):
+    except (OSError, ValueError, KeyError, TypeError, OverflowError):  # a damaged meta.json: no total
         total = ""
     return (
         f"{saved}{total} chunk{'' if saved == 1 and not total else 's'} saved in {str(folder)!r}; "

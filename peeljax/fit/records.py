@@ -44,10 +44,13 @@ from __future__ import annotations
 
 import math
 import re
+import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
 
+from .._npz import check_declared_sizes
 from .text_tables import DataFileError, column_numbers, read_text_table
 from .trajectory import Observation
 
@@ -164,6 +167,11 @@ def read_observations(path, *, V: float | None = None) -> list[Observation]:
 
 
 # ---------------------------------------------------------------------------- .npz files
+# What zipfile raises for damaged bytes: a bad CRC or directory, a broken deflate stream, a cut
+# member, and (flipped flag bits) "compression method not supported" or "encrypted".
+_DAMAGED_ZIP = (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, RuntimeError)
+
+
 def read_npz(path, *, V: float | None = None) -> tuple[list[Observation], dict[str, float]]:
     """The observations of an ``.npz`` data file and its settings: ``{"tau": …, "dt": …}``
     where the file has a usable one (``tau`` ≥ 0; ``dt`` finite and > 0 — a ``simulate --out``
@@ -174,16 +182,24 @@ def read_npz(path, *, V: float | None = None) -> tuple[list[Observation], dict[s
         raise DataFileError(path, "no such file")
     try:
         data = np.load(path, allow_pickle=False)
+        if hasattr(data, "files"):  # before numpy allocates what a damaged header declares
+            check_declared_sizes(path)
     except Exception as error:  # noqa: BLE001  (any failure to parse the file is bad input)
+        if str(error).startswith("damaged") or isinstance(error, _DAMAGED_ZIP):
+            raise DataFileError(path, f"damaged .npz ({str(error).removeprefix('damaged: ')})") from None
         raise DataFileError(path, f"not a readable .npz without pickles ({type(error).__name__})") from None
     if not hasattr(data, "files"):
         raise DataFileError(path, "expected an .npz archive of named arrays")
     with data:
         try:
             return _read_npz_file(data, path, V)
+        except (*_DAMAGED_ZIP, OSError) as error:  # a member's bytes corrupt
+            raise DataFileError(path, f"damaged .npz: an array cannot be read ({error})") from None
         except ValueError as error:
             if not isinstance(error, DataFileError) and "allow_pickle" in str(error):
                 raise DataFileError(path, "not a readable .npz without pickles (object arrays)") from None
+            if not isinstance(error, DataFileError):  # numpy's own: a header or data it cannot parse
+                raise DataFileError(path, f"damaged .npz: an array cannot be read ({error})") from None
             raise
 
 

@@ -118,6 +118,10 @@ class ChunkStore:
                 raise ValueError(
                     f"{str(meta_path)!r} is not valid JSON ({error}); delete the folder to start again"
                 ) from None
+            except OSError as error:  # a folder, no permission: a bad resume, not a failed write
+                raise ValueError(
+                    f"{str(meta_path)!r} cannot be read ({error.strerror or error}); delete the folder to start again"
+                ) from None
             self.check_meta(meta, repr(str(meta_path)))
         else:
             self.folder.mkdir(parents=False)
