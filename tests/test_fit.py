@@ -43,13 +43,15 @@ def test_steady_fit_of_all_coefficients():
 
 @pytest.mark.slow
 def test_trajectory_fit_acceptance():
-    """Issue 4's acceptance: v, F and α at V = 1.1, 2, 4 (τ = 0.01 s, t ≤ 1 s, every 1/82 s)
-    with 1 % noise; all 14 coefficients from a ±(10–20) % start; L-BFGS; the model on the
-    error-controlled α-method (the default, rtol 1e-6). Measured figures:
-    ``python benchmarks/fit_acceptance.py`` (docs/fitting.md). The coefficients themselves are
-    not all recovered: docs/fitting.md, identifiability.
+    """Issue 4's acceptance on a shorter record: v, F and α at V = 1.1, 2, 4 (τ = 0.01 s, here
+    t ≤ 0.5 s, every 1/82 s) with 1 % noise; all 14 coefficients from a ±(10–20) % start; 300
+    L-BFGS iterations; the model on the error-controlled α-method (the default, rtol 1e-6).
+    Measured here: loss ÷ 1700, final loss 0.95 × the noise floor, φ within 1.1 %. The issue's
+    own setting (t ≤ 1 s, 500 iterations): ``python benchmarks/fit_acceptance.py``
+    (docs/fitting.md). The coefficients themselves are not all recovered: docs/fitting.md,
+    identifiability.
     """
-    out = fit_acceptance.run(t_final=1.0, steps=500, progress=False)
+    out = fit_acceptance.run(t_final=0.5, steps=300, progress=False)
     result = out["result"]
     assert result.settings["rtol"] == 1e-6 and result.settings["dt"] is None  # error control, the default
     assert result.loss_reduction >= 100
