@@ -94,10 +94,10 @@ def read_text_table(path, units: Mapping[str, str], required: Sequence[str], wha
             continue
         if header_line is None:
             header_line, comma = number, "," in stripped
-            cells = _split(stripped, comma)
+            cells = _split(stripped, comma, path, number)
             names = _header(path, number, cells, units, required, comma)
             continue
-        rows.append(_split(stripped, comma))
+        rows.append(_split(stripped, comma, path, number))
         lines.append(number)
     if header_line is None:
         example = ",".join(required)
@@ -119,11 +119,14 @@ def read_text_table(path, units: Mapping[str, str], required: Sequence[str], wha
     return TextTable(path, header_line, names, cells, np.asarray(lines))
 
 
-def _split(line: str, comma: bool) -> list[str]:
+def _split(line: str, comma: bool, path, number: int) -> list[str]:
     if not comma:
         return line.split()
     if '"' in line or "'" in line:
-        return [cell.strip() for cell in next(csv.reader([line], skipinitialspace=True))]
+        try:
+            return [cell.strip() for cell in next(csv.reader([line], skipinitialspace=True))]
+        except csv.Error as error:  # e.g. a quoted cell longer than csv's field limit (131072)
+            raise DataFileError(path, f"not a CSV line ({error})", line=number) from None
     return [cell.strip() for cell in line.split(",")]
 
 
