@@ -99,7 +99,8 @@ def check_mesh(dt, t_final) -> int:
     dt, t_final = float(dt), float(t_final)
     if dt > t_final:
         raise ValueError(f"dt must be <= t_final (allowed range: (0, {t_final}]), got dt={dt}")
-    n_steps = max(1, round(t_final / dt))
+    ratio = t_final / dt  # inf for a subnormal dt: no integer count (round(inf) raises OverflowError)
+    n_steps = max(1, round(ratio)) if math.isfinite(ratio) else math.inf
     if n_steps > 100_000_000:
         raise ValueError(f"dt={dt} gives {n_steps} steps over t_final={t_final}; the limit is 1e8 steps")
     return n_steps

@@ -566,3 +566,9 @@ def test_csv_with_a_huge_quoted_cell_is_refused(tmp_path):
              "--data", "big.csv", "line 2", "not a CSV line")  # fmt: skip
     (tmp_path / "table.csv").write_text('V,F_mean\n"' + "1" * 200_000 + '",1\n2,3\n')
     _refused(run_guarded(["fit", "--table", "table.csv"], tmp_path), "--table", "table.csv", "line 2")
+
+
+@pytest.mark.parametrize("command", ["simulate", "sweep", "tau-star"])
+def test_subnormal_dt_is_refused(tmp_path, command):
+    """Was: OverflowError (round(t_final/dt) of inf) as a traceback, for --dt 2.2e-313."""
+    _refused(run_guarded([command, "--dt", "2.2250738585e-313"], tmp_path), "dt", "the limit is 1e8 steps")
