@@ -572,3 +572,9 @@ def test_csv_with_a_huge_quoted_cell_is_refused(tmp_path):
 def test_subnormal_dt_is_refused(tmp_path, command):
     """Was: OverflowError (round(t_final/dt) of inf) as a traceback, for --dt 2.2e-313."""
     _refused(run_guarded([command, "--dt", "2.2250738585e-313"], tmp_path), "dt", "the limit is 1e8 steps")
+
+
+@pytest.mark.parametrize("command", ["simulate", "sweep"])
+def test_subnormal_save_dt_is_refused(tmp_path, command):
+    """Was: OverflowError (floor(t_final/save_dt) of inf) as a traceback, for --save-dt 5e-324."""
+    _refused(run_guarded([command, "--save-dt", "5e-324"], tmp_path), "--save-dt", "the limit is 1e7")

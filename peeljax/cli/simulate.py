@@ -217,6 +217,8 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
             raise ValueError(f"--save-dt must lie in (0, t_final] = (0, {args.t_final:g}], got {args.save_dt:g}")
         if args.method != "diffrax" and dt is not None:
             raise ValueError("--save-dt sets the output of error control; with --dt the output is the uniform mesh")
+        if not math.isfinite(args.t_final / args.save_dt):  # a subnormal S: no count of output times
+            raise ValueError(f"--save-dt {args.save_dt:g} gives more output times than can be counted; the limit is 1e7")
         n_save = output_count(args.save_dt, args.t_final)  # counted first: the times themselves could fill memory
         _check_memory(f"--save-dt {args.save_dt:g}", n_save, "ts", "give a larger --save-dt or a shorter --t-final")
         if n_save > 10_000_001:

@@ -263,7 +263,8 @@ def _integrator_options(args: argparse.Namespace) -> dict:
         if save_dt is not None:
             if not (math.isfinite(save_dt) and 0 < save_dt <= args.t_final):
                 raise ValueError(f"--save-dt must lie in (0, t_final] = (0, {args.t_final:g}], got {save_dt:g}")
-            n_save = math.floor(args.t_final / save_dt) + 2
+            ratio = args.t_final / save_dt  # inf for a subnormal S: more than any limit
+            n_save = math.floor(ratio) + 2 if math.isfinite(ratio) else math.inf
             if n_save > _MAX_SAVE_TIMES:
                 raise ValueError(
                     f"--save-dt {save_dt:g} gives {n_save:.3g} save times per trajectory; the limit is 1e7"
