@@ -578,3 +578,9 @@ def test_subnormal_dt_is_refused(tmp_path, command):
 def test_subnormal_save_dt_is_refused(tmp_path, command):
     """Was: OverflowError (floor(t_final/save_dt) of inf) as a traceback, for --save-dt 5e-324."""
     _refused(run_guarded([command, "--save-dt", "5e-324"], tmp_path), "--save-dt", "the limit is 1e7")
+
+
+def test_phi_nested_too_deeply_is_refused(tmp_path):
+    """Was: RecursionError from json's decoder as a traceback, for --phi of [[[[...]]]] 100 000 deep."""
+    (tmp_path / "phi.json").write_text("[" * 100_000 + "]" * 100_000)
+    _refused(run_guarded(["sweep", "--phi", "phi.json"], tmp_path), "--phi", "phi.json", "nested too deeply")

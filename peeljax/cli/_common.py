@@ -49,6 +49,8 @@ def read_phi(path: str) -> tuple[AdhesionLaw, tuple[str, ...]]:
         law, kept = read_json(path)
     except OSError as error:  # a directory, no permission, …: read_json handles only a missing file
         raise ValueError(f"--phi: cannot read {path!r} ({error.strerror or error})") from None
+    except RecursionError:  # json's decoder recurses once per level: [[[[…]]]] a few thousand deep
+        raise ValueError(f"--phi: {path!r} is not a JSON object of coefficients (nested too deeply)") from None
     except ValueError as error:
         message = _in_json_terms(str(error), path)
         raise ValueError(message if message.startswith("--phi") else f"--phi: {message}") from None
