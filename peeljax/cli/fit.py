@@ -415,8 +415,8 @@ def _ascii(text: str) -> str:
     return text.translate(ASCII).encode("ascii", "replace").decode("ascii")
 
 
-def _validate(args: argparse.Namespace, observations: list[Observation], defaults: dict) -> dict:
-    _refuse(args, _TABLE_ONLY, "--data with v or alpha (a point-by-point fit of the runs)")
+def _check_run_options(args: argparse.Namespace) -> None:
+    """The options of a point-by-point fit whose ranges need no data file (checked first)."""
     if args.optimizer not in OPTIMIZERS:
         raise ValueError(f"--optimizer must be one of {', '.join(OPTIMIZERS)}, got {args.optimizer!r}")
     if args.steps < 1:
@@ -434,6 +434,10 @@ def _validate(args: argparse.Namespace, observations: list[Observation], default
         unknown = [q for q in args.quantities if q not in QUANTITIES]
         if unknown or "v" not in args.quantities and not args.quantities:
             raise ValueError(f"--quantities: unknown {unknown}; allowed: {', '.join(QUANTITIES)}")
+
+
+def _validate(args: argparse.Namespace, observations: list[Observation], defaults: dict) -> dict:
+    _refuse(args, _TABLE_ONLY, "--data with v or alpha (a point-by-point fit of the runs)")
     if args.quantities is not None:
         drop = {q: None for q in ("F", "alpha") if q not in args.quantities}
         observations = [Observation(**{**o.__dict__, **drop}) for o in observations]
@@ -482,6 +486,7 @@ def _fit_command(args: argparse.Namespace) -> int:
         if args.table is not None:
             config = _validate_table(args)
         else:
+            _check_run_options(args)
             observations, defaults = load_observations(args.data, args.V)
             if force_records_only(observations):
                 config = _validate_table(
