@@ -27,6 +27,7 @@ before). Skipped in the same two cases, or when ``XLA_FLAGS`` sets the count its
 """
 
 import os as _os
+from importlib import metadata as _metadata
 
 
 def _small_while_loop_flag() -> None:
@@ -113,7 +114,10 @@ from .structure import (  # noqa: E402
 )
 from .sweeps import LeastTau, StickSlipMap, SweepResult, least_tau, stick_slip_map, sweep  # noqa: E402
 
-__version__ = "0.1.0"
+try:  # the version is set in one place, pyproject.toml, and read from the installed metadata
+    __version__ = _metadata.version("peeljax")
+except _metadata.PackageNotFoundError:  # run from a source tree that was never installed
+    __version__ = "0+unknown"
 
 __all__ = [
     "COEFFICIENT_NAMES",

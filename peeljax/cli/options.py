@@ -382,6 +382,6 @@ def progress_on(args: argparse.Namespace) -> bool:
 
 
 def deprecated(old: str, new: str, what: str = "") -> None:
-    """One line on stderr: ``old`` still works for one release; ``new`` is its spelling now."""
+    """One line on stderr: ``old`` still works until peeljax 0.3.0; ``new`` is its spelling now."""
     what = f" {what}" if what else ""
-    print(f"{PROG}: note: {old}{what} is deprecated and goes in the next release: give {new}", file=sys.stderr)
+    print(f"{PROG}: note: {old}{what} is deprecated and is removed in peeljax 0.3.0: give {new}", file=sys.stderr)

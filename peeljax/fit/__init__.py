@@ -13,7 +13,7 @@
   steady peeling (φ's own branch);
 * :mod:`.plots` — data against fit, residuals, φ with its band and folds.
 
-(``peeljax.fit.data``, which held the first four in one file, is deprecated: it re-exports them.)
+(``peeljax.fit.data``, which held the first four in one file, is deprecated, removed in peeljax 0.3.0: it re-exports them.)
 """
 
 from .measured_statistics import record_statistics
