@@ -488,7 +488,7 @@ def fit_stick_slip(
             table cannot determine are named in ``result.uncertainty.undetermined``.
         statistics: the table's statistics to fit (default all it has).
         tau: 0 (default: the DAE with jumps) or τ > 0 (the homogenized ODE with jumps).
-        transient, window: the statistics are taken over [transient, transient + window] [s].
+        transient, window: the statistics are taken over ``[transient, transient + window]`` [s].
         n_samples: dense-output times in the window (``F_mean`` is their mean).
         rtol, atol: the integrator's tolerances; None: :func:`table_tolerances` (τ = 0: rtol
             1e-9, atol 1e-12 for the default Tsit5 stepper; τ > 0: 1e-7, 1e-10).

@@ -118,7 +118,7 @@ class StickSlipMap:
         starts: the starting states, one row each (``"paper"``: the tape at rest; ``"steady"``:
             steady peeling, v = V).
         tau: τ [s] of every run (0: the DAE itself). t_final: the runs' end time [s].
-        transient: the statistics cover [transient, t_stop] [s] (``window_start``: per lane).
+        transient: the statistics cover ``[transient, t_stop]`` [s] (``window_start``: per lane).
         status … v_hi: the per-lane fields of :data:`LANE_FIELDS`, shape (len(starts), m):
             int for status, jumps, slips, events and repeats, else float (NaN: no such value).
         jump_G, jump_up: G [N] at every jump in the window and its direction (True: stick →
