@@ -8,10 +8,10 @@
   measures. The pull velocity is in the file name (``peeljax fit --data`` and
   ``peeljax.fit.read_force_record`` read it from there). No noise is added.
 * ``stick_slip_table.csv``: a stick-slip table at 4 pull velocities (0.8 … 2 m/s) from a
-  hidden φ — the paper's with c1 × 1.1 — with 1 % Gaussian noise (seed 1) and its 1 %
-  standard deviations: the statistics of
-  ``peeljax.fit.plots.model_statistics`` over [0.3, 0.8] s at rtol 1e-6, the settings
-  ``peeljax fit --table`` is run with in the README.
+  hidden φ — the paper's with c1 × 1.1 — with 1 % Gaussian noise (seed 1; one draw for the
+  three forces of a row, see :func:`stick_slip_table`) and its 1 % standard deviations: the
+  statistics of ``peeljax.fit.plots.model_statistics`` over [0.3, 0.8] s at rtol 1e-6, the
+  settings ``peeljax fit --table`` is run with in docs/fitting.md.
 """
 
 from __future__ import annotations
@@ -65,16 +65,41 @@ HIDDEN = {"c1": 400 * 1.1}
 TABLE = {"V": (0.8, 1.2, 1.6, 2.0), "transient": 0.3, "window": 0.5, "rtol": 1e-6, "atol": 1e-9}
 
 
-def stick_slip_table(path: Path = HERE / "stick_slip_table.csv") -> Path:
-    """The hidden-truth stick-slip table (module docstring)."""
-    from peeljax.fit.plots import synthetic_table
+FORCES = ("F_stick", "F_mean", "F_slip")
+
+
+def stick_slip_table(path: Path = HERE / "stick_slip_table.csv", noise: float = 0.01, seed: int = 1) -> Path:
+    """The hidden-truth stick-slip table (module docstring).
+
+    The three forces of a row come from one record, so their error is one: a load cell's
+    calibration scales them together (one draw of 1 + noise·N(0, 1) per row). Independent draws
+    put F_mean below F_stick at V = 2, where the sawtooth spans 4 N and 1 % is 3.3 N: a row no
+    run can produce. The period and the slip duration get draws of their own."""
+    from peeljax.fit.plots import model_statistics
+    from peeljax.fit.stick_slip_table import STATISTICS, StickSlipTable
 
     truth = pj.AdhesionLaw(**{**pj.AdhesionLaw().coefficients(), **HIDDEN})
     settings = {k: v for k, v in TABLE.items() if k != "V"}
-    synthetic_table(truth, np.asarray(TABLE["V"]), noise=0.01, seed=1, **settings).to_csv(path)
+    V = np.asarray(TABLE["V"], float)
+    stats, _ = model_statistics(truth, V, **settings)
+    rng = np.random.default_rng(seed)
+    force_error = 1 + noise * rng.normal(size=V.shape)
+    columns = {}
+    for name in STATISTICS:
+        exact = np.asarray(stats[name], float)
+        error = force_error if name in FORCES else 1 + noise * rng.normal(size=V.shape)
+        columns[name] = exact * error
+        columns[f"{name}_std"] = noise * np.abs(exact)
+    ordered = (columns["F_stick"] < columns["F_mean"]) & (columns["F_mean"] < columns["F_slip"])
+    if not ordered.all():
+        raise RuntimeError(f"F_stick < F_mean < F_slip fails at V = {V[~ordered]}")
+    StickSlipTable.from_dict(V=V, **columns).to_csv(path)
     return path
 
 
 if __name__ == "__main__":
-    print(f"wrote {force_record()}")
-    print(f"wrote {stick_slip_table()}")
+    import sys
+
+    jobs = {"record": force_record, "table": stick_slip_table}
+    for name in sys.argv[1:] or list(jobs):  # `make_examples.py table`: that file only
+        print(f"wrote {jobs[name]()}")
