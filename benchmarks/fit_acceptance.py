@@ -135,7 +135,7 @@ def print_table(out: dict) -> bool:
     result, truth = out["result"], out["truth"]
     u = result.uncertainty
     print(result.summary())
-    print(f"\n| coefficient | truth | start | fitted | ± SE | error | error / SE |\n|---|---:|---:|---:|---:|---:|---:|")
+    print("\n| coefficient | truth | start | fitted | ± SE | error | error / SE |\n|---|---:|---:|---:|---:|---:|---:|")
     ok = out["wall_s"] <= 60
     for n, value, se in zip(u.names, u.values, u.standard_errors):
         true = float(getattr(truth, n))

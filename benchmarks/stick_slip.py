@@ -443,7 +443,7 @@ def report(data) -> str:
         )  # fmt: skip
     lines += ["" if data.get("masses") else None, "## Every rung tried (the check, one run each; error in s)", ""]
     lines = [line for line in lines if line is not None]
-    for key, entry in checks.items():
+    for entry in checks.values():
         cells = []
         for rung in entry["rungs"]:
             text = f"{rung['error']:.2g}" if rung["status"] == "ok" else rung["status"][:50]

@@ -5,6 +5,7 @@ the statistics of a measured sawtooth, and ``peeljax fit --data`` reading them."
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +21,7 @@ from peeljax.fit import (
     read_stick_slip_table,
     record_statistics,
 )
+from peeljax.fit import records
 from peeljax.fit.records import _V_from_name, read_npz
 from peeljax.fit.stick_slip_table import STATISTICS
 
@@ -133,6 +135,9 @@ BAD_RECORDS = {
     "V not constant": ("t,F,V\n0,1,1.1\n1,2,1.2\n", 3, "V", ["constant"]),
     "wrong unit": ("t [ms],F [N]\n0,1\n1,2\n", 1, "t", ["[ms]", "convert"]),
     "semicolons": ("t;F\n0;1\n1;2\n", 1, "t;F", ["semicolons"]),
+    "units row": ("t,F\ns,N\n0,1\n1,2\n", 2, "t", ["not a number: 's'", "units under the header", "'t [s]'"]),
+    "units row in brackets": ("t F\n[s] [N]\n0 1\n1 2\n", 2, "t", ["not a number: '[s]'", "'t [s]'"]),
+    "bad cell after a million": ("t,F\n0,1\n1,2\n2,three\n", 4, "F", ["not a number: 'three'"]),
 }
 
 
@@ -260,7 +265,7 @@ V [m/s], F_mean [N], F_mean_std, F_slip, F_stick, period [s], period_std
 2.0, 250.0, 1.5, 270, 230, 0.05, 0.002
 0.5, 240.0, , 265, 215, -, 
 1.1, 245.5, 2.0, , 220.25, 0.08,0.01
-"""
+"""  # noqa: W291 (a cell of spaces: the reader must take it as empty)
 
 
 def test_read_a_stick_slip_table(tmp_path):
@@ -701,3 +706,72 @@ def test_the_old_module_peeljax_fit_data_warns_and_re_exports_the_same_names():
                  "read_stick_slip_table", "record_statistics"):  # fmt: skip
         assert getattr(data, name) is getattr(fit, name)
     assert data.STATISTICS == STATISTICS and data.read_npz is read_npz
+
+
+# ---------------------------------------------------------------------------- speed and memory
+def _record(path: Path, n: int, comment: str = "") -> Path:
+    t = np.arange(n) * 1e-3
+    body = np.column_stack([t, 250 + np.sin(t), 1.1 + 0.1 * np.cos(t)])
+    with open(path, "w") as stream:
+        stream.write(f"# a long record{comment}\nt [s], F [N], v [m/s]\n")
+        np.savetxt(stream, body, fmt="%.6f", delimiter=",")
+    return path
+
+
+def test_a_good_record_is_parsed_by_numpys_reader_and_equals_the_scan(tmp_path, monkeypatch):
+    """The C reader (numpy.loadtxt) reads a good file; the line-by-line scan, which words the
+    refusals, reads the same numbers; trailing comments are comments in both."""
+    import peeljax.fit.text_tables as text_tables
+
+    path = _record(tmp_path / "peel_V=1.1.csv", 2000)
+    with open(path, "a") as stream:
+        stream.write("2.0, 250.5, 1.2  # a comment after the numbers\n\n")
+    scanned = text_tables._scan(str(path), records.FORCE_COLUMNS, ("t", "F"), "force record", False)
+    forbid(monkeypatch, text_tables, "_scan", reason="a good file is read by numpy.loadtxt, not scanned")
+    fast = read_force_record(path)
+    assert fast.t.size == 2001 and fast.t[-1] == 2.0 and fast.v[-1] == 1.2
+    for name in ("t", "F", "v"):
+        np.testing.assert_array_equal(getattr(fast, name), scanned.columns[name])
+    assert list(scanned.lines[:2]) == [3, 4]  # line numbers: the comment and the header come first
+
+
+def test_the_memory_a_file_needs_is_estimated_before_reading_and_refused_when_too_much(tmp_path, monkeypatch):
+    import peeljax.fit.text_tables as text_tables
+
+    path = _record(tmp_path / "peel_V=1.1.csv", 20_000)
+    head = path.read_text()[: 1 << 16]
+    need, rows = text_tables.estimated_bytes(path.stat().st_size, head, 2, 3)
+    assert rows == pytest.approx(20_000, rel=0.02)  # from the size and the first rows' length
+    assert need == pytest.approx(20_000 * 3 * 8 * 1.25, rel=0.02)
+    forbid(monkeypatch, np, "loadtxt", reason="a file too large for the memory must not be read")
+    with pytest.raises(DataFileError) as error:
+        read_force_record(path, memory_limit=need / 2)
+    message = str(error.value)
+    assert message.startswith(str(path)) and "too large to read" in message
+    assert re.search(r"about (19|20),\d{3} rows of 3 numbers", message), message
+    assert f"{need / 1e9:.3g} GB" in message and "memory limit" in message
+    monkeypatch.setattr(text_tables, "default_memory_limit", lambda: need / 2)  # the command line's limit
+    code, stdout, stderr = run_cli(["fit", "--data", str(path), "--out", str(tmp_path / "fitted.json")])
+    assert_refused(code, stderr, "--data", str(path), "too large to read", "GB", stdout=stdout)
+
+
+def test_a_record_denser_than_the_fit_can_hold_is_refused_and_decimated_on_request(tmp_path, caught_fit):
+    """More samples than MAX_FIT_SAMPLES: exit 2 naming the file, the estimate and the
+    --decimate that thins it, before compiling; with --decimate the fit gets the kept samples."""
+    seen, Reached = caught_fit
+    n = records.MAX_FIT_SAMPLES + 5000
+    path = _record(tmp_path / "peel_V=1.1.csv", n)
+    out = ["--out", str(tmp_path / "fitted.json")]
+    code, stdout, stderr = run_cli(["fit", "--data", str(path), *out])
+    message = assert_refused(code, stderr, "--data", str(path), f"{n} samples", "0.001 s apart", "--decimate 2",
+                             "far denser", "GB", stdout=stdout)  # fmt: skip
+    assert "observations" not in seen, message
+    with pytest.raises(Reached):
+        run_cli(["fit", "--data", str(path), "--decimate", "2", *out])
+    [kept] = seen["observations"]
+    assert kept.t.size == kept.v.size == kept.F.size == -(-n // 2) and kept.t.flags.c_contiguous
+    np.testing.assert_array_equal(kept.t, read_force_record(path).t[::2])
+    code, stdout, stderr = run_cli(["fit", "--data", str(path), "--decimate", "0", *out])
+    assert_refused(code, stderr, "--decimate", "[1, inf)", stdout=stdout)
+    code, stdout, stderr = run_cli(["fit", "--table", str(EXAMPLES / "stick_slip_table.csv"), "--decimate", "2", *out])
+    assert_refused(code, stderr, "--decimate", "--table", stdout=stdout)

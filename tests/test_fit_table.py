@@ -9,7 +9,6 @@ import pytest
 import scipy.optimize
 import scipy.stats
 
-from peeljax.adhesion import AdhesionLaw
 from peeljax.fit import StickSlipTable, fit_stick_slip, jump_statistics, phi_relative_error
 from peeljax.fit.statistics import window_scatter
 from peeljax.fit.stick_slip_table import STATISTICS

@@ -44,7 +44,7 @@ def main(argv=None) -> None:
         + ", ".join(f"{reason} {r.reasons.count(reason)}" for reason in sorted(set(r.reasons)) if reason != "completed"),
         f"- completed with at least one event: {int(swinging.sum())}; with ≥ 3 events: "
         f"{int(np.sum(r.completed & (r.events >= 3)))}",
-        f"- largest τ that stopped, by V: "
+        "- largest τ that stopped, by V: "
         + ", ".join(
             f"{V:.3g}: {r.tau[(r.V == V) & ~r.completed].max():.2g}" for V in Vs[::4] if np.any((r.V == V) & ~r.completed)
         ),

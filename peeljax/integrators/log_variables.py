@@ -12,7 +12,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ..homogenized import HomogenizedODE
+from ..homogenized import ODE
 
 __all__ = ["LogTransformedODE", "from_log", "log_mask", "to_log"]
 
@@ -41,7 +41,7 @@ class LogTransformedODE(eqx.Module):
     v, but ψ_v/v ∝ e^(−0.15·log v) is smooth in log v: the α-method keeps its order there.
     """
 
-    ode: HomogenizedODE
+    ode: ODE
     log_components: tuple[int, ...] = eqx.field(static=True)
 
     @property
