@@ -32,6 +32,7 @@ from jax.custom_derivatives import SymbolicZero
 from jaxtyping import Array, ArrayLike, Float
 
 from ._arrays import float_array
+from ._atomic import write_text
 
 __all__ = ["AdhesionLaw", "COEFFICIENT_NAMES", "PAPER_COEFFICIENTS", "as_adhesion", "paper_defaults", "read_json", "safe_pow"]
 
@@ -139,7 +140,7 @@ class AdhesionLaw(eqx.Module):
         """The coefficients as a JSON object (keys ``c1, p1, …, p9``), plus ``extra`` keys."""
         text = json.dumps({**self.coefficients(), **extra}, indent=2)
         if path is not None:
-            Path(path).write_text(text + "\n")
+            write_text(path, text + "\n")
         return text
 
     @classmethod

@@ -1,34 +1,44 @@
-"""A saved run read back: the ``.npz`` of ``peeljax simulate --out`` as a :class:`Solution`.
+"""Files peeljax wrote, read back: :func:`peeljax.load` for every kind, and a run's file written.
 
-``peeljax.load(path)`` returns a :class:`SavedRun`, a
-:class:`Solution` that also carries what the file says about the run: its model (geometry and
-φ's coefficients), V, τ, t_final and the other settings. :func:`peeljax.analyze` takes those
-from it, so ``analyze(peeljax.load("run.npz"))`` analyzes the run as it was made, and
-:func:`peeljax.cycle_statistics` reads its jumps (``run.jumps``).
+``peeljax.load(path)`` reads any file peeljax writes and returns what it holds: a run (the
+``.npz`` of ``peeljax simulate --out`` or :meth:`Solution.save`) as a :class:`SavedRun`, a
+sweep as a :class:`~peeljax.SweepResult`, a stick-slip map as a
+:class:`~peeljax.StickSlipMap` (``.npz``, or netCDF for sweeps and maps). The file says which
+kind it is (``meta_json``, :mod:`peeljax._files`); a new kind registers its reader with
+:func:`register_reader`.
 
-The file is read with ``allow_pickle=False``; a file that is not such an .npz (damaged, another
-kind of file, a missing or misshapen array) is refused with a ValueError naming it.
+A :class:`SavedRun` is a :class:`Solution` that also carries what the file says about the run:
+its model (geometry and φ's coefficients), V, τ, t_final, the other settings and the units.
+:func:`peeljax.analyze` takes those from it, so ``analyze(peeljax.load("run.npz"))`` analyzes
+the run as it was made, and :func:`peeljax.cycle_statistics` reads its jumps (``run.jumps``).
+
+Files are read with ``allow_pickle=False``; a file that is not such an .npz (damaged, another
+kind of file, a missing or misshapen array) is refused with a ValueError naming it. Files are
+written through :mod:`peeljax._atomic`: a failed write leaves the previous file as it was.
 """
 
 from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import equinox as eqx
 import numpy as np
 
+from ._files import read_meta, read_netcdf
 from ._npz import read_npz
 from .adhesion import AdhesionLaw
 from .model import GEOMETRIES, PeelingModel
 from .solution import JumpRecord, Solution, StopReason
 
-__all__ = ["SavedRun", "load"]
+__all__ = ["SavedRun", "load", "register_reader"]
 
 _STATES = ("alpha", "omega", "u", "v")
 _REQUIRED = ("t", *_STATES, "status", "t_stop")
-_SETTINGS = ("dt", "t_final", "rho", "rtol", "atol", "method", "geometry", "fold", "max_jumps", "transient")
+_SETTINGS = ("dt", "t_final", "rho", "rtol", "atol", "method", "method_option", "geometry", "fold", "max_jumps", "transient")
 _JUMPS = ("jump_t", "jump_up", "jump_v_before", "jump_v_after", "jump_G")
 
 
@@ -43,6 +53,8 @@ class SavedRun(Solution):
         settings: the other scalars of the file (dt, t_final, rho, rtol, atol, method,
             geometry, fold, max_jumps, transient; NaN or absent where they do not apply).
         path: the file it was read from.
+        units: the units of the file's arrays (empty for a file written before they were kept).
+        peeljax_version: the version of the peeljax that wrote the file ("" where unknown).
     """
 
     model: PeelingModel | None = None
@@ -51,6 +63,20 @@ class SavedRun(Solution):
     F: np.ndarray | None = None
     settings: dict = eqx.field(default_factory=dict)
     path: str = eqx.field(static=True, default="")
+    units: dict = eqx.field(default_factory=dict)
+    peeljax_version: str = eqx.field(static=True, default="")
+
+    def save(self, path, **run) -> None:
+        """Write the run to ``path`` as it was read (:meth:`Solution.save`, with this file's
+        model, V, τ and settings; ``run`` overrides them)."""
+        settings = self.settings
+        known = {
+            "model": self.model, "V": self.V, "tau": self.tau, "t_final": settings.get("t_final"),
+            "dt": settings.get("dt"), "rho": settings.get("rho"), "rtol": settings.get("rtol"),
+            "atol": settings.get("atol"), "fold": settings.get("fold"), "max_jumps": settings.get("max_jumps"),
+            "transient": settings.get("transient"), "method_option": settings.get("method_option"),
+        }  # fmt: skip
+        super().save(path, **({key: value for key, value in known.items() if value is not None} | run))
 
     def __repr__(self) -> str:
         n = int(np.asarray(self.ts).size)
@@ -141,15 +167,12 @@ def _jumps(arrays: dict, path: str) -> JumpRecord | None:
     )
 
 
-def load(path: str | Path) -> SavedRun:
-    """The run in ``path``, an ``.npz`` written by ``peeljax simulate --out`` (module docstring).
-
-    Raises:
-        ValueError: naming the file, when it cannot be read, is not an .npz (damaged or another
-            kind of file), or lacks or misshapes the arrays of a run.
-    """
-    name = str(path)
-    arrays = read_npz(path, _REQUIRED, fix="expected the .npz of 'peeljax simulate --out'")
+def _read_run(arrays: dict, name: str) -> SavedRun:
+    """The :class:`SavedRun` of a run's ``.npz`` arrays (``name``: the file, for messages)."""
+    missing = [key for key in _REQUIRED if key not in arrays]
+    if missing:
+        raise ValueError(f"{name!r} is malformed: missing {missing}; expected the .npz of 'peeljax simulate --out'")
+    meta = read_meta(arrays, name) or {}
     columns = {key: np.asarray(arrays[key]) for key in ("t", *_STATES)}
     n = columns["t"].shape
     if len(n) != 1 or n[0] == 0 or any(value.shape != n for value in columns.values()):
@@ -185,4 +208,76 @@ def load(path: str | Path) -> SavedRun:
         F=F,
         settings=settings,
         path=name,
+        units=dict(meta.get("units", {})),
+        peeljax_version=str(meta.get("peeljax_version", "")),
     )
+
+
+# ---------------------------------------------------------------------------- every kind of file
+# A file's kind: ``kind`` in its ``meta_json``; a file written before files described themselves
+# is told by its arrays. A new kind registers a reader here (register_reader), with a few lines.
+# kind → reader of an .npz's arrays (arrays, file name) and of a netCDF file's dataset.
+# The modules of the other kinds register theirs when they are imported (``import peeljax``
+# imports them all): peeljax.sweeps.api (sweeps), peeljax.sweeps.stick_slip_map (maps).
+NPZ_READERS: dict[str, Callable[[dict, str], Any]] = {"run": _read_run}
+NETCDF_READERS: dict[str, Callable[[Any, str], Any]] = {}
+
+
+def register_reader(kind: str, npz=None, netcdf=None) -> None:
+    """Teach :func:`load` a new kind of file: ``npz(arrays, name)`` reads an ``.npz`` whose
+    ``meta_json`` says ``"kind": kind``, ``netcdf(dataset, name)`` a netCDF file whose ``kind``
+    attribute says it (ValueError for a malformed one). The module that defines the kind calls
+    this when it is imported."""
+    if npz is not None:
+        NPZ_READERS[kind] = npz
+    if netcdf is not None:
+        NETCDF_READERS[kind] = netcdf
+
+
+def _kind(arrays: dict, name: str) -> str:
+    meta = read_meta(arrays, name)
+    if meta is not None and isinstance(meta.get("kind"), str):
+        return meta["kind"]
+    if meta is not None and meta.get("format") == "peeljax-sweep":
+        return "sweep"  # a sweep written before files named their kind
+    if "starts" in arrays and "jump_G" in arrays:
+        return "stick-slip-map"
+    return "run"
+
+
+def load(path: str | Path):
+    """Any file peeljax writes, read back as what it holds.
+
+    * a run (``peeljax simulate --out``, :meth:`Solution.save`): a :class:`SavedRun`;
+    * a sweep (``peeljax sweep --out``, :func:`peeljax.sweep`'s ``out``,
+      :meth:`SweepResult.save`), ``.npz`` or netCDF (``.nc``): a :class:`~peeljax.SweepResult`;
+    * a stick-slip map (``peeljax sweep --stick-slip-map --out``, :meth:`StickSlipMap.save`):
+      a :class:`~peeljax.StickSlipMap`.
+
+    The kind is read from the file (``meta_json``'s ``kind``, or a netCDF file's ``kind``
+    attribute; files written before they named it are told by their arrays). An ``.npz`` is
+    read with ``allow_pickle=False``; netCDF needs ``pip install "peeljax[xarray]"``.
+
+    Raises:
+        ValueError: naming the file, when it cannot be read, is damaged, is another kind of
+            file, or lacks or misshapes the arrays of its kind.
+    """
+    name = str(path)
+    if Path(name).suffix.lower() == ".nc":
+        dataset = read_netcdf(path)
+        kind = dataset.attrs.get("kind")
+        if kind not in NETCDF_READERS:
+            known = ", ".join(NETCDF_READERS)
+            raise ValueError(f"{name!r} is not a netCDF file peeljax wrote: its kind is {kind!r}, expected one of {known}")
+        try:
+            return NETCDF_READERS[kind](dataset, name)
+        except (KeyError, TypeError, ValueError) as error:
+            raise ValueError(f"{name!r} is malformed: not a peeljax {kind} ({error})") from None
+    arrays = read_npz(path, fix="expected an .npz written by peeljax (a run, a sweep or a stick-slip map)")
+    kind = _kind(arrays, name)
+    if kind not in NPZ_READERS:
+        raise ValueError(
+            f"{name!r} holds a {kind!r}, which this peeljax cannot read (it reads {', '.join(NPZ_READERS)}): "
+            "a newer peeljax wrote it"
+        )
+    return NPZ_READERS[kind](arrays, name)

@@ -253,6 +253,19 @@ class Solution(eqx.Module):
             "(a Solution with the run's model, V and tau)"
         )
 
+    def save(self, path, **run) -> None:
+        """Write the run to ``path``, the ``.npz`` that ``peeljax simulate --out`` writes and
+        :func:`peeljax.load` reads back (:func:`peeljax.saved.run_arrays`).
+
+        ``run``: what the Solution does not hold — ``V`` and ``tau`` (required), ``model`` (default
+        the paper's), and optionally ``t_final``, ``dt``, ``rho``, ``rtol``, ``atol``, ``fold``,
+        ``max_jumps``, ``transient``; a :class:`~peeljax.saved.SavedRun` supplies its own. The
+        file is replaced only once complete: a failed write leaves the previous file as it was.
+        """
+        from .run_file import write_run  # it knows the model, which this module does not import
+
+        write_run(path, self, **run)
+
 
 def _to_python(value):
     array = np.asarray(value)

@@ -41,10 +41,12 @@ from pathlib import Path
 
 import numpy as np
 
+from .._atomic import write_text
 from .._validation import TAU_MAX, check_mesh, check_positive, check_tau
 from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw
 from ..fit import QUANTITIES, DataFileError, Observation, fit_stick_slip, read_force_record
-from ..fit.records import read_npz
+from ..fit.records import check_fit_samples, read_npz
+from ..fit.records import decimate as thin
 from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_RTOL
 from . import options
 from ._common import ASCII, PROG, checked, fail, json_safe, load_phi
@@ -81,6 +83,11 @@ def add_command(subparsers) -> None:
     )  # fmt: skip
     options.add_V(source, many=True, default=None, help="--data: the pull velocity [m/s] of text files that carry it "
                   "neither in a V column nor in their name (peel_V=1.1.csv), one value for all or one per file")  # fmt: skip
+    source.add_argument(
+        "--decimate", type=int, default=None, metavar="N",
+        help="--data: keep every N-th sample of each file, N >= 1 (measured values, no filter): for a record denser "
+        "than the fit can hold (default: all samples)",
+    )  # fmt: skip
     problem = parser.add_argument_group("the model's runs")
     problem.add_argument(
         "--tau", type=options.number("--tau"), default=None,
@@ -169,18 +176,22 @@ def _V_per_file(paths: list[str], V) -> list[float | None]:
     return values
 
 
-def load_observations(paths: list[str], V=None) -> tuple[list[Observation], dict]:
+def load_observations(paths: list[str], V=None, decimate: int | None = None) -> tuple[list[Observation], dict]:
     """Observations from the --data files and the .npz files' tau/dt where they agree.
 
     ``.npz`` files keep their layouts (module docstring); any other file is a text force
     record (:func:`peeljax.fit.read_force_record`: a CSV or whitespace table with columns
     t, F and optionally v, alpha, V). ``V`` (``--V``): the pull velocity of text files that carry
     it neither in a V column nor in their name, one value for all files or one per file.
+    ``decimate`` (``--decimate``): keep every N-th sample of each file. A text file whose numbers
+    would not fit the memory limit is refused before it is read, naming the estimate.
 
     Raises:
         ValueError: starting with ``--data`` and naming the file (and the line and column or
             field at fault), or naming ``--V``.
     """
+    if decimate is not None and decimate < 1:
+        raise ValueError(f"--decimate must be >= 1 (allowed range: [1, inf)), got {decimate}")
     observations, defaults = [], {"tau": set(), "dt": set()}
     for path, V_file in zip(paths, _V_per_file(paths, V)):
         if not Path(path).is_file():
@@ -194,8 +205,15 @@ def load_observations(paths: list[str], V=None) -> tuple[list[Observation], dict
                 found = [read_force_record(path, V=V_file)]
         except DataFileError as error:
             raise ValueError(f"--data: {error}") from None
-        observations.extend(found)
+        observations.extend(found if decimate is None else [thin(o, decimate) for o in found])
     return observations, {k: next(iter(v)) for k, v in defaults.items() if len(v) == 1}
+
+
+def _files_of(paths: list[str], observations: list[Observation]) -> list[str]:
+    """The --data file of each observation (an .npz may hold several; matched by order)."""
+    if len(paths) == len(observations):
+        return list(paths)
+    return [f"{', '.join(paths)} (the run at V = {o.V:g})" for o in observations]
 
 
 _TABLE_ONLY = ("transient", "window", "n_starts", "starts_deprecated", "max_iterations", "statistics")
@@ -213,7 +231,7 @@ def _check_source(args: argparse.Namespace) -> None:
     if args.data is None and args.table is None:
         raise ValueError("give --data FILE (runs to fit) or --table TABLE.csv (a stick-slip table to fit)")
     if args.table is not None:
-        _refuse(args, _DATA_ONLY, "--table")
+        _refuse(args, (*_DATA_ONLY, "decimate"), "--table")
     if args.data is not None and args.out is None:
         raise ValueError("--out FITTED.json is required with --data")
 
@@ -227,9 +245,9 @@ def _refuse(args: argparse.Namespace, names: tuple[str, ...], source: str) -> No
 def force_records_only(observations: list[Observation]) -> bool:
     """True where no observation has v or α: force records (t, F), what a load cell gives."""
 
-    def has(o, quantity):
-        series = o.series(quantity)
-        return series is not None and bool(np.any(np.isfinite(series[1])))
+    def has(o, quantity):  # on the arrays as read: no copy of a long record (Observation.series copies)
+        values = getattr(o, quantity)
+        return values is not None and bool(np.isfinite(values).any())
 
     return all(not has(o, "v") and not has(o, "alpha") and has(o, "F") for o in observations)
 
@@ -438,6 +456,7 @@ def _check_run_options(args: argparse.Namespace) -> None:
 
 def _validate(args: argparse.Namespace, observations: list[Observation], defaults: dict) -> dict:
     _refuse(args, _TABLE_ONLY, "--data with v or alpha (a point-by-point fit of the runs)")
+    check_fit_samples(observations, [f"--data {name}" for name in _files_of(args.data, observations)], "--decimate")
     if args.quantities is not None:
         drop = {q: None for q in ("F", "alpha") if q not in args.quantities}
         observations = [Observation(**{**o.__dict__, **drop}) for o in observations]
@@ -487,7 +506,7 @@ def _fit_command(args: argparse.Namespace) -> int:
             config = _validate_table(args)
         else:
             _check_run_options(args)
-            observations, defaults = load_observations(args.data, args.V)
+            observations, defaults = load_observations(args.data, args.V, args.decimate)
             if force_records_only(observations):
                 config = _validate_table(
                     args, _records_table(args, observations), f"the statistics of {len(observations)} force record(s)"
@@ -532,7 +551,7 @@ def _fit_command(args: argparse.Namespace) -> int:
     )
     record = result.to_dict()
     record["settings"] = {**record["settings"], "data": list(args.data), "phi": args.phi}
-    Path(args.out).write_text(json.dumps(json_safe(record), indent=2, allow_nan=False) + "\n")
+    write_text(args.out, json.dumps(json_safe(record), indent=2, allow_nan=False) + "\n")
     if args.plot is not None:
         from ..plots import plot_fit
 

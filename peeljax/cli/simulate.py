@@ -21,7 +21,6 @@ from .._validation import (
     check_tau,
     check_y0,
 )
-from ..adhesion import AdhesionLaw
 from ..cycles import cycle_statistics
 from ..integrators.dense import output_count, output_times
 from ..integrators.events import FOLD_MODES
@@ -460,12 +459,6 @@ def summarize(solution: Solution) -> dict:
     return out
 
 
-def _tension(solution: Solution, model: PeelingModel) -> np.ndarray:
-    ys = np.asarray(solution.ys, dtype=float)
-    tension = np.asarray(model.tension(ys[:, 2], ys[:, 0]), dtype=float)
-    return np.where(np.asarray(solution.valid), tension, np.nan)
-
-
 def write_npz(path: str, solution: Solution, config: RunConfig) -> None:
     """The run as plain arrays and scalars (loads with ``np.load(path, allow_pickle=False)``).
 
@@ -484,48 +477,13 @@ def write_npz(path: str, solution: Solution, config: RunConfig) -> None:
     ``peeljax.cycle_statistics(np.load(path), t_stop, transient=transient)``). The rows of t, …
     hold the state just before a jump at its time, then the states after it.
     """
-    ys = np.asarray(solution.ys, dtype=float)
-    adhesion = config.model.adhesion
-    phi_json = json.dumps(adhesion.coefficients()) if isinstance(adhesion, AdhesionLaw) else ""
-    stats = {key: np.asarray(value).tolist() for key, value in solution.stats.items()}
-    arrays = {
-        "t": np.asarray(solution.ts, dtype=float),
-        "alpha": ys[:, 0],
-        "omega": ys[:, 1],
-        "u": ys[:, 2],
-        "v": ys[:, 3],
-        "F": _tension(solution, config.model),
-        "valid": np.asarray(solution.valid, dtype=bool),
-        "status": np.asarray(solution.status_name, dtype=str),
-        "status_code": np.int64(solution.status),
-        "reason": np.asarray(solution.reason, dtype=str),
-        "t_stop": np.float64(solution.t_stop),
-        "V": np.float64(config.V),
-        "tau": np.float64(config.tau),
-        "dt": np.float64(step_used(solution, config)),
-        "t_final": np.float64(config.t_final),
-        "rho": np.float64(math.nan if _rho_used(solution, config) is None else config.rho),
-        "rtol": np.float64(math.nan if config.rtol is None else config.rtol),
-        "atol": np.float64(math.nan if config.atol is None else config.atol),
-        "geometry": np.asarray(config.model.geometry, dtype=str),
-        "method": np.asarray(solution.method, dtype=str),  # the stepper that ran
-        "method_option": np.asarray(config.method, dtype=str),  # --method as given
-        "phi_json": np.asarray(phi_json, dtype=str),
-        "stats_json": np.asarray(json.dumps(json_safe(stats), allow_nan=False), dtype=str),  # strict: NaN -> null
-    }
-    if solution.jumps is not None:
-        jumps = solution.jumps.as_numpy()
-        arrays.update(
-            {
-                **{key: np.asarray(value, dtype=bool if key == "jump_up" else float) for key, value in jumps.items()},
-                "fold": np.asarray(config.fold, dtype=str),
-                "max_jumps": np.int64(config.max_jumps),
-                "transient": np.float64(config.transient),
-            }
-        )
-    # An open file keeps the name exactly as given (np.savez would append .npz to a bare name).
-    with open(path, "wb") as handle:
-        np.savez(handle, **arrays)
+    from ..run_file import write_run  # the one writer of the format (Solution.save too); atomic
+
+    write_run(
+        path, solution, model=config.model, V=config.V, tau=config.tau, t_final=config.t_final,
+        dt=step_used(solution, config), rho=_rho_used(solution, config), rtol=config.rtol, atol=config.atol,
+        method_option=config.method, fold=config.fold, max_jumps=config.max_jumps, transient=config.transient,
+    )  # fmt: skip
 
 
 def _ran_alpha(method: str) -> bool:

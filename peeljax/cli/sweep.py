@@ -19,6 +19,7 @@ from ..model import PeelingModel
 from ..solution import StopReason
 from ..sweeps.engine import STARTS
 from ..sweeps.integrators import DEFAULT_SWEEP_MAX_JUMPS
+from ..sweeps.storage import check_writable_format, is_netcdf
 from . import options
 from ._common import (
     ASCII,
@@ -125,8 +126,9 @@ def add_command(subparsers) -> None:
     output = parser.add_argument_group("output")
     options.add_outputs(
         output, out_meta="FILE.npz",
-        out_help="results (numpy, with each trajectory's jump record); chunks in FILE.npz.chunks/, resumable; "
-        "with --stick-slip-map the map's arrays (default: none)",
+        out_help="results (numpy, with each trajectory's jump record; FILE.nc: netCDF with labelled dimensions, "
+        "needs pip install \"peeljax[xarray]\"); chunks in FILE.npz.chunks/, resumable; with --stick-slip-map the "
+        "map's arrays; peeljax.load reads either back (default: none)",
         plot_help="the stick-slip map over (V, tau) (tau > 0); with --stick-slip-map the map against V",
     )  # fmt: skip
     options.add_json(output)
@@ -358,6 +360,11 @@ def _check_outputs(args: argparse.Namespace) -> None:
     if args.chunk < 1:
         raise ValueError(f"--chunk must be a positive integer (allowed range: [1, inf)), got {args.chunk}")
     options.check_outputs(args)
+    if args.out is not None and is_netcdf(args.out):  # before the run: the extra may be missing
+        try:
+            check_writable_format(args.out)
+        except ImportError as error:
+            raise ValueError(f"--out {args.out!r}: {error}") from None
 
 
 def validate_sweep(args: argparse.Namespace) -> dict:

@@ -54,7 +54,18 @@ from .._npz import check_declared_sizes
 from .text_tables import DataFileError, column_numbers, read_text_table
 from .trajectory import Observation
 
-__all__ = ["FILE_NAME_V", "FORCE_COLUMNS", "read_force_record", "read_npz", "read_observations"]
+__all__ = [
+    "FILE_NAME_V", "FIT_BYTES_PER_SAMPLE", "FORCE_COLUMNS", "MAX_FIT_SAMPLES", "check_fit_samples", "decimate",
+    "read_force_record", "read_npz", "read_observations",
+]  # fmt: skip
+
+# A point-by-point fit (fit_adhesion) compiles a program that holds the model's state at every
+# sample time, forward and for the gradient: 44 kB a sample measured (benchmarks/fit_memory.py,
+# results/fit_memory.md: the peak memory's slope from 2 000 to 32 000 samples; XLA asked for
+# 228 GB, 38 kB a sample, for a 6e6-row record). MAX_FIT_SAMPLES keeps it near 1 GB; a denser
+# record is refused before compiling, and may be decimated on request.
+FIT_BYTES_PER_SAMPLE = 44e3
+MAX_FIT_SAMPLES = 25_000
 
 # Columns of a force record and their units (the header may repeat the unit in brackets).
 FORCE_COLUMNS: dict[str, str] = {"t": "s", "F": "N", "v": "m/s", "alpha": "rad", "V": "m/s"}
@@ -104,7 +115,7 @@ def _check_V_argument(V) -> float | None:
     return V
 
 
-def read_force_record(path, *, V: float | None = None) -> Observation:
+def read_force_record(path, *, V: float | None = None, memory_limit: float | None = None) -> Observation:
     """One measured run at one pull velocity, from a CSV or whitespace-separated text file.
 
     The format, units and refusals are in the module docstring: columns ``t`` [s] and ``F``
@@ -112,25 +123,30 @@ def read_force_record(path, *, V: float | None = None) -> Observation:
     optional; V from the ``V`` column, the file name (``peel_V=1.1.csv``) or ``V`` here,
     which must agree where several are given.
 
+    The rows are parsed by NumPy's C reader, about 8 bytes a number; a file whose numbers would
+    take more than ``memory_limit`` bytes (default: half the RAM), estimated from its size
+    before it is read, is refused naming the estimate (:mod:`.text_tables`).
+
     Returns:
         an :class:`~peeljax.fit.Observation` with ``t`` and ``F``, and ``v``/``alpha`` where
         the file has them (``v`` is None otherwise), all float64 on the times ``t``.
 
     Raises:
-        DataFileError: a malformed file, named with the line and column at fault.
+        DataFileError: a malformed file, named with the line and column at fault, or one too
+            large for the memory.
         ValueError: a ``V`` argument that is not a number > 0.
     """
     V = _check_V_argument(V)
-    text = read_text_table(path, FORCE_COLUMNS, _FORCE_REQUIRED, "force record")
-    if len(text.lines) < 2:
+    text = read_text_table(path, FORCE_COLUMNS, _FORCE_REQUIRED, "force record", memory_limit=memory_limit)
+    if text.n_rows < 2:
         raise text.fail("one data row: a force record needs at least 2", row=0)
     columns = {name: column_numbers(text, name, missing_ok=False) for name in text.names}
     t = columns["t"]
     if np.any(t < 0):
         row = int(np.flatnonzero(t < 0)[0])
         raise text.fail(f"negative time {t[row]:g} s (times are >= 0)", row=row, column="t")
-    if np.any(np.diff(t) <= 0):
-        row = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
+    if np.any(t[1:] <= t[:-1]):  # a mask, not np.diff: no second copy of a long record's times
+        row = int(np.flatnonzero(t[1:] <= t[:-1])[0]) + 1
         raise text.fail(
             f"t must increase strictly: {t[row]:g} s after {t[row - 1]:g} s (line {text.lines[row - 1]})",
             row=row, column="t",
@@ -152,6 +168,45 @@ def read_force_record(path, *, V: float | None = None) -> Observation:
         sources["V argument"] = V
     V = _resolve_V(path, sources)
     return Observation(V=V, t=t, v=columns.get("v"), F=columns["F"], alpha=columns.get("alpha"))
+
+
+def decimate(observation: Observation, every: int) -> Observation:
+    """The observation with every ``every``-th sample of each series kept (the first included):
+    measured values, not filtered ones. The kept arrays are copies, so the full record can be
+    freed and a fit's program is sized to what is kept."""
+    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+        raise ValueError(f"decimate must be an integer >= 1 (allowed range: [1, inf)), got {every!r}")
+    if every == 1:
+        return observation
+
+    def keep(values):
+        return None if values is None else np.ascontiguousarray(np.asarray(values)[::every])
+
+    return Observation(
+        V=observation.V, t=keep(observation.t), v=keep(observation.v), F=keep(observation.F),
+        alpha=keep(observation.alpha), t_F=keep(observation.t_F), t_alpha=keep(observation.t_alpha),
+    )  # fmt: skip
+
+
+def check_fit_samples(observations: list[Observation], names: list[str], option: str = "decimate") -> None:
+    """Refuse (ValueError) a record far denser than a point-by-point fit can hold: more than
+    :data:`MAX_FIT_SAMPLES` samples in one series. The message names the record (``names``,
+    one per observation), its sample spacing and the ``option`` value that thins it enough."""
+    for observation, name in zip(observations, names):
+        t = np.asarray(observation.t)
+        n = max(np.asarray(getattr(observation, q)).size for q in ("t", "t_F", "t_alpha")
+                if getattr(observation, q) is not None)  # fmt: skip
+        if n <= MAX_FIT_SAMPLES:
+            continue
+        spacing = float(np.median(np.diff(t[: min(t.size, 10_001)]))) if t.size > 1 else math.nan
+        every = -(-n // MAX_FIT_SAMPLES)
+        raise ValueError(
+            f"{name} holds {n} samples ({spacing:.3g} s apart, over {float(t[-1] - t[0]):.4g} s): far denser than a "
+            f"point-by-point fit can use: its compiled program keeps the model's state at every sample, about "
+            f"{FIT_BYTES_PER_SAMPLE / 1e3:.0f} kB each ({n * FIT_BYTES_PER_SAMPLE / 1e9:.3g} GB here), and takes at "
+            f"most {MAX_FIT_SAMPLES}: keep every {every}th sample ({option} {every}: {spacing * every:.3g} s apart), "
+            "or give a shorter record"
+        )
 
 
 def read_observations(path, *, V: float | None = None) -> list[Observation]:

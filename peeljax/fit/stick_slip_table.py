@@ -22,10 +22,10 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Iterable, Mapping
-from pathlib import Path
 
 import numpy as np
 
+from .._atomic import write_text
 from .measured_statistics import record_cycles, sample_std
 from .text_tables import TextTable, column_numbers, read_text_table
 from .trajectory import Observation
@@ -246,7 +246,7 @@ class StickSlipTable:
         ]
         cells = [[("" if math.isnan(x) else repr(float(x))) for x in self._column(n)] for n in names]
         lines += [",".join(row) for row in zip(*cells)]
-        Path(path).write_text("\n".join(lines) + "\n")
+        write_text(path, "\n".join(lines) + "\n")
 
     def _rows(self, limit: int | None = None) -> list[str]:
         heads = ["V [m/s]"] + [f"{k} [{_STAT_UNITS[k]}]" for k in self.values]
@@ -304,7 +304,7 @@ def read_stick_slip_table(path) -> StickSlipTable:
     Raises:
         DataFileError: naming the file, the line and the column at fault.
     """
-    text = read_text_table(path, TABLE_UNITS, ("V",), "stick-slip table")
+    text = read_text_table(path, TABLE_UNITS, ("V",), "stick-slip table", missing_ok=True)
     if not any(name in STATISTICS for name in text.names):
         raise text.fail(f"no statistic column: give at least one of {', '.join(STATISTICS)}", column=None)
     for name in text.names:

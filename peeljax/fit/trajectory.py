@@ -42,6 +42,7 @@ import numpy as np
 import optax
 from jaxtyping import Array, ArrayLike, Float
 
+from .._atomic import write_text
 from .._validation import check_positive
 from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw
 from ..homogenized import HomogenizedODE
@@ -369,7 +370,7 @@ class FitResult:
 
         text = json.dumps(finite(self.to_dict()), indent=2, allow_nan=False)
         if path is not None:
-            Path(path).write_text(text + "\n")
+            write_text(path, text + "\n")
         return text
 
 

@@ -19,18 +19,20 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import ArrayLike, Bool, Float, Int
 
+from .._files import read_meta
 from .._memory import check_output_memory
 from .._validation import check_choice, check_truncation
 from ..adhesion import AdhesionLaw
 from ..integrators.alpha import AlphaMethod
 
 from ..model import PeelingModel
+from ..saved import register_reader
 from ..solution import StopReason
 from .devices import batch_mesh, deal, default_lane_batch, put_lanes, to_host
 from .distributed import check_same_settings, is_multiprocess, open_shared_store
 from .grid import axis, check_window, trajectories
 from .integrators import sweep_plan
-from .storage import ChunkStore
+from .storage import FORMAT, VERSION, ChunkStore, check_writable_format
 
 __all__ = ["PER_TRAJECTORY_KEYS", "SweepResult", "sweep", "sweep_settings"]
 
@@ -121,6 +123,7 @@ class SweepResult:
     settings: dict
     computed_chunks: tuple[int, ...] = ()
     jumps: dict[str, np.ndarray] | None = None
+    peeljax_version: str | None = None  # of the peeljax that wrote the file it was loaded from
 
     def __len__(self) -> int:
         return int(self.V.shape[0])
@@ -158,6 +161,60 @@ class SweepResult:
         if self.jumps is not None:
             out.update(self.jumps)
         return out
+
+    # ------------------------------------------------------------------ labelled data and files
+    def to_xarray(self):
+        """The sweep as an ``xarray.Dataset`` with labelled dimensions and units.
+
+        Dimensions: ``("V", "tau", <swept parameters>…)`` for ``grid="outer"`` (coordinates:
+        the values swept), ``("trajectory",)`` for ``grid="pairs"`` (V, τ and the parameters as
+        coordinates along it); ``t`` for saved states (variables ``alpha``, ``omega``, ``u``,
+        ``v``) and ``jump`` for the jump records' slots. Each variable has a ``units`` attribute;
+        the dataset's attributes hold ``kind`` ("sweep"), ``peeljax_version``, the scalar
+        settings and ``settings_json`` (all of them). Needs ``pip install "peeljax[xarray]"``.
+        """
+        from .labelled import sweep_dataset
+
+        return sweep_dataset(self)
+
+    def save(self, path: str | os.PathLike) -> None:
+        """Write the sweep to ``path``: netCDF-4 for a ``.nc`` suffix (:meth:`to_xarray`; needs
+        ``pip install "peeljax[xarray]"``), else an ``.npz`` (:meth:`arrays` and ``meta_json``:
+        the settings, the units and the peeljax version). :func:`peeljax.load` reads either back.
+        The file is replaced only once it is complete (a failed write keeps the previous one)."""
+        from .storage import write_result
+
+        write_result(path, self, {"format": FORMAT, "version": VERSION, "settings": self.settings})
+
+    @classmethod
+    def from_arrays(cls, arrays: dict, settings: dict, peeljax_version: str | None = None) -> SweepResult:
+        """The sweep from the arrays of its ``.npz`` (:meth:`arrays`) and its ``settings``."""
+        names = list(settings.get("params", {}))
+        missing = [key for key in (*PER_TRAJECTORY_KEYS, *(f"param_{name}" for name in names)) if key not in arrays]
+        if missing:
+            raise ValueError(f"not a sweep's arrays: missing {missing}")
+        if settings.get("grid", "outer") == "outer":
+            grid_shape = (len(settings["V"]), len(settings["tau"]), *(len(settings["params"][n]) for n in names))
+        else:
+            grid_shape = None
+        n = int(np.asarray(arrays["V"]).shape[0])
+        if grid_shape is not None and int(np.prod(grid_shape)) != n:
+            raise ValueError(f"the settings' grid {grid_shape} does not hold the {n} trajectories of the arrays")
+        result = _result(
+            arrays, np.asarray(arrays["V"], float), np.asarray(arrays["tau"], float),
+            {name: np.asarray(arrays[f"param_{name}"], float) for name in names},
+            None if "ts" not in arrays else np.asarray(arrays["ts"], float), settings["t_final"], settings["window"],
+            grid_shape, settings, (),
+        )  # fmt: skip
+        return dataclasses.replace(result, peeljax_version=peeljax_version)
+
+    @classmethod
+    def from_xarray(cls, dataset) -> SweepResult:
+        """The sweep from its dataset (:meth:`to_xarray`, or a netCDF file it was written to)."""
+        from .labelled import sweep_arrays
+
+        arrays, settings = sweep_arrays(dataset)
+        return cls.from_arrays(arrays, settings, dataset.attrs.get("peeljax_version"))
 
 
 # ---------------------------------------------------------------------------- inputs
@@ -244,10 +301,12 @@ def sweep(
         chunk: trajectories per compiled batch (the last chunk is padded to the same size, so
             one compilation serves the whole sweep). With several devices it is rounded up to
             a multiple of their number.
-        out: a ``.npz`` path: chunks go to ``<out>.chunks/`` as they finish, the merged result
-            to ``out``; a rerun with the same out and settings resumes (finished chunks are
-            loaded, not recomputed; with ``progress`` a line on stderr says how many) and different
-            settings (tolerances included) are refused.
+        out: a ``.npz`` path (or ``.nc``: netCDF-4, labelled as :meth:`SweepResult.to_xarray`,
+            with ``pip install "peeljax[xarray]"``): chunks go to ``<out>.chunks/`` as they
+            finish, the merged result to ``out`` (read back by :func:`peeljax.load`); a rerun
+            with the same out and settings resumes (finished chunks are loaded, not recomputed;
+            with ``progress`` a line on stderr says how many) and different settings
+            (tolerances included) are refused.
         progress: show a tqdm bar of trajectories and chunks (stderr).
         rho: the α-method's ρ ∈ [0, 1) (default 0, the paper's choice for the best-conditioned
             Newton matrix). A speed lever under error control: the local error constant falls
@@ -347,6 +406,7 @@ def sweep(
         check_same_settings(settings)
         progress = progress and jax.process_index() == 0  # one bar, not one a process
     if out is not None:
+        check_writable_format(out)
         store = ChunkStore(out, settings, n_chunks, sizes, keys)
         if multiprocess:  # process 0 opens the folder; all skip the chunks it found
             merged, chunks = open_shared_store(store, n_chunks)
@@ -399,7 +459,7 @@ def sweep(
         merged, Vs, taus, param_values, save_ts, t_final, window, grid_shape, settings, tuple(computed)
     )
     if store is not None and jax.process_index() == 0:
-        store.finish(result.arrays())
+        store.finish(result)
     return result
 
 
@@ -430,3 +490,17 @@ def _result(arrays, Vs, taus, params, save_ts, t_final, window, grid_shape, sett
         jumps=jumps,
         **{key: value for key, value in summaries.items() if key != "completed"},
     )
+
+
+# ---------------------------------------------------------------------------- peeljax.load
+def _read_npz(arrays: dict, name: str) -> SweepResult:
+    meta = read_meta(arrays, name) or {}
+    if not isinstance(meta.get("settings"), dict):
+        raise ValueError(f"{name!r} is malformed: its meta_json has no settings object")
+    try:
+        return SweepResult.from_arrays(arrays, meta["settings"], meta.get("peeljax_version"))
+    except (KeyError, TypeError, ValueError) as error:
+        raise ValueError(f"{name!r} is malformed: not a sweep's arrays ({error})") from None
+
+
+register_reader("sweep", npz=_read_npz, netcdf=lambda dataset, name: SweepResult.from_xarray(dataset))

@@ -64,6 +64,7 @@ from jaxtyping import ArrayLike
 
 from ..cycles import repeat_pattern
 from ..model import PeelingModel
+from ..saved import register_reader
 from ..solution import StopReason
 
 __all__ = ["DEFAULT_V", "FOLD_FIELDS", "LANE_FIELDS", "STARTS", "StickSlipMap", "stick_slip_map"]
@@ -268,9 +269,35 @@ class StickSlipMap:
         )
 
     def save(self, path) -> None:
-        """Write :meth:`as_arrays` to ``path`` (the name kept exactly as given)."""
-        with open(path, "wb") as handle:
-            np.savez(handle, **self.as_arrays())
+        """Write the map to ``path``: netCDF-4 for a ``.nc`` suffix (:meth:`to_xarray`; needs
+        ``pip install "peeljax[xarray]"``), else an ``.npz`` of :meth:`as_arrays` with
+        ``meta_json`` (kind, units, peeljax version; the name kept exactly as given).
+        :func:`peeljax.load` reads either back. The file is replaced only once it is complete."""
+        from .._atomic import write_npz
+        from .._files import META_KEY, meta_array, write_netcdf
+        from .labelled import MAP_UNITS
+        from .storage import is_netcdf
+
+        if is_netcdf(path):
+            write_netcdf(self.to_xarray(), path)
+        else:
+            write_npz(path, {**self.as_arrays(), META_KEY: meta_array("stick-slip-map", MAP_UNITS)})
+
+    def to_xarray(self):
+        """The map as an ``xarray.Dataset``: dimensions ``start``, ``V`` (and ``jump`` for
+        ``jump_G``, ``jump_up``), a ``units`` attribute on each variable, and ``kind``,
+        ``peeljax_version``, tau, t_final, transient and ``settings_json`` as attributes.
+        Needs ``pip install "peeljax[xarray]"``."""
+        from .labelled import map_dataset
+
+        return map_dataset(self)
+
+    @classmethod
+    def from_xarray(cls, dataset) -> StickSlipMap:
+        """The map from its dataset (:meth:`to_xarray`, or a netCDF file it was written to)."""
+        from .labelled import map_arrays
+
+        return cls.from_arrays(map_arrays(dataset))
 
     def __str__(self) -> str:
         V = self.V
@@ -317,6 +344,17 @@ class StickSlipMap:
                 f"t_stop{f', {early} of them from t_stop/2 (stopped before the transient)' if early else ''}"
             )
         return "\n".join(lines)
+
+
+def _read_npz(arrays: dict, name: str) -> StickSlipMap:
+    try:
+        return StickSlipMap.from_arrays(arrays)
+    except (KeyError, TypeError, ValueError) as error:
+        raise ValueError(f"{name!r} is malformed: not a stick-slip map's arrays ({error})") from None
+
+
+# peeljax.load reads the map's files (.npz and netCDF).
+register_reader("stick-slip-map", npz=_read_npz, netcdf=lambda dataset, name: StickSlipMap.from_xarray(dataset))
 
 
 # ---------------------------------------------------------------------------- helpers

@@ -6,51 +6,59 @@ Layout for ``out = "sweep.npz"``:
   the settings are every input that changes the results (grid, mesh, window, solver, model).
 * ``sweep.npz.chunks/chunk_00000.npz``, …: each chunk's per-trajectory arrays, written (to a
   temporary name, then renamed) as soon as the chunk is done.
-* ``sweep.npz``: every trajectory's arrays, plus ``meta_json``, written when all chunks are done.
+* ``sweep.npz``: every trajectory's arrays, plus ``meta_json`` (the settings, and the file's
+  kind, units and peeljax version: :mod:`peeljax._files`), written when all chunks are done; for
+  ``out = "sweep.nc"`` a netCDF-4 file (:mod:`.labelled`) with the same settings as attributes.
 
 A rerun with the same ``out`` and the same settings loads the finished chunks and computes
-only the rest; different settings are refused. Files are read with ``allow_pickle=False``.
+only the rest; different settings are refused. Files are read with ``allow_pickle=False`` and
+written through :func:`peeljax._atomic.replacing` (a failed write keeps the previous file).
 """
 
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from .._atomic import write_npz, write_text
+from .._files import META_KEY, metadata, read_netcdf, require_xarray, write_netcdf
 from .._npz import read_npz
 
-__all__ = ["FORMAT", "VERSION", "ChunkStore", "load_npz", "write_npz_atomic"]
+__all__ = [
+    "FORMAT", "VERSION", "ChunkStore", "check_writable_format", "is_netcdf", "load_npz", "write_npz_atomic", "write_result",
+]
 
 FORMAT = "peeljax-sweep"
 VERSION = 2
 
-
-def _umask() -> int:
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
+write_npz_atomic = write_npz  # the name this module gave it first
 
 
-def write_npz_atomic(path: Path, arrays: dict[str, np.ndarray]) -> None:
-    """np.savez to a temporary file in the same folder, then an atomic rename.
+def is_netcdf(path) -> bool:
+    """A ``.nc`` suffix: the merged result is written as netCDF."""
+    return Path(str(path)).suffix.lower() == ".nc"
 
-    The file gets the mode a plain ``open`` would give it (0666 less the umask, e.g. 0644),
-    not the temporary file's 0600.
-    """
-    path = Path(path)
-    handle, temporary = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(handle, "wb") as stream:
-            np.savez(stream, **arrays)
-        os.chmod(temporary, 0o666 & ~_umask())
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
+
+def check_writable_format(out) -> None:
+    """An ``out`` ending in ``.nc`` needs xarray and h5netcdf: an ImportError now, not after the run."""
+    if is_netcdf(out):
+        require_xarray(f"out={str(out)!r} (netCDF)", netcdf=True)
+
+
+def write_result(path, result, meta: dict) -> None:
+    """The merged result: netCDF for a ``.nc`` suffix, else ``.npz``; ``meta`` (format,
+    version, settings) is what a resume compares."""
+    if is_netcdf(path):
+        dataset = result.to_xarray()
+        dataset.attrs[META_KEY] = json.dumps(meta)
+        write_netcdf(dataset, path)
+        return
+    from .labelled import sweep_units
+
+    described = {**meta, **metadata("sweep", sweep_units(result.params))}
+    write_npz(path, {**result.arrays(), META_KEY: np.asarray(json.dumps(described), dtype=str)})
 
 
 def load_npz(path: Path, required: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
@@ -98,12 +106,25 @@ class ChunkStore:
         """The merged output file's arrays if it exists and matches these settings (else None / error)."""
         if not self.out.exists():
             return None
-        arrays = load_npz(self.out, ("meta_json", *self.keys))
+        if is_netcdf(self.out):
+            from .labelled import sweep_arrays
+
+            dataset = read_netcdf(self.out)
+            text = dataset.attrs.get(META_KEY)
+            if not isinstance(text, str):
+                raise ValueError(f"{str(self.out)!r} is not a peeljax sweep output (no {FORMAT!r} metadata); use another out")
+            arrays, _ = sweep_arrays(dataset, repr(str(self.out)))
+        else:
+            arrays = load_npz(self.out, (META_KEY, *self.keys))
+            text = str(arrays.pop(META_KEY))
         try:
-            meta = json.loads(str(arrays.pop("meta_json")))
+            meta = json.loads(text)
         except json.JSONDecodeError as error:
             raise ValueError(f"{str(self.out)!r}: malformed meta_json ({error})") from None
         self.check_meta(meta, repr(str(self.out)))
+        missing = [key for key in self.keys if key not in arrays]
+        if missing:
+            raise ValueError(f"{str(self.out)!r} is malformed: missing {missing}; delete it to recompute")
         return arrays
 
     def open(self) -> None:
@@ -125,7 +146,7 @@ class ChunkStore:
             self.check_meta(meta, repr(str(meta_path)))
         else:
             self.folder.mkdir(parents=False)
-            meta_path.write_text(json.dumps(self.meta, indent=1) + "\n")
+            write_text(meta_path, json.dumps(self.meta, indent=1) + "\n")
 
     # ------------------------------------------------------------------ chunks
     def path(self, index: int) -> Path:
@@ -147,7 +168,8 @@ class ChunkStore:
         return arrays
 
     def save(self, index: int, arrays: dict[str, np.ndarray]) -> None:
-        write_npz_atomic(self.path(index), arrays)
+        write_npz(self.path(index), arrays)
 
-    def finish(self, arrays: dict[str, np.ndarray]) -> None:
-        write_npz_atomic(self.out, {**arrays, "meta_json": np.asarray(json.dumps(self.meta), dtype=str)})
+    def finish(self, result) -> None:
+        """Write the merged :class:`~peeljax.SweepResult` to ``out`` (:func:`write_result`)."""
+        write_result(self.out, result, self.meta)
