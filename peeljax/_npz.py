@@ -10,15 +10,21 @@ from pathlib import Path
 
 import numpy as np
 
+from . import _memory
+
 __all__ = ["check_declared_sizes", "read_npz"]
 
 _ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")  # a zip archive's first bytes (an empty one: its end record)
 
 
-def check_declared_sizes(path: str | Path) -> None:
+def check_declared_sizes(path: str | Path, memory_limit: float | None = None) -> None:
     """Refuse (ValueError) an archive whose member's .npy header declares more bytes than the
     member holds: numpy would allocate the declared size first (a damaged or hostile header of
-    a few bytes can ask for terabytes). Read: the zip directory and each header, no data."""
+    a few bytes can ask for terabytes); and one whose arrays together would take more than
+    ``memory_limit`` bytes (default: :func:`peeljax._memory.memory_limit`, half the RAM).
+    Read: the zip directory and each header, no data."""
+    limit = _memory.memory_limit() if memory_limit is None else float(memory_limit)
+    total = 0
     with zipfile.ZipFile(path) as archive:
         for info in archive.infolist():
             if not info.filename.endswith(".npy"):
@@ -36,6 +42,12 @@ def check_declared_sizes(path: str | Path) -> None:
                     f"damaged: its array {info.filename[:-4]!r} declares {declared} bytes (shape {shape}), "
                     f"the archive holds {held}"
                 )
+            total += declared
+    if total > limit:
+        raise ValueError(
+            f"too large to read: its arrays take {total / 1e9:.3g} GB once read, more than the memory limit of "
+            f"{limit / 1e9:.3g} GB"
+        )
 
 
 def read_npz(path: str | Path, required: tuple[str, ...] = (), *, fix: str = "") -> dict[str, np.ndarray]:

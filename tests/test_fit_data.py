@@ -775,3 +775,16 @@ def test_a_record_denser_than_the_fit_can_hold_is_refused_and_decimated_on_reque
     assert_refused(code, stderr, "--decimate", "[1, inf)", stdout=stdout)
     code, stdout, stderr = run_cli(["fit", "--table", str(EXAMPLES / "stick_slip_table.csv"), "--decimate", "2", *out])
     assert_refused(code, stderr, "--decimate", "--table", stdout=stdout)
+
+
+def test_an_npz_too_large_for_the_memory_is_refused_before_its_arrays_are_read(tmp_path, monkeypatch):
+    from peeljax import _memory
+
+    t = np.linspace(0, 1, 1000)
+    path = tmp_path / "big.npz"
+    np.savez(path, V=1.1, t=t, v=t)
+    monkeypatch.setattr(_memory, "memory_limit", lambda: 10_000.0)  # the arrays take 16 008 bytes
+    with pytest.raises(DataFileError, match=r"big.npz: too large to read: its arrays take 1.6e-05 GB once read"):
+        read_npz(path)
+    monkeypatch.setattr(_memory, "memory_limit", lambda: 20_000.0)
+    assert read_npz(path)[0][0].t.size == 1000

@@ -240,6 +240,8 @@ def read_npz(path, *, V: float | None = None) -> tuple[list[Observation], dict[s
         if hasattr(data, "files"):  # before numpy allocates what a damaged header declares
             check_declared_sizes(path)
     except Exception as error:  # noqa: BLE001  (any failure to parse the file is bad input)
+        if str(error).startswith("too large"):
+            raise DataFileError(path, str(error)) from None
         if str(error).startswith("damaged") or isinstance(error, _DAMAGED_ZIP):
             raise DataFileError(path, f"damaged .npz ({str(error).removeprefix('damaged: ')})") from None
         raise DataFileError(path, f"not a readable .npz without pickles ({type(error).__name__})") from None
