@@ -30,7 +30,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = ["README.md", *sorted(str(p.relative_to(ROOT)) for p in (ROOT / "docs").rglob("*.md"))]
 # Pages whose blocks need more than a few seconds (each compiles its own programs).
-SLOW = {"README.md", "docs/fitting.md", "docs/reproduction.md", "docs/sweeps.md", "docs/running.md"}
+SLOW = {"README.md", "docs/fitting.md", "docs/plotting.md", "docs/reproduction.md", "docs/sweeps.md", "docs/running.md"}
 # The only blocks that do not run here, with the reason the page gives.
 ALLOWED_SKIPS = {("docs/sweeps.md", "several processes")}
 
@@ -196,3 +196,48 @@ def test_output_blocks_follow_python_blocks():
                 ok = prev is not None and prev.group("info").strip() == "python" and not text[prev.end() : m.start()].strip()
                 assert ok, f"{page}:{text[: m.start()].count(chr(10)) + 1}: an output block after no Python block"
 
+
+
+def test_the_site_shows_every_notebook_with_the_code_it_has_now():
+    """``docs/notebooks/`` holds the executed copies the site renders
+    (``python docs/execute_notebooks.py``): one per notebook, with its code as it is now and the
+    outputs of a run of that code."""
+    import json
+
+    for path in sorted((ROOT / "notebooks").glob("*.ipynb")):
+        copy = ROOT / "docs" / "notebooks" / path.name
+        assert copy.exists(), f"{copy.relative_to(ROOT)} missing: run python docs/execute_notebooks.py {path.name}"
+        code = [
+            [("".join(c["source"]) if c["cell_type"] == "code" else None) for c in json.loads(p.read_text())["cells"]]
+            for p in (path, copy)
+        ]
+        assert code[0] == code[1], f"{path.name} changed since docs/notebooks/ was made: run python docs/execute_notebooks.py {path.name}"
+        cells = [c for c in json.loads(copy.read_text())["cells"] if c["cell_type"] == "code"]
+        assert all(c.get("outputs") is not None and c.get("execution_count") for c in cells), f"{copy.name}: not executed"
+        assert not any(o.get("output_type") == "error" for c in cells for o in c["outputs"]), f"{copy.name}: a cell failed"
+
+
+def test_the_example_stick_slip_table_is_one_a_run_can_produce():
+    """F_stick < F_mean < F_slip in every row (the forces at re-stick, on average, at slip)."""
+    from peeljax.fit import read_stick_slip_table
+
+    table = read_stick_slip_table(ROOT / "docs" / "examples" / "stick_slip_table.csv")
+    F = table.values
+    assert np.all(F["F_stick"] < F["F_mean"]) and np.all(F["F_mean"] < F["F_slip"])
+
+
+def test_the_api_reference_documents_every_exported_name():
+    """Each name of ``peeljax.__all__`` has its ``::: peeljax.NAME`` entry in ``docs/api/``
+    (mkdocstrings renders it from the docstring), and the reference names nothing else."""
+    import peeljax
+
+    import importlib
+
+    paths = re.findall(r"^::: (peeljax(?:\.\w+)+)$", "\n".join(p.read_text() for p in (ROOT / "docs" / "api").glob("*.md")), re.M)
+    entries = [path.rsplit(".", 1)[1] for path in paths]
+    missing = sorted(set(peeljax.__all__) - set(entries))
+    assert not missing, f"add to a page of docs/api/ (and its nav entry in mkdocs.yml): {missing}"
+    assert len(entries) == len(set(entries)) and set(entries) <= set(peeljax.__all__)
+    for path, name in zip(paths, entries):  # a longer path where a submodule has the name (peeljax.simulate)
+        module, _, attr = path.rpartition(".")
+        assert getattr(importlib.import_module(module), attr) is getattr(peeljax, name), path
