@@ -13,12 +13,12 @@ Each subcommand module has ``add_command(subparsers)``, which sets the parser's 
 from __future__ import annotations
 
 import argparse
-import sys
 
 from . import figures as _figures
 from . import fit as _fit
 from . import simulate as _simulate
 from . import sweep as _sweep
+from . import _interrupt
 from ._common import PROG, Parser, json_safe
 from .simulate import summarize, validate_run, write_npz
 
@@ -48,18 +48,18 @@ def main(argv: list[str] | None = None) -> int:
     """Run the command line ``argv`` (default ``sys.argv[1:]``); returns the exit status.
 
     0: the run completed or stopped early (see its status); 2: bad input (nothing was run);
-    130: interrupted (Ctrl-C; a sweep with --out says how many chunks are saved).
+    130: interrupted (Ctrl-C; a sweep with --out says how many chunks are saved). After a real
+    SIGINT it does not return: it ends the process with status 130 (``os._exit``), as JAX's
+    clean-up at the interpreter's exit crashes while a compiled program still runs.
     """
-    parser = build_parser()
-    try:
-        args = parser.parse_args(argv)
-    except SystemExit as exit_:  # argparse has printed its usage error (2) or --help (0)
-        code = exit_.code
-        return code if isinstance(code, int) else (0 if code is None else 2)
-    try:
-        return args.handler(args)
-    except KeyboardInterrupt:  # Ctrl-C: one line, no traceback, the shell's status for SIGINT
-        print(f"{PROG}: interrupted", file=sys.stderr)
-        return 130
-
-
+    with _interrupt.guard():  # Ctrl-C in any phase: 130 and one line (after a real SIGINT main does not return)
+        try:
+            parser = build_parser()
+            try:
+                args = parser.parse_args(argv)
+            except SystemExit as exit_:  # argparse has printed its usage error (2) or --help (0)
+                code = exit_.code
+                return code if isinstance(code, int) else (0 if code is None else 2)
+            return args.handler(args)
+        except KeyboardInterrupt:  # one line, no traceback, the shell's status for SIGINT
+            return _interrupt.interrupted()

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import signal
+import re
 import sys
 import time
 from pathlib import Path
@@ -20,7 +20,7 @@ from ..solution import StopReason
 from ..sweeps.engine import STARTS
 from ..sweeps.integrators import DEFAULT_SWEEP_MAX_JUMPS
 from ..sweeps.storage import check_writable_format, is_netcdf
-from . import options
+from . import _interrupt, options
 from ._common import (
     ASCII,
     PROG,
@@ -36,6 +36,8 @@ from ._common import (
 from ._distributed import add_distributed_options, distributed_settings, join_processes
 
 __all__ = ["add_command", "engine_text", "tau_grid", "validate_map", "validate_sweep", "validate_tau_star"]
+
+DEFAULT_CHUNK = 256  # peeljax.sweep's chunk (--chunk left out)
 
 
 # ---------------------------------------------------------------------------- parsers
@@ -96,7 +98,9 @@ def add_command(subparsers) -> None:
         help="points of a log-spaced tau grid from --tau LO to HI, an integer >= 2 (default: none, the --tau "
         "values as given)",
     )  # fmt: skip
-    grid.add_argument("--chunk", type=int, default=256, help="trajectories per compiled batch, >= 1 (default 256)")
+    grid.add_argument(
+        "--chunk", type=int, default=None, help=f"trajectories per compiled batch, >= 1 (default {DEFAULT_CHUNK})"
+    )
     folds = parser.add_argument_group("folds of phi (stick-slip jumps; error control only)")
     folds.add_argument(
         "--fold", default=None, metavar="{jump,stop,follow}",
@@ -166,6 +170,44 @@ def add_command(subparsers) -> None:
 # ---------------------------------------------------------------------------- validation
 def _positive_list(option: str, values) -> list[float]:
     return options.check_positive_values(option, values)
+
+
+# The settings a sweep's --out records (peeljax.sweep's names) and the options that set them.
+_SETTING_OPTIONS = {
+    "V": "--V", "tau": "--tau", "dae": "--tau", "t_final": "--t-final", "window": "--transient/--window",
+    "method": "--method", "solver": "--method/--rho", "rtol": "--rtol", "atol": "--atol", "max_steps": "--max-steps",
+    "dt": "--dt", "n_steps": "--dt", "fold": "--fold", "max_jumps": "--max-jumps", "start": "--start",
+    "save_dt": "--save-dt", "save_every": "--save-every", "chunk": "--chunk", "model": "--geometry/--phi",
+}  # fmt: skip
+_DIFFER = re.compile(r"made with different settings \(([^()]*) differ\)")
+
+
+def resume_refusal(message: str, args: argparse.Namespace) -> str:
+    """The library's refusal to resume an --out made with other settings, in the options the
+    user set: ``tau`` is --tau (and --n-tau when given); ``chunk`` only when --chunk was given
+    (else it follows from the grid's size, which the options named beside it changed); the
+    statistics window only when --t-final is the same (it is kept as fractions of t_final)."""
+    found = _DIFFER.search(message)
+    if found is None:
+        return message
+    names = [name.strip() for name in found.group(1).split(",")]
+    if "chunk" in names and args.chunk is None and len(names) > 1:
+        names.remove("chunk")
+    if "n_steps" in names and ("dt" in names or "t_final" in names):  # n_steps = t_final/dt
+        names.remove("n_steps")
+    if "window" in names and "t_final" in names:  # kept as fractions of t_final: --transient T may be as before
+        names.remove("window")
+    said = []
+    for name in names:
+        option = _SETTING_OPTIONS.get(name, name)
+        if option == "--tau" and args.n_tau is not None:
+            option = "--tau/--n-tau"
+        if option == "--chunk" and args.chunk is None:
+            option = f"the batch size (--chunk, default {DEFAULT_CHUNK}, at most the number of trajectories)"
+        if option not in said:
+            said.append(option)
+    joined = " and ".join(said) if len(said) <= 2 else ", ".join(said[:-1]) + " and " + said[-1]
+    return f"{message[: found.start()]}made with a different {joined}{message[found.end() :]}"
 
 
 def tau_grid(tau: list[float], n_tau: int | None) -> list[float]:
@@ -356,8 +398,12 @@ def _check_folds(args: argparse.Namespace, tau: list[float], dt: float | None) -
     return chosen
 
 
+def _chunk(args: argparse.Namespace) -> int:
+    return DEFAULT_CHUNK if args.chunk is None else int(args.chunk)
+
+
 def _check_outputs(args: argparse.Namespace) -> None:
-    if args.chunk < 1:
+    if args.chunk is not None and args.chunk < 1:
         raise ValueError(f"--chunk must be a positive integer (allowed range: [1, inf)), got {args.chunk}")
     options.check_outputs(args)
     if args.out is not None and is_netcdf(args.out):  # before the run: the extra may be missing
@@ -383,7 +429,7 @@ def validate_sweep(args: argparse.Namespace) -> dict:
     _check_outputs(args)
     return {
         "model": model, "V": V, "tau": tau, **chosen, **folds, "t_final": float(args.t_final), "grid": "outer",
-        "window": window, "chunk": args.chunk, "out": args.out, "rho": _rho(args),
+        "window": window, "chunk": _chunk(args), "out": args.out, "rho": _rho(args),
         "start": "paper" if args.start is None else args.start, "progress": args.progress and not args.json,
     }  # fmt: skip
 
@@ -430,7 +476,7 @@ def validate_map(args: argparse.Namespace) -> dict:
         "model": model, "V": V, "tau": tau[0], "t_final": float(args.t_final), "transient": transient,
         "starts": STARTS if args.start is None else (args.start,), "rtol": chosen["rtol"], "atol": chosen["atol"],
         **({"solver": chosen["solver"]} if "solver" in chosen else {}),
-        **folds, "chunk": args.chunk, "rho": _rho(args), "progress": args.progress and not args.json,
+        **folds, "chunk": _chunk(args), "rho": _rho(args), "progress": args.progress and not args.json,
     }  # fmt: skip
 
 
@@ -512,28 +558,16 @@ def _sweep_command(args: argparse.Namespace) -> int:
     print(f"{PROG}: sweep of {n} trajectories, {engine_text(kwargs)} (compiling first: a few seconds) ...",
           file=sys.stderr)  # fmt: skip
     start = time.perf_counter()
-    interrupted = []
-
-    def on_sigint(signum, frame):
-        interrupted.append(signum)
-        raise KeyboardInterrupt
-
-    # Python may raise the KeyboardInterrupt inside a callback that swallows it (measured: JAX's
-    # garbage-collection callback), and the sweep then runs on: the flag still says Ctrl-C came.
-    previous = signal.signal(signal.SIGINT, on_sigint)
-    try:
-        result = _run_sweep(kwargs)
-        if interrupted:
-            raise KeyboardInterrupt
-    except ValueError as error:  # e.g. an --out made with other settings, or too much output
-        return fail(error)
-    except OSError as error:  # the chunk files: written as they finish
-        return write_failed("--out", args.out, error, "the chunks written before it are kept; rerun to resume")
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted: {_saved_chunks(args.out)}", file=sys.stderr)
-        return 130
-    finally:
-        signal.signal(signal.SIGINT, previous)
+    # Ctrl-C's line says how many chunks are saved, whichever thread prints it (cli._interrupt)
+    with _interrupt.note(lambda: _saved_chunks(args.out)):
+        try:
+            result = _run_sweep(kwargs)
+        except ValueError as error:  # e.g. an --out made with other settings, or too much output
+            return fail(ValueError(resume_refusal(str(error), args)))
+        except OSError as error:  # the chunk files: written as they finish
+            return write_failed("--out", args.out, error, "the chunks written before it are kept; rerun to resume")
+        except KeyboardInterrupt:
+            return _interrupt.interrupted(_saved_chunks(args.out))
     wall = time.perf_counter() - start
     if not kwargs["progress"]:  # the progress bar's own line said it otherwise
         _print_resumed(result, args.out)
