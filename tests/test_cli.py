@@ -233,6 +233,43 @@ def test_argparse_errors_exit_2(argv, no_compilation):
     assert "error" in err
 
 
+# (command line, what the last line of stderr must say): each names the closest option or command
+MISSPELLED = [
+    (["simulate", "--t-finl", "3"], "peeljax simulate: error: unrecognized option --t-finl (did you mean --t-final?)"),
+    (["simulate", "--t-finl=3"], "unrecognized option --t-finl (did you mean --t-final?)"),
+    (["sweep", "--chunkk", "2"], "peeljax sweep: error: unrecognized option --chunkk (did you mean --chunk?)"),
+    (["simulate", "-V", "2"], "unrecognized option -V (did you mean --V?)"),
+    (["fit", "--tabel", "t.csv"], "unrecognized option --tabel (did you mean --table?)"),
+    (["simulte", "--V", "1"], "invalid choice: 'simulte'; did you mean 'simulate'?"),
+    (["--verison"], "peeljax: error: unrecognized option --verison (did you mean --version?)"),
+    (["--simulate"], "unrecognized option --simulate (did you mean the command simulate, without dashes?)"),
+    (["simulate", "1.1"], "unexpected value '1.1': every value follows its option (e.g. --V 1.1)"),
+    (["simulate", "--t-final", "3", "4"], "unexpected value '4'"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("argv", "said"), MISSPELLED, ids=[" ".join(argv) for argv, _ in MISSPELLED])
+def test_a_misspelled_option_or_command_gets_the_closest_one(argv, said, no_compilation):
+    """Was argparse's bare "unrecognized arguments: --t-finl 3" (and nothing for a misspelled
+    top-level option but "the following arguments are required: COMMAND")."""
+    code, out, err = run_cli(argv)
+    assert code == 2 and out == ""
+    assert said in err.strip().splitlines()[-1], err
+
+
+def test_stats_line_shows_only_what_the_run_has():
+    from peeljax.cli._common import stats_text
+
+    error_control = {"accepted_steps": 158, "jumps": 18, "max_newton_iterations": 0, "newton_iterations": 0,
+                     "rejected_steps": 94, "step_size": math.nan, "step_size_max": 0.020652057620860295,
+                     "steps": 158, "steps_cut_at_folds": 0}  # fmt: skip (an explicit stepper's stats)
+    assert stats_text(error_control, jumps_said=True) == (
+        "accepted_steps 158, rejected_steps 94, step_size_max 0.02065, steps_cut_at_folds 0"
+    )
+    uniform = {"accepted_steps": 20, "max_newton_iterations": 3, "newton_iterations": 41, "step_size": 0.01, "steps": 20}
+    assert stats_text(uniform) == "accepted_steps 20, max_newton_iterations 3, newton_iterations 41, step_size 0.01"
+
+
 def test_help_exits_0():
     code, out, _err = run_cli(["simulate", "--help"])
     assert code == 0

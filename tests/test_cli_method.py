@@ -152,6 +152,9 @@ def test_max_steps_stop_prints_the_remedy():
     assert "step budget (50 step attempts, --max-steps) was used up before t_final: raise --max-steps" in out
     assert "before its transient ended (--transient 0.2 s): no cycle statistics" in out
     assert "none counted" not in out and "max_steps" not in out
+    stats = next(line for line in out.splitlines() if line.startswith("stats: "))
+    assert "nan" not in stats and "step_size_min" in stats, stats  # error control has no one step_size
+    assert "newton" not in stats, stats  # the default stepper at tau 0 is explicit: no Newton iteration
 
 
 def test_sweep_max_steps_stop_prints_the_remedy():

@@ -72,7 +72,19 @@ def test_sweep_refuses_other_settings(swept):
     argv = [*SWEEP, "--out", str(swept["npz"])]
     argv[argv.index("0.4")] = "0.5"  # another t_final
     code, _out, err = run_cli(argv)
-    assert code == 2 and "different settings" in err and "--t-final" in err
+    assert code == 2 and "made with a different --t-final;" in err and "choose another --out" in err, err
+
+
+def test_sweep_refusal_names_what_the_user_changed(swept, no_compilation):
+    """Another --n-tau (and, without --chunk, the batch size that follows from the grid): the
+    refusal named ``chunk``, which the user never set; it names --tau/--n-tau."""
+    argv = [*SWEEP, "--out", str(swept["npz"])]
+    argv[argv.index("--n-tau") + 1] = "3"
+    del argv[argv.index("--chunk") : argv.index("--chunk") + 2]
+    code, out, err = run_cli(argv)
+    line = err.strip().splitlines()[-1]
+    assert code == 2 and out == "" and line.startswith("peeljax: error: ")
+    assert line.split(" was made with ")[1].split(";")[0] == "a different --tau/--n-tau", line
 
 
 @pytest.fixture(scope="module")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import difflib
 import json
 import math
 import os
@@ -34,11 +35,75 @@ _NEGATIVE_NUMBER = re.compile(
 
 class Parser(argparse.ArgumentParser):
     """An ArgumentParser (subcommands' parsers included) that reads a negative number in any
-    spelling as a value, e.g. ``--rtol -1e-6``, so that the option's range check answers."""
+    spelling as a value, e.g. ``--rtol -1e-6``, so that the option's range check answers, and
+    answers a misspelled option or command with the closest one (Python 3.14's
+    ``suggest_on_error``, for the Pythons peeljax supports)."""
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self._negative_number_matcher = _NEGATIVE_NUMBER
+
+    def parse_args(self, args=None, namespace=None):
+        words = sys.argv[1:] if args is None else list(args)
+        commands = self._commands()
+        if commands:  # an unknown option before the command: argparse would only say COMMAND is missing
+            for word in words:
+                if not word.startswith("-"):
+                    break
+                name = word.split("=", 1)[0]
+                if name not in self._option_string_actions:
+                    close = difflib.get_close_matches(name.lstrip("-"), commands, n=1)
+                    if close:
+                        self.error(f"unrecognized option {name} (did you mean the command {close[0]}, without dashes?)")
+                    self.error(unrecognized([word], self))
+        parsed, extras = self.parse_known_args(args, namespace)
+        if extras:  # argparse's own: "unrecognized arguments: --t-finl 3", from the top-level parser
+            command = self._command_parser(parsed)
+            (command or self).error(unrecognized(extras, command or self))
+        return parsed
+
+    def _command_action(self) -> argparse._SubParsersAction | None:
+        return next((a for a in self._actions if isinstance(a, argparse._SubParsersAction)), None)
+
+    def _commands(self) -> list[str]:
+        subparsers = self._command_action()
+        return [] if subparsers is None else list(subparsers.choices)
+
+    def _command_parser(self, parsed) -> argparse.ArgumentParser | None:
+        """The subcommand's parser that read the command line (None without subcommands)."""
+        subparsers = self._command_action()
+        return None if subparsers is None else subparsers.choices.get(getattr(parsed, subparsers.dest, None))
+
+    def _check_value(self, action, value):
+        if action.choices is not None and value not in action.choices:
+            choices = [str(choice) for choice in action.choices]
+            close = difflib.get_close_matches(str(value), choices, n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            raise argparse.ArgumentError(
+                action, f"invalid choice: {value!r}{hint} (choose from {', '.join(map(repr, choices))})"
+            )
+        super()._check_value(action, value)
+
+
+def unrecognized(extras: list[str], parser: argparse.ArgumentParser) -> str:
+    """The words argparse did not recognize, in one message: for a misspelled option the closest
+    of ``parser``'s options (``--t-finl`` -> ``--t-final``), for a stray value the rule that
+    every value follows its option."""
+    known = [name for name in parser._option_string_actions if name.startswith("--")]
+    options = [word for word in extras if word.startswith("-") and not _NEGATIVE_NUMBER.match(word)]
+    if not options:
+        values = " ".join(extras)
+        return (
+            f"unexpected value {values!r}: every value follows its option (e.g. --V 1.1); "
+            f"{parser.prog} --help lists them"
+        )
+    parts = []
+    for word in options:
+        name = word.split("=", 1)[0]
+        close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
+        parts.append(f"{name} (did you mean {close[0]}?)" if close else name)
+    what = "option" if len(parts) == 1 else "options"
+    return f"unrecognized {what} {', '.join(parts)}: {parser.prog} --help lists the options"
 
 
 def read_phi(path: str) -> tuple[AdhesionLaw, tuple[str, ...]]:
@@ -190,6 +255,25 @@ def max_steps_remedy(budget) -> str:
     return f"{PROG}: the step budget was used up before t_final: raise --max-steps{now} or loosen --rtol"
 
 
+def stats_text(stats: dict, jumps_said: bool = False) -> str:
+    """The run's counters as ``key value, ...``, only those that mean something for this run: no
+    NaN (``step_size`` under error control, which has no one step), no Newton counts where none
+    were counted (an explicit stepper; diffrax's implicit ones count theirs inside), no
+    ``steps`` beside ``accepted_steps`` (the same count, or accepted + rejected for the diffrax
+    reference), no ``jumps`` where a line of its own gives them (``jumps_said``); floats to 4
+    significant digits."""
+    shown = {}
+    for key, value in stats.items():
+        if isinstance(value, float) and math.isnan(value):
+            continue
+        if key in ("newton_iterations", "max_newton_iterations") and not stats.get("newton_iterations"):
+            continue
+        if (key == "steps" and "accepted_steps" in stats) or (key == "jumps" and jumps_said):
+            continue
+        shown[key] = f"{value:.4g}" if isinstance(value, float) else value
+    return ", ".join(f"{key} {value}" for key, value in shown.items())
+
+
 def json_safe(value):
     """NaN/inf → null, so the output is strict JSON."""
     if isinstance(value, float) and not math.isfinite(value):
@@ -215,6 +299,7 @@ _PARAMETERS = {
     "tau_range": "--tau-range",
 }  # fmt: skip
 _UNDERSCORED = re.compile(r"(?<![\w-])(" + "|".join(_PARAMETERS) + r")\b")
+_ANOTHER_OUT = re.compile(r"\banother out\b")
 # Names that open a library message ("tau must be ...", "y0: ...").
 _LEADING = re.compile(r"^(V|tau|dt|rtol|atol|rho|y0|geometry|transient|window|fold|start|free|statistics)\b(?![-=])")
 
@@ -223,6 +308,7 @@ def option_names(message: str) -> str:
     """A library message in the command line's words: ``max_jumps`` → ``--max-jumps``, and a
     message that opens with a parameter's name (``tau must be ...``) opens with its option."""
     message = _UNDERSCORED.sub(lambda m: _PARAMETERS[m.group(1)], message)
+    message = _ANOTHER_OUT.sub("another --out", message)  # the library's "choose another out"
     return _LEADING.sub(lambda m: "--" + m.group(1), message)
 
 

@@ -41,6 +41,7 @@ from ._common import (
     json_safe,
     max_steps_remedy,
     solver_for,
+    stats_text,
     write_failed,
 )
 
@@ -577,7 +578,7 @@ def _print_summary(record: dict, config: RunConfig, stats: dict, cycles=None) ->
             print(f"cycles: {record['cycles_note']}")
     if record.get("note"):
         print(f"note: {record['note']}")
-    print("stats: " + ", ".join(f"{key} {value}" for key, value in stats.items()))
+    print("stats: " + stats_text(stats, jumps_said=record.get("jumps") is not None))
     print(f"wall time {record['wall_time_s']:.3g} s (including compilation)")
     for key in ("out", "plot"):
         if record.get(key):
