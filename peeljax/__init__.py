@@ -99,6 +99,7 @@ from .integrators import (  # noqa: E402
     integrate_reference,
 )
 from .model import PeelingModel  # noqa: E402
+from .orbits import OrbitNotFound, OrbitStatus, PeriodicOrbit, periodic_orbit  # noqa: E402
 from .saved import SavedRun, load  # noqa: E402
 from .simulate import simulate, simulate_reference  # noqa: E402
 from .solution import JumpRecord, Solution, StepDiagnostics, StopReason  # noqa: E402
@@ -137,8 +138,11 @@ __all__ = [
     "LeastTau",
     "LogTransformedODE",
     "Observation",
+    "OrbitNotFound",
+    "OrbitStatus",
     "PIController",
     "PeelingModel",
+    "PeriodicOrbit",
     "RepeatPattern",
     "SavedRun",
     "Simulator",
@@ -164,6 +168,7 @@ __all__ = [
     "jacobians",
     "least_tau",
     "load",
+    "periodic_orbit",
     "local_index",
     "neumann_radius",
     "neumann_terms",

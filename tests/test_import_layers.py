@@ -22,7 +22,8 @@ LAYERS = [
     ("the result type", {"solution", "run_file"}),
     ("integrators", {"integrators"}),
     ("one run", {"simulate", "bound", "saved"}),
-    ("many runs, fit, analysis", {"sweeps", "fit", "analysis", "cycles", "alternatives"}),
+    ("a run's cycles, periodic orbits", {"cycles", "orbits"}),
+    ("many runs, fit, analysis", {"sweeps", "fit", "analysis", "alternatives"}),
     ("CLI and plots", {"cli", "plots", "stick_slip_plots", "figures"}),  # stick_slip_plots: a deprecated alias
     ("the package's public names", {""}),
 ]

@@ -1,0 +1,40 @@
+"""Stick-slip orbits as objects: periodic orbits of the DAE with jumps, found by shooting.
+
+The layers of this package, each a module with one job:
+
+    section.py    the Poincaré section at the stick → slip fold, G(x) = φ(v̂, V), and its
+                  coordinates (α, ω)
+    period.py     one period from the section: the return map after k stick → slip events, and
+                  the period's statistics (what a stick-slip table holds), exact
+    shooting.py   Newton on P^k(s) − s; derivatives by the implicit function theorem
+    floquet.py    Floquet multipliers and the test functions of fold, period doubling, torus
+    orbit.py      the result, :class:`PeriodicOrbit`
+    api.py        :func:`periodic_orbit`: options checked, a start found from a run
+"""
+
+from .api import DEFAULT_ORBIT_RTOL, OrbitNotFound, orbit_shooting, periodic_orbit, start_from_run
+from .floquet import multipliers, test_functions
+from .orbit import PeriodicOrbit
+from .period import ForceIntegral, OnePeriod, one_period, period_statistics
+from .section import SlipSection
+from .shooting import OrbitStatus, Shooting, ShootingResult, shoot
+
+__all__ = [
+    "DEFAULT_ORBIT_RTOL",
+    "ForceIntegral",
+    "OnePeriod",
+    "OrbitNotFound",
+    "OrbitStatus",
+    "PeriodicOrbit",
+    "Shooting",
+    "ShootingResult",
+    "SlipSection",
+    "multipliers",
+    "one_period",
+    "orbit_shooting",
+    "period_statistics",
+    "periodic_orbit",
+    "shoot",
+    "start_from_run",
+    "test_functions",
+]

@@ -1,0 +1,169 @@
+"""The result of shooting: a stick-slip periodic orbit, its stability and its statistics."""
+
+from __future__ import annotations
+
+import json
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Bool, Complex, Float, Int
+
+from ..model import PeelingModel
+from ..simulate import simulate
+from ..solution import JumpRecord, Solution, StopReason
+from .floquet import test_functions
+from .section import SlipSection
+from .shooting import OrbitStatus
+
+__all__ = ["PeriodicOrbit"]
+
+_UNITS = {"F_mean": "N", "F_slip": "N", "F_stick": "N", "period": "s", "slip_duration": "s"}
+
+
+class PeriodicOrbit(eqx.Module):
+    """A periodic stick-slip orbit of the DAE (τ = 0) with k stick → slip events per period.
+
+    Every float field carries derivatives with respect to V, the model and φ's coefficients
+    by the implicit function theorem on the fixed point (:mod:`peeljax.orbits.shooting`),
+    except ``monodromy`` and ``multipliers``, which are held constant. Under ``vmap`` every
+    field gains a leading batch axis.
+
+    Attributes:
+        model: spool, tape and adhesion law.
+        V: pull velocity [m/s].
+        slips: k, the stick → slip events per period (static).
+        section: s = (α, ω) [rad, rad/s] where the orbit crosses the stick → slip section
+            (G(x) = φ(v̂, V), just before the slip).
+        state: (α, ω, u, v̂) there, before the slip.
+        period: T [s].
+        jumps: the 2k jumps of one period, the slip at the section first (t = 0), then
+            alternating re-sticks and slips.
+        force_integral: ∫₀ᵀ F dt over the period [N·s].
+        monodromy: M = ∂P^k/∂s, the return map's Jacobian on the section.
+        multipliers: its eigenvalues λ₁, λ₂ (larger modulus first): the orbit's nontrivial
+            Floquet multipliers.
+        status: an :class:`~peeljax.orbits.OrbitStatus` code (0: converged).
+        run_status: the :class:`~peeljax.StopReason` of the last period's run (``MAX_JUMPS``:
+            it reached its k-th slip).
+        iterations: Newton's iterations.
+        residual: |P^k(s) − s| in the scaled coordinates (radians, units of V/R).
+        steps: step attempts of one period's run.
+        statistics: the five statistics of a stick-slip table over exactly one period
+            (:func:`peeljax.orbits.period.period_statistics`): ``F_mean`` (the time average of
+            F), ``F_slip`` and ``F_stick`` (F at the slips and re-sticks) [N], ``period`` (T/k,
+            the mean time between slips) and ``slip_duration`` [s].
+    """
+
+    model: PeelingModel
+    V: Float[Array, ""]
+    slips: int = eqx.field(static=True)
+    section: Float[Array, "2"]
+    state: Float[Array, "4"]
+    period: Float[Array, ""]
+    jumps: JumpRecord
+    force_integral: Float[Array, ""]
+    monodromy: Float[Array, "2 2"]
+    multipliers: Complex[Array, "2"]
+    status: Int[Array, ""]
+    run_status: Int[Array, ""]
+    iterations: Int[Array, ""]
+    residual: Float[Array, ""]
+    steps: Int[Array, ""]
+    statistics: dict[str, Array]
+
+    # -- verdicts ---------------------------------------------------------------------------
+    @property
+    def converged(self) -> Bool[Array, ""]:
+        return self.status == OrbitStatus.CONVERGED
+
+    @property
+    def stable(self) -> Bool[Array, ""]:
+        """Asymptotically stable: every multiplier inside the unit circle."""
+        return _stable(self.multipliers)
+
+    @property
+    def status_name(self) -> str:
+        """``"converged"``, ``"not_converged"``, … (single orbits only)."""
+        return OrbitStatus(int(self.status)).name.lower()
+
+    @property
+    def reason(self) -> str:
+        """Why shooting ended, in words (single orbits only)."""
+        status = OrbitStatus(int(self.status))
+        text = status.message
+        if status == OrbitStatus.EVENTS_CHANGED:
+            text += f" (the run ended: {StopReason(int(self.run_status)).message})"
+        return text
+
+    # -- what a measurement sees ------------------------------------------------------------
+    @property
+    def test_functions(self) -> dict[str, Array]:
+        """The fold, period-doubling and torus test functions of the monodromy
+        (:func:`peeljax.orbits.floquet.test_functions`)."""
+        return _test_functions(self.monodromy)
+
+    # -- one period in time -----------------------------------------------------------------
+    def trajectory(self, ts: ArrayLike | None = None, *, rtol: float = 1e-8, atol: float | None = None) -> Solution:
+        """One period of the orbit as a run: :func:`peeljax.simulate` (τ = 0) from the state
+        just after the slip at the section, over [0, T], output at ``ts`` (default: 2001
+        equally spaced times) with both sides of every jump (single orbits only)."""
+        period = float(self.period)
+        ts = np.linspace(0.0, period, 2001) if ts is None else np.asarray(ts, float)
+        y0 = np.asarray(SlipSection.at(self.model, self.V).after_slip(self.section))
+        return simulate(self.model, V=float(self.V), tau=0, y0=y0, t_final=period, ts=ts, rtol=rtol, atol=atol)
+
+    # -- output -----------------------------------------------------------------------------
+    def as_dict(self) -> dict:
+        """The orbit as JSON-able numbers (single orbits only)."""
+        stats = {k: float(v) for k, v in self.statistics.items()}
+        mult = np.asarray(self.multipliers)
+        return {
+            "V": float(self.V),
+            "status": self.status_name,
+            "reason": self.reason,
+            "slips_per_period": self.slips,
+            "period": float(self.period),
+            "stable": bool(self.stable),
+            "multipliers": [{"re": float(m.real), "im": float(m.imag), "abs": float(abs(m))} for m in mult],
+            "statistics": stats,
+            "units": dict(_UNITS),
+            "section": {"alpha": float(self.section[0]), "omega": float(self.section[1])},
+            "newton_iterations": int(self.iterations),
+            "residual": float(self.residual),
+        }
+
+    def to_json(self) -> str:
+        return json.dumps(self.as_dict(), indent=2)
+
+    def __str__(self) -> str:
+        if jnp.ndim(self.V) != 0:
+            return f"PeriodicOrbit(batch of {jnp.shape(self.V)[0]}, {self.slips} slips per period)"
+        d = self.as_dict()
+        mult = ", ".join(_complex(m) for m in np.asarray(self.multipliers))
+        s = d["statistics"]
+        lines = [
+            f"periodic orbit at V = {d['V']:.6g} m/s: {d['status']} ({d['newton_iterations']} Newton iterations, "
+            f"residual {d['residual']:.1e})",
+            f"  T = {d['period']:.7g} s with {self.slips} stick → slip events per period; "
+            f"{'stable' if d['stable'] else 'unstable'}, multipliers {mult}",
+            f"  F_mean {s['F_mean']:.6g} N, F_slip {s['F_slip']:.6g} N, F_stick {s['F_stick']:.6g} N, "
+            f"time between slips {1e3 * s['period']:.6g} ms, slip duration {1e3 * s['slip_duration']:.6g} ms",
+        ]
+        if d["status"] != "converged":
+            lines.append(f"  {self.reason}")
+        return "\n".join(lines)
+
+
+_test_functions = eqx.filter_jit(test_functions)
+
+
+@eqx.filter_jit
+def _stable(multipliers):
+    return jnp.max(jnp.abs(multipliers), axis=-1) < 1.0
+
+
+def _complex(m: complex) -> str:
+    if abs(m.imag) < 1e-12 * max(abs(m), 1e-300):
+        return f"{m.real:.4g}"
+    return f"{m.real:.4g}{'+' if m.imag >= 0 else '−'}{abs(m.imag):.4g}i (|λ| {abs(m):.4g})"

@@ -1,0 +1,267 @@
+"""Shooting for a stick-slip orbit: Newton on the return map, derivatives by the implicit
+function theorem.
+
+A periodic orbit with k stick → slip events per period is a fixed point of the return map
+after k events on the section Σ (:mod:`peeljax.orbits.section`, :mod:`peeljax.orbits.period`):
+
+    r(z; θ) = P^k(z; θ) − z = 0,
+
+z the scaled section coordinates, θ everything the orbit depends on (V, the model, φ's
+coefficients). Newton's method (optimistix's ``Newton``: the Jacobian ∂P^k/∂z by forward-mode
+autodiff through the loop, its events and jumps) solves it; the Jacobian at the solution is
+the orbit's monodromy M on Σ (:mod:`peeljax.orbits.floquet`).
+
+Derivatives are not taken through Newton's iterations. The fixed point z*(θ) is
+differentiated by the implicit function theorem, one linear solve with I − M:
+
+    dz* = (I − M)⁻¹ ∂P^k/∂θ·dθ,    dq = ∂q/∂z·dz* + ∂q/∂θ·dθ
+
+for every quantity q of the period (its time, forces, jump times, statistics), with ∂/∂z and
+∂/∂θ by one forward-mode pass through one period, whose tangents are the two section
+directions and the components of θ that carry a tangent (an ``equinox.filter_custom_jvp``:
+components not differentiated cost nothing). The tangent rule is linear in dθ with constant
+matrices, so JAX transposes it: ``jax.grad``, ``jax.jacrev``, ``jax.jvp`` and ``jax.jacfwd``
+all work, the loop itself only ever differentiated forward. The monodromy and its
+multipliers are held constant in derivatives (their derivative needs second derivatives of
+P^k).
+"""
+
+from __future__ import annotations
+
+import enum
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jax.flatten_util import ravel_pytree
+from jaxtyping import Array, Float, Int
+
+from ..integrators.adaptive import ErrorControl
+from ..model import PeelingModel
+from .period import OnePeriod, one_period
+from .section import SlipSection
+
+__all__ = ["OrbitStatus", "Shooting", "ShootingResult", "shoot"]
+
+
+class OrbitStatus(enum.IntEnum):
+    """Why shooting ended. ``CONVERGED`` is the only success."""
+
+    CONVERGED = 0
+    NOT_CONVERGED = 1
+    DIVERGED = 2
+    EVENTS_CHANGED = 3
+    NO_FOLD = 4
+
+    @property
+    def message(self) -> str:
+        return _MESSAGES[self]
+
+
+_MESSAGES = {
+    OrbitStatus.CONVERGED: "converged: the return map's fixed point was found",
+    OrbitStatus.NOT_CONVERGED: (
+        "Newton's method did not converge within max_iterations (a start far from the orbit, or an orbit close "
+        "to a bifurcation, where I − M is near-singular)"
+    ),
+    OrbitStatus.DIVERGED: "Newton's method diverged: the start is outside the orbit's basin for Newton",
+    OrbitStatus.EVENTS_CHANGED: (
+        "the run from the section did not come back through k stick → slip events (within 3 periods of the "
+        "start's): the orbit's number of slips per period differs from the one asked for, or there is no "
+        "periodic stick-slip here"
+    ),
+    OrbitStatus.NO_FOLD: "phi has no fold at this V: the peeling is steady, there is no stick-slip orbit",
+}
+
+
+class Shooting(eqx.Module):
+    """How an orbit is shot: the integrator of one period and Newton's settings.
+
+    Attributes:
+        integrator: the error-controlled loop with fold events whose record holds 2k − 1
+            jumps (:func:`peeljax.integrators.integrator_for` with ``adjoint="forward"``).
+        max_iterations: Newton's iteration cap (static).
+        tolerance: the largest |P^k(z) − z| at a converged orbit, in the scaled coordinates
+            (radians and units of V/R).
+    """
+
+    integrator: ErrorControl
+    max_iterations: int = eqx.field(static=True, default=20)
+    tolerance: float = eqx.field(static=True, default=1e-10)
+
+    @property
+    def slips(self) -> int:
+        return (self.integrator.events.max_jumps + 1) // 2
+
+
+class ShootingResult(eqx.Module):
+    """The fixed point and its period (scaled coordinates z = s/scale).
+
+    Attributes:
+        z: the section coordinates of the orbit, scaled.
+        period: the run of one period from it (:class:`~peeljax.orbits.period.OnePeriod`).
+        monodromy: M = ∂P^k/∂s (2 × 2, unscaled), no derivative.
+        residual: max |P^k(z) − z| (scaled).
+        iterations: Newton's iterations.
+        status: an :class:`OrbitStatus` code.
+    """
+
+    z: Float[Array, "2"]
+    period: OnePeriod
+    monodromy: Float[Array, "2 2"]
+    residual: Float[Array, ""]
+    iterations: Int[Array, ""]
+    status: Int[Array, ""]
+
+
+def _return(shooting: Shooting, model: PeelingModel, V, z, t_max) -> tuple[Array, OnePeriod]:
+    """(r(z) = P^k(z) − z scaled, the period's run) at scaled coordinates z."""
+    section = SlipSection.at(model, V)
+    scale = section.scale
+    period = one_period(section, shooting.integrator, z * scale, t_max)
+    return (period.end - z * scale) / scale, period
+
+
+def _linearised(shooting: Shooting, model, V, t_max, theta_leaves: tuple[int, ...]):
+    """z ↦ (the Jacobian of every float output of one period in (z, θ_p), the outputs): one
+    forward-mode pass, θ_p the leaves of (model, V) at ``theta_leaves``; and the unravel of a
+    column into (r, period) tangents."""
+    leaves, treedef = jax.tree_util.tree_flatten((model, V))
+    theta = [jnp.ravel(jnp.asarray(leaves[i], float)) for i in theta_leaves]
+    sizes = [t.size for t in theta]
+    z_shape = jax.ShapeDtypeStruct((2,), jnp.dtype(float))
+    floats_shape = jax.eval_shape(
+        lambda z: eqx.partition(_return(shooting, model, V, z, t_max), eqx.is_inexact_array)[0], z_shape
+    )
+    unravel = ravel_pytree(jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), floats_shape))[1]
+
+    def outputs(w):
+        new = list(leaves)
+        offset = 2
+        for i, size in zip(theta_leaves, sizes):
+            new[i] = w[offset : offset + size].reshape(jnp.shape(leaves[i]))
+            offset += size
+        m, v = jax.tree_util.tree_unflatten(treedef, new)
+        r, period = _return(shooting, m, v, w[:2], t_max)
+        return ravel_pytree(eqx.partition((r, period), eqx.is_inexact_array)[0])[0], (r, period)
+
+    def at(z):
+        jac, (r, period) = jax.jacfwd(outputs, has_aux=True)(jnp.concatenate([z, *theta]))
+        return jac, r, period
+
+    return at, unravel
+
+
+class _Newton(eqx.Module):
+    z: Array  # the point evaluated last
+    step: Array  # the Newton step from it
+    jac: Array
+    r: Array
+    period: OnePeriod
+    iterations: Array
+    first_residual: Array
+    done: Array
+    diverged: Array
+
+
+def _solve(shooting: Shooting, model, V, z0, t_max, theta_leaves: tuple[int, ...] = ()):
+    """Newton's method on r(z) = 0, each iteration one forward-mode pass through one period
+    (:func:`_linearised`). Ends at the first point with |r| ≤ tolerance and returns what was
+    computed there — the period and its Jacobian, without another pass. Values only: nothing
+    is differentiated through the iterations. Steps are limited to 0.5 in the scaled
+    coordinates; |r| growing 100× past the first residual is divergence."""
+    at, unravel = _linearised(shooting, model, V, t_max, theta_leaves)
+
+    def residual_jacobian(jac):
+        columns = [unravel(jac[:, j])[0] for j in range(2)]
+        return jnp.stack(columns, axis=1)
+
+    def evaluate(c: _Newton, z) -> _Newton:
+        jac, r, period = at(z)
+        norm = jnp.max(jnp.abs(r))
+        r_z = residual_jacobian(jac)
+        step = -jnp.linalg.solve(jnp.where(jnp.isfinite(r_z), r_z, 0.0) + jnp.where(jnp.all(jnp.isfinite(r_z)), 0.0, jnp.eye(2)), r)
+        step = jnp.where(jnp.all(jnp.isfinite(step)), step, 0.0)
+        step = step * jnp.minimum(1.0, 0.5 / jnp.maximum(jnp.max(jnp.abs(step)), 1e-300))
+        first = jnp.where(c.iterations == 0, norm, c.first_residual)
+        converged = norm <= shooting.tolerance
+        diverged = ~jnp.isfinite(norm) | (norm > 100.0 * jnp.maximum(first, shooting.tolerance))
+        done = converged | diverged | ~period.reached | (c.iterations + 1 >= shooting.max_iterations)
+        return _Newton(z, step, jac, r, period, c.iterations + 1, first, done, diverged & ~converged)
+
+    shapes = jax.eval_shape(lambda z: at(z), z0)
+    zeros = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), shapes)
+    # The loop's body holds the one pass (a pass outside it would be compiled twice).
+    init = _Newton(z0, jnp.zeros(2), zeros[0], zeros[1], zeros[2], jnp.asarray(0), jnp.asarray(jnp.inf), jnp.asarray(False), jnp.asarray(False))
+    final = jax.lax.while_loop(lambda c: ~c.done, lambda c: evaluate(c, c.z + c.step), init)
+    return final, unravel, residual_jacobian(final.jac)
+
+
+def _result(shooting: Shooting, model, V, newton: _Newton, r_z) -> ShootingResult:
+    section = SlipSection.at(model, V)
+    scale = section.scale
+    monodromy = (r_z + jnp.eye(2)) * scale[:, None] / scale[None, :]
+    residual = jnp.max(jnp.abs(newton.r))
+    converged = residual <= shooting.tolerance
+    status = jnp.select(
+        [~section.folds.exist, ~newton.period.reached, converged, newton.diverged],
+        [OrbitStatus.NO_FOLD, OrbitStatus.EVENTS_CHANGED, OrbitStatus.CONVERGED, OrbitStatus.DIVERGED],
+        OrbitStatus.NOT_CONVERGED,
+    ).astype(jnp.int32)
+    return ShootingResult(
+        z=newton.z, period=newton.period, monodromy=jax.lax.stop_gradient(monodromy), residual=residual,
+        iterations=newton.iterations.astype(jnp.int32), status=status,
+    )  # fmt: skip
+
+
+@eqx.filter_custom_jvp
+def _shoot(params, guess):
+    shooting, model, V = params
+    z0, t_max = guess
+    newton, _, r_z = _solve(shooting, model, V, z0, t_max)
+    return _result(shooting, model, V, newton, r_z)
+
+
+def _tangent_leaves(primal, tangent) -> list:
+    """The tangents of ``primal``'s leaves (None where not differentiated)."""
+    leaves, treedef = jax.tree_util.tree_flatten(primal)
+    if tangent is None:
+        return [None] * len(leaves)
+    return treedef.flatten_up_to(tangent)
+
+
+@_shoot.def_jvp
+def _shoot_jvp(primals, tangents):
+    params, guess = primals
+    shooting, model, V = params
+    z0, t_max = guess
+    t_leaves = _tangent_leaves((model, V), (tangents[0][1], tangents[0][2]))
+    theta_leaves = tuple(i for i, t in enumerate(t_leaves) if t is not None)
+
+    newton, unravel, r_z = _solve(shooting, model, V, z0, t_max, theta_leaves)
+    primal = _result(shooting, model, V, newton, r_z)
+    jac = newton.jac
+    if theta_leaves:
+        d_theta = jnp.concatenate([jnp.ravel(jnp.asarray(t_leaves[i], float)) for i in theta_leaves])
+        direct = jac[:, 2:] @ d_theta  # ∂q/∂θ·dθ for every float output q
+    else:
+        direct = jnp.zeros(jac.shape[0])
+    # The implicit function theorem: r(z*(θ), θ) = 0 ⇒ ∂r/∂z·dz* = −∂r/∂θ·dθ. Off a converged
+    # orbit (or at a multiplier 1, where ∂r/∂z is singular) z* has no derivative: the tangent
+    # is then that of the point reached, never NaN (the status says so).
+    invertible = (primal.status == OrbitStatus.CONVERGED) & jnp.all(jnp.isfinite(r_z)) & (jnp.abs(jnp.linalg.det(r_z)) > 1e-300)
+    inverse = jnp.where(invertible, jnp.linalg.inv(jnp.where(invertible, r_z, jnp.eye(2))), 0.0)
+    dz = -inverse @ unravel(direct)[0]
+    d_period = unravel(direct + jac[:, :2] @ dz)[1]
+    tangent = ShootingResult(z=dz, period=d_period, monodromy=None, residual=None, iterations=None, status=None)
+    return primal, tangent
+
+
+def shoot(shooting: Shooting, model: PeelingModel, V, z0: Float[Array, "2"], t_max) -> ShootingResult:
+    """The periodic orbit through k = ``shooting.slips`` stick → slip events nearest (for
+    Newton) to the scaled section coordinates z0 (module docstring); ``t_max`` bounds one period's run.
+
+    Differentiable in ``model`` and ``V`` by the implicit function theorem; z0 and t_max
+    carry no derivative (the orbit does not depend on them).
+    """
+    return _shoot((shooting, model, jnp.asarray(V, float)), (jnp.asarray(z0, float), jnp.asarray(t_max, float)))

@@ -1,0 +1,190 @@
+"""Periodic stick-slip orbits by shooting (peeljax.orbits): convergence, exactness, stability,
+derivatives by the implicit function theorem, and honest failures.
+
+Every orbit here is shot with the same compiled program (k = 8 slips per period; rtol, V, the
+start and the model are traced), so the module compiles it once; the derivative tests add
+one forward-mode and one reverse-mode program.
+"""
+
+from __future__ import annotations
+
+import json
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import peeljax as pj
+from peeljax.orbits import OrbitStatus, SlipSection, one_period, orbit_shooting, periodic_orbit
+from peeljax.orbits.api import _orbit
+
+V = 1.1
+STATS = ("F_mean", "F_slip", "F_stick", "period", "slip_duration")
+
+
+@pytest.fixture(scope="module")
+def run():
+    return pj.simulate(V=V, tau=0, t_final=3.0)
+
+
+@pytest.fixture(scope="module")
+def orbit(run):
+    return periodic_orbit(V=V, start=run)
+
+
+def _quantities(orbit) -> np.ndarray:
+    st = orbit.statistics
+    return np.array([float(orbit.period)] + [float(st[k]) for k in STATS])
+
+
+def test_newton_converges_from_the_runs_repeat(run, orbit):
+    repeat = pj.cycle_statistics(run, float(run.t_stop), transient=1.5).repeat
+    assert orbit.status_name == "converged", orbit.reason
+    assert orbit.slips == repeat.events == 8
+    assert 1 <= int(orbit.iterations) <= 8
+    assert float(orbit.residual) <= 1e-10
+    assert abs(float(orbit.period) / repeat.period - 1) < 1e-5
+    # One period's record: 2k jumps, alternating, the slip at the section first at t = 0.
+    jumps = orbit.jumps.as_numpy()
+    assert len(jumps["jump_t"]) == 16
+    assert jumps["jump_t"][0] == 0.0 and np.all(np.diff(jumps["jump_t"]) > 0)
+    assert np.array_equal(jumps["jump_up"], np.arange(16) % 2 == 0)
+    assert float(orbit.period) > jumps["jump_t"][-1]
+    json.loads(orbit.to_json())  # JSON-able
+
+
+def test_orbit_matches_an_independent_implementation(orbit):
+    # An independent scipy implementation of the DAE with jumps (LSODA, rtol 1e-11),
+    # Newton on its return map: T, the statistics, the multipliers' moduli.
+    st = {k: float(v) for k, v in orbit.statistics.items()}
+    assert float(orbit.period) == pytest.approx(0.2182712, abs=2e-7)
+    assert 1e3 * st["period"] == pytest.approx(27.2839, abs=1e-4)
+    assert st["F_slip"] == pytest.approx(259.648, abs=1e-3)
+    assert st["F_mean"] == pytest.approx(245.698, abs=1e-3)
+    assert 1e3 * st["slip_duration"] == pytest.approx(2.1911, abs=1e-4)
+    moduli = np.abs(np.asarray(orbit.multipliers))
+    assert moduli == pytest.approx([0.558, 0.009], abs=1e-3)
+    assert bool(orbit.stable)
+
+
+def test_orbit_converges_in_rtol(run):
+    # rtol is traced: the same program. The defaults' orbit agrees with rtol 1e-6 and 1e-11.
+    loose = _quantities(periodic_orbit(V=V, start=run, rtol=1e-6))
+    default = _quantities(periodic_orbit(V=V, start=run))
+    tight = _quantities(periodic_orbit(V=V, start=run, rtol=1e-11))
+    assert np.max(np.abs(default / tight - 1)) < 1e-8
+    assert np.max(np.abs(loose / tight - 1)) < 1e-6
+    assert np.max(np.abs(default / tight - 1)) < np.max(np.abs(loose / tight - 1))
+
+
+def test_statistics_are_one_periods_means(orbit):
+    st = orbit.statistics
+    jumps = orbit.jumps.as_numpy()
+    up = jumps["jump_up"]
+    assert float(st["F_slip"]) == pytest.approx(np.mean(jumps["jump_F"][up]), rel=1e-14)
+    assert float(st["F_stick"]) == pytest.approx(np.mean(jumps["jump_F"][~up]), rel=1e-14)
+    assert float(st["slip_duration"]) == pytest.approx(np.mean(jumps["jump_t"][1::2] - jumps["jump_t"][::2]), rel=1e-12)
+    # The time average of F against a fine trapezoid of the dense trajectory over one period.
+    period = float(orbit.period)
+    y0 = np.asarray(SlipSection.at(orbit.model, V).after_slip(orbit.section))
+    sol = pj.simulate(orbit.model, V=V, tau=0, t_final=period, y0=y0, rtol=1e-10, atol=1e-13, ts=np.linspace(0.0, period, 20001))
+    F = (orbit.model.k / orbit.model.l) * np.asarray(sol.ys)[:, 2]
+    mean = np.trapezoid(F, np.asarray(sol.ts)) / period
+    assert float(st["F_mean"]) == pytest.approx(mean, rel=2e-6)
+
+
+@pytest.mark.slow
+def test_multipliers_match_central_differences_of_the_return_map(orbit):
+    shooting = orbit_shooting(8, rtol=1e-10)
+    tight = periodic_orbit(V=V, start=np.asarray(orbit.section), slips=8, period=float(orbit.period), rtol=1e-10)
+    section = SlipSection.at(tight.model, V)
+    P = eqx.filter_jit(lambda s: one_period(section, shooting.integrator, s, 0.7).end)
+    s = np.asarray(tight.section)
+    M = np.zeros((2, 2))
+    for j, h in enumerate([1e-6, 1e-5]):
+        e = np.zeros(2)
+        e[j] = h
+        M[:, j] = (np.asarray(P(s + e)) - np.asarray(P(s - e))) / (2 * h)
+    ad = np.sort_complex(np.asarray(tight.multipliers))
+    fd = np.sort_complex(np.linalg.eigvals(M).astype(complex))
+    assert np.max(np.abs(ad - fd)) < 1e-6
+    assert np.max(np.abs(np.asarray(tight.monodromy) - M) / (np.abs(M) + 1e-3 * np.abs(M).max())) < 1e-5
+
+
+@pytest.fixture(scope="module")
+def derivative_setup(orbit):
+    rtol = 1e-10
+    shooting = orbit_shooting(8, rtol=rtol)
+    model, s_star = orbit.model, jnp.asarray(orbit.section)
+
+    def quantities(c1, V_, start=s_star, t_max=0.7):
+        m = eqx.tree_at(lambda m: m.adhesion.c1, model, c1)
+        o = _orbit(shooting, m, V_, start, t_max)
+        st = o.statistics
+        return jnp.stack([o.period] + [st[k] for k in STATS])
+
+    # One reverse-mode program for both tests that take a gradient (t_max is traced).
+    grad_F_mean = jax.jit(jax.grad(lambda c, t_max: quantities(c, V, t_max=t_max)[1]))
+    return quantities, model.adhesion.c1, grad_F_mean
+
+
+@pytest.mark.slow
+def test_derivatives_match_central_differences_of_converged_orbits(derivative_setup):
+    quantities, c1, grad_F_mean = derivative_setup
+    # d/dc1 and d/dV in one forward-mode program (the implicit function theorem on the fixed point).
+    jac = jax.jit(jax.jacfwd(quantities, argnums=(0, 1)))(jnp.asarray(c1), jnp.asarray(V))
+    # Central differences of converged orbits, steps well below the bifurcation between
+    # c1 × 1.0005 and × 1.0010 (shared/notes/orbits.md).
+    for argnum, (x0, h) in enumerate([(float(c1), 1e-5 * float(c1)), (V, 1e-5)]):
+        args = [float(c1), V]
+        args[argnum] = x0 + h
+        plus = np.asarray(quantities(*args))
+        args[argnum] = x0 - h
+        minus = np.asarray(quantities(*args))
+        fd = (plus - minus) / (2 * h)
+        assert np.max(np.abs(np.asarray(jac[argnum]) / fd - 1)) < 1e-5, (argnum, np.asarray(jac[argnum]), fd)
+    # Reverse mode transposes the same linear rule: equal to forward mode.
+    # (Newton's values under 2 and 3 tangents may round differently: not bit for bit.)
+    grad = grad_F_mean(jnp.asarray(c1), 0.7)
+    assert float(grad) == pytest.approx(float(jac[0][1]), rel=1e-9)
+
+
+@pytest.mark.slow
+def test_a_failed_orbit_says_why_and_its_gradient_is_finite(orbit, derivative_setup):
+    quantities, c1, grad_F_mean = derivative_setup
+    # A period bound of 3 ms: the run from the section cannot come back through 8 slips.
+    failed = periodic_orbit(V=V, start=np.asarray(orbit.section), slips=8, period=1e-3)
+    assert failed.status_name == "events_changed"
+    assert "did not come back through k stick → slip events" in failed.reason
+    assert all(np.isfinite(float(v)) for v in failed.statistics.values())
+    assert np.isfinite(float(grad_F_mean(jnp.asarray(c1), 3e-3)))
+
+
+def test_bad_input_is_refused_before_compiling(run):
+    with pytest.raises(ValueError, match="slips must be a positive integer"):
+        periodic_orbit(V=V, start=(0.3, 16.0), slips=0)
+    with pytest.raises(ValueError, match="slips is needed"):
+        periodic_orbit(V=V, start=(0.3, 16.0))
+    with pytest.raises(ValueError, match="rtol"):
+        periodic_orbit(V=V, start=run, rtol=2.0)
+    with pytest.raises(ValueError, match="V"):
+        periodic_orbit(V=-1.0, start=run)
+    with pytest.raises(ValueError, match="start must be"):
+        periodic_orbit(V=V, start=(0.3, 16.0, 1.0), slips=8)
+    with pytest.raises(ValueError, match="max_iterations"):
+        periodic_orbit(V=V, start=run, max_iterations=0)
+
+
+def test_no_orbit_where_the_peeling_is_steady():
+    with pytest.raises(pj.OrbitNotFound, match="no fold"):
+        periodic_orbit(V=6.0, start=(0.1, 60.0), slips=1)
+    short = pj.simulate(V=V, tau=0, t_final=0.1)  # from rest: the first slip comes at 0.166 s
+    with pytest.raises(pj.OrbitNotFound, match="no stick → slip event"):
+        periodic_orbit(V=V, start=short)
+
+
+def test_orbit_status_messages_are_complete():
+    for status in OrbitStatus:
+        assert status.message
