@@ -1,6 +1,7 @@
-"""Writes the example data files of docs/examples/ (run from the repository root):
+"""Writes the example data files of docs/examples/ and the README's figure (run from the
+repository root; name some of ``record``, ``table``, ``figure`` to write only those):
 
-    python docs/examples/make_examples.py
+    python docs/examples/make_examples.py [record] [table] [figure]
 
 * ``peel_V=1.1.csv``: the force record of a peeljax stick-slip run at V = 1.1 m/s — the paper's
   φ and model, τ = 0 (the DAE itself, v jumping at the folds of φ), from the paper's initial
@@ -97,9 +98,18 @@ def stick_slip_table(path: Path = HERE / "stick_slip_table.csv", noise: float = 
     return path
 
 
+def readme_figure(path: Path = HERE.parent / "images" / "stick_slip.png") -> Path:
+    """The README's figure: its example run (V = 1.1 m/s, τ = 0, 1 s) drawn by ``plot_stick_slip``."""
+    from peeljax.plots import plot_stick_slip
+
+    sol = pj.simulate(V=1.1, tau=0, t_final=1.0)
+    plot_stick_slip(sol, pj.PeelingModel(), 1.1, path=path)
+    return path
+
+
 if __name__ == "__main__":
     import sys
 
-    jobs = {"record": force_record, "table": stick_slip_table}
+    jobs = {"record": force_record, "table": stick_slip_table, "figure": readme_figure}
     for name in sys.argv[1:] or list(jobs):  # `make_examples.py table`: that file only
         print(f"wrote {jobs[name]()}")
