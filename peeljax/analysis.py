@@ -18,10 +18,15 @@ Along a trajectory y_t = (α, ω, u, v) at pull velocity V and homogenization ti
   jumps from the stick branch to the fast one (both with ∂φ/∂v > 0), so the sign rule cannot
   see the phases there. The jump record can, exactly: phases, events and the stick fraction
   come from it (:func:`peeljax.cycle_statistics`);
+* **both sides of every jump**: a run carried through the folds keeps, at each jump time, a row
+  with the state just before the jump and one with the state just after it (equal times; the
+  second marked in ``Solution.after_jump``), so extrema and ranges see v⁺; rows with equal
+  times are a zero-width interval to every time average and interpolation here;
 * **means over time**: output times are not uniform (error control saves its accepted steps),
-  so every mean is a time average, the trapezoid rule in t (:func:`time_average`), with each
-  recorded jump of v inserted at its time (v_before, v_after) so that the jump is exact;
-  fractions of phases are fractions of time;
+  so every mean is a time average, the trapezoid rule in t (:func:`time_average`); where the
+  rows lack the jumps (a file written before both sides were kept), each recorded jump of v
+  is inserted at its time (v_before, v_after) so that the jump is exact; fractions of phases
+  are fractions of time;
 * **cycle measures** of v after a transient: ``period`` is one thing, the mean time between
   stick → slip events (the jump record's ``slip_interval``; for τ > 0 the downward crossings of
   ∂φ/∂v), and ``repeat`` is the repeat of those events (:func:`peeljax.cycles.repeat_pattern`,
@@ -39,6 +44,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
@@ -48,7 +54,14 @@ from .homogenized import HomogenizedODE
 from .model import PeelingModel
 from .saved import SavedRun
 from .solution import Solution
-from .structure import jacobians, local_index, phi_extremum, schur_complement, truncated_schur_complement
+from .structure import (
+    PHI_SEARCH_RANGE,
+    jacobians,
+    local_index,
+    phi_extremum,
+    schur_complement,
+    truncated_schur_complement,
+)
 
 __all__ = [
     "BifurcationDiagram",
@@ -56,6 +69,7 @@ __all__ = [
     "analyze",
     "bifurcation_diagram",
     "crossings",
+    "fold_limit",
     "local_extrema",
     "oscillation",
     "phi_extrema",
@@ -114,6 +128,60 @@ def _phi_extrema_jit(model, V):
     return phi_extremum(model, V, "max"), phi_extremum(model, V, "min")
 
 
+_SLOPE_GRID = 4096  # log-spaced v of the search for min ∂φ/∂v: 400 points a decade
+_GOLDEN = 0.5 * (5**0.5 - 1)
+
+
+@eqx.filter_jit
+def _min_slope(model, V):
+    """min over v of ∂φ/∂v(v, V) [N·s/m]: < 0 where φ(·, V) has a fold (the slip branch between
+    its maximum and minimum), > 0 where it has none. The grid's least slope, refined by a
+    golden-section search in log v between its neighbours."""
+    log_v = jnp.linspace(jnp.log(PHI_SEARCH_RANGE[0]), jnp.log(PHI_SEARCH_RANGE[1]), _SLOPE_GRID)
+    log_v = log_v + jnp.log(jnp.maximum(V, 1.0))
+
+    def slope(x):
+        return jax.grad(lambda v: model.phi(v, V))(jnp.exp(x))
+
+    i = jnp.argmin(jax.vmap(slope)(log_v))
+    bracket = (log_v[jnp.maximum(i - 1, 0)], log_v[jnp.minimum(i + 1, _SLOPE_GRID - 1)])
+
+    def shrink(_, bracket):
+        lo, hi = bracket
+        a, b = hi - _GOLDEN * (hi - lo), lo + _GOLDEN * (hi - lo)
+        left = slope(a) < slope(b)
+        return jnp.where(left, lo, a), jnp.where(left, b, hi)
+
+    lo, hi = jax.lax.fori_loop(0, 80, shrink, bracket)
+    return slope(0.5 * (lo + hi))
+
+
+def fold_limit(model: PeelingModel | None, V_fold: float, V_none: float, *, xtol: float = 1e-10) -> float:
+    """The pull velocity between ``V_fold`` (φ(·, V) has a fold) and ``V_none`` (it has none)
+    where the fold appears or vanishes: the cusp where φ's maximum and minimum merge, the root
+    of s(V) = min_v ∂φ/∂v(v, V) (negative while the slip branch exists), by Brent's method.
+
+    For the paper's φ the fold vanishes at V = 5.387 m/s (``tests/test_figures.py``).
+
+    Raises:
+        ValueError: when s has the same sign at both ends (no such V between them), naming them.
+    """
+    from scipy.optimize import brentq
+
+    model = PeelingModel() if model is None else model
+
+    def s(V):
+        return float(_min_slope(model, jnp.asarray(V, float)))
+
+    s_fold, s_none = s(V_fold), s(V_none)
+    if not (s_fold < 0 < s_none):
+        raise ValueError(
+            f"fold_limit: φ must have a fold at V_fold = {V_fold:g} (min ∂φ/∂v = {s_fold:.3g}) and none at "
+            f"V_none = {V_none:g} (min ∂φ/∂v = {s_none:.3g})"
+        )
+    return float(brentq(s, min(V_fold, V_none), max(V_fold, V_none), xtol=xtol, rtol=8.9e-16))
+
+
 _structure_jit = eqx.filter_jit(trajectory_structure)  # truncation: a Python int or None, static
 
 
@@ -169,13 +237,17 @@ def time_average(
 
     The samples need not be uniform (error control's accepted steps are not): the unweighted
     mean of such samples over-weights where the steps are short. NaN samples are left out.
+    Equal consecutive times (both sides of a jump in a run's rows) are a jump of x there: a
+    window starting at that time starts from the value after it, one ending there ends at the
+    value before it.
 
     Args:
         ts, values: the samples (t ascending where finite).
         t_start, t_end: the window (default: the first and last finite sample); the ends are
             interpolated linearly.
         jumps: ``(t_j, before_j, after_j)`` of jumps of x between samples (a run's jump record:
-            v jumps at a fold), inserted so that the integral sees the jump where it happened.
+            v jumps at a fold), inserted so that the integral sees the jump where it happened;
+            not needed where the samples hold both sides of each jump already.
 
     Returns:
         The time average; NaN when fewer than two finite samples lie in the window or it is empty.
@@ -258,7 +330,8 @@ class StickSlipAnalysis:
     """The stick-slip picture of one trajectory (host numpy arrays; see the module doc).
 
     Per output time: ``ts``, ``v``, ``valid``, ``phi_v``, ``stick``, ``slip``, ``branch``,
-    ``schur`` (J_t), ``local_index``, ``near_singular`` (|J_t| < threshold), ``constraint_residual``.
+    ``schur`` (J_t), ``local_index``, ``near_singular`` (|J_t| < threshold), ``constraint_residual``,
+    ``after_jump`` (the rows of the run: both sides of each jump, the second marked here).
     Events: ``stick_to_slip`` and ``slip_to_stick`` times (on a τ = 0 run with jumps: the jump
     record's), ``schur_sign_changes`` (J_t = 0 crossed between samples), ``bifurcation_times``
     (those and the local minima of |J_t| below the threshold: Theorem 3's points, as far as the
@@ -309,6 +382,7 @@ class StickSlipAnalysis:
     slips: int = 0
     cycles: CycleStatistics | None = None
     extra: dict = field(default_factory=dict)
+    after_jump: np.ndarray | None = None
 
     @property
     def min_abs_schur(self) -> float:
@@ -396,19 +470,21 @@ def _branch(v: np.ndarray, v_top: float, v_bottom: float) -> np.ndarray:
     return np.where(np.isfinite(v), branch, -1).astype(np.int8)
 
 
-def _jump_phases(ts, valid, t_j, up, branch):
+def _jump_phases(ts, valid, t_j, up, branch, after=None):
     """stick, slip per output time on a τ = 0 run from its jumps: after the last jump strictly
-    before t (a sample at a jump's time holds the state before it) the tape is where that jump
-    landed; before the first, on the branch it leaves; without jumps, where v is (branch 0:
-    the stick branch, else the fast one)."""
+    before t (a sample at a jump's time holds the state before it, unless marked ``after``:
+    the state after it) the tape is where that jump landed; before the first, on the branch
+    it leaves; without jumps, where v is (branch 0: the stick branch, else the fast one)."""
     if t_j.size == 0:
         return valid & (branch == 0), valid & (branch >= 1)
     n_before = np.searchsorted(t_j, np.where(np.isfinite(ts), ts, np.inf), side="left")
+    if after is not None:
+        n_before = np.minimum(n_before + after, t_j.size)
     stuck = np.where(n_before == 0, bool(up[0]), ~up[np.maximum(n_before - 1, 0)])
     return valid & stuck, valid & ~stuck
 
 
-def _analyze_one(ts, ys, valid, t_stop, completed, struct, model, V, tau, threshold, t_transient, v_ext, jumps):
+def _analyze_one(ts, ys, valid, t_stop, completed, struct, model, V, tau, threshold, t_transient, v_ext, jumps, after=None):
     v = np.where(valid, ys[:, 3], np.nan)
     phi_v = np.where(valid, struct["phi_v"], np.nan)
     J = np.where(valid, struct["schur"], np.nan)
@@ -430,11 +506,12 @@ def _analyze_one(ts, ys, valid, t_stop, completed, struct, model, V, tau, thresh
     jump_points = None
     if jumps is not None:
         t_j, up = jumps["jump_t"], jumps["jump_up"].astype(bool)
-        jump_points = (t_j, jumps["jump_v_before"], jumps["jump_v_after"])
+        # rows without the jumps (an older file): the record's v before and after, inserted
+        jump_points = (t_j, jumps["jump_v_before"], jumps["jump_v_after"]) if after is None else None
     cycles = None
     if jumps is not None and tau == 0:
         # the DAE: the phases, events and stick fraction from the jump record, exactly
-        stick, slip = _jump_phases(ts, valid, t_j, up, branch)
+        stick, slip = _jump_phases(ts, valid, t_j, up, branch, after)
         to_slip, to_stick = t_j[up], t_j[~up]
         whole = cycle_statistics(jumps, t_end, transient=t_first) if t_end > t_first else None
         stick_fraction = whole.stick_fraction if whole is not None else float("nan")
@@ -463,7 +540,7 @@ def _analyze_one(ts, ys, valid, t_stop, completed, struct, model, V, tau, thresh
     osc = oscillation(ts, v, t_transient)
     late = valid & (ts >= t_transient)
     late_v = v[late]
-    if jump_points is not None:  # the values v jumps from and to are part of its range
+    if jump_points is not None:  # the values v jumps from and to are part of its range (rows without them)
         in_late = (t_j >= t_transient) & (t_j <= t_end)
         late_v = np.concatenate([late_v, jump_points[1][in_late], jump_points[2][in_late]])
     amplitude = 0.5 * float(np.ptp(late_v)) if late_v.size else float("nan")
@@ -503,6 +580,7 @@ def _analyze_one(ts, ys, valid, t_stop, completed, struct, model, V, tau, thresh
         repeat=repeat,
         slips=int(late_up.size),
         cycles=cycles,
+        after_jump=np.zeros(ts.shape, bool) if after is None else after,
     )
 
 
@@ -570,6 +648,7 @@ def analyze(
     n = int(np.prod(batch_shape)) if batch_shape else 1
     ts_flat = ts_all.reshape(n, -1)
     jumps_flat = _jump_arrays(solution.jumps, n)
+    after_flat = None if solution.after_jump is None else np.asarray(solution.after_jump, bool).reshape(n, -1)
     out = []
     extrema_cache: dict[float, tuple[float, float]] = {}
     for i in range(n):
@@ -597,6 +676,7 @@ def analyze(
                 t_tr,
                 extrema_cache[Vi],
                 None if jumps_flat is None else jumps_flat[i],
+                None if after_flat is None else after_flat[i],
             )
         )
     return out if batch_shape else out[0]

@@ -187,6 +187,9 @@ def _read_run(arrays: dict, name: str) -> SavedRun:
     if valid.shape != n:
         raise ValueError(f"{name!r} is malformed: valid has shape {valid.shape}, expected {n}")
     F = np.asarray(arrays["F"], float) if "F" in arrays and arrays["F"].shape == n else None
+    after_jump = np.asarray(arrays["after_jump"]) if "after_jump" in arrays else None  # files since both sides were kept
+    if after_jump is not None and (after_jump.shape != n or after_jump.dtype != bool):
+        raise ValueError(f"{name!r} is malformed: after_jump must be booleans of shape {n}, got {after_jump.dtype} {after_jump.shape}")
     settings = {}
     for key in _SETTINGS:
         if key in arrays:
@@ -202,6 +205,7 @@ def _read_run(arrays: dict, name: str) -> SavedRun:
         diagnostics=None,
         method=_scalar(arrays, "method", name, str) if "method" in arrays else "alpha",
         jumps=_jumps(arrays, name),
+        after_jump=after_jump,
         model=_model(arrays, name),
         V=_scalar(arrays, "V", name) if "V" in arrays else math.nan,
         tau=_scalar(arrays, "tau", name) if "tau" in arrays else math.nan,

@@ -216,6 +216,9 @@ def simulate(
         ``status != 0``, ``t_stop`` and ``reason``; its later states are NaN. With folds
         located (error control), ``jumps`` is the :class:`~peeljax.JumpRecord` and
         ``stats["jumps"]`` its count; :func:`peeljax.cycle_statistics` summarizes it.
+        Each jump is two rows at its time, the states just before and just after it
+        (``after_jump`` marks the second; :class:`Solution`): the points of ``ts`` and the
+        jumps in time order (under ``jit``, padded to ``len(ts) + 2·max_jumps`` rows).
 
     Gradients through a run with jumps follow the jumps: each jump time by the implicit
     function theorem on its fold event, the state after it through the constraint (see
@@ -239,7 +242,10 @@ def simulate(
     ts = None if ts is None else check_output_times(ts, t_final)
     _check_memory(integrator, ts, max_steps, memory_limit)
     ode, y0 = _prepare(model, V, tau, y0, truncation, allow_dae=True)
-    return _run(integrator, ode, y0, float_array(t_final), ts)
+    solution = _run(integrator, ode, y0, float_array(t_final), ts)
+    if ts is not None and not isinstance(solution.ts, jax.core.Tracer):
+        solution = solution.without_padding()  # the output times and the jumps, not the rows left for more
+    return solution
 
 
 def _check_memory(integrator, ts, max_steps, limit) -> None:
@@ -247,10 +253,10 @@ def _check_memory(integrator, ts, max_steps, limit) -> None:
     max_jumps = 0 if events is None else int(events.max_jumps)
     if isinstance(integrator, UniformMesh):
         rows, kind, remedy = integrator.n_steps + 1, "mesh", "a larger dt or a shorter t_final"
-    elif ts is not None:
-        rows, kind, remedy = ts.size, "ts", "fewer output times ts"
+    elif ts is not None:  # and two rows per jump (both sides)
+        rows, kind, remedy = ts.size + 2 * max_jumps, "ts", "fewer output times ts"
     else:
-        rows, kind, remedy = max_steps + 1, "steps", "a smaller max_steps, or output at fewer times ts"
+        rows, kind, remedy = max_steps + 1 + max_jumps, "steps", "a smaller max_steps, or output at fewer times ts"
     remedy += (", a smaller max_jumps" if max_jumps else "") + ", or raise memory_limit"
     check_run_memory(rows, kind, max_jumps, remedy=remedy, limit=limit)
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 
 import equinox as eqx
@@ -161,6 +162,21 @@ class Solution(eqx.Module):
     States after ``t_stop`` are masked with NaN (``valid`` is False there): they are never
     computed values. Under ``vmap`` every field gains a leading batch axis.
 
+    **Both sides of every jump.** Where v jumps at a fold of φ (``fold="jump"``), the rows
+    keep the left and the right limit at the jump time t_j, as DifferentialEquations.jl's
+    callbacks save both sides of an event: two consecutive rows with ``ts`` equal to t_j, the
+    first holding the state just before the jump (v⁻, ``jumps.v_before``), the second the state
+    just after it (v⁺, ``jumps.v_after``; α, ω and u are the same in both). ``after_jump`` is
+    True on the second row, ``before_jump`` on the first. On the accepted steps (``ts=None``)
+    the pair is the step that ends at the fold and the start of the next; with output times
+    ``ts`` the pairs are inserted among them in time order (an output time equal to a jump's
+    time holds the state before it), so there are up to ``len(ts) + 2·max_jumps`` rows, the
+    unused ones NaN at the end (``valid`` False). Everything computed from the rows (extrema,
+    :meth:`summary`, :func:`peeljax.analyze`, the figures) sees v⁺. A quantity that needs one
+    state per time takes ``ts[~after_jump]`` (the left limits; ``ts[~before_jump]`` the right
+    ones). Interpolating between rows, :func:`numpy.interp` takes the right limit at t_j
+    itself and is exact on either side.
+
     Attributes:
         ts: output times, ``ts[0] = t0``.
         ys: states, shape ``(len(ts), 4)``, NaN where not ``valid``.
@@ -171,6 +187,11 @@ class Solution(eqx.Module):
         diagnostics: per-time-point :class:`StepDiagnostics`.
         jumps: the :class:`JumpRecord` of a run carried through the folds of φ (``fold="jump"``);
             None for a run without jumps.
+        after_jump: True on each row that holds the state just after a jump (the row before it,
+            at the same time, holds the state just before); None where the rows do not keep the
+            jumps (a run without jump record, or one run with ``save_jumps=False``, or read from a
+            file written before they were kept: :func:`peeljax.analyze` then inserts the jump
+            record's v⁻ and v⁺ itself).
     """
 
     ts: Float[Array, " n"]
@@ -182,6 +203,7 @@ class Solution(eqx.Module):
     diagnostics: StepDiagnostics | None
     method: str = eqx.field(static=True, default="alpha")
     jumps: JumpRecord | None = None
+    after_jump: Bool[Array, " n"] | None = None
 
     # -------------------------------------------------------------- states by name
     @property
@@ -199,6 +221,15 @@ class Solution(eqx.Module):
     @property
     def v(self) -> Array:
         return self.ys[..., 3]
+
+    @property
+    def before_jump(self) -> Array | None:
+        """True on each row that holds the state just before a jump (the row before an
+        ``after_jump`` row, at the same time); None where the rows do not keep the jumps."""
+        if self.after_jump is None:
+            return None
+        after = jnp.asarray(self.after_jump)
+        return jnp.concatenate([after[..., 1:], jnp.zeros_like(after[..., :1])], axis=-1)
 
     # -------------------------------------------------------------- outcome
     @property
@@ -219,6 +250,28 @@ class Solution(eqx.Module):
         codes = np.asarray(self.status)
         names = np.where(codes == 0, "completed", "stopped")
         return str(names) if codes.ndim == 0 else names.ravel().tolist()
+
+    def without_padding(self) -> Solution:
+        """This single trajectory without the rows that hold no time (NaN in ``ts``): the rows a
+        dense output keeps for jumps that did not happen, the accepted steps' rows after the
+        last one. Host side (the number of rows depends on the run: not under ``jit``/``vmap``);
+        :func:`peeljax.simulate` returns its output at ``ts`` so.
+        """
+        if np.ndim(self.status) != 0:
+            raise ValueError("without_padding() is for a single trajectory; index the batch first")
+        keep = np.isfinite(np.asarray(self.ts))
+        keep[0] = True  # the start, even of a run whose start was refused
+        if keep.all():
+            return self
+
+        def rows(array):
+            return array[keep]
+
+        return dataclasses.replace(
+            self, ts=rows(self.ts), ys=rows(self.ys), valid=rows(self.valid),
+            diagnostics=None if self.diagnostics is None else jax.tree_util.tree_map(rows, self.diagnostics),
+            after_jump=None if self.after_jump is None else rows(self.after_jump),
+        )  # fmt: skip
 
     def summary(self) -> dict:
         """Host-side summary of a single trajectory (the CLI's ``--json`` fields)."""

@@ -387,6 +387,8 @@ def run(config: RunConfig) -> tuple[Solution, float]:
         )
         if ts is None:  # the accepted steps: only the valid rows (the rest is padding)
             solution = _valid_rows(solution)
+        elif solution.after_jump is not None:  # the output times and jumps: not the rows left for more jumps
+            solution = _rows(solution, np.isfinite(np.asarray(solution.ts)), jax)
     elif config.uniform:
         solution = simulate(
             config.model, config.V, config.tau, config.dt, config.t_final, rho, config.y0, solver=config.solver
@@ -429,6 +431,7 @@ def _rows(solution: Solution, keep: np.ndarray, jax) -> Solution:
         diagnostics=jax.tree_util.tree_map(rows, solution.diagnostics),
         method=solution.method,
         jumps=solution.jumps,
+        after_jump=None if solution.after_jump is None else rows(solution.after_jump),
     )
 
 
@@ -475,8 +478,9 @@ def write_npz(path: str, solution: Solution, config: RunConfig) -> None:
     and jump_v_after [m/s] (v just before and just after; 0: the tape landed fully stuck) and
     jump_G [N] (G = (1 + l·sinα/L)·F, continuous across the jump); and the scalars fold (the
     mode), max_jumps (the record's size) and transient [s] (where the cycle statistics start:
-    ``peeljax.cycle_statistics(np.load(path), t_stop, transient=transient)``). The rows of t, …
-    hold the state just before a jump at its time, then the states after it.
+    ``peeljax.cycle_statistics(np.load(path), t_stop, transient=transient)``). The rows keep
+    both sides of every jump: two rows with the jump's time, the state just before it and the
+    state just after it, the second marked True in the array after_jump (as long as t).
     """
     from ..run_file import write_run  # the one writer of the format (Solution.save too); atomic
 

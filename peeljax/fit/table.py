@@ -137,6 +137,8 @@ def build_table_fit(
         None, t_final=transient + window, rtol=rtol, atol=atol, fold="jump", max_jumps=max_jumps,
         max_steps=max_steps, adjoint="forward", dae=dae,
     )  # fmt: skip
+    # The statistics read the jump record and F on the equally spaced ts: no rows for the jumps.
+    integrator = dataclasses.replace(integrator, save_jumps=False)
     return TableFit(
         start=start, model=model, V=jnp.asarray(V, float), data=jnp.asarray(data, float),
         sigma=jnp.asarray(sigma, float), tau=jnp.asarray(float(tau)), integrator=integrator, names=tuple(names),

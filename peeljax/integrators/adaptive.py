@@ -57,7 +57,7 @@ from .base import AbstractIntegrator, ObservedRun
 from .controller import PIController
 from .dense import PhysicalTimeInterpolant
 from .events import FoldEvents, FoldHit, find_fold, fold_event, fold_fraction
-from .observers import AcceptedStep, DenseOutput, Observer, StepPoints
+from .observers import AcceptedStep, DenseOutput, Observer, StepPoints, observer_keeps_jumps
 from .steppers import AbstractStepper, AlphaStepper, RungeKutta, StepperState, alpha_attempt, as_stepper, error_constant, physical
 
 __all__ = [
@@ -353,6 +353,7 @@ def adaptive_loop(
         step = AcceptedStep(
             t0=step_t0, t1=step_t1, h=step_t1 - step_t0, y0=state.y, y1=step_end[0], J1=step_end[1],
             iterations=attempt.iterations, advance=advance, interpolant=seen,
+            jumped=restarted, y_after=new.y, J_after=new.J,  # the state just after a jump at t1
         )  # fmt: skip
         record = observer.update(c.record, step, kind)
 
@@ -405,6 +406,7 @@ def integrate_adaptive(
     max_steps: int = 100_000,
     adjoint: Literal["reverse", "forward"] = "reverse",
     events: FoldEvents | None = None,
+    save_jumps: bool = True,
 ) -> Solution:
     """Integrate y' = ψ(y) from t0 to t_final with error control, any stepper.
 
@@ -428,6 +430,8 @@ def integrate_adaptive(
         events: what happens at the folds of φ (:class:`~peeljax.integrators.events.FoldEvents`:
             jump, stop or follow; the ODE must be a :class:`~peeljax.homogenized.FoldingODE`);
             None: the paper's stop at an impasse point.
+        save_jumps: keep both sides of every jump in the output (two rows at its time, the
+            second marked in ``Solution.after_jump``; :class:`~peeljax.integrators.observers.DenseOutput`).
 
     Returns:
         A :class:`Solution`; ``stats`` holds ``accepted_steps``, ``rejected_steps``,
@@ -437,7 +441,9 @@ def integrate_adaptive(
     stepper = as_stepper(stepper)
     controller = PIController() if controller is None else controller
     step_points = ts is None
-    observer = StepPoints(max_steps + 1) if step_points else DenseOutput(jnp.asarray(ts, float))
+    jumps = _events_for(events, ode)
+    jump_rows = jumps.max_jumps if save_jumps and jumps is not None and jumps.mode != "stop" else 0
+    observer = StepPoints(max_steps + 1, jump_rows) if step_points else DenseOutput(jnp.asarray(ts, float), jump_rows)
     ode, final = adaptive_loop(
         ode, stepper, y0, t0, t_final, observer,
         controller=controller, dt0=dt0, dtmin=dtmin, max_steps=max_steps,
@@ -507,6 +513,7 @@ def _solution(ode, stepper: AbstractStepper, final: _Carry, step_points: bool, t
         diagnostics=diagnostics,
         method=stepper.name,
         jumps=final.jumps,
+        after_jump=out.after_jump if observer_keeps_jumps(out) else None,
     )
 
 
@@ -535,6 +542,7 @@ class ErrorControl(AbstractIntegrator):
     max_steps: int = eqx.field(static=True, default=100_000)
     adjoint: str = eqx.field(static=True, default="reverse")
     events: FoldEvents | None = None
+    save_jumps: bool = eqx.field(static=True, default=True)  # both sides of every jump in the output
 
     def __check_init__(self):
         check_adjoint(self.adjoint)
@@ -552,7 +560,7 @@ class ErrorControl(AbstractIntegrator):
     def integrate(self, ode, y0, t0, t_final, ts=None) -> Solution:
         return integrate_adaptive(
             ode, self.stepper, y0, t0, t_final, controller=self.controller, ts=ts, dtmin=self.dtmin,
-            max_steps=self.max_steps, adjoint=self.adjoint, events=self.events,
+            max_steps=self.max_steps, adjoint=self.adjoint, events=self.events, save_jumps=self.save_jumps,
         )  # fmt: skip
 
     def observe(self, ode, y0, t0, t_final, observer) -> ObservedRun:

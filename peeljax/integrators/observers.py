@@ -8,24 +8,34 @@ Hermite one, a diffrax solver's own), which the observer can evaluate anywhere i
 (:class:`StepPoints`, :class:`DenseOutput`, :class:`EveryNthPoint`); so are a sweep's per-lane
 statistics (:mod:`peeljax.sweeps.engine`). Nothing is stored per step unless an
 observer stores it, so a sweep lane's memory does not grow with its number of steps.
+
+A step that ends at a fold of φ where v jumps (``fold="jump"``) ends at the state just before
+the jump (``y1``: the left limit); the state just after it, at the same time, is ``y_after``
+(the right limit, where the next step starts). The run's own output keeps both, as
+DifferentialEquations.jl's callbacks save both sides of an event: :class:`StepPoints` and
+:class:`DenseOutput` given ``jump_rows`` write the pair as two rows with equal times, the
+second marked in ``after_jump``.
 """
 
 from __future__ import annotations
 
 import equinox as eqx
 import equinox.internal as eqxi
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 
-__all__ = ["AcceptedStep", "DenseOutput", "EveryNthPoint", "Observer", "Observers", "StepPoints"]
+__all__ = ["AcceptedStep", "DenseOutput", "EveryNthPoint", "Observer", "Observers", "StepPoints", "observer_keeps_jumps"]
 
 
 class AcceptedStep(eqx.Module):
     """What an observer sees after each step attempt (carried coordinates).
 
     ``advance`` is False for a rejected attempt (or the step onto an impasse point): the
-    observer must then leave its record unchanged. ``iterations`` is the attempt's Newton
+    observer must then leave its record unchanged. ``jumped`` is True where the step ended
+    at a fold and v jumped there: ``y1`` is then the state just before the jump and
+    ``y_after`` the state just after it, both at ``t1``. ``iterations`` is the attempt's Newton
     iterations (0 where the integrator does not report them). ``interpolant.evaluate(ts)``
     gives the states at times ts in [t0, t1] (a step cut at a fold ends at t1 < t0 + h, its
     interpolant being the whole attempt's).
@@ -40,6 +50,11 @@ class AcceptedStep(eqx.Module):
     iterations: Array
     advance: Array
     interpolant: object
+    # Where the step ended at a fold and v jumped there: the state just after the jump at t1
+    # (carried coordinates) and its J_t. None from an integrator without jumps.
+    jumped: Array | None = None
+    y_after: Array | None = None
+    J_after: Array | None = None
 
     def evaluate(self, ts: Float[Array, " m"]) -> Float[Array, "m n"]:
         """The step's dense output at times ``ts`` (carried coordinates)."""
@@ -63,23 +78,52 @@ class Observer(eqx.Module):
 
 
 class _Output(eqx.Module):
-    t: Array
+    """Output rows: times, states (carried coordinates), J_t, Newton iterations, validity and
+    ``after_jump`` (True on the row holding the state just after a jump; the row before it
+    holds the state just before, at the same time)."""
+
+    row_t: Array  # the times of the rows written (see ``t``)
     y: Array
     J: Array
     iterations: Array
     valid: Array
+    after_jump: Array
     next: Array  # step points: rows written; dense output: the first output time not yet reached
+    written: Array | None = None  # dense output with jump rows: rows written (grid rows + jump pairs)
+    grid: Array | None = None  # dense output with jump rows: the output times
+    keeps_jumps: bool = eqx.field(static=True, default=False)  # rows after jumps are kept
+
+    @property
+    def t(self) -> Array:
+        """The row times. Dense output with jump rows: the rows never written (after a stop)
+        hold the output times not reached, in order, then NaN (unused jump rows)."""
+        if self.grid is None:
+            return self.row_t
+        r = jnp.arange(self.row_t.shape[-1])
+        written = jnp.asarray(self.written)[..., None]
+        k = jnp.asarray(self.next)[..., None] + r - written  # the output time a row after the written ones holds
+        n = self.grid.shape[-1]
+        grid = jnp.broadcast_to(self.grid, k.shape[:-1] + (n,))
+        tail = jnp.where(k < n, jnp.take_along_axis(grid, jnp.clip(k, 0, n - 1), axis=-1), jnp.nan)
+        return jnp.where(r < written, self.row_t, tail)
 
 
-def _rows(rows: int, t0, y0, J0, ok, next) -> _Output:
+def observer_keeps_jumps(record) -> bool:
+    """Whether an output record keeps the state after each jump in a row of its own."""
+    return bool(getattr(record, "keeps_jumps", False))
+
+
+def _rows(rows: int, t0, y0, J0, ok, next, keeps_jumps: bool = False) -> _Output:
     """``rows`` rows of NaN with the start in row 0."""
     return _Output(
-        t=jnp.full(rows, jnp.nan).at[0].set(t0),
+        row_t=jnp.full(rows, jnp.nan).at[0].set(t0),
         y=jnp.full((rows, y0.shape[0]), jnp.nan).at[0].set(y0),
         J=jnp.full(rows, jnp.nan).at[0].set(J0),
         iterations=jnp.zeros(rows, jnp.int32),
         valid=jnp.zeros(rows, bool).at[0].set(ok),
+        after_jump=jnp.zeros(rows, bool),
         next=jnp.asarray(next, jnp.int32),
+        keeps_jumps=keeps_jumps,
     )
 
 
@@ -89,68 +133,135 @@ def _put(out: _Output, row, write, step: AcceptedStep, valid, next) -> _Output:
     def put(array, value):
         return array.at[row].set(jnp.where(write, value, array[row]))
 
-    return _Output(
-        t=put(out.t, step.t1),
-        y=put(out.y, step.y1),
-        J=put(out.J, step.J1),
-        iterations=put(out.iterations, step.iterations),
-        valid=put(out.valid, valid),
-        next=next,
-    )
+    return eqx.tree_at(
+        lambda o: (o.row_t, o.y, o.J, o.iterations, o.valid, o.next),
+        out,
+        (put(out.row_t, step.t1), put(out.y, step.y1), put(out.J, step.J1), put(out.iterations, step.iterations),
+         put(out.valid, valid), next),
+    )  # fmt: skip
+
+
+def _put_pair(out: _Output, row, write, jumped, step: AcceptedStep, next) -> _Output:
+    """``out`` with the step's end in ``row`` where ``write`` and the state just after its jump
+    in ``row + 1`` where ``jumped`` (marked ``after_jump``; the two rows have the step's end
+    time). One two-row update per array: a second update of the same array in one step of
+    the loop made XLA copy the array every step (measured 13x slower)."""
+
+    def put(array, first, second):
+        old = jax.lax.dynamic_slice_in_dim(array, row, 2)
+        block = jnp.stack([jnp.where(write, first, old[0]), jnp.where(jumped, second, old[1])])
+        return jax.lax.dynamic_update_slice_in_dim(array, block.astype(array.dtype), row, 0)
+
+    return eqx.tree_at(
+        lambda o: (o.row_t, o.y, o.J, o.iterations, o.valid, o.after_jump, o.next),
+        out,
+        (put(out.row_t, step.t1, step.t1), put(out.y, step.y1, step.y_after), put(out.J, step.J1, step.J_after),
+         put(out.iterations, step.iterations, 0), put(out.valid, True, True), put(out.after_jump, False, True), next),
+    )  # fmt: skip
+
+
+def _saves_jumps(observer, step: AcceptedStep) -> bool:
+    """Whether the observer keeps the state after a jump and the step can report one."""
+    return observer.jump_rows > 0 and step.jumped is not None
 
 
 class StepPoints(Observer):
-    """The accepted step points, in ``rows`` = max_steps + 1 rows padded with NaN."""
+    """The accepted step points, in ``rows`` = max_steps + 1 rows padded with NaN, plus
+    ``jump_rows`` rows for the states just after the jumps (a step that ends at a jump writes
+    two rows with its end time: the state before the jump, then the one after, marked
+    ``after_jump``) and one spare row (NaN)."""
 
     rows: int = eqx.field(static=True)
+    jump_rows: int = eqx.field(static=True, default=0)
 
     def init(self, t0, y0, J0, ok):
-        return _rows(self.rows, t0, y0, J0, ok, next=1)
+        spare = 1 if self.jump_rows else 0  # the pair's second row always fits
+        return _rows(self.rows + self.jump_rows + spare, t0, y0, J0, ok, next=1, keeps_jumps=self.jump_rows > 0)
 
     def update(self, out, step, kind):
-        row = jnp.minimum(out.next, self.rows - 1)
-        return _put(out, row, step.advance, step, True, out.next + step.advance)
+        last = self.rows + self.jump_rows - 1
+        row = jnp.minimum(out.next, last)
+        if not _saves_jumps(self, step):
+            return _put(out, row, step.advance, step, True, out.next + step.advance)
+        jumped = step.advance & step.jumped
+        return _put_pair(out, row, step.advance, jumped, step, out.next + step.advance + jumped)
 
 
 class DenseOutput(Observer):
-    """Each accepted step's interpolant at the given times ``ts``."""
+    """Each accepted step's interpolant at the given times ``ts``.
+
+    ``jump_rows`` = m > 0: room for m jumps, each kept as two rows at its time inserted among
+    the output times in time order (the state just before the jump, then the one just after,
+    marked ``after_jump``): ``len(ts) + 2·m`` rows, those not used NaN at the end. An output
+    time equal to a jump's time holds the state before it (the row before the pair). Beyond m
+    jumps the output times are still all written, the jumps no more.
+    """
 
     ts: Array
+    jump_rows: int = eqx.field(static=True, default=0)
 
     def init(self, t0, y0, J0, ok):
         at_start = self.ts <= t0
+        first = jnp.sum(at_start).astype(jnp.int32)
+        if self.jump_rows == 0:
+            return _Output(
+                row_t=self.ts,
+                y=jnp.where(at_start[:, None], y0, jnp.nan),
+                J=jnp.full(self.ts.shape, jnp.nan),
+                iterations=jnp.zeros(self.ts.shape, jnp.int32),
+                valid=at_start & ok,
+                after_jump=jnp.zeros(self.ts.shape, bool),
+                next=first,
+            )
+        extra = jnp.zeros(2 * self.jump_rows, bool)
+        at_start_rows = jnp.concatenate([at_start, extra])
         return _Output(
-            t=self.ts,
-            y=jnp.where(at_start[:, None], y0, jnp.nan),
-            J=jnp.full(self.ts.shape, jnp.nan),
-            iterations=jnp.zeros(self.ts.shape, jnp.int32),
-            valid=at_start & ok,
-            next=jnp.sum(at_start).astype(jnp.int32),
+            row_t=jnp.where(at_start_rows, jnp.concatenate([self.ts, jnp.zeros(2 * self.jump_rows)]), jnp.nan),
+            y=jnp.where(at_start_rows[:, None], y0, jnp.nan),
+            J=jnp.full(at_start_rows.shape, jnp.nan),
+            iterations=jnp.zeros(at_start_rows.shape, jnp.int32),
+            valid=at_start_rows & ok,
+            after_jump=jnp.zeros(at_start_rows.shape, bool),
+            next=first,
+            written=first,
+            grid=self.ts,
+            keeps_jumps=True,
         )
 
     def update(self, out, step, kind):
         n_out = self.ts.shape[0]
         t1 = step.t1
+        jumps = self.jump_rows > 0
 
-        # The output times in (t0, t1], one at a time (a step covers few of them).
+        # The output times in (t0, t1], one at a time (a step covers few of them); row r takes
+        # output time k (r = k without jump rows).
         def more(d):
             k = d[0]
             return step.advance & (k < n_out) & (self.ts[jnp.minimum(k, n_out - 1)] <= t1)
 
         def fill(d):
-            k, y, iterations, valid = d
+            k, r, t, y, iterations, valid = d
             y_k = step.evaluate(self.ts[k][None])[0]
-            return k + 1, y.at[k].set(y_k), iterations.at[k].set(step.iterations), valid.at[k].set(True)
+            t = t.at[r].set(self.ts[k]) if jumps else t
+            return k + 1, r + 1, t, y.at[r].set(y_k), iterations.at[r].set(step.iterations), valid.at[r].set(True)
 
-        k, y, iterations, valid = eqxi.while_loop(
+        k, r, t, y, iterations, valid = eqxi.while_loop(
             more,
             fill,
-            (out.next, out.y, out.iterations, out.valid),
+            (out.next, out.written if jumps else out.next, out.row_t, out.y, out.iterations, out.valid),
             max_steps=n_out,
             kind=kind,
             checkpoints=n_out if kind == "checkpointed" else None,
         )
-        return _Output(t=out.t, y=y, J=out.J, iterations=iterations, valid=valid, next=k)
+        out = eqx.tree_at(lambda o: (o.row_t, o.y, o.iterations, o.valid, o.next), out, (t, y, iterations, valid, k))
+        if not jumps:
+            return out
+        if step.jumped is not None:
+            # The jump at t1: the state before it (the step's end) and after it, while room is left.
+            pair = step.advance & step.jumped & ((r - k) // 2 < self.jump_rows)
+            out = _put_pair(out, jnp.minimum(r, out.row_t.shape[0] - 2), pair, pair, step, k)
+            r = r + 2 * pair
+        return eqx.tree_at(lambda o: o.written, out, r)
 
 
 class Observers(Observer):
