@@ -54,6 +54,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from ._atomic import save_figure, write_text
+from ._panels import panels
 from .analysis import BifurcationDiagram, analyze, bifurcation_diagram, phi_extrema
 from .model import PeelingModel
 from .simulate import simulate, simulate_reference
@@ -143,6 +144,29 @@ def _figure(nrows: int = 1, figsize=(8.0, 4.5), sharex: bool = True):
     return fig, axes
 
 
+def _format_step(dt: float) -> str:
+    """1/82 → "1/82 s"; other steps as numbers."""
+    n = round(1.0 / dt)
+    return f"1/{n} s" if abs(1.0 / dt - n) < 1e-9 * n else f"{dt:g} s"
+
+
+def mesh_note(steps: str) -> str:
+    """The note every figure of the paper's uniform-mesh runs carries (``steps``: its h in
+    words, e.g. "h = 1/82 s"): what the coarse mesh does to the runs."""
+    return (
+        f"α-method on the paper's uniform mesh, {steps}, stopping at a fold of φ (fold='stop'): "
+        "an oscillation that lasts is this coarse mesh's artefact,\nresolved (finer h or error control) the run ends "
+        "at the first fold; the model's stick-slip: runs through the folds (peeljax simulate --tau 0)"
+    )
+
+
+def _mark_uniform_mesh(fig: Figure, *dts: float, labels: tuple[str, ...] = ()) -> Figure:
+    """The mesh note (:func:`mesh_note`) on the figure, above its panels (see :data:`MESH_NOTE`)."""
+    steps = [_format_step(dt) + (f" ({label})" if label else "") for dt, label in zip(dts, labels or ("",) * len(dts))]
+    fig.suptitle(mesh_note("h = " + ", ".join(steps)), fontsize=7.5, color="#8c2d04")
+    return fig
+
+
 def _series(solution: Solution) -> tuple[np.ndarray, np.ndarray]:
     valid = np.asarray(solution.valid)
     return np.asarray(solution.ts), np.where(valid[:, None], np.asarray(solution.ys), np.nan)
@@ -178,11 +202,16 @@ def _plot_against_time(runs: dict[float, Solution], column: int, ylabel: str, ti
     return fig
 
 
-def plot_phi_extrema(model: PeelingModel | None = None, Vs=(1.1, 2.0, 4.0), v_range=(1e-3, 12.0)) -> Figure:
+def plot_phi_extrema(
+    model: PeelingModel | None = None, Vs=(1.1, 2.0, 4.0), v_range=(1e-3, 12.0), *, ax=None, path=None
+) -> Figure:
     """φ(v, V) on a log v axis for each V with its maximum (▲) and minimum (▼) marked (∂φ/∂v = 0);
-    the values, with units, are in the legend below the axes (labels on the curves overlapped them)."""
+    the values, with units, are in the legend below the axes (labels on the curves overlapped them;
+    drawn into the user's ``ax``, in that axes). Returns the figure (``ax``'s when given);
+    ``path``: saved there."""
     model = PeelingModel() if model is None else model
-    fig, (ax,) = _figure(figsize=(8.0, 5.2))
+    drawn = panels(ax, 1, lambda fig: [fig.subplots()], figsize=(8.0, 5.2), name="ax")
+    (ax,) = drawn.axes
     vs = np.geomspace(*v_range, 800)
     for i, V in enumerate(Vs):
         phi = np.asarray(model.phi(vs, V))
@@ -198,8 +227,8 @@ def plot_phi_extrema(model: PeelingModel | None = None, Vs=(1.1, 2.0, 4.0), v_ra
     ax.set_ylabel("adhesion force φ(v, V) [N]")
     ax.set_title("The adhesion law and its extrema (▲ maximum: stick → slip; ▼ minimum)")
     ax.grid(True, alpha=0.3)
-    _legend_below(fig, ax)
-    return fig
+    drawn.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncols=3, fontsize=8)
+    return drawn.finish(None, path, dpi=130)
 
 
 def _shade_phases(ax, ts, stick, slip):
@@ -211,12 +240,15 @@ def _shade_phases(ax, ts, stick, slip):
 
 
 def plot_schur_index(
-    solution: Solution, model: PeelingModel | None = None, V: float = 1.1, tau: float = 1e-3, zoom: float = 0.01
-) -> Figure:
+    solution: Solution, model: PeelingModel | None = None, V: float = 1.1, tau: float = 1e-3, zoom: float = 0.01,
+    *, axes=None, path=None,
+) -> Figure:  # fmt: skip
     """v, |J_t| (log) and the local index along a trajectory, stick and slip phases shaded.
 
     Left: the whole run; right: its last ``zoom`` seconds [s] (default 10 ms), where the slip
-    phase and the index change happen (a sliver at the full scale).
+    phase and the index change happen (a sliver at the full scale). ``axes``: six matplotlib
+    Axes to draw into, row by row (v, its zoom, |J_t|, its zoom, the index, its zoom); None: a
+    new figure. Returns the figure (the axes' when given); ``path``: saved there.
     """
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
@@ -225,9 +257,9 @@ def plot_schur_index(
     model = PeelingModel() if model is None else model
     a = analyze(solution, model, V, tau)
     v_top, _ = phi_extrema(model, V)
-    fig = Figure(figsize=(11.0, 8.5), layout="constrained")
-    FigureCanvasAgg(fig)
-    axes = fig.subplots(3, 2, sharex="col", width_ratios=(3, 2))
+    drawn = panels(axes, 6, lambda fig: fig.subplots(3, 2, sharex="col", width_ratios=(3, 2)).ravel(),
+                   figsize=(11.0, 8.5), what="v, |J_t| and the index, each with its zoom, row by row")  # fmt: skip
+    axes = np.asarray(drawn.axes, dtype=object).reshape(3, 2)
     ts = a.ts
     t_end = float(solution.t_stop) if not bool(solution.completed) else float(ts[a.valid][-1])
     t_zoom = max(float(ts[0]), t_end - zoom)
@@ -287,35 +319,70 @@ def plot_schur_index(
     if not bool(solution.completed):
         handles.append(Line2D([], [], color="k", ls=":", lw=1.0))
         labels.append(f"run stops: {solution.method} at t = {float(solution.t_stop):.4g} s")
-    fig.legend(handles, labels, loc="outside lower center", ncols=4, fontsize=8)
-    fig.suptitle(f"Structure along the trajectory, V = {V:g} m/s, τ = {tau:g} s ({solution.method})")
-    return fig
+    drawn.legend(handles, labels, loc="outside lower center", ncols=4, fontsize=8)
+    heading = f"Structure along the trajectory, V = {V:g} m/s, τ = {tau:g} s ({solution.method})"
+    return drawn.finish(heading if drawn.own else None, path, dpi=130)
 
 
-def plot_bifurcation_diagram(diagram: BifurcationDiagram) -> Figure:
-    """Late local maxima (▲) and minima (▼) of v against V; runs that stopped early marked ×."""
-    fig, (ax,) = _figure()
-    for V, v_max, v_min in zip(diagram.V, diagram.v_max, diagram.v_min):
-        ax.plot(np.full(v_max.shape, V), v_max, "^", color="C3", ms=4)
-        ax.plot(np.full(v_min.shape, V), v_min, "v", color="C0", ms=4)
-    stopped = ~diagram.completed
-    ax.plot(diagram.V[stopped], np.zeros(stopped.sum()), "kx", ms=7)
+def plot_bifurcation_diagram(diagram: BifurcationDiagram, *, ax=None, path=None) -> Figure:
+    """Late local maxima (▲) and minima (▼) of v against V. A run that stopped early is a ×
+    on the V axis's edge with the time it stopped (no v there: it is not a value of v),
+    its extrema from before the stop drawn open. Returns the figure (``ax``'s when given);
+    ``path``: saved there."""
+    drawn = panels(ax, 1, lambda fig: [fig.subplots()], figsize=(8.0, 4.5), name="ax")
+    (ax,) = drawn.axes
+    stopped = ~np.asarray(diagram.completed, bool)
+    for V, v_max, v_min, early in zip(diagram.V, diagram.v_max, diagram.v_min, stopped):
+        face = "none" if early else None
+        ax.plot(np.full(v_max.shape, V), v_max, "^", color="C3", mfc=face, ms=4)
+        ax.plot(np.full(v_min.shape, V), v_min, "v", color="C0", mfc=face, ms=4)
     ax.plot(diagram.V, diagram.V, "k--", lw=0.8, label="v = V")
     ax.plot([], [], "^", color="C3", label="local maxima of v")
     ax.plot([], [], "v", color="C0", label="local minima of v")
-    ax.plot([], [], "kx", label=f"stopped before t = {diagram.t_transient * 2:g} s")
+    if stopped.any():
+        edge = ax.get_xaxis_transform()  # x in data, y in axes: on the lower edge, at no value of v
+        ax.plot(diagram.V[stopped], np.zeros(stopped.sum()), "kx", ms=7, mew=1.5, transform=edge, clip_on=False,
+                label=f"stopped before t_final = {diagram.t_transient * 2:g} s (at the time written; open: "
+                "its extrema before the stop)")  # fmt: skip
+        for V, t in zip(diagram.V[stopped], np.asarray(diagram.t_stop, float)[stopped]):
+            ax.annotate(f"{t:.3g} s", (V, 0.0), xycoords=edge, xytext=(0, 5), textcoords="offset points",
+                        ha="center", fontsize=6.5)  # fmt: skip
     ax.set_xlabel("pull velocity V [m/s]")
     ax.set_ylabel("late extrema of v [m/s]")
     ax.set_title(f"Bifurcation diagram, τ = {diagram.tau:g} s (t ≥ {diagram.t_transient:g} s)")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
-    return fig
+    return drawn.finish(None, path, dpi=130)
 
 
-def make_figures(t_final: float = 3.0, model: PeelingModel | None = None, log=None) -> tuple[dict[str, Figure], dict]:
-    """Run every simulation and build every figure; returns (figures by name, timings and run facts)."""
+def _reporter(progress, log):
+    """``progress`` as a function of one line (the library's convention, ``docs/plotting.md``):
+    False → silent, True → the line on stderr, a callable → called with it; ``log`` is the
+    old name of a callable."""
+    if log is not None:
+        import warnings
+
+        warnings.warn("make_figures/write_figures: log= is deprecated and will be removed in peeljax 0.3.0; "
+                      "give the callable as progress=", DeprecationWarning, stacklevel=3)  # fmt: skip
+        progress = log
+    if callable(progress):
+        return progress
+    if progress:
+        import sys
+
+        return lambda message: print(f"peeljax figures: {message}", file=sys.stderr, flush=True)
+    return lambda message: None
+
+
+def make_figures(
+    t_final: float = 3.0, model: PeelingModel | None = None, log=None, *, progress=False
+) -> tuple[dict[str, Figure], dict]:
+    """Run every simulation and build every figure; returns (figures by name, timings and run facts).
+
+    ``progress``: False (silent), True (a line on stderr after each group of runs) or a
+    callable taking that line (``log``: its deprecated name)."""
     model = PeelingModel() if model is None else model
-    say = log or (lambda message: None)
+    say = _reporter(progress, log)
     facts: dict = {"runs": {}}
     start = time.perf_counter()
     runs: dict[float, dict[float, Solution]] = {}
@@ -334,6 +401,7 @@ def make_figures(t_final: float = 3.0, model: PeelingModel | None = None, log=No
         say(f"ran V = {V:g} ({len(spec.taus)} values of tau)")
     figures = {}
     r11 = runs[1.1]
+    h11 = RUNS[1.1].dt
     figures["fig2_v_V1.1"] = _plot_against_time(r11, 3, "peeling velocity v [m/s]", "Fig. 2: v(t), V = 1.1 m/s", 1.1)
     figures["fig3_alpha_V1.1"] = _plot_against_time(
         r11, 0, "peel-front angle α [rad]", "Fig. 3: α(t), V = 1.1 m/s", None
@@ -356,6 +424,10 @@ def make_figures(t_final: float = 3.0, model: PeelingModel | None = None, log=No
     figures["fig4_F_vs_v_V1.1"] = fig
     figures["fig5_v_V2"] = _plot_against_time(runs[2.0], 3, "peeling velocity v [m/s]", "Fig. 5: v(t), V = 2 m/s", 2.0)
     figures["fig6_v_V4"] = _plot_against_time(runs[4.0], 3, "peeling velocity v [m/s]", "Fig. 6: v(t), V = 4 m/s", 4.0)
+    for name in ("fig2_v_V1.1", "fig3_alpha_V1.1", "fig4_F_vs_v_V1.1"):
+        _mark_uniform_mesh(figures[name], h11)
+    _mark_uniform_mesh(figures["fig5_v_V2"], RUNS[2.0].dt)
+    _mark_uniform_mesh(figures["fig6_v_V4"], RUNS[4.0].dt)
     fig, (ax,) = _figure()
     for i, (V, spec) in enumerate(RUNS.items()):
         tau = spec.taus[0]
@@ -367,7 +439,9 @@ def make_figures(t_final: float = 3.0, model: PeelingModel | None = None, log=No
     ax.set_title("Fig. 7: v(t) at the three pull velocities (dashed: V)")
     ax.grid(True, alpha=0.3)
     _legend_below(fig, ax)
-    figures["fig7_v_three_V"] = fig
+    figures["fig7_v_three_V"] = _mark_uniform_mesh(
+        fig, *(spec.dt for spec in RUNS.values()), labels=tuple(f"V = {V:g}" for V in RUNS)
+    )
     figures["phi_extrema"] = plot_phi_extrema(model)
     b_dt = BIFURCATION_RUN["dt"]
     diagram = bifurcation_diagram(
@@ -384,7 +458,7 @@ def make_figures(t_final: float = 3.0, model: PeelingModel | None = None, log=No
             float(a.max() - b.min()) if a.size and b.size else None for a, b in zip(diagram.v_max, diagram.v_min)
         ],
     }
-    figures["bifurcation_V"] = plot_bifurcation_diagram(diagram)
+    figures["bifurcation_V"] = _mark_uniform_mesh(plot_bifurcation_diagram(diagram), b_dt)
     say("ran the bifurcation diagram")
     ref_t = min(SCHUR_RUN["t_final"], t_final)
     reference = simulate_reference(
@@ -392,19 +466,21 @@ def make_figures(t_final: float = 3.0, model: PeelingModel | None = None, log=No
     )
     facts["schur_reference"] = {"completed": bool(reference.completed), "t_stop": float(reference.t_stop)}
     figures["schur_index_V1.1"] = plot_schur_index(reference, model, SCHUR_RUN["V"], SCHUR_RUN["tau"])
+    facts["uniform_mesh_figures"] = [name for name, fig in figures.items() if "uniform mesh" in fig.get_suptitle()]
     facts["compute_seconds"] = time.perf_counter() - start
     return figures, facts
 
 
-def write_figures(out: str | Path, t_final: float = 3.0, fmt: str = "png", log=None) -> dict:
-    """Build every figure and save ``<name>.<fmt>`` and ``captions.md`` in the folder ``out``.
+def write_figures(out: str | Path, t_final: float = 3.0, fmt: str = "png", log=None, *, progress=False) -> dict:
+    """Build every figure and save ``<name>.<fmt>`` and ``captions.md`` in the folder ``out``
+    (``progress`` as :func:`make_figures`).
 
     Returns the run facts (completion, stop times, timings) and the written paths.
     """
     start = time.perf_counter()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    figures, facts = make_figures(t_final=t_final, log=log)
+    figures, facts = make_figures(t_final=t_final, progress=_reporter(progress, log))
     paths = []
     for name, fig in figures.items():
         path = out / f"{name}.{fmt}"

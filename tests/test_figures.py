@@ -27,6 +27,20 @@ def test_figures_writes_every_png_and_captions(tmp_path):
     early = facts["runs"]["V=1.1,tau=0.001"]
     assert not early["completed"] and 0.15 < early["t_stop"] < 0.19
     assert not facts["schur_reference"]["completed"]  # diffrax's step collapses near J_t = 0
+    # every figure of the paper's uniform-mesh runs says so on the figure, not in captions.md alone
+    mesh = {"fig2_v_V1.1", "fig3_alpha_V1.1", "fig4_F_vs_v_V1.1", "fig5_v_V2", "fig6_v_V4", "fig7_v_three_V",
+            "bifurcation_V"}  # fmt: skip
+    assert set(facts["uniform_mesh_figures"]) == mesh
+
+
+def test_the_uniform_mesh_note_names_the_step_and_the_stop():
+    from peeljax.figures import Figure, _mark_uniform_mesh
+
+    fig = _mark_uniform_mesh(Figure(), 1 / 82)
+    note = fig.get_suptitle()
+    assert "h = 1/82 s" in note and "fold='stop'" in note and "artefact" in note and "first fold" in note
+    both = _mark_uniform_mesh(Figure(), 1 / 82, 1 / 164, labels=("V = 1.1", "V = 2")).get_suptitle()
+    assert "h = 1/82 s (V = 1.1), 1/164 s (V = 2)" in both
 
 
 @pytest.mark.parametrize(
@@ -126,6 +140,27 @@ def test_sweep_map_says_so_when_no_run_has_events(n_V):
     titles = [ax.get_title() for ax in fig.axes]
     assert "no stick-slip events in this sweep" in titles
     assert not any("stick-slip map" in title or title == "stick-slip events in the window" for title in titles)
+
+
+def test_sweep_map_top_panel_shows_every_V_apart():
+    """The runs of each V on a row of their own in the first panel (all completed runs of all V
+    sat on one point, t = t_final, so one colour hid the others); a stopped run's t_stop is
+    written by its ×."""
+    from peeljax.plots import plot_sweep_map
+
+    Vs = [1.1, 2.0, 4.0]
+    result = _sweep_result(Vs, np.geomspace(1e-3, 1e-1, 5))
+    fig = plot_sweep_map(result)
+    top = fig.axes[0]
+    rows = {}
+    for line in top.get_lines():
+        if line.get_marker() in ("o", "x"):
+            rows.setdefault(line.get_color(), set()).update(np.round(np.asarray(line.get_ydata(), float), 9))
+    assert len(rows) == len(Vs) and all(len(y) == 1 for y in rows.values())
+    assert len(set.union(*rows.values())) == len(Vs)  # one row each
+    written = [text.get_text() for text in top.texts]
+    assert written.count("0.4 s") == int((~result.completed).sum())
+    assert [t.get_text() for t in top.get_yticklabels()] == ["V = 1.1", "V = 2", "V = 4"]
 
 
 def test_sweep_map_with_every_run_stopped_and_user_title():
@@ -277,6 +312,14 @@ def test_trajectory_fit_plot_shows_every_fitted_quantity(tmp_path):
     assert ylabels.count("φ(v, V) [N]") == 1
     texts = [text.get_text() for ax in fig.axes for text in ax.texts]
     assert texts == ["no alpha observed at this V"]
+    # the start model's run beside the fitted one, and the data drawn over both (not hidden by them)
+    for ax in fig.axes:
+        lines = {line.get_label(): line for line in ax.get_lines()}
+        data = [line for label, line in lines.items() if label.startswith("data ")]
+        if data:
+            models = [line for label, line in lines.items() if "model" in label]
+            assert {line.get_label().split()[0] for line in models} == {"start", "fitted"}
+            assert data[0].get_zorder() > max(line.get_zorder() for line in models)
 
 
 def test_the_old_module_peeljax_stick_slip_plots_warns_and_re_exports():
@@ -289,3 +332,164 @@ def test_the_old_module_peeljax_stick_slip_plots_warns_and_re_exports():
     with pytest.warns(DeprecationWarning, match="peeljax.stick_slip_plots is deprecated: import plot_stick_slip_map from peeljax.plots"):
         old = importlib.import_module("peeljax.stick_slip_plots")
     assert old.plot_stick_slip_map is plots.plot_stick_slip_map
+
+
+# ---------------------------------------------------------------------------- the fold's end, stopped runs
+def test_no_fold_shading_starts_where_phi_loses_its_fold(tmp_path):
+    """The stick-slip map shades "no fold" from the V where φ's maximum and minimum merge, found
+    by a root solve (V = 5.387 m/s for the paper's φ; the map's samples 4 and 6 m/s put it at 5),
+    with the model given or read from the map's settings."""
+    import dataclasses
+
+    from matplotlib.patches import Rectangle
+    from test_stick_slip_map import _hand_made_map
+
+    from peeljax import PeelingModel
+    from peeljax.analysis import _min_slope, fold_limit
+    from peeljax.plots import plot_stick_slip_map
+
+    V_cusp = fold_limit(None, 4.0, 6.0)
+    assert V_cusp == pytest.approx(5.387, abs=1e-3)
+    model = PeelingModel()
+    assert float(_min_slope(model, V_cusp - 1e-3)) < 0 < float(_min_slope(model, V_cusp + 1e-3))
+    with pytest.raises(ValueError, match="V_fold = 6"):
+        fold_limit(None, 6.0, 4.0)
+
+    def shading(fig):
+        return [(p.get_x(), p.get_x() + p.get_width()) for p in fig.axes[0].patches if isinstance(p, Rectangle)]
+
+    smap = _hand_made_map()
+    ((start, _),) = shading(plot_stick_slip_map(smap, model=model))
+    assert start == pytest.approx(V_cusp, abs=1e-9)
+    paper = {name: float(getattr(model, name)) for name in ("R", "I", "k", "l")}
+    paper |= {"geometry": "paper", "phi": model.adhesion.coefficients()}  # as a sweep records it
+    recorded = dataclasses.replace(smap, settings={"sweep": {"model": paper}})
+    fig = plot_stick_slip_map(recorded)
+    ((start, _),) = shading(fig)
+    assert start == pytest.approx(V_cusp, abs=1e-9)
+    labels = [t.get_text() for legend in fig.axes[0].artists if hasattr(legend, "get_texts") for t in legend.get_texts()]
+    assert any("5.387 m/s" in label for label in labels), labels
+    ((start, _),) = shading(plot_stick_slip_map(smap))  # no model known: halfway between the samples
+    assert start == pytest.approx(5.0)
+
+
+def test_bifurcation_diagram_draws_a_stopped_run_on_the_axis_edge_not_at_v_0():
+    from peeljax.analysis import BifurcationDiagram
+    from peeljax.figures import plot_bifurcation_diagram
+
+    diagram = BifurcationDiagram(
+        V=np.array([1.0, 2.0, 3.0]), tau=1e-3, t_transient=1.5, v_max=[np.array([3.0]), np.array([4.0]), np.array([])],
+        v_min=[np.array([0.5]), np.array([1.0]), np.array([])], v_final=np.array([1.0, 2.0, np.nan]),
+        t_stop=np.array([3.0, 3.0, 0.25]), completed=np.array([True, True, False]),
+    )  # fmt: skip
+    fig = plot_bifurcation_diagram(diagram)
+    (ax,) = fig.axes
+    fig.canvas.draw()
+    (cross,) = [line for line in ax.get_lines() if line.get_marker() == "x" and len(line.get_xdata())]
+    assert cross.get_transform() != ax.transData  # on the axis edge: no value of v
+    assert ax.get_ylim()[0] > 0.2  # v = 0 is no data here: the axis keeps to the extrema
+    assert [t.get_text() for t in ax.texts] == ["0.25 s"]
+
+
+# ---------------------------------------------------------------------------- the user's axes
+def test_every_plotting_function_draws_into_the_users_axes():
+    """``ax=``/``axes=``: drawn into a figure of the user's (which is returned), nothing else
+    made; the wrong number of axes refused naming the parameter, before anything is drawn."""
+    from matplotlib.figure import Figure
+
+    from peeljax import PeelingModel
+    from peeljax.analysis import BifurcationDiagram
+    from peeljax.figures import plot_bifurcation_diagram, plot_phi_extrema
+    from peeljax.plots import plot_run, plot_stick_slip, plot_sweep_map
+
+    run = _stuck_run()
+    diagram = BifurcationDiagram(V=np.array([1.0]), tau=1e-3, t_transient=1.5, v_max=[np.array([3.0])],
+                                 v_min=[np.array([0.5])], v_final=np.array([1.0]), t_stop=np.array([3.0]),
+                                 completed=np.array([True]))  # fmt: skip
+    cases = [
+        (lambda axes: plot_run(run, V=1.1, axes=axes), 3),
+        (lambda axes: plot_stick_slip(run, PeelingModel(), 1.1, axes=axes), 3),
+        (lambda axes: plot_sweep_map(_sweep_result([1.1, 2.0], [1e-3, 3e-3, 1e-2]), axes=axes), 3),
+        (lambda axes: plot_phi_extrema(ax=axes), 1),
+        (lambda axes: plot_bifurcation_diagram(diagram, ax=axes), 1),
+    ]
+    for draw, count in cases:
+        mine = Figure()
+        axes = mine.subplots(1, count + 1)
+        assert draw(axes[:count] if count > 1 else axes[0]) is mine
+        assert len(mine.axes) == count + 1 and all(ax.has_data() for ax in axes[:count]) and not axes[-1].has_data()
+        assert mine.get_suptitle() == ""  # no title put on the user's figure unasked
+        with pytest.raises(ValueError, match=rf"(ax|axes) must hold {count} Axes"):
+            draw(axes[: count + 1] if count > 1 else axes)
+    with pytest.raises(TypeError, match="axes must be matplotlib Axes"):
+        plot_run(run, axes=["not", "axes", "here"])
+
+
+def test_stick_slip_figure_keeps_the_state_after_each_jump_in_its_lines():
+    """The rows hold v just after a jump: v(t), G(t) and the G–v loop go on from it (the line
+    broke after it, so the slip branch was missing from the loop); a run whose rows lack the
+    jumps (a file from before) gets the jump record's v after each jump inserted."""
+    import dataclasses
+
+    import jax.numpy as jnp
+
+    from peeljax import PeelingModel
+    from peeljax.plots import plot_stick_slip
+
+    old = _stuck_run()
+    ts, ys = np.asarray(old.ts), np.asarray(old.ys)
+    # the same run with both sides of each jump in its rows (v after: 15 and 1e-54)
+    at = [3, 6]
+    ys_new = np.insert(ys, at, ys[[2, 4]], axis=0)
+    ys_new[3, 3], ys_new[6, 3] = 15.0, 1e-54
+    new = dataclasses.replace(old, ts=jnp.asarray(np.insert(ts, at, ts[[2, 4]])), ys=jnp.asarray(ys_new),
+                              valid=jnp.ones(9, bool), after_jump=jnp.asarray(np.isin(np.arange(9), at)))  # fmt: skip
+    for run in (old, new):
+        fig = plot_stick_slip(run, PeelingModel(), 1.1)
+        by_label = {ax.get_ylabel(): ax for ax in fig.axes}
+        (v_line,) = (line for line in by_label["peeling velocity v [m/s]"].get_lines() if line.get_label() == "peeling velocity v(t)")
+        v = np.asarray(v_line.get_ydata(), float)
+        # a break (NaN) just before v = 15, and the line goes on from there
+        i = int(np.flatnonzero(v == 15.0)[0])
+        assert np.isnan(v[i - 1]) and v[i + 1] == pytest.approx(12.0)
+        (loop,) = (line for line in by_label["shear force G [N]"].get_lines() if line.get_label().startswith("the run"))
+        assert np.nanmax(np.asarray(loop.get_xdata(), float)) == 15.0
+
+
+def test_table_fit_figure_colours_every_V_and_error_bars_that_stay_positive(monkeypatch):
+    """table_fit.png: orange and blue mean the start and the fitted model in every panel (the φ
+    panel's pull velocities take other colours), every V of the table has its φ curves, the φ
+    legend sits beside the panel (not over the curves), and ±σ of a period larger than the
+    period stops at zero. The model's statistics are stood in for (nothing is run)."""
+    from types import SimpleNamespace
+
+    from matplotlib.colors import to_hex
+
+    import peeljax.fit.plots as fit_plots
+    from peeljax import AdhesionLaw
+    from peeljax.fit import StickSlipTable
+
+    V = np.array([0.8, 1.2, 1.6, 2.0])
+    period = np.array([0.023, 0.011, 0.005, 0.003])
+    table = StickSlipTable.from_dict(V=V, F_mean=300 + 10 * V, F_mean_std=np.full(4, 3.0), period=period,
+                                     period_std=np.array([0.002, 0.02, 0.001, 0.001]))  # fmt: skip
+    stats = {name: np.ones(4) for name in ("F_mean", "F_slip", "F_stick", "period", "slip_duration")}
+    monkeypatch.setattr(fit_plots, "model_statistics", lambda *args, **kwargs: (stats, np.ones((4, 2))))
+    result = SimpleNamespace(adhesion=AdhesionLaw(), start=AdhesionLaw(c1=440.0), settings={}, residuals=None,
+                             uncertainty=None, v_range=(1e-4, 20.0), stop_reason="", free=("c1",), initial_loss=2.0,
+                             final_loss=1.0)  # fmt: skip
+    fig = fit_plots.plot_table_fit(result, table)
+    fig.canvas.draw()
+    ax_mean, ax_period, _, ax_phi = fig.axes[:4]
+    model_colors = {to_hex(line.get_color()) for ax in (ax_mean, ax_period) for line in ax.get_lines()
+                    if "model" in line.get_label()}  # fmt: skip
+    assert model_colors == {to_hex("C0"), to_hex("C1")}
+    phi_colors = {to_hex(line.get_color()) for line in ax_phi.get_lines() if len(line.get_xdata()) > 10}
+    assert len(phi_colors) == 4 and not phi_colors & model_colors  # one colour per V, none of the models'
+    legend = ax_phi.get_legend()
+    assert [t.get_text() for t in legend.get_texts()][:4] == [f"V = {v:g} m/s" for v in V]
+    assert legend.get_window_extent().x0 >= ax_phi.get_window_extent().x1  # beside the panel
+    (bars,) = [c for c in ax_period.collections if c.get_segments()]
+    lows = [min(seg[:, 1]) for seg in bars.get_segments()]
+    assert min(lows) == 0.0 and ax_period.get_ylim()[0] >= 0.0  # 0.011 ± 0.02 stops at 0
+    assert any("cut at 0" in t.get_text() for t in ax_period.get_legend().get_texts())

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from .._validation import check_positive
+from . import options
 from ._common import PROG, check_output_folder, checked, fail, json_safe, plot_formats, write_failed
 
 __all__ = ["add_command"]
@@ -32,7 +33,15 @@ def add_command(subparsers) -> None:
     )
     parser.add_argument("--format", default="png", help="image format (default png)")
     parser.add_argument("--json", action="store_true", help="print one JSON object (run facts, files) on stdout")
+    options.add_progress(parser, "line per group of runs")
     parser.set_defaults(handler=_figures_command)
+
+
+def _progress(args: argparse.Namespace):
+    """A line on stderr per group of runs, or nothing with --no-progress."""
+    if not options.progress_on(args):
+        return False
+    return lambda message: print(f"{PROG}: {message}", file=sys.stderr)
 
 
 def _figures_command(args: argparse.Namespace) -> int:
@@ -51,7 +60,7 @@ def _figures_command(args: argparse.Namespace) -> int:
     from ..figures import write_figures
 
     try:
-        facts = write_figures(out, t_final=args.t_final, fmt=fmt, log=lambda m: print(f"{PROG}: {m}", file=sys.stderr))
+        facts = write_figures(out, t_final=args.t_final, fmt=fmt, progress=_progress(args))
     except OSError as error:
         return write_failed("--out", args.out, error, "the figures were computed but not all were saved")
     if args.json:

@@ -19,9 +19,9 @@ from pathlib import Path
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from .._panels import draw_phi, panels
 from ..adhesion import AdhesionLaw
 from ..model import PeelingModel
 from .stick_slip_table import STATISTICS, StickSlipTable
@@ -99,17 +99,41 @@ def _run_options(result) -> dict:
     return {k: s[k] for k in keys if k in s}
 
 
+_PHI_CURVES = 8  # the φ panel draws at most this many of the table's pull velocities
+# Statistics that cannot be negative: their error bars stop at zero.
+_POSITIVE = ("F_mean", "F_slip", "F_stick", "period", "slip_duration")
+
+
 def _phi_V(table: StickSlipTable) -> np.ndarray:
-    """2–3 of the table's pull velocities: first, middle, last."""
-    V = np.asarray(table.V, float)
-    return V[sorted({0, len(V) // 2, len(V) - 1})]
+    """The table's pull velocities for the φ panel: all of them, or :data:`_PHI_CURVES`
+    spread over them (the first and the last among them)."""
+    V = np.unique(np.asarray(table.V, float))
+    if V.size <= _PHI_CURVES:
+        return V
+    return V[np.unique(np.round(np.linspace(0, V.size - 1, _PHI_CURVES)).astype(int))]
+
+
+def _error_bars(values: np.ndarray, std, positive: bool):
+    """(lower, upper) error bars of ±σ; for a quantity that cannot be negative the lower one
+    stops at zero; and whether any was cut there."""
+    if std is None:
+        return None, False
+    std = np.nan_to_num(np.asarray(std, float))
+    lower = np.minimum(std, np.maximum(np.asarray(values, float), 0.0)) if positive else std
+    return np.stack([lower, std]), bool(positive and np.any(lower < std))
 
 
 def plot_table_fit(
     result, table: StickSlipTable, *, model: PeelingModel | None = None, title: str | None = None,
-    path: str | Path | None = None,
+    path: str | Path | None = None, axes=None,
 ) -> Figure:  # fmt: skip
     """A stick-slip table fit: data vs start and fitted model per statistic, residuals, φ band.
+
+    One panel per statistic against V: the data with ±σ error bars (cut at zero for the
+    statistics that cannot be negative), the start model (orange, dashed) and the fitted model
+    (blue, solid); the residuals (model − data)/σ; φ(v, V) of the fitted law (solid, with its
+    95 % band) and the start (dashed) at the table's pull velocities, one colour each from a
+    sequential map (no orange or blue there), φ's folds marked, the legend beside the panel.
 
     Args:
         result: :func:`~peeljax.fit.table.fit_stick_slip`'s :class:`~peeljax.fit.FitResult`.
@@ -118,33 +142,39 @@ def plot_table_fit(
             start's and the fitted law.
         title: the figure's title (default: the loss and the stop reason).
         path: save the figure there (any format matplotlib's Agg canvas writes).
+        axes: the Axes to draw into (a figure of the user's): one per fitted statistic, then the
+            residuals', then φ's; None: a new figure.
     """
     from ..branches import phi_folds
 
     model = PeelingModel() if model is None else model
-    options = _run_options(result)
     stats = [s for s in result.settings.get("statistics", table.statistics) if s in table.statistics]
+    n_panels = len(stats) + 2
+    n_cols = min(n_panels, 3)
+    n_rows = -(-n_panels // n_cols)
+
+    def grid(fig):
+        axes = fig.subplots(n_rows, n_cols, squeeze=False).ravel()
+        for ax in axes[n_panels:]:
+            ax.set_visible(False)
+        return axes[:n_panels]
+
+    drawn = panels(axes, n_panels, grid, figsize=(4.4 * n_cols + 1.2, 3.4 * n_rows),
+                   what=f"{', '.join(stats)}, the residuals and φ")  # fmt: skip
+    axes = drawn.axes
+    options = _run_options(result)
     fitted, _ = model_statistics(result.adhesion, table, model=model, **options)
     started, _ = model_statistics(result.start, table, model=model, **options)
     V = np.asarray(table.V, float)
 
-    n_panels = len(stats) + 2
-    n_cols = min(n_panels, 3)
-    n_rows = -(-n_panels // n_cols)
-    fig = Figure(figsize=(4.4 * n_cols, 3.4 * n_rows), layout="constrained")
-    FigureCanvasAgg(fig)  # attaches itself: savefig works with no pyplot backend
-    axes = fig.subplots(n_rows, n_cols, squeeze=False).ravel()
-    for ax in axes[n_panels:]:
-        ax.set_visible(False)
-
     for ax, s in zip(axes, stats):
-        std = table.std.get(s)
-        ax.errorbar(
-            V, table.values[s], yerr=None if std is None else np.nan_to_num(std), fmt=_MARKERS[s], color="0.2",
-            ms=4, capsize=3, label="data",
-        )  # fmt: skip
+        yerr, cut = _error_bars(table.values[s], table.std.get(s), s in _POSITIVE)
+        ax.errorbar(V, table.values[s], yerr=yerr, fmt=_MARKERS[s], color="0.2", ms=4, capsize=3,
+                    label="data ± σ" + (" (cut at 0)" if cut else ""), zorder=3)  # fmt: skip
         ax.plot(V, started[s], "--", marker=".", color="C1", alpha=0.8, label="start model")
         ax.plot(V, fitted[s], "-", marker=".", color="C0", label="fitted model")
+        if cut:
+            ax.set_ylim(bottom=0.0)
         ax.set_xlabel("pull velocity V [m/s]")
         ax.set_ylabel(_LABELS[s])
         ax.legend(fontsize=7)
@@ -154,9 +184,11 @@ def plot_table_fit(
         measured = [(i, s) for i in range(len(V)) for s in STATISTICS if s in stats and np.isfinite(table.values[s][i])]
         r = np.asarray(result.residuals, float)
         if len(measured) == r.size:
-            for k, s in enumerate(stats):
+            for s in stats:
                 idx = [n for n, (_, name) in enumerate(measured) if name == s]
-                ax.plot([V[measured[n][0]] for n in idx], r[idx], _MARKERS[s], color=f"C{k}", ms=5, label=s)
+                # grey markers: C0 and C1 mean the fitted and the start model beside this panel
+                ax.plot([V[measured[n][0]] for n in idx], r[idx], _MARKERS[s], color="0.25", mfc="none", ms=6,
+                        mew=1.1, label=s)  # fmt: skip
     ax.axhline(0.0, color="0.5", lw=0.8)
     ax.set_xlabel("pull velocity V [m/s]")
     ax.set_ylabel("residual (model − data)/σ")
@@ -170,36 +202,25 @@ def plot_table_fit(
     hi = max(float(hi), lo * 10)
     v = np.geomspace(lo, hi, 300)
     fitted_model = eqx.tree_at(lambda m: m.adhesion, model, result.adhesion)
-    for k, V_i in enumerate(_phi_V(table)):
-        color = f"C{k}"
-        if result.uncertainty is not None:
-            phi, half = result.uncertainty.phi_band(result.adhesion, v, V_i)
-            ax.fill_between(v, phi - half, phi + half, color=color, alpha=0.2, lw=0)
-        else:
-            phi = np.asarray(result.adhesion(jnp.asarray(v), V_i))
-        ax.plot(v, phi, "-", color=color, label=f"fitted, V = {V_i:g}" + (" (95 % band)" if result.uncertainty else ""))
-        ax.plot(
-            v, np.asarray(result.start(jnp.asarray(v), V_i)), "--", color=color, alpha=0.7, label=f"start, V = {V_i:g}"
-        )
+    Vs = _phi_V(table)
+    band = None if result.uncertainty is None else (lambda V_i: result.uncertainty.phi_band(result.adhesion, v, V_i))
+    from matplotlib.lines import Line2D
+
+    marks = [(Line2D([], [], marker="^", color="0.6", mec="k", ls="none"), "fold: φ max"),
+             (Line2D([], [], marker="v", color="0.6", mec="k", ls="none"), "fold: φ min")]  # fmt: skip
+    colors = draw_phi(ax, v, Vs, result.adhesion, result.start, band=band, extra=marks)
+    for V_i, color in zip(Vs, colors):
         folds = phi_folds(fitted_model, V_i)
         for v_f, phi_f, mark in ((folds.v_max, folds.phi_max, "^"), (folds.v_min, folds.phi_min, "v")):
             v_f, phi_f = float(v_f), float(phi_f)
             if np.isfinite(v_f) and lo <= v_f <= hi:
-                ax.plot([v_f], [phi_f], mark, color=color, mec="k", ms=7)
-    ax.plot([], [], "^", color="0.6", mec="k", label="fold: φ max")
-    ax.plot([], [], "v", color="0.6", mec="k", label="fold: φ min")
+                ax.plot([v_f], [phi_f], mark, color=color, mec="k", ms=7, zorder=4)
     ax.set_xscale("log")
     ax.set_xlabel("v [m/s] (range visited by the fitted runs)")
     ax.set_ylabel("φ(v, V) [N]")
-    ax.set_title("adhesion law: fitted (95 % band) vs start", fontsize=9)
-    ax.legend(fontsize=6)
+    ax.set_title("adhesion law: fitted" + (" (95 % band)" if band else "") + " vs start", fontsize=9)
 
     reason = result.stop_reason.split(":")[0] if result.stop_reason else ""
-    fig.suptitle(
-        title
-        or f"stick-slip table fit ({', '.join(result.free)}): loss {result.initial_loss:.3g} → {result.final_loss:.3g}"
-        + (f", {reason}" if reason else "")
-    )
-    if path is not None:
-        fig.savefig(path, dpi=150)
-    return fig
+    default = (f"stick-slip table fit ({', '.join(result.free)}): loss {result.initial_loss:.3g} → "
+               f"{result.final_loss:.3g}" + (f", {reason}" if reason else ""))  # fmt: skip
+    return drawn.finish(title, path, default_title=default)

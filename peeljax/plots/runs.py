@@ -14,9 +14,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from .._panels import panels, draw_phi
 from ..model import PeelingModel
 from ..solution import Solution, StopReason
 
@@ -74,6 +74,7 @@ def plot_runs(
     V: float | None = None,
     title: str | None = None,
     path: str | Path | None = None,
+    axes=None,
 ) -> Figure:
     """Overlay runs in three stacked panels sharing the time axis: v(t), α(t), F(t).
 
@@ -84,10 +85,14 @@ def plot_runs(
         V: pull velocity [m/s]; drawn as a dashed horizontal line in the v panel when given.
         title: figure title.
         path: when given, the figure is saved there (format from the suffix, PNG if none).
+        axes: three matplotlib Axes to draw v, α and F into (a figure of the user's); None:
+            a new figure.
 
     Returns:
-        The figure. A run that stopped gets a dotted vertical line at ``t_stop`` in every
-        panel and an annotation with the shortened reason in the v panel.
+        The figure (the axes' figure when they are given). A run that stopped gets a dotted
+        vertical line at ``t_stop`` in every panel and an annotation with the shortened
+        reason in the v panel. Each jump (a run through the folds) is a vertical segment at
+        its time: the rows hold both sides of it.
     """
     solutions = list(solutions)
     if not solutions:
@@ -97,15 +102,18 @@ def plot_runs(
         raise ValueError(f"plot_runs: {len(solutions)} solutions but {len(labels)} labels")
     model = PeelingModel() if model is None else model
 
-    fig = Figure(figsize=(8.0, 8.5), layout="constrained")
-    FigureCanvasAgg(fig)  # attaches itself: savefig works with no pyplot backend
-    axes = fig.subplots(len(_PANELS), 1, sharex=True)
+    drawn = panels(
+        axes, len(_PANELS), lambda fig: fig.subplots(len(_PANELS), 1, sharex=True), figsize=(8.0, 8.5),
+        what="v, α and F",
+    )  # fmt: skip
+    axes = drawn.axes
     colors = [f"C{i % 10}" for i in range(len(solutions))]
     n_stopped = 0
     t_range = [np.inf, -np.inf]
     for solution, label, color in zip(solutions, labels, colors):
         series = _host_series(solution, model)
-        t_range = [min(t_range[0], series["t"][0]), max(t_range[1], series["t"][-1])]
+        # nanmin/nanmax: error control's accepted steps are padded with NaN rows
+        t_range = [min(t_range[0], np.nanmin(series["t"])), max(t_range[1], np.nanmax(series["t"]))]
         for ax, (key, _) in zip(axes, _PANELS):
             ax.plot(series["t"], series[key], color=color, lw=1.2, label=label)
         if int(np.asarray(solution.status)) != 0:
@@ -114,7 +122,7 @@ def plot_runs(
                 ax.axvline(t_stop, color=color, ls=":", lw=1.2)
             # The note goes on the side of the line with more room; several notes stack downwards.
             ts = series["t"]
-            right = t_stop < 0.5 * (ts[0] + ts[-1])
+            right = t_stop < 0.5 * (np.nanmin(ts) + np.nanmax(ts))
             axes[0].annotate(
                 f"stopped at t = {t_stop:.4g} s\n{short_reason(solution)}",
                 xy=(t_stop, 1.0),
@@ -137,11 +145,7 @@ def plot_runs(
     axes[-1].set_xlim(*t_range)
     axes[-1].set_xlabel("time t [s]")
     axes[0].legend(loc="best", fontsize=8)
-    if title:
-        fig.suptitle(title)
-    if path is not None:
-        fig.savefig(path, dpi=150)
-    return fig
+    return drawn.finish(title, path)
 
 
 def plot_run(
@@ -152,13 +156,14 @@ def plot_run(
     label: str | None = None,
     title: str | None = None,
     path: str | Path | None = None,
+    axes=None,
 ) -> Figure:
     """One run in three stacked panels: v(t) with the pull velocity V, α(t), F(t).
 
-    The single-run case of :func:`plot_runs` (same arguments; ``label`` defaults to the
-    solution's method).
+    The single-run case of :func:`plot_runs` (same arguments, ``axes`` included; ``label``
+    defaults to the solution's method).
     """
-    return plot_runs([solution], None if label is None else [label], model, V=V, title=title, path=path)
+    return plot_runs([solution], None if label is None else [label], model, V=V, title=title, path=path, axes=axes)
 
 
 # ---------------------------------------------------------------------------- stick-slip with jumps
@@ -167,11 +172,24 @@ _V_DECADES = 1e-12  # the log axes of v reach down to this fraction of the large
 _UP_LABEL, _DOWN_LABEL = "stick → slip jump (v up)", "slip → stick jump (v down)"
 
 
-def _broken_at(t: np.ndarray, jump_t: np.ndarray, *series: np.ndarray) -> list[np.ndarray]:
-    """``t`` and ``series`` with a NaN row after each jump's time, so that a line is not drawn
-    across a jump (the jumps are drawn on their own)."""
-    at = np.searchsorted(t, jump_t, side="right")
+def _broken_at(t: np.ndarray, after: np.ndarray, *series: np.ndarray) -> list[np.ndarray]:
+    """``t`` and ``series`` with a NaN row before each row just after a jump (``after``), so
+    that a line is not drawn across a jump (the jumps are drawn on their own) and goes on from
+    the state after it."""
+    at = np.flatnonzero(after)
     return [np.insert(np.asarray(a, dtype=float), at, np.nan) for a in (t, *series)]
+
+
+def _with_jump_rows(t, v, G, after, jump_t, v_after, G_jump):
+    """t, v, G and the mask of the rows just after a jump, with both sides of every jump: a
+    run's own rows where it kept them (``after`` not None), else (a file written before
+    they were kept) the jump record's v after each jump inserted after the row at its time."""
+    if after is not None:
+        return t, v, G, np.asarray(after, bool)
+    at = np.searchsorted(t, jump_t, side="right")
+    mask = np.zeros(t.size + at.size, bool)
+    mask[at + np.arange(at.size)] = True
+    return np.insert(t, at, jump_t), np.insert(v, at, v_after), np.insert(G, at, G_jump), mask
 
 
 def _positive_floor(*arrays: np.ndarray) -> float:
@@ -189,6 +207,7 @@ def plot_stick_slip(
     title: str | None = None,
     path: str | Path | None = None,
     transient: float | None = None,
+    axes=None,
 ) -> Figure:
     """A run carried through the folds of φ (``fold="jump"``): v(t), G(t) and the G–v loop.
 
@@ -215,6 +234,8 @@ def plot_stick_slip(
         title: figure title.
         path: when given, the figure is saved there (format from the suffix, PNG if none).
         transient: [s] the loop panel shows t ≥ transient only; shaded in the time panels.
+        axes: three matplotlib Axes for v(t), G(t) and the loop (a figure of the user's; the
+            legend of the time panels then goes into the v panel); None: a new figure.
 
     Returns:
         The figure. v = 0 (a fully stuck tape) is drawn at the bottom of the log axes. A run
@@ -236,6 +257,8 @@ def plot_stick_slip(
     G = np.asarray(model.shear_force(ys[:, :3].T), dtype=float)
     jumps = solution.jumps.as_numpy()
     jt, up, vb, va, jG = (jumps[key] for key in ("jump_t", "jump_up", "jump_v_before", "jump_v_after", "jump_G"))
+    after = None if solution.after_jump is None else np.asarray(solution.after_jump, dtype=bool)[valid]
+    t, v, G, after = _with_jump_rows(t, v, G, after, jt, va, jG)
     folds = phi_folds(model, V)
     v_hat, phi_hat, v_check, phi_check = (float(x) for x in (folds.v_max, folds.phi_max, folds.v_min, folds.phi_min))
     has_folds = bool(np.isfinite(v_hat) and np.isfinite(v_check))
@@ -255,14 +278,17 @@ def plot_stick_slip(
     clip = top * _V_DECADES
     below = v[np.isfinite(v) & (v > 0) & (v < clip)]
     stuck = bool(np.any(v[np.isfinite(v)] <= 0) or np.any(va <= 0))
-    shown = lambda values: np.where(np.asarray(values) >= clip, values, floor)  # v = 0 too
+    # v below the clip (v = 0 too) at the floor; NaN (the breaks at the jumps) kept
+    shown = lambda values: np.where(np.isnan(values) | (np.asarray(values) >= clip), values, floor)  # noqa: E731
 
-    fig = Figure(figsize=(13.0, 7.6), layout="constrained")
-    FigureCanvasAgg(fig)
-    axes = fig.subplot_mosaic([["v", "loop"], ["G", "loop"]], width_ratios=(1.3, 1.0))
-    ax_v, ax_G, ax_loop = axes["v"], axes["G"], axes["loop"]
-    ax_G.sharex(ax_v)
-    tb, vb_line, Gb_line = _broken_at(t, jt, v, G)
+    def mosaic(fig):
+        axes = fig.subplot_mosaic([["v", "loop"], ["G", "loop"]], width_ratios=(1.3, 1.0))
+        axes["G"].sharex(axes["v"])
+        return [axes["v"], axes["G"], axes["loop"]]
+
+    drawn = panels(axes, 3, mosaic, figsize=(13.0, 7.6), what="v(t), G(t) and the G–v loop")
+    ax_v, ax_G, ax_loop = drawn.axes
+    tb, vb_line, Gb_line = _broken_at(t, after, v, G)
 
     # 1. v(t) with the jumps
     ax_v.plot(tb, shown(vb_line), color="0.2", lw=1.0, label="peeling velocity v(t)")
@@ -326,7 +352,7 @@ def plot_stick_slip(
     # 3. the G–v loop over φ(v, V)
     start = -np.inf if loop_start is None else loop_start
     rows, kept = t >= start, jt >= start
-    _, vl, Gl = _broken_at(t[rows], jt[kept], v[rows], G[rows])
+    _, vl, Gl = _broken_at(t[rows], after[rows], v[rows], G[rows])
     up_k, vb_k, va_k, G_k = up[kept], vb[kept], va[kept], jG[kept]
     span = np.concatenate([vl[np.isfinite(vl)], vb_k, va_k] + ([[v_hat, v_check]] if has_folds else []))
     hi = float(np.nanmax(span)) if span.size else 10.0
@@ -372,11 +398,7 @@ def plot_stick_slip(
     ax_loop.set_title(f"G–v loop over φ(v, V)\n({window})", fontsize=10)
     ax_loop.grid(True, alpha=0.3)
     ax_loop.legend(loc="upper left", fontsize=7, framealpha=0.9)
-    if title:
-        fig.suptitle(title, fontsize=10)
-    if path is not None:
-        fig.savefig(path, dpi=150)
-    return fig
+    return drawn.finish(title, path, fontsize=10)
 
 
 # Up to this many pull velocities the sweep map draws one series per V against τ; more V
@@ -435,10 +457,12 @@ def _no_events_note(ax, any_completed: bool) -> None:
     )  # fmt: skip
 
 
-def _sweep_lines(fig: Figure, tau, V, completed, t_stop, spread, events, t_final: float) -> None:
-    """Few V: three panels against τ (log), one series per V; ● completed, × stopped."""
+def _sweep_lines(drawn, tau, V, completed, t_stop, spread, events, t_final: float) -> None:
+    """Few V: three panels against τ (log), one series per V; ● completed, × stopped. The top
+    panel has a row per V (the runs of every V apart, each in its colour), a stopped run's
+    t_stop written by its ×."""
     events_title, any_events = _events_title(events, completed)
-    axes = fig.subplots(3, 1, sharex=True, height_ratios=(1.0, 1.0, 1.0 if any_events else 0.4))
+    axes = drawn.axes
     Vs = np.unique(V)
     lo = np.nanmin(spread[completed & (spread > 0)]) if (completed & (spread > 0)).any() else None
     for i, V_i in enumerate(Vs):
@@ -446,9 +470,12 @@ def _sweep_lines(fig: Figure, tau, V, completed, t_stop, spread, events, t_final
         row = np.flatnonzero(V == V_i)
         row = row[np.argsort(tau[row], kind="stable")]
         done, stop = row[completed[row]], row[~completed[row]]
-        axes[0].plot(tau[row], t_stop[row], "-", color=color, lw=1.0, alpha=0.6)
-        axes[0].plot(tau[done], t_stop[done], "o", color=color, ms=6)
-        axes[0].plot(tau[stop], t_stop[stop], "x", color=color, ms=8, mew=2)
+        axes[0].plot(tau[row], np.full(row.size, i), "-", color=color, lw=1.0, alpha=0.4)
+        axes[0].plot(tau[done], np.full(done.size, i), "o", color=color, ms=6)
+        axes[0].plot(tau[stop], np.full(stop.size, i), "x", color=color, ms=8, mew=2)
+        for k in stop:  # how far it got
+            axes[0].annotate(f"{t_stop[k]:.3g} s", (tau[k], i), xytext=(0, 6), textcoords="offset points",
+                             ha="center", va="bottom", fontsize=6.5, color=color)  # fmt: skip
         axes[1].plot(tau[done], np.maximum(spread[done], lo) if lo else spread[done], "o-", color=color, ms=5, lw=1.2)
         if any_events:
             axes[2].plot(tau[done], events[done], "o-", color=color, ms=5, lw=1.2)
@@ -457,10 +484,10 @@ def _sweep_lines(fig: Figure, tau, V, completed, t_stop, spread, events, t_final
         for ax in (axes[1:] if any_events else axes[1:2]) if stop.size else ():
             ax.plot(tau[stop], np.zeros(stop.size), "x", color=color, ms=8, mew=2,
                     transform=ax.get_xaxis_transform(), clip_on=False)  # fmt: skip
-    axes[0].axhline(t_final, color="k", ls="--", lw=0.8)
-    axes[0].set_ylim(0.0, t_final * 1.08)
-    axes[0].set_ylabel("t_stop [s]\n(t_final: completed)")
-    axes[0].set_title("how far each run got")
+    axes[0].set_yticks(np.arange(Vs.size), [f"V = {V_i:g}" for V_i in Vs], fontsize=8)
+    axes[0].set_ylim(-0.6, Vs.size - 0.4)
+    axes[0].set_ylabel("pull velocity [m/s]")
+    axes[0].set_title(f"how far each run got: ● completed to t_final = {t_final:g} s, × stopped at the time written")
     if lo is None:  # nothing to draw on a log scale
         axes[1].text(0.5, 0.5, "no completed run with a spread of v > 0", transform=axes[1].transAxes, ha="center")
         axes[1].set_yticks([])
@@ -492,11 +519,10 @@ def _sweep_lines(fig: Figure, tau, V, completed, t_stop, spread, events, t_final
     handles += [
         Line2D([], [], color="k", marker="o", ls="none"),
         Line2D([], [], color="k", marker="x", ms=8, mew=2, ls="none"),
-        Line2D([], [], color="k", ls="--", lw=0.8),
     ]
     stopped_label = _STOPPED_LABEL + ("\n(lower panels: × on the axis, no value)" if (~completed).any() else " (none)")
-    labels += ["completed [0, t_final]", stopped_label, "t_final"]
-    fig.legend(handles, labels, loc="outside lower center", ncols=min(len(labels), 6), fontsize=8)
+    labels += ["completed [0, t_final]", stopped_label]
+    drawn.legend(handles, labels, ax=axes[1], loc="outside lower center", ncols=min(len(labels), 6), fontsize=8)
 
 
 def _edges(centres: np.ndarray, log: bool) -> np.ndarray:
@@ -511,7 +537,7 @@ def _edges(centres: np.ndarray, log: bool) -> np.ndarray:
     return np.exp(e) if log else e
 
 
-def _sweep_images(fig: Figure, tau, V, completed, t_stop, spread, events, t_final: float, grid: bool) -> None:
+def _sweep_images(drawn, tau, V, completed, t_stop, spread, events, t_final: float, grid: bool) -> None:
     """Many V: three maps over (τ, V). On a full V × τ grid, images with the stopped cells
     hatched in every panel; otherwise (pairs, other parameters) squares at the runs, × stopped."""
     from matplotlib.collections import PolyCollection
@@ -520,7 +546,7 @@ def _sweep_images(fig: Figure, tau, V, completed, t_stop, spread, events, t_fina
     from matplotlib.patches import Patch
 
     stopped = ~completed
-    axes = fig.subplots(1, 3, sharey=True)
+    fig, axes = drawn.figure, drawn.axes
     events_title, any_events = _events_title(events, completed)
     if grid:
         taus, Vs = np.unique(tau), np.unique(V)
@@ -582,19 +608,27 @@ def _sweep_images(fig: Figure, tau, V, completed, t_stop, spread, events, t_fina
         ax.set_xscale("log")
         ax.set_xlabel("homogenization scale τ [s]")
     axes[0].set_ylabel("pull velocity V [m/s]")
-    fig.legend([stopped_handle], [stopped_label], loc="outside lower center", fontsize=8)
+    drawn.legend([stopped_handle], [stopped_label], loc="outside lower center", fontsize=8)
 
 
-def plot_sweep_map(result, *, title: str | None = None, path: str | Path | None = None) -> Figure:
+def plot_sweep_map(result, *, title: str | None = None, path: str | Path | None = None, axes=None) -> Figure:
     """The stick-slip map of a :class:`peeljax.SweepResult` over (τ, V) (cf. the paper's Figs. 2, 5–7).
 
-    Three panels: how far each run got (t_stop; t_final when it completed), the spread of v
-    over the statistics window, std(v)/V (log scale: large where v sticks and slips, ≈ 0 where
-    τ has smoothed v to V), and the stick-slip events in the window (or a note that there are
-    none). Up to :data:`SWEEP_MAP_MAX_LINES` pull velocities: one series per V against τ (log
-    axis), ● completed, × stopped (on the lower edge of the value panels, which have no value
-    for it). More V values on a full V × τ grid: images over (τ, V) with stopped cells hatched
-    in every panel. The title gives the settings (dt, t_final, window) and the counts.
+    Three panels: how far each run got, the spread of v over the statistics window, std(v)/V
+    (log scale: large where v sticks and slips, ≈ 0 where τ has smoothed v to V), and the
+    stick-slip events in the window (or a note that there are none). Up to
+    :data:`SWEEP_MAP_MAX_LINES` pull velocities: one series per V against τ (log axis), the
+    first panel a row per V with ● completed and × stopped (its t_stop written by it), the
+    value panels with × on their lower edge for a stopped run (no value). More V values on a
+    full V × τ grid: images over (τ, V) with stopped cells hatched in every panel, the first
+    one coloured by t_stop. The title gives the settings (dt, t_final, window) and the counts.
+
+    Args:
+        result: the sweep.
+        title: a first title line (the settings follow).
+        path: when given, the figure is saved there (format from the suffix, PNG if none).
+        axes: three matplotlib Axes (a figure of the user's: stacked for few V, side by side
+            for many); None: a new figure.
     """
     tau, V = np.asarray(result.tau, float), np.asarray(result.V, float)
     completed = np.asarray(result.completed, bool)
@@ -607,25 +641,37 @@ def plot_sweep_map(result, *, title: str | None = None, path: str | Path | None 
     n_V, n_tau = np.unique(V).size, np.unique(tau).size
     full_grid = n_V * n_tau == tau.size and np.unique(np.stack([tau, V]), axis=1).shape[1] == tau.size
     if n_V <= SWEEP_MAP_MAX_LINES:
-        fig = Figure(figsize=(10.0, 8.5), layout="constrained")
-        FigureCanvasAgg(fig)
-        _sweep_lines(fig, tau, V, completed, t_stop, spread, events, t_final)
+        heights = (0.25 + 0.12 * n_V, 1.0, 1.0 if _events_title(events, completed)[1] else 0.4)
+        drawn = panels(axes, 3, lambda fig: fig.subplots(3, 1, sharex=True, height_ratios=heights),
+                       figsize=(10.0, 8.5), what="t_stop, spread and events against τ")  # fmt: skip
+        _sweep_lines(drawn, tau, V, completed, t_stop, spread, events, t_final)
     else:
-        fig = Figure(figsize=(14.0, 5.6), layout="constrained")
-        FigureCanvasAgg(fig)
-        _sweep_images(fig, tau, V, completed, t_stop, spread, events, t_final, grid=full_grid)
-    fig.suptitle(_sweep_heading(result, title, t_final, window, n_V, n_tau, full_grid), fontsize=10)
-    if path is not None:
-        fig.savefig(path, dpi=150)
-    return fig
+        drawn = panels(axes, 3, lambda fig: fig.subplots(1, 3, sharey=True), figsize=(14.0, 5.6),
+                       what="t_stop, spread and events over (τ, V)")  # fmt: skip
+        _sweep_images(drawn, tau, V, completed, t_stop, spread, events, t_final, grid=full_grid)
+    heading = _sweep_heading(result, title, t_final, window, n_V, n_tau, full_grid)
+    return drawn.finish(heading if drawn.own or title else None, path, fontsize=10)
 
 
-def plot_fit(result, observations, *, model: PeelingModel | None = None, title: str | None = None, path: str | Path | None = None) -> Figure:
+def plot_fit(
+    result, observations, *, model: PeelingModel | None = None, title: str | None = None,
+    path: str | Path | None = None, axes=None,
+) -> Figure:  # fmt: skip
     """A trajectory fit (:func:`peeljax.fit_adhesion`): each observed quantity (v, the tension F,
-    the angle α: those the observations hold, one row each) against the fitted model's run at
-    each V (one column each), and the fitted φ(v, V) against the start over the visited v range."""
-    import jax.numpy as jnp
+    the angle α: those the observations hold, one row each) against the start model's run
+    (dashed) and the fitted model's (solid) at each V (one column each), the data drawn over
+    both; and the fitted φ(v, V) against the start over the visited v range.
 
+    Args:
+        result: the fit's result (its ``adhesion``, ``start``, ``settings`` and ``v_range``).
+        observations: the observations it was fitted to.
+        model: the spool and tape of the fit (default: the paper's); φ is the start's and the fit's.
+        title: the figure title (default: the loss before and after).
+        path: when given, the figure is saved there (format from the suffix, PNG if none).
+        axes: the Axes to draw into (a figure of the user's): one per observed quantity and
+            observation, row by row (quantity by quantity, each over the observations), then
+            one for φ; None: a new figure.
+    """
     from ..fit.trajectory import QUANTITIES
     from ..simulate import simulate
 
@@ -634,42 +680,50 @@ def plot_fit(result, observations, *, model: PeelingModel | None = None, title: 
     n = len(observations)
     quantities = [q for q in QUANTITIES if any(obs.series(q) is not None for obs in observations)]
     units = {"v": "v [m/s]", "F": "tension F [N]", "alpha": "angle α [rad]"}
-    mosaic = [[f"{q}{j}" for j in range(n)] + ["phi"] for q in quantities]
-    fig = Figure(figsize=(4.2 * (n + 1), 2.6 * len(quantities) + 0.8), layout="constrained")
-    FigureCanvasAgg(fig)
-    panels = fig.subplot_mosaic(mosaic)
-    fitted = PeelingModel(R=model.R, I=model.I, k=model.k, l=model.l, adhesion=result.adhesion, geometry=model.geometry)
+    keys = [f"{q}{j}" for q in quantities for j in range(n)] + ["phi"]
+
+    def mosaic(fig):
+        grid = fig.subplot_mosaic([[f"{q}{j}" for j in range(n)] + ["phi"] for q in quantities])
+        return [grid[key] for key in keys]
+
+    drawn = panels(axes, len(keys), mosaic, figsize=(4.2 * (n + 1), 2.6 * len(quantities) + 0.8),
+                   what=f"{len(quantities)} quantities × {n} observations, then φ")  # fmt: skip
+    ax_of = dict(zip(keys, drawn.axes))
+
+    def with_law(law):
+        return PeelingModel(R=model.R, I=model.I, k=model.k, l=model.l, adhesion=law, geometry=model.geometry)
+
+    runs = {"start": with_law(result.start), "fitted": with_law(result.adhesion)}
     engine = {"dt": settings["dt"]} if settings.get("dt") is not None else {"rtol": settings["rtol"], "atol": settings["atol"]}
+    styles = {"start": {"ls": "--", "color": "C1", "lw": 1.1}, "fitted": {"ls": "-", "color": "C0", "lw": 1.3}}
     for j, obs in enumerate(observations):
-        run = simulate(fitted, V=obs.V, tau=settings["tau"], t_final=settings["t_final"], **engine)
-        series = _host_series(run, fitted)
+        series = {}
+        for name, law_model in runs.items():
+            run = simulate(law_model, V=obs.V, tau=settings["tau"], t_final=settings["t_final"], **engine)
+            series[name] = _host_series(run, law_model)
         for q in quantities:
-            ax = panels[f"{q}{j}"]
+            ax = ax_of[f"{q}{j}"]
+            for name in ("start", "fitted"):
+                ax.plot(series[name]["t"], series[name][q], label=f"{name} model {q}", zorder=2, **styles[name])
             data = obs.series(q)
-            if data is not None:
-                ax.plot(*data, ".", ms=2, color="0.5", label=f"data {q}")
+            if data is not None:  # over the model lines: open dots, seen where the fit lies on them
+                ax.plot(*data, "o", ms=3.2, mfc="none", mec="k", mew=0.7, alpha=0.8, zorder=3, label=f"data {q}")
             else:
                 ax.text(0.5, 0.9, f"no {q} observed at this V", transform=ax.transAxes, ha="center", fontsize=7)
-            ax.plot(series["t"], series[q], "-", color="C0", label=f"fitted model {q}")
             ax.set_ylabel(units[q])
             if q == quantities[0]:
                 ax.set_title(f"V = {obs.V:g} m/s")
             if q == quantities[-1]:
                 ax.set_xlabel("t [s]")
             ax.legend(fontsize=7)
-    ax = panels["phi"]
+    ax = ax_of["phi"]
     lo, hi = result.v_range
     lo = max(lo, 1e-12)
     v = np.geomspace(lo, max(hi, lo * 10), 300)
-    for i, obs in enumerate(observations):
-        ax.plot(v, np.asarray(result.adhesion(jnp.asarray(v), obs.V)), "-", color=f"C{i}", label=f"fitted, V = {obs.V:g}")
-        ax.plot(v, np.asarray(result.start(jnp.asarray(v), obs.V)), "--", color=f"C{i}", alpha=0.6, label=f"start, V = {obs.V:g}")
+    draw_phi(ax, v, [obs.V for obs in observations], result.adhesion, result.start)
     ax.set_xscale("log")
     ax.set_xlabel("v [m/s] (visited range)")
     ax.set_ylabel("φ(v, V) [N]")
     ax.set_title("adhesion law: fitted vs start")
-    ax.legend(fontsize=7)
-    fig.suptitle(title or f"fit: loss {result.initial_loss:.3g} → {result.final_loss:.3g} in {result.steps} iterations")
-    if path is not None:
-        fig.savefig(path, dpi=150)
-    return fig
+    default = f"fit: loss {result.initial_loss:.3g} → {result.final_loss:.3g} in {result.steps} iterations"
+    return drawn.finish(title, path, default_title=default)

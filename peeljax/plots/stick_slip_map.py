@@ -11,11 +11,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import FixedLocator, FormatStrFormatter, NullFormatter
 
+from .._panels import panels
 from ..cycles import MIN_EVENTS
 
 __all__ = ["plot_stick_slip_map"]
@@ -44,12 +44,19 @@ def _start_style(start: str, index: int, density: float = 1.0) -> dict:
     return {"ms": 6.5 * density, "mew": 0.9 * max(density, 0.7), "filled": False}
 
 
-def _spans(V: np.ndarray, mask: np.ndarray, lo: float, hi: float) -> list[tuple[float, float]]:
-    """Intervals of V where ``mask`` holds: edges halfway between neighbours, the axis limits
-    ``lo`` and ``hi`` beyond the first and last V."""
+def _spans(V: np.ndarray, mask: np.ndarray, lo: float, hi: float, edge=None) -> list[tuple[float, float]]:
+    """Intervals of V where ``mask`` holds: edges halfway between neighbours, or ``edge(V_in,
+    V_out)`` where it gives one (None: halfway), the axis limits ``lo`` and ``hi`` beyond the
+    first and last V."""
     order = np.argsort(V)
     V, mask = V[order], mask[order]
     edges = np.concatenate([[lo], 0.5 * (V[1:] + V[:-1]), [hi]])
+    if edge is not None:
+        for i in np.flatnonzero(mask[1:] != mask[:-1]):
+            inside, outside = (V[i], V[i + 1]) if mask[i] else (V[i + 1], V[i])
+            found = edge(inside, outside)
+            if found is not None:
+                edges[i + 1] = found
     spans, begin = [], None
     for i, flag in enumerate(mask):
         if flag and begin is None:
@@ -75,6 +82,41 @@ def _unique_forces(G: np.ndarray, up: np.ndarray, n: int) -> tuple[np.ndarray, n
     return out[0], out[1]
 
 
+def _map_model(smap):
+    """The model the map ran, from its settings (None where they do not say: a callable φ)."""
+    from ..adhesion import AdhesionLaw
+    from ..model import PeelingModel
+
+    model = ((smap.settings or {}).get("sweep") or {}).get("model")
+    if not isinstance(model, dict) or not isinstance(model.get("phi"), dict):
+        return None
+    try:
+        return PeelingModel(
+            **{name: float(model[name]) for name in ("R", "I", "k", "l")},
+            adhesion=AdhesionLaw.from_dict(model["phi"]) if model["phi"] else AdhesionLaw(),
+            geometry=model.get("geometry", "paper"),
+        )
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def _fold_edge(model):
+    """Where φ loses (or gains) its fold between a V with one and a V without (a root solve:
+    :func:`peeljax.analysis.fold_limit`); None when the model is unknown or the root is not
+    between them (then the shading starts halfway, as the samples alone say)."""
+    if model is None:
+        return None
+    from ..analysis import fold_limit
+
+    def edge(V_none, V_fold):
+        try:
+            return fold_limit(model, V_fold, V_none)
+        except ValueError:
+            return None
+
+    return edge
+
+
 def _heading(smap, title: str | None) -> str:
     V = np.asarray(smap.V)
     tau = "τ = 0 (the DAE itself)" if smap.tau == 0 else f"τ = {smap.tau:g} s (homogenized ODE)"
@@ -87,14 +129,18 @@ def _heading(smap, title: str | None) -> str:
     return f"{title}\n{line}" if title else f"Stick-slip map over the pull velocity V\n{line}"
 
 
-def plot_stick_slip_map(smap, *, title: str | None = None, path: str | Path | None = None) -> Figure:
+def plot_stick_slip_map(
+    smap, *, title: str | None = None, path: str | Path | None = None, model=None, axes=None
+) -> Figure:
     """The stick-slip map of a :class:`peeljax.sweeps.StickSlipMap` against V, three panels.
 
     (a) The forces at which the tape slips and re-sticks: the shear force G at every jump after
         the transient (one dot per distinct value and lane; reds: stick → slip, blues: slip →
         stick; filled: the first start, open: the second) over φ's fold forces φ(v̂, V) (where
         it slips) and φ(v̌, V) (where it re-sticks). The V range where φ(·, V) has no fold is
-        shaded and labelled.
+        shaded and labelled, from the V where the fold vanishes (a root solve on the model,
+        :func:`peeljax.analysis.fold_limit`; halfway between the samples where the model is
+        not known: a callable φ).
     (b) The repeat period T of the stick → slip events (markers) and the mean time between
         slips (lines), log time axis; below it, on its own axis, the number k of events per
         repeat; below that a strip with one row each for the stick-slip lanes without a repeat
@@ -112,9 +158,12 @@ def plot_stick_slip_map(smap, *, title: str | None = None, path: str | Path | No
         smap: the map (:func:`peeljax.sweeps.stick_slip_map`).
         title: a first title line (the settings follow on the next).
         path: when given, the figure is saved there (format from the suffix, PNG if none).
+        model: the model the map ran (default: the one its settings record).
+        axes: five matplotlib Axes to draw into (a figure of the user's): the forces, the
+            period, k per repeat, the status strip and the v amplitude; None: a new figure.
 
     Returns:
-        The figure.
+        The figure (the axes' when given).
     """
     V = np.asarray(smap.V, float)
     starts = tuple(smap.starts)
@@ -127,15 +176,17 @@ def plot_stick_slip_map(smap, *, title: str | None = None, path: str | Path | No
     room[order] = np.minimum(np.concatenate([[gaps[0]], gaps]), np.concatenate([gaps, [gaps[-1]]]))
     room = np.minimum(room, 0.04 * span)
 
-    fig = Figure(figsize=(12.5, 12.0), layout="constrained")
-    FigureCanvasAgg(fig)
-    ax_G, ax_T, ax_k, ax_S, ax_v = fig.subplots(5, 1, sharex=True, height_ratios=(1.0, 0.8, 0.3, 0.22, 1.1))
+    drawn = panels(
+        axes, 5, lambda fig: fig.subplots(5, 1, sharex=True, height_ratios=(1.0, 0.8, 0.3, 0.22, 1.1)),
+        figsize=(12.5, 12.0), what="the forces, the period, k per repeat, the status strip, the v amplitude",
+    )  # fmt: skip
+    ax_G, ax_T, ax_k, ax_S, ax_v = drawn.axes
     density = float(np.clip(60.0 / V.size, 0.45, 1.0))  # marker scale: smaller beyond 60 values of V
     margin = max(float(room.max()), 0.01 * span)
     x_lo = max(float(V.min()) - margin, 0.5 * float(V.min()))
     x_hi = float(V.max()) + margin
     shifts = [0.0] if len(starts) == 1 else np.linspace(-0.22, 0.22, len(starts))  # the starts side by side
-    no_fold = _spans(V, ~has_folds, x_lo, x_hi)
+    no_fold = _spans(V, ~has_folds, x_lo, x_hi, _fold_edge(_map_model(smap) if model is None else model))
     for ax in (ax_G, ax_T, ax_k, ax_S, ax_v):
         for a, b in no_fold:
             ax.axvspan(a, b, color=_NO_FOLD_COLOR, zorder=0, lw=0)
@@ -293,12 +344,11 @@ def plot_stick_slip_map(smap, *, title: str | None = None, path: str | Path | No
     ax_v.set_xlabel("pull velocity V [m/s]")
     ax_v.set_title("(c) the v amplitude: v on the stick and slip branches, seen at the jumps", fontsize=10, loc="left")
     ax_v.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, framealpha=0.95, borderaxespad=0)
-    no_fold_patch = Line2D([], [], color=_NO_FOLD_COLOR, lw=8, label="φ(·, V) has no fold")
+    limits = sorted({round(x, 6) for span in no_fold for x in span if x not in (x_lo, x_hi)})
+    where = f"\n(its maximum and minimum merge at V = {', '.join(f'{x:.4g}' for x in limits)} m/s)" if limits else ""
+    no_fold_patch = Line2D([], [], color=_NO_FOLD_COLOR, lw=8, label="φ(·, V) has no fold" + where)
     ax_G.add_artist(ax_G.legend(handles=[no_fold_patch], loc="lower left", bbox_to_anchor=(1.01, 0.0), fontsize=8,
                                 borderaxespad=0, framealpha=0.95))  # fmt: skip
     ax_G.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, framealpha=0.95, borderaxespad=0)
 
-    fig.suptitle(_heading(smap, title), fontsize=11)
-    if path is not None:
-        fig.savefig(path, dpi=130)
-    return fig
+    return drawn.finish(_heading(smap, title) if drawn.own or title else None, path, dpi=130, fontsize=11)
