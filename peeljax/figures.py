@@ -152,12 +152,17 @@ def _format_step(dt: float) -> str:
 
 def mesh_note(steps: str) -> str:
     """The note every figure of the paper's uniform-mesh runs carries (``steps``: its h in
-    words, e.g. "h = 1/82 s"): what the coarse mesh does to the runs."""
-    return (
-        f"α-method on the paper's uniform mesh, {steps}, stopping at a fold of φ (fold='stop'): "
-        "an oscillation that lasts is this coarse mesh's artefact,\nresolved (finer h or error control) the run ends "
-        "at the first fold; the model's stick-slip: runs through the folds (peeljax simulate --tau 0)"
+    words, e.g. "h = 1/82 s"): what the coarse mesh does to the runs, in lines that fit an
+    8-inch figure."""
+    import textwrap
+
+    lines = (
+        f"α-method on the paper's uniform mesh, {steps}, stopping at a fold of φ (fold='stop'):",
+        "an oscillation that lasts is this coarse mesh's artefact; resolved (finer h or error control) the run ends "
+        "at the first fold.",
+        "The model's stick-slip: runs through the folds (peeljax simulate --tau 0).",
     )
+    return "\n".join(textwrap.fill(line, 125) for line in lines)
 
 
 def _mark_uniform_mesh(fig: Figure, *dts: float, labels: tuple[str, ...] = ()) -> Figure:
@@ -351,7 +356,8 @@ def plot_bifurcation_diagram(diagram: BifurcationDiagram, *, ax=None, path=None)
     ax.set_ylabel("late extrema of v [m/s]")
     ax.set_title(f"Bifurcation diagram, τ = {diagram.tau:g} s (t ≥ {diagram.t_transient:g} s)")
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
+    # below the axes: inside, it hid the extrema at small V
+    drawn.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncols=2, fontsize=8)
     return drawn.finish(None, path, dpi=130)
 
 
