@@ -85,8 +85,17 @@ class JumpRecord(eqx.Module):
 
     At a fold, x = (α, ω, u) is unchanged (so are F and G = (1 + l·sinα/L)·F) and v jumps to
     the other stable root of G(x) = φ(v, V): stick → slip at φ's maximum (``up`` True),
-    slip → stick at its minimum (``up`` False). Slot k < ``count`` holds the k-th jump.
-    Under ``vmap`` every field gains a leading batch axis.
+    slip → stick at its minimum (``up`` False). Under ``vmap`` every field gains a leading
+    batch axis.
+
+    Two layouts (``ring``, static):
+
+    * a plain record (default): slot k < ``count`` holds the k-th jump; once the slots are
+      full nothing more is written (the loop stops the run at the next fold, ``MAX_JUMPS``);
+    * a ring buffer: the k-th jump goes to slot k mod ``max_jumps`` and ``count`` goes on, so
+      the slots hold the last :attr:`kept` = min(count, max_jumps) jumps and a run never stops
+      for a full record. :meth:`latest` gives them in time order, :meth:`slot_valid` says which
+      slots hold one.
 
     Attributes:
         t: jump times [s].
@@ -94,10 +103,14 @@ class JumpRecord(eqx.Module):
         v_before, v_after: v just before and just after the jump [m/s] (v_after = 0: the
             tape lands fully stuck, G below φ(0⁺, V)).
         G: the shear force G = (1 + l·sinα/L)·F at the jump [N] (continuous across it).
-        count: the number of jumps recorded.
+        count: the number of jumps recorded (a ring buffer: every jump of the run so far).
         F: the tape tension F = (k/l)·u at the jump [N] (what a load cell measures; F is
             continuous across the jump, maximal at stick → slip and minimal at slip → stick).
             None in a record built by hand without it.
+        ring: the ring-buffer layout (static; see above).
+        statistics: running statistics updated at every recorded jump
+            (:class:`~peeljax.integrators.cycle_accumulator.CycleAccumulator`: the cycle
+            statistics of a window, however many jumps it holds); None: none kept.
 
     Every float field carries derivatives: a jump's time by the implicit function theorem on
     its fold event, its forces and v through the state there (:mod:`peeljax.integrators.events`).
@@ -110,49 +123,107 @@ class JumpRecord(eqx.Module):
     G: Float[Array, " m"]
     count: Int[Array, ""]
     F: Float[Array, " m"] | None = None
+    ring: bool = eqx.field(static=True, default=False)
+    statistics: eqx.Module | None = None
 
     @classmethod
-    def empty(cls, max_jumps: int) -> "JumpRecord":
+    def empty(cls, max_jumps: int, *, ring: bool = False, statistics: eqx.Module | None = None) -> "JumpRecord":
         nan = jnp.full(max_jumps, jnp.nan)
         return cls(
-            t=nan, up=jnp.zeros(max_jumps, bool), v_before=nan, v_after=nan, G=nan, count=jnp.asarray(0, jnp.int32), F=nan
-        )
+            t=nan, up=jnp.zeros(max_jumps, bool), v_before=nan, v_after=nan, G=nan, count=jnp.asarray(0, jnp.int32), F=nan,
+            ring=ring, statistics=statistics,
+        )  # fmt: skip
 
     @property
     def max_jumps(self) -> int:
         return self.t.shape[-1]
 
+    @property
+    def kept(self) -> Int[Array, "..."]:
+        """How many slots hold a jump: min(count, max_jumps)."""
+        return jnp.minimum(self.count, self.max_jumps)
+
+    @property
+    def full(self) -> Bool[Array, "..."]:
+        """True when a plain record has no free slot (a ring buffer is never full)."""
+        if self.ring:
+            return jnp.zeros(jnp.shape(self.count), bool)
+        return self.count >= self.max_jumps
+
+    def slot_valid(self) -> Bool[Array, "... m"]:
+        """Which slots hold a jump (a ring buffer's slots fill in order, then all hold one)."""
+        return jnp.arange(self.max_jumps) < jnp.asarray(self.kept)[..., None]
+
+    def latest(self) -> "JumpRecord":
+        """The jumps the slots hold, in time order, as a plain record: slot k < its ``count``
+        (= :attr:`kept`) holds the k-th of them, the oldest first; NaN after. For a ring buffer
+        these are the last min(count, max_jumps) jumps of the run; a plain record is returned as
+        it is. ``statistics`` is left out."""
+        if not self.ring:
+            return dataclasses.replace(self, statistics=None)
+        m = self.max_jumps
+        count = jnp.asarray(self.count)[..., None]
+        # the oldest kept jump is number count − kept, in slot (count − kept) mod m
+        slots = (count - jnp.minimum(count, m) + jnp.arange(m)) % max(m, 1)
+        valid = self.slot_valid()
+
+        def ordered(array, fill):
+            if array is None:
+                return None
+            return jnp.where(valid, jnp.take_along_axis(array, slots, axis=-1), fill)
+
+        return JumpRecord(
+            t=ordered(self.t, jnp.nan), up=ordered(self.up, False), v_before=ordered(self.v_before, jnp.nan),
+            v_after=ordered(self.v_after, jnp.nan), G=ordered(self.G, jnp.nan), count=self.kept,
+            F=ordered(self.F, jnp.nan),
+        )  # fmt: skip
+
     def buffers(self) -> tuple:
-        """The slot arrays: written once each, in place, as buffers of a while loop."""
+        """The slot arrays: written in place, as buffers of a while loop (never read in it)."""
         return (self.t, self.up, self.v_before, self.v_after, self.G, self.F)
 
     def record(self, do: Bool[Array, ""], t, up, v_before, v_after, G, F=jnp.nan) -> "JumpRecord":
-        """This record with one more jump where ``do`` (nothing changes where not, or when full)."""
-        slot = jnp.minimum(self.count, self.max_jumps - 1)
-        write = do & (self.count < self.max_jumps)
+        """This record with one more jump where ``do`` (nothing changes where not, or when a
+        plain record is full); ``statistics`` see the jump too."""
+        if self.ring:
+            slot = self.count % max(self.max_jumps, 1)
+            write = jnp.asarray(do)
+            counted = write
+        else:
+            slot = jnp.minimum(self.count, self.max_jumps - 1)
+            write = do & (self.count < self.max_jumps)
+            counted = write
 
         def put(array, value):
+            if self.max_jumps == 0:
+                return array
             if isinstance(array, (jax.Array, np.ndarray)):
                 return array.at[slot].set(jnp.where(write, value, array[slot]))
-            # A buffer of equinox's while loop (written once per slot, never read in the loop).
+            # A buffer of equinox's while loop (written in place, never read in the loop).
             return array.at[slot].set(value, pred=write)
 
+        statistics = self.statistics
+        if statistics is not None:
+            statistics = statistics.add(write, t, up, v_before, v_after, G)
         return JumpRecord(
             t=put(self.t, t), up=put(self.up, up), v_before=put(self.v_before, v_before),
-            v_after=put(self.v_after, v_after), G=put(self.G, G), count=self.count + write,
-            F=None if self.F is None else put(self.F, F),
+            v_after=put(self.v_after, v_after), G=put(self.G, G), count=self.count + counted,
+            F=None if self.F is None else put(self.F, F), ring=self.ring, statistics=statistics,
         )  # fmt: skip
 
     def as_numpy(self) -> dict[str, np.ndarray]:
-        """The recorded jumps (first ``count`` slots) as host arrays, keyed ``jump_t``, ``jump_up``, …"""
-        n = int(np.asarray(self.count))
+        """The jumps the record holds, in time order, as host arrays keyed ``jump_t``,
+        ``jump_up``, … (a plain record: its first ``count`` slots; a ring buffer: its last
+        :attr:`kept` jumps, :meth:`latest`)."""
+        record = self.latest() if self.ring else self
+        n = int(np.asarray(record.count))
         return {
-            "jump_t": np.asarray(self.t)[:n],
-            "jump_up": np.asarray(self.up)[:n],
-            "jump_v_before": np.asarray(self.v_before)[:n],
-            "jump_v_after": np.asarray(self.v_after)[:n],
-            "jump_G": np.asarray(self.G)[:n],
-            **({} if self.F is None else {"jump_F": np.asarray(self.F)[:n]}),
+            "jump_t": np.asarray(record.t)[:n],
+            "jump_up": np.asarray(record.up)[:n],
+            "jump_v_before": np.asarray(record.v_before)[:n],
+            "jump_v_after": np.asarray(record.v_after)[:n],
+            "jump_G": np.asarray(record.G)[:n],
+            **({} if record.F is None else {"jump_F": np.asarray(record.F)[:n]}),
         }
 
 

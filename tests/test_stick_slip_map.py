@@ -95,13 +95,13 @@ def test_dae_jumps_at_the_fold_forces(smap):
     for start in smap.starts:
         for i in range(len(V_MAP)):
             G, up = smap.jump_forces(start, i)
-            assert G.size == smap.jumps[smap.row(start), i]
+            assert G.size == min(smap.jumps[smap.row(start), i], 64)  # the jumps each lane kept
             if G.size == 0:
                 continue
             np.testing.assert_allclose(G[up], smap.phi_max[i], rtol=1e-6)
             np.testing.assert_allclose(G[~up], smap.phi_min[i], rtol=1e-6)
             checked += G.size
-    assert checked > 200
+    assert checked > 100
     s = smap.row("paper")
     np.testing.assert_allclose(smap.G_slip_max[s, 1:3], smap.phi_max[1:3], rtol=1e-6)
     np.testing.assert_allclose(smap.G_stick_min[s, 1:3], smap.phi_min[1:3], rtol=1e-6)
@@ -121,6 +121,61 @@ def test_a_lane_is_its_sweep(smap):
     stats = result.cycle_statistics(1, transient=1.5)
     assert smap.jumps[s, 1] == stats.jumps and smap.slips[s, 1] == stats.slips
     assert smap.slip_interval[s, 1] == pytest.approx(stats.slip_interval.mean, rel=1e-12)
+
+
+def _alone(V: float, start: str, transient: float, t_final: float, rtol: float = 1e-3) -> dict:
+    """The map's fields of one lane from the run alone (``simulate``, its whole record) by the
+    map's definitions: :func:`peeljax.cycle_statistics` after the transient, the repeat of at
+    most 32 events, else searched on the later half and quarter of the stick → slip times (each
+    at most the last 65)."""
+    from peeljax import cycle_statistics, simulate
+    from peeljax.cycles import repeat_pattern
+    from peeljax.model import PAPER_ALPHA0
+
+    model = PeelingModel()
+    y0 = None if start == "paper" else model.consistent_state(V, PAPER_ALPHA0, V / model.R, V)
+    sol = simulate(model, V=V, tau=0.0, t_final=t_final, y0=y0, ts=np.array([0.0, t_final]), adjoint="forward",
+                   max_jumps=8192, max_steps=1_000_000)  # fmt: skip
+    stats = cycle_statistics(sol, float(sol.t_stop), transient=transient, rtol=rtol)
+    t, up = (np.asarray(a)[: int(sol.jumps.count)] for a in (sol.jumps.t, sol.jumps.up))
+    up_times = t[(t >= transient) & up]
+    repeat = stats.repeat if stats.repeat is not None and stats.repeat.events <= 32 else None
+    if repeat is None and up_times.size >= 5:
+        for fraction in (2, 4):
+            repeat = repeat_pattern(up_times[up_times.size - min(up_times.size // fraction, 65) :], rtol=rtol)
+            if repeat is not None and repeat.events <= 32:
+                break
+            repeat = None
+    return {
+        "status": int(sol.status), "jumps_total": int(sol.jumps.count), "jumps": stats.jumps, "slips": stats.slips,
+        "events": 0 if repeat is None else repeat.events, "repeats": 0 if repeat is None else repeat.repeats,
+        "period": math.nan if repeat is None else repeat.period, "slip_interval": stats.slip_interval.mean,
+        "stick_duration": stats.stick_duration.mean, "slip_duration": stats.slip_duration.mean,
+        "force_drop": stats.force_drop.mean, "G_slip_min": stats.G_slip.min, "G_slip_max": stats.G_slip.max,
+        "G_stick_min": stats.G_stick.min, "G_stick_max": stats.G_stick.max, "stick_fraction": stats.stick_fraction,
+        "v_stick_min": stats.v_stick[0], "v_stick_max": stats.v_stick[1], "v_slip_min": stats.v_slip[0],
+        "v_slip_max": stats.v_slip[1],
+    }  # fmt: skip
+
+
+@pytest.mark.slow
+def test_the_maps_statistics_are_those_of_its_lanes_run_alone(smap):
+    """Every lane of the map (statistics accumulated in the loop, the last 64 jumps kept) against
+    the same run alone with its whole record: counts and repeats exactly, the rest to 1e-6 (the
+    lane and the run alone are compiled apart: their cycles drift apart by rounding)."""
+    compared = 0
+    for s, start in enumerate(smap.starts):
+        for i, V in enumerate(V_MAP):
+            want = _alone(V, start, smap.transient, smap.t_final)
+            for name, value in want.items():
+                got = getattr(smap, name)[s, i]
+                if isinstance(value, int):
+                    assert got == value, (start, V, name)
+                else:
+                    np.testing.assert_allclose(got, value, rtol=1e-6, err_msg=f"{start} {V} {name}")
+            compared += want["jumps"]
+    assert compared > 500  # jumps in the windows (826 measured)
+    assert smap.events[smap.row("paper"), 2] == 22 and smap.repeats[smap.row("paper"), 2] >= 2
 
 
 @pytest.mark.slow
@@ -252,6 +307,7 @@ def test_hand_made_map_summary_and_figure(tmp_path):
         ({"grid": "outer"}, ("stick_slip_map sets grid itself",)),
         ({"rtol": 2.0}, ("rtol",)),
         ({"max_jumps": 0}, ("max_jumps must be a positive integer",)),
+        ({"window": (0.2, 1.0)}, ("window starts at 0.6 s, not at transient = 1.5 s",)),
     ],
 )
 def test_map_refuses_bad_input_before_compiling(kwargs, words, no_compilation):

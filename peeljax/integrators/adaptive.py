@@ -144,7 +144,7 @@ def _at_fold(
         if events.mode == "stop":
             stopped = eqx.tree_at(lambda s: (s.y, s.psi, s.J, s.drive), new, (y_fold, event.psi, event.J, event.drive))
             return stopped, fold_event(ode, y_fold), jumps, jnp.asarray(StopReason.FOLD, jnp.int32), end
-        full = jumps.count >= events.max_jumps
+        full = jumps.full  # (a ring buffer never is)
         jump = ode.jump(y_fold)
         y = jnp.where(full, y_fold, jump.y)
         restarted = stepper.restart(ode, fold.t, y, new)
@@ -258,7 +258,7 @@ def adaptive_loop(
         h_max=jnp.asarray(0.0),
         record=observer.init(t0, state0.y, state0.J, state0.status == 0),
         g=jnp.zeros(()) if events is None else fold_event(ode, state0.y),
-        jumps=None if events is None else JumpRecord.empty(events.max_jumps),
+        jumps=None if events is None else events.empty_record(),
         reference=state0.y,
         g_scale=jnp.zeros(()) if events is None else jnp.abs(reference_event(state0.y)),
         cut_steps=zero,

@@ -45,6 +45,8 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from .._arrays import float_array
+from ..solution import JumpRecord
+from .cycle_accumulator import CycleAccumulator
 
 __all__ = ["FOLD_MODES", "FoldEvents", "FoldHit", "event_rate", "find_fold", "fold_event", "fold_fraction", "locate_fold"]
 
@@ -53,25 +55,43 @@ _BISECTIONS = 60
 
 
 class FoldEvents(eqx.Module):
-    """What a run does at a fold of φ (module docstring).
+    """What a run does at a fold of φ (module docstring), and what it keeps of its jumps.
 
     Attributes:
         mode: ``"jump"``, ``"stop"`` or ``"follow"`` (static).
-        max_jumps: the jump record's size (static); one more jump stops the run with
-            ``MAX_JUMPS``, keeping what it computed.
+        max_jumps: the jump record's size (static). A plain record (default): one more jump
+            stops the run at that fold, before the jump (``MAX_JUMPS``, the state there),
+            keeping what it computed. A ring buffer (``ring``): the last ``max_jumps`` jumps are
+            kept and the run goes on.
         time_tol: an impasse predicted closer than this [s] is taken as reached.
+        ring: the record is a ring buffer (static; :class:`~peeljax.JumpRecord`): a run never
+            stops for a full record. Sweeps and stick-slip maps use it.
+        statistics: cycle statistics accumulated at every jump over a window
+            (:class:`~peeljax.integrators.cycle_accumulator.CycleAccumulator`, as made by its
+            ``over``); the record carries them (``JumpRecord.statistics``). None: none.
     """
 
     mode: str = eqx.field(static=True, default="jump")
     max_jumps: int = eqx.field(static=True, default=10_000)
     time_tol: Array = eqx.field(converter=float_array, default=1e-10)
+    ring: bool = eqx.field(static=True, default=False)
+    statistics: CycleAccumulator | None = None
 
     def __check_init__(self):
         check_fold(self.mode)
         check_max_jumps(self.max_jumps)
+        if not isinstance(self.ring, bool):
+            raise ValueError(f"ring must be True or False, got {self.ring!r}")
+
+    def empty_record(self) -> JumpRecord:
+        """The record a run starts with: ``max_jumps`` empty slots (a ring buffer if ``ring``)."""
+        return JumpRecord.empty(self.max_jumps, ring=self.ring, statistics=self.statistics)
 
     def settings(self) -> dict:
-        return {"fold": self.mode, "max_jumps": self.max_jumps, "event_time_tol": float(self.time_tol)}
+        settings = {"fold": self.mode, "max_jumps": self.max_jumps, "event_time_tol": float(self.time_tol)}
+        if self.ring:  # (a plain record's settings stay as they were: saved runs compare them)
+            settings["jump_record"] = "ring"
+        return settings
 
 
 def check_fold(fold) -> None:

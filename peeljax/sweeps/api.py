@@ -32,6 +32,7 @@ from .devices import batch_mesh, deal, default_lane_batch, put_lanes, to_host
 from .distributed import check_same_settings, is_multiprocess, open_shared_store
 from .grid import axis, check_window, trajectories
 from .integrators import sweep_plan
+from .lane_cycles import CYCLE_BYTES, CYCLE_KEYS, cycle_arrays, sweep_cycle_statistics
 from .storage import FORMAT, VERSION, ChunkStore, check_writable_format
 
 __all__ = ["PER_TRAJECTORY_KEYS", "SweepResult", "sweep", "sweep_settings"]
@@ -123,22 +124,18 @@ class SweepResult:
     settings: dict
     computed_chunks: tuple[int, ...] = ()
     jumps: dict[str, np.ndarray] | None = None
+    cycles: dict[str, np.ndarray] | None = None  # the window's cycle statistics per lane (keys CYCLE_KEYS)
     peeljax_version: str | None = None  # of the peeljax that wrote the file it was loaded from
 
     def __len__(self) -> int:
         return int(self.V.shape[0])
 
     def cycle_statistics(self, index: int, transient: float | None = None, **kwargs):
-        """:func:`peeljax.cycle_statistics` of lane ``index`` over [transient, t_stop] (default
-        transient: the window's start), the same function a single run's record takes."""
-        from ..cycles import cycle_statistics
-
-        if self.jumps is None:
-            raise ValueError("this sweep located no folds (fold='stop' or dt given): it has no jump records")
-        if transient is None:
-            transient = self.settings["window"][0] * self.settings["t_final"]
-        lane = {key: self.jumps[key][index] for key in JUMP_KEYS}
-        return cycle_statistics(lane, float(self.t_stop[index]), transient=transient, **kwargs)
+        """The :class:`~peeljax.cycles.CycleStatistics` of lane ``index``: over the window
+        (``transient`` None) from the sums its loop kept, what :func:`peeljax.cycle_statistics`
+        gives for the run's whole record; another ``transient`` from its kept jumps, where they
+        hold all after it (:func:`peeljax.sweeps.lane_cycles.sweep_cycle_statistics`)."""
+        return sweep_cycle_statistics(self, index, transient, **kwargs)
 
     @property
     def reasons(self) -> list[str]:
@@ -160,6 +157,8 @@ class SweepResult:
             out["ts"], out["ys"] = np.asarray(self.ts), np.asarray(self.ys)
         if self.jumps is not None:
             out.update(self.jumps)
+        if self.cycles is not None:
+            out.update(self.cycles)
         return out
 
     # ------------------------------------------------------------------ labelled data and files
@@ -330,8 +329,9 @@ def sweep(
             (:func:`default_lane_batch`). It changes the speed, not the steps taken.
         fold: what happens at a fold of φ, as in :func:`peeljax.simulate` (default: ``"jump"``
             under error control); each lane's jumps are kept (``result.jumps``).
-        max_jumps: slots of each lane's jump record (default 2048); a lane that needs more
-            stops with that reason.
+        max_jumps: each lane keeps its last ``max_jumps`` jumps (a ring buffer, default 64;
+            ``result.jumps``); the cycle statistics of the window are accumulated in the loop
+            over all of its jumps (``result.cycles``), and no lane stops for a full record.
         start: each lane's initial state: ``"paper"`` (the paper's, the tape at rest) or
             ``"steady"`` (steady peeling, v = V): stick-slip and steady peeling coexist for
             some V, so the start decides which one a lane shows.
@@ -379,7 +379,7 @@ def sweep(
 
     # Memory: every saved state of every trajectory is returned in host memory.
     n_save = plan.save_count()  # counted, not made: the check comes before the arrays
-    jump_bytes = 0 if plan.max_jumps is None else plan.max_jumps * 5 * 8
+    jump_bytes = 0 if plan.max_jumps is None else plan.max_jumps * 5 * 8 + CYCLE_BYTES
     total = n * (n_save * 4 * 8 + jump_bytes + _BYTES_PER_TRAJECTORY)
     if plan.uniform:
         fewer = f"a larger save_every{'' if save_every is None else f', now {save_every}'}, or none"
@@ -399,7 +399,7 @@ def sweep(
     n_chunks = -(-n // chunk)
     sizes = [min(chunk, n - i * chunk) for i in range(n_chunks)]
     keys = tuple(_SUMMARY_FIELDS) + (("ys",) if save_ts is not None else ())
-    keys += JUMP_KEYS if plan.max_jumps is not None else ()
+    keys += JUMP_KEYS + CYCLE_KEYS if plan.max_jumps is not None else ()
     store = None
     chunks: list[dict | None] = [None] * n_chunks
     if multiprocess:
@@ -466,12 +466,15 @@ def sweep(
 def _summary_field(summary, key: str):
     if key in _JUMP_FIELDS:
         return getattr(summary.jumps, _JUMP_FIELDS[key])
+    if key in CYCLE_KEYS:
+        return cycle_arrays(summary.cycles)[key]
     return getattr(summary, key)
 
 
 def _result(arrays, Vs, taus, params, save_ts, t_final, window, grid_shape, settings, computed) -> SweepResult:
     status = np.asarray(arrays["status"], dtype=np.int32)
     jumps = {key: np.asarray(arrays[key]) for key in JUMP_KEYS} if "jump_count" in arrays else None
+    cycles = {key: np.asarray(arrays[key]) for key in CYCLE_KEYS} if CYCLE_KEYS[0] in arrays else None
     summaries = {key: np.asarray(arrays[key]) for key in _SUMMARY_FIELDS if key != "status"}
     w0, w1 = window[0] * float(t_final), window[1] * float(t_final)
     window_time = np.clip(np.minimum(summaries["t_stop"], w1) - w0, 0.0, None)
@@ -488,6 +491,7 @@ def _result(arrays, Vs, taus, params, save_ts, t_final, window, grid_shape, sett
         settings=settings,
         computed_chunks=computed,
         jumps=jumps,
+        cycles=cycles,
         **{key: value for key, value in summaries.items() if key != "completed"},
     )
 

@@ -20,9 +20,12 @@ inside the compiled loop, over the window W = [w0·t_final, w1·t_final]:
   (accepted and rejected steps, Newton iterations, the uniform mesh's subdivided steps);
 * saved states (optional): at given times by the dense output (:class:`DenseOutput`), or
   every k-th mesh point (:class:`EveryNthPoint`); memory O(saved points), never O(steps);
-* where the runs go through the folds of φ (error control, ``fold="jump"``): the lane's jump
-  record (:class:`~peeljax.JumpRecord`, ``max_jumps`` slots, filled inside the loop), from
-  which the host computes the cycle statistics with :func:`peeljax.cycle_statistics`.
+* where the runs go through the folds of φ (error control, ``fold="jump"``): the cycle
+  statistics of the window W, accumulated at each jump inside the loop
+  (:class:`~peeljax.integrators.cycle_accumulator.CycleAccumulator`: the definitions of
+  :func:`peeljax.cycle_statistics`, however many jumps W holds), and the lane's last
+  ``max_jumps`` jumps (a ring buffer, :class:`~peeljax.JumpRecord`): a lane never stops for
+  a full record, and holds O(max_jumps) numbers however long it runs.
 
 Lanes run in groups of ``lane_batch`` under ``vmap``, the groups one after another
 (``lax.map``): a ``vmap``ped while loop runs until its slowest lane is done, so with error
@@ -37,6 +40,8 @@ range gives v̂ = inf (no events).
 
 from __future__ import annotations
 
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -45,6 +50,7 @@ from jaxtyping import Array, Float, Int
 from ..adhesion import COEFFICIENT_NAMES
 from ..constrained import ConstrainedDAE
 from ..homogenized import HomogenizedODE
+from ..integrators.cycle_accumulator import CycleAccumulator
 from ..integrators.log_variables import from_log
 from ..integrators.base import AbstractIntegrator
 from ..integrators.observers import Observer, Observers
@@ -56,6 +62,7 @@ __all__ = [
     "MODEL_PARAMETERS",
     "STARTS",
     "BatchSummary",
+    "keep_last_jumps",
     "PointStatistics",
     "WindowStatistics",
     "run_batch",
@@ -94,7 +101,29 @@ class BatchSummary(eqx.Module):
     accepted_steps: Int[Array, " B"]
     rejected_steps: Int[Array, " B"]
     ys: Float[Array, "B S 4"] | None
-    jumps: JumpRecord | None = None  # each lane's jump record (B × max_jumps slots) where folds are located
+    # Where folds are located: each lane's last max_jumps jumps in time order (slots below
+    # min(count, max_jumps)), ``count`` its total, and the window's cycle statistics
+    # (CycleAccumulator.finish: name → (B, …) arrays).
+    jumps: JumpRecord | None = None
+    cycles: dict[str, Array] | None = None
+
+
+def keep_last_jumps(integrator: AbstractIntegrator) -> AbstractIntegrator:
+    """``integrator`` with its jump record a ring buffer (:class:`~peeljax.JumpRecord`): each
+    lane keeps its last ``max_jumps`` jumps and never stops for a full record. Unchanged
+    where no fold is located."""
+    events = getattr(integrator, "events", None)
+    if events is None:
+        return integrator
+    return dataclasses.replace(integrator, events=dataclasses.replace(events, ring=True))
+
+
+def _with_cycle_window(integrator: AbstractIntegrator, w0, w1) -> AbstractIntegrator:
+    """``integrator`` accumulating the cycle statistics of [w0, w1] at every jump."""
+    events = getattr(integrator, "events", None)
+    if events is None:
+        return integrator
+    return dataclasses.replace(integrator, events=dataclasses.replace(events, statistics=CycleAccumulator.over(w0, w1)))
 
 
 def with_parameters(model: PeelingModel, params: dict[str, Array]) -> PeelingModel:
@@ -319,6 +348,7 @@ def _lane(
     ``dae``: τ = 0, the DAE itself (:class:`~peeljax.ConstrainedDAE`); ``start``: see
     :func:`initial_state`."""
     model = with_parameters(model, params)
+    integrator = _with_cycle_window(integrator, window[0] * t_final, window[1] * t_final)
     ode = ConstrainedDAE(model, V) if dae else HomogenizedODE(model, V, tau, truncation)
     v_slip = slip_velocity(model, ode.V)
     carried_log = integrator.carried_log
@@ -327,13 +357,15 @@ def _lane(
     observers = (statistics,) if save is None else (statistics, save)
     run = integrator.observe(ode, initial_state(model, ode.V, start), 0.0, t_final, Observers(observers))
     summary = statistics.summary(run.record[0])
-    if dae and run.jumps is not None:
+    jumps, cycles = run.jumps, None
+    if jumps is not None:
+        cycles = jumps.statistics.finish(run.t_stop)
+        # the slots in time order; count stays the lane's total
+        jumps = eqx.tree_at(lambda r: r.count, jumps.latest(), jumps.count)
+    if dae and cycles is not None:
         # The DAE's v never crosses v̂ (its stick branch ends there): its slips are its
         # stick → slip jumps. (The homogenized ODE's v rises through v̂ before J_t → 0: a crossing.)
-        jumps = run.jumps
-        slot = jnp.arange(jumps.max_jumps)
-        in_window = (jumps.t >= window[0] * t_final) & (jumps.t <= window[1] * t_final)
-        summary["events"] = jnp.sum(jumps.up & in_window & (slot < jumps.count)).astype(summary["events"].dtype)
+        summary["events"] = cycles["slips"].astype(summary["events"].dtype)
     ys = None
     if save is not None:
         out = run.record[1]
@@ -350,7 +382,8 @@ def _lane(
         accepted_steps=run.accepted_steps,
         rejected_steps=run.rejected_steps,
         ys=ys,
-        jumps=run.jumps,
+        jumps=jumps,
+        cycles=cycles,
     )
 
 

@@ -1,8 +1,11 @@
 """The stick-slip map over V: which pull velocities stick-slip, at which forces, how regularly.
 
 :func:`stick_slip_map` runs one :func:`peeljax.sweep` per starting state (``grid="pairs"``
-over V, one τ, runs carried through the folds of φ) and reduces each lane's jump record to its
-cycle statistics after a transient (:func:`peeljax.cycle_statistics`, on the host). The result,
+over V, one τ, runs carried through the folds of φ); each lane accumulates its cycle statistics
+after a transient inside its loop, at every jump (the definitions of
+:func:`peeljax.cycle_statistics`, :mod:`peeljax.integrators.cycle_accumulator`), and keeps only
+its last ``max_jumps`` jumps (a ring buffer): no lane stops for a full record, and a lane costs
+a few kilobytes however many jumps it makes (``docs/sweeps.md``). The result,
 a :class:`StickSlipMap`, is the classic picture of the field as numbers: for each V and start,
 whether the run stick-slips once settled, the forces at which the tape slips and re-sticks (the
 bifurcation diagram of the force), the repeat of the stick → slip events, the time between
@@ -16,9 +19,10 @@ the map keeps one row per start. :func:`peeljax.plots.plot_stick_slip_map` draws
 Definitions (per V and start, over the lane's window [window_start, t_stop]; see
 :mod:`peeljax.cycles`):
 
-* **window_start**: the transient; for a run that stopped before it (``max_steps``,
-  ``max_jumps``: a fast cycle can take many steps) the later half of what it ran, t_stop/2 —
-  such lanes are not completed (``status``) and say what the run was doing when it stopped.
+* **window_start**: the transient; for a run that stopped before it (``max_steps``: a fast
+  cycle can take many steps) the later half of what it ran, t_stop/2, or the later part of it
+  whose jumps the lane kept (its last ``max_jumps``) — such lanes are not completed
+  (``status``) and say what the run was doing when it stopped.
 * **jumps_total**: every jump of the run, transient included.
 * **jumps**, **slips**: the jumps of v in the window, and the stick → slip ones among them.
 * **crossings**: the sweep's ``events`` over its window: for τ > 0 the upward crossings of v̂
@@ -26,14 +30,15 @@ Definitions (per V and start, over the lane's window [window_start, t_stop]; see
   whose v never crosses v̂, the sweep counts the stick → slip jumps there (= ``slips``).
 * **stick_slip**: ``jumps > 0`` or ``crossings > 0``: the run still slips once the transient is
   over. The cycle statistics below read the jumps only (for τ > 0, smooth passages are left out).
-* **jump_G**, **jump_up**: the shear force G = (1 + l·sinα/L)·F at every jump in the window and
-  its direction (True: stick → slip). For τ = 0 (the DAE itself) G is φ(v̂, V) at a stick → slip
+* **jump_G**, **jump_up**: the shear force G = (1 + l·sinα/L)·F at the jumps in the window that
+  the lane kept (its last ``max_jumps``) and their direction (True: stick → slip). For τ = 0 (the DAE itself) G is φ(v̂, V) at a stick → slip
   jump and φ(v̌, V) at a slip → stick one.
 * **G_slip_min/max**, **G_stick_min/max**: the range of G at the stick → slip / slip → stick jumps.
 * **period**, **events**, **repeats**: the repeat of the stick → slip events
-  (:func:`peeljax.cycles.repeat_pattern`, ``repeat_rtol``): ``events`` of them every ``period``
-  seconds, ``repeats`` full repeats seen; NaN, 0, 0 where none is found ("irregular").
-  ``repeat_start`` is the time of the first event the repeat was matched from (see ``settle``).
+  (:func:`peeljax.cycles.repeat_pattern`, ``repeat_rtol``) of at most 32 events per period
+  (``MAX_REPEAT_EVENTS``): ``events`` of them every ``period`` seconds, ``repeats`` full repeats
+  seen; NaN, 0, 0 where none is found ("irregular"). ``repeat_start`` is the time of the first
+  event the repeat was matched from (see ``settle``).
 * **slip_interval**, **stick_duration**, **slip_duration**, **force_drop**: means over the window.
 * **stick_fraction**: the fraction of the window spent on the stick branch.
 * **v_stick_min/max**, **v_slip_min/max**: the range of v on the stick branch (lowest landing v
@@ -44,7 +49,7 @@ Definitions (per V and start, over the lane's window [window_start, t_stop]; see
   [transient, t_stop] (the run's time-mean, minimum and maximum of v, jumps or not; for a
   steadily peeling run v ≈ V; NaN for a run that stopped before the window).
 * **status**, **t_stop**: how and when each run ended (:class:`peeljax.StopReason` codes). A run
-  that stopped early (``max_jumps``, ``max_steps``) is summarized up to t_stop (see window_start).
+  that stopped early (``max_steps``) is summarized up to t_stop (see window_start).
 * **phi_max**, **phi_min**, **v_max**, **v_min** (per V): φ's maximum φ(v̂, V) at v̂ and minimum
   φ(v̌, V) at v̌ (:func:`peeljax.phi_folds`); NaN where φ(·, V) has no fold (the paper's φ loses
   its folds between V = 5 and 5.5 m/s).
@@ -62,10 +67,13 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from jaxtyping import ArrayLike
 
-from ..cycles import repeat_pattern
+from ..cycles import cycle_statistics, repeat_pattern
+from ..integrators.cycle_accumulator import KEPT_SLIPS, MAX_REPEAT_EVENTS
 from ..model import PeelingModel
 from ..saved import register_reader
 from ..solution import StopReason
+from .grid import check_window
+from .lane_cycles import kept_slip_times, kept_window_start, repeat_table
 
 __all__ = ["DEFAULT_V", "FOLD_FIELDS", "LANE_FIELDS", "STARTS", "StickSlipMap", "stick_slip_map"]
 
@@ -122,9 +130,9 @@ class StickSlipMap:
         transient: the statistics cover ``[transient, t_stop]`` [s] (``window_start``: per lane).
         status … v_hi: the per-lane fields of :data:`LANE_FIELDS`, shape (len(starts), m):
             int for status, jumps, slips, events and repeats, else float (NaN: no such value).
-        jump_G, jump_up: G [N] at every jump in the window and its direction (True: stick →
-            slip), shape (len(starts), m, J), J the most jumps in any lane's window; padded with
-            NaN / False after each lane's ``jumps`` entries (:meth:`jump_forces` gives a lane's).
+        jump_G, jump_up: G [N] at the jumps in the window each lane kept (its last
+            ``max_jumps``) and their direction (True: stick → slip), shape (len(starts), m, J), J
+            the most in any lane; padded with NaN / False (:meth:`jump_forces` gives a lane's).
         phi_max, phi_min, v_max, v_min: φ's folds per V, shape (m,), NaN where φ has none.
         settings: what determined the map: the sweep's settings (JSON-able) and the map's own.
         wall_time: seconds the sweeps and statistics took.
@@ -210,9 +218,10 @@ class StickSlipMap:
         return self.starts.index(start)
 
     def jump_forces(self, start: str, index: int) -> tuple[np.ndarray, np.ndarray]:
-        """(G, up) of the jumps in the window of lane ``index`` from ``start``, in time order."""
+        """(G, up) of the jumps in the window of lane ``index`` from ``start`` that the lane kept
+        (its last ``max_jumps``), in time order."""
         s = self.row(start)
-        n = int(self.jumps[s, index])
+        n = int(np.count_nonzero(~np.isnan(self.jump_G[s, index])))
         return self.jump_G[s, index, :n].copy(), self.jump_up[s, index, :n].copy()
 
     def stick_slip_ranges(self, start: str) -> list[tuple[float, float]]:
@@ -457,80 +466,150 @@ def check_map_options(V, tau, t_final, transient, starts, fold, repeat_rtol, swe
         raise ValueError("out: the map runs one sweep per start; save the map itself (StickSlipMap.save)")
     if sweep_kwargs.get("params"):
         raise ValueError("params: the map runs over V only; give the model with the parameters set")
+    window = sweep_kwargs.get("window")
+    if window is not None:
+        w0, _ = check_window(window)
+        if not math.isclose(w0 * t_final, transient, rel_tol=1e-12, abs_tol=1e-15):
+            raise ValueError(
+                f"window starts at {w0 * t_final:g} s, not at transient = {transient:g} s: the lanes accumulate their "
+                "cycle statistics over the sweep's window, so its start is the transient "
+                f"(give window=({transient / t_final:g}, w1), or transient={w0 * t_final:g})"
+            )
     return V, tau, t_final, transient, starts
 
 
+_FOLD_BLOCK = 4096  # V per compiled call of the fold search (smaller maps: the next power of two)
+
+
 def fold_table(model: PeelingModel, V: np.ndarray) -> dict[str, np.ndarray]:
-    """φ's folds per V (host arrays): phi_max, phi_min, v_max, v_min (NaN where none)."""
+    """φ's folds per V (host arrays): phi_max, phi_min, v_max, v_min (NaN where none).
+
+    V goes in blocks of a power of two (at most 4096, the last block padded), so that maps of
+    any size share a few compiled searches."""
+    V = np.asarray(V, float)
+    block = min(_FOLD_BLOCK, 1 << max(4, (V.size - 1).bit_length()))
+    padded = np.concatenate([V, np.full(-V.size % block, V[-1])])
+    parts = [_folds(model, padded[i : i + block]) for i in range(0, padded.size, block)]
+    return {name: np.concatenate([np.asarray(getattr(p, name), float) for p in parts])[: V.size] for name in FOLD_FIELDS}
+
+
+def _folds(model: PeelingModel, V: np.ndarray):
     import equinox as eqx
     import jax
 
     from ..branches import phi_folds
 
-    folds = eqx.filter_jit(jax.vmap(phi_folds, in_axes=(None, 0)))(model, np.asarray(V, float))
-    return {name: np.asarray(getattr(folds, name), float) for name in FOLD_FIELDS}
+    return eqx.filter_jit(jax.vmap(phi_folds, in_axes=(None, 0)))(model, V)
 
 
-def _lane_statistics(result, index: int, transient: float, repeat_rtol: float, settle: bool) -> dict:
-    """The per-lane fields of one lane of a sweep, plus its (G, up) in the window."""
+def _capped(repeat):
+    """A repeat of at most MAX_REPEAT_EVENTS events per period (the longest the lanes search), else None."""
+    return repeat if repeat is not None and repeat.events <= MAX_REPEAT_EVENTS else None
+
+
+def _settled(kept: np.ndarray, n: int, rtol: float):
+    """The repeat on the later half, then the later quarter, of a window's n stick → slip events,
+    each at most the last KEPT_SLIPS (a lane keeps no more), with its first time; (None, NaN) if
+    none. ``kept``: the last min(n, KEPT_SLIPS) or more of the window's stick → slip times."""
+    if n < 5:
+        return None, math.nan
+    for fraction in (2, 4):
+        tail = kept[kept.size - min(n // fraction, KEPT_SLIPS) :]
+        repeat = _capped(repeat_pattern(tail, rtol=rtol))
+        if repeat is not None:
+            return repeat, float(tail[0])
+    return None, math.nan
+
+
+def _early_lane(result, index: int, repeat_rtol: float, settle: bool) -> dict:
+    """A lane that stopped before the transient: summarized over the later half of what it ran,
+    [t_stop/2, t_stop], or the part of it whose jumps the lane kept (its last max_jumps)."""
     t_stop = float(result.t_stop[index])
-    count = int(result.jumps["jump_count"][index])
-    # A run that stopped before the transient: the later half of what it ran.
-    start = transient if transient < t_stop else 0.5 * t_stop
-    lane = {
-        "status": int(result.status[index]),
-        "t_stop": t_stop,
-        "window_start": start,
-        "jumps_total": count,
-        "crossings": int(result.events[index]),
-        "v_mean": float(result.v_mean[index]),
-        "v_lo": float(result.v_min[index]),
-        "v_hi": float(result.v_max[index]),
-    }
-    t = result.jumps["jump_t"][index, :count]
-    inside = (t >= start) & (t <= t_stop)
-    G = result.jumps["jump_G"][index, :count][inside]
-    up = result.jumps["jump_up"][index, :count][inside].astype(bool)
-    lane.update({name: math.nan for name in LANE_FIELDS if name not in lane and name not in _INT_FIELDS})
-    lane.update(jumps=0, slips=0, events=0, repeats=0)  # crossings: set above
-    if not 0 < t_stop:  # stopped at once: nothing to summarize
-        return lane | {"G": G[:0], "up": up[:0]}
-    stats = result.cycle_statistics(index, transient=start, rtol=repeat_rtol)
-    repeat, repeat_start = stats.repeat, math.nan
-    up_times = t[inside][up]
+    start = max(0.5 * t_stop, kept_window_start(result.jumps, index))
+    lane = {name: math.nan for name in _CYCLE_FIELDS} | {"window_start": start, "jumps": 0, "slips": 0,
+                                                         "events": 0, "repeats": 0}  # fmt: skip
+    if not 0 < t_stop or not start < t_stop:  # stopped at once: nothing to summarize
+        return lane
+    record = {key: result.jumps[key][index] for key in result.jumps}
+    stats = cycle_statistics(record, t_stop, transient=start, rtol=repeat_rtol)
+    repeat, repeat_start = _capped(stats.repeat), math.nan
+    t, up = np.asarray(record["jump_t"], float), np.asarray(record["jump_up"], bool)
+    up_times = t[: min(int(record["jump_count"]), t.size)]
+    up_times = up_times[(up_times >= start) & up[: up_times.size]]
     if repeat is not None:
         repeat_start = float(up_times[0])
-    elif settle and up_times.size >= 5:
+    elif settle:
+        repeat, repeat_start = _settled(up_times, up_times.size, repeat_rtol)
+    return lane | {
+        "jumps": stats.jumps, "slips": stats.slips, "G_slip_min": stats.G_slip.min, "G_slip_max": stats.G_slip.max,
+        "G_stick_min": stats.G_stick.min, "G_stick_max": stats.G_stick.max,
+        "period": math.nan if repeat is None else repeat.period, "events": 0 if repeat is None else repeat.events,
+        "repeats": 0 if repeat is None else repeat.repeats, "repeat_start": repeat_start,
+        "slip_interval": stats.slip_interval.mean, "stick_duration": stats.stick_duration.mean,
+        "slip_duration": stats.slip_duration.mean, "force_drop": stats.force_drop.mean,
+        "stick_fraction": stats.stick_fraction, "v_stick_min": stats.v_stick[0], "v_stick_max": stats.v_stick[1],
+        "v_slip_min": stats.v_slip[0], "v_slip_max": stats.v_slip[1],
+    }  # fmt: skip
+
+
+# The map's cycle fields, from a lane's window sums (SweepResult.cycles) by name.
+_FROM_CYCLES = {
+    "jumps": "cycle_jumps", "slips": "cycle_slips", "G_slip_min": "cycle_G_slip_min",
+    "G_slip_max": "cycle_G_slip_max", "G_stick_min": "cycle_G_stick_min", "G_stick_max": "cycle_G_stick_max",
+    "slip_interval": "cycle_slip_interval_mean", "stick_duration": "cycle_stick_duration_mean",
+    "slip_duration": "cycle_slip_duration_mean", "force_drop": "cycle_force_drop_mean",
+    "stick_fraction": "cycle_stick_fraction", "v_stick_min": "cycle_v_stick_min", "v_stick_max": "cycle_v_stick_max",
+    "v_slip_min": "cycle_v_slip_min", "v_slip_max": "cycle_v_slip_max",
+}  # fmt: skip
+_CYCLE_FIELDS = (*_FROM_CYCLES, "period", "events", "repeats", "repeat_start")
+
+
+def _map_lanes(result, transient: float, repeat_rtol: float, settle: bool) -> dict[str, np.ndarray]:
+    """The per-lane fields of one start's sweep (arrays over its lanes), and ``G``, ``up``: the
+    kept jumps in each lane's window, (lanes, width) padded with NaN / False.
+
+    The window [transient, t_stop]: its statistics were accumulated in each lane's loop over
+    all of its jumps (``result.cycles``); the repeat's settle search reads the last stick → slip
+    times the lane kept. A lane that stopped before the transient: :func:`_early_lane`."""
+    t_stop = np.asarray(result.t_stop, float)
+    cycles = result.cycles
+    out = {
+        "status": np.asarray(result.status, np.int64),
+        "t_stop": t_stop,
+        "window_start": np.full(t_stop.shape, float(transient)),
+        "jumps_total": np.asarray(result.jumps["jump_count"], np.int64),
+        "crossings": np.asarray(result.events, np.int64),
+        "v_mean": np.asarray(result.v_mean, float),
+        "v_lo": np.asarray(result.v_min, float),
+        "v_hi": np.asarray(result.v_max, float),
+    }
+    out.update({name: np.asarray(cycles[key]).copy() for name, key in _FROM_CYCLES.items()})
+    table = repeat_table(cycles, repeat_rtol)
+    out.update(period=table["period"], events=table["events"], repeats=table["repeats"])
+    out["repeat_start"] = np.where(table["events"] > 0, np.asarray(cycles["cycle_first_slip"], float), np.nan)
+    if settle:
         # A long repeat can take longer to settle than the transient: look again on the later
-        # half, then the later quarter, of the window's stick → slip events.
-        for fraction in (2, 4):
-            tail = up_times[up_times.size - up_times.size // fraction :]
-            repeat = repeat_pattern(tail, rtol=repeat_rtol)
+        # half, then the later quarter, of the window's stick → slip events (the last ones kept).
+        for i in np.flatnonzero((table["events"] == 0) & (out["slips"] >= 5)):
+            repeat, first = _settled(kept_slip_times(cycles, i), int(out["slips"][i]), repeat_rtol)
             if repeat is not None:
-                repeat_start = float(tail[0])
-                break
-    lane.update(
-        jumps=stats.jumps,
-        slips=stats.slips,
-        G_slip_min=stats.G_slip.min,
-        G_slip_max=stats.G_slip.max,
-        G_stick_min=stats.G_stick.min,
-        G_stick_max=stats.G_stick.max,
-        period=math.nan if repeat is None else repeat.period,
-        events=0 if repeat is None else repeat.events,
-        repeats=0 if repeat is None else repeat.repeats,
-        repeat_start=repeat_start,
-        slip_interval=stats.slip_interval.mean,
-        stick_duration=stats.stick_duration.mean,
-        slip_duration=stats.slip_duration.mean,
-        force_drop=stats.force_drop.mean,
-        stick_fraction=stats.stick_fraction,
-        v_stick_min=stats.v_stick[0],
-        v_stick_max=stats.v_stick[1],
-        v_slip_min=stats.v_slip[0],
-        v_slip_max=stats.v_slip[1],
-    )
-    return lane | {"G": G, "up": up}
+                out["period"][i], out["events"][i], out["repeats"][i] = repeat.period, repeat.events, repeat.repeats
+                out["repeat_start"][i] = first
+    for i in np.flatnonzero(~(transient < t_stop)):
+        for name, value in _early_lane(result, int(i), repeat_rtol, settle).items():
+            out[name][i] = value
+    # The kept jumps in each window: the last ones of the lane's kept jumps (in time order).
+    t = np.asarray(result.jumps["jump_t"], float)
+    with np.errstate(invalid="ignore"):
+        inside = (t >= out["window_start"][:, None]) & (t <= t_stop[:, None])
+    count = inside.sum(axis=1)
+    first = np.argmax(inside, axis=1)
+    width = max(1, int(count.max(initial=0)))
+    slot = np.minimum(first[:, None] + np.arange(width), t.shape[1] - 1) if t.shape[1] else np.zeros((t_stop.size, width), int)
+    keep = np.arange(width) < count[:, None]
+    out["G"] = np.where(keep, np.take_along_axis(np.asarray(result.jumps["jump_G"], float), slot, axis=1), np.nan)
+    out["up"] = keep & np.take_along_axis(np.asarray(result.jumps["jump_up"], bool), slot, axis=1)
+    return out
 
 
 # ---------------------------------------------------------------------------- the map
@@ -568,16 +647,20 @@ def stick_slip_map(
         starts: the starting states, ``"paper"`` (the tape at rest) and/or ``"steady"`` (steady
             peeling, v = V); one sweep and one row of the map each.
         rtol, atol: the error control's tolerances (default: the sweep's, 1e-6 and 1e-9).
-        max_jumps: slots of each lane's jump record (default: the sweep's, 2048); a lane that
-            needs more stops there and is summarized up to its stop.
+        max_jumps: each lane keeps its last ``max_jumps`` jumps (default: the sweep's, 64):
+            ``jump_G``/``jump_up``, the settle search (at most the last 65 stick → slip events)
+            and a lane that stopped before the transient read them; every other statistic is
+            accumulated over all of the window's jumps. No lane stops for a full record.
         fold: ``"jump"`` (default) or ``"follow"`` (τ > 0); ``"stop"`` is refused (no cycles).
         repeat_rtol: the tolerance of the repeat search (:func:`peeljax.cycles.repeat_pattern`).
         settle: where no repeat is found over the whole window, search again on the later half
-            and then the later quarter of its stick → slip events (a long repeat can take longer
-            to settle than the transient); ``repeat_start`` says where the repeat was matched from.
+            and then the later quarter of its stick → slip events, each at most the last 65 (a
+            long repeat can take longer to settle than the transient); ``repeat_start`` says
+            where the repeat was matched from.
         progress: a tqdm bar per sweep (stderr).
         **sweep_kwargs: other options of :func:`peeljax.sweep` (``chunk``, ``max_steps``,
-            ``window``, ``devices``, ``lane_batch``, ``solver``, ``rho``, ``dtmin``, …). ``dt``,
+            ``window`` (it starts at the transient), ``devices``, ``lane_batch``, ``solver``,
+            ``rho``, ``dtmin``, …). ``dt``,
             ``save_every`` (a uniform mesh keeps no jumps), ``out`` and ``params`` are refused.
 
     Returns:
@@ -609,18 +692,17 @@ def stick_slip_map(
             raise ValueError("the sweep kept no jump records: the map needs fold='jump' under error control")
         results.append(result)
 
-    lanes = [[_lane_statistics(r, i, transient, float(repeat_rtol), settle) for i in range(V.size)] for r in results]
-    fields = {}
-    for name in LANE_FIELDS:
-        dtype = np.int64 if name in _INT_FIELDS else float
-        fields[name] = np.array([[lane[name] for lane in row] for row in lanes], dtype=dtype)
-    width = max(1, max(lane["G"].size for row in lanes for lane in row))
+    rows = [_map_lanes(r, transient, float(repeat_rtol), settle) for r in results]
+    fields = {
+        name: np.stack([row[name] for row in rows]).astype(np.int64 if name in _INT_FIELDS else float)
+        for name in LANE_FIELDS
+    }
+    width = max(row["G"].shape[1] for row in rows)
     jump_G = np.full((len(starts), V.size, width), np.nan)
     jump_up = np.zeros((len(starts), V.size, width), bool)
-    for s, row in enumerate(lanes):
-        for i, lane in enumerate(row):
-            jump_G[s, i, : lane["G"].size] = lane["G"]
-            jump_up[s, i, : lane["up"].size] = lane["up"]
+    for s, row in enumerate(rows):
+        jump_G[s, :, : row["G"].shape[1]] = row["G"]
+        jump_up[s, :, : row["up"].shape[1]] = row["up"]
     folds = fold_table(model, V)
     settings = {
         "sweep": results[0].settings | {"start": list(starts)},
