@@ -122,6 +122,10 @@ def test_max_jumps_stops_the_run(tmp_path):
     assert str(arrays["reason"]) == StopReason.MAX_JUMPS.message
     assert all(arrays[key].shape == (3,) for key in JUMP_KEYS)
     assert int(arrays["max_jumps"]) == 3
+    # the plain summary (the same compiled program) says it in options, not in the parameter max_jumps
+    code, out, err = run_cli([*DAE, "--max-jumps", "3"])
+    assert code == 0 and "the jump record is full (--max-jumps 3): raise --max-jumps to go on" in out, out
+    assert "max_jumps" not in out
 
 
 @pytest.mark.slow
@@ -135,6 +139,9 @@ def test_fold_stop_stops_at_the_first_fold(tmp_path):
     assert record["cycles"] is None and "transient" in record["cycles_note"]  # stopped before it ended
     arrays = _npz(npz)
     assert all(arrays[key].shape == (0,) for key in JUMP_KEYS) and str(arrays["fold"]) == "stop"
+    code, out, err = run_cli([*DAE, "--fold", "stop"])  # the plain summary names the options
+    assert code == 0 and "a fold of phi was reached (--fold stop)" in out and "--fold jump carries" in out, out
+    assert "fold='" not in out
 
 
 @pytest.mark.slow

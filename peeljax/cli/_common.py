@@ -59,7 +59,9 @@ class Parser(argparse.ArgumentParser):
         parsed, extras = self.parse_known_args(args, namespace)
         if extras:  # argparse's own: "unrecognized arguments: --t-finl 3", from the top-level parser
             command = self._command_parser(parsed)
-            (command or self).error(unrecognized(extras, command or self))
+            action = self._command_action()
+            others = {} if action is None else {name: p for name, p in action.choices.items() if p is not command}
+            (command or self).error(unrecognized(extras, command or self, others))
         return parsed
 
     def _command_action(self) -> argparse._SubParsersAction | None:
@@ -74,6 +76,22 @@ class Parser(argparse.ArgumentParser):
         subparsers = self._command_action()
         return None if subparsers is None else subparsers.choices.get(getattr(parsed, subparsers.dest, None))
 
+    def _get_value(self, action, arg_string):
+        """argparse's "invalid int value: '1e5'" said for a user: not an integer, write 100000."""
+        try:
+            return super()._get_value(action, arg_string)
+        except argparse.ArgumentError:
+            if action.type is int:
+                try:
+                    number = float(arg_string)
+                except ValueError:
+                    number = math.nan
+                write = f": write {int(number)}" if math.isfinite(number) and number == int(number) else ""
+                raise argparse.ArgumentError(action, f"{arg_string!r} is not an integer{write}") from None
+            if action.type is float:
+                raise argparse.ArgumentError(action, f"{arg_string!r} is not a number") from None
+            raise
+
     def _check_value(self, action, value):
         if action.choices is not None and value not in action.choices:
             choices = [str(choice) for choice in action.choices]
@@ -85,10 +103,11 @@ class Parser(argparse.ArgumentParser):
         super()._check_value(action, value)
 
 
-def unrecognized(extras: list[str], parser: argparse.ArgumentParser) -> str:
-    """The words argparse did not recognize, in one message: for a misspelled option the closest
-    of ``parser``'s options (``--t-finl`` -> ``--t-final``), for a stray value the rule that
-    every value follows its option."""
+def unrecognized(extras: list[str], parser: argparse.ArgumentParser, others: dict | None = None) -> str:
+    """The words argparse did not recognize, in one message: for an option of other commands
+    (``others``: their parsers by name) which they are, for a misspelled option the closest of
+    ``parser``'s options (``--t-finl`` -> ``--t-final``), for a stray value the rule that every
+    value follows its option."""
     known = [name for name in parser._option_string_actions if name.startswith("--")]
     options = [word for word in extras if word.startswith("-") and not _NEGATIVE_NUMBER.match(word)]
     if not options:
@@ -100,8 +119,13 @@ def unrecognized(extras: list[str], parser: argparse.ArgumentParser) -> str:
     parts = []
     for word in options:
         name = word.split("=", 1)[0]
+        elsewhere = [command for command, other in (others or {}).items() if name in other._option_string_actions]
         close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
-        parts.append(f"{name} (did you mean {close[0]}?)" if close else name)
+        if elsewhere:
+            commands = ", ".join(elsewhere[:-1]) + " and " + elsewhere[-1] if len(elsewhere) > 1 else elsewhere[0]
+            parts.append(f"{name} (an option of peeljax {commands}, not of {parser.prog})")
+        else:
+            parts.append(f"{name} (did you mean {close[0]}?)" if close else name)
     what = "option" if len(parts) == 1 else "options"
     return f"unrecognized {what} {', '.join(parts)}: {parser.prog} --help lists the options"
 
@@ -287,8 +311,33 @@ def json_safe(value):
 
 def fail(error: Exception) -> int:
     """A refusal: ``peeljax: error: <message>`` on stderr, in the command line's words; exit 2."""
-    print(f"{PROG}: error: {option_names(str(error))}", file=sys.stderr)
+    message = option_names(str(error))
+    print(f"{PROG}: error: {message}{closest_choice(message)}", file=sys.stderr)
     return 2
+
+
+# The refusals that list what is allowed: "must be one of a, b; got 'x'" (and ", got"), and
+# "unknown ['x', 'y']; allowed: a, b".
+_ONE_OF = re.compile(r"one of ([^;]+?)[;,] got '([^']*)'")
+_ALLOWED = re.compile(r"\[([^\]]*)\]; allowed: ([^;()]+)")
+
+
+def closest_choice(message: str) -> str:
+    """``"; did you mean 'tsit5'?"`` for a refusal that lists the allowed names, when a given
+    name is close to one of them (case aside: ``Tsit5``, ``C1``); else ""."""
+    found = _ONE_OF.search(message)
+    if found is not None:
+        allowed, given = found.group(1).split(", "), [found.group(2)]
+    elif (found := _ALLOWED.search(message)) is not None:
+        allowed, given = found.group(2).strip().split(", "), re.findall(r"'([^']*)'", found.group(1))
+    else:
+        return ""
+    lowered = {name.lower(): name for name in allowed}
+    close = [difflib.get_close_matches(name.lower(), list(lowered), n=1) for name in given]
+    named = [lowered[c[0]] for c in close if c]
+    if not named or len(named) != len(given):
+        return ""
+    return "; did you mean " + ", ".join(repr(name) for name in named) + "?"
 
 
 # Python parameter names (with an underscore: never a word of prose) and their options.
@@ -300,6 +349,7 @@ _PARAMETERS = {
 }  # fmt: skip
 _UNDERSCORED = re.compile(r"(?<![\w-])(" + "|".join(_PARAMETERS) + r")\b")
 _ANOTHER_OUT = re.compile(r"\banother out\b")
+_FOLD_MODE = re.compile(r"\bfold='(jump|stop|follow)'")
 # Names that open a library message ("tau must be ...", "y0: ...").
 _LEADING = re.compile(r"^(V|tau|dt|rtol|atol|rho|y0|geometry|transient|window|fold|start|free|statistics)\b(?![-=])")
 
@@ -309,6 +359,7 @@ def option_names(message: str) -> str:
     message that opens with a parameter's name (``tau must be ...``) opens with its option."""
     message = _UNDERSCORED.sub(lambda m: _PARAMETERS[m.group(1)], message)
     message = _ANOTHER_OUT.sub("another --out", message)  # the library's "choose another out"
+    message = _FOLD_MODE.sub(r"--fold \1", message)  # fold='stop' -> --fold stop
     return _LEADING.sub(lambda m: "--" + m.group(1), message)
 
 

@@ -126,15 +126,15 @@ def add_command(subparsers) -> None:
         "--statistics", nargs="+", metavar="S", default=None,
         help="--table: the table's statistics to fit (default: all it has)",
     )  # fmt: skip
-    fit.add_argument("--steps", type=int, default=500, help="--data: optimizer iterations, >= 1 (default %(default)s)")
-    fit.add_argument("--optimizer", default="adam", metavar="{adam,lbfgs}", help="--data: adam or lbfgs (default adam)")
+    fit.add_argument("--steps", type=int, default=None, help=f"--data: optimizer iterations, >= 1 (default {_STEPS})")
+    fit.add_argument("--optimizer", default=None, metavar="{adam,lbfgs}", help="--data: adam or lbfgs (default adam)")
     fit.add_argument(
         "--learning-rate", dest="learning_rate", type=float, default=None,
         help="--data: > 0 (default adam 0.02, lbfgs its line search)",
     )  # fmt: skip
     fit.add_argument(
-        "--patience", type=int, default=50,
-        help="--data: stop after this many iterations without progress, >= 1 (default %(default)s)",
+        "--patience", type=int, default=None,
+        help=f"--data: stop after this many iterations without progress, >= 1 (default {_PATIENCE})",
     )  # fmt: skip
     fit.add_argument(
         "--max-iterations", dest="max_iterations", type=int, default=None,
@@ -156,7 +156,7 @@ def add_command(subparsers) -> None:
     )  # fmt: skip
     options.add_json(output)
     options.add_progress(output, "progress (iterations and loss)")
-    parser.set_defaults(handler=_fit_command)
+    parser.set_defaults(handler=_fit_command, out_formats=(".json",))
 
 
 def _V_per_file(paths: list[str], V) -> list[float | None]:
@@ -216,8 +216,9 @@ def _files_of(paths: list[str], observations: list[Observation]) -> list[str]:
     return [f"{', '.join(paths)} (the run at V = {o.V:g})" for o in observations]
 
 
+_STEPS, _PATIENCE = 500, 50  # --steps and --patience left out (a point-by-point fit)
 _TABLE_ONLY = ("transient", "window", "n_starts", "starts_deprecated", "max_iterations", "statistics")
-_DATA_ONLY = ("V", "dt", "t_final", "learning_rate", "quantities")
+_DATA_ONLY = ("V", "dt", "t_final", "learning_rate", "quantities", "steps", "optimizer", "patience")
 
 
 def _option(name: str) -> str:
@@ -236,10 +237,15 @@ def _check_source(args: argparse.Namespace) -> None:
         raise ValueError("--out FITTED.json is required with --data")
 
 
+# The option of the other kind of fit that does the same job.
+_COUNTERPART = {"steps": "--max-iterations", "max_iterations": "--steps"}
+
+
 def _refuse(args: argparse.Namespace, names: tuple[str, ...], source: str) -> None:
     for name in names:
         if getattr(args, name) is not None:
-            raise ValueError(f"{_option(name)} does not apply to {source}")
+            instead = f" (its counterpart there is {_COUNTERPART[name]})" if name in _COUNTERPART else ""
+            raise ValueError(f"{_option(name)} does not apply to {source}{instead}")
 
 
 def force_records_only(observations: list[Observation]) -> bool:
@@ -435,11 +441,11 @@ def _ascii(text: str) -> str:
 
 def _check_run_options(args: argparse.Namespace) -> None:
     """The options of a point-by-point fit whose ranges need no data file (checked first)."""
-    if args.optimizer not in OPTIMIZERS:
+    if args.optimizer is not None and args.optimizer not in OPTIMIZERS:
         raise ValueError(f"--optimizer must be one of {', '.join(OPTIMIZERS)}, got {args.optimizer!r}")
-    if args.steps < 1:
+    if args.steps is not None and args.steps < 1:
         raise ValueError(f"--steps must be >= 1 (allowed range: [1, inf)), got {args.steps}")
-    if args.patience < 1:
+    if args.patience is not None and args.patience < 1:
         raise ValueError(f"--patience must be >= 1 (allowed range: [1, inf)), got {args.patience}")
     options.check_max_steps(args.max_steps, None if args.dt is None else "--dt")
     if args.learning_rate is not None:
@@ -456,6 +462,10 @@ def _check_run_options(args: argparse.Namespace) -> None:
 
 def _validate(args: argparse.Namespace, observations: list[Observation], defaults: dict) -> dict:
     _refuse(args, _TABLE_ONLY, "--data with v or alpha (a point-by-point fit of the runs)")
+    # left out: their defaults (None until here, so that a table fit can refuse them when given)
+    args.optimizer = args.optimizer or "adam"
+    args.steps = _STEPS if args.steps is None else args.steps
+    args.patience = _PATIENCE if args.patience is None else args.patience
     check_fit_samples(observations, [f"--data {name}" for name in _files_of(args.data, observations)], "--decimate")
     if args.quantities is not None:
         drop = {q: None for q in ("F", "alpha") if q not in args.quantities}

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 
 import numpy as np
@@ -358,9 +359,21 @@ def add_outputs(parser, *, out_meta: str, out_help: str, plot_meta: str = "FILE.
     parser.add_argument("--plot", metavar=plot_meta, help=f"{plot_help} (format from the suffix; default: none)")
 
 
+_FORMATS = {".npz": "numpy", ".nc": "netCDF", ".json": "JSON"}
+
+
 def check_outputs(args: argparse.Namespace) -> None:
-    """--out and --plot: the folder exists and is writable, the image format known."""
-    check_output_path("--out", getattr(args, "out", None))
+    """--out and --plot: the folder exists and is writable, the image format known; --out's
+    suffix, if it has one, among those the command writes (``args.out_formats``, set by its
+    parser): ``--out sweep.csv`` would be a numpy file under a CSV name."""
+    out, formats = getattr(args, "out", None), getattr(args, "out_formats", None)
+    if out is not None and formats:
+        suffix = os.path.splitext(out)[1].lower()
+        if suffix and suffix not in formats:
+            written = " or ".join(f"FILE{s} ({_FORMATS[s]})" for s in formats)
+            command = f"peeljax {args.command}" if getattr(args, "command", None) else "this command"
+            raise ValueError(f"--out {out!r}: {command} writes {written}, not a {suffix} file")
+    check_output_path("--out", out)
     if getattr(args, "plot", None) is not None:
         check_output_path("--plot", args.plot, plot_formats())
 

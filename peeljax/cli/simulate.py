@@ -40,6 +40,7 @@ from ._common import (
     fail,
     json_safe,
     max_steps_remedy,
+    option_names,
     solver_for,
     stats_text,
     write_failed,
@@ -135,7 +136,7 @@ def add_command(subparsers) -> None:
     )
     _add_run_arguments(parser)
     _add_output_arguments(parser)
-    parser.set_defaults(handler=_simulate_command)
+    parser.set_defaults(handler=_simulate_command, out_formats=(".npz",))
 
 
 # ---------------------------------------------------------------------------- validation
@@ -568,8 +569,11 @@ def _print_summary(record: dict, config: RunConfig, stats: dict, cycles=None) ->
             f"stopped at t = {record['t_stop']:.6g} s: the step budget ({config.budget} step attempts, --max-steps) "
             "was used up before t_final: raise --max-steps or loosen --rtol"
         )
+    elif record.get("status_code") == int(StopReason.MAX_JUMPS):  # the reason names the parameter max_jumps
+        print(f"stopped at t = {record['t_stop']:.6g} s: the jump record is full (--max-jumps {config.max_jumps}): "
+              "raise --max-jumps to go on")  # fmt: skip
     else:
-        print(f"stopped at t = {record['t_stop']:.6g} s: {record['reason']}")
+        print(f"stopped at t = {record['t_stop']:.6g} s: {option_names(record['reason'])}")
     print(f"v [m/s]: final {record['v_final']:.6g}, min {record['v_min']:.6g}, max {record['v_max']:.6g}")
     if record.get("jumps") is not None:
         print(
@@ -621,7 +625,7 @@ def _simulate_command(args: argparse.Namespace) -> int:
     elif config.n_steps is None:
         mesh = f"output at {len(config.save_ts)} times"
     else:
-        mesh = f"{config.n_steps} steps"
+        mesh = f"{config.n_steps} step{'' if config.n_steps == 1 else 's'}"
     method = "default stepper" if config.method == "default" else config.method
     budget = "" if config.budget is None else f", at most {config.budget} step attempts (--max-steps)"
     print(

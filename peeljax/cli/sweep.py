@@ -138,7 +138,7 @@ def add_command(subparsers) -> None:
     options.add_json(output)
     options.add_progress(output, "progress bar")
     add_distributed_options(parser)
-    parser.set_defaults(handler=_sweep_command)
+    parser.set_defaults(handler=_sweep_command, out_formats=(".npz", ".nc"))
 
     star = subparsers.add_parser(
         "tau-star",
