@@ -5,11 +5,13 @@ command lines per command).
 Before: ``fit --table t.csv --steps 10`` (or ``--optimizer``, ``--patience``) ran the whole
 table fit with the option silently ignored; ``--out sweep.csv`` wrote a numpy file under a CSV
 name; ``--max-steps 1e5`` got "invalid int value"; ``--method Tsit5`` (diffrax's spelling)
-got no hint; ``tau-star --save-dt`` was "unrecognized arguments".
+got no hint; ``tau-star --save-dt`` was "unrecognized arguments"; a folder given to --table or
+--data "does not exist"; ``--table runs.npz`` was told to "give .npz files the suffix .npz".
 """
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from conftest import forbid, run_cli
 
@@ -36,6 +38,10 @@ MISTAKES = [
     (["simulate", "--geometry", "ful"], "got 'ful'; did you mean 'full'?"),
     (["fit", "--table", "{table}", "--free", "C1", "c33"], "allowed: c1, p1, c2, p2, c3, c4, c5, p5, c6, c7, p7, "
      "c8, p8, p9; did you mean 'c1', 'c3'?"),
+    (["fit", "--table", "{tmp}"], "peeljax: error: --table: '{tmp}' is a folder, expected a file"),
+    (["fit", "--data", "{tmp}", "--out", "{tmp}/f.json"], "peeljax: error: --data: '{tmp}' is a folder, expected a file"),
+    (["fit", "--table", "{runs}"], "a stick-slip table is text (CSV or whitespace columns V, F_mean, ...); runs in "
+     "an .npz are fitted with --data"),
     (["tau-star", "--save-dt", "0.1"],
      "unrecognized option --save-dt (an option of peeljax simulate and sweep, not of peeljax tau-star)"),
 ]  # fmt: skip
@@ -53,8 +59,10 @@ def nothing_runs(no_compilation, monkeypatch):
 def test_a_mistake_is_refused_in_one_line_before_anything_runs(argv, said, tmp_path, nothing_runs):
     (tmp_path / "t.csv").write_text(TABLE)
     (tmp_path / "r.csv").write_text(FORCE_RECORD)
-    names = {"table": str(tmp_path / "t.csv"), "record": str(tmp_path / "r.csv"), "tmp": str(tmp_path)}
+    np.savez(tmp_path / "runs.npz", t=np.linspace(0.0, 1.0, 5), v=np.ones(5), V=1.1)
+    names = {"table": str(tmp_path / "t.csv"), "record": str(tmp_path / "r.csv"), "tmp": str(tmp_path),
+             "runs": str(tmp_path / "runs.npz")}  # fmt: skip
     code, out, err = run_cli([word.format(**names) for word in argv])
     assert code == 2 and out == "", err
     assert said.format(**names) in err.strip().splitlines()[-1], err
-    assert not list(tmp_path.glob("*.npz")) and not list(tmp_path.glob("*.json"))
+    assert {p.name for p in tmp_path.iterdir()} == {"t.csv", "r.csv", "runs.npz"}  # nothing written

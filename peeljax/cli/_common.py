@@ -186,6 +186,17 @@ def load_phi(path: str) -> AdhesionLaw:
     return read_phi(path)[0]
 
 
+def check_input_file(option: str, path: str) -> None:
+    """An input file exists and is a file: a folder, a missing file or a file under a missing
+    folder, each said as such."""
+    target = Path(path)
+    if target.is_file():
+        return
+    if target.is_dir():
+        raise ValueError(f"{option}: {path!r} is a folder, expected a file")
+    raise ValueError(f"{option}: file {path!r} does not exist")
+
+
 def _probe_folder(option: str, folder: Path) -> None:
     """Create and remove a file in ``folder``: the one test of writability that also catches
     read-only mounts, permissions and pseudo file systems such as /proc."""

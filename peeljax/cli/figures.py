@@ -29,9 +29,11 @@ def add_command(subparsers) -> None:
         dest="t_final",
         type=float,
         default=3.0,
-        help="end time of every run [s] (default 3, the paper's; shorter for a quick check)",
+        help="end time of every run [s], >= 0.05 (default 3, the paper's; shorter for a quick check)",
     )
-    parser.add_argument("--format", default="png", help="image format (default png)")
+    parser.add_argument(
+        "--format", default="png", help="image format: png, pdf, svg, ... (any matplotlib writes; default png)"
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object (run facts, files) on stdout")
     options.add_progress(parser, "line per group of runs")
     parser.set_defaults(handler=_figures_command)

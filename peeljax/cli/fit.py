@@ -49,7 +49,7 @@ from ..fit.records import check_fit_samples, read_npz
 from ..fit.records import decimate as thin
 from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_RTOL
 from . import options
-from ._common import ASCII, PROG, checked, fail, json_safe, load_phi
+from ._common import ASCII, PROG, check_input_file, checked, fail, json_safe, load_phi
 
 __all__ = ["add_command", "load_observations"]
 
@@ -194,8 +194,7 @@ def load_observations(paths: list[str], V=None, decimate: int | None = None) -> 
         raise ValueError(f"--decimate must be >= 1 (allowed range: [1, inf)), got {decimate}")
     observations, defaults = [], {"tau": set(), "dt": set()}
     for path, V_file in zip(paths, _V_per_file(paths, V)):
-        if not Path(path).is_file():
-            raise ValueError(f"--data: file {path!r} does not exist")
+        check_input_file("--data", path)
         try:
             if Path(path).suffix.lower() == ".npz":
                 found, settings = read_npz(path, V=V_file)
@@ -298,8 +297,12 @@ def _n_starts(args: argparse.Namespace) -> int:
 def _read_table(args: argparse.Namespace):
     from ..fit import read_stick_slip_table
 
-    if not Path(args.table).is_file():
-        raise ValueError(f"--table: file {args.table!r} does not exist")
+    check_input_file("--table", args.table)
+    if Path(args.table).suffix.lower() == ".npz":
+        raise ValueError(
+            f"--table {args.table!r}: a stick-slip table is text (CSV or whitespace columns V, F_mean, ...); "
+            "runs in an .npz are fitted with --data"
+        )
     try:
         return read_stick_slip_table(args.table)
     except DataFileError as error:
