@@ -1,26 +1,27 @@
 """Ctrl-C: exit status 130 and one line on stderr, in every phase of every command.
 
 Python turns SIGINT into a ``KeyboardInterrupt`` raised in the main thread at its next
-bytecode. In a JAX program that alone goes wrong three ways (each measured on
-``peeljax simulate --tau 0 --t-final 2000`` interrupted at 0.5 to 6 s):
+bytecode. In a JAX program that alone went wrong two ways (measured on ``peeljax simulate
+--tau 0 --t-final 2000`` interrupted 0 to 10 s after it announced the run):
 
-* while XLA compiles, the main thread waits in C++ and sees nothing until the compilation
-  returns (seconds; a sweep's, longer);
+* after the exception, the interpreter's ordinary exit runs JAX's ``atexit`` clean-up, which
+  clears the backends while a compilation or a dispatched program still runs: it waited up to
+  the end of the compilation (6.7 s) and then crashed, a segmentation fault (exit 139);
 * the exception can be raised inside a callback that swallows it (JAX's garbage-collection
-  callback: "Exception ignored in: <function _xla_gc_callback>"), and the command runs on to
-  the end, exit 0;
-* after it, the interpreter's ordinary exit runs JAX's ``atexit`` clean-up, which clears the
-  backends while a dispatched program is still running: a segmentation fault (exit 139).
+  callback: "Exception ignored in: <function _xla_gc_callback>"), and the command ran on to
+  the end, exit 0.
 
 So while a command runs, :func:`guard` notes each SIGINT twice. Python's handler (main thread)
 raises the ``KeyboardInterrupt`` that lets the command remove what it was half writing and say
 what was saved (:func:`interrupted`). The C-level wake-up file descriptor
 (``signal.set_wakeup_fd``), written by the signal handler itself whatever the main thread is
-doing, wakes a watcher thread; if the main thread has not ended the process
-:data:`GRACE_S` seconds later (it is inside XLA, or its exception was swallowed), the watcher
-prints the line itself. Either way the process ends with ``os._exit(130)`` after flushing
-stdout and stderr, which skips the ``atexit`` clean-up that would crash. A ``KeyboardInterrupt``
-raised without a signal (a test's stand-in) returns 130 as before.
+doing, wakes a watcher thread. A ``KeyboardInterrupt`` swallowed by a callback is raised
+again (:func:`_unraisable`); if the main thread has still not ended the process
+:data:`GRACE_S` seconds later (a call into C++ that does not return to Python, or an exception
+swallowed again and again), the watcher prints the line itself. Either way the process ends
+with ``os._exit(130)`` after flushing stdout and stderr, which skips the ``atexit`` clean-up
+that would crash. A ``KeyboardInterrupt`` raised without a signal (a test's stand-in) returns
+130 as before.
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ EXIT_STATUS = 130  # the shell's status for a process ended by SIGINT (128 + 2)
 
 # Seconds the main thread has, after SIGINT, to end the process itself (its finally blocks
 # remove half-written files) before the watcher does: long enough for Python code to reach
-# its next bytecode under load, short enough that Ctrl-C during a compilation feels prompt.
+# its next bytecode under load, short enough that a Ctrl-C it cannot take is still prompt.
 GRACE_S = 1.0
 
 _STOP = b"\0"  # written by guard() on leaving: no signal has the number 0
