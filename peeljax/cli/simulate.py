@@ -68,7 +68,7 @@ def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
     options.add_V(physics, many=False, default=1.1)
     physics.add_argument(
         "--tau", type=options.number("--tau"), default=0.01,
-        help=f"{options.tau_help(options.TAU_RANGE)}; 0 needs error control) (default %(default)s)",
+        help=f"{options.tau_help(options.TAU_RANGE)}; 0 needs error control (default %(default)s)",
     )  # fmt: skip
     options.add_t_final(physics)
     physics.add_argument(
@@ -98,7 +98,7 @@ def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     options.add_max_steps(solver)
     solver.add_argument(
-        "--save-dt", dest="save_dt", type=float, default=None,
+        "--save-dt", dest="save_dt", type=float, default=None, metavar="S",
         help="output at t = 0, S, 2S, ... <= t_final (and t_final) [s], S in (0, t_final] (default: error "
         "control writes its accepted steps; diffrax uses --dt)",
     )  # fmt: skip

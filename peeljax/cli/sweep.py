@@ -78,12 +78,12 @@ def add_command(subparsers) -> None:
     )
     solver = _add_model_arguments(parser)
     solver.add_argument(
-        "--save-dt", dest="save_dt", type=float, default=None,
+        "--save-dt", dest="save_dt", type=float, default=None, metavar="S",
         help="error control only: also save the states at t = 0, S, 2S, ... and t_final [s], S in (0, t_final] "
         "(default: none)",
     )  # fmt: skip
     solver.add_argument(
-        "--save-every", dest="save_every", type=int, default=None,
+        "--save-every", dest="save_every", type=int, default=None, metavar="N",
         help="uniform mesh only (with --dt): also save the states every N steps, N >= 1 (default: none)",
     )  # fmt: skip
     grid = parser.add_argument_group("the grid of tau")
