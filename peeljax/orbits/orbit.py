@@ -11,7 +11,7 @@ from jaxtyping import Array, ArrayLike, Bool, Complex, Float, Int
 
 from ..model import PeelingModel
 from ..simulate import simulate
-from ..solution import JumpRecord, Solution, StopReason
+from ..solution import Solution, StopReason
 from .floquet import test_functions
 from .section import SlipSection
 from .shooting import OrbitStatus
@@ -32,14 +32,18 @@ class PeriodicOrbit(eqx.Module):
     Attributes:
         model: spool, tape and adhesion law.
         V: pull velocity [m/s].
-        slips: k, the stick → slip events per period (static).
+        slips: k, the stick → slip events per period.
         section: s = (α, ω) [rad, rad/s] where the orbit crosses the stick → slip section
             (G(x) = φ(v̂, V), just before the slip).
         state: (α, ω, u, v̂) there, before the slip.
         period: T [s].
-        jumps: the 2k jumps of one period, the slip at the section first (t = 0), then
-            alternating re-sticks and slips.
         force_integral: ∫₀ᵀ F dt over the period [N·s].
+        approach: the closest approach to a grazing over the period [N] (negative; 0 where
+            a stick phase's G touches φ's maximum without slipping, or a slip phase's G its
+            minimum without re-sticking: there k changes; :mod:`peeljax.orbits.period`); −inf
+            where nothing comes close.
+        crossing: the slowest crossing of the section over the period, min Ġ at the slips
+            [N/s] (positive; 0 where a slip is about to vanish: a grazing).
         monodromy: M = ∂P^k/∂s, the return map's Jacobian on the section.
         multipliers: its eigenvalues λ₁, λ₂ (larger modulus first): the orbit's nontrivial
             Floquet multipliers.
@@ -57,12 +61,13 @@ class PeriodicOrbit(eqx.Module):
 
     model: PeelingModel
     V: Float[Array, ""]
-    slips: int = eqx.field(static=True)
+    slips: Int[Array, ""]
     section: Float[Array, "2"]
     state: Float[Array, "4"]
     period: Float[Array, ""]
-    jumps: JumpRecord
     force_integral: Float[Array, ""]
+    approach: Float[Array, ""]
+    crossing: Float[Array, ""]
     monodromy: Float[Array, "2 2"]
     multipliers: Complex[Array, "2"]
     status: Int[Array, ""]
@@ -107,7 +112,9 @@ class PeriodicOrbit(eqx.Module):
     def trajectory(self, ts: ArrayLike | None = None, *, rtol: float = 1e-8, atol: float | None = None) -> Solution:
         """One period of the orbit as a run: :func:`peeljax.simulate` (τ = 0) from the state
         just after the slip at the section, over [0, T], output at ``ts`` (default: 2001
-        equally spaced times) with both sides of every jump (single orbits only)."""
+        equally spaced times) with both sides of every jump; its ``jumps`` are the period's
+        (the slip at t = 0 is the orbit's section: the record starts with the re-stick after
+        it, and ends with the slip at T that closes the period). Single orbits only."""
         period = float(self.period)
         ts = np.linspace(0.0, period, 2001) if ts is None else np.asarray(ts, float)
         y0 = np.asarray(SlipSection.at(self.model, self.V).after_slip(self.section))
@@ -122,7 +129,7 @@ class PeriodicOrbit(eqx.Module):
             "V": float(self.V),
             "status": self.status_name,
             "reason": self.reason,
-            "slips_per_period": self.slips,
+            "slips_per_period": int(self.slips),
             "period": float(self.period),
             "stable": bool(self.stable),
             "multipliers": [{"re": float(m.real), "im": float(m.imag), "abs": float(abs(m))} for m in mult],
@@ -136,16 +143,24 @@ class PeriodicOrbit(eqx.Module):
     def to_json(self) -> str:
         return json.dumps(self.as_dict(), indent=2)
 
+    def save(self, path, settings: dict | None = None) -> None:
+        """Write the orbit to an ``.npz`` that :func:`peeljax.load` reads back as a
+        :class:`~peeljax.orbits.files.SavedOrbit` (:mod:`peeljax.orbits.files`; single orbits
+        only); ``settings``: JSON-able notes on how it was found (rtol, …). Written atomically."""
+        from .files import write_orbit  # files.py imports this module
+
+        write_orbit(path, self, settings)
+
     def __str__(self) -> str:
         if jnp.ndim(self.V) != 0:
-            return f"PeriodicOrbit(batch of {jnp.shape(self.V)[0]}, {self.slips} slips per period)"
+            return f"PeriodicOrbit(batch of {jnp.shape(self.V)[0]})"
         d = self.as_dict()
         mult = ", ".join(_complex(m) for m in np.asarray(self.multipliers))
         s = d["statistics"]
         lines = [
             f"periodic orbit at V = {d['V']:.6g} m/s: {d['status']} ({d['newton_iterations']} Newton iterations, "
             f"residual {d['residual']:.1e})",
-            f"  T = {d['period']:.7g} s with {self.slips} stick → slip events per period; "
+            f"  T = {d['period']:.7g} s with {d['slips_per_period']} stick → slip events per period; "
             f"{'stable' if d['stable'] else 'unstable'}, multipliers {mult}",
             f"  F_mean {s['F_mean']:.6g} N, F_slip {s['F_slip']:.6g} N, F_stick {s['F_stick']:.6g} N, "
             f"time between slips {1e3 * s['period']:.6g} ms, slip duration {1e3 * s['slip_duration']:.6g} ms",

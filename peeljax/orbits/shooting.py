@@ -41,7 +41,7 @@ from ..model import PeelingModel
 from .period import OnePeriod, one_period
 from .section import SlipSection
 
-__all__ = ["OrbitStatus", "Shooting", "ShootingResult", "shoot"]
+__all__ = ["Linearised", "OrbitStatus", "Shooting", "ShootingResult", "linearised", "shoot"]
 
 
 class OrbitStatus(enum.IntEnum):
@@ -66,9 +66,9 @@ _MESSAGES = {
     ),
     OrbitStatus.DIVERGED: "Newton's method diverged: the start is outside the orbit's basin for Newton",
     OrbitStatus.EVENTS_CHANGED: (
-        "the run from the section did not come back through k stick → slip events (within 3 periods of the "
-        "start's): the orbit's number of slips per period differs from the one asked for, or there is no "
-        "periodic stick-slip here"
+        "the run from the section did not come back through k stick → slip events within its time bound "
+        "(3 periods of the start's): the stick-slip ended (steady peeling, a stuck tape), or the orbit asked "
+        "for does not exist here"
     ),
     OrbitStatus.NO_FOLD: "phi has no fold at this V: the peeling is steady, there is no stick-slip orbit",
 }
@@ -78,8 +78,9 @@ class Shooting(eqx.Module):
     """How an orbit is shot: the integrator of one period and Newton's settings.
 
     Attributes:
-        integrator: the error-controlled loop with fold events whose record holds 2k − 1
-            jumps (:func:`peeljax.integrators.integrator_for` with ``adjoint="forward"``).
+        integrator: the error-controlled loop with fold events whose record holds one jump
+            (:func:`peeljax.integrators.integrator_for` with ``adjoint="forward"``,
+            ``max_jumps=1``): each run goes from one slip to the next.
         max_iterations: Newton's iteration cap (static).
         tolerance: the largest |P^k(z) − z| at a converged orbit, in the scaled coordinates
             (radians and units of V/R).
@@ -88,10 +89,6 @@ class Shooting(eqx.Module):
     integrator: ErrorControl
     max_iterations: int = eqx.field(static=True, default=20)
     tolerance: float = eqx.field(static=True, default=1e-10)
-
-    @property
-    def slips(self) -> int:
-        return (self.integrator.events.max_jumps + 1) // 2
 
 
 class ShootingResult(eqx.Module):
@@ -114,24 +111,39 @@ class ShootingResult(eqx.Module):
     status: Int[Array, ""]
 
 
-def _return(shooting: Shooting, model: PeelingModel, V, z, t_max) -> tuple[Array, OnePeriod]:
-    """(r(z) = P^k(z) − z scaled, the period's run) at scaled coordinates z."""
+def _return(shooting: Shooting, model: PeelingModel, V, z, slips, t_max) -> tuple[Array, OnePeriod]:
+    """(r(z) = P^k(z) − z scaled, the period's runs) at scaled coordinates z, k = ``slips``."""
     section = SlipSection.at(model, V)
     scale = section.scale
-    period = one_period(section, shooting.integrator, z * scale, t_max)
+    period = one_period(section, shooting.integrator, z * scale, slips, t_max)
     return (period.end - z * scale) / scale, period
 
 
-def _linearised(shooting: Shooting, model, V, t_max, theta_leaves: tuple[int, ...]):
-    """z ↦ (the Jacobian of every float output of one period in (z, θ_p), the outputs): one
-    forward-mode pass, θ_p the leaves of (model, V) at ``theta_leaves``; and the unravel of a
-    column into (r, period) tangents."""
+class Linearised(eqx.Module):
+    """One period as a function of w = (z, θ_p) with its forward-mode Jacobian (module docstring).
+
+    ``at(w)`` → (the Jacobian of every float output in w, r, the period): one pass through one
+    period whose tangents are the components of w. θ_p are the leaves of (model, V) at
+    ``theta_leaves`` (raveled); ``theta`` their values; ``unravel`` makes a column of the
+    Jacobian into (r, period) tangents.
+    """
+
+    at: object
+    unravel: object
+    theta: Array
+
+    def w(self, z: Float[Array, "2"]) -> Array:
+        return jnp.concatenate([z, self.theta])
+
+
+def linearised(shooting: Shooting, model, V, slips, t_max, theta_leaves: tuple[int, ...]) -> Linearised:
+    """The :class:`Linearised` period of the orbit with k = ``slips``."""
     leaves, treedef = jax.tree_util.tree_flatten((model, V))
     theta = [jnp.ravel(jnp.asarray(leaves[i], float)) for i in theta_leaves]
     sizes = [t.size for t in theta]
     z_shape = jax.ShapeDtypeStruct((2,), jnp.dtype(float))
     floats_shape = jax.eval_shape(
-        lambda z: eqx.partition(_return(shooting, model, V, z, t_max), eqx.is_inexact_array)[0], z_shape
+        lambda z: eqx.partition(_return(shooting, model, V, z, slips, t_max), eqx.is_inexact_array)[0], z_shape
     )
     unravel = ravel_pytree(jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), floats_shape))[1]
 
@@ -142,14 +154,14 @@ def _linearised(shooting: Shooting, model, V, t_max, theta_leaves: tuple[int, ..
             new[i] = w[offset : offset + size].reshape(jnp.shape(leaves[i]))
             offset += size
         m, v = jax.tree_util.tree_unflatten(treedef, new)
-        r, period = _return(shooting, m, v, w[:2], t_max)
+        r, period = _return(shooting, m, v, w[:2], slips, t_max)
         return ravel_pytree(eqx.partition((r, period), eqx.is_inexact_array)[0])[0], (r, period)
 
-    def at(z):
-        jac, (r, period) = jax.jacfwd(outputs, has_aux=True)(jnp.concatenate([z, *theta]))
+    def at(w):
+        jac, (r, period) = jax.jacfwd(outputs, has_aux=True)(w)
         return jac, r, period
 
-    return at, unravel
+    return Linearised(at, unravel, jnp.concatenate([jnp.zeros(0), *theta]))
 
 
 class _Newton(eqx.Module):
@@ -164,20 +176,21 @@ class _Newton(eqx.Module):
     diverged: Array
 
 
-def _solve(shooting: Shooting, model, V, z0, t_max, theta_leaves: tuple[int, ...] = ()):
+def _solve(shooting: Shooting, model, V, z0, slips, t_max, theta_leaves: tuple[int, ...] = ()):
     """Newton's method on r(z) = 0, each iteration one forward-mode pass through one period
-    (:func:`_linearised`). Ends at the first point with |r| ≤ tolerance and returns what was
+    (:func:`linearised`). Ends at the first point with |r| ≤ tolerance and returns what was
     computed there — the period and its Jacobian, without another pass. Values only: nothing
     is differentiated through the iterations. Steps are limited to 0.5 in the scaled
     coordinates; |r| growing 100× past the first residual is divergence."""
-    at, unravel = _linearised(shooting, model, V, t_max, theta_leaves)
+    lin = linearised(shooting, model, V, slips, t_max, theta_leaves)
+    at, unravel = lin.at, lin.unravel
 
     def residual_jacobian(jac):
         columns = [unravel(jac[:, j])[0] for j in range(2)]
         return jnp.stack(columns, axis=1)
 
     def evaluate(c: _Newton, z) -> _Newton:
-        jac, r, period = at(z)
+        jac, r, period = at(lin.w(z))
         norm = jnp.max(jnp.abs(r))
         r_z = residual_jacobian(jac)
         step = -jnp.linalg.solve(jnp.where(jnp.isfinite(r_z), r_z, 0.0) + jnp.where(jnp.all(jnp.isfinite(r_z)), 0.0, jnp.eye(2)), r)
@@ -189,7 +202,7 @@ def _solve(shooting: Shooting, model, V, z0, t_max, theta_leaves: tuple[int, ...
         done = converged | diverged | ~period.reached | (c.iterations + 1 >= shooting.max_iterations)
         return _Newton(z, step, jac, r, period, c.iterations + 1, first, done, diverged & ~converged)
 
-    shapes = jax.eval_shape(lambda z: at(z), z0)
+    shapes = jax.eval_shape(lambda z: at(lin.w(z)), z0)
     zeros = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), shapes)
     # The loop's body holds the one pass (a pass outside it would be compiled twice).
     init = _Newton(z0, jnp.zeros(2), zeros[0], zeros[1], zeros[2], jnp.asarray(0), jnp.asarray(jnp.inf), jnp.asarray(False), jnp.asarray(False))
@@ -217,8 +230,8 @@ def _result(shooting: Shooting, model, V, newton: _Newton, r_z) -> ShootingResul
 @eqx.filter_custom_jvp
 def _shoot(params, guess):
     shooting, model, V = params
-    z0, t_max = guess
-    newton, _, r_z = _solve(shooting, model, V, z0, t_max)
+    z0, slips, t_max = guess
+    newton, _, r_z = _solve(shooting, model, V, z0, slips, t_max)
     return _result(shooting, model, V, newton, r_z)
 
 
@@ -234,11 +247,11 @@ def _tangent_leaves(primal, tangent) -> list:
 def _shoot_jvp(primals, tangents):
     params, guess = primals
     shooting, model, V = params
-    z0, t_max = guess
+    z0, slips, t_max = guess
     t_leaves = _tangent_leaves((model, V), (tangents[0][1], tangents[0][2]))
     theta_leaves = tuple(i for i, t in enumerate(t_leaves) if t is not None)
 
-    newton, unravel, r_z = _solve(shooting, model, V, z0, t_max, theta_leaves)
+    newton, unravel, r_z = _solve(shooting, model, V, z0, slips, t_max, theta_leaves)
     primal = _result(shooting, model, V, newton, r_z)
     jac = newton.jac
     if theta_leaves:
@@ -257,11 +270,13 @@ def _shoot_jvp(primals, tangents):
     return primal, tangent
 
 
-def shoot(shooting: Shooting, model: PeelingModel, V, z0: Float[Array, "2"], t_max) -> ShootingResult:
-    """The periodic orbit through k = ``shooting.slips`` stick → slip events nearest (for
-    Newton) to the scaled section coordinates z0 (module docstring); ``t_max`` bounds one period's run.
+def shoot(shooting: Shooting, model: PeelingModel, V, z0: Float[Array, "2"], slips, t_max) -> ShootingResult:
+    """The periodic orbit through k = ``slips`` stick → slip events (a traced integer) nearest
+    (for Newton) to the scaled section coordinates z0 (module docstring); ``t_max`` bounds
+    one period's runs.
 
-    Differentiable in ``model`` and ``V`` by the implicit function theorem; z0 and t_max
+    Differentiable in ``model`` and ``V`` by the implicit function theorem; z0, k and t_max
     carry no derivative (the orbit does not depend on them).
     """
-    return _shoot((shooting, model, jnp.asarray(V, float)), (jnp.asarray(z0, float), jnp.asarray(t_max, float)))
+    guess = (jnp.asarray(z0, float), jnp.asarray(slips, jnp.int32), jnp.asarray(t_max, float))
+    return _shoot((shooting, model, jnp.asarray(V, float)), guess)
