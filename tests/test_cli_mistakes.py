@@ -5,7 +5,8 @@ command lines per command).
 Before: ``fit --table t.csv --steps 10`` (or ``--optimizer``, ``--patience``) ran the whole
 table fit with the option silently ignored; ``--out sweep.csv`` wrote a numpy file under a CSV
 name; ``--max-steps 1e5`` got "invalid int value"; ``--method Tsit5`` (diffrax's spelling)
-got no hint; ``tau-star --save-dt`` was "unrecognized arguments"; a folder given to --table or
+got no hint; ``tau-star --save-dt`` was "unrecognized arguments"; ``peeljax`` alone named no
+command; a folder given to --table or
 --data "does not exist"; ``--table runs.npz`` was told to "give .npz files the suffix .npz".
 """
 
@@ -20,6 +21,7 @@ FORCE_RECORD = "t,F\n0,330\n0.1,340\n0.2,335\n"
 
 # (command line ({table}, {record}, {tmp}: files in the test's folder), what stderr's last line says)
 MISTAKES = [
+    ([], "peeljax: error: give a command: simulate, sweep, tau-star"),
     (["fit", "--table", "{table}", "--steps", "10"],
      "peeljax: error: --steps does not apply to --table (its counterpart there is --max-iterations)"),
     (["fit", "--table", "{table}", "--optimizer", "lbfgs"], "peeljax: error: --optimizer does not apply to --table"),

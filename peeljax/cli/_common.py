@@ -46,6 +46,8 @@ class Parser(argparse.ArgumentParser):
     def parse_args(self, args=None, namespace=None):
         words = sys.argv[1:] if args is None else list(args)
         commands = self._commands()
+        if commands and not words:  # argparse: "the following arguments are required: COMMAND"
+            self.error(f"give a command: {', '.join(commands)} ({self.prog} COMMAND --help lists its options)")
         if commands:  # an unknown option before the command: argparse would only say COMMAND is missing
             for word in words:
                 if not word.startswith("-"):
