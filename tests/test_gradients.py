@@ -117,17 +117,63 @@ def test_forward_mode_equals_reverse_mode_and_newton_is_not_unrolled(smooth):
     assert float(primal) == pytest.approx(float(value), rel=1e-12)
     assert float(tangent) == pytest.approx(float(expected), rel=1e-9)
 
-    primitives = set()
-
-    def walk(jaxpr):
-        for eqn in jaxpr.eqns:
-            primitives.add(eqn.primitive.name)
-            for sub in jax.extend.core.jaxprs_in_params(eqn.params):
-                walk(sub)
-
-    walk(jax.make_jaxpr(f_jvp)(direction).jaxpr)
-    assert "while" not in primitives
+    # The reverse pass recomputes each step (uniform_mesh rematerializes them): the linear program
+    # holds the steps' Newton loops again, as primal values; none of them may take a tangent.
+    tangent_loops, primitives = _loops_on_tangents(jax.make_jaxpr(f_jvp)(direction).jaxpr)
+    assert tangent_loops == 0
     assert "scan" in primitives  # the steps are there
+
+
+def _loops_on_tangents(jaxpr, depends=None, primitives=None):
+    """(the while loops with an input that depends on the jaxpr's inputs, the primitives seen):
+    dependence followed through scans (to a fixed point over the carry), conds and calls."""
+    primitives = set() if primitives is None else primitives
+    depends = [True] * len(jaxpr.invars) if depends is None else depends
+    tainted = {v for v, d in zip(jaxpr.invars, depends) if d}
+    loops = 0
+
+    def on(var):
+        return not isinstance(var, jax.extend.core.Literal) and var in tainted
+
+    for eqn in jaxpr.eqns:
+        primitives.add(eqn.primitive.name)
+        inputs = [on(v) for v in eqn.invars]
+        if eqn.primitive.name == "while":
+            loops += any(inputs)
+            outputs = [any(inputs)] * len(eqn.outvars)
+        elif eqn.primitive.name == "scan":
+            body, n_consts, n_carry = eqn.params["jaxpr"].jaxpr, eqn.params["num_consts"], eqn.params["num_carry"]
+            while True:  # the carry's dependence to a fixed point
+                found, _ = _loops_on_tangents(body, inputs, set())
+                outs = _outputs_on(body, inputs)
+                carry = [a or b for a, b in zip(inputs[n_consts : n_consts + n_carry], outs[:n_carry])]
+                if carry == inputs[n_consts : n_consts + n_carry]:
+                    break
+                inputs = inputs[:n_consts] + carry + inputs[n_consts + n_carry :]
+            loops += _loops_on_tangents(body, inputs, primitives)[0]
+            outputs = outs
+        elif eqn.primitive.name == "cond":
+            outputs = [False] * len(eqn.outvars)
+            for branch in eqn.params["branches"]:
+                loops += _loops_on_tangents(branch.jaxpr, inputs[1:], primitives)[0]
+                outputs = [a or b for a, b in zip(outputs, _outputs_on(branch.jaxpr, inputs[1:]))]
+        else:
+            subs = list(jax.extend.core.jaxprs_in_params(eqn.params))
+            for sub in subs:
+                same = len(sub.invars) == len(inputs)
+                loops += _loops_on_tangents(sub, inputs if same else [any(inputs)] * len(sub.invars), primitives)[0]
+            outputs = [any(inputs)] * len(eqn.outvars)
+        tainted.update(v for v, d in zip(eqn.outvars, outputs) if d)
+    return loops, primitives
+
+
+def _outputs_on(jaxpr, depends):
+    """Which outputs of ``jaxpr`` depend on its inputs marked in ``depends`` (calls: all or none)."""
+    tainted = {v for v, d in zip(jaxpr.invars, depends) if d}
+    for eqn in jaxpr.eqns:
+        if any(not isinstance(v, jax.extend.core.Literal) and v in tainted for v in eqn.invars):
+            tainted.update(eqn.outvars)
+    return [not isinstance(v, jax.extend.core.Literal) and v in tainted for v in jaxpr.outvars]
 
 
 def test_stop_early_run_has_finite_gradients(grad_fn):
