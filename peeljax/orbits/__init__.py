@@ -9,6 +9,8 @@ The layers of this package, each a module with one job:
     shooting.py   Newton on P^k(s) − s; derivatives by the implicit function theorem
     floquet.py    Floquet multipliers and the test functions of fold, period doubling, torus
     orbit.py      the result, :class:`PeriodicOrbit`
+    files.py      its file's format: :meth:`PeriodicOrbit.save` writes it
+    saved_orbit.py  :class:`SavedOrbit`, an orbit read back by :func:`peeljax.load`
     api.py        :func:`periodic_orbit`: options checked, a start found from a run
 """
 
@@ -16,6 +18,7 @@ from .api import DEFAULT_ORBIT_RTOL, OrbitNotFound, orbit_shooting, periodic_orb
 from .floquet import multipliers, test_functions
 from .orbit import PeriodicOrbit
 from .period import ForceIntegral, OnePeriod, one_period, period_statistics
+from .saved_orbit import SavedOrbit
 from .section import SlipSection
 from .shooting import OrbitStatus, Shooting, ShootingResult, shoot
 
@@ -26,6 +29,7 @@ __all__ = [
     "OrbitNotFound",
     "OrbitStatus",
     "PeriodicOrbit",
+    "SavedOrbit",
     "Shooting",
     "ShootingResult",
     "SlipSection",

@@ -145,9 +145,9 @@ class PeriodicOrbit(eqx.Module):
 
     def save(self, path, settings: dict | None = None) -> None:
         """Write the orbit to an ``.npz`` that :func:`peeljax.load` reads back as a
-        :class:`~peeljax.orbits.files.SavedOrbit` (:mod:`peeljax.orbits.files`; single orbits
+        :class:`~peeljax.orbits.SavedOrbit` (:mod:`peeljax.orbits.files`; single orbits
         only); ``settings``: JSON-able notes on how it was found (rtol, …). Written atomically."""
-        from .files import write_orbit  # files.py imports this module
+        from .files import write_orbit  # the file's format (it imports no orbit class)
 
         write_orbit(path, self, settings)
 
