@@ -16,6 +16,7 @@ import argparse
 
 from . import figures as _figures
 from . import fit as _fit
+from . import orbit as _orbit
 from . import simulate as _simulate
 from . import sweep as _sweep
 from . import _interrupt
@@ -24,7 +25,7 @@ from .simulate import summarize, validate_run, write_npz
 
 __all__ = ["build_parser", "json_safe", "main", "summarize", "validate_run", "write_npz"]
 
-COMMANDS = (_simulate, _sweep, _figures, _fit)
+COMMANDS = (_simulate, _sweep, _orbit, _figures, _fit)
 
 
 # ---------------------------------------------------------------------------- parser

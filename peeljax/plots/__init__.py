@@ -3,15 +3,18 @@
 - :mod:`.runs`: runs in the style of the paper's Figs. 2–3, a run carried through the folds of
   φ (:func:`plot_stick_slip`), a sweep's map (:func:`plot_sweep_map`) and a trajectory fit
   (:func:`plot_fit`);
-- :mod:`.stick_slip_map`: the stick-slip map over V (:func:`plot_stick_slip_map`).
+- :mod:`.stick_slip_map`: the stick-slip map over V (:func:`plot_stick_slip_map`);
+- :mod:`.orbits`: a periodic stick-slip orbit over one period (:func:`plot_orbit`).
 """
 
+from .orbits import plot_orbit
 from .runs import SWEEP_MAP_MAX_LINES, plot_fit, plot_run, plot_runs, plot_stick_slip, plot_sweep_map, short_reason
 from .stick_slip_map import plot_stick_slip_map
 
 __all__ = [
     "SWEEP_MAP_MAX_LINES",
     "plot_fit",
+    "plot_orbit",
     "plot_run",
     "plot_runs",
     "plot_stick_slip",

@@ -1,0 +1,271 @@
+"""``peeljax orbit``: the periodic stick-slip orbit at one pull velocity, its stability and its
+statistics over one period (:func:`peeljax.periodic_orbit`), a figure and a file.
+
+Exit status: 0 the orbit converged; 1 it did not (its status and reason are printed, and the
+``--out`` file records them), or an output could not be written; 2 bad input, or no orbit to
+shoot for (φ has no fold at V, or the run shows no repeat), before any shooting; 130 Ctrl-C.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from dataclasses import dataclass
+
+from .._validation import check_positive, check_tolerance
+from ..model import PeelingModel
+from ..orbits.api import _ATOL_PER_RTOL, DEFAULT_ORBIT_RTOL, DEFAULT_TRANSIENT_RUN
+from . import options
+from ._common import ASCII, PROG, Elapsed, checked, fail, json_safe, write_failed
+
+__all__ = ["EXIT_NOT_CONVERGED", "OrbitConfig", "add_command", "validate_orbit"]
+
+EXIT_NOT_CONVERGED = 1
+_MORE_ASCII = str.maketrans({"−": "-", "λ": "lambda", "≤": "<="})  # beside _common.ASCII: the orbits' messages
+MAX_ITERATIONS_LIMIT = 1000  # Newton's cap: a typo must not run for hours
+MAX_SLIPS = 1000  # k: each Newton iteration runs k slips (a typo must not run for hours)
+_DEFAULT_MAX_ITERATIONS = 20
+_STATISTICS_WORDS = (
+    ("F_mean", "F_mean", "N", 1.0),
+    ("F_slip", "F_slip", "N", 1.0),
+    ("F_stick", "F_stick", "N", 1.0),
+    ("period", "time between slips", "ms", 1e3),
+    ("slip_duration", "slip duration", "ms", 1e3),
+)
+
+
+def _one_V(token: str) -> float:
+    """--V: one pull velocity [m/s]."""
+    if ":" in token:
+        raise argparse.ArgumentTypeError(
+            f"{token!r}: peeljax orbit finds the orbit at one pull velocity: give one number"
+        )
+    return options.number("--V")(token)
+
+
+def add_command(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "orbit",
+        help="find the periodic stick-slip orbit at one V: period, stability, statistics",
+        description=(
+            "Find the periodic stick-slip orbit of the DAE (tau = 0) at one pull velocity by shooting: Newton's "
+            "method on the return map after k stick -> slip events, on the section where the shear force reaches "
+            "phi's maximum. Newton starts from the repeat of a run from the paper's start (--transient). Prints "
+            "the period, the events per period, the Floquet multipliers and the stability, and the five "
+            "statistics of a stick-slip table over exactly one period. Exit status: 0 the orbit converged; 1 it "
+            "did not (status and reason printed) or an output could not be written; 2 bad input, or no orbit "
+            "to shoot for (phi has no fold at V, or the run shows no repeat); 130 interrupted (Ctrl-C)."
+        ),
+    )
+    problem = parser.add_argument_group("problem")
+    problem.add_argument(
+        "--V", type=_one_V, default=1.1, help="pull velocity [m/s], > 0 (default 1.1)"
+    )  # fmt: skip
+    options.add_geometry_and_phi(problem)
+    shooting = parser.add_argument_group("shooting")
+    shooting.add_argument(
+        "--slips", type=int, default=None, metavar="K",
+        help=f"k, the stick -> slip events per period, an integer in [1, {MAX_SLIPS}] (default: the repeat's; twice "
+        "it shoots for the period-doubled orbit)",
+    )  # fmt: skip
+    shooting.add_argument(
+        "--transient", type=float, default=DEFAULT_TRANSIENT_RUN, metavar="T",
+        help="the approach to the attractor: a run of T seconds from the paper's start, > 0, whose second half "
+        f"shows the repeat (k, T and the state at its last slip) that Newton starts from (default {DEFAULT_TRANSIENT_RUN:g})",
+    )  # fmt: skip
+    shooting.add_argument(
+        "--max-iterations", dest="max_iterations", type=int, default=_DEFAULT_MAX_ITERATIONS, metavar="N",
+        help=f"Newton's iteration cap, an integer in [1, {MAX_ITERATIONS_LIMIT}] (default {_DEFAULT_MAX_ITERATIONS})",
+    )  # fmt: skip
+    options.add_tolerances(
+        shooting, rtol_default=f"{DEFAULT_ORBIT_RTOL:g}", atol_default=f"{_ATOL_PER_RTOL:g}*rtol",
+        note="each period's run",
+    )  # fmt: skip
+    output = parser.add_argument_group("output")
+    options.add_outputs(
+        output, out_meta="FILE.npz",
+        out_help="write the orbit (its section point, period, multipliers, statistics, model and settings; "
+        "peeljax.load reads it back; written also when Newton did not converge, with its status) (default: none)",
+        plot_help="write v(t) and F(t) over one period, the G-v loop over phi(v, V) and the multipliers against "
+        "the unit circle (a converged orbit only)",
+    )  # fmt: skip
+    options.add_json(output)
+    options.add_progress(output, "progress (the elapsed wall time while it compiles and shoots)")
+    parser.set_defaults(handler=_orbit_command, out_formats=(".npz",))
+
+
+# ---------------------------------------------------------------------------- validation
+@dataclass(frozen=True)
+class OrbitConfig:
+    """A validated ``peeljax orbit``: what :func:`peeljax.periodic_orbit` and the writers need."""
+
+    model: PeelingModel
+    V: float
+    slips: int | None
+    transient: float
+    rtol: float
+    atol: float
+    max_iterations: int
+    phi: str | None
+    phi_defaults: tuple[str, ...] | None
+
+    def settings(self) -> dict:
+        """How the orbit is found, as the ``--out`` file and ``--json`` keep it."""
+        return {
+            "rtol": self.rtol, "atol": self.atol, "transient": self.transient, "slips_asked": self.slips,
+            "max_iterations": self.max_iterations, "geometry": self.model.geometry, "phi": self.phi,
+        }  # fmt: skip
+
+
+def validate_orbit(args: argparse.Namespace) -> OrbitConfig:
+    """Every option checked in plain Python, before anything compiles.
+
+    Raises:
+        ValueError: naming the option and its allowed range.
+    """
+    checked("(0, inf)", check_positive, "--V", args.V)
+    if args.slips is not None and not 1 <= args.slips <= MAX_SLIPS:
+        raise ValueError(f"--slips must be an integer in [1, {MAX_SLIPS}] (allowed range), got {args.slips}")
+    if not (math.isfinite(args.transient) and args.transient > 0):
+        raise ValueError(f"--transient must be finite and > 0 (allowed range: (0, inf)) [s], got {args.transient:g}")
+    if not 1 <= args.max_iterations <= MAX_ITERATIONS_LIMIT:
+        raise ValueError(
+            f"--max-iterations must be an integer in [1, {MAX_ITERATIONS_LIMIT}] (allowed range), got {args.max_iterations}"
+        )
+    rtol = DEFAULT_ORBIT_RTOL if args.rtol is None else args.rtol
+    check_tolerance("--rtol", rtol, 1.0)
+    atol = _ATOL_PER_RTOL * rtol if args.atol is None else args.atol
+    check_tolerance("--atol", atol)
+    model, phi_defaults = options.model_from(args)
+    options.check_outputs(args)
+    return OrbitConfig(
+        model=model, V=float(args.V), slips=args.slips, transient=float(args.transient), rtol=float(rtol),
+        atol=float(atol), max_iterations=int(args.max_iterations), phi=args.phi, phi_defaults=phi_defaults,
+    )  # fmt: skip
+
+
+# ---------------------------------------------------------------------------- the command
+def _record(orbit, config: OrbitConfig, wall: float, args: argparse.Namespace) -> dict:
+    """The ``--json`` object: the orbit (:meth:`~peeljax.PeriodicOrbit.as_dict`), its test
+    functions, how it was found, the wall time and the files written."""
+    record = {"command": "orbit", **orbit.as_dict()}
+    record["test_functions"] = {key: float(value) for key, value in orbit.test_functions.items()}
+    record["settings"] = config.settings()
+    record["phi_paper_defaults"] = None if config.phi_defaults is None else list(config.phi_defaults)
+    record["wall_time_s"] = wall
+    record["out"] = args.out
+    record["plot"] = args.plot
+    return record
+
+
+def _summary(record: dict, config: OrbitConfig) -> list[str]:
+    """A few lines of plain ASCII (whatever the terminal's encoding)."""
+    converged = record["status"] == "converged"
+    k = record["slips_per_period"]
+    lines = [
+        f"{PROG} orbit: V = {config.V:g} m/s, tau = 0 (the DAE), Newton from the repeat of a {config.transient:g} s "
+        f"run, rtol = {config.rtol:g}, atol = {config.atol:g}, geometry {config.model.geometry}",
+        f"{_status_line(record)} ({record['newton_iterations']} Newton iterations, residual {record['residual']:.2e})",
+    ]
+    at = "" if converged else " (at Newton's last point: not an orbit)"
+    lines.append(
+        f"period T = {record['period']:.7g} s with {k} stick -> slip event{'' if k == 1 else 's'} per period{at}"
+    )
+    multipliers = record["multipliers"]
+    shown = ", ".join(_complex(m["re"], m["im"]) for m in multipliers)
+    moduli = ", ".join(f"{m['abs']:.4g}" for m in multipliers)
+    verdict = "stable" if record["stable"] else "unstable"
+    lines.append(f"{verdict}: Floquet multipliers {shown} (|lambda| {moduli}; stable when every |lambda| < 1)")
+    stats = record["statistics"]
+    words = ", ".join(f"{name} {scale * stats[key]:.6g} {unit}" for key, name, unit, scale in _STATISTICS_WORDS)
+    lines.append(f"over one period: {words}")
+    section = record["section"]
+    lines.append(
+        f"section: alpha = {section['alpha']:.7g} rad, omega = {section['omega']:.7g} rad/s (just before the slip)"
+    )
+    lines.append(f"wall time {record['wall_time_s']:.3g} s (including compilation)")
+    for key in ("out", "plot"):
+        if record.get(key):
+            lines.append(f"wrote {record[key]}")
+    return lines
+
+
+def _status_line(record: dict) -> str:
+    """``converged: ...`` or ``not_converged: <reason>``: the status once, then why."""
+    status, reason = record["status"], record["reason"]
+    return reason if reason.startswith(status) else f"{status}: {reason}"
+
+
+def _in_cli_terms(message: str) -> str:
+    """:class:`~peeljax.OrbitNotFound`'s message in the command line's words."""
+    message = message.removeprefix("start: ")
+    message = message.replace("run longer", "run longer (a larger --transient)")
+    message = message.replace("a run too short", "a run too short (--transient)")
+    return message.replace(
+        "give start=(alpha, omega) and slips= to shoot near it",
+        "the Python API shoots from a given state: peeljax.periodic_orbit(start=(alpha, omega), slips=K)",
+    )
+
+
+def _complex(re: float, im: float) -> str:
+    if abs(im) < 1e-12 * max(math.hypot(re, im), 1e-300):
+        return f"{re:.4g}"
+    return f"{re:.4g}{'+' if im >= 0 else '-'}{abs(im):.4g}i"
+
+
+def _orbit_command(args: argparse.Namespace) -> int:
+    try:
+        config = validate_orbit(args)
+    except (ValueError, TypeError) as error:
+        return fail(error)
+    from ..orbits import OrbitNotFound, periodic_orbit
+
+    print(
+        f"{PROG}: a {config.transient:g} s run to find the repeat, then Newton on the return map at V = {config.V:g} "
+        "m/s (compiling first: a minute or more) ...",
+        file=sys.stderr,
+    )
+    start = time.perf_counter()
+    try:
+        with Elapsed(options.progress_on(args), f"orbit at V = {config.V:g} m/s"):
+            orbit = periodic_orbit(
+                config.model, config.V, slips=config.slips, rtol=config.rtol, atol=config.atol,
+                max_iterations=config.max_iterations, transient=config.transient,
+            )  # fmt: skip
+    except OrbitNotFound as error:  # nothing to shoot for: said before any shooting
+        return fail(ValueError(f"no orbit to shoot for at V = {config.V:g} m/s: {_in_cli_terms(str(error))}"))
+    wall = time.perf_counter() - start
+    converged = bool(orbit.converged)
+    record = _record(orbit, config, wall, args)
+    failed = []  # (option, path, error): the orbit is reported whatever could not be written
+    if args.out is not None:
+        try:
+            orbit.save(args.out, config.settings())
+        except OSError as error:
+            failed.append(("--out", args.out, error))
+            record["out"] = None
+    if args.plot is not None:
+        if not converged:
+            record["plot"] = None
+            print(f"{PROG}: no figure: the orbit did not converge (--plot {args.plot} not written)", file=sys.stderr)
+        else:
+            from ..plots import plot_orbit  # matplotlib only when a figure is asked for
+
+            try:
+                plot_orbit(orbit, path=args.plot)
+            except OSError as error:
+                failed.append(("--plot", args.plot, error))
+                record["plot"] = None
+    if args.json:
+        print(json.dumps(json_safe(record), allow_nan=False))
+    else:
+        text = "\n".join(_summary(record, config)).translate(ASCII).translate(_MORE_ASCII)
+        print(text.encode("ascii", "replace").decode("ascii"))
+    if not converged:
+        print(f"{PROG}: the orbit did not converge ({record['status']}): {record['reason']}", file=sys.stderr)
+    for option, path, error in failed:
+        write_failed(option, path, error, "the orbit's summary is above")
+    return EXIT_NOT_CONVERGED if (failed or not converged) else 0
