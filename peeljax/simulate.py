@@ -218,7 +218,8 @@ def simulate(
         ``stats["jumps"]`` its count; :func:`peeljax.cycle_statistics` summarizes it.
         Each jump is two rows at its time, the states just before and just after it
         (``after_jump`` marks the second; :class:`Solution`): the points of ``ts`` and the
-        jumps in time order (under ``jit``, padded to ``len(ts) + 2·max_jumps`` rows).
+        jumps in time order (under ``jit``, ``len(ts) + 2·max_jumps`` rows, the unused ones at
+        the end repeating the last row).
 
     Gradients through a run with jumps follow the jumps: each jump time by the implicit
     function theorem on its fold event, the state after it through the constraint (see

@@ -241,8 +241,10 @@ class Solution(eqx.Module):
     True on the second row, ``before_jump`` on the first. On the accepted steps (``ts=None``)
     the pair is the step that ends at the fold and the start of the next; with output times
     ``ts`` the pairs are inserted among them in time order (an output time equal to a jump's
-    time holds the state before it), so there are up to ``len(ts) + 2·max_jumps`` rows, the
-    unused ones NaN at the end (``valid`` False). Everything computed from the rows (extrema,
+    time holds the state before it): ``len(ts)`` rows plus two per jump (:func:`peeljax.simulate`;
+    under ``jit`` ``len(ts) + 2·max_jumps``, the unused rows at the end repeating the last one,
+    so that ``ys[-1]`` is the state at ``ts[-1]``: :meth:`without_padding` drops them on the
+    host). Everything computed from the rows (extrema,
     :meth:`summary`, :func:`peeljax.analyze`, the figures) sees v⁺. A quantity that needs one
     state per time takes ``ts[~after_jump]`` (the left limits; ``ts[~before_jump]`` the right
     ones). Interpolating between rows, :func:`numpy.interp` takes the right limit at t_j
@@ -323,15 +325,24 @@ class Solution(eqx.Module):
         return str(names) if codes.ndim == 0 else names.ravel().tolist()
 
     def without_padding(self) -> Solution:
-        """This single trajectory without the rows that hold no time (NaN in ``ts``): the rows a
-        dense output keeps for jumps that did not happen, the accepted steps' rows after the
-        last one. Host side (the number of rows depends on the run: not under ``jit``/``vmap``);
-        :func:`peeljax.simulate` returns its output at ``ts`` so.
+        """This single trajectory without its padding rows: the rows that hold no time (NaN in
+        ``ts``: the accepted steps' rows after the last one) and the rows a dense output keeps
+        for jumps that did not happen (at the end, repeating the last row: its time, its state,
+        ``after_jump`` False). Host side (the number of rows depends on the run: not under
+        ``jit``/``vmap``); :func:`peeljax.simulate` returns its output at ``ts`` so.
         """
         if np.ndim(self.status) != 0:
             raise ValueError("without_padding() is for a single trajectory; index the batch first")
-        keep = np.isfinite(np.asarray(self.ts))
+        ts = np.asarray(self.ts)
+        keep = np.isfinite(ts)
         keep[0] = True  # the start, even of a run whose start was refused
+        if self.after_jump is not None:  # a dense output's unused jump rows repeat its last row
+            after = np.asarray(self.after_jump, bool)
+            kept = np.flatnonzero(keep)
+            last = kept.size
+            while last > 1 and ts[kept[last - 1]] == ts[kept[last - 2]] and not after[kept[last - 1]]:
+                last -= 1
+            keep[kept[last:]] = False
         if keep.all():
             return self
 

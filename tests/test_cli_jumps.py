@@ -64,9 +64,10 @@ def test_npz_holds_the_jumps(dae_run):
 
 @pytest.mark.slow
 def test_G_is_continuous_across_the_jumps(dae_run):
-    """The row at a jump's time holds the state just before it (G there is the recorded G); the
-    next row is the end of the first step after it, on the other branch, with G moved on
-    continuously from the jump's (down while slipping, up while sticking)."""
+    """The first row at a jump's time holds the state just before it (G there is the recorded G),
+    the second the state just after it (after_jump: v jumped, G the same); the row after them is
+    the end of the first step after the jump, on the other branch, with G moved on continuously
+    from the jump's (down while slipping, up while sticking)."""
     arrays = dae_run["arrays"]
     G = np.asarray(PeelingModel().shear_force(np.stack([arrays["alpha"], arrays["omega"], arrays["u"]])))
     rows = np.searchsorted(arrays["t"], arrays["jump_t"])
@@ -74,14 +75,18 @@ def test_G_is_continuous_across_the_jumps(dae_run):
     np.testing.assert_allclose(G[rows], arrays["jump_G"], rtol=1e-9)
     # at a fold v moves like the square root of G's distance to it: a round-off in G there is ~1e-5 in v
     np.testing.assert_allclose(arrays["v"][rows], arrays["jump_v_before"], rtol=1e-3)
+    np.testing.assert_array_equal(np.flatnonzero(arrays["after_jump"]), rows + 1)
+    np.testing.assert_array_equal(arrays["t"][rows + 1], arrays["jump_t"])
+    np.testing.assert_allclose(arrays["v"][rows + 1], arrays["jump_v_after"], rtol=1e-12)
+    np.testing.assert_allclose(G[rows + 1], arrays["jump_G"], rtol=1e-9)
     up = arrays["jump_up"].astype(bool)
     split = np.sqrt(arrays["jump_v_before"][up][0] * arrays["jump_v_before"][~up][0])  # between the folds
-    after = arrays["v"][rows + 1]
+    after = arrays["v"][rows + 2]
     assert np.all(after[up] > split) and np.all(after[~up] < split)
-    assert np.all(G[rows + 1][up] < arrays["jump_G"][up]) and np.all(G[rows + 1][~up] > arrays["jump_G"][~up])
+    assert np.all(G[rows + 2][up] < arrays["jump_G"][up]) and np.all(G[rows + 2][~up] > arrays["jump_G"][~up])
     # and it has not passed the other fold within that step (a slip ends where G reaches φ(v̌))
-    assert np.all(G[rows + 1][up] > arrays["jump_G"][~up].min() - 1e-9)
-    assert np.all(G[rows + 1][~up] < arrays["jump_G"][up].max() + 1e-9)
+    assert np.all(G[rows + 2][up] > arrays["jump_G"][~up].min() - 1e-9)
+    assert np.all(G[rows + 2][~up] < arrays["jump_G"][up].max() + 1e-9)
 
 
 @pytest.mark.slow

@@ -83,13 +83,31 @@ def test_dense_output_without_jump_rows_is_the_grid_alone():
 
 def test_dense_output_of_a_stopped_run_keeps_the_unreached_times_in_order():
     """A run stopped after one jump: the rows after the written ones hold the output times not
-    reached, then NaN for the jump rows not used."""
+    reached (state NaN), and the jump rows not used repeat the last of them, so the rows stay
+    in time order and the last row is the last output time's, as without jumps."""
     ts = jnp.linspace(0.0, 1.0, 11)
     out = _run(DenseOutput(ts, jump_rows=3), _STEPS[:3])
-    t = np.asarray(out.t)
+    t, y, valid = np.asarray(out.t), np.asarray(out.y[:, 0]), np.asarray(out.valid)
     np.testing.assert_allclose(t[:13], [0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.5, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0], atol=1e-15)
-    assert np.isnan(t[13:]).all() and t.size == 17
-    assert np.asarray(out.valid).sum() == 8
+    assert t.size == 17 and (t[13:] == 1.0).all() and np.isnan(y[8:]).all()
+    assert valid.sum() == 8 and not np.asarray(out.after_jump)[8:].any()
+
+
+def test_dense_output_pads_with_the_last_row_and_the_host_drops_it():
+    """A completed run with fewer jumps than room: the unused rows repeat the state at the last
+    output time (ys[-1] is that state, as without jumps, also under jit), and
+    Solution.without_padding() leaves the output times and the jumps."""
+    from peeljax.solution import Solution
+
+    ts = jnp.linspace(0.0, 0.5, 6)
+    out = _run(DenseOutput(ts, jump_rows=4), _STEPS[:3])  # ends at 0.5, after the jump there
+    t, y, valid, after = (np.asarray(a) for a in (out.t, out.y[:, 0], out.valid, out.after_jump))
+    assert t.size == 14 and (t[8:] == 0.5).all() and (y[8:] == 10.5).all() and valid.all()
+    np.testing.assert_array_equal(np.flatnonzero(after), [7])
+    sol = Solution(ts=out.t, ys=out.y, valid=out.valid, status=jnp.asarray(0), t_stop=jnp.asarray(0.5), stats={},
+                   diagnostics=None, after_jump=out.after_jump).without_padding()  # fmt: skip
+    np.testing.assert_allclose(np.asarray(sol.ts), [0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.5, 0.5], atol=1e-15)
+    np.testing.assert_array_equal(np.flatnonzero(np.asarray(sol.after_jump)), [7])
 
 
 def test_step_points_write_the_state_after_a_jump_in_its_own_row():

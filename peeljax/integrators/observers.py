@@ -80,32 +80,83 @@ class Observer(eqx.Module):
 class _Output(eqx.Module):
     """Output rows: times, states (carried coordinates), J_t, Newton iterations, validity and
     ``after_jump`` (True on the row holding the state just after a jump; the row before it
-    holds the state just before, at the same time)."""
+    holds the state just before, at the same time); read through the properties ``t``, ``y``,
+    ``J``, ``iterations``, ``valid``, ``after_jump``.
 
-    row_t: Array  # the times of the rows written (see ``t``)
-    y: Array
-    J: Array
-    iterations: Array
-    valid: Array
-    after_jump: Array
+    Dense output with jump rows (``grid``): the rows after the written ones hold the output
+    times not reached (after a stop: states NaN), and the rows left for jumps that did not
+    happen repeat the last of those (its time and state; ``after_jump`` False), so that the
+    rows stay in time order and the last row is the state at the last output time, as
+    without jumps. (The host drops them: :meth:`peeljax.Solution.without_padding`.)
+    """
+
+    row_t: Array
+    row_y: Array
+    row_J: Array
+    row_iterations: Array
+    row_valid: Array
+    row_after_jump: Array
     next: Array  # step points: rows written; dense output: the first output time not yet reached
     written: Array | None = None  # dense output with jump rows: rows written (grid rows + jump pairs)
     grid: Array | None = None  # dense output with jump rows: the output times
     keeps_jumps: bool = eqx.field(static=True, default=False)  # rows after jumps are kept
 
-    @property
-    def t(self) -> Array:
-        """The row times. Dense output with jump rows: the rows never written (after a stop)
-        hold the output times not reached, in order, then NaN (unused jump rows)."""
-        if self.grid is None:
-            return self.row_t
+    def _rows(self):
+        """(row index, the row a row shows, whether it is an unreached output time or padding)."""
         r = jnp.arange(self.row_t.shape[-1])
         written = jnp.asarray(self.written)[..., None]
-        k = jnp.asarray(self.next)[..., None] + r - written  # the output time a row after the written ones holds
+        n = self.grid.shape[-1]
+        end = written + n - jnp.asarray(self.next)[..., None]  # rows written, then the output times not reached
+        shown = jnp.where(r < end, r, end - 1)
+        return r, written, shown
+
+    def _padded(self, array: Array, unreached) -> Array:
+        """``array`` with each padding row a copy of the last meaningful one, and ``unreached``
+        (the rows of output times not reached) where given."""
+        if self.grid is None:
+            return array
+        r, written, shown = self._rows()
+        index = jnp.broadcast_to(shown, array.shape[: shown.ndim]) if array.ndim > shown.ndim else shown
+        index = index.reshape(index.shape + (1,) * (array.ndim - index.ndim))
+        taken = jnp.take_along_axis(array, jnp.broadcast_to(index, array.shape), axis=shown.ndim - 1)
+        if unreached is None:
+            return taken
+        reached = (shown < written).reshape(shown.shape + (1,) * (array.ndim - shown.ndim))
+        return jnp.where(reached, taken, unreached)
+
+    @property
+    def t(self) -> Array:
+        if self.grid is None:
+            return self.row_t
+        r, written, shown = self._rows()
+        k = jnp.asarray(self.next)[..., None] + shown - written  # the output time an unreached row holds
         n = self.grid.shape[-1]
         grid = jnp.broadcast_to(self.grid, k.shape[:-1] + (n,))
-        tail = jnp.where(k < n, jnp.take_along_axis(grid, jnp.clip(k, 0, n - 1), axis=-1), jnp.nan)
-        return jnp.where(r < written, self.row_t, tail)
+        unreached = jnp.take_along_axis(grid, jnp.clip(k, 0, n - 1), axis=-1)
+        return jnp.where(shown < written, jnp.take_along_axis(self.row_t, shown, axis=-1), unreached)
+
+    @property
+    def y(self) -> Array:
+        return self._padded(self.row_y, None if self.grid is None else jnp.nan)
+
+    @property
+    def J(self) -> Array:
+        return self._padded(self.row_J, None if self.grid is None else jnp.nan)
+
+    @property
+    def iterations(self) -> Array:
+        return self._padded(self.row_iterations, None if self.grid is None else 0)
+
+    @property
+    def valid(self) -> Array:
+        return self._padded(self.row_valid, None if self.grid is None else False)
+
+    @property
+    def after_jump(self) -> Array:
+        if self.grid is None:
+            return self.row_after_jump
+        r, written, shown = self._rows()
+        return self._padded(self.row_after_jump, False) & (r == shown)
 
 
 def observer_keeps_jumps(record) -> bool:
@@ -117,11 +168,11 @@ def _rows(rows: int, t0, y0, J0, ok, next, keeps_jumps: bool = False) -> _Output
     """``rows`` rows of NaN with the start in row 0."""
     return _Output(
         row_t=jnp.full(rows, jnp.nan).at[0].set(t0),
-        y=jnp.full((rows, y0.shape[0]), jnp.nan).at[0].set(y0),
-        J=jnp.full(rows, jnp.nan).at[0].set(J0),
-        iterations=jnp.zeros(rows, jnp.int32),
-        valid=jnp.zeros(rows, bool).at[0].set(ok),
-        after_jump=jnp.zeros(rows, bool),
+        row_y=jnp.full((rows, y0.shape[0]), jnp.nan).at[0].set(y0),
+        row_J=jnp.full(rows, jnp.nan).at[0].set(J0),
+        row_iterations=jnp.zeros(rows, jnp.int32),
+        row_valid=jnp.zeros(rows, bool).at[0].set(ok),
+        row_after_jump=jnp.zeros(rows, bool),
         next=jnp.asarray(next, jnp.int32),
         keeps_jumps=keeps_jumps,
     )
@@ -134,10 +185,10 @@ def _put(out: _Output, row, write, step: AcceptedStep, valid, next) -> _Output:
         return array.at[row].set(jnp.where(write, value, array[row]))
 
     return eqx.tree_at(
-        lambda o: (o.row_t, o.y, o.J, o.iterations, o.valid, o.next),
+        lambda o: (o.row_t, o.row_y, o.row_J, o.row_iterations, o.row_valid, o.next),
         out,
-        (put(out.row_t, step.t1), put(out.y, step.y1), put(out.J, step.J1), put(out.iterations, step.iterations),
-         put(out.valid, valid), next),
+        (put(out.row_t, step.t1), put(out.row_y, step.y1), put(out.row_J, step.J1),
+         put(out.row_iterations, step.iterations), put(out.row_valid, valid), next),
     )  # fmt: skip
 
 
@@ -153,10 +204,11 @@ def _put_pair(out: _Output, row, write, jumped, step: AcceptedStep, next) -> _Ou
         return jax.lax.dynamic_update_slice_in_dim(array, block.astype(array.dtype), row, 0)
 
     return eqx.tree_at(
-        lambda o: (o.row_t, o.y, o.J, o.iterations, o.valid, o.after_jump, o.next),
+        lambda o: (o.row_t, o.row_y, o.row_J, o.row_iterations, o.row_valid, o.row_after_jump, o.next),
         out,
-        (put(out.row_t, step.t1, step.t1), put(out.y, step.y1, step.y_after), put(out.J, step.J1, step.J_after),
-         put(out.iterations, step.iterations, 0), put(out.valid, True, True), put(out.after_jump, False, True), next),
+        (put(out.row_t, step.t1, step.t1), put(out.row_y, step.y1, step.y_after), put(out.row_J, step.J1, step.J_after),
+         put(out.row_iterations, step.iterations, 0), put(out.row_valid, True, True),
+         put(out.row_after_jump, False, True), next),
     )  # fmt: skip
 
 
@@ -192,9 +244,10 @@ class DenseOutput(Observer):
 
     ``jump_rows`` = m > 0: room for m jumps, each kept as two rows at its time inserted among
     the output times in time order (the state just before the jump, then the one just after,
-    marked ``after_jump``): ``len(ts) + 2·m`` rows, those not used NaN at the end. An output
-    time equal to a jump's time holds the state before it (the row before the pair). Beyond m
-    jumps the output times are still all written, the jumps no more.
+    marked ``after_jump``): ``len(ts) + 2·m`` rows, those not used repeating the last (see
+    :class:`_Output`). An output time equal to a jump's time holds the state before it (the
+    row before the pair). Beyond m jumps the output times are still all written, the jumps no
+    more.
     """
 
     ts: Array
@@ -206,22 +259,22 @@ class DenseOutput(Observer):
         if self.jump_rows == 0:
             return _Output(
                 row_t=self.ts,
-                y=jnp.where(at_start[:, None], y0, jnp.nan),
-                J=jnp.full(self.ts.shape, jnp.nan),
-                iterations=jnp.zeros(self.ts.shape, jnp.int32),
-                valid=at_start & ok,
-                after_jump=jnp.zeros(self.ts.shape, bool),
+                row_y=jnp.where(at_start[:, None], y0, jnp.nan),
+                row_J=jnp.full(self.ts.shape, jnp.nan),
+                row_iterations=jnp.zeros(self.ts.shape, jnp.int32),
+                row_valid=at_start & ok,
+                row_after_jump=jnp.zeros(self.ts.shape, bool),
                 next=first,
             )
         extra = jnp.zeros(2 * self.jump_rows, bool)
         at_start_rows = jnp.concatenate([at_start, extra])
         return _Output(
             row_t=jnp.where(at_start_rows, jnp.concatenate([self.ts, jnp.zeros(2 * self.jump_rows)]), jnp.nan),
-            y=jnp.where(at_start_rows[:, None], y0, jnp.nan),
-            J=jnp.full(at_start_rows.shape, jnp.nan),
-            iterations=jnp.zeros(at_start_rows.shape, jnp.int32),
-            valid=at_start_rows & ok,
-            after_jump=jnp.zeros(at_start_rows.shape, bool),
+            row_y=jnp.where(at_start_rows[:, None], y0, jnp.nan),
+            row_J=jnp.full(at_start_rows.shape, jnp.nan),
+            row_iterations=jnp.zeros(at_start_rows.shape, jnp.int32),
+            row_valid=at_start_rows & ok,
+            row_after_jump=jnp.zeros(at_start_rows.shape, bool),
             next=first,
             written=first,
             grid=self.ts,
@@ -248,12 +301,14 @@ class DenseOutput(Observer):
         k, r, t, y, iterations, valid = eqxi.while_loop(
             more,
             fill,
-            (out.next, out.written if jumps else out.next, out.row_t, out.y, out.iterations, out.valid),
+            (out.next, out.written if jumps else out.next, out.row_t, out.row_y, out.row_iterations, out.row_valid),
             max_steps=n_out,
             kind=kind,
             checkpoints=n_out if kind == "checkpointed" else None,
         )
-        out = eqx.tree_at(lambda o: (o.row_t, o.y, o.iterations, o.valid, o.next), out, (t, y, iterations, valid, k))
+        out = eqx.tree_at(
+            lambda o: (o.row_t, o.row_y, o.row_iterations, o.row_valid, o.next), out, (t, y, iterations, valid, k)
+        )
         if not jumps:
             return out
         if step.jumped is not None:
