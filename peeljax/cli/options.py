@@ -272,8 +272,9 @@ def check_max_steps(max_steps: int | None, uniform_option: str | None = None) ->
 def add_max_jumps(group, *, default: int, per: str = "run") -> None:
     group.add_argument(
         "--max-jumps", dest="max_jumps", type=int, default=None, metavar="N",
-        help=f"slots of each {per}'s jump record, an integer in [1, {MAX_JUMPS_LIMIT:.0e}]; one more jump "
-        f"stops the run; error control only (default {default})",
+        help=f"slots of each {per}'s jump record, an integer in [1, {MAX_JUMPS_LIMIT:.0e}]; "
+        + ("one more jump stops the run" if per == "run" else f"each {per} keeps its last N jumps and never stops for it")
+        + f"; error control only (default {default})",
     )  # fmt: skip
 
 
