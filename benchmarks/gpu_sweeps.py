@@ -141,7 +141,9 @@ def table(rows: list[dict]) -> str:
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--smoke", action="store_true", help="CPU-sized: V-map 16 and 64 lanes over 0.1 s, P3 8 lanes over 0.3 s")
+    parser.add_argument(
+        "--smoke", action="store_true", help="CPU-sized: V-map 16 and 64 lanes over 0.1 s, P3 8 lanes over 0.3 s"
+    )
     parser.add_argument("--sizes", type=int, nargs="+", default=None, help="V-map lanes (default 1e4 1e5 1e6)")
     parser.add_argument("--t-final", type=float, default=None, help="the V-map's end time [s] (default 0.3)")
     parser.add_argument("--chunk", type=int, default=None, help="lanes per compiled chunk")

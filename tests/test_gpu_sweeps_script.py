@@ -24,7 +24,12 @@ def test_gpu_script_smoke_runs_on_a_cpu(tmp_path):
     text = out.read_text()
     assert text.startswith(f"Made by `python benchmarks/gpu_sweeps.py --smoke --out {out}`.")
     assert "Device: CPU" in text
-    rows = {match[0]: match for match in re.findall(r"^\| (V-map, \d+ lanes|P3, \d+ lanes) \| (\d+) \|[^|]*\|[^|]*\|[^|]*\| (\d+) \|", text, re.M)}
+    rows = {
+        match[0]: match
+        for match in re.findall(
+            r"^\| (V-map, \d+ lanes|P3, \d+ lanes) \| (\d+) \|[^|]*\|[^|]*\|[^|]*\| (\d+) \|", text, re.M
+        )
+    }
     assert set(rows) == {"V-map, 16 lanes", "V-map, 64 lanes", "P3, 8 lanes"}
     for case, _, completed in rows.values():
         assert int(completed) == int(case.split(", ")[1].split()[0]), case  # every lane reached t_final

@@ -80,7 +80,9 @@ def _assert_same(loop, host, rtol=1e-13):
 def test_accumulated_statistics_are_the_records(w0, t_end):
     n = 400  # one shape: one compilation
     jumps = _jumps(n, seed=5)
-    record = _fill(JumpRecord.empty(8, ring=True, statistics=CycleAccumulator.over(w0, t_end)), *map(jnp.asarray, jumps))
+    record = _fill(
+        JumpRecord.empty(8, ring=True, statistics=CycleAccumulator.over(w0, t_end)), *map(jnp.asarray, jumps)
+    )
     cycles = {key: np.asarray(value)[None] for key, value in cycle_arrays(record.statistics.finish(t_end)).items()}
     host = _host(*jumps, w0, t_end)
     loop = lane_cycle_statistics(cycles, 0, w0, t_end)
@@ -188,7 +190,9 @@ def test_the_loops_statistics_are_the_whole_records():
     integrator = _integrator(3.0, 1.5, 4096, ring=False)
     sol = eqx_jit(integrator.integrate)(ode, model.initial_state(2.0), 0.0, 3.0, jnp.array([0.0, 3.0]))
     assert int(sol.status) == 0 and int(sol.jumps.count) > 500
-    cycles = {key: np.asarray(value)[None] for key, value in cycle_arrays(sol.jumps.statistics.finish(sol.t_stop)).items()}
+    cycles = {
+        key: np.asarray(value)[None] for key, value in cycle_arrays(sol.jumps.statistics.finish(sol.t_stop)).items()
+    }
     host = cycle_statistics(sol, float(sol.t_stop), transient=1.5)
     loop = lane_cycle_statistics(cycles, 0, 1.5, float(sol.t_stop))
     _assert_same(loop, host, rtol=1e-12)

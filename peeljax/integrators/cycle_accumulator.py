@@ -131,7 +131,9 @@ class CycleAccumulator(eqx.Module):
         newer = self.slip_times[(self.slips - k) % KEPT_SLIPS]
         older = self.slip_times[(self.slips - k - 1) % KEPT_SLIPS]
         compared = slip & (n_intervals - k >= 0)
-        deviation = jnp.where(compared, jnp.maximum(self.deviation, jnp.abs(interval - (newer - older))), self.deviation)
+        deviation = jnp.where(
+            compared, jnp.maximum(self.deviation, jnp.abs(interval - (newer - older))), self.deviation
+        )
         return CycleAccumulator(
             w0=self.w0,
             w1=self.w1,
@@ -142,8 +144,15 @@ class CycleAccumulator(eqx.Module):
             spread_max=jnp.where(use, jnp.maximum(self.spread_max, values), self.spread_max),
             spread_n=self.spread_n + use,
             v_range=jnp.where(
-                v_use, jnp.stack([jnp.minimum(self.v_range[0], v_new[0]), jnp.maximum(self.v_range[1], v_new[1]),
-                                  jnp.minimum(self.v_range[2], v_new[2]), jnp.maximum(self.v_range[3], v_new[3])]),
+                v_use,
+                jnp.stack(
+                    [
+                        jnp.minimum(self.v_range[0], v_new[0]),
+                        jnp.maximum(self.v_range[1], v_new[1]),
+                        jnp.minimum(self.v_range[2], v_new[2]),
+                        jnp.maximum(self.v_range[3], v_new[3]),
+                    ]
+                ),
                 self.v_range,
             ),  # fmt: skip
             last_t=jnp.where(inside, t, self.last_t),
@@ -153,9 +162,7 @@ class CycleAccumulator(eqx.Module):
             before=jnp.where(do & (t < self.w0), up.astype(jnp.int32), self.before),
             first_slip=jnp.where(slip & ~has_slip, t, self.first_slip),
             interval_sum=jnp.where(slip & has_slip, self.interval_sum + interval, self.interval_sum),
-            slip_times=jnp.where(
-                slip, self.slip_times.at[self.slips % KEPT_SLIPS].set(t), self.slip_times
-            ),
+            slip_times=jnp.where(slip, self.slip_times.at[self.slips % KEPT_SLIPS].set(t), self.slip_times),
             deviation=deviation,
         )
 
