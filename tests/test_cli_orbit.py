@@ -124,6 +124,15 @@ def test_an_orbit_that_did_not_converge_exits_1_saying_why(monkeypatch, tmp_path
     assert code == 1 and json.loads(out)["status"] == "not_converged" and json.loads(out)["plot"] is None
 
 
+def test_a_refusal_of_the_library_is_one_line_exit_2(monkeypatch):
+    def refuses(*args, **kwargs):
+        raise ValueError("start: a single run of the DAE with jumps is needed")
+
+    monkeypatch.setattr(peeljax.orbits, "periodic_orbit", refuses)
+    code, out, err = run_cli(["orbit"])
+    assert_refused(code, err, "a single run of the DAE with jumps is needed", stdout=out)
+
+
 def test_ctrl_c_exits_130_in_one_line(monkeypatch):
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt

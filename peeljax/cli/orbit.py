@@ -237,6 +237,8 @@ def _orbit_command(args: argparse.Namespace) -> int:
             )  # fmt: skip
     except OrbitNotFound as error:  # nothing to shoot for: said before any shooting
         return fail(ValueError(f"no orbit to shoot for at V = {config.V:g} m/s: {_in_cli_terms(str(error))}"))
+    except ValueError as error:  # a refusal of the library the checks above did not foresee: one line, not a traceback
+        return fail(error)
     wall = time.perf_counter() - start
     converged = bool(orbit.converged)
     record = _record(orbit, config, wall, args)
