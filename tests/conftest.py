@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import importlib
 import io
+import os
 from pathlib import Path
 from types import ModuleType
 
@@ -17,6 +18,33 @@ from peeljax.homogenized import Evaluation
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 ERROR_PREFIX = "peeljax: error: "  # what the command line's refusals of bad input start with
+
+
+# ---------------------------------------------------------------------------- JAX's persistent compilation cache
+# XLA's compilation is most of the suite's time. A program whose compilation took at least this
+# long is written to one folder and read back (milliseconds) by the other xdist worker, by the
+# processes the tests start (CLI runs, notebook kernels: they inherit the folder through the
+# environment) and by the next run. A program read back gives the same bits as a fresh
+# compilation (tests/test_compilation_cache.py). Smaller programs compile in about the time a
+# cache entry takes to key, write and read.
+CACHE_MIN_COMPILE_SECONDS = 0.1
+
+
+def pytest_configure(config):
+    """One folder for JAX's persistent compilation cache in every process of the run, set before anything compiles.
+
+    The folder is ``JAX_COMPILATION_CACHE_DIR`` when set (``.ci/run`` gives each run an empty
+    one, as a fresh clone has), else ``.pytest_cache/d/jax-compilation-cache``, kept between runs
+    (``python -m pytest --cache-clear -n 0`` empties it). ``JAX_ENABLE_COMPILATION_CACHE=false``
+    compiles every program.
+    """
+    if not jax.config.jax_enable_compilation_cache:
+        return
+    folder = jax.config.jax_compilation_cache_dir or str(config.cache.mkdir("jax-compilation-cache"))
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = folder  # the xdist workers and the processes tests start
+    seconds = os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", str(CACHE_MIN_COMPILE_SECONDS))
+    jax.config.update("jax_compilation_cache_dir", folder)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", float(seconds))
 
 
 # ---------------------------------------------------------------------------- forbidding computation

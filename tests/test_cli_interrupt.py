@@ -11,6 +11,7 @@ The three processes run at once (one compilation's wall time for the test).
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
@@ -52,8 +53,10 @@ class Interrupted:
     accepts: its stderr lines, and the seconds from the signal to its exit."""
 
     def __init__(self, argv: list[str], when, delay: float, cwd: Path):
+        # XLA must really compile (a program read from the suite's compilation cache skips that phase)
+        env = dict(os.environ, JAX_ENABLE_COMPILATION_CACHE="false")
         self.process = subprocess.Popen(
-            argv, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL
+            argv, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL, env=env
         )
         self.when, self.delay = when, delay
         self.lines: list[str] = []
