@@ -137,25 +137,31 @@ def _at_fold(
     jump record, a stop status (0, ``FOLD`` or ``MAX_JUMPS``) and the cut step's end
     (y, J) for the observer. Without a fold hit, the step as it was."""
 
+    nan = jnp.full((), jnp.nan)
+    no_jump = (jnp.asarray(False), nan, jnp.asarray(False), nan, nan, nan, nan)  # (write, t, up, v⁻, v⁺, G, F)
+
     def at_fold():
         y_fold = ode.complete(fold.y) if getattr(ode, "completes_state", False) else fold.y
         event = ode.evaluate(y_fold)
         end = (y_fold, event.J)
         if events.mode == "stop":
             stopped = eqx.tree_at(lambda s: (s.y, s.psi, s.J, s.drive), new, (y_fold, event.psi, event.J, event.drive))
-            return stopped, fold_event(ode, y_fold), jumps, jnp.asarray(StopReason.FOLD, jnp.int32), end
+            return stopped, fold_event(ode, y_fold), no_jump, jnp.asarray(StopReason.FOLD, jnp.int32), end
         full = jumps.full  # (a ring buffer never is)
         jump = ode.jump(y_fold)
         y = jnp.where(full, y_fold, jump.y)
         restarted = stepper.restart(ode, fold.t, y, new)
-        record = jumps.record(~full, clock(fold.t, y_fold), jump.up, jump.v_before, jump.v_after, jump.G, jump.F)
+        entry = (~full, clock(fold.t, y_fold), jump.up, jump.v_before, jump.v_after, jump.G, jump.F)
         status = jnp.where(full, StopReason.MAX_JUMPS, 0).astype(jnp.int32)
-        return restarted, fold_event(ode, y), record, status, end
+        return restarted, fold_event(ode, y), entry, status, end
 
     def no_fold():
-        return new, g_new, jumps, jnp.asarray(0, jnp.int32), (new.y, new.J)
+        return new, g_new, no_jump, jnp.asarray(0, jnp.int32), (new.y, new.J)
 
-    state, g, record, status, end = jax.lax.cond(fold.hit, at_fold, no_fold)
+    # The record is written outside the cond: carried through it, its buffers were copied at
+    # every step (measured: +7.5 µs per Tsit5 step at τ > 0, P1 2.4 ms against 0.8 with fold="follow").
+    state, g, entry, status, end = jax.lax.cond(fold.hit, at_fold, no_fold)
+    record = jumps.record(fold.hit & entry[0], *entry[1:])
     return state, jnp.where(fold.hit, fold.t, t_new), g, record, status, end
 
 
