@@ -99,7 +99,15 @@ from .integrators import (  # noqa: E402
     integrate_reference,
 )
 from .model import PeelingModel  # noqa: E402
-from .orbits import OrbitNotFound, OrbitStatus, PeriodicOrbit, periodic_orbit  # noqa: E402
+from .orbits import (  # noqa: E402
+    OrbitDiagram,
+    OrbitNotFound,
+    OrbitStatus,
+    PeriodicOrbit,
+    continue_orbit,
+    orbit_diagram,
+    periodic_orbit,
+)
 from .saved import SavedRun, load  # noqa: E402
 from .simulate import simulate, simulate_reference  # noqa: E402
 from .solution import JumpRecord, Solution, StepDiagnostics, StopReason  # noqa: E402
@@ -138,6 +146,7 @@ __all__ = [
     "LeastTau",
     "LogTransformedODE",
     "Observation",
+    "OrbitDiagram",
     "OrbitNotFound",
     "OrbitStatus",
     "PIController",
@@ -157,6 +166,7 @@ __all__ = [
     "amplification_matrix",
     "analyze",
     "bifurcation_diagram",
+    "continue_orbit",
     "cycle_statistics",
     "fit_adhesion",
     "fit_adhesion_steady",
@@ -168,6 +178,7 @@ __all__ = [
     "jacobians",
     "least_tau",
     "load",
+    "orbit_diagram",
     "periodic_orbit",
     "local_index",
     "neumann_radius",

@@ -19,6 +19,7 @@ import pytest
 import peeljax as pj
 from peeljax.orbits import OrbitStatus, SlipSection, one_period, orbit_shooting, periodic_orbit
 from peeljax.orbits.api import _orbit
+from peeljax.orbits.continuation import BifurcationKind, continue_orbit
 
 V = 1.1
 STATS = ("F_mean", "F_slip", "F_stick", "period", "slip_duration")
@@ -188,3 +189,34 @@ def test_no_orbit_where_the_peeling_is_steady():
 def test_orbit_status_messages_are_complete():
     for status in OrbitStatus:
         assert status.message
+
+
+@pytest.mark.slow
+def test_continuation_over_V_locates_the_branchs_bifurcations(orbit):
+    # The 8-slip orbit's branch through V = 1.1, both ways, one compiled corrector.
+    branch = continue_orbit(orbit, bounds=(0.9, 1.2))
+    kinds = {b.kind: b for b in branch.bifurcations}
+    assert set(kinds) == {BifurcationKind.NEW_SLIP, BifurcationKind.TORUS, BifurcationKind.LOST_SLIP}, branch
+    assert np.all(branch.slips == 8) and np.all(np.diff(branch.values) > 0)
+    # Above: a stick phase grazes phi's maximum (approach -> 0) and a 9th slip appears.
+    grazing = kinds[BifurcationKind.NEW_SLIP]
+    assert 1.1025 < grazing.V < 1.1027
+    assert branch.approach[-1] > -1e-3 * (branch.statistics["F_slip"][-1] - branch.statistics["F_stick"][-1])
+    # ... and past it the orbit has 9 slips per period, from the same section point.
+    past = periodic_orbit(V=grazing.V + 2e-4, start=np.asarray(grazing.section), slips=9, period=grazing.period * 9 / 8)
+    assert past.status_name == "converged"
+    assert float(past.statistics["F_slip"]) < branch.statistics["F_slip"][-1] - 1.0  # the per-slip mean jumps
+    # Below: a torus (Neimark-Sacker) point, where a complex pair crosses the unit circle:
+    # stable above it, unstable below.
+    torus = kinds[BifurcationKind.TORUS]
+    assert 0.9765 < torus.V < 0.9775
+    M = np.asarray(torus.monodromy).reshape(2, 2)
+    assert abs(np.linalg.det(M) - 1) < 1e-3 and np.trace(M) ** 2 < 4 * np.linalg.det(M)
+    assert np.all(branch.stable[branch.V > torus.V + 1e-3]) and not np.any(branch.stable[branch.V < torus.V - 1e-3])
+    # Further below a slip's crossing of the section becomes tangential: the 8-slip orbit ends.
+    lost = kinds[BifurcationKind.LOST_SLIP]
+    assert 0.9623 < lost.V < 0.9625
+    assert branch.crossing[0] < 1e-2 * branch.crossing.max()
+    # The branch passes through the orbit it started from.
+    i = int(np.argmin(np.abs(branch.V - V)))
+    assert branch.period[i] == pytest.approx(float(orbit.period), rel=1e-6)

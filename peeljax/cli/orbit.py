@@ -37,13 +37,25 @@ _STATISTICS_WORDS = (
 )
 
 
-def _one_V(token: str) -> float:
-    """--V: one pull velocity [m/s]."""
-    if ":" in token:
-        raise argparse.ArgumentTypeError(
-            f"{token!r}: peeljax orbit finds the orbit at one pull velocity: give one number"
-        )
-    return options.number("--V")(token)
+MAX_SEEDS = 2000  # seed runs of a diagram: a typo must not run for days
+_DEFAULT_SEEDS = 52
+
+
+def _one_V(token: str) -> float | tuple:
+    """--V: one pull velocity [m/s], or START:STOP[:SEEDS] for the diagram over that range."""
+    if ":" not in token:
+        return options.number("--V")(token)
+    parts = token.split(":")
+    if len(parts) not in (2, 3):
+        raise argparse.ArgumentTypeError(f"{token!r}: give one V, or START:STOP or START:STOP:SEEDS")
+    lo, hi = (options.number("--V")(part) for part in parts[:2])
+    seeds = _DEFAULT_SEEDS
+    if len(parts) == 3:
+        try:
+            seeds = int(parts[2])
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{token!r}: SEEDS must be an integer in [2, {MAX_SEEDS}]") from None
+    return (lo, hi, seeds)
 
 
 def add_command(subparsers) -> None:
@@ -62,7 +74,10 @@ def add_command(subparsers) -> None:
     )
     problem = parser.add_argument_group("problem")
     problem.add_argument(
-        "--V", type=_one_V, default=1.1, help="pull velocity [m/s], > 0 (default 1.1)"
+        "--V", type=_one_V, default=1.1, metavar="V|START:STOP[:SEEDS]",
+        help="pull velocity [m/s], > 0 (default 1.1); or a range START:STOP: the bifurcation diagram over it — "
+        f"seed runs at SEEDS equally spaced V (default {_DEFAULT_SEEDS}) from the tape at rest and from steady "
+        "peeling, each repeat's orbit continued over V, every bifurcation located and the branch beyond it traced",
     )  # fmt: skip
     options.add_geometry_and_phi(problem)
     shooting = parser.add_argument_group("shooting")
@@ -126,6 +141,16 @@ def validate_orbit(args: argparse.Namespace) -> OrbitConfig:
     Raises:
         ValueError: naming the option and its allowed range.
     """
+    if isinstance(args.V, tuple):
+        lo, hi, seeds = args.V
+        checked("(0, inf)", check_positive, "--V", lo)
+        if not lo < hi:
+            raise ValueError(f"--V START:STOP must have 0 < START < STOP, got {lo:g}:{hi:g}")
+        if not 2 <= seeds <= MAX_SEEDS:
+            raise ValueError(f"--V START:STOP:SEEDS: SEEDS must be an integer in [2, {MAX_SEEDS}] (allowed range), got {seeds}")
+        if args.slips is not None:
+            raise ValueError("--slips applies to one orbit (--V a number); a diagram takes k from each seed run's repeat")
+        args = argparse.Namespace(**{**vars(args), "V": hi})  # the rest is checked as for one V
     checked("(0, inf)", check_positive, "--V", args.V)
     if args.slips is not None and not 1 <= args.slips <= MAX_SLIPS:
         raise ValueError(f"--slips must be an integer in [1, {MAX_SLIPS}] (allowed range), got {args.slips}")
@@ -221,6 +246,8 @@ def _orbit_command(args: argparse.Namespace) -> int:
         config = validate_orbit(args)
     except (ValueError, TypeError) as error:
         return fail(error)
+    if isinstance(args.V, tuple):
+        return _diagram_command(args, config)
     from ..orbits import OrbitNotFound, periodic_orbit
 
     print(
@@ -271,3 +298,77 @@ def _orbit_command(args: argparse.Namespace) -> int:
     for option, path, error in failed:
         write_failed(option, path, error, "the orbit's summary is above")
     return EXIT_NOT_CONVERGED if (failed or not converged) else 0
+
+
+# ---------------------------------------------------------------------------- the diagram
+def _diagram_record(diagram, config: OrbitConfig, args: argparse.Namespace) -> dict:
+    on, periodic = diagram.covered()
+    return {
+        "command": "orbit",
+        "V_range": list(diagram.V_range),
+        "branches": [
+            {"slips": sorted({int(k) for k in b.slips}), "V_min": float(b.V.min()), "V_max": float(b.V.max()),
+             "points": len(b), "stable_points": int(b.stable.sum()), "ends": b.ends}
+            for b in diagram.branches
+        ],
+        "bifurcations": [
+            {"branch": i, "kind": b.kind.value, "V": b.V, "slips": b.slips, "note": b.note} for i, b in diagram.bifurcations
+        ],
+        "seeds": {"runs": len(diagram.seeds), "periodic": periodic, "on_a_branch": on},
+        "settings": config.settings(),
+        "wall_time_s": diagram.wall_time,
+        "out": args.out,
+        "plot": args.plot,
+    }  # fmt: skip
+
+
+def _diagram_command(args: argparse.Namespace, config: OrbitConfig) -> int:
+    from ..orbits import orbit_diagram
+
+    lo, hi, seeds = args.V
+    print(
+        f"{PROG}: the orbit diagram over V in [{lo:g}, {hi:g}] m/s: {seeds} V x 2 starts of {config.transient:g} s "
+        "runs, each repeat's orbit continued over V (compiling first: minutes) ...",
+        file=sys.stderr,
+    )
+    try:
+        with Elapsed(options.progress_on(args), f"orbit diagram over V in [{lo:g}, {hi:g}] m/s"):
+            diagram = orbit_diagram(
+                config.model, V=(lo, hi), seeds=seeds, t_final=config.transient, rtol=config.rtol,
+                progress=options.progress_on(args),
+            )  # fmt: skip
+    except ValueError as error:
+        return fail(error)
+    record = _diagram_record(diagram, config, args)
+    failed = []
+    if args.out is not None:
+        try:
+            diagram.save(args.out)
+        except OSError as error:
+            failed.append(("--out", args.out, error))
+            record["out"] = None
+    if args.plot is not None:
+        from ..plots import plot_orbit_diagram
+
+        try:
+            plot_orbit_diagram(diagram, path=args.plot)
+        except OSError as error:
+            failed.append(("--plot", args.plot, error))
+            record["plot"] = None
+    if args.json:
+        print(json.dumps(json_safe(record), allow_nan=False))
+    else:
+        lines = [str(diagram)]
+        for i, branch in enumerate(diagram.branches):
+            ks = ", ".join(str(k) for k in sorted({int(k) for k in branch.slips}))
+            lines.append(
+                f"branch {i}: {ks} slips per period, V in [{branch.V.min():.6g}, {branch.V.max():.6g}] m/s, "
+                f"{len(branch)} orbits ({int(branch.stable.sum())} stable)"
+            )
+            lines += [f"  {b}" for b in branch.bifurcations]
+        lines += [f"wrote {record[key]}" for key in ("out", "plot") if record.get(key)]
+        text = "\n".join(lines).translate(ASCII).translate(_MORE_ASCII)
+        print(text.encode("ascii", "replace").decode("ascii"))
+    for option, path, error in failed:
+        write_failed(option, path, error, "the diagram's summary is above")
+    return 1 if failed else 0

@@ -12,9 +12,15 @@ The layers of this package, each a module with one job:
     files.py      its file's format: :meth:`PeriodicOrbit.save` writes it
     saved_orbit.py  :class:`SavedOrbit`, an orbit read back by :func:`peeljax.load`
     api.py        :func:`periodic_orbit`: options checked, a start found from a run
+    continuation.py   a branch over V or a coefficient of φ: pseudo-arclength, stability, the
+                  bifurcations located (fold, period doubling, torus, grazing, the end)
+    diagram.py    :func:`orbit_diagram`: seeds from runs, every branch and what lies beyond
+    diagram_files.py  its file, read back by :func:`peeljax.load`
 """
 
-from .api import DEFAULT_ORBIT_RTOL, OrbitNotFound, orbit_shooting, periodic_orbit, start_from_run
+from .api import DEFAULT_ORBIT_RTOL, OrbitNotFound, least_period, orbit_shooting, periodic_orbit, start_from_run
+from .continuation import Bifurcation, BifurcationKind, OrbitBranch, continue_orbit
+from .diagram import OrbitDiagram, Seed, orbit_diagram
 from .floquet import multipliers, test_functions
 from .orbit import PeriodicOrbit
 from .period import ForceIntegral, OnePeriod, one_period, period_statistics
@@ -23,18 +29,26 @@ from .section import SlipSection
 from .shooting import OrbitStatus, Shooting, ShootingResult, shoot
 
 __all__ = [
+    "Bifurcation",
+    "BifurcationKind",
     "DEFAULT_ORBIT_RTOL",
     "ForceIntegral",
     "OnePeriod",
+    "OrbitBranch",
+    "OrbitDiagram",
     "OrbitNotFound",
     "OrbitStatus",
     "PeriodicOrbit",
     "SavedOrbit",
+    "Seed",
     "Shooting",
     "ShootingResult",
     "SlipSection",
+    "continue_orbit",
+    "least_period",
     "multipliers",
     "one_period",
+    "orbit_diagram",
     "orbit_shooting",
     "period_statistics",
     "periodic_orbit",

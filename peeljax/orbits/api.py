@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import numbers
 
 import equinox as eqx
@@ -103,12 +104,36 @@ _orbit = compiled(_orbit_of)
 _has_folds = compiled(lambda model, V: phi_folds(model, V).exist)
 
 
+def _divisors(k: int) -> list[int]:
+    return [j for j in range(1, k) if k % j == 0]
+
+
+def least_period(shooting: Shooting, orbit: PeriodicOrbit) -> PeriodicOrbit:
+    """``orbit`` with its least number of slips per period: a fixed point of P^k that is one of
+    P^j for a divisor j of k (the orbit run k/j times, as a repeat seen before it settled can
+    suggest) is shot again with j. Unchanged where it is not (or did not converge)."""
+    k = int(orbit.slips)
+    if int(orbit.status) != 0 or k == 1:
+        return orbit
+    scale = np.asarray(SlipSection.at(orbit.model, orbit.V).scale)
+    section, period = np.asarray(orbit.section), float(orbit.period)
+    for j in _divisors(k):
+        shorter = _orbit(shooting, orbit.model, orbit.V, orbit.section, jnp.asarray(j, jnp.int32),
+                         jnp.asarray(_PERIODS_PER_RUN * period * j / k))  # fmt: skip
+        same_point = np.max(np.abs(np.asarray(shorter.section) - section) / scale) < 1e-6
+        if int(shorter.status) == 0 and same_point and abs(float(shorter.period) * k / j - period) < 1e-6 * period:
+            return shorter
+    return orbit
+
+
 def start_from_run(sol: Solution, slips: int | None = None) -> tuple[np.ndarray, int, float]:
     """(s0 = (α, ω) at the run's last stick → slip event, k, T) from a run's repeat.
 
-    The repeat is looked for in the run's second half (:func:`peeljax.cycle_statistics`); α
-    and ω, continuous across the jumps, are interpolated from the run's rows at the slip's time.
-    Raises :class:`OrbitNotFound` where the run shows no repeat, saying why.
+    The repeat is looked for in the run's second half (:func:`peeljax.cycle_statistics`); where
+    none is confirmed but a near repeat is forming (too few repeats yet to tell), that one is
+    taken — Newton's method then says whether the orbit is there. α and ω, continuous across
+    the jumps, are interpolated from the run's rows at the slip's time. Raises
+    :class:`OrbitNotFound` where the run shows no repeat at all, saying why.
     """
     if not isinstance(sol, Solution):
         raise TypeError(f"start must be a Solution, a state (alpha, omega[, u, v]) or None, got {type(sol).__name__}")
@@ -119,11 +144,13 @@ def start_from_run(sol: Solution, slips: int | None = None) -> tuple[np.ndarray,
         raise OrbitNotFound("start: the run ended at t = 0; there is nothing to find a repeat in")
     stats = cycle_statistics(sol, t_stop, transient=0.5 * t_stop)
     repeat = stats.repeat
+    if repeat is None and stats.too_few is not None and stats.too_few.events > 0 and math.isfinite(stats.too_few.period):
+        repeat = stats.too_few  # a near repeat: k and T to shoot from
     if repeat is None:
         if stats.slips == 0:
             why = "no stick → slip event in the run's second half (steady peeling, a stuck tape, or a run too short)"
         elif stats.too_few is not None:
-            why = f"too few repeats in the run's second half to tell ({stats.too_few}): run longer"
+            why = f"too few stick → slip events in the run's second half to look for a repeat ({stats.too_few}): run longer"
         else:
             why = "no repeat in the run's second half (irregular): give start=(alpha, omega) and slips= to shoot near it"
         raise OrbitNotFound(f"start: {why}")
@@ -219,4 +246,6 @@ def periodic_orbit(
         s0, k, T = state[:2], slips, period
     t_max = _PERIODS_PER_RUN * (period if period is not None else T) if (period or T) else _UNKNOWN_PERIOD_BOUND
     shooting = orbit_shooting(rtol=rtol, atol=atol, max_iterations=max_iterations)
-    return _orbit(shooting, model, jnp.asarray(V, float), jnp.asarray(s0, float), jnp.asarray(k, jnp.int32), jnp.asarray(t_max, float))
+    orbit = _orbit(shooting, model, jnp.asarray(V, float), jnp.asarray(s0, float), jnp.asarray(k, jnp.int32), jnp.asarray(t_max, float))
+    # k from a repeat may be a multiple of the orbit's own (a repeat seen before it settled).
+    return orbit if slips is not None else least_period(shooting, orbit)
