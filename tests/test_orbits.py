@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 import peeljax as pj
-from peeljax.orbits import OrbitStatus, SlipSection, one_period, orbit_shooting, periodic_orbit
+from peeljax.orbits import OrbitStatus, SlipSection, one_period, orbit_shooting, periodic_orbit, periodic_orbits
 from peeljax.orbits.api import _orbit
 from peeljax.orbits.continuation import BifurcationKind, continue_orbit
 
@@ -220,3 +220,18 @@ def test_continuation_over_V_locates_the_branchs_bifurcations(orbit):
     # The branch passes through the orbit it started from.
     i = int(np.argmin(np.abs(branch.V - V)))
     assert branch.period[i] == pytest.approx(float(orbit.period), rel=1e-6)
+
+
+@pytest.mark.slow
+def test_a_batch_of_orbits_equals_the_orbits_shot_alone(orbit):
+    V_lanes = np.array([1.09, 1.1, 1.095])
+    start = np.tile(np.asarray(orbit.section), (3, 1))
+    batch = periodic_orbits(V=V_lanes, start=start, slips=8, period=float(orbit.period))
+    assert np.all(np.asarray(batch.status) == 0) and np.asarray(batch.V) == pytest.approx(V_lanes)
+    for i, v in enumerate(V_lanes):
+        alone = periodic_orbit(V=v, start=start[i], slips=8, period=float(orbit.period))
+        assert float(batch.period[i]) == pytest.approx(float(alone.period), rel=1e-12)
+        for key in STATS:
+            assert float(batch.statistics[key][i]) == pytest.approx(float(alone.statistics[key]), rel=1e-12)
+    with pytest.raises(ValueError, match="start must be"):
+        periodic_orbits(V=V_lanes, start=start[:2], slips=8)

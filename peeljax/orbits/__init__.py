@@ -12,6 +12,7 @@ The layers of this package, each a module with one job:
     files.py      its file's format: :meth:`PeriodicOrbit.save` writes it
     saved_orbit.py  :class:`SavedOrbit`, an orbit read back by :func:`peeljax.load`
     api.py        :func:`periodic_orbit`: options checked, a start found from a run
+    batch.py      :func:`periodic_orbits`: many orbits in one compiled call, over every device
     continuation.py   a branch over V or a coefficient of φ: pseudo-arclength, stability, the
                   bifurcations located (fold, period doubling, torus, grazing, the end)
     diagram.py    :func:`orbit_diagram`: seeds from runs, every branch and what lies beyond
@@ -19,6 +20,7 @@ The layers of this package, each a module with one job:
 """
 
 from .api import DEFAULT_ORBIT_RTOL, OrbitNotFound, least_period, orbit_shooting, periodic_orbit, start_from_run
+from .batch import periodic_orbits
 from .continuation import Bifurcation, BifurcationKind, OrbitBranch, continue_orbit
 from .diagram import OrbitDiagram, Seed, orbit_diagram
 from .floquet import multipliers, test_functions
@@ -52,6 +54,7 @@ __all__ = [
     "orbit_shooting",
     "period_statistics",
     "periodic_orbit",
+    "periodic_orbits",
     "shoot",
     "start_from_run",
     "test_functions",

@@ -48,6 +48,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
 from ..adhesion import COEFFICIENT_NAMES
+from .._devices import over_devices
 from ..constrained import ConstrainedDAE
 from ..homogenized import HomogenizedODE
 from ..integrators.cycle_accumulator import CycleAccumulator
@@ -140,30 +141,6 @@ def slip_velocity(model: PeelingModel, V: Float[Array, ""]) -> Float[Array, ""]:
     """v̂(V) = the first maximum of φ(·, V) (:func:`peeljax.structure.phi_extremum`); inf if none (no events)."""
     v_hat = phi_extremum(model, V, "max")
     return jnp.where(jnp.isnan(v_hat), jnp.inf, v_hat)
-
-
-def _over_devices(lanes, mesh, shared, batched):
-    """``lanes(*shared, *batched)``, with ``shard_map`` over ``mesh`` (axis "batch") if given.
-
-    ``shared`` (pytrees of arrays and static fields) is replicated; ``batched`` is split along
-    its leading axis; the result is split the same way.
-    """
-    if mesh is None:
-        return lanes(*shared, *batched)
-    P = jax.sharding.PartitionSpec
-    arrays, static = eqx.partition(shared, eqx.is_array)
-
-    def per_device(arrays, *batched):
-        return lanes(*eqx.combine(arrays, static), *batched)
-
-    sharded = jax.shard_map(
-        per_device,
-        mesh=mesh,
-        in_specs=(P(), *(P("batch") for _ in batched)),
-        out_specs=P("batch"),
-        check_vma=False,
-    )
-    return sharded(arrays, *batched)
 
 
 # ---------------------------------------------------------------------------- statistics
@@ -434,4 +411,4 @@ def run_batch(
         return jax.tree_util.tree_map(lambda x: x[inverse], results)
 
     shared = (model, integrator, t_final, window, save)
-    return _over_devices(lanes, mesh, shared, (V, tau, params))
+    return over_devices(lanes, mesh, shared, (V, tau, params))
