@@ -107,6 +107,7 @@ from .orbits import (  # noqa: E402
     continue_orbit,
     orbit_diagram,
     periodic_orbit,
+    periodic_orbits,
 )
 from .saved import SavedRun, load  # noqa: E402
 from .simulate import simulate, simulate_reference  # noqa: E402
@@ -180,6 +181,7 @@ __all__ = [
     "load",
     "orbit_diagram",
     "periodic_orbit",
+    "periodic_orbits",
     "local_index",
     "neumann_radius",
     "neumann_terms",

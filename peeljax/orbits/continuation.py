@@ -62,7 +62,7 @@ from .shooting import OrbitStatus, Shooting, linearised
 __all__ = ["Bifurcation", "BifurcationKind", "BranchPoint", "OrbitBranch", "continue_orbit", "parameter_leaf"]
 
 STATISTICS = ("F_mean", "F_slip", "F_stick", "period", "slip_duration")
-_CORRECTOR_ITERATIONS = 8
+_CORRECTOR_ITERATIONS = 6  # from a predictor on the branch Newton needs 2–3
 _MOST_MOVED = 0.5  # × the step: the farthest a correction may move off its prediction
 _LEAST_ALIGNED = 0.95  # cos of the sharpest turn of the tangent over one step (18°)
 _QUICK = 3  # a correction in at most this many iterations lets the step grow
@@ -272,7 +272,7 @@ def continue_orbit(
     parameter: str = "V",
     bounds: tuple[float, float] | None = None,
     ds: float = 0.02,
-    ds_min: float = 1e-5,
+    ds_min: float = 1e-4,
     ds_max: float = 0.05,
     max_points: int = 400,
     directions: tuple[int, ...] = (1, -1),
@@ -350,10 +350,11 @@ def continue_orbit(
                 step /= 2
                 if step < ds_min:
                     kind, why = _end_of(points, new)
-                    where = last["X"][2] * scale
+                    where = _extrapolated_end(points, kind) * scale
                     ends.append(f"{'+' if direction > 0 else '-'}{parameter}: {kind.value} at {where:.6g} ({why})")
                     bifurcations.append(
-                        Bifurcation(kind, where, last["V"], k, len(points) - 1, why, direction, tuple(last["section"]),
+                        Bifurcation(kind, where, where if parameter == "V" else last["V"], k, len(points) - 1, why,
+                                    direction, tuple(last["section"]),
                                     tuple(last["monodromy"].ravel()), last["period"])  # fmt: skip
                     )
                     say(f"  {kind.value} at {parameter} = {where:.6g}")
@@ -384,6 +385,26 @@ def continue_orbit(
 
 _GRAZING_APPROACH = 1e-3  # × (φ(v̂) − φ(v̌)): a stick phase this close to φ's maximum grazes it
 _GRAZING_CROSSING = 1e-2  # × the branch's fastest crossing: a slip this slow is vanishing
+
+
+def _extrapolated_end(points: list[dict], kind: BifurcationKind) -> float:
+    """The scaled parameter of a grazing from the branch's last two points: the monitor that
+    vanishes there is linear in the arclength near it (the approach; the square of the crossing
+    rate, which vanishes like a square root), so its secant's zero places the grazing to second
+    order in the last step, finer than the smallest step finds it. The last point's parameter
+    otherwise."""
+    last = points[-1]["X"][2]
+    if kind not in (BifurcationKind.NEW_SLIP, BifurcationKind.LOST_SLIP) or len(points) < 2:
+        return last
+    a, b = points[-2], points[-1]
+    f = (lambda p: p["approach"]) if kind == BifurcationKind.NEW_SLIP else (lambda p: p["crossing"] ** 2)
+    fa, fb = f(a), f(b)
+    if not (np.isfinite(fa) and np.isfinite(fb)) or fa == fb:
+        return last
+    w = fb / (fa - fb)  # the zero at b + w·(b − a)
+    if not 0 <= w <= 1:
+        return last
+    return float(b["X"][2] + w * (b["X"][2] - a["X"][2]))
 
 
 def _end_of(points: list[dict], failed: dict) -> tuple[BifurcationKind, str]:
