@@ -1,57 +1,64 @@
-"""Coverage of the table fit's 95 % intervals (issue 28, item 4): over many noise draws of one
-hidden-truth stick-slip table, the fraction of draws whose 95 % interval of each coefficient
-covers the truth (target 92–98 % over ≥ 200 draws).
+"""Coverage of the table fit's 95 % intervals: over many noise draws of one hidden-truth
+stick-slip table, the fraction of draws whose 95 % confidence set of each coefficient covers
+the truth (target 92–98 % over ≥ 200 draws for two coefficients, ≥ 100 for three).
 
-Problem (small, so that many draws fit in the time): φ with c1 × 1.05 and c6 × 1.05 (the pair
-whose terms c1·v^0.35 and c6·v^0.5 compensate), a table at V = 1.0, 1.5, 2.2, 3.0 m/s with all
-five statistics over [0.5, 1.5] s, made once at the fit's tolerances; each draw multiplies every
-entry by 1 + 0.01·N(0, 1) and gives σ = 1 % of the exact value (``synthetic_table``'s recipe),
-and is fitted from the paper's φ by :func:`peeljax.fit.fit_stick_slip` (``free=("c1", "c6")``,
-the default ``scale_covariance="auto"``). Every draw reuses the one compiled program (same
-shapes). Prints the coverage per coefficient with its binomial standard error, the mean χ²/dof,
-how often the covariance was scaled, and how many fits converged.
+Problems:
 
-    python benchmarks/fit_coverage.py [--draws 200] [--seed 0] [--level 0.95] [--taper 0.25]
+* ``two`` — φ with c1 × 1.05 and c6 × 1.05 (the pair whose terms c1·v^0.35 and c6·v^0.5
+  compensate), a table at V = 1.0, 1.5, 2.2, 3.0 m/s, ``free=("c1", "c6")``;
+* ``three`` — φ with c1 × 1.12, c3 × 1.06, c6 × 1.10 at V = 0.8, 1.0, 1.2, 1.5, 1.8, 2.2, 2.6,
+  3.0 m/s, ``free=("c1", "c3", "c6")``.
+
+The table holds the model's statistics at the truth as :func:`peeljax.fit.fit_stick_slip`
+predicts them by default (each row on the attractor reached from rest: the periodic orbit's
+statistics over one period; :func:`peeljax.fit.table_rows.attractor_statistics`), all five at
+every V; each draw multiplies every entry by 1 + 0.01·N(0, 1) and gives σ = 1 % of the exact
+value (``synthetic_table``'s recipe), and is fitted from the paper's φ with the defaults
+(``intervals="auto"``: profile-likelihood intervals where a bifurcation lies within the
+linearized ones). Every draw reuses the compiled programs. Counted per draw: whether the
+reported confidence set (the profile's where computed) and the linearized interval cover the
+truth, χ²/dof, convergence, bifurcations crossed, whether profiles were computed, time. One
+JSON line per draw goes to ``--out`` (appended: ``--resume`` goes on from the draws there).
+
+    python benchmarks/fit_coverage.py [--problem two|three] [--draws 200] [--seed 0]
+                                      [--intervals auto|linear|profile] [--out FILE] [--resume]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import time
+from pathlib import Path
 
-import equinox as eqx
-import jax.numpy as jnp
 import numpy as np
 
 import peeljax as pj
 from peeljax.fit import StickSlipTable, fit_stick_slip
 from peeljax.fit.statistics import STATISTICS
-from peeljax.fit.plots import model_statistics
-from peeljax.fit.table import build_table_fit, table_tolerances
+from peeljax.fit.table_rows import attractor_statistics
 
-TRUTH = {"c1": 1.05, "c6": 1.05}
-V = (1.0, 1.5, 2.2, 3.0)
-WINDOW = {"transient": 0.5, "window": 1.0}  # fit_stick_slip's defaults
-FIT = {"n_coarse": 2, "n_starts": 1, "max_iterations": 20}
-
-
-def exact_statistics(truth: pj.AdhesionLaw, taper: float = 0.0) -> dict[str, np.ndarray]:
-    """The model's statistics at ``V`` with φ = ``truth``, as the fit runs them (its tolerances, ``taper``)."""
-    rtol, atol = table_tolerances(0.0)
-    if taper == 0:
-        return model_statistics(truth, V, rtol=rtol, atol=atol, **WINDOW)[0]
-    shape = (len(V), len(STATISTICS))
-    fit = build_table_fit(
-        truth, pj.PeelingModel(), V, np.zeros(shape), np.ones(shape), np.ones(shape, bool), names=("c1",), tau=0.0,
-        n_samples=401, rtol=rtol, atol=atol, max_jumps=4096, max_steps=400_000, taper=taper, **WINDOW,
-    )  # fmt: skip
-    values, available, _ = eqx.filter_jit(lambda f, th: f.statistics(th))(fit, {"c1": jnp.zeros(())})
-    values = np.where(np.asarray(available), np.asarray(values), np.nan)
-    return {s: values[:, j] for j, s in enumerate(STATISTICS)}
+PROBLEMS = {
+    "two": ({"c1": 1.05, "c6": 1.05}, (1.0, 1.5, 2.2, 3.0)),
+    "three": ({"c1": 1.12, "c3": 1.06, "c6": 1.10}, (0.8, 1.0, 1.2, 1.5, 1.8, 2.2, 2.6, 3.0)),
+}
 
 
-def draw(stats: dict, rng, noise: float = 0.01) -> StickSlipTable:
+def truth_of(problem: str) -> tuple[pj.AdhesionLaw, tuple[str, ...], tuple[float, ...]]:
+    factors, V = PROBLEMS[problem]
+    c = pj.AdhesionLaw().coefficients()
+    return pj.AdhesionLaw(**{**c, **{n: c[n] * m for n, m in factors.items()}}), tuple(factors), V
+
+
+def exact_statistics(truth: pj.AdhesionLaw, V, names) -> tuple[dict[str, np.ndarray], list[str]]:
+    """The statistics the fit predicts at the truth (module docstring), and each row's kind."""
+    point, rows, _ = attractor_statistics(truth, V, names=names)
+    values = np.where(point.available, point.values, np.nan)
+    return {s: values[:, j] for j, s in enumerate(STATISTICS)}, rows.kinds
+
+
+def draw(stats: dict, V, rng, noise: float = 0.01) -> StickSlipTable:
     """One noisy table: each entry × (1 + noise·N(0, 1)), σ = noise·|exact|."""
     columns = {}
     for name in STATISTICS:
@@ -61,43 +68,68 @@ def draw(stats: dict, rng, noise: float = 0.01) -> StickSlipTable:
     return StickSlipTable.from_dict(V=np.asarray(V), **columns)
 
 
+def summarize(records: list[dict], names, level: float) -> str:
+    n = len(records)
+    lines = ["| coefficient | coverage (reported) | coverage (linearized) | ± binomial SE | draws |", "|---|---:|---:|---:|---:|"]
+    for name in names:
+        p = np.mean([r["covers"][name] for r in records])
+        q = np.mean([r["covers_linear"][name] for r in records])
+        lines.append(f"| {name} | {p:.1%} | {q:.1%} | {math.sqrt(max(p * (1 - p), 1e-12) / n):.1%} | {n} |")
+    chi2 = np.mean([r["chi2_dof"] for r in records])
+    lines.append(
+        f"\nmean chi2/dof {chi2:.3f}; converged {sum(r['converged'] for r in records)} of {n}; profiles computed in "
+        f"{sum(bool(r['profiles']) for r in records)}; bifurcations crossed per fit {np.mean([r['crossings'] for r in records]):.1f}; "
+        f"fit median {np.median([r['wall'] for r in records]):.1f} s (first {records[0]['wall']:.0f} s with compilation)"
+    )
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--problem", choices=tuple(PROBLEMS), default="two")
     parser.add_argument("--draws", type=int, default=200)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--level", type=float, default=0.95)
-    parser.add_argument("--taper", type=float, default=0.0, help="tapered window statistics (fit_stick_slip's taper)")
+    parser.add_argument("--intervals", choices=("auto", "linear", "profile"), default="auto")
+    parser.add_argument("--out", default=None, help="JSON lines, one per draw (default: none)")
+    parser.add_argument("--resume", action="store_true", help="go on after the draws already in --out")
     args = parser.parse_args()
-    c = pj.AdhesionLaw().coefficients()
-    truth = pj.AdhesionLaw(**{**c, **{n: c[n] * m for n, m in TRUTH.items()}})
-    names = tuple(TRUTH)
-    stats = exact_statistics(truth, args.taper)
+    truth, names, V = truth_of(args.problem)
+    true = {n: float(getattr(truth, n)) for n in names}
+    began = time.perf_counter()
+    stats, kinds = exact_statistics(truth, V, names)
+    print(f"truth {true} at V = {V}: rows {kinds} ({time.perf_counter() - began:.0f} s)", flush=True)
+    records = []
+    if args.out and args.resume and Path(args.out).exists():
+        records = [json.loads(line) for line in Path(args.out).read_text().splitlines() if line.strip()]
     rng = np.random.default_rng(args.seed)
-    covered = np.zeros(len(names), int)
-    chi2_dof, scaled, converged, walls = [], 0, 0, []
     for k in range(args.draws):
+        table = draw(stats, V, rng)  # drawn for every k, so that a resumed run draws the same tables
+        if k < len(records):
+            continue
         began = time.perf_counter()
-        result = fit_stick_slip(draw(stats, rng), free=names, taper=args.taper, **WINDOW, **FIT)
-        walls.append(time.perf_counter() - began)
-        intervals = result.uncertainty.intervals(args.level)
-        covered += [intervals[n][0] <= float(getattr(truth, n)) <= intervals[n][1] for n in names]
-        chi2_dof.append(result.chi2_dof)
-        scaled += bool(result.uncertainty.scaled)
-        converged += bool(result.converged)
-        if (k + 1) % 10 == 0 or k + 1 == args.draws:
-            n = k + 1
-            cover = ", ".join(f"{name} {covered[j] / n:.1%}" for j, name in enumerate(names))
-            print(f"{n} draws: coverage {cover}; mean chi2/dof {np.mean(chi2_dof):.3f}; scaled {scaled}; "
-                  f"converged {converged}; fit median {np.median(walls[1:] or walls):.2f} s", flush=True)  # fmt: skip
-    n = args.draws
-    print(f"\n| coefficient | truth | coverage of the {args.level:.0%} intervals | ± binomial SE | draws |")
-    print("|---|---:|---:|---:|---:|")
-    for j, name in enumerate(names):
-        p = covered[j] / n
-        print(f"| {name} | {float(getattr(truth, name)):.5g} | {p:.1%} | {math.sqrt(p * (1 - p) / n):.1%} | {n} |")
-    print(f"\nmean chi2/dof {np.mean(chi2_dof):.3f} (dof {result.dof}); covariance scaled in {scaled} of {n} draws; "
-          f"{converged} of {n} fits converged; first fit (compilation) {walls[0]:.1f} s, then median "
-          f"{np.median(walls[1:] or walls):.2f} s per draw")  # fmt: skip
+        result = fit_stick_slip(table, free=names, intervals=args.intervals, level=args.level)
+        linear = result.uncertainty.intervals(args.level)
+        record = {
+            "draw": k, "covers": result.covers(true, args.level),
+            "covers_linear": {n: bool(linear[n][0] <= true[n] <= linear[n][1]) for n in names},
+            "values": dict(zip(names, map(float, result.uncertainty.values))),
+            "se": dict(zip(names, map(float, result.uncertainty.standard_errors))),
+            "intervals": result.intervals(args.level), "chi2": result.chi2, "chi2_dof": result.chi2_dof,
+            "converged": result.converged, "stop": result.stop_reason.split(":")[0],
+            "crossings": len(result.crossings), "profiles": sorted(result.profiles),
+            "rows": [(r["kind"], r.get("slips")) for r in result.rows], "wall": time.perf_counter() - began,
+        }  # fmt: skip
+        records.append(record)
+        if args.out:
+            with open(args.out, "a") as f:
+                f.write(json.dumps(record) + "\n")
+        cover = ", ".join(f"{n} {record['covers'][n]}/{record['covers_linear'][n]}" for n in names)
+        print(f"draw {k}: {cover} (reported/linear); chi2/dof {result.chi2_dof:.2f}; {record['stop']}; "
+              f"{record['crossings']} crossings; profiles {record['profiles']}; {record['wall']:.0f} s", flush=True)  # fmt: skip
+        if len(records) % 10 == 0:
+            print(summarize(records, names, args.level), flush=True)
+    print(summarize(records, names, args.level))
 
 
 if __name__ == "__main__":

@@ -571,7 +571,8 @@ def test_detected_slips_are_the_model_jumps():
     model = pj.PeelingModel()
     sol = pj.simulate(model, V=1.1, tau=0, t_final=2.0, fold="jump", ts=ts, rtol=1e-8, atol=1e-10, max_steps=400_000)
     assert sol.status_name == "completed"
-    ys = np.asarray(sol.ys)
+    rows = ~np.asarray(sol.before_jump) & ~np.asarray(sol.after_jump)  # the samples at ts (not the jumps' rows)
+    ys = np.asarray(sol.ys)[rows]
     F = np.asarray(model.tension(ys[:, 2], ys[:, 0]))
     n = int(sol.jumps.count)
     jt, up = np.asarray(sol.jumps.t)[:n], np.asarray(sol.jumps.up)[:n]
@@ -607,8 +608,19 @@ def caught_fit(monkeypatch):
     return seen, Reached
 
 
-def test_cli_reads_csv_force_records_with_and_without_V(tmp_path, caught_fit):
-    seen, Reached = caught_fit
+def test_cli_reads_csv_force_records_with_and_without_V(tmp_path, monkeypatch):
+    """A record with v and a force record (t, F) in one call: both fitted by fit_records (point
+    by point: the force record is too short to stick-slip), the choice said on stderr."""
+    seen = {}
+
+    class Reached(Exception):
+        pass
+
+    def fake(observations, model=None, **kwargs):
+        seen["observations"], seen["kwargs"] = observations, kwargs
+        raise Reached
+
+    monkeypatch.setattr("peeljax.fit.fit_records", fake)
     named = write(tmp_path, "peel_V=1.1.csv", "t,F,v\n0,250,0.5\n0.1,251,0.6\n0.2,252,0.7\n")
     plain = write(tmp_path, "run.txt", "t F\n0 260\n0.1 261\n0.3 262\n")
     out = str(tmp_path / "fitted.json")
@@ -618,7 +630,7 @@ def test_cli_reads_csv_force_records_with_and_without_V(tmp_path, caught_fit):
     assert (a.V, b.V) == (1.1, 2.0)
     np.testing.assert_array_equal(a.v, [0.5, 0.6, 0.7])
     assert b.v is None and list(b.F) == [260.0, 261.0, 262.0]
-    assert seen["kwargs"]["t_final"] == 0.3
+    assert seen["kwargs"]["by"] == "auto" and seen["kwargs"]["tau"] == 0.01
 
 
 def test_load_observations_mixes_npz_and_text(tmp_path):

@@ -123,6 +123,23 @@ def add_command(subparsers) -> None:
         help="--data: the subset of v F alpha to fit (default: all in the data)",
     )  # fmt: skip
     fit.add_argument(
+        "--by", default=None, metavar="{auto,statistics,points}",
+        help="--data force records (t, F): fit each by its stick-slip statistics, or point by point; auto: by "
+        "statistics where it stick-slips (at least 10 slips after --transient), else by points (default auto; the "
+        "choice is said on stderr)",
+    )  # fmt: skip
+    fit.add_argument(
+        "--method", default=None, metavar="{orbit,window}",
+        help="--table: each row's statistics from its attractor (orbit: the periodic orbit's over one period, "
+        "steady peeling's phi(V, V), a window where no periodic attractor) or from a window of a run from rest "
+        "(window; needed for --tau > 0) (default orbit)",
+    )  # fmt: skip
+    fit.add_argument(
+        "--intervals", default=None, metavar="{auto,profile,linear}",
+        help="--table and force records: profile-likelihood intervals beside the linearized ones where a "
+        "bifurcation lies within them (auto), always (profile), never (linear) (default auto)",
+    )  # fmt: skip
+    fit.add_argument(
         "--statistics", nargs="+", metavar="S", default=None,
         help="--table: the table's statistics to fit (default: all it has)",
     )  # fmt: skip
@@ -142,8 +159,8 @@ def add_command(subparsers) -> None:
     )  # fmt: skip
     fit.add_argument(
         "--n-starts", dest="n_starts", type=int, default=None, metavar="N",
-        help="--table: Levenberg-Marquardt runs from the N best starting points, >= 1 (default: the library's, "
-        f"{_table_default('n_starts')})",
+        help="--table: Levenberg-Marquardt runs from the N best starting points, >= 1 (default 1 with --method "
+        "orbit, 3 with --method window)",
     )  # fmt: skip
     fit.add_argument("--starts", dest="starts_deprecated", type=int, default=None, help=argparse.SUPPRESS)
     output = parser.add_argument_group("output")
@@ -216,7 +233,8 @@ def _files_of(paths: list[str], observations: list[Observation]) -> list[str]:
 
 
 _STEPS, _PATIENCE = 500, 50  # --steps and --patience left out (a point-by-point fit)
-_TABLE_ONLY = ("transient", "window", "n_starts", "starts_deprecated", "max_iterations", "statistics")
+_TABLE_ONLY = ("transient", "window", "n_starts", "starts_deprecated", "max_iterations", "statistics", "method",
+               "intervals")
 _DATA_ONLY = ("V", "dt", "t_final", "learning_rate", "quantities", "steps", "optimizer", "patience")
 
 
@@ -231,7 +249,7 @@ def _check_source(args: argparse.Namespace) -> None:
     if args.data is None and args.table is None:
         raise ValueError("give --data FILE (runs to fit) or --table TABLE.csv (a stick-slip table to fit)")
     if args.table is not None:
-        _refuse(args, (*_DATA_ONLY, "decimate"), "--table")
+        _refuse(args, (*_DATA_ONLY, "decimate", "by"), "--table")
     if args.data is not None and args.out is None:
         raise ValueError("--out FITTED.json is required with --data")
 
@@ -257,6 +275,17 @@ def force_records_only(observations: list[Observation]) -> bool:
     return all(not has(o, "v") and not has(o, "alpha") and has(o, "F") for o in observations)
 
 
+def any_force_record(observations: list[Observation]) -> bool:
+    """True where some observation has F but neither v nor α: a force record (t, F), fitted by
+    its statistics or point by point (:func:`peeljax.fit.fit_records`)."""
+
+    def has(o, quantity):
+        values = getattr(o, quantity)
+        return values is not None and bool(np.isfinite(values).any())
+
+    return any(not has(o, "v") and not has(o, "alpha") and has(o, "F") for o in observations)
+
+
 def _table_default(name: str):
     """A default of :func:`peeljax.fit.fit_stick_slip` (the help and the checks state it)."""
     return _TABLE_DEFAULTS[name]
@@ -280,14 +309,14 @@ def _table_window(args: argparse.Namespace) -> tuple[float, float]:
     return float(transient), float(window)
 
 
-def _n_starts(args: argparse.Namespace) -> int:
+def _n_starts(args: argparse.Namespace) -> int | None:
     if args.starts_deprecated is not None:
         options.deprecated(f"--starts {args.starts_deprecated}", f"--n-starts {args.starts_deprecated}")
         if args.n_starts is not None:
             raise ValueError("--starts is the old spelling of --n-starts: give --n-starts only")
     n = args.n_starts if args.starts_deprecated is None else args.starts_deprecated
     if n is None:
-        return int(_table_default("n_starts"))
+        return None  # the library's default: 1 with --method orbit, 3 with window
     if n < 1:
         spelled = "--n-starts" if args.starts_deprecated is None else "--starts (now --n-starts)"
         raise ValueError(f"{spelled} must be >= 1 (allowed range: [1, inf)), got {n}")
@@ -365,15 +394,116 @@ def _validate_table(args: argparse.Namespace, table=None, source: str | None = N
             f"--free: {n_measured} measured values in {source} cannot determine {len(free)} coefficient(s) "
             "with an error estimate; fit fewer"
         )
+    method = _choice("--method", args.method, ("orbit", "window"), "orbit" if tau == 0 else "window")
+    if method == "orbit" and tau != 0:
+        raise ValueError(f"--method orbit needs --tau 0 (orbits of the DAE with jumps); --tau {tau:g} needs --method window")
+    intervals = _choice("--intervals", args.intervals, ("auto", "profile", "linear"), "auto")
     start = AdhesionLaw() if args.phi is None else load_phi(args.phi)
     options.check_outputs(args)
     return {
+        "method": method, "intervals": intervals,
         "table": table, "source": source, "tau": float(tau), "transient": transient, "window": window,
         "n_starts": n_starts, "max_iterations": int(max_iterations), "rtol": rtol, "atol": atol,
         "free": free, "statistics": tuple(statistics), "start": start,
         # left out: fit_stick_slip's own budget
         **({} if args.max_steps is None else {"max_steps": int(args.max_steps)}),
     }  # fmt: skip
+
+
+def _choice(option: str, value, allowed: tuple[str, ...], default: str) -> str:
+    if value is None:
+        return default
+    if value not in allowed:
+        raise ValueError(f"{option} must be one of {', '.join(allowed)}, got {value!r}")
+    return value
+
+
+def _validate_records(args: argparse.Namespace, observations: list[Observation], defaults: dict) -> dict:
+    """The options of force records fitted by statistics and/or point by point
+    (:func:`peeljax.fit.fit_records`), all checked before anything is compiled."""
+    from ..fit.records_fit import BY, how_fitted
+
+    _refuse(args, _DATA_ONLY[1:], "force records (t, F): fitted by their statistics or point by point")
+    _refuse(args, ("window", "n_starts", "starts_deprecated", "method"),
+            "force records (t, F) (their statistics run from --transient to each record's end)")  # fmt: skip
+    by = _choice("--by", args.by, BY, "auto")
+    transient = args.transient
+    if transient is not None:
+        t_end = min(float(np.nanmax(o.series("F")[0])) for o in observations if o.series("F") is not None)
+        if not (math.isfinite(transient) and 0 <= transient < t_end):
+            raise ValueError(f"--transient must lie in [0, {t_end:g}) [s] for these records (their statistics are "
+                             f"taken after it), got {transient:g}")  # fmt: skip
+    try:
+        decided = how_fitted(observations, by, transient)
+    except ValueError as error:
+        raise ValueError(f"--by {by}: {error}") from None
+    points = [o for o, (kind, _) in zip(observations, decided) if kind == "points"]
+    if points:
+        check_fit_samples(points, [f"--data {name}" for name, (kind, _) in
+                                   zip(_files_of(args.data, observations), decided) if kind == "points"], "--decimate")  # fmt: skip
+    tau = args.tau if args.tau is not None else defaults.get("tau", 0.01)
+    checked(f"(0, {TAU_MAX:g}]", check_tau, tau)  # the τ of records fitted point by point
+    statistics = None
+    if args.statistics is not None:
+        from ..fit.stick_slip_table import STATISTICS
+
+        unknown = [name for name in args.statistics if name not in STATISTICS]
+        if unknown:
+            raise ValueError(f"--statistics: {unknown} is not a statistic of force records; allowed: {', '.join(STATISTICS)}")
+        statistics = tuple(args.statistics)
+    max_iterations = 20 if args.max_iterations is None else args.max_iterations
+    if max_iterations < 1:
+        raise ValueError(f"--max-iterations must be >= 1 (allowed range: [1, inf)), got {max_iterations}")
+    free = ("c1", "c3", "c6") if args.free is None else tuple(args.free)
+    unknown = [n for n in free if n not in COEFFICIENT_NAMES]
+    if unknown:
+        raise ValueError(f"--free: unknown coefficient(s) {unknown}; allowed: {', '.join(COEFFICIENT_NAMES)}")
+    rtol, atol = options.check_tolerances(args.rtol, args.atol, (1e-8, 1e-10))
+    intervals = _choice("--intervals", args.intervals, ("auto", "profile", "linear"), "auto")
+    start = AdhesionLaw() if args.phi is None else load_phi(args.phi)
+    options.check_outputs(args)
+    return {"records": observations, "decided": decided, "by": by, "transient": transient, "tau": float(tau),
+            "statistics": statistics,
+            "max_iterations": int(max_iterations), "free": free, "rtol": rtol, "atol": atol, "intervals": intervals,
+            "start": start}  # fmt: skip
+
+
+def _records_command(args: argparse.Namespace, config: dict) -> int:
+    """``peeljax fit --data`` with force records: :func:`peeljax.fit.fit_records`."""
+    from ..fit import fit_records
+    from ..model import PeelingModel
+
+    for name, (kind, why) in zip(_files_of(args.data, config["records"]), config["decided"]):
+        print(f"{PROG}: --data {name}: fitted by {kind} ({why})", file=sys.stderr)
+    print(f"{PROG}: fitting {', '.join(config['free'])}; compiling first ...", file=sys.stderr)
+    model = PeelingModel(adhesion=config["start"])
+    hooked = options.progress_on(args)
+    result = fit_records(
+        config["records"], model, free=config["free"], by=config["by"], transient=config["transient"],
+        tau=config["tau"], rtol=config["rtol"], atol=config["atol"], max_iterations=config["max_iterations"],
+        statistics=config["statistics"],
+        intervals=config["intervals"], progress=_iteration_line("Levenberg-Marquardt") if hooked else None,
+    )  # fmt: skip
+    result.settings.update({"data": args.data, "phi": args.phi})
+    if args.out is not None:
+        result.to_json(args.out)
+    table = getattr(result, "table", None)
+    if args.plot is not None and table is not None:
+        from ..fit.plots import plot_table_fit
+
+        plot_table_fit(result, table, model=model, path=args.plot)
+    elif args.plot is not None:
+        print(f"{PROG}: --plot: records fitted point by point only are not drawn; no figure written", file=sys.stderr)
+    if args.json:
+        record = result.to_dict()
+        record.update({"out": args.out, "plot": args.plot if table is not None else None})
+        print(json.dumps(json_safe(record), allow_nan=False))
+        return 0
+    print(_ascii(result.summary()))
+    written = [p for p in (args.out, args.plot if table is not None else None) if p is not None]
+    if written:
+        print("wrote " + " and ".join(written))
+    return 0
 
 
 def _iteration_line(what: str):
@@ -407,6 +537,7 @@ def _table_command(args: argparse.Namespace, config: dict) -> int:
     progress = {"progress": _iteration_line("Levenberg-Marquardt")} if hooked else {}
     result = fit_stick_slip(
         table, model, free=config["free"], statistics=config["statistics"], tau=config["tau"],
+        method=config["method"], intervals=config["intervals"],
         transient=config["transient"], window=config["window"], rtol=config["rtol"], atol=config["atol"],
         max_iterations=config["max_iterations"], n_starts=config["n_starts"],
         **({"max_steps": config["max_steps"]} if "max_steps" in config else {}), **progress,
@@ -520,23 +651,16 @@ def _fit_command(args: argparse.Namespace) -> int:
         else:
             _check_run_options(args)
             observations, defaults = load_observations(args.data, args.V, args.decimate)
-            if force_records_only(observations):
-                config = _validate_table(
-                    args, _records_table(args, observations), f"the statistics of {len(observations)} force record(s)"
-                )
+            if args.by is not None or any_force_record(observations):
+                config = _validate_records(args, observations, defaults)
             else:
                 config = _validate(args, observations, defaults)
     except (ValueError, TypeError) as error:
         return fail(error)
     if "table" in config:
-        if args.data is not None:
-            print(
-                f"{PROG}: the --data files hold t and F only (force records): fitting their stick-slip statistics "
-                f"per V after --transient {config['transient']:g} s (StickSlipTable.from_force_records: "
-                f"{', '.join(config['table'].statistics)}), not the records point by point",
-                file=sys.stderr,
-            )
         return _table_command(args, config)
+    if "records" in config:
+        return _records_command(args, config)
     from ..fit import fit_adhesion
 
     observations = config["observations"]

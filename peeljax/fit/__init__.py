@@ -7,6 +7,12 @@
 * :mod:`.measured_statistics` — the stick-slip statistics of a measured sawtooth F(t);
 * :mod:`.statistics` — the same statistics of a simulated run, differentiable through its jumps;
 * :mod:`.table` — Levenberg–Marquardt on a stick-slip table (:func:`fit_stick_slip`);
+* :mod:`.table_rows` — each table row on its attractor: steady peeling, a periodic orbit, a window;
+* :mod:`.attractors` — each row's periodic orbit found, followed from step to step, checked;
+* :mod:`.profile` — profile-likelihood intervals, honest across bifurcations;
+* :mod:`.instrument` — the model's statistics as a record's sampling and noise show them;
+* :mod:`.points` — records fitted point by point by Levenberg–Marquardt, with uncertainties;
+* :mod:`.records_fit` — records of every kind in one fit (:func:`fit_records`);
 * :mod:`.uncertainty` — covariance, standard errors, correlations, undetermined coefficients,
   the band on φ;
 * :mod:`.trajectory` — point-wise fits of smooth runs v(t), F(t), α(t) (optax), and of
@@ -20,6 +26,8 @@ from .measured_statistics import record_statistics
 from .records import read_force_record, read_observations
 from .statistics import jump_statistics
 from .stick_slip_table import StickSlipTable, read_stick_slip_table
+from .instrument import Instrument
+from .records_fit import fit_records
 from .table import fit_stick_slip
 from .text_tables import DataFileError
 from .trajectory import (
@@ -39,12 +47,14 @@ __all__ = [
     "QUANTITIES",
     "DataFileError",
     "FitResult",
+    "Instrument",
     "LossInfo",
     "Observation",
     "StickSlipTable",
     "Uncertainty",
     "fit_adhesion",
     "fit_adhesion_steady",
+    "fit_records",
     "fit_stick_slip",
     "jump_statistics",
     "phi_relative_error",

@@ -26,6 +26,7 @@ from ..adhesion import AdhesionLaw
 from ..model import PeelingModel
 from .stick_slip_table import STATISTICS, StickSlipTable
 from .table import TableFit, build_table_fit
+from .table_rows import attractor_statistics
 
 __all__ = ["model_statistics", "plot_table_fit"]
 
@@ -49,6 +50,7 @@ def model_statistics(
     V,
     *,
     model: PeelingModel | None = None,
+    method: str = "orbit",
     tau: float = 0.0,
     transient: float = 0.5,
     window: float = 1.0,
@@ -57,22 +59,35 @@ def model_statistics(
     atol: float = 1e-10,
     max_jumps: int = 4096,
     max_steps: int = 400_000,
+    taper: float | None = None,
 ) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """The model's stick-slip statistics at the pull velocities ``V`` (a sequence, or a
-    :class:`~peeljax.fit.StickSlipTable`), run as :func:`~peeljax.fit.table.fit_stick_slip`
-    runs them, with φ = ``law``.
+    :class:`~peeljax.fit.StickSlipTable`), as :func:`~peeljax.fit.table.fit_stick_slip`
+    predicts them with φ = ``law`` and its ``method``: ``"orbit"`` (default: each row on its
+    attractor — steady peeling's φ(V, V), the periodic orbit's statistics over one period, or the
+    tapered window statistics where there is no periodic attractor;
+    :func:`peeljax.fit.table_rows.attractor_statistics`) or ``"window"`` (the statistics over
+    ``[transient, transient + window]`` of a run from the paper's start).
 
     Returns:
-        ({statistic: (n,) values, NaN where the run did not produce it}, the (n, 2) range of v
-        visited in each window).
+        ({statistic: (n,) values, NaN where the model does not produce it}, the (n, 2) range of
+        v visited in each row).
     """
     V = np.asarray(V.V if isinstance(V, StickSlipTable) else V, float).reshape(-1)
     model = PeelingModel() if model is None else model
+    if method == "orbit":
+        window_options = {"transient": transient, "window": window, "n_samples": n_samples, "max_jumps": max_jumps,
+                          "max_steps": max_steps, "taper": 0.25 if taper is None else taper}  # fmt: skip
+        point, _, _ = attractor_statistics(law, V, model=model, window_fit_options=window_options)
+        values = np.where(point.available, point.values, np.nan)
+        return {s: values[:, j] for j, s in enumerate(STATISTICS)}, point.v_range
+    if method != "window":
+        raise ValueError(f"method must be 'orbit' or 'window', got {method!r}")
     shape = (V.size, len(STATISTICS))
     fit = build_table_fit(
         law, model, V, np.zeros(shape), np.ones(shape), np.ones(shape, bool), names=("c1",), tau=tau,
         transient=transient, window=window, n_samples=n_samples, rtol=rtol, atol=atol, max_jumps=max_jumps,
-        max_steps=max_steps,
+        max_steps=max_steps, taper=0.0 if taper is None else taper,
     )  # fmt: skip
     values, available, v_range = _statistics(fit, {"c1": jnp.zeros(())})
     values = np.where(np.asarray(available), np.asarray(values, float), np.nan)
@@ -95,7 +110,7 @@ def synthetic_table(law: AdhesionLaw, V, *, noise: float = 0.01, seed: int = 0, 
 
 def _run_options(result) -> dict:
     s = result.settings
-    keys = ("tau", "transient", "window", "n_samples", "rtol", "atol")
+    keys = ("method", "tau", "transient", "window", "n_samples", "rtol", "atol", "taper")
     return {k: s[k] for k in keys if k in s}
 
 
@@ -208,6 +223,9 @@ def plot_table_fit(
 
     marks = [(Line2D([], [], marker="^", color="0.6", mec="k", ls="none"), "fold: φ max"),
              (Line2D([], [], marker="v", color="0.6", mec="k", ls="none"), "fold: φ min")]  # fmt: skip
+    steady = [row for row in getattr(result, "rows", []) if row.get("kind") == "steady"]
+    if steady:
+        marks.append((Line2D([], [], marker="o", color="0.6", mec="k", ls="none"), "steady row: F_mean at v = V"))
     colors = draw_phi(ax, v, Vs, result.adhesion, result.start, band=band, extra=marks)
     for V_i, color in zip(Vs, colors):
         folds = phi_folds(fitted_model, V_i)
@@ -215,6 +233,13 @@ def plot_table_fit(
             v_f, phi_f = float(v_f), float(phi_f)
             if np.isfinite(v_f) and lo <= v_f <= hi:
                 ax.plot([v_f], [phi_f], mark, color=color, mec="k", ms=7, zorder=4)
+    if steady and "F_mean" in table.values:  # steady rows pin φ on its diagonal: F_mean = φ(V, V), at v = V
+        curve = dict(zip(np.round(np.asarray(Vs, float), 12), colors))
+        for row in steady:
+            i, V_i = row["row"], row["V"]
+            std = table.std.get("F_mean")
+            ax.errorbar([V_i], [table.values["F_mean"][i]], yerr=None if std is None else [std[i]], fmt="o",
+                        color=curve.get(round(V_i, 12), "0.2"), mec="k", ms=5, capsize=3, zorder=5)  # fmt: skip
     ax.set_xscale("log")
     ax.set_xlabel("v [m/s] (range visited by the fitted runs)")
     ax.set_ylabel("φ(v, V) [N]")

@@ -161,24 +161,32 @@ class StickSlipTable:
 
     @classmethod
     def from_force_records(
-        cls, observations: Iterable[Observation], *, transient: float = 0.0, min_drop: float | None = None
-    ) -> StickSlipTable:
+        cls, observations: Iterable[Observation], *, transient: float = 0.0, min_drop: float | None = None,
+        std: str = "cycle", smooth: float = 0.0, noise_factor: float | None = None,
+    ) -> StickSlipTable:  # fmt: skip
         """The table of measured force records (each an :class:`Observation` with ``F``), one row
         per pull velocity: :func:`record_statistics` of each record after ``transient`` [s].
 
         Records at the same V are pooled: their cycles together give the per-cycle statistics
-        and their spread, F_mean is the time-weighted mean of their time averages. A standard
-        deviation is NaN where fewer than 2 values were found, or where the spread is at
-        round-off level, below 1e-9 of the value (a noise-free periodic record: a table's
-        standard deviations are > 0).
+        and their spread, F_mean is the time-weighted mean of their time averages. ``std``:
+        ``"cycle"`` (default) gives each statistic the per-cycle sample standard deviation,
+        ``"error"`` the standard error of its mean, that divided by √n (n its cycles; what a fit
+        of the attractor's statistics needs). ``smooth``, ``noise_factor``: for noisy records,
+        :func:`record_statistics`'s. A standard deviation is NaN where fewer than 2
+        values were found, or where the spread is at round-off level, below 1e-9 of the value
+        (a noise-free periodic record: a table's standard deviations are > 0).
         """
+        if std not in ("cycle", "error"):
+            raise ValueError(f"std must be 'cycle' or 'error', got {std!r}")
+        per_mean = std == "error"
         groups: dict[float, list[dict]] = {}
         for k, observation in enumerate(observations):
             series = observation.series("F")
             if series is None:
                 raise ValueError(f"observation {k} (V = {observation.V:g}): no force F to take statistics of")
             groups.setdefault(float(observation.V), []).append(
-                record_cycles(series[0], series[1], transient=transient, min_drop=min_drop)
+                record_cycles(series[0], series[1], transient=transient, min_drop=min_drop, smooth=smooth,
+                              **({} if noise_factor is None else {"noise_factor": noise_factor}))  # fmt: skip
             )
         if not groups:
             raise ValueError("no force records")
@@ -190,10 +198,11 @@ class StickSlipTable:
             durations = np.asarray([r["duration"] for r in records])
             values["F_mean"][i] = float(np.sum([r["F_mean"] * r["duration"] for r in records]) / durations.sum())
             pooled = {k: np.concatenate([r["cycles"][k] for r in records]) for k in records[0]["cycles"]}
-            std["F_mean"][i] = sample_std(pooled["F_mean"])
+            per = (lambda x: 1.0 / math.sqrt(max(x.size, 1))) if per_mean else (lambda x: 1.0)
+            std["F_mean"][i] = sample_std(pooled["F_mean"]) * per(pooled["F_mean"])
             for k in ("F_slip", "F_stick", "period", "slip_duration"):
                 if pooled[k].size:
-                    values[k][i], std[k][i] = float(np.mean(pooled[k])), sample_std(pooled[k])
+                    values[k][i], std[k][i] = float(np.mean(pooled[k])), sample_std(pooled[k]) * per(pooled[k])
         for k in STATISTICS:  # a spread at round-off level: a noise-free periodic record, no std
             std[k][~(std[k] > _ROUNDOFF * np.abs(values[k]))] = np.nan
         values = {k: c for k, c in values.items() if not np.all(np.isnan(c))}

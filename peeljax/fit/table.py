@@ -50,15 +50,17 @@ from ..homogenized import HomogenizedODE
 from ..integrators.base import AbstractIntegrator
 from ..integrators.select import integrator_for
 from ..model import PeelingModel
+from ..orbits.api import DEFAULT_ORBIT_RTOL, orbit_shooting
+from .attractors import OrbitRows
+from .profile import profile
 from .statistics import jump_statistics, window_scatter
+from .table_rows import MISSING_RESIDUAL, V_REST, TableRows, row_kinds
 from .stick_slip_table import STATISTICS, StickSlipTable
 from .trajectory import FitResult, _check_free, _to_law
 from .uncertainty import uncertainty_from_jacobian
 
 __all__ = ["MISSING_RESIDUAL", "TableFit", "TableFitResult", "build_table_fit", "fit_stick_slip", "table_residuals"]
 
-MISSING_RESIDUAL = 10.0
-V_REST = 1e-4  # m/s: the lower end of the reported v range where the tape comes to rest (v = 0)
 
 
 
@@ -191,13 +193,15 @@ def _missing(r) -> int:
 
 
 # Why Levenberg–Marquardt stopped: the converged reasons first.
-CONVERGED = ("gauss-newton", "loss", "floor")
+CONVERGED = ("gauss-newton", "loss", "floor", "bifurcation")
 FLOOR = 0.25  # ‖J·δ‖²: a step this small is within 0.5 standard errors
 _REASONS = {
     "gauss-newton": "converged: the Gauss-Newton step would lower chi2 by less than fit_atol "
     "(the optimum within sqrt(fit_atol) standard errors)",
     "floor": f"converged to the rough floor of chi2: a step of at most {FLOOR**0.5:g} standard errors "
     "(|J step|^2 <= 0.25) does not lower chi2 (the window statistics jump where a slip crosses the window's edge)",
+    "bifurcation": f"converged at a bifurcation: a step of at most {FLOOR**0.5:g} standard errors crosses to another "
+    "attractor of a row, where chi2 is higher (the optimum lies on the edge of its branch; see the profile intervals)",
     "loss": "converged: the last step and the Gauss-Newton step lower chi2 by less than fit_rtol (relative)",
     "max_iterations": "not converged: max_iterations model evaluations reached",
     "stalled": "not converged: no step lowers chi2 any more (the damping grew past 1e9): the "
@@ -226,8 +230,9 @@ class _Marquardt:
     refused whatever its χ².
     """
 
-    def __init__(self, z, r, J, v_range, *, fit_rtol, fit_atol, max_iterations):
+    def __init__(self, z, r, J, v_range, *, fit_rtol, fit_atol, max_iterations, state=None):
         self.z, self.r, self.J, self.v_range = np.asarray(z, float), r, J, v_range
+        self.state = state  # what the caller keeps of the current point (the attractors it follows)
         self.fit_rtol, self.fit_atol, self.max_iterations = fit_rtol, fit_atol, max_iterations
         self.evaluations, self.chi2 = 1, float(r @ r)
         self.history, self.reason, self.step = [self.chi2], None, None
@@ -258,8 +263,9 @@ class _Marquardt:
         self.predicted = float(-(2 * g @ self.step + self.step @ A @ self.step))
         return self.z + self.step
 
-    def take(self, r, J, v_range) -> None:
-        """r, J and the v range at :meth:`trial`'s point."""
+    def take(self, r, J, v_range, state=None, crossed: bool = False) -> None:
+        """r, J and the v range at :meth:`trial`'s point; ``state``: kept with it where it is
+        accepted; ``crossed``: the trial point lies across a bifurcation from the current one."""
         if self.reason is not None:
             return
         self.evaluations += 1
@@ -269,6 +275,7 @@ class _Marquardt:
         if keeps and np.isfinite(chi2) and np.all(np.isfinite(J)) and rho > 1e-4:
             decrease = self.chi2 - chi2
             self.z, self.r, self.J, self.v_range, self.chi2 = self.z + self.step, r, J, v_range, chi2
+            self.state = state
             self.history.append(chi2)
             self.lam *= max(1 / 3, 1 - (2 * rho - 1) ** 3)
             self.nu = 2.0
@@ -281,7 +288,7 @@ class _Marquardt:
             # the refused step moves the linearised residuals by at most √FLOOR σ in all: χ² is
             # rough at this scale (a slip crossing a window's edge), the optimum found to it
             if float(np.sum((self.J @ self.step) ** 2)) <= FLOOR:
-                self.reason = "floor"
+                self.reason = "bifurcation" if crossed else "floor"
             elif self.lam > self.lam_max:
                 self.reason = "stalled"
             elif self.evaluations >= self.max_iterations:
@@ -414,10 +421,33 @@ class TableFitResult(FitResult):
     equivalent_optima: list = dataclasses.field(default_factory=list)
     coarse_losses: np.ndarray | None = None
     converged: bool = False
+    rows: list = dataclasses.field(default_factory=list)
+    crossings: list = dataclasses.field(default_factory=list)
+    profiles: dict = dataclasses.field(default_factory=dict)
+    intervals_used: str = "linear"
+    table: object = None  # the StickSlipTable fitted (records: the one made of them)
 
     @property
     def chi2_dof(self) -> float:
         return self.chi2 / self.dof if self.dof > 0 else math.nan
+
+    def intervals(self, level: float = 0.95) -> dict[str, list[tuple[float, float]]]:
+        """Each coefficient's confidence set at ``level``: the profile-likelihood interval(s)
+        where they were computed at that level (a union of intervals where the data cannot tell
+        two branches apart), else the linearized interval value ± q·SE."""
+        linear = self.uncertainty.intervals(level)
+        out = {}
+        for name in self.free:
+            profile = self.profiles.get(name)
+            if profile is not None and abs(profile.level - level) < 1e-12:
+                out[name] = list(profile.intervals)
+            else:
+                out[name] = [linear[name]]
+        return out
+
+    def covers(self, truth: dict, level: float = 0.95) -> dict[str, bool]:
+        """Whether each coefficient's confidence set (:meth:`intervals`) holds ``truth[name]``."""
+        return {n: any(lo <= truth[n] <= hi for lo, hi in sets) for n, sets in self.intervals(level).items()}
 
     def to_dict(self) -> dict:
         return {
@@ -427,6 +457,9 @@ class TableFitResult(FitResult):
             "missing": [{"row": i, "V": V, "statistic": s} for i, V, s in self.missing],
             "optima": self.optima, "equivalent_optima": self.equivalent_optima,
             "coarse_losses": None if self.coarse_losses is None else [float(x) for x in self.coarse_losses],
+            "rows": self.rows, "crossings": self.crossings, "intervals_used": self.intervals_used,
+            "intervals_95": {n: [list(i) for i in sets] for n, sets in self.intervals(0.95).items()},
+            "profiles": {n: p.as_dict() for n, p in self.profiles.items()},
         }  # fmt: skip
 
     def summary(self) -> str:
@@ -444,6 +477,23 @@ class TableFitResult(FitResult):
             lines.append("not produced by the fitted model (no slip in the window; each costs "
                          f"{MISSING_RESIDUAL:g} sigma):")  # fmt: skip
             lines += [f"  row {i} (V = {V:g}) {s}" for i, V, s in self.missing]
+        if self.rows:
+            lines.append("rows: " + "; ".join(_row_text(row) for row in self.rows))
+        for c in self.crossings:
+            if c["row"] is None:
+                lines.append(f"  {c['why']}")
+                continue
+            lines.append(
+                f"  {'crossed' if c['accepted'] else 'refused a step across'} a bifurcation at row {c['row']} "
+                f"(V = {c['V']:g}): {c['from']} -> {c['to'] if c['to'] is not None else 'none'} slips per period ({c['why']})"
+            )
+        if self.profiles:
+            lines.append("profile-likelihood intervals (95 %) beside the linearized ones:")
+            linear = self.uncertainty.intervals(0.95)
+            for name, profile in self.profiles.items():
+                sets = " u ".join(f"[{lo:.6g}, {hi:.6g}]" for lo, hi in profile.intervals) or "none"
+                lo, hi = linear[name]
+                lines.append(f"  {name}: profile {sets}; linearized [{lo:.6g}, {hi:.6g}]")
         if self.equivalent_optima:
             lines.append(f"other optima within chi2_min + {EQUAL_CHI2:g} (the data do not choose between them):")
             lines += [
@@ -453,6 +503,13 @@ class TableFitResult(FitResult):
         return "\n".join(lines)
 
 
+def _row_text(row: dict) -> str:
+    if row["kind"] == "orbit":
+        stable = "stable" if row.get("stable") else "UNSTABLE"
+        return f"V = {row['V']:g}: orbit, {row['slips']} slips per period, {stable}"
+    return f"V = {row['V']:g}: {row['kind']}"
+
+
 def fit_stick_slip(
     table: StickSlipTable,
     model: PeelingModel | None = None,
@@ -460,72 +517,118 @@ def fit_stick_slip(
     free: Sequence[str] | None = ("c1", "c3", "c6"),
     start: AdhesionLaw | None = None,
     statistics: Sequence[str] | None = None,
+    method: str = "orbit",
     tau: float = 0.0,
     transient: float = 0.5,
     window: float = 1.0,
     n_samples: int = 401,
     rtol: float | None = None,
     atol: float | None = None,
+    orbit_rtol: float = DEFAULT_ORBIT_RTOL,
     fit_rtol: float = 1e-6,
     fit_atol: float = 1e-6,
     max_iterations: int = 20,
-    n_starts: int = 3,
-    n_coarse: int = 16,
+    n_starts: int | None = None,
+    n_coarse: int | None = None,
     coarse_spread: float = 0.15,
     seed: int = 0,
     scale_covariance: bool | str = "auto",
     cycle_scatter: bool = True,
-    taper: float = 0.0,
+    taper: float | None = None,
+    intervals: str = "auto",
+    level: float = 0.95,
     max_jumps: int = 4096,
     max_steps: int = 400_000,
     progress=None,
+    instruments: dict | None = None,
+    points=None,
 ) -> TableFitResult:
     """Fit φ's free coefficients to a stick-slip table by Levenberg–Marquardt (module docstring).
 
     Args:
         table: the measured statistics against V (:func:`peeljax.fit.read_stick_slip_table`,
-            :meth:`StickSlipTable.from_force_records`).
+            :meth:`StickSlipTable.from_force_records`); rows with ``F_mean`` only where peeling
+            is steady, the others where it stick-slips, in any mix.
         model: spool and tape (default the paper's); its φ is the start unless ``start`` is given.
         free: the coefficients to fit (default c1, c3, c6); None: all 14. Coefficients the
             table cannot determine are named in ``result.uncertainty.undetermined``.
         statistics: the table's statistics to fit (default all it has).
-        tau: 0 (default: the DAE with jumps) or τ > 0 (the homogenized ODE with jumps).
-        transient, window: the statistics are taken over ``[transient, transient + window]`` [s].
+        method: ``"orbit"`` (default: each row on its own attractor — steady peeling
+            F = φ(V, V), the periodic orbit's statistics over one period, or, where a row has no
+            periodic attractor, the tapered window statistics; :mod:`peeljax.fit.table_rows`)
+            or ``"window"`` (every row's statistics over the window of a run from the paper's
+            start, as before orbits; τ > 0 needs it).
+        tau: 0 (default: the DAE with jumps) or τ > 0 (the homogenized ODE with jumps; window only).
+        transient, window: the window statistics are taken over ``[transient, transient +
+            window]`` [s].
         n_samples: dense-output times in the window (``F_mean`` is their mean).
-        rtol, atol: the integrator's tolerances; None: :func:`table_tolerances` (τ = 0: rtol
+        rtol, atol: the window runs' tolerances; None: :func:`table_tolerances` (τ = 0: rtol
             1e-9, atol 1e-12 for the default Tsit5 stepper; τ > 0: 1e-7, 1e-10).
+        orbit_rtol: the tolerance of each orbit's period run (default 1e-8,
+            :data:`peeljax.orbits.DEFAULT_ORBIT_RTOL`).
         fit_rtol, fit_atol: Levenberg–Marquardt's convergence tolerances (``_REASONS``:
             fit_atol on the Gauss–Newton step's predicted χ² decrease, fit_rtol on the relative
             step and χ² decrease); ``max_iterations``: its budget of model evaluations per start.
-        n_coarse, coarse_spread, seed: the coarse batch — χ² at the start and at n_coarse − 1
-            points of a Latin hypercube with each free coefficient within exp(±coarse_spread)
-            of its start (``seed``), ``n_starts`` at a time through the one compiled program;
-            raised to ``n_starts`` where smaller.
-        n_starts: Levenberg–Marquardt runs from the n_starts best points of the coarse batch;
-            the best end is kept, the others are reported (``result.optima``).
+        n_coarse, coarse_spread, seed: the coarse batch (window method) — χ² at the start and at
+            n_coarse − 1 points of a Latin hypercube with each free coefficient within
+            exp(±coarse_spread) of its start (``seed``), ``n_starts`` at a time through the one
+            compiled program (default 16; raised to ``n_starts`` where smaller). The orbit
+            method starts from ``start`` alone (default 1): its statistics are smooth between
+            bifurcations, and the profile intervals map the landscape across them.
+        n_starts: Levenberg–Marquardt runs from the n_starts best points of the coarse batch
+            (window method, default 3); the best end is kept, the others are reported
+            (``result.optima``).
         scale_covariance: ``"auto"`` (scale by χ²/dof where it exceeds 1: the table's σ too
             small), True (always, as ``curve_fit``), False (never);
             :mod:`peeljax.fit.uncertainty`. A table without σ is always scaled.
-        cycle_scatter: add to each σ² the model window's cycle-to-cycle standard error² of the
-            statistic (:func:`peeljax.fit.statistics.window_scatter`: which slips fall in the
-            window moves it); False: the table's σ alone.
-        taper: 0 (default) or the fraction of the window over which each edge's weight ramps
-            (:func:`peeljax.fit.statistics.jump_statistics`: tapered statistics, continuous in
-            the coefficients; the table must be made with the same taper). In [0, 0.5].
-        max_jumps, max_steps: each run's jump record and step budget.
+        cycle_scatter: add to each window statistic's σ² the model window's cycle-to-cycle
+            standard error² (:func:`peeljax.fit.statistics.window_scatter`); False: the table's
+            σ alone. (Orbit statistics are exact: nothing to add.)
+        taper: the fraction of the window over which each edge's weight of a window statistic
+            ramps (:func:`peeljax.fit.statistics.jump_statistics`), in [0, 0.5]; default 0.25
+            for the orbit method's window rows (continuous in the coefficients), 0 for the
+            window method (the table must be made with the same taper).
+        intervals: ``"auto"`` (default: profile-likelihood intervals beside the linearized ones
+            wherever a bifurcation lies within them — a row's attractor changed during the fit
+            or at the linearized intervals' ends — :mod:`peeljax.fit.profile`), ``"profile"``
+            (always), ``"linear"`` (never).
+        level: the confidence level of the profile intervals (default 0.95).
+        max_jumps, max_steps: each window run's jump record and step budget.
         progress: None, or ``progress(iteration, chi2)`` called on the host after each
             Levenberg–Marquardt iteration (chi2: the lowest of the starts so far).
+        instruments: {row: :class:`~peeljax.fit.instrument.Instrument`} for rows measured from
+            force records (orbit method): the model's statistics there as that record's sampling
+            and noise show them (:func:`peeljax.fit.fit_records` passes them).
+        points: a :class:`~peeljax.fit.points.PointRows` of records fitted point by point
+            together with the table (orbit method; :func:`peeljax.fit.fit_records`).
 
     Returns:
         A :class:`TableFitResult`: ``adhesion`` (the fitted law), ``uncertainty``
         (:class:`~peeljax.fit.uncertainty.Uncertainty`, χ²/dof and the singular directions
-        included), ``stop_reason``, ``converged``, ``chi2``/``dof``, ``outliers`` (entries beyond
-        5 σ), ``optima``/``equivalent_optima``, ``residuals`` (the measured entries of
-        (model − data)/σ, row by row), ``v_range`` (the v visited in the windows, from at least
-        ``V_REST`` = 1e-4 m/s where the tape comes to rest: φ is fixed by the data only there)
-        and ``settings``; ``summary()`` prints it.
+        included), ``intervals()`` (the profile-likelihood set where computed, else the
+        linearized interval), ``profiles``, ``rows`` (per row: its kind — steady, orbit,
+        window —, k and stability of its orbit, how it was found), ``crossings`` (every
+        bifurcation a step crossed or was refused across), ``stop_reason``, ``converged``,
+        ``chi2``/``dof``, ``outliers`` (entries beyond 5 σ), ``optima``/``equivalent_optima``,
+        ``residuals`` (the measured entries of (model − data)/σ, row by row), ``v_range`` (the v
+        visited, from at least ``V_REST`` = 1e-4 m/s where the tape comes to rest: φ is fixed by
+        the data only there) and ``settings``; ``summary()`` prints it.
     """
     began = time.perf_counter()
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {', '.join(map(repr, METHODS))}, got {method!r}")
+    if (instruments or points is not None) and method != "orbit":
+        raise ValueError("instruments and points need method='orbit'")
+    if method == "orbit" and not (isinstance(tau, (int, float)) and tau == 0):
+        raise ValueError(f"tau must be 0 with method='orbit' (orbits of the DAE with jumps); use method='window' for tau > 0, got {tau!r}")
+    if intervals not in INTERVALS:
+        raise ValueError(f"intervals must be one of {', '.join(map(repr, INTERVALS))}, got {intervals!r}")
+    if not (isinstance(level, float) and 0 < level < 1):
+        raise ValueError(f"level must be a number in (0, 1), got {level!r}")
+    check_positive("orbit_rtol", orbit_rtol)
+    taper = (0.25 if method == "orbit" else 0.0) if taper is None else taper
+    n_starts = (1 if method == "orbit" else 3) if n_starts is None else n_starts
+    n_coarse = (1 if method == "orbit" else 16) if n_coarse is None else n_coarse
     rtol, atol = table_tolerances(tau, rtol, atol)
     _check_options(
         table, transient, window, n_samples, tau, n_starts, max_iterations, fit_rtol, fit_atol, n_coarse,
@@ -546,31 +649,36 @@ def fit_stick_slip(
             f"free: {int(measured.sum())} measured values cannot determine {len(names)} coefficients "
             "with an error estimate; fit fewer"
         )
-    fit = build_table_fit(
-        start, model, table.V, data, sigma, measured, names=names, tau=tau, transient=transient, window=window,
-        n_samples=n_samples, rtol=rtol, atol=atol, max_jumps=max_jumps, max_steps=max_steps,
-        cycle_scatter=cycle_scatter, taper=taper,
-    )  # fmt: skip
-    # The coarse batch, n_starts points per call of the one compiled program; LM from its best.
-    n_coarse = max(n_coarse, n_starts)  # the starts are the best of the coarse batch
-    coarse = _coarse_starts(n_coarse, len(names), coarse_spread, seed)
-    evaluated = _evaluate_batch(fit, coarse, n_starts)
-    coarse_losses = np.asarray([float(r @ r) for r, _, _ in evaluated])
-    coarse_missing = np.asarray([_missing(r) for r, _, _ in evaluated])
-    # fewest missing statistics first (a point where the runs lose their stick-slip is worse
-    # than any that keeps it, whatever its χ²), then χ²
-    order = np.lexsort((np.where(np.isfinite(coarse_losses), coarse_losses, np.inf), coarse_missing))[:n_starts]
-    runs = _solve(fit, coarse[order], [evaluated[k] for k in order], fit_rtol=fit_rtol, fit_atol=fit_atol,
-                  max_iterations=max_iterations, progress=progress)  # fmt: skip
+    window_options = dict(names=names, tau=tau, transient=transient, window=window, n_samples=n_samples, rtol=rtol,
+                          atol=atol, max_jumps=max_jumps, max_steps=max_steps, cycle_scatter=cycle_scatter, taper=taper)  # fmt: skip
+    scale = True if not has_std else scale_covariance
+    options = dict(fit_rtol=fit_rtol, fit_atol=fit_atol, max_iterations=max_iterations, progress=progress)
+    if method == "orbit":
+        fitted = _fit_on_attractors(table, model, start, data, sigma, measured, names, window_options, orbit_rtol,
+                                    cycle_scatter, options, scale=scale, intervals=intervals, level=level,
+                                    instruments=instruments, points=points)  # fmt: skip
+        runs, coarse_losses, rows_model = fitted["runs"], None, fitted["rows"]
+        initial = fitted["initial"]
+    else:
+        fit = build_table_fit(start, model, table.V, data, sigma, measured, **window_options)
+        n_coarse = max(n_coarse, n_starts)  # the starts are the best of the coarse batch
+        coarse = _coarse_starts(n_coarse, len(names), coarse_spread, seed)
+        evaluated = _evaluate_batch(fit, coarse, n_starts)
+        coarse_losses = np.asarray([float(r @ r) for r, _, _ in evaluated])
+        coarse_missing = np.asarray([_missing(r) for r, _, _ in evaluated])
+        # fewest missing statistics first (a point where the runs lose their stick-slip is worse
+        # than any that keeps it, whatever its χ²), then χ²
+        order = np.lexsort((np.where(np.isfinite(coarse_losses), coarse_losses, np.inf), coarse_missing))[:n_starts]
+        runs = _solve(fit, coarse[order], [evaluated[k] for k in order], **options)
+        rows_model, initial = None, float(coarse_losses[0])  # the coarse batch's first point is ``start`` itself
     runs.sort(key=lambda run: (_missing(run.r), run.chi2 if np.isfinite(run.chi2) else np.inf))
     best = runs[0]
     theta = {n: jnp.asarray(best.z[k]) for k, n in enumerate(names)}
     law = _to_law(theta, start)
     values = np.asarray([float(getattr(law, n)) for n in names])
-    scale = True if not has_std else scale_covariance
     uncertainty = uncertainty_from_jacobian(best.J, best.r, values, names, scaled=scale)
-    rows, columns = fit.measured
-    entries = [(int(i), float(table.V[i]), STATISTICS[j], float(x)) for i, j, x in zip(rows, columns, best.r)]
+    measured_rows, columns = np.nonzero(measured)
+    entries = [(int(i), float(table.V[i]), STATISTICS[j], float(x)) for i, j, x in zip(measured_rows, columns, best.r)]
     missing = [e[:3] for e in entries if e[3] == MISSING_RESIDUAL]
     outliers = sorted((e for e in entries if abs(e[3]) > OUTLIER_SIGMA and e[3] != MISSING_RESIDUAL),
                       key=lambda e: -abs(e[3]))  # fmt: skip
@@ -585,18 +693,24 @@ def fit_stick_slip(
         if run.chi2 <= best.chi2 + EQUAL_CHI2 and np.any(np.abs(run.z - best.z) > np.maximum(se_log, 1e-12))
     ]  # fmt: skip
     v_range = np.asarray(best.v_range)
+    rows, crossings, profiles = [], [], {}
+    if rows_model is not None:
+        rows = _row_report(rows_model, best.state, fitted["why"])
+        crossings = fitted["crossings"]
+        profiles = fitted["profiles"]
     settings = {
-        "kind": "stick-slip table", "V": [float(v) for v in table.V], "statistics": list(wanted), "tau": float(tau),
-        "transient": float(transient), "window": float(window), "n_samples": n_samples, "rtol": rtol, "atol": atol,
-        "fit_rtol": fit_rtol, "fit_atol": fit_atol, "max_iterations": max_iterations, "n_starts": n_starts,
-        "n_coarse": n_coarse, "coarse_spread": coarse_spread, "seed": seed,
-        "method": "levenberg-marquardt (forward-mode Jacobian) from the best of a coarse batch",
+        "kind": "stick-slip table", "V": [float(v) for v in table.V], "statistics": list(wanted), "method": method,
+        "tau": float(tau), "transient": float(transient), "window": float(window), "n_samples": n_samples,
+        "rtol": rtol, "atol": atol, "orbit_rtol": orbit_rtol, "fit_rtol": fit_rtol, "fit_atol": fit_atol,
+        "max_iterations": max_iterations, "n_starts": n_starts, "n_coarse": n_coarse, "coarse_spread": coarse_spread,
+        "seed": seed, "intervals": intervals, "level": level,
+        "solver": "levenberg-marquardt (forward-mode Jacobian)" + (
+            " from the start, each row's attractor followed" if method == "orbit" else " from the best of a coarse batch"),
         "weights": "the table's standard deviations" if has_std else "column RMS",
         "scale_covariance": scale if isinstance(scale, str) else bool(scale), "cycle_scatter": bool(cycle_scatter),
         "taper": float(taper),
         "parametrisation": "c = c_start*exp(theta)",
     }  # fmt: skip
-    initial = float(coarse_losses[0])  # the coarse batch's first point is ``start`` itself
     return TableFitResult(
         adhesion=law,
         start=start,
@@ -622,4 +736,152 @@ def fit_stick_slip(
         equivalent_optima=equivalent,
         coarse_losses=coarse_losses,
         converged=best.reason in CONVERGED and not missing,
+        rows=rows,
+        crossings=crossings,
+        profiles=profiles,
+        intervals_used="profile" if profiles else "linear",
+        table=table,
     )
+
+
+METHODS = ("orbit", "window")
+INTERVALS = ("auto", "profile", "linear")
+
+
+def _fit_on_attractors(table, model, start, data, sigma, measured, names, window_options, orbit_rtol, cycle_scatter,
+                       options, *, scale, intervals, level, instruments=None, points=None) -> dict:  # fmt: skip
+    """Levenberg–Marquardt from ``start`` with every row on its attractor (:class:`TableRows`;
+    with ``points``, a :class:`~peeljax.fit.points.PointRows`, records fitted point by point
+    beside them): :func:`_fit_rows`."""
+    start_model = eqx.tree_at(lambda m: m.adhesion, model, start)
+    kinds, starts, why = row_kinds(start_model, table.V)
+    window_rows = [i for i, k in enumerate(kinds) if k == "window"]
+    window_fit = None
+    if window_rows:
+        window_fit = build_table_fit(start, model, table.V[window_rows], data[window_rows], sigma[window_rows],
+                                     measured[window_rows], **window_options)  # fmt: skip
+    program = OrbitRows(orbit_shooting(rtol=orbit_rtol), model, start, tuple(names)) if "orbit" in kinds else None
+    rows = TableRows(data, sigma, measured, table.V, kinds, starts, model=model, start=start, names=names,
+                     program=program, window_fit=window_fit, cycle_scatter=cycle_scatter)  # fmt: skip
+    if instruments:
+        rows.set_instruments(instruments)
+    if points is not None:
+        from .points import Joint
+
+        rows = Joint(rows, points)
+    fitted = _fit_rows(rows, start, names, options, scale=scale, intervals=intervals, level=level)
+    return {**fitted, "why": why}
+
+
+def _fit_rows(rows, start, names, options, *, scale, intervals, level) -> dict:
+    """Levenberg–Marquardt from θ = 0 on ``rows`` (:class:`TableRows`, or anything with its
+    ``start``/``evaluate``), each trial point following the attractors of the point it steps
+    from; the crossings of bifurcations logged (accepted or refused); then the intervals
+    (:func:`_profiles_if_needed`), and Levenberg–Marquardt again from a profile point of lower
+    χ² where one was found (the optimum was a branch's, not the table's)."""
+    point = rows.start()
+    if getattr(rows, "has_instruments", False):  # the records' instruments at the start's orbits
+        rows.update_bias(point)
+        point = rows.evaluate(point.z, point)
+    initial = float(point.r @ point.r)
+    crossings, counter = [], [0]
+    run = _rounds(rows, point, options, crossings, counter)
+    profiles = {}
+    for _ in range(RESTARTS + 1):
+        values = np.asarray([float(getattr(start, n)) * math.exp(run.z[k]) for k, n in enumerate(names)])
+        uncertainty = uncertainty_from_jacobian(run.J, run.r, values, names, scaled=scale)
+        profiles = _profiles_if_needed(rows, run, uncertainty, intervals, level, options)
+        lowest = min((p.lowest for p in profiles.values()), key=lambda q: float(q.r @ q.r), default=None)
+        if lowest is None or not float(lowest.r @ lowest.r) < run.chi2 - LOWER:
+            break
+        crossings.append({"row": None, "V": None, "from": None, "to": None, "iteration": counter[0], "accepted": True,
+                          "why": f"the profile found chi2 {float(lowest.r @ lowest.r):.4g} below the optimum's "
+                          f"{run.chi2:.4g} on another branch: Levenberg-Marquardt again from there"})  # fmt: skip
+        run = _rounds(rows, lowest, options, crossings, counter)
+    return {"runs": [run], "rows": rows, "crossings": crossings, "initial": initial, "profiles": profiles}
+
+
+ROUNDS = 4  # Levenberg–Marquardt runs at most: the first, then after switching to the attractors reached from rest or updating the instruments' bias
+RESTARTS = 2  # Levenberg–Marquardt again from a profile's lower χ² at most this often
+LOWER = 0.5  # a profile point this much below the optimum's χ² is a better optimum
+BIAS_SETTLED = 0.05  # [σ]: the instruments' bias is settled once an update moves it less
+
+
+def _rounds(rows, point, options, crossings: list, counter: list):
+    """Levenberg–Marquardt from ``point``; then again from the attractors reached from rest
+    where they are not the ones followed (the table was measured from rest), and with the
+    records' instrument bias updated at the optimum until it settles; at most ``ROUNDS`` times."""
+    for _ in range(ROUNDS):
+        run = _Marquardt(point.z, point.r, point.J, point.v_range, fit_rtol=options["fit_rtol"],
+                         fit_atol=options["fit_atol"], max_iterations=options["max_iterations"], state=point)  # fmt: skip
+        while run.reason is None:
+            trial = rows.evaluate(run.trial(), run.state)
+            run.take(trial.r, trial.J, trial.v_range, state=trial, crossed=bool(trial.changes))
+            counter[0] += 1
+            for change in trial.changes:
+                crossings.append({**change, "iteration": counter[0], "accepted": run.state is trial})
+            if options["progress"] is not None:
+                options["progress"](counter[0], run.chi2)
+        if run.reason not in CONVERGED:
+            break
+        differ = rows.from_rest(run.state)
+        moved = rows.update_bias(run.state) if getattr(rows, "has_instruments", False) else 0.0
+        if not differ and moved <= BIAS_SETTLED:
+            break
+        point = rows.evaluate(run.z, rows.forget(run.state, differ))
+        for change in point.changes:
+            crossings.append({**change, "iteration": counter[0], "accepted": True,
+                              "why": "the attractor reached from rest is another one (coexisting attractors)"})  # fmt: skip
+    return run
+
+
+def _row_report(rows: TableRows, point, why) -> list[dict]:
+    """Per row at the optimum: its kind, and for an orbit k, stability, multipliers, period and
+    the grazing monitors."""
+    if hasattr(rows, "table"):  # a Joint: the table's rows
+        rows, point = rows.table, point.parts[0]
+    report = []
+    for i, kind in enumerate(rows.kinds):
+        entry = {"row": i, "V": float(rows.V[i]), "kind": kind, "how": why[i]}
+        orbit = point.orbits.get(i) if point is not None else None
+        if kind == "orbit" and orbit is not None:
+            entry.update(
+                slips=int(orbit["slips"]), stable=bool(np.max(orbit["multipliers"]) < 1.0),
+                multipliers=[float(m) for m in orbit["multipliers"]], period=float(orbit["period"]),
+                approach=float(orbit["approach"]), crossing=float(orbit["crossing"]), how=orbit["attractor"].how,
+            )  # fmt: skip
+        elif kind == "orbit":
+            entry.update(slips=None, stable=False, how="no periodic attractor at the optimum")
+        report.append(entry)
+    return report
+
+
+def _profiles_if_needed(rows: TableRows, best, uncertainty, intervals, level, options) -> dict:
+    """Profile-likelihood intervals (:mod:`peeljax.fit.profile`) where ``intervals`` asks: always
+    (``"profile"``), or (``"auto"``) where a bifurcation lies within the linearized intervals —
+    a row's attractor changed during the fit, or at a linearized interval's end."""
+    if intervals == "linear" or best.state is None or not np.isfinite(best.chi2):
+        return {}
+    q = uncertainty.quantile(level)
+    cov = np.asarray(uncertainty.covariance_log)
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    if intervals == "auto":
+        # the ends of each linearized interval, the others moved along the linear profile
+        ends = []
+        for j in range(best.z.size):
+            if not (np.isfinite(se[j]) and se[j] > 0):
+                continue
+            direction = cov[:, j] / se[j]  # θ̂ + t·direction: θ_j = θ̂_j + t·se_j, the others re-fitted
+            ends += [best.z + q * direction, best.z - q * direction]
+        if not any(rows.evaluate(end, best.state).changes for end in ends):
+            return {}
+    threshold = uncertainty.residual_variance * q**2
+    out = {}
+    for j, name in enumerate(uncertainty.names):
+        if not (np.isfinite(se[j]) and se[j] > 0):
+            continue
+        prof = profile(rows, best.state, j, se_log=float(se[j]), threshold=threshold, level=level,
+                       c_hat=float(uncertainty.values[j]), marquardt=_Marquardt, fit_rtol=options["fit_rtol"],
+                       fit_atol=options["fit_atol"], valley=cov[:, j] / cov[j, j])  # fmt: skip
+        out[name] = dataclasses.replace(prof, name=name)
+    return out

@@ -1,0 +1,232 @@
+"""Measured records of every kind fitted in one call: by their stick-slip statistics, or point by point.
+
+:func:`fit_records` takes force records (t and F, what a load cell gives; also v or α where a
+record holds them) at any pull velocities and decides per record how it is fitted (``by``):
+
+* **statistics** — a t, F record that stick-slips (at least ``MIN_SLIPS`` slips after its
+  transient, :func:`peeljax.fit.record_statistics`): its statistics over the record's second
+  half (by default: by then the run has settled on its attractor), pooled per V, each with the
+  standard error of its mean (:meth:`StickSlipTable.from_force_records` with ``std="error"``),
+  fitted with the attractor's statistics as the record's instrument would show them
+  (:mod:`peeljax.fit.instrument`: the sampling interval and the noise of the record itself);
+* **points** — a record that does not stick-slip (a transient settling to steady peeling,
+  steady peeling), or one with v or α: point by point (:mod:`peeljax.fit.points`), the
+  homogenized ODE at ``tau`` from the paper's initial data.
+
+Records of both kinds are fitted together: one Levenberg–Marquardt on their residuals stacked,
+with uncertainties (:mod:`peeljax.fit.uncertainty`) and the table fit's intervals.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Sequence
+
+import numpy as np
+
+from ..adhesion import AdhesionLaw
+from ..model import PeelingModel
+from .instrument import Instrument
+from .measured_statistics import record_cycles, record_statistics
+from .points import PointRows
+from .stick_slip_table import StickSlipTable
+from .table import CONVERGED, _REASONS, TableFitResult, _fit_rows, fit_stick_slip
+from .trajectory import Observation, _check_free, _to_law
+from .uncertainty import uncertainty_from_jacobian
+
+__all__ = ["BY", "MIN_SLIPS", "fit_records", "how_fitted"]
+
+BY = ("auto", "statistics", "points")
+MIN_SLIPS = 10  # a record with fewer slips after its transient is fitted point by point
+SMOOTH = 0.6e-3  # [s]: the slips of a record are found on F averaged over this window …
+NOISE_FACTOR = 6.0  # … falling by more than this many times its noise (record_statistics; measured in docs/fitting.md)
+SETTLED = 4.0  # standard errors: a record whose statistics drift more between its window's halves has not settled
+
+
+def _holds(o: Observation, quantity: str) -> bool:
+    values = getattr(o, quantity)
+    return values is not None and bool(np.isfinite(values).any())
+
+
+def how_fitted(observations: Sequence[Observation], by: str = "auto", transient: float | None = None) -> list[tuple[str, str]]:
+    """(``"statistics"`` or ``"points"``, why) for each record (module docstring); ``transient``:
+    the statistics' start [s] (default: each record's midpoint)."""
+    if by not in BY:
+        raise ValueError(f"by must be one of {', '.join(BY)}, got {by!r}")
+    out = []
+    for o in observations:
+        if _holds(o, "v") or _holds(o, "alpha"):
+            if by == "statistics":
+                raise ValueError(f"the record at V = {o.V:g} holds v or alpha: it is fitted point by point, not by statistics")
+            out.append(("points", "it holds v or alpha"))
+            continue
+        if not _holds(o, "F"):
+            raise ValueError(f"the record at V = {o.V:g} holds no F to fit")
+        t, F = o.series("F")
+        start = _transient(t, transient)
+        try:
+            slips = record_statistics(t, F, transient=start, smooth=SMOOTH, noise_factor=NOISE_FACTOR)["slips"]
+        except ValueError:  # too few samples after the transient to take statistics of
+            slips = 0
+        if by == "points":
+            out.append(("points", "asked for (--by points)"))
+        elif by == "statistics":
+            if slips < 2:
+                raise ValueError(f"the record at V = {o.V:g} has {slips} slip(s) after t = {start:g} s: no stick-slip "
+                                 "statistics to fit; fit it point by point")  # fmt: skip
+            out.append(("statistics", "asked for (--by statistics)"))
+        elif slips >= MIN_SLIPS:
+            out.append(("statistics", f"it stick-slips: {slips} slips after t = {start:g} s"))
+        else:
+            out.append(("points", f"it does not stick-slip: {slips} slip(s) after t = {start:g} s (fewer than {MIN_SLIPS})"))
+    return out
+
+
+def settled(observation: Observation, transient: float) -> tuple[bool, str]:
+    """Whether a stick-slip record has settled on its attractor after ``transient``: every
+    statistic's mean over the first half of its cycles within ``SETTLED`` combined standard
+    errors of the second half's. A record that has not (a transient from rest still in it) is
+    fitted with the statistics of a run from rest over the same window instead of the orbit's."""
+    t, F = observation.series("F")
+    cycles = record_cycles(t, F, transient=transient, smooth=SMOOTH, noise_factor=NOISE_FACTOR)["cycles"]
+    worst, which = 0.0, ""
+    for name, values in cycles.items():
+        if values.size < 8:
+            continue
+        a, b = values[: values.size // 2], values[values.size // 2 :]
+        se = math.sqrt(np.var(a, ddof=1) / a.size + np.var(b, ddof=1) / b.size)
+        z = abs(float(a.mean() - b.mean())) / se if se > 0 else 0.0
+        if z > worst:
+            worst, which = z, name
+    if worst > SETTLED:
+        return False, f"its {which} drifts between the halves of its window by {worst:.1f} standard errors"
+    return True, "settled on its attractor"
+
+
+def _transient(t, transient) -> float:
+    t = np.asarray(t, float)
+    return 0.5 * (float(t[0]) + float(t[-1])) if transient is None else float(transient)
+
+
+def fit_records(
+    observations: Sequence[Observation],
+    model: PeelingModel | None = None,
+    *,
+    free: Sequence[str] | None = ("c1",),
+    start: AdhesionLaw | None = None,
+    by: str = "auto",
+    statistics: Sequence[str] | None = None,
+    transient: float | None = None,
+    tau: float = 0.01,
+    instrument: bool = True,
+    rtol: float = 1e-8,
+    atol: float = 1e-10,
+    max_iterations: int = 20,
+    intervals: str = "auto",
+    level: float = 0.95,
+    scale_covariance: bool | str = "auto",
+    progress=None,
+) -> TableFitResult:
+    """Fit φ's free coefficients to measured records of any kind (module docstring).
+
+    Args:
+        observations: the records (:func:`peeljax.fit.read_observations`,
+            :func:`peeljax.fit.read_force_record`).
+        model: spool and tape (default the paper's); its φ is the start unless ``start`` is given.
+        free: the coefficients to fit (default c1).
+        by: ``"auto"`` (per record: statistics where it stick-slips, else points), ``"statistics"``
+            or ``"points"`` (every t, F record so; a record with v or α is always fitted by points).
+        statistics: the statistics of the stick-slip records to fit (default: all they show).
+        transient: where the statistics of a stick-slip record start [s] (default: each record's
+            midpoint).
+        tau: the τ of the records fitted point by point [s] (> 0; the statistics are the DAE's,
+            τ = 0).
+        instrument: compare each stick-slip record with the model's statistics as its
+            instrument would show them (default; :mod:`peeljax.fit.instrument`); False: the
+            orbit's exact statistics.
+        rtol, atol: the point-by-point runs' tolerances.
+        max_iterations, intervals, level, scale_covariance: as :func:`peeljax.fit.fit_stick_slip`.
+        progress: None or ``progress(iteration, chi2)``.
+
+    Returns:
+        A :class:`~peeljax.fit.table.TableFitResult`; ``settings["records"]`` says how each record
+        was fitted and why.
+    """
+    began = time.perf_counter()
+    if not observations:
+        raise ValueError("no records to fit")
+    if not (isinstance(tau, (int, float)) and math.isfinite(tau) and tau > 0):
+        raise ValueError(f"tau must be > 0 [s] for records fitted point by point, got {tau!r}")
+    names = _check_free(free)
+    model = PeelingModel() if model is None else model
+    start = model.adhesion if start is None else start
+    decided = how_fitted(observations, by, transient)
+    stats = [o for o, (kind, _) in zip(observations, decided) if kind == "statistics"]
+    pts = [o for o, (kind, _) in zip(observations, decided) if kind == "points"]
+    records = [{"V": float(o.V), "by": kind, "why": why} for o, (kind, why) in zip(observations, decided)]
+    points = PointRows(pts, model=model, start=start, names=names, tau=tau, rtol=rtol, atol=atol) if pts else None
+    options = {"free": names, "max_iterations": max_iterations, "intervals": intervals, "level": level,
+               "scale_covariance": scale_covariance, "progress": progress}  # fmt: skip
+    if statistics is not None:
+        options["statistics"] = tuple(statistics)
+    if stats:
+        begin = min(_transient(o.series("F")[0], transient) for o in stats)
+        table = StickSlipTable.from_force_records(stats, transient=begin, std="error", smooth=SMOOTH,
+                                                  noise_factor=NOISE_FACTOR)  # fmt: skip
+        drift = [(o, why) for o in stats for ok, why in [settled(o, begin)] if not ok]
+        if drift:
+            # A record still in its transient from rest: the statistics of runs from rest over
+            # the same window (the window method, no instrument: its slip durations, which the
+            # sampling lengthens by about Δt, are left out).
+            if points is not None:
+                raise ValueError("records fitted point by point and stick-slip records not settled on their attractor "
+                                 f"({drift[0][1]}) are not fitted together: fit them in separate calls")  # fmt: skip
+            for o, why in drift:
+                for r in records:
+                    if r["V"] == float(o.V) and r["by"] == "statistics":
+                        r["why"] += f"; not settled ({why}): the statistics of a run from rest over the same window"
+            end = min(float(o.series("F")[0][-1]) for o in stats)
+            wanted = [s for s in (statistics or table.statistics) if s != "slip_duration" and s in table.statistics]
+            result = fit_stick_slip(table, model, start=start, method="window", statistics=wanted, transient=begin,
+                                    window=end - begin, taper=0.0, free=names, max_iterations=max_iterations,
+                                    scale_covariance=scale_covariance, progress=progress)  # fmt: skip
+        else:
+            instruments = {}
+            if instrument:
+                for i, V in enumerate(table.V):
+                    at_V = [o for o in stats if float(o.V) == float(V)]
+                    first = Instrument.of_record(*at_V[0].series("F"), transient=begin, smooth=SMOOTH,
+                                                 noise_factor=NOISE_FACTOR)  # fmt: skip
+                    duration = sum(float(o.series("F")[0][-1]) - begin for o in at_V)
+                    instruments[i] = dataclasses.replace(first, duration=duration)
+            result = fit_stick_slip(table, model, start=start, instruments=instruments, points=points, **options)
+    else:
+        result = _fit_points_only(points, start, names, options)
+        table = None
+    result.table = table if stats else None
+    result.settings.update(records=records, tau_points=float(tau) if pts else None, instrument=bool(instrument),
+                           statistics_from=None if not stats else begin)  # fmt: skip
+    result.wall_time_s = time.perf_counter() - began
+    return result
+
+
+def _fit_points_only(points: PointRows, start: AdhesionLaw, names, options) -> TableFitResult:
+    """Levenberg–Marquardt on records fitted point by point alone."""
+    opts = {"fit_rtol": 1e-6, "fit_atol": 1e-6, "max_iterations": options["max_iterations"], "progress": options["progress"]}
+    fitted = _fit_rows(points, start, names, opts, scale=options["scale_covariance"], intervals="linear",
+                       level=options["level"])  # fmt: skip
+    run = fitted["runs"][0]
+    law = _to_law({n: float(run.z[k]) for k, n in enumerate(names)}, start)
+    values = np.asarray([float(getattr(law, n)) for n in names])
+    uncertainty = uncertainty_from_jacobian(run.J, run.r, values, names, scaled=options["scale_covariance"])
+    v_range = np.asarray(run.v_range)
+    return TableFitResult(
+        adhesion=law, start=start, loss_history=np.asarray(run.history), initial_loss=fitted["initial"],
+        final_loss=run.chi2, gradient_norm=float(np.linalg.norm(2 * run.J.T @ run.r)), steps=run.evaluations,
+        stopped_early=run.reason in CONVERGED, v_range=(float(np.nanmin(v_range[:, 0])), float(np.nanmax(v_range[:, 1]))),
+        free=names, settings={"kind": "records", "method": "points"}, uncertainty=uncertainty,
+        stop_reason=_REASONS[run.reason], residuals=run.r, chi2=run.chi2, dof=uncertainty.dof,
+        converged=run.reason in CONVERGED,
+    )  # fmt: skip

@@ -1,0 +1,383 @@
+"""A stick-slip table's rows as the model predicts them at θ: each row on its own kind of attractor.
+
+Every row of a :class:`~peeljax.fit.StickSlipTable` is one pull velocity V_i. What the model
+predicts there depends on the attractor at V_i (:func:`row_kinds`, decided at the start):
+
+* **steady** — steady peeling is stable at V_i (φ(·, V_i) has no fold, or v = V_i lies on a
+  rising branch of φ): α = 0, v = V and the constraint (sac) gives the tension
+  F = φ(V_i, V_i) (the lever l·sinα/L vanishes at α = 0 in either geometry). Such a row pins φ
+  on its diagonal: only ``F_mean`` is predicted, any other statistic in the row is missing;
+* **orbit** — the run at V_i settles on a periodic stick-slip orbit: the five statistics over
+  one period of it, exact, and their derivatives by the implicit function theorem
+  (:mod:`peeljax.fit.attractors`, which finds and follows the orbit);
+* **window** — stick-slip without a periodic attractor found (irregular, or a repeat longer
+  than the runs could confirm): the run's statistics over ``[transient, transient + window]``
+  (:func:`peeljax.fit.statistics.jump_statistics`, tapered, with the cycle-to-cycle scatter
+  added to σ), as before there were orbits.
+
+:class:`TableRows` evaluates all of them at a point θ (log coefficients, c = c_start·exp(θ)):
+the residuals r = (model − data)/σ of the measured entries (row-major), their Jacobian, the v
+visited per row, and — for the orbit rows — where each orbit was shot from, so that the next
+point follows it (:class:`Point`). A row whose attractor changed between two points (a
+bifurcation crossed) is named in :attr:`Point.changes`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..adhesion import AdhesionLaw
+from ..model import PeelingModel
+from ..orbits.section import SlipSection
+from .attractors import Attractor, OrbitRows, classify, find_attractor, shoot_rows, steady_force, steady_rows
+from .stick_slip_table import STATISTICS
+from .trajectory import _to_law
+
+__all__ = ["KINDS", "MISSING_RESIDUAL", "Point", "TableRows", "row_kinds"]
+
+KINDS = ("steady", "orbit", "window")
+SAME_POINT = 1e-7  # scaled section coordinates: P^d(s*) = s* (Newton's tolerance is 1e-10)
+SAME_ORBIT = 1e-5  # relative: two shootings at one θ found one orbit (its statistics to ~1e-7)
+MISSING_RESIDUAL = 10.0  # a statistic the model does not produce at θ (as in the window fit)
+V_REST = 1e-4  # m/s: the bottom of the reported v range where the tape comes to rest
+
+
+@dataclasses.dataclass
+class Point:
+    """The model at one θ: residuals, Jacobian and what the next point follows.
+
+    Attributes:
+        z: θ (p,); r: residuals (m,); J: ∂r/∂θ (m, p); v_range: per row (v_lo, v_hi).
+        values, available: the model's statistics (n, 5) and which it produces.
+        attractors: per row, the :class:`~peeljax.fit.attractors.Attractor` its orbit was shot
+            from (None: not an orbit row, or its attractor lost at θ).
+        orbits: per orbit row, what :func:`~peeljax.fit.attractors.shoot_rows` gave (row index
+            → dict of that row's values).
+        changes: rows whose attractor changed against the point this one was evaluated from
+            ({"row", "V", "from", "to", "why"}).
+    """
+
+    z: np.ndarray
+    r: np.ndarray
+    J: np.ndarray
+    v_range: np.ndarray
+    values: np.ndarray
+    available: np.ndarray
+    attractors: list
+    orbits: dict
+    changes: list = dataclasses.field(default_factory=list)
+    branch: tuple = ()  # per row, how many attractor changes led here from the start (which branch)
+
+
+_STARTS: dict = {}  # (model's leaves, V) → row_kinds' answer, the orbits reduced to their least k
+
+
+def _key(model: PeelingModel, V) -> tuple:
+    leaves = jax.tree_util.tree_leaves(model)
+    return (model.geometry, tuple(float(x) for x in leaves), tuple(float(v) for v in np.asarray(V, float)))
+
+
+def row_kinds(model: PeelingModel, V, *, find=find_attractor) -> tuple[list[str], list, list[str]]:
+    """Each row's kind at the model (module docstring), its start (an
+    :class:`~peeljax.fit.attractors.Attractor` for an orbit row) and, for a window row, why no
+    orbit was found. Remembered per model and V (the runs are deterministic): fits that start
+    from one φ find their rows' attractors once."""
+    cached = _STARTS.get(_key(model, V))
+    if cached is not None:
+        return tuple(list(x) for x in cached)
+    steady = steady_rows(model, V)
+    kinds, starts, why = [], [], []
+    for Vi, is_steady in zip(np.asarray(V, float), steady):
+        if is_steady:
+            kinds.append("steady"), starts.append(None), why.append("steady peeling is stable here")
+            continue
+        found = find(model, float(Vi))
+        if isinstance(found, Attractor):
+            kinds.append("orbit"), starts.append(found), why.append(found.how)
+        else:
+            kinds.append("window"), starts.append(None), why.append(found)
+    _STARTS[_key(model, V)] = (kinds, starts, why)
+    return kinds, starts, why
+
+
+class _WindowStatistics(eqx.Module):
+    """The window rows' statistics, availability, v range and scatter, with the statistics'
+    forward-mode Jacobian (one tangent per free coefficient)."""
+
+    fit: object  # peeljax.fit.table.TableFit over the window rows
+
+    def __call__(self, theta):
+        names = self.fit.names
+
+        def stats(th):
+            values, available, v_range, scatter = self.fit.statistics_with_scatter(
+                {n: th[k] for k, n in enumerate(names)}
+            )
+            return values, (available, v_range, scatter)
+
+        jac, aux = jax.jacfwd(stats, has_aux=True)(theta)
+        values, _ = stats(theta)
+        return values, jac, *aux
+
+
+_window = eqx.filter_jit(lambda program, theta: program(theta))
+
+
+class TableRows:
+    """The table's rows at θ (module docstring): :meth:`start` at θ = 0, :meth:`evaluate` at a
+    trial θ from a :class:`Point` whose attractors it follows.
+
+    Args:
+        data, sigma, measured: (n, 5) arrays over :data:`STATISTICS`.
+        V: the rows' pull velocities (n,); kinds, starts: :func:`row_kinds`.
+        model: spool and tape; start: φ at θ = 0; names: the free coefficients.
+        program: the compiled orbit rows (:class:`~peeljax.fit.attractors.OrbitRows`).
+        window_fit: a :class:`~peeljax.fit.table.TableFit` over the window rows (None if none).
+        cycle_scatter: add the window rows' cycle-to-cycle scatter to σ.
+        instrument: an (n, 5) function of the model's per-row output giving what a record's
+            sampling adds to each statistic (None: the statistics as they are).
+    """
+
+    def __init__(self, data, sigma, measured, V, kinds, starts, *, model: PeelingModel, start: AdhesionLaw, names,
+                 program: OrbitRows | None, window_fit=None, cycle_scatter=True):  # fmt: skip
+        self.data, self.sigma, self.measured = (np.asarray(a) for a in (data, sigma, measured))
+        self.V = np.asarray(V, float)
+        self.kinds, self.starts = list(kinds), list(starts)
+        self.model, self.start_law, self.names = model, start, tuple(names)
+        self.program, self.window_fit, self.cycle_scatter = program, window_fit, cycle_scatter
+        self.rows = {kind: [i for i, k in enumerate(self.kinds) if k == kind] for kind in KINDS}
+        self.evaluations = 0
+        self.bias = np.zeros_like(self.data, dtype=float)  # what each row's instrument adds (set_instruments)
+        self.bias_error = np.zeros_like(self.data, dtype=float)  # its Monte Carlo standard error, added to σ
+        self.instruments: dict = {}
+
+    # -- records: the statistics as their instrument saw them -------------------------------
+    def set_instruments(self, instruments: dict) -> None:
+        """``instruments``: row → :class:`~peeljax.fit.instrument.Instrument` of the record(s)
+        that made it; their bias is added to the orbit rows' statistics (:meth:`update_bias`)."""
+        self.instruments = dict(instruments)
+
+    @property
+    def has_instruments(self) -> bool:
+        return bool(self.instruments)
+
+    def update_bias(self, point: Point) -> float:
+        """The instruments' bias at ``point``'s orbits; returns the largest change in σ."""
+        from .instrument import instrument_bias
+
+        model = eqx.tree_at(lambda m: m.adhesion, self.model, self.law(point.z))
+        new, error = self.bias.copy(), self.bias_error.copy()
+        for i, instrument in self.instruments.items():
+            if i in point.orbits:
+                new[i], error[i] = instrument_bias(model, float(self.V[i]), point.orbits[i], instrument)
+        change = float(np.max(np.abs(new - self.bias) / np.sqrt(self.sigma**2 + error**2), initial=0.0))
+        self.bias, self.bias_error = new, error
+        return change
+
+    def forget(self, point: Point, rows: list[int]) -> Point:
+        """``point`` with the attractors of ``rows`` forgotten (found again from rest when it is
+        stepped from)."""
+        return dataclasses.replace(point, attractors=[None if i in rows else a for i, a in enumerate(point.attractors)])
+
+    # -- the model at θ ---------------------------------------------------------------------
+    def law(self, z) -> AdhesionLaw:
+        return _to_law({n: jnp.asarray(z[k], float) for k, n in enumerate(self.names)}, self.start_law)
+
+    def start(self) -> Point:
+        point = self.evaluate(np.zeros(len(self.names)), None)
+        key = _key(eqx.tree_at(lambda m: m.adhesion, self.model, self.start_law), self.V)
+        if key in _STARTS:  # remember the orbits with their least k
+            kinds, starts, why = _STARTS[key]
+            reduced = [point.attractors[i] if kind == "orbit" and point.attractors[i] is not None else a
+                       for i, (kind, a) in enumerate(zip(kinds, starts))]  # fmt: skip
+            _STARTS[key] = (kinds, reduced, why)
+        return point
+
+    def evaluate(self, z, base: Point | None) -> Point:
+        """The model at θ = ``z``, each orbit row followed from ``base`` (None: from the rows'
+        starts, nothing to compare with)."""
+        self.evaluations += 1
+        z = np.asarray(z, float)
+        n, p = len(self.V), z.size
+        values = np.zeros((n, len(STATISTICS)))
+        jac = np.zeros((n, len(STATISTICS), p))
+        available = np.zeros((n, len(STATISTICS)), bool)
+        sigma = self.sigma.astype(float).copy()
+        v_range = np.tile([V_REST, V_REST], (n, 1)).astype(float)
+        attractors = [None] * n
+        orbits, changes = {}, []
+        # steady rows: F_mean = φ(V, V)
+        steady = self.rows["steady"]
+        if steady:
+            force, d_force = steady_force(self.model, self.start_law, self.names, z, self.V[steady])
+            values[steady, 0], jac[steady, 0], available[steady, 0] = force, d_force, True
+            v_range[steady] = self.V[steady, None]
+        # orbit rows, followed from base
+        rows = self.rows["orbit"]
+        if rows:
+            follow = [self.starts[i] if base is None else base.attractors[i] for i in rows]
+            live = [j for j, a in enumerate(follow) if a is not None]
+            found = dict(zip(live, self._shoot(z, [rows[j] for j in live], [follow[j] for j in live])))
+            d_theta = z - (base.z if base is not None else np.zeros(p))
+            for j, i in enumerate(rows):
+                if j not in live:  # lost at the point stepped from: look for it again from rest
+                    found_i = self._refind(z, i, None, "its attractor was lost at the point stepped from")
+                    if found_i is not None:
+                        changes.append({"row": i, "V": float(self.V[i]), "from": None,
+                                        "to": found_i["attractor"].slips, "why": "a periodic attractor again"})  # fmt: skip
+                elif base is None:  # the start: shot from the run's repeat, reduced to its least k
+                    found_i = found[j] if not classify(_as_batch(found[j]), 0, None, 0, None) else None
+                    found_i = None if found_i is None else self._minimal(z, i, found_i)
+                else:
+                    found_i = found[j]
+                    previous = base.orbits.get(i)
+                    why = classify(_as_batch(found_i), 0, _as_batch(previous), 0, d_theta)
+                    if why:  # Newton again from the section point its derivative predicts
+                        scale = np.asarray(previous["section"]) / np.asarray(previous["z"])
+                        guess = np.asarray(previous["section"]) + scale * (previous["z_jacobian"] @ d_theta)
+                        retry = self._shoot(z, [i], [dataclasses.replace(follow[j], section=guess)])[0]
+                        if not classify(_as_batch(retry), 0, _as_batch(previous), 0, d_theta):
+                            found_i, why = retry, ""
+                    if why:
+                        found_i = self._refind(z, i, follow[j], why)
+                        # the same orbit found again (Newton had only failed from a long step): no change
+                        if found_i is None or classify(_as_batch(found_i), 0, _as_batch(previous), 0, d_theta):
+                            to = None if found_i is None else found_i["attractor"].slips
+                            changes.append({"row": i, "V": float(self.V[i]), "from": follow[j].slips, "to": to,
+                                            "why": why if to is not None else why + "; no periodic attractor found"})  # fmt: skip
+                if found_i is None:
+                    continue
+                attractors[i] = found_i["attractor"]
+                orbits[i] = found_i
+                values[i], jac[i], available[i] = found_i["statistics"] + self.bias[i], found_i["jacobian"], True
+                v_range[i, 1] = found_i["v_slip"]
+        # window rows
+        window = self.rows["window"]
+        if window:
+            w_values, w_jac, w_available, w_range, scatter = (
+                np.asarray(a) for a in _window(_WindowStatistics(self.window_fit), jnp.asarray(z, float))
+            )
+            values[window], jac[window], available[window] = w_values, w_jac, w_available
+            v_range[window] = np.maximum(w_range, V_REST)
+            if self.cycle_scatter:
+                sigma[window] = np.sqrt(sigma[window] ** 2 + scatter**2)
+        sigma = np.sqrt(sigma**2 + self.bias_error**2)  # the instruments' Monte Carlo error (records)
+        r_all = np.where(available, (values - self.data) / sigma, MISSING_RESIDUAL)
+        J_all = np.where(available[..., None], jac / sigma[..., None], 0.0)
+        keep = self.measured
+        branch = list(base.branch) if base is not None else [0] * n
+        for change in changes:
+            branch[change["row"]] += 1
+        return Point(z=z, r=r_all[keep], J=J_all[keep], v_range=v_range, values=values, available=available,
+                     attractors=attractors, orbits=orbits, changes=changes, branch=tuple(branch))  # fmt: skip
+
+    # -- orbits -----------------------------------------------------------------------------
+    def _shoot(self, z, rows: list[int], attractors: list[Attractor]) -> list[dict]:
+        """Each row's orbit from its attractor at θ = z, as a dict of that row's values."""
+        if not rows:
+            return []
+        out = shoot_rows(self.program, z, self.V[rows], attractors)
+        found = []
+        for j, a in enumerate(attractors):
+            row = {key: value[j] for key, value in out.items()}
+            row["attractor"] = Attractor(np.asarray(row["section"]), a.slips, float(row["period"]), a.how,
+                                         a.minimal) if int(row["status"]) == 0 else a  # fmt: skip
+            found.append(row)
+        return found
+
+    def _refind(self, z, i: int, previous: Attractor | None, why: str) -> dict | None:
+        """Row i's attractor at θ = z found again by a run from the previous orbit's state (or
+        from the paper's start), shot and checked; None where there is none."""
+        model = eqx.tree_at(lambda m: m.adhesion, self.model, self.law(z))
+        y0 = None
+        if previous is not None:
+            y0 = np.asarray(SlipSection.at(model, float(self.V[i])).after_slip(jnp.asarray(previous.section)))
+        found = find_attractor(model, float(self.V[i]), y0=y0)
+        if not isinstance(found, Attractor):
+            return None
+        row = self._shoot(z, [i], [found])[0]
+        if classify(_as_batch(row), 0, None, 0, None):
+            return None
+        row = self._minimal(z, i, row)
+        row["attractor"] = dataclasses.replace(row["attractor"], how=f"found again ({why}): {row['attractor'].how}")
+        return row
+
+    def _minimal(self, z, i: int, row: dict) -> dict:
+        if row["attractor"].minimal:
+            return row
+        row = self._least_k(z, i, row)
+        row["attractor"] = dataclasses.replace(row["attractor"], minimal=True)
+        return row
+
+    def _least_k(self, z, i: int, row: dict) -> dict:
+        """The orbit with its least k: a near repeat of k events may be an orbit of k/m slips run
+        m times (the same statistics per slip, other multipliers). Each proper divisor d of k,
+        smallest first, is shot from the orbit's section point: where P^d returns there (Newton
+        converged on the point itself), the orbit has d slips per period."""
+        k = int(row["slips"])
+        for d in [d for d in range(1, k) if k % d == 0]:
+            a = row["attractor"]
+            trial = self._shoot(z, [i], [Attractor(a.section, d, a.period * d / k, a.how)])[0]
+            if int(trial["status"]) == 0 and np.max(np.abs(trial["z"] - row["z"])) <= SAME_POINT:
+                if not classify(_as_batch(trial), 0, None, 0, None):
+                    trial["attractor"] = dataclasses.replace(trial["attractor"], how=f"{a.how}: an orbit of {d} slips")
+                    return trial
+        return row
+
+    def from_rest(self, point: Point) -> list[int]:
+        """The orbit rows whose attractor reached from rest (a run from the paper's initial data,
+        as a peel test starts) is not the one ``point`` follows: several attractors coexist."""
+        differ = []
+        for i in self.rows["orbit"]:
+            found = self._refind(point.z, i, None, "from rest")
+            followed = point.orbits.get(i)
+            if found is None and followed is None:
+                continue
+            # one orbit has k section points: compare what they share, k and the statistics
+            if (found is None) != (followed is None) or int(found["slips"]) != int(followed["slips"]) or np.max(
+                    np.abs(found["statistics"] / followed["statistics"] - 1)) > SAME_ORBIT:  # fmt: skip
+                differ.append(i)
+        return differ
+
+
+def _as_batch(row: dict) -> dict:
+    """One row's dict as a batch of one (what :func:`~peeljax.fit.attractors.classify` reads)."""
+    return {key: np.asarray(value)[None] for key, value in row.items() if key != "attractor"}
+
+
+def attractor_statistics(law: AdhesionLaw, V, *, model: PeelingModel | None = None, names=("c1",), orbit_rtol=None,
+                         window_fit_options: dict | None = None) -> tuple[Point, TableRows, list[str]]:  # fmt: skip
+    """The model's statistics at the pull velocities ``V`` with φ = ``law``, each row on its
+    attractor as :func:`~peeljax.fit.fit_stick_slip` (``method="orbit"``) predicts it: the
+    :class:`Point` at θ = 0 (``values``, ``available``, ``v_range``), the :class:`TableRows` and
+    why each row has its kind. ``names``: the coefficients of the compiled orbit program (share
+    it with a fit of the same ``free``); ``window_fit_options``: :func:`peeljax.fit.table.build_table_fit`'s
+    for rows without a periodic attractor."""
+    from ..orbits.api import DEFAULT_ORBIT_RTOL, orbit_shooting
+    from .table import build_table_fit, table_tolerances
+
+    model = PeelingModel() if model is None else model
+    model = eqx.tree_at(lambda m: m.adhesion, model, law)
+    V = np.asarray(V, float).reshape(-1)
+    shape = (V.size, len(STATISTICS))
+    data, sigma, measured = np.zeros(shape), np.ones(shape), np.ones(shape, bool)
+    kinds, starts, why = row_kinds(model, V)
+    window = [i for i, k in enumerate(kinds) if k == "window"]
+    window_fit = None
+    if window:
+        rtol, atol = table_tolerances(0.0)
+        options = {"transient": 0.5, "window": 1.0, "n_samples": 401, "rtol": rtol, "atol": atol, "max_jumps": 4096,
+                   "max_steps": 400_000, "taper": 0.25, **(window_fit_options or {})}  # fmt: skip
+        window_fit = build_table_fit(law, model, V[window], data[window], sigma[window], measured[window],
+                                     names=tuple(names), tau=0.0, **options)  # fmt: skip
+    program = None
+    if "orbit" in kinds:
+        program = OrbitRows(orbit_shooting(rtol=orbit_rtol or DEFAULT_ORBIT_RTOL), model, law, tuple(names))
+    rows = TableRows(data, sigma, measured, V, kinds, starts, model=model, start=law, names=names, program=program,
+                     window_fit=window_fit)  # fmt: skip
+    return rows.start(), rows, why

@@ -1,0 +1,238 @@
+"""The table fit on the attractor's own statistics: profile-likelihood intervals across jumps, the
+instrument's view of a record, records of every kind, steady rows — the parts that need no
+compiled orbit (fast), and one small fit through the orbits (slow)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from peeljax.fit import StickSlipTable, fit_records, fit_stick_slip
+from peeljax.fit.instrument import Instrument, recorded_statistics
+from peeljax.fit.measured_statistics import record_cycles
+from peeljax.fit.points import noise_level
+from peeljax.fit.profile import profile
+from peeljax.fit.records_fit import MIN_SLIPS, how_fitted
+from peeljax.fit.table import _Marquardt
+from peeljax.fit.table_rows import Point
+from peeljax.fit.trajectory import Observation
+from peeljax.fit.uncertainty import quantile
+
+# ---------------------------------------------------------------------------- profile likelihood
+
+
+class _Rows:
+    """A fake table: residuals r(z) of a linear model on branches (``branch(z)`` → (k, r, J))."""
+
+    def __init__(self, branch):
+        self.branch, self.evaluations = branch, 0
+
+    def evaluate(self, z, base=None):
+        self.evaluations += 1
+        z = np.asarray(z, float)
+        k, r, J = self.branch(z)
+        return Point(z=z, r=np.asarray(r, float), J=np.asarray(J, float), v_range=np.zeros((1, 2)), values=np.zeros((1, 5)),
+                     available=np.ones((1, 5), bool), attractors=[None], orbits={}, branch=(k,))  # fmt: skip
+
+
+def _profile(rows, z_hat, j, se):
+    best = rows.evaluate(z_hat)
+    return profile(rows, best, j, se_log=se, threshold=quantile(0.95, None) ** 2, level=0.95, c_hat=1.0,
+                   marquardt=_Marquardt, fit_rtol=1e-10, fit_atol=1e-10)  # fmt: skip
+
+
+def test_profile_of_a_quadratic_chi2_is_the_linearized_interval():
+    """Linear residuals in two coefficients, correlated: the profile's set is one interval,
+    θ̂_j ± q·SE_j (the inner fit of the other coefficient included), to the grid's interpolation."""
+    rng = np.random.default_rng(0)
+    A = rng.normal(size=(12, 2)) + np.array([3.0, 2.8])  # strongly correlated columns
+    y = rng.normal(size=12)
+    rows = _Rows(lambda z: (0, A @ z - y, A))
+    z_hat = np.linalg.lstsq(A, y, rcond=None)[0]
+    se = np.sqrt(np.diag(np.linalg.inv(A.T @ A)))
+    q = quantile(0.95, None)
+    for j in range(2):
+        p = _profile(rows, z_hat, j, se[j])
+        assert len(p.intervals) == 1 and not p.jumps
+        lo, hi = (math.log(x) for x in p.intervals[0])  # c = c_hat·exp(δ), c_hat = 1
+        assert lo == pytest.approx(-q * se[j], rel=0.03) and hi == pytest.approx(q * se[j], rel=0.03)
+
+
+def test_profile_across_a_bifurcation_is_a_union_with_the_jump_located():
+    """One coefficient, χ² quadratic about 0 until a bifurcation at z = 1.5 SE, where the
+    statistics jump onto a branch whose χ² is quadratic about 3.5 SE with a floor of 2: the 95 %
+    set is [−1.96, 1.5] ∪ [3.5 − √1.84, 3.5 + √1.84] SE, a union; the end at the jump is
+    bisected to it, the others interpolated on their branch."""
+    se, q2 = 0.01, quantile(0.95, None) ** 2
+
+    def branch(z):
+        x = float(z[0]) / se
+        if x <= 1.5:
+            return 0, [x, 0.0], [[1 / se], [0.0]]
+        return 1, [x - 3.5, math.sqrt(2.0)], [[1 / se], [0.0]]
+
+    p = _profile(_Rows(branch), np.zeros(1), 0, se)
+    ends = [(math.log(lo) / se, math.log(hi) / se) for lo, hi in p.intervals]
+    assert len(ends) == 2
+    (a, b), (c, d) = ends
+    h = math.sqrt(q2) / 3  # the grid step in SE
+    assert a == pytest.approx(-math.sqrt(q2), abs=0.06)
+    assert b == pytest.approx(1.5, abs=h / 2**3)  # bisected thrice
+    assert c == pytest.approx(3.5 - math.sqrt(q2 - 2), abs=0.06)
+    assert d == pytest.approx(3.5 + math.sqrt(q2 - 2), abs=0.06)
+    assert len(p.jumps) == 1 and math.log(p.jumps[0][0]) / se < 1.5 < math.log(p.jumps[0][1]) / se
+
+
+# ---------------------------------------------------------------------------- records
+
+
+def _sawtooth(T=0.02, rise=0.016, F0=200.0, F1=220.0, duration=3.0, dt=1e-4, noise=0.0, seed=0):
+    """A piecewise-linear sawtooth: F rises from F0 to F1 over ``rise``, falls back over T − rise."""
+    t = np.arange(0.0, duration, dt)
+    phase = np.mod(t, T)
+    F = np.where(phase < rise, F0 + (F1 - F0) * phase / rise, F1 - (F1 - F0) * (phase - rise) / (T - rise))
+    return t, F + noise * np.random.default_rng(seed).standard_normal(t.size)
+
+
+def test_the_instrument_sees_a_sawtooth_as_the_phase_averaged_samples_predict():
+    """A sawtooth sampled every Δt with a random phase: its maxima lie below the corner by
+    (Δt/2)·ab/(a + b) on average (a, b the rise and fall rates; the sample before or after the
+    corner, whichever is higher), its minima above by the same; its 'slip duration' from a
+    maximum to the next minimum is longer than the fall by (Δt/2)·((c − d) − (a − b))/(a + b)
+    with c = b, d = a here (the sample after the minimum is usually the one kept)."""
+    T, rise, F0, F1, dt = 0.0201234, 0.016, 200.0, 220.0, 1e-3  # T/Δt not whole: the phase drifts cycle to cycle
+    a, b = (F1 - F0) / rise, (F1 - F0) / (T - rise)
+    t, F = _sawtooth(T, rise, F0, F1, duration=T, dt=1e-6)  # one period, densely
+    seen = recorded_statistics(t, F, T, Instrument(dt=dt, noise=0.0, duration=4.0), replicates=4)
+    shift = 0.5 * dt * a * b / (a + b)
+    assert seen["F_slip"] == pytest.approx(F1 - shift, abs=0.02 * shift)
+    assert seen["F_stick"] == pytest.approx(F0 + shift, abs=0.02 * shift)
+    assert seen["period"] == pytest.approx(T, rel=1e-4)
+    offset = 0.5 * dt * ((b - a) / (a + b) - (a - b) / (a + b))
+    assert seen["slip_duration"] == pytest.approx((T - rise) + offset, abs=0.02 * dt)
+
+
+def test_noise_level_reads_white_noise_off_a_smooth_signal():
+    t = np.linspace(0.0, 1.0, 20001)
+    x = 250.0 + 30.0 * np.sin(2 * np.pi * 3 * t) + 1.25 * np.random.default_rng(1).standard_normal(t.size)
+    assert noise_level(x) == pytest.approx(1.25, rel=0.03)
+    inst = Instrument.of_record(t, x)
+    assert inst.dt == pytest.approx(5e-5) and inst.noise == pytest.approx(1.25, rel=0.2)  # (record_statistics' own estimate)
+
+
+def test_each_record_is_fitted_by_statistics_or_points_as_it_is():
+    t, F = _sawtooth()
+    settle = 245.0 - 20.0 * np.exp(-t / 0.1)
+    records = [
+        Observation(V=1.1, t=t, v=None, F=F),  # stick-slips: 150 slips
+        Observation(V=1.1, t=t, v=None, F=settle),  # settles: no slip
+        Observation(V=1.1, t=t, v=np.full(t.size, 1.1), F=settle),  # holds v
+    ]
+    kinds = [k for k, _ in how_fitted(records)]
+    assert kinds == ["statistics", "points", "points"]
+    assert [k for k, _ in how_fitted(records[:2], "points")] == ["points", "points"]
+    with pytest.raises(ValueError, match="no stick-slip statistics"):
+        how_fitted(records[1:2], "statistics")
+    with pytest.raises(ValueError, match="holds v or alpha"):
+        how_fitted(records[2:], "statistics")
+    with pytest.raises(ValueError, match="by must be one of"):
+        how_fitted(records, "both")
+    few = Observation(V=1.1, t=t[: int(0.2 / 1e-4)], v=None, F=F[: int(0.2 / 1e-4)])  # 5 slips in its second half
+    assert how_fitted([few])[0][0] == "points" and MIN_SLIPS > 5
+
+
+def test_records_table_carries_the_standard_error_of_each_mean():
+    t, F = _sawtooth(noise=0.5)
+    obs = [Observation(V=1.1, t=t, v=None, F=F)]
+    cycle = StickSlipTable.from_force_records(obs, transient=1.0)
+    error = StickSlipTable.from_force_records(obs, transient=1.0, std="error")
+    cycles = record_cycles(t, F, transient=1.0)["cycles"]
+    for s in ("F_mean", "F_slip", "F_stick", "period", "slip_duration"):
+        assert error.std[s][0] == pytest.approx(cycle.std[s][0] / math.sqrt(cycles[s].size), rel=1e-12)
+        assert error.values[s][0] == cycle.values[s][0]
+    with pytest.raises(ValueError, match="std must be"):
+        StickSlipTable.from_force_records(obs, std="mean")
+
+
+def test_bad_options_are_refused_before_anything_compiles():
+    table = StickSlipTable.from_dict(V=[1.0, 2.0], F_mean=[240.0, 260.0], F_slip=[255.0, 270.0])
+    for kwargs, words in (
+        ({"method": "orbits"}, "method must be one of"),
+        ({"method": "orbit", "tau": 0.01}, "tau must be 0 with method='orbit'"),
+        ({"intervals": "exact"}, "intervals must be one of"),
+        ({"level": 95}, "level must be a number in"),
+        ({"orbit_rtol": -1.0}, "orbit_rtol"),
+    ):  # fmt: skip
+        with pytest.raises(ValueError, match=words):
+            fit_stick_slip(table, free=("c1",), **kwargs)
+    t, F = _sawtooth()
+    with pytest.raises(ValueError, match="tau must be > 0"):
+        fit_records([Observation(V=1.1, t=t, v=None, F=F)], tau=0.0)
+    with pytest.raises(ValueError, match="no records"):
+        fit_records([])
+
+
+# ---------------------------------------------------------------------------- through the orbits (slow)
+
+TRUE_C1 = 400.0 * 1.002  # close to the paper's: no bifurcation between the start and the truth
+ROWS_V = (1.0, 3.0, 6.0)  # two stick-slip rows and one steady (phi has no fold at 6 m/s)
+
+
+@pytest.fixture(scope="module")
+def truth_rows():
+    """The statistics at the truth, each row on its attractor, through the one-coefficient orbit
+    program that the fits below share."""
+    from peeljax import AdhesionLaw
+    from peeljax.fit.table_rows import attractor_statistics
+
+    point, rows, why = attractor_statistics(AdhesionLaw(c1=TRUE_C1), ROWS_V, names=("c1",))
+    return point, rows, why
+
+
+def _table(point, noise, rng):
+    from peeljax.fit.stick_slip_table import STATISTICS
+
+    columns = {}
+    for j, name in enumerate(STATISTICS):
+        exact = np.where(point.available[:, j], point.values[:, j], np.nan)
+        columns[name] = exact * (1 + noise * rng.normal(size=exact.shape))
+        columns[f"{name}_std"] = np.where(np.isfinite(exact), 0.01 * np.abs(exact), np.nan)
+    return StickSlipTable.from_dict(V=np.asarray(ROWS_V), **columns)
+
+
+@pytest.mark.slow
+def test_rows_are_on_their_attractors_with_derivatives_of_the_orbit(truth_rows):
+    """Two stick-slip rows on periodic orbits (stable, k their least number of slips), a steady
+    row F = φ(V, V); the Jacobian of the orbit statistics (implicit function theorem) against
+    central differences of orbits followed to θ ± h."""
+    point, rows, why = truth_rows
+    assert rows.kinds == ["orbit", "orbit", "steady"], why
+    for i in (0, 1):
+        orbit = point.orbits[i]
+        assert int(orbit["status"]) == 0 and np.max(orbit["multipliers"]) < 1.0
+        assert point.attractors[i].minimal
+    assert point.values[2, 0] == pytest.approx(float(rows.law(np.zeros(1))(6.0, 6.0)), rel=1e-12)
+    assert point.available[2].tolist() == [True, False, False, False, False]
+    h = 1e-5
+    plus, minus = rows.evaluate(np.array([h]), point), rows.evaluate(np.array([-h]), point)
+    assert not plus.changes and not minus.changes
+    fd = (plus.values - minus.values) / (2 * h)
+    ad = np.stack([point.orbits[i]["jacobian"][:, 0] for i in (0, 1)])
+    np.testing.assert_allclose(ad, fd[:2], rtol=2e-4)
+
+
+@pytest.mark.slow
+def test_table_fit_on_orbits_recovers_the_truth_and_covers_it(truth_rows):
+    """Noise-free: the fit lands on the truth (1e-5) with every row on its attractor. Ten draws of
+    1 % noise: the 95 % interval covers the truth in at least 8 (P(≤ 7 | 95 %) = 1.2 %)."""
+    point, _, _ = truth_rows
+    rng = np.random.default_rng(0)
+    exact = fit_stick_slip(_table(point, 0.0, rng), free=("c1",))
+    assert exact.converged and exact.uncertainty.values[0] == pytest.approx(TRUE_C1, rel=1e-5)
+    assert [r["kind"] for r in exact.rows] == ["orbit", "orbit", "steady"]
+    assert all(r["stable"] for r in exact.rows[:2]) and "slips per period" in exact.summary()
+    covered = sum(fit_stick_slip(_table(point, 0.01, rng), free=("c1",)).covers({"c1": TRUE_C1})["c1"]
+                  for _ in range(10))  # fmt: skip
+    assert covered >= 8
