@@ -122,7 +122,9 @@ def run_table(*, V=TABLE_V, multipliers=None, seed=1, noise=0.01, **options) -> 
 
     truth = hidden_truth(multipliers)
     rtol, atol = table_tolerances(0.0, options.get("rtol"), options.get("atol"))
-    table = synthetic_table(truth, np.asarray(V, float), noise=noise, seed=seed, rtol=rtol, atol=atol, **TABLE_WINDOW)
+    method = options.get("method", "orbit")  # the table made as the fit predicts it
+    table = synthetic_table(truth, np.asarray(V, float), noise=noise, seed=seed, rtol=rtol, atol=atol, method=method,
+                            **TABLE_WINDOW)  # fmt: skip
     names = tuple(multipliers or TABLE_TRUTH)
     began, cpu = time.perf_counter(), time.process_time()
     result = fit_stick_slip(table, free=names, **TABLE_WINDOW, **options)
@@ -136,7 +138,8 @@ def print_table(out: dict) -> bool:
     u = result.uncertainty
     print(result.summary())
     print("\n| coefficient | truth | start | fitted | ± SE | error | error / SE |\n|---|---:|---:|---:|---:|---:|---:|")
-    ok = out["wall_s"] <= 60
+    limit = 15 if result.settings.get("method") == "orbit" else 60  # [s], compilation included
+    ok = out["wall_s"] <= limit
     for n, value, se in zip(u.names, u.values, u.standard_errors):
         true = float(getattr(truth, n))
         error = value / true - 1
@@ -145,8 +148,8 @@ def print_table(out: dict) -> bool:
               f"{error:+.2%} | {(value - true) / se:+.2f} |")  # fmt: skip
     print(f"\nV = {list(result.settings['V'])}; {result.steps} LM iterations after a coarse batch of "
           f"{result.settings['n_coarse']}; {out['wall_s']:.1f} s from the call to the result (compilation included; "
-          f"<= 60 s required; {out['cpu_s']:.1f} s of CPU time on this process, and the load average was "
-          f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores); criteria (within 2 % and 3 SE, <= 60 s): {'met' if ok else 'NOT met'}")  # fmt: skip
+          f"<= {limit} s required; {out['cpu_s']:.1f} s of CPU time on this process, and the load average was "
+          f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores); criteria (within 2 % and 3 SE, <= {limit} s): {'met' if ok else 'NOT met'}")  # fmt: skip
     return bool(ok)
 
 
@@ -162,9 +165,10 @@ def main() -> None:
     parser.add_argument("--dt", type=float, default=None, help="the uniform mesh of this step instead (data and model)")
     parser.add_argument("--table", action="store_true", help="the stick-slip table fit (issue 28's target) instead")
     parser.add_argument("--V", type=float, nargs="+", default=list(TABLE_V), help="--table: the pull velocities")
+    parser.add_argument("--method", choices=("orbit", "window"), default="orbit", help="--table: fit_stick_slip's method")
     args = parser.parse_args()
     if args.table:
-        print_table(run_table(V=args.V, seed=1 if args.seed == 0 else args.seed))
+        print_table(run_table(V=args.V, seed=1 if args.seed == 0 else args.seed, method=args.method))
         return
     started = time.perf_counter()
     out = run(

@@ -198,8 +198,8 @@ SETTINGS = {"transient": 0.3, "window": 0.5}
 
 @pytest.mark.slow
 def test_hidden_truth_table_of_three_coefficients_is_recovered():
-    """Issue 28's target on its smallest problem (benchmarks/fit_acceptance.py --table runs it at
-    8 V): φ with c1 × 1.12, c3 × 1.06, c6 × 1.10, a table at 6 V (1 % noise and its σ, made at
+    """The window method (``method="window"``) on its smallest problem (benchmarks/fit_acceptance.py
+    --table runs it at 8 V): φ with c1 × 1.12, c3 × 1.06, c6 × 1.10, a table at 6 V (1 % noise and its σ, made at
     the fit's tolerances, [0.5, 1.5] s), fitted from the paper's φ from the best of 4 coarse
     points: every coefficient within 2 % of the truth and within 3 standard errors,
     Levenberg–Marquardt converged (its stop reason names the test), χ²/dof reported, no residual
@@ -207,7 +207,7 @@ def test_hidden_truth_table_of_three_coefficients_is_recovered():
     import fit_acceptance  # benchmarks/
 
     V = (0.8, 1.0, 1.5, 2.2, 2.6, 3.0)
-    out = fit_acceptance.run_table(V=V, n_coarse=4, n_starts=1, max_iterations=15)
+    out = fit_acceptance.run_table(V=V, n_coarse=4, n_starts=1, max_iterations=15, method="window")
     result, truth = out["result"], out["truth"]
     u = result.uncertainty
     assert result.converged and result.stop_reason.startswith("converged"), result.stop_reason

@@ -500,6 +500,9 @@ def _records_command(args: argparse.Namespace, config: dict) -> int:
         print(json.dumps(json_safe(record), allow_nan=False))
         return 0
     print(_ascii(result.summary()))
+    print(
+        f"visited v in [{result.v_range[0]:.3g}, {result.v_range[1]:.3g}] m/s: phi is determined by the data only there"
+    )
     written = [p for p in (args.out, args.plot if table is not None else None) if p is not None]
     if written:
         print("wrote " + " and ".join(written))
@@ -559,7 +562,8 @@ def _table_command(args: argparse.Namespace, config: dict) -> int:
         f"{result.final_loss:.4g}"
     )
     print(f"stopped: {result.stop_reason}")
-    print(_ascii(result.uncertainty.table()))
+    # the coefficients, then each row's attractor, the bifurcations crossed, the profile intervals
+    print(_ascii("\n".join(result.summary().splitlines()[2:])))
     print(
         f"visited v in [{result.v_range[0]:.3g}, {result.v_range[1]:.3g}] m/s: phi is determined by the data only there"
     )
