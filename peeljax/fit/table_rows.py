@@ -139,8 +139,10 @@ class TableRows:
         program: the compiled orbit rows (:class:`~peeljax.fit.attractors.OrbitRows`).
         window_fit: a :class:`~peeljax.fit.table.TableFit` over the window rows (None if none).
         cycle_scatter: add the window rows' cycle-to-cycle scatter to σ.
-        instrument: an (n, 5) function of the model's per-row output giving what a record's
-            sampling adds to each statistic (None: the statistics as they are).
+
+    Rows measured from force records get their instrument (:meth:`set_instruments`): the bias
+    its sampling and noise add to the orbit's statistics (:mod:`peeljax.fit.instrument`,
+    :meth:`update_bias`) is added to them, its Monte Carlo error to σ.
     """
 
     def __init__(self, data, sigma, measured, V, kinds, starts, *, model: PeelingModel, start: AdhesionLaw, names,
