@@ -176,6 +176,10 @@ def test_bad_options_are_refused_before_anything_compiles():
         fit_records([Observation(V=1.1, t=t, v=None, F=F)], tau=0.0)
     with pytest.raises(ValueError, match="no records"):
         fit_records([])
+    for kwargs, words in (({"max_iterations": 0}, "max_iterations"), ({"intervals": "all"}, "intervals"),
+                          ({"level": 1.5}, "level"), ({"by": "rows"}, "by must be one of")):  # fmt: skip
+        with pytest.raises(ValueError, match=words):
+            fit_records([Observation(V=1.1, t=t, v=None, F=F)], **kwargs)
 
 
 # ---------------------------------------------------------------------------- through the orbits (slow)

@@ -166,9 +166,17 @@ def fit_records(
         raise ValueError("no records to fit")
     if not (isinstance(tau, (int, float)) and math.isfinite(tau) and tau > 0):
         raise ValueError(f"tau must be > 0 [s] for records fitted point by point, got {tau!r}")
+    if isinstance(max_iterations, bool) or not isinstance(max_iterations, int) or max_iterations < 1:
+        raise ValueError(f"max_iterations must be an integer >= 1, got {max_iterations!r}")
+    if intervals not in ("auto", "profile", "linear"):
+        raise ValueError(f"intervals must be one of 'auto', 'profile', 'linear', got {intervals!r}")
+    if not (isinstance(level, float) and 0 < level < 1):
+        raise ValueError(f"level must be a number in (0, 1), got {level!r}")
     names = _check_free(free)
     model = PeelingModel() if model is None else model
     start = model.adhesion if start is None else start
+    if not isinstance(start, AdhesionLaw):
+        raise TypeError("fit_records fits an AdhesionLaw; the model's adhesion is a plain callable")
     decided = how_fitted(observations, by, transient)
     stats = [o for o, (kind, _) in zip(observations, decided) if kind == "statistics"]
     pts = [o for o, (kind, _) in zip(observations, decided) if kind == "points"]
