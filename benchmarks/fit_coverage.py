@@ -11,7 +11,7 @@ Problems:
 
 The table holds the model's statistics at the truth as :func:`peeljax.fit.fit_stick_slip`
 predicts them by default (each row on the attractor reached from rest: the periodic orbit's
-statistics over one period; :func:`peeljax.fit.table_rows.attractor_statistics`), all five at
+statistics over one period; :func:`peeljax.fit.table.attractor_statistics`), all five at
 every V; each draw multiplies every entry by 1 + 0.01·N(0, 1) and gives σ = 1 % of the exact
 value (``synthetic_table``'s recipe), and is fitted from the paper's φ with the defaults
 (``intervals="auto"``: profile-likelihood intervals where a bifurcation lies within the
@@ -37,7 +37,7 @@ import numpy as np
 import peeljax as pj
 from peeljax.fit import StickSlipTable, fit_stick_slip
 from peeljax.fit.statistics import STATISTICS
-from peeljax.fit.table_rows import attractor_statistics
+from peeljax.fit.table import attractor_statistics
 
 PROBLEMS = {
     "two": ({"c1": 1.05, "c6": 1.05}, (1.0, 1.5, 2.2, 3.0)),

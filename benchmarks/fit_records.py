@@ -26,7 +26,7 @@ from peeljax.fit import fit_records, record_statistics
 from peeljax.fit.instrument import Instrument, orbit_force, recorded_statistics
 from peeljax.fit.records_fit import NOISE_FACTOR, SMOOTH
 from peeljax.fit.stick_slip_table import STATISTICS
-from peeljax.fit.table_rows import attractor_statistics
+from peeljax.fit.table import attractor_statistics
 from peeljax.fit.trajectory import Observation
 
 TRUTH = pj.AdhesionLaw(c1=420.0)

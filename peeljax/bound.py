@@ -237,7 +237,13 @@ class Simulator:
             check_y0(y0)
             rest = list(rest)
             rest[program.i_y0] = np.asarray(y0, dtype=float)
-        return (program.executable or program.compile())(packed, rest)
+        return self._unpadded((program.executable or program.compile())(packed, rest))
+
+    def _unpadded(self, solution: Solution) -> Solution:
+        # as simulate returns a dense output: the output times and the jumps, not the rows left for more
+        if self.ts is not None and not isinstance(solution.ts, jax.core.Tracer) and np.ndim(solution.status) == 0:
+            return solution.without_padding()
+        return solution
 
     def _general(self, V, tau, y0) -> Solution:
         """simulate's route (a traced V, τ or y0; a batch of y0; a diffrax solver): its checks, ODE, ``_run``."""
@@ -246,4 +252,4 @@ class Simulator:
         if dae:
             self._refuse_dae()
         ode, y0 = _prepare(self.model, V, tau, y0, self.truncation, allow_dae=True)
-        return _run(self.integrators[dae], ode, y0, self.t_final, self.ts)
+        return self._unpadded(_run(self.integrators[dae], ode, y0, self.t_final, self.ts))

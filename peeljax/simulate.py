@@ -40,15 +40,19 @@ ROW_BYTES = {"ts": 400, "steps": 100, "mesh": 150}
 _ROWS = {"ts": "output times", "steps": "rows of accepted steps (max_steps + 1)", "mesh": "mesh points"}
 
 
-def check_run_memory(rows: int, kind: str, max_jumps: int = 0, *, remedy: str, limit: float | None = None) -> None:
+def check_run_memory(
+    rows: int, kind: str, max_jumps: int = 0, *, remedy: str, limit: float | None = None, jump_rows: int = 0
+) -> None:
     """Refuse a run whose output would not fit in memory (:func:`peeljax._memory.check_output_memory`).
 
     ``rows``: output rows of ``kind`` ``"ts"`` (dense output), ``"steps"`` (the accepted steps)
-    or ``"mesh"`` (the uniform mesh); ``max_jumps``: slots of the jump record (up to 6 arrays of 8 bytes).
+    or ``"mesh"`` (the uniform mesh); ``jump_rows``: the rows kept for the jumps' sides;
+    ``max_jumps``: slots of the jump record (up to 6 arrays of 8 bytes).
     """
-    total = float(rows) * ROW_BYTES[kind] + 48.0 * max_jumps
+    total = float(rows + jump_rows) * ROW_BYTES[kind] + 48.0 * max_jumps
+    sides = f" + {jump_rows:.4g} rows for the jumps' sides" if jump_rows else ""
     jumps = f" + a record of {max_jumps} jumps" if max_jumps else ""
-    detail = f"{rows:.4g} {_ROWS[kind]} x ~{ROW_BYTES[kind]} bytes{jumps}"
+    detail = f"{rows:.4g} {_ROWS[kind]}{sides} x ~{ROW_BYTES[kind]} bytes{jumps}"
     check_output_memory("the run's output", total, detail, remedy, limit)
 
 
@@ -255,11 +259,12 @@ def _check_memory(integrator, ts, max_steps, limit) -> None:
     if isinstance(integrator, UniformMesh):
         rows, kind, remedy = integrator.n_steps + 1, "mesh", "a larger dt or a shorter t_final"
     elif ts is not None:  # and two rows per jump (both sides)
-        rows, kind, remedy = ts.size + 2 * max_jumps, "ts", "fewer output times ts"
+        rows, kind, remedy = ts.size, "ts", "fewer output times ts"
     else:
-        rows, kind, remedy = max_steps + 1 + max_jumps, "steps", "a smaller max_steps, or output at fewer times ts"
+        rows, kind, remedy = max_steps + 1, "steps", "a smaller max_steps, or output at fewer times ts"
+    sides = 0 if isinstance(integrator, UniformMesh) else (2 if ts is not None else 1) * max_jumps
     remedy += (", a smaller max_jumps" if max_jumps else "") + ", or raise memory_limit"
-    check_run_memory(rows, kind, max_jumps, remedy=remedy, limit=limit)
+    check_run_memory(rows, kind, max_jumps, remedy=remedy, limit=limit, jump_rows=sides)
 
 
 @eqx.filter_jit

@@ -347,7 +347,8 @@ class Solution(eqx.Module):
             return self
 
         def rows(array):
-            return array[keep]
+            # on the host, then back: indexing the device array would compile a gather per row count
+            return jax.device_put(np.asarray(array)[keep])
 
         return dataclasses.replace(
             self, ts=rows(self.ts), ys=rows(self.ys), valid=rows(self.valid),

@@ -27,7 +27,7 @@ MISTAKES = [
     (["fit", "--table", "{table}", "--optimizer", "lbfgs"], "peeljax: error: --optimizer does not apply to --table"),
     (["fit", "--table", "{table}", "--patience", "5"], "peeljax: error: --patience does not apply to --table"),
     (["fit", "--data", "{record}", "--V", "1.1", "--out", "{tmp}/f.json", "--steps", "10"],
-     "peeljax: error: --steps does not apply to force records (t, F) fitted through their statistics"),
+     "peeljax: error: --steps does not apply to force records (t, F): fitted by their statistics or point by point (its counterpart there is --max-iterations)"),
     (["simulate", "--out", "{tmp}/run.csv"],
      "peeljax: error: --out '{tmp}/run.csv': peeljax simulate writes FILE.npz (numpy), not a .csv file"),
     (["sweep", "--out", "{tmp}/sweep.csv"],

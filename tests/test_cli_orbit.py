@@ -92,9 +92,14 @@ def test_bad_input_exits_2_before_anything_compiles(argv, words, monkeypatch, no
     assert_refused(code, err, *words, stdout=out)
 
 
-def test_V_is_one_number(no_compilation):
-    code, out, err = run_cli(["orbit", "--V", "0.3:5.4"])  # argparse's own refusal: its usage, then the line
-    assert code == 2 and out == "" and "argument --V: '0.3:5.4'" in err and "give one number" in err
+def test_V_is_one_number_or_a_range(no_compilation):
+    # argparse's own refusal: its usage, then the line
+    code, out, err = run_cli(["orbit", "--V", "0.3:1:2:4"])
+    assert code == 2 and out == "" and "argument --V: '0.3:1:2:4'" in err and "START:STOP or START:STOP:SEEDS" in err
+    code, out, err = run_cli(["orbit", "--V", "0.3:1:x"])
+    assert code == 2 and "SEEDS must be an integer in [2, " in err
+    code, out, err = run_cli(["orbit", "--V", "1.2:0.9"])  # the range checked before anything runs
+    assert_refused(code, err, "--V START:STOP must have 0 < START < STOP, got 1.2:0.9", stdout=out)
 
 
 def test_no_orbit_to_shoot_for_exits_2_with_the_reason(tmp_path):

@@ -39,7 +39,10 @@ def test_the_constraint_holds_and_the_run_ends_at_t_final():
     ok = np.asarray(sol.valid)
     ts, ys = np.asarray(sol.ts)[ok], np.asarray(sol.ys)[ok]
     assert ys.shape[1] == 4 and float(sol.t_stop) == 0.4 and ts[-1] == 0.4
-    assert np.all(np.diff(ts) > 0)  # physical time increases from step to step
+    # physical time increases from step to step; two rows at a jump's time, its two sides
+    after = np.asarray(sol.after_jump)[ok]
+    assert np.all(np.diff(ts) >= 0) and np.array_equal(np.diff(ts) == 0, after[1:])
+    assert int(np.sum(after)) == int(sol.stats["jumps"])
     residual = np.asarray(jax.vmap(lambda y: MODEL.constraint(y[:3], y[3], 2.0))(jnp.asarray(ys)))
     assert np.max(np.abs(residual)) < 1e-9
     assert int(sol.stats["jumps"]) > 10

@@ -228,7 +228,8 @@ def test_the_example_stick_slip_table_is_one_a_run_can_produce():
 
 def test_the_api_reference_documents_every_exported_name():
     """Each name of ``peeljax.__all__`` has its ``::: peeljax.NAME`` entry in ``docs/api/``
-    (mkdocstrings renders it from the docstring), and the reference names nothing else."""
+    (mkdocstrings renders it from the docstring), and the reference names nothing else but the
+    public names of subpackages (``peeljax.orbits.OrbitBranch``: a result's type)."""
     import peeljax
 
     import importlib
@@ -237,7 +238,10 @@ def test_the_api_reference_documents_every_exported_name():
     entries = [path.rsplit(".", 1)[1] for path in paths]
     missing = sorted(set(peeljax.__all__) - set(entries))
     assert not missing, f"add to a page of docs/api/ (and its nav entry in mkdocs.yml): {missing}"
-    assert len(entries) == len(set(entries)) and set(entries) <= set(peeljax.__all__)
+    assert len(entries) == len(set(entries))
     for path, name in zip(paths, entries):  # a longer path where a submodule has the name (peeljax.simulate)
         module, _, attr = path.rpartition(".")
-        assert getattr(importlib.import_module(module), attr) is getattr(peeljax, name), path
+        if name in peeljax.__all__:
+            assert getattr(importlib.import_module(module), attr) is getattr(peeljax, name), path
+        else:
+            assert attr in importlib.import_module(module).__all__, f"{path}: not a public name of {module}"

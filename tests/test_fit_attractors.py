@@ -193,7 +193,7 @@ def truth_rows():
     """The statistics at the truth, each row on its attractor, through the one-coefficient orbit
     program that the fits below share."""
     from peeljax import AdhesionLaw
-    from peeljax.fit.table_rows import attractor_statistics
+    from peeljax.fit.table import attractor_statistics
 
     point, rows, why = attractor_statistics(AdhesionLaw(c1=TRUE_C1), ROWS_V, names=("c1",))
     return point, rows, why

@@ -1,13 +1,16 @@
 """The layout of ``peeljax/``: no import circle, and no import up the layers (issue 29).
 
 Read from the source with ``ast`` (nothing is imported): every import statement counts, also
-one inside a function (a lazy import is still an edge of the graph).
+one inside a function (a lazy import is still an edge of the graph). The last test imports
+peeljax in a fresh process: importing it starts no XLA backend.
 """
 
 from __future__ import annotations
 
 import ast
 import functools
+import subprocess
+import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1] / "peeljax"
@@ -108,3 +111,11 @@ def test_the_check_sees_a_lazy_import_as_an_edge(tmp_path):
     edges = _graph(package)
     assert edges["peeljax.solution"] == {"peeljax.saved"} and edges["peeljax.saved"] == {"peeljax.solution"}
     assert _layer("peeljax.solution") < _layer("peeljax.saved")  # and it went up a layer
+
+
+def test_importing_peeljax_starts_no_backend():
+    """No array is made at import (a module's ``jnp`` constant starts XLA's backend), so that
+    ``jax.distributed.initialize`` can still run after ``import peeljax`` (multi-process sweeps)."""
+    code = "import peeljax, peeljax.cli\nfrom jax._src import xla_bridge\nprint(bool(xla_bridge._backends))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "False"

@@ -26,7 +26,7 @@ from ..adhesion import AdhesionLaw
 from ..model import PeelingModel
 from .stick_slip_table import STATISTICS, StickSlipTable
 from .table import TableFit, build_table_fit
-from .table_rows import attractor_statistics
+from .table import attractor_statistics
 
 __all__ = ["model_statistics", "plot_table_fit"]
 
@@ -66,7 +66,7 @@ def model_statistics(
     predicts them with φ = ``law`` and its ``method``: ``"orbit"`` (default: each row on its
     attractor — steady peeling's φ(V, V), the periodic orbit's statistics over one period, or the
     tapered window statistics where there is no periodic attractor;
-    :func:`peeljax.fit.table_rows.attractor_statistics`) or ``"window"`` (the statistics over
+    :func:`peeljax.fit.table.attractor_statistics`) or ``"window"`` (the statistics over
     ``[transient, transient + window]`` of a run from the paper's start).
 
     Returns:

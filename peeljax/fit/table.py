@@ -54,14 +54,20 @@ from ..orbits.api import DEFAULT_ORBIT_RTOL, orbit_shooting
 from .attractors import OrbitRows
 from .profile import profile
 from .statistics import jump_statistics, window_scatter
-from .table_rows import MISSING_RESIDUAL, V_REST, TableRows, row_kinds
+from .table_rows import MISSING_RESIDUAL, V_REST, Point, TableRows, row_kinds
 from .stick_slip_table import STATISTICS, StickSlipTable
 from .trajectory import FitResult, _check_free, _to_law
 from .uncertainty import uncertainty_from_jacobian
 
-__all__ = ["MISSING_RESIDUAL", "TableFit", "TableFitResult", "build_table_fit", "fit_stick_slip", "table_residuals"]
-
-
+__all__ = [
+    "MISSING_RESIDUAL",
+    "TableFit",
+    "TableFitResult",
+    "attractor_statistics",
+    "build_table_fit",
+    "fit_stick_slip",
+    "table_residuals",
+]
 
 
 class TableFit(eqx.Module):
@@ -885,3 +891,33 @@ def _profiles_if_needed(rows: TableRows, best, uncertainty, intervals, level, op
                        fit_atol=options["fit_atol"], valley=cov[:, j] / cov[j, j])  # fmt: skip
         out[name] = dataclasses.replace(prof, name=name)
     return out
+
+
+def attractor_statistics(law: AdhesionLaw, V, *, model: PeelingModel | None = None, names=("c1",), orbit_rtol=None,
+                         window_fit_options: dict | None = None) -> tuple[Point, TableRows, list[str]]:  # fmt: skip
+    """The model's statistics at the pull velocities ``V`` with φ = ``law``, each row on its
+    attractor as :func:`~peeljax.fit.fit_stick_slip` (``method="orbit"``) predicts it: the
+    :class:`Point` at θ = 0 (``values``, ``available``, ``v_range``), the :class:`TableRows` and
+    why each row has its kind. ``names``: the coefficients of the compiled orbit program (share
+    it with a fit of the same ``free``); ``window_fit_options``: :func:`peeljax.fit.table.build_table_fit`'s
+    for rows without a periodic attractor."""
+    model = PeelingModel() if model is None else model
+    model = eqx.tree_at(lambda m: m.adhesion, model, law)
+    V = np.asarray(V, float).reshape(-1)
+    shape = (V.size, len(STATISTICS))
+    data, sigma, measured = np.zeros(shape), np.ones(shape), np.ones(shape, bool)
+    kinds, starts, why = row_kinds(model, V)
+    window = [i for i, k in enumerate(kinds) if k == "window"]
+    window_fit = None
+    if window:
+        rtol, atol = table_tolerances(0.0)
+        options = {"transient": 0.5, "window": 1.0, "n_samples": 401, "rtol": rtol, "atol": atol, "max_jumps": 4096,
+                   "max_steps": 400_000, "taper": 0.25, **(window_fit_options or {})}  # fmt: skip
+        window_fit = build_table_fit(law, model, V[window], data[window], sigma[window], measured[window],
+                                     names=tuple(names), tau=0.0, **options)  # fmt: skip
+    program = None
+    if "orbit" in kinds:
+        program = OrbitRows(orbit_shooting(rtol=orbit_rtol or DEFAULT_ORBIT_RTOL), model, law, tuple(names))
+    rows = TableRows(data, sigma, measured, V, kinds, starts, model=model, start=law, names=names, program=program,
+                     window_fit=window_fit)  # fmt: skip
+    return rows.start(), rows, why

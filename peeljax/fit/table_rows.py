@@ -350,36 +350,3 @@ class TableRows:
 def _as_batch(row: dict) -> dict:
     """One row's dict as a batch of one (what :func:`~peeljax.fit.attractors.classify` reads)."""
     return {key: np.asarray(value)[None] for key, value in row.items() if key != "attractor"}
-
-
-def attractor_statistics(law: AdhesionLaw, V, *, model: PeelingModel | None = None, names=("c1",), orbit_rtol=None,
-                         window_fit_options: dict | None = None) -> tuple[Point, TableRows, list[str]]:  # fmt: skip
-    """The model's statistics at the pull velocities ``V`` with φ = ``law``, each row on its
-    attractor as :func:`~peeljax.fit.fit_stick_slip` (``method="orbit"``) predicts it: the
-    :class:`Point` at θ = 0 (``values``, ``available``, ``v_range``), the :class:`TableRows` and
-    why each row has its kind. ``names``: the coefficients of the compiled orbit program (share
-    it with a fit of the same ``free``); ``window_fit_options``: :func:`peeljax.fit.table.build_table_fit`'s
-    for rows without a periodic attractor."""
-    from ..orbits.api import DEFAULT_ORBIT_RTOL, orbit_shooting
-    from .table import build_table_fit, table_tolerances
-
-    model = PeelingModel() if model is None else model
-    model = eqx.tree_at(lambda m: m.adhesion, model, law)
-    V = np.asarray(V, float).reshape(-1)
-    shape = (V.size, len(STATISTICS))
-    data, sigma, measured = np.zeros(shape), np.ones(shape), np.ones(shape, bool)
-    kinds, starts, why = row_kinds(model, V)
-    window = [i for i, k in enumerate(kinds) if k == "window"]
-    window_fit = None
-    if window:
-        rtol, atol = table_tolerances(0.0)
-        options = {"transient": 0.5, "window": 1.0, "n_samples": 401, "rtol": rtol, "atol": atol, "max_jumps": 4096,
-                   "max_steps": 400_000, "taper": 0.25, **(window_fit_options or {})}  # fmt: skip
-        window_fit = build_table_fit(law, model, V[window], data[window], sigma[window], measured[window],
-                                     names=tuple(names), tau=0.0, **options)  # fmt: skip
-    program = None
-    if "orbit" in kinds:
-        program = OrbitRows(orbit_shooting(rtol=orbit_rtol or DEFAULT_ORBIT_RTOL), model, law, tuple(names))
-    rows = TableRows(data, sigma, measured, V, kinds, starts, model=model, start=law, names=names, program=program,
-                     window_fit=window_fit)  # fmt: skip
-    return rows.start(), rows, why

@@ -37,6 +37,7 @@ Derivatives: the loop is equinox's checkpointed while loop (reverse mode, as dif
 from __future__ import annotations
 
 import functools
+import math
 from typing import ClassVar, Literal
 
 import equinox as eqx
@@ -395,7 +396,30 @@ def adaptive_loop(
         )
 
     buffers = None if events is None else (lambda c: c.jumps.buffers())
-    return ode, eqxi.while_loop(running, body, init, max_steps=max_steps, kind=kind, buffers=buffers)
+    checkpoints = None if kind != "checkpointed" else reverse_checkpoints(init, buffers, max_steps)
+    return ode, eqxi.while_loop(
+        running, body, init, max_steps=max_steps, kind=kind, buffers=buffers, checkpoints=checkpoints
+    )
+
+
+# Reverse mode: the checkpointed loop keeps this many bytes of carries at most (its buffers, the
+# jump record, are not copied). Equinox's default, O(√max_steps) checkpoints, kept 4471 copies of
+# a dense output with 2·10⁴ jump rows: 10.7 GB for one jax.grad at τ = 0.1 (measured).
+CHECKPOINT_BYTES = 256 * 2**20
+
+
+def reverse_checkpoints(init, buffers, max_steps: int, budget: int = CHECKPOINT_BYTES) -> int:
+    """Checkpoints of the reverse-mode loop: equinox's default, O(√max_steps), or fewer where
+    that many copies of the carry (less its buffers) would exceed ``budget`` bytes. Fewer
+    checkpoints recompute more steps in the backward pass (online treeverse), same values."""
+    in_buffers = {id(leaf) for leaf in jax.tree_util.tree_leaves(buffers(init))} if buffers else set()
+    carry = sum(
+        math.prod(leaf.shape) * jnp.dtype(leaf.dtype).itemsize
+        for leaf in jax.tree_util.tree_leaves(init)
+        if hasattr(leaf, "shape") and id(leaf) not in in_buffers
+    )
+    default = 1 if max_steps == 1 else math.floor(-1.5 + math.sqrt(2 * max_steps + 0.25)) + 1
+    return int(max(16, min(default, budget // max(carry, 1))))
 
 
 def integrate_adaptive(

@@ -115,13 +115,14 @@ def least_period(shooting: Shooting, orbit: PeriodicOrbit) -> PeriodicOrbit:
     k = int(orbit.slips)
     if int(orbit.status) != 0 or k == 1:
         return orbit
-    scale = np.asarray(SlipSection.at(orbit.model, orbit.V).scale)
-    section, period = np.asarray(orbit.section), float(orbit.period)
+    # jnp, not np: under jax.grad (no jit) the fields are tracers whose values Python can still test
+    scale = SlipSection.at(orbit.model, orbit.V).scale
     for j in _divisors(k):
         shorter = _orbit(shooting, orbit.model, orbit.V, orbit.section, jnp.asarray(j, jnp.int32),
-                         jnp.asarray(_PERIODS_PER_RUN * period * j / k))  # fmt: skip
-        same_point = np.max(np.abs(np.asarray(shorter.section) - section) / scale) < 1e-6
-        if int(shorter.status) == 0 and same_point and abs(float(shorter.period) * k / j - period) < 1e-6 * period:
+                         jnp.asarray(_PERIODS_PER_RUN * orbit.period * j / k))  # fmt: skip
+        same_point = bool(jnp.max(jnp.abs(shorter.section - orbit.section) / scale) < 1e-6)
+        same_period = bool(jnp.abs(shorter.period * k / j - orbit.period) < 1e-6 * orbit.period)
+        if int(shorter.status) == 0 and same_point and same_period:
             return shorter
     return orbit
 

@@ -53,7 +53,8 @@ from .section import SlipSection
 
 __all__ = ["ForceIntegral", "OnePeriod", "Slip", "one_period", "one_slip", "period_statistics"]
 
-_NODES, _WEIGHTS = (jnp.asarray(a) for a in np.polynomial.legendre.leggauss(4))
+# numpy constants: a jnp array made at import would start XLA before jax.distributed.initialize can run
+_NODES, _WEIGHTS = np.polynomial.legendre.leggauss(4)
 
 
 class ForceIntegral(Observer):
