@@ -124,10 +124,13 @@ def test_one_compilation_whatever_the_values(plain):
     size = engine.run_batch._cached._cache_size()
     small_sweep(V=[1.3, 2.5], tau=[2e-3, 5e-2])
     assert engine.run_batch._cached._cache_size() == size  # new values: no new compilation
-    # Sweeping model parameters adds one entry (another pytree of traced leaves), whatever their values.
+    # Sweeping model parameters adds at most one entry (another pytree of traced leaves; none
+    # where a test before this one in the same worker compiled it), whatever their values.
     result = small_sweep(V=[2.0], tau=[1e-2], params={"k": [800.0, 1200.0], "c6": [415.0, 400.0]})
+    with_params = engine.run_batch._cached._cache_size()
+    assert with_params <= size + 1
     small_sweep(V=[2.0], tau=[1e-2], params={"k": [700.0, 1100.0], "c6": [405.0, 420.0]})
-    assert engine.run_batch._cached._cache_size() == size + 1
+    assert engine.run_batch._cached._cache_size() == with_params
     assert result.grid_shape == (1, 1, 2, 2)
     np.testing.assert_array_equal(result.params["k"], [800.0, 800.0, 1200.0, 1200.0])
     from peeljax import AdhesionLaw
