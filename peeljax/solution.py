@@ -339,9 +339,11 @@ class Solution(eqx.Module):
         if self.after_jump is not None:  # a dense output's unused jump rows repeat its last row
             after = np.asarray(self.after_jump, bool)
             kept = np.flatnonzero(keep)
-            last = kept.size
-            while last > 1 and ts[kept[last - 1]] == ts[kept[last - 2]] and not after[kept[last - 1]]:
-                last -= 1
+            # the trailing rows that repeat the time before them and follow no jump (vectorized:
+            # a row-by-row walk back over 2·10⁴ unused rows took 14 ms, 10x the run)
+            repeat = (ts[kept[1:]] == ts[kept[:-1]]) & ~after[kept[1:]]
+            real = np.flatnonzero(~repeat)
+            last = int(real[-1]) + 2 if real.size else 1
             keep[kept[last:]] = False
         if keep.all():
             return self
