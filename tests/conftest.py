@@ -28,6 +28,10 @@ ERROR_PREFIX = "peeljax: error: "  # what the command line's refusals of bad inp
 # compilation (tests/test_compilation_cache.py). Smaller programs compile in about the time a
 # cache entry takes to key, write and read.
 CACHE_MIN_COMPILE_SECONDS = 0.1
+# A size limit turns on JAX's file lock around each read and write of the cache (filelock): without
+# it a worker could read an entry another process was still writing, and a truncated executable
+# crashed a worker (a segmentation fault in CI). Large enough that nothing is evicted in a run.
+CACHE_MAX_BYTES = 16 * 2**30
 
 
 def pytest_configure(config):
@@ -43,8 +47,10 @@ def pytest_configure(config):
     folder = jax.config.jax_compilation_cache_dir or str(config.cache.mkdir("jax-compilation-cache"))
     os.environ["JAX_COMPILATION_CACHE_DIR"] = folder  # the xdist workers and the processes tests start
     seconds = os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", str(CACHE_MIN_COMPILE_SECONDS))
+    limit = os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(CACHE_MAX_BYTES))
     jax.config.update("jax_compilation_cache_dir", folder)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", float(seconds))
+    jax.config.update("jax_compilation_cache_max_size", int(limit))
 
 
 # ---------------------------------------------------------------------------- forbidding computation
