@@ -26,7 +26,7 @@ from .integrators.alpha import AlphaMethod
 from .integrators.uniform_mesh import UniformMesh
 from .integrators.base import AbstractIntegrator
 from .integrators.reference import integrate_reference
-from .integrators.select import DEFAULT_MAX_JUMPS, forward_when_concrete, integrator_for, refuse_with_dt, resolve_max_steps
+from .integrators.select import DEFAULT_MAX_JUMPS, integrator_for, refuse_with_dt, resolve_max_steps
 from .model import PeelingModel
 from .solution import Solution
 
@@ -116,7 +116,6 @@ def _run(integrator: AbstractIntegrator, ode, y0, t_final, ts) -> Solution:
     leaf that is not an array (a φ given as a plain Python function, a diffrax solver's
     settings) takes ``eqx.filter_jit`` instead.
     """
-    integrator = forward_when_concrete(integrator, ode, y0, t_final, ts)  # nothing to differentiate: no checkpoints
     leaves, treedef = jax.tree_util.tree_flatten((integrator, ode, y0, t_final, ts))
     scalars = tuple(
         isinstance(leaf, (np.ndarray, np.generic)) and leaf.shape == () and leaf.dtype == np.float64 for leaf in leaves

@@ -387,23 +387,3 @@ def test_reverse_mode_checkpoints_fit_a_memory_budget():
     assert reverse_checkpoints(small, lambda c: c["record"], 10_000_000) == 4471
     assert reverse_checkpoints(small, None, 10_000_000) < 4471
 
-
-@pytest.mark.parametrize("tau", [0.01, 0.0])
-def test_a_call_nothing_differentiates_runs_the_forward_loop_with_the_same_steps(tau):
-    """Outside jit/grad/vmap the default adjoint's checkpointed loop is replaced by the plain
-    one: the same steps and rows as the checkpointed loop (under jit) gives, to rounding."""
-    from peeljax.integrators.select import forward_when_concrete, integrator_for
-
-    reverse = integrator_for(t_final=0.5, dae=tau == 0.0)
-    assert reverse.adjoint == "reverse" and forward_when_concrete(reverse, 1.0).adjoint == "forward"
-    assert forward_when_concrete(reverse, jnp.asarray(1.0)).adjoint == "forward"
-    ts = np.linspace(0.0, 0.5, 51)
-    concrete = pj.simulate(V=1.1, tau=tau, t_final=0.5, ts=ts)
-    traced = jax.jit(lambda V: pj.simulate(V=V, tau=tau, t_final=0.5, ts=ts))(1.1).without_padding()
-    # the same steps; a traced V's start (1e-10·V, log v) and the jitted program's fusion round
-    # differently in the last bits, which a jump time amplifies like its square root (as in
-    # test_vmap_over_tau_equals_single_runs): 1e-6 with the jumps of τ = 0, 1e-11 without
-    assert concrete.ys.shape == traced.ys.shape
-    tol = 1e-6 if tau == 0.0 else 1e-11
-    np.testing.assert_allclose(np.asarray(concrete.ys), np.asarray(traced.ys), rtol=tol, atol=tol)
-    assert int(concrete.stats["accepted_steps"]) == int(traced.stats["accepted_steps"])

@@ -141,16 +141,3 @@ def test_fold_events_on_an_implicit_solver_run_in_the_loop():
     assert int(sol.status) == 0 and int(sol.jumps.count) == 1
     assert float(sol.jumps.t[0]) == pytest.approx(0.16633, abs=2e-4)
 
-
-def test_forward_when_concrete():
-    from peeljax.integrators.select import forward_when_concrete
-
-    integrator = integrator_for(t_final=1.0, rtol=1e-4)
-    assert integrator.adjoint == "reverse"
-    assert forward_when_concrete(integrator, jnp.ones(3)).adjoint == "forward"
-    assert forward_when_concrete(integrator, jnp.ones(3)) is forward_when_concrete(integrator, jnp.ones(3))
-    seen = []
-    jax.jit(lambda x: seen.append(forward_when_concrete(integrator, x).adjoint) or x)(jnp.ones(3))
-    assert seen == ["reverse"]
-    mesh = integrator_for(t_final=1.0, dt=0.01)
-    assert forward_when_concrete(mesh) is mesh

@@ -30,7 +30,6 @@ import dataclasses
 import functools
 
 import diffrax
-import jax
 import numpy as np
 from jaxtyping import ArrayLike
 
@@ -64,7 +63,6 @@ __all__ = [
     "STEPPER_NAMES",
     "check_error_control",
     "checked_solver",
-    "forward_when_concrete",
     "integrator_for",
     "refuse_with_dt",
     "resolve_fold",
@@ -188,37 +186,6 @@ def _with_events(integrator: ErrorControl, fold: str, max_jumps: int, dae: bool,
     elif dae and not (isinstance(method, RungeKutta) and method.time_scale is not None):
         method = dataclasses.replace(method, log_components=())
     return dataclasses.replace(integrator, method=method, events=FoldEvents(fold, max_jumps))
-
-
-def forward_when_concrete(integrator: AbstractIntegrator, *inputs) -> AbstractIntegrator:
-    """``integrator`` with the plain while loop where nothing can differentiate it.
-
-    Error control's default adjoint, ``"reverse"``, builds a checkpointed loop for ``jax.grad``;
-    a call whose integrator and inputs hold no JAX tracer (outside ``jit``, ``grad`` and ``vmap``)
-    cannot be differentiated, and runs the forward-only loop instead: the same steps, to rounding
-    (``tests/test_adaptive.py``), faster (Tsit5 at τ = 0.01 on P1: 0.83 against 1.12 ms,
-    ``benchmarks/studies/results/tau_defaults.md``).
-    """
-    if isinstance(integrator, ErrorControl) and integrator.adjoint == "reverse":
-        if not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves((integrator, inputs))):
-            return _forward(integrator)
-    return integrator
-
-
-_FORWARD: dict[int, tuple[ErrorControl, ErrorControl]] = {}  # id → (integrator, its forward twin)
-
-
-def _forward(integrator: ErrorControl) -> ErrorControl:
-    # The default integrators are cached (one per setting): their twins too, by identity (the
-    # integrator is kept with its twin, so that its id is not reused while cached).
-    cached = _FORWARD.get(id(integrator))
-    if cached is not None and cached[0] is integrator:
-        return cached[1]
-    if len(_FORWARD) >= 256:
-        _FORWARD.clear()
-    twin = dataclasses.replace(integrator, adjoint="forward")
-    _FORWARD[id(integrator)] = (integrator, twin)
-    return twin
 
 
 def _own_loop(solver) -> bool:
