@@ -386,4 +386,3 @@ def test_reverse_mode_checkpoints_fit_a_memory_budget():
     small = {"y": jnp.zeros(4), "record": jnp.zeros((10_000, 6))}
     assert reverse_checkpoints(small, lambda c: c["record"], 10_000_000) == 4471
     assert reverse_checkpoints(small, None, 10_000_000) < 4471
-

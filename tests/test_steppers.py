@@ -140,4 +140,3 @@ def test_fold_events_on_an_implicit_solver_run_in_the_loop():
     )()
     assert int(sol.status) == 0 and int(sol.jumps.count) == 1
     assert float(sol.jumps.t[0]) == pytest.approx(0.16633, abs=2e-4)
-
