@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import gc
 import importlib
 import io
 import os
@@ -51,6 +52,37 @@ def pytest_configure(config):
     jax.config.update("jax_compilation_cache_dir", folder)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", float(seconds))
     jax.config.update("jax_compilation_cache_max_size", int(limit))
+
+
+# ---------------------------------------------------------------------------- memory mappings of loaded programs
+# Every program XLA compiles for the CPU stays loaded, as about three memory mappings, while JAX's
+# caches hold it. A worker that runs half the suite loads tens of thousands of programs and would
+# pass Linux's limit on a process's mappings (vm.max_map_count, 65 530 by default); past it the
+# next compilation or cache write crashes the worker (a segmentation fault or an abort, in
+# whichever test comes next: three fresh-clone CI runs lost a worker in test_stuck_tape so). Once
+# a process holds half the limit, JAX's caches are emptied when it moves on to another test module
+# (a module's own tests may count on what its fixtures compiled; the most one module added here
+# was 5 000 mappings); a program needed again is read back from the persistent cache.
+MAPPINGS_FRACTION = 0.5
+
+
+def _mappings() -> tuple[int, int] | None:
+    """``(mappings this process holds, the system's limit)``, or ``None`` where Linux's /proc is absent."""
+    try:
+        with open("/proc/sys/vm/max_map_count") as limit, open("/proc/self/maps", "rb") as maps:
+            return sum(1 for _ in maps), int(limit.read())
+    except OSError:
+        return None
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_runtest_teardown(item, nextitem):
+    if nextitem is not None and getattr(nextitem, "module", None) is getattr(item, "module", None):
+        return
+    mappings = _mappings()
+    if mappings is not None and mappings[0] > MAPPINGS_FRACTION * mappings[1]:
+        jax.clear_caches()
+        gc.collect()
 
 
 # ---------------------------------------------------------------------------- forbidding computation

@@ -121,6 +121,7 @@ def test_pairs_equal_outer(plain):
 
 @pytest.mark.slow
 def test_one_compilation_whatever_the_values(plain):
+    small_sweep()  # the fixture's sweep: compiled here if the caches were emptied since
     size = engine.run_batch._cached._cache_size()
     small_sweep(V=[1.3, 2.5], tau=[2e-3, 5e-2])
     assert engine.run_batch._cached._cache_size() == size  # new values: no new compilation
