@@ -2,17 +2,19 @@
 
 V = 1.1 m/s, τ = 0 (the DAE with jumps, 66 in 1 s), ``simulate``'s integrator, the same compiled
 run with ``save_jumps`` True and False, round-robin in one process (medians of ``--repeats``
-calls after compiling), on the accepted steps and with dense output at 1001 times. The rows a
-dense output keeps for ``max_jumps`` jumps are evaluated once at the end (J_t and the DAE's v at
-each row): ``--max-jumps`` shows that part of the cost.
+calls after compiling), on the accepted steps and with dense output at 1001 times. Then
+τ = 0.01 (P1 of compare.py: 3 s, 301 output times, no fold reached), ``simulate`` with the
+default ``fold="jump"`` (room for ``max_jumps`` jumps in its rows) against ``fold="stop"``
+(none), the α-method and Tsit5, each run compiled once (``jax.jit(...).lower().compile()``,
+the whole Solution returned) and the same runs through ``simulate`` itself.
 
     python benchmarks/jump_rows_cost.py [--repeats 5] [--max-jumps 10000]
 
-Measured (2 shared cores, load 8–9, medians of 9): accepted steps 59.5 ms with the rows, 59.7 ms
-without (1.00); dense output 32.1 ms against 22.5 ms (1.43) with the 20 000 rows of
-max_jumps = 10 000, 20.2 against 19.7 ms (1.02) with max_jumps = 100. Writing the state before
-and the one after a jump with two updates of each output array per step made XLA copy the
-arrays at every step: 1105 ms against 84 ms; one two-row update keeps it in place.
+Measured: ``benchmarks/results/jump_rows_cost.md`` (before and after the change below). Writing
+the state before and the one after a jump with two updates of each output array per step made
+XLA copy the arrays at every step (1105 ms against 84 ms); the output times' inner loop and the
+jump's pair writing the same rows did the same (P1 with Tsit5 6.56 ms against 0.82 without jump
+rows): the pairs are now rows of their own, merged in time order after the loop (1.90 ms).
 """
 
 from __future__ import annotations
@@ -54,7 +56,40 @@ def main() -> None:
         with_rows, without = (statistics.median(times[flag]) for flag in (True, False))
         print(f"{label}: with the jump rows {with_rows * 1e3:.1f} ms, without {without * 1e3:.1f} ms, "
               f"ratio {with_rows / without:.3f}")  # fmt: skip
+    tau_rows(args.repeats, args.max_jumps)
     print(f"load after: {os.getloadavg()}")
+
+
+def tau_rows(repeats: int, max_jumps: int) -> None:
+    """τ = 0.01 (P1): fold="jump" with room for ``max_jumps`` jumps against fold="stop"."""
+    import peeljax as pj
+
+    grid = np.linspace(0.0, 3.0, 301)
+    cases = {
+        (solver, fold): dict(fold=fold, **({} if fold == "stop" else {"max_jumps": max_jumps}), **({"solver": solver} if solver else {}))
+        for solver in (None, "tsit5")
+        for fold in ("jump", "stop")
+    }  # fmt: skip
+    compiled = {key: jax.jit(lambda kw=kw: pj.simulate(V=1.1, tau=0.01, t_final=3.0, ts=grid, **kw)).lower().compile()
+                for key, kw in cases.items()}  # fmt: skip
+    calls = {("compiled", key): compiled[key] for key in cases}
+    calls.update({("simulate", key): (lambda kw=kw: pj.simulate(V=1.1, tau=0.01, t_final=3.0, ts=grid, **kw).ys)
+                  for key, kw in cases.items()})  # fmt: skip
+    times = {key: [] for key in calls}
+    for call in calls.values():
+        jax.block_until_ready(call())
+    for _ in range(repeats):
+        for key, call in calls.items():
+            start = time.perf_counter()
+            jax.block_until_ready(call())
+            times[key].append(time.perf_counter() - start)
+    print(f"\nτ = 0.01, V = 1.1, 3 s, 301 output times (P1), medians of {repeats} (ms):")
+    print('| stepper | how | fold="jump" (max_jumps %d) | fold="stop" | ratio |' % max_jumps)
+    print("|---|---|---:|---:|---:|")
+    for solver in (None, "tsit5"):
+        for how in ("compiled", "simulate"):
+            jump, stop = (statistics.median(times[(how, (solver, fold))]) for fold in ("jump", "stop"))
+            print(f"| {solver or 'α-method'} | {how} | {jump * 1e3:.2f} | {stop * 1e3:.2f} | {jump / stop:.2f} |")
 
 
 if __name__ == "__main__":
