@@ -64,15 +64,21 @@ def pytest_configure(config):
 # (a module's own tests may count on what its fixtures compiled; the most one module added here
 # was 5 000 mappings); a program needed again is read back from the persistent cache.
 MAPPINGS_FRACTION = 0.5
+DEFAULT_MAX_MAP_COUNT = 65_530  # Linux's, where a container hides /proc/sys
 
 
 def _mappings() -> tuple[int, int] | None:
     """``(mappings this process holds, the system's limit)``, or ``None`` where Linux's /proc is absent."""
     try:
-        with open("/proc/sys/vm/max_map_count") as limit, open("/proc/self/maps", "rb") as maps:
-            return sum(1 for _ in maps), int(limit.read())
+        with open("/proc/self/maps", "rb") as maps:
+            held = sum(1 for _ in maps)
     except OSError:
         return None
+    try:
+        with open("/proc/sys/vm/max_map_count") as limit:
+            return held, int(limit.read())
+    except (OSError, ValueError):
+        return held, DEFAULT_MAX_MAP_COUNT
 
 
 @pytest.hookimpl(trylast=True)
