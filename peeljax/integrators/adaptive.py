@@ -539,11 +539,10 @@ def map_rows_in_use(fn, rows: Float[Array, "m n"], count, kind: Literal["checkpo
 def _solution(
     ode, stepper: AbstractStepper, final: _Carry, step_points: bool, t0, folding: bool = False, kind="checkpointed"
 ) -> Solution:
-    out = final.record
+    out = final.record.as_rows()  # dense output with jumps: its two sets of rows merged, once
     valid = out.valid
     # the rows up to the last valid one, and before the padding that repeats the last row
-    in_use = jnp.max(jnp.where(valid, jnp.arange(1, valid.shape[0] + 1), 0))
-    in_use = jnp.minimum(in_use, getattr(out, "rows_in_use", in_use))
+    in_use = jnp.minimum(jnp.max(jnp.where(valid, jnp.arange(1, valid.shape[0] + 1), 0)), out.rows_in_use)
     ys_carried = out.y
     if folding and getattr(ode, "completes_state", False):
         # An interpolated state's algebraic part (the DAE's v) is solved anew at that state.

@@ -101,6 +101,17 @@ class _Output(eqx.Module):
     grid: Array | None = None  # dense output with jump rows: the output times
     keeps_jumps: bool = eqx.field(static=True, default=False)  # rows after jumps are kept
 
+    def as_rows(self) -> "_Output":
+        """The rows (this record itself)."""
+        return self
+
+    @property
+    def rows_in_use(self) -> Array:
+        """The rows before those that only pad (dense output with jump rows: repeats of the last)."""
+        if self.grid is None:
+            return jnp.asarray(self.row_t.shape[-1])
+        return jnp.asarray(self.written) + self.grid.shape[-1] - jnp.asarray(self.next)
+
     def _rows(self):
         """(row index, the row a row shows, whether it is an unreached output time or padding)."""
         r = jnp.arange(self.row_t.shape[-1])
@@ -241,7 +252,7 @@ class StepPoints(Observer):
 
 class _GridWithJumps(eqx.Module):
     """Dense output's record with jump rows: the output times' rows and the jumps' pairs kept apart
-    in the loop, merged in time order when read (the properties of :class:`_Output`).
+    in the loop, merged in time order when read (:meth:`as_rows`; the properties of :class:`_Output`).
 
     Apart, each array takes one update per step. In one set of rows, the output times' inner
     loop and the jump's pair both wrote the same arrays every step, and XLA copied them every
@@ -254,7 +265,7 @@ class _GridWithJumps(eqx.Module):
     pair_at: Array  # (m,): the output times written before each pair (len(ts) where no jump)
     keeps_jumps: bool = eqx.field(static=True, default=True)
 
-    def merged(self) -> _Output:
+    def as_rows(self) -> _Output:
         """The rows in time order: output time k at k + 2·(pairs before it), pair p at pair_at[p] + 2p."""
         grid, pairs = self.grid, self.pairs
         n, m2 = grid.row_t.shape[-1], pairs.row_t.shape[-1]
@@ -282,17 +293,12 @@ class _GridWithJumps(eqx.Module):
             keeps_jumps=True,
         )
 
-    @property
-    def rows_in_use(self) -> Array:
-        """The rows before the padding: those written and the output times not reached."""
-        return self.grid.row_t.shape[-1] + self.pairs.next
-
-    t = property(lambda self: self.merged().t)
-    y = property(lambda self: self.merged().y)
-    J = property(lambda self: self.merged().J)
-    iterations = property(lambda self: self.merged().iterations)
-    valid = property(lambda self: self.merged().valid)
-    after_jump = property(lambda self: self.merged().after_jump)
+    t = property(lambda self: self.as_rows().t)
+    y = property(lambda self: self.as_rows().y)
+    J = property(lambda self: self.as_rows().J)
+    iterations = property(lambda self: self.as_rows().iterations)
+    valid = property(lambda self: self.as_rows().valid)
+    after_jump = property(lambda self: self.as_rows().after_jump)
 
 
 class DenseOutput(Observer):
