@@ -89,11 +89,18 @@ class _Carry(eqx.Module):
     # The latest state of the current branch with g ≤ −_REFERENCE_DEPTH·g_scale, g_scale = |g|
     # where the branch began: where a tangential fold's time is differentiated (events module).
     reference: Array
+    reference_t: Array  # its time
+    reference_drive: Array  # its F̃·f (the homogenized ODE's impasse reference)
     g_scale: Array
     cut_steps: Array  # rejected attempts over a fold whose retry was cut at the fold
 
 
 _REFERENCE_DEPTH = 1e-5
+# The homogenized ODE's impasse (τ > 0, fold event J_t): its derivatives are carried along v from
+# the latest state with J_t ≤ −this × |J_t| at the branch's start and F̃·f of the same sign since
+# (events.impasse_path): v is monotone from there to the impasse, and the steps' sensitivities
+# are still resolved there (closer to the impasse they are not: v̇ ~ 1/J_t).
+_IMPASSE_REFERENCE_DEPTH = 0.1
 # In pseudo-time the tangents stay resolved much closer to a tangential fold, and the
 # reference's tangents are carried to the fold by f·dt* alone: the closer the better
 # (measured on the paper's first slip: dt*/dc1 within 1e-5 of the converged value at rtol
@@ -267,6 +274,8 @@ def adaptive_loop(
         g=jnp.zeros(()) if events is None else fold_event(ode, state0.y),
         jumps=None if events is None else events.empty_record(),
         reference=state0.y,
+        reference_t=t0,
+        reference_drive=state0.drive,
         g_scale=jnp.zeros(()) if events is None else jnp.abs(reference_event(state0.y)),
         cut_steps=zero,
     )
@@ -330,6 +339,7 @@ def adaptive_loop(
             fold = find_fold(
                 events, ode, c.t, h, state, new, attempt.interpolant, accept, c.g, g_new,
                 None if timed else c.reference, -reference_depth * c.g_scale,
+                (c.reference_t, c.reference) if schur_event else None,
             )  # fmt: skip
             if timed:  # a tangential fold's derivatives from the reference state (tangential_fold)
                 fold = eqx.tree_at(
@@ -373,6 +383,13 @@ def adaptive_loop(
         kept = jax.tree_util.tree_map(lambda a, b: jnp.where(advance, a, b), new, attempt.retained)
         kept = eqx.tree_at(lambda s: s.status, kept, status.astype(jnp.int32))
         h_taken = jax.lax.stop_gradient(h)
+        if events is None:
+            deeper = jnp.asarray(False)
+        elif schur_event:  # (kept.J is the fold event: no evaluation more)
+            turned = kept.drive * c.reference_drive <= 0
+            deeper = advance & ((jax.lax.stop_gradient(kept.J) <= -_IMPASSE_REFERENCE_DEPTH * g_scale) | turned)
+        else:
+            deeper = advance & (reference_event(kept.y) <= -reference_depth * g_scale)
         return _Carry(
             t=jnp.where(advance, t_new, c.t),
             h=h_next,
@@ -388,9 +405,9 @@ def adaptive_loop(
             record=record,
             g=jnp.where(advance, g, c.g),
             jumps=jumps,
-            reference=c.reference
-            if events is None
-            else jnp.where(advance & (reference_event(kept.y) <= -reference_depth * g_scale), kept.y, c.reference),
+            reference=c.reference if events is None else jnp.where(deeper, kept.y, c.reference),
+            reference_t=jnp.where(deeper, jnp.where(advance, t_new, c.t), c.reference_t),
+            reference_drive=jnp.where(deeper, kept.drive, c.reference_drive),
             g_scale=g_scale,
             cut_steps=c.cut_steps + cut,
         )

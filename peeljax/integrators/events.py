@@ -29,10 +29,14 @@ What follows is the user's choice, :class:`FoldEvents` ``mode``:
 
 Derivatives: the choice of branch, the number of jumps and the step sizes are held fixed;
 the motion of every jump is differentiated. A crossing's time is the root of g on the step's
-interpolant, differentiated by the implicit function theorem on g (:func:`locate_fold`); a
-predicted impasse's time by the secant of J_t² it was predicted from; the state after the
-jump by the implicit function theorem on G(x) = φ(v, V) at the new branch
-(:func:`peeljax.branches.branch_velocity`), and the α-method restarts from it with a = dψ/dt
+interpolant, differentiated by the implicit function theorem on g (:func:`locate_fold`). The
+homogenized ODE's event J_t = 0 is differentiated from a state before it whose tangents the
+run resolves (the steps at the event do not resolve them: v̇ ~ 1/J_t at an impasse, and past a
+singular passage the step's end has none): an impasse along the flow parametrized by v
+(:func:`impasse_path`), a singular passage (F̃·f vanishing with J_t) on the flow linearized at
+the crossing step's start (:func:`crossing_path`); v* by the implicit function theorem on
+J_t(x*, v*) = 0 (:func:`schur_event`). The state after the jump is differentiated by the
+implicit function theorem on G(x) = φ(v, V) at the new branch (:func:`peeljax.branches.branch_velocity`), and the α-method restarts from it with a = dψ/dt
 differentiated too. Together these are the saltation of the state at the jump, as diffrax's
 ``Event`` differentiates its event time and state.
 """
@@ -48,7 +52,10 @@ from .._arrays import float_array
 from ..solution import JumpRecord
 from .cycle_accumulator import CycleAccumulator
 
-__all__ = ["FOLD_MODES", "FoldEvents", "FoldHit", "event_rate", "find_fold", "fold_event", "fold_fraction", "locate_fold"]
+__all__ = [
+    "FOLD_MODES", "FoldEvents", "FoldHit", "crossing_path", "event_rate", "find_fold", "fold_event", "fold_fraction",
+    "impasse_path", "locate_fold", "schur_event",
+]
 
 FOLD_MODES = ("jump", "stop", "follow")
 _BISECTIONS = 60
@@ -202,8 +209,91 @@ def fold_fraction(ode, t0, h, interpolant) -> Array:
     return jax.lax.stop_gradient(locate_fold(_stop(ode), _stop(t0), h, _stop(interpolant)))
 
 
+# The homogenized ODE's v: the component whose rate blows up at an impasse (carried as log v
+# by the α-method), the independent variable of the path from the reference to the impasse.
+_V = 3
+# Steps of the path in v (Heun's third-order method: its stages never reach the impasse itself).
+_PATH_STEPS = 32
+
+
+def impasse_path(ode, t_ref, y_ref, v_star) -> tuple[Array, Array]:
+    """(t, x) at the impasse v = ``v_star`` reached from the reference state (t_ref, y_ref) along
+    the flow parametrized by v: dt/dv = 1/ψ_v, dx/dv = ψ_x/ψ_v.
+
+    In time the impasse is singular (ψ_v ~ 1/J_t → ∞, v ~ v* − c·√(t* − t)); in v the path is
+    smooth and passes it regularly, with dt/dv = dx/dv = 0 there. So the impasse's time and x
+    move with the parameters as the path's end at a fixed v* (the shift of v* is of second
+    order: an envelope)."""
+    x_ref, w_ref = y_ref[:_V], y_ref[_V]
+    dw = (v_star - w_ref) / _PATH_STEPS
+
+    def rate(w, z):  # z = (t, x)
+        psi = ode.evaluate(jnp.concatenate([z[1:], w[None]])).psi
+        dt_dw = 1.0 / psi[_V]
+        return jnp.concatenate([dt_dw[None], psi[:_V] * dt_dw])
+
+    def heun3(i, z):
+        w = w_ref + i * dw
+        k1 = rate(w, z)
+        k2 = rate(w + dw / 3, z + dw / 3 * k1)
+        k3 = rate(w + 2 * dw / 3, z + 2 * dw / 3 * k2)
+        return z + dw * (0.25 * k1 + 0.75 * k3)
+
+    z = jax.lax.fori_loop(0, _PATH_STEPS, heun3, jnp.concatenate([jnp.reshape(t_ref, (1,)), x_ref]))
+    return z[0], z[1:]
+
+
+def crossing_path(ode, t_ref, y_ref, v_star) -> tuple[Array, Array]:
+    """(t, x) where J_t reaches 0 on the flow linearized at (t_ref, y_ref), the start of the step
+    over it: t = t_ref + δ, x = x_ref + f·δ, δ = −J_t/J̇_t. J_t crosses zero transversally (a
+    singular passage: F̃·f vanishes with it, ψ stays finite), and the start's tangents are
+    resolved where the step's end, past the singular point, has no resolved tangents."""
+    evaluation = ode.evaluate(y_ref)
+    J_dot = jax.jvp(lambda y: ode.evaluate(y).J, (y_ref,), (evaluation.psi,))[1]
+    delta = -evaluation.J / jnp.where(J_dot != 0, J_dot, 1.0)
+    return t_ref + delta, y_ref[:_V] + evaluation.psi[:_V] * delta
+
+
+def _impasse_velocity(ode, y, iterations: int = 3) -> Array:
+    """v* with J_t(x, v*) = 0 at y's x, by Newton's method from y's v (values only)."""
+    x = y[:_V]
+
+    def newton(_, w):
+        J, J_v = jax.jvp(lambda w: ode.evaluate(jnp.concatenate([x, w[None]])).J, (w,), (jnp.ones_like(w),))
+        return jnp.where((J_v != 0) & jnp.isfinite(J), w - J / jnp.where(J_v != 0, J_v, 1.0), w)
+
+    return jax.lax.fori_loop(0, iterations, newton, y[_V])
+
+
+@eqx.filter_custom_jvp
+def schur_event(ode, t_ref, y_ref, t_event, y_event, *, path):
+    """The homogenized ODE's fold event (J_t = 0) at (t_event, y_event) in value; its derivatives
+    those of ``path`` (:func:`impasse_path` or :func:`crossing_path`) from a state where the
+    steps' tangents are resolved, and v* by the implicit function theorem on J_t(x*, v*) = 0.
+    Computed only where the run is differentiated."""
+    return t_event, y_event
+
+
+@schur_event.def_jvp
+def _schur_event_jvp(primals, tangents, *, path):
+    ode, t_ref, y_ref, t_event, y_event = primals
+    v_star = jax.lax.stop_gradient(_impasse_velocity(_stop(ode), _stop(y_event)))
+
+    def moved(ode, t_ref, y_ref):
+        t, x = path(ode, t_ref, y_ref, v_star)
+        J, J_v = jax.jvp(lambda w: ode.evaluate(jnp.concatenate([x, w[None]])).J, (v_star,), (jnp.ones_like(v_star),))
+        v = v_star - J / jax.lax.stop_gradient(J_v)  # v* in value; dv* = −dJ_t/(∂J_t/∂v)
+        return t, jnp.concatenate([x, v[None]])
+
+    zero = lambda p, t: jnp.zeros_like(p) if t is None else t  # noqa: E731
+    tangents = (tangents[0], zero(t_ref, tangents[1]), zero(y_ref, tangents[2]))
+    _, (dt, dy) = eqx.filter_jvp(moved, (ode, t_ref, y_ref), tangents)
+    return (t_event, y_event), (dt, dy)
+
+
 def find_fold(
-    events: FoldEvents, ode, t0, h, state, new, interpolant, accept, g0, g1, reference=None, reference_g=None
+    events: FoldEvents, ode, t0, h, state, new, interpolant, accept, g0, g1, reference=None, reference_g=None,
+    impasse_reference=None,
 ) -> FoldHit:
     """Did the accepted step from ``state`` (at t0) to ``new`` (at t0 + h) reach a fold?
 
@@ -225,12 +315,26 @@ def find_fold(
         j0, j1 = state.J**2, new.J**2
         delta = jnp.where(predicted, j1 * h / jnp.where(predicted, j0 - j1, 1.0), 0.0)
 
+    at_impasse = impasse_reference is not None and getattr(ode, "fold_event_is_schur", False)
+
     def on_crossing():
         theta = locate_fold(ode, t0, h, interpolant, reference, reference_g)
-        return t0 + theta * h, interpolant.evaluate((t0 + theta * h)[None])[0]
+        t, y = t0 + theta * h, interpolant.evaluate((t0 + theta * h)[None])[0]
+        if not at_impasse:
+            return t, y
+        # J_t stepped across zero with F̃·f keeping its sign: an impasse, located on the
+        # interpolant in value (J_t ~ √(t* − t) there: the interpolant's slope is not its rate).
+        return schur_event(ode, t0, state.y, t, y, path=crossing_path)
 
     def otherwise():
-        return t0 + h + jnp.where(predicted, delta, 0.0), new.y
+        t_end = t0 + h + jnp.where(predicted, delta, 0.0)
+        if not at_impasse:
+            return t_end, new.y
+        # A predicted impasse: its derivatives from the reference state (impasse_path), not from
+        # the steps at the singularity, whose sensitivities the error control does not resolve.
+        return jax.lax.cond(
+            predicted, lambda: schur_event(ode, *impasse_reference, t_end, new.y, path=impasse_path), lambda: (t_end, new.y)
+        )
 
     t_event, y_event = jax.lax.cond(crossed, on_crossing, otherwise)
     return FoldHit(hit=crossed | predicted, t=t_event, y=y_event)

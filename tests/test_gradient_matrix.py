@@ -1,0 +1,124 @@
+"""Gradients through the jumps, in every setting, against central differences (issue 42).
+
+The matrix: τ × stepper × fold policy × quantity × parameter, forward mode (``jax.jacfwd`` with
+``adjoint="forward"``) and reverse mode (``jax.jacrev``). The quantities: the state at the end of
+a run that jumped several times, the first jump times, and a window statistic (the mean force at
+the slips). The parameters: a coefficient of φ (c1), V, τ and the spool's radius R. Each
+derivative is taken of a tight run (rtol 1e-9; the derivative of a run at a looser tolerance is
+that run's, off by the run's own error) and compared with central differences of runs at rtol
+1e-10 at two steps h and h/4 that agree with each other (the difference is shown stable before it
+is trusted). Reverse mode is checked against forward mode on the same run (at rtol 1e-6: at rtol
+1e-9, with ~5·10⁴ steps, the checkpointed loop's reverse pass gave derivatives off by up to
+2.5e-3 that moved with ``max_steps``, i.e. with where it recomputes steps; see the closing note
+of issue 42). Where the run does not jump (τ = 0.01 and 0.1 over 0.3 s) the cell is the end
+state's. ``fold="follow"`` has no cell: at τ = 1e-3 it follows the first slip's singular
+passage and then stalls at t = 0.187 s (status ``stopped``); at τ ≥ 0.01 nothing jumps in 0.3 s.
+The fast tier's cell is ``tests/test_jumps.py::test_gradients_through_fold_jumps_match_central_differences``;
+these are ``slow``. Orbit statistics (τ = 0) are checked in ``tests/test_orbits.py``.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import peeljax as pj
+
+PARAMETERS = ("c1", "V", "tau", "R")
+RTOL_GRADIENT = 1e-9
+RTOL_DIFFERENCE = 1e-10
+# Relative steps of the central differences, per parameter.
+STEPS = {"c1": 1e-4, "V": 1e-4, "tau": 1e-3, "R": 1e-4}
+T_FINAL = 0.3
+N_JUMPS = 6
+
+
+def _run(p, *, tau_is_zero, solver, fold, rtol, adjoint="reverse"):
+    c1, V, tau, R = p
+    model = pj.PeelingModel(R=R)
+    model = eqx.tree_at(lambda m: m.adhesion.c1, model, c1)
+    return pj.simulate(
+        model, V=V, tau=0.0 if tau_is_zero else tau, t_final=T_FINAL, ts=jnp.array([0.0, T_FINAL]), rtol=rtol,
+        atol=rtol * 1e-3, solver=solver, fold=fold, adjoint=adjoint, max_jumps=64, max_steps=400_000,
+    )  # fmt: skip
+
+
+def _quantities(sol, with_jumps):
+    """y(T) (α, ω, u, log v) and, where the run jumps, its first jump times and the mean force
+    at its slips (stick → slip), a window statistic."""
+    end = jnp.concatenate([sol.ys[-1, :3], jnp.log(sol.ys[-1, 3:])])
+    if not with_jumps:
+        return end
+    jumps = sol.jumps
+    slip = jnp.isfinite(jumps.t) & jumps.up
+    mean_slip_force = jnp.sum(jnp.where(slip, jumps.F, 0.0)) / jnp.maximum(jnp.sum(slip), 1)
+    return jnp.concatenate([end, jumps.t[:N_JUMPS], mean_slip_force[None]])
+
+
+def _cell(tau, solver=None, fold="jump", parameters=PARAMETERS, tolerance=1e-3):
+    """One (τ, stepper, fold) cell: every quantity × parameter, forward mode, against central
+    differences (rtol 1e-9 against 1e-10, steps h and h/4 agreeing first)."""
+    tau_is_zero = tau == 0
+    if tau_is_zero:
+        parameters = tuple(p for p in parameters if p != "tau")  # τ = 0 is the DAE: no τ to move
+    p0 = np.array([400.0, 1.1, max(tau, 1e-3), 0.1])
+    columns = [PARAMETERS.index(name) for name in parameters]
+    sol = _run(p0, tau_is_zero=tau_is_zero, solver=solver, fold=fold, rtol=RTOL_GRADIENT)
+    assert sol.status_name == "completed", sol.status_name
+    with_jumps = int(sol.jumps.count) > 0
+    if with_jumps:
+        assert int(sol.jumps.count) >= N_JUMPS + 2, int(sol.jumps.count)
+
+    def q(p, rtol, adjoint="reverse"):
+        run = _run(p, tau_is_zero=tau_is_zero, solver=solver, fold=fold, rtol=rtol, adjoint=adjoint)
+        return _quantities(run, with_jumps)
+
+    assert np.all(np.isfinite(np.asarray(q(p0, RTOL_DIFFERENCE))))
+    jacobian = np.asarray(jax.jacfwd(lambda p: q(p, RTOL_GRADIENT, "forward"))(jnp.asarray(p0)))
+    worst = {}
+    for k in columns:
+        h = STEPS[PARAMETERS[k]] * p0[k]
+        differences = []
+        for step in (h, h / 4):
+            e = np.zeros(4)
+            e[k] = step
+            differences.append((np.asarray(q(p0 + e, RTOL_DIFFERENCE)) - np.asarray(q(p0 - e, RTOL_DIFFERENCE))) / (2 * step))
+        scale = np.maximum(np.abs(differences[1]), 1e-3 * np.max(np.abs(differences[1])))
+        # the difference is stable in h: it measures a derivative (no jump appears or vanishes within h)
+        np.testing.assert_array_less(np.abs(differences[0] - differences[1]) / scale, tolerance / 3)
+        assert np.all(np.isfinite(jacobian[:, k])), PARAMETERS[k]
+        error = np.abs(jacobian[:, k] - differences[1]) / scale
+        worst[PARAMETERS[k]] = float(np.max(error))
+        assert np.all(error < tolerance), (PARAMETERS[k], error)
+    print(f"tau={tau} solver={solver} fold={fold}: worst relative difference {worst}")
+
+
+def _modes_agree(tau, solver=None, rtol=1e-6):
+    """Reverse mode (the checkpointed loop, jax.jacrev) gives forward mode's derivative of the same run."""
+    p0 = jnp.array([400.0, 1.1, tau, 0.1])
+
+    def q(p, adjoint):
+        return _quantities(_run(p, tau_is_zero=False, solver=solver, fold="jump", rtol=rtol, adjoint=adjoint), True)
+
+    forward = np.asarray(jax.jacfwd(lambda p: q(p, "forward"))(p0))
+    reverse = np.asarray(jax.jacrev(lambda p: q(p, "reverse"))(p0))
+    assert np.all(np.isfinite(reverse))
+    np.testing.assert_allclose(reverse, forward, rtol=1e-6, atol=1e-9 * np.max(np.abs(forward)))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "tau, solver", [(0.0, None), (1e-4, None), (1e-3, None), (0.01, None), (0.1, None), (1e-4, "tsit5"), (1e-3, "tsit5")]
+)
+def test_gradient_matrix(tau, solver):
+    _cell(tau, solver=solver)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("solver", [None, "tsit5"])
+def test_reverse_mode_is_forward_mode(solver):
+    """τ = 1e-3 with 14 jumps, every quantity and parameter."""
+    _modes_agree(1e-3, solver)
