@@ -318,12 +318,14 @@ def find_fold(
     at_impasse = impasse_reference is not None and getattr(ode, "fold_event_is_schur", False)
 
     def on_crossing():
-        theta = locate_fold(ode, t0, h, interpolant, reference, reference_g)
-        t, y = t0 + theta * h, interpolant.evaluate((t0 + theta * h)[None])[0]
         if not at_impasse:
-            return t, y
-        # J_t stepped across zero with F̃·f keeping its sign: an impasse, located on the
-        # interpolant in value (J_t ~ √(t* − t) there: the interpolant's slope is not its rate).
+            theta = locate_fold(ode, t0, h, interpolant, reference, reference_g)
+            return t0 + theta * h, interpolant.evaluate((t0 + theta * h)[None])[0]
+        # The homogenized ODE's J_t crossing zero: located on the interpolant in value only (its
+        # end, past the singular point, has no resolved tangents; reverse mode would carry their
+        # NaN even times a zero cotangent), differentiated from the step's start.
+        t = jax.lax.stop_gradient(t0 + fold_fraction(ode, t0, h, interpolant) * h)
+        y = jax.lax.stop_gradient(interpolant.evaluate(t[None])[0])
         return schur_event(ode, t0, state.y, t, y, path=crossing_path)
 
     def otherwise():
@@ -332,9 +334,10 @@ def find_fold(
             return t_end, new.y
         # A predicted impasse: its derivatives from the reference state (impasse_path), not from
         # the steps at the singularity, whose sensitivities the error control does not resolve.
-        return jax.lax.cond(
-            predicted, lambda: schur_event(ode, *impasse_reference, t_end, new.y, path=impasse_path), lambda: (t_end, new.y)
+        at_event = lambda: schur_event(  # noqa: E731
+            ode, *impasse_reference, jax.lax.stop_gradient(t_end), jax.lax.stop_gradient(new.y), path=impasse_path
         )
+        return jax.lax.cond(predicted, at_event, lambda: (t_end, new.y))
 
     t_event, y_event = jax.lax.cond(crossed, on_crossing, otherwise)
     return FoldHit(hit=crossed | predicted, t=t_event, y=y_event)
