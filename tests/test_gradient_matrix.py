@@ -58,13 +58,13 @@ def _quantities(sol, with_jumps):
     return jnp.concatenate([end, jumps.t[:N_JUMPS], mean_slip_force[None]])
 
 
-def _cell(tau, solver=None, fold="jump", parameters=PARAMETERS, tolerance=1e-3):
+def _cell(tau, solver=None, fold="jump", parameters=PARAMETERS, tolerance=5e-4):
     """One (τ, stepper, fold) cell: every quantity × parameter, forward mode, against central
     differences (rtol 1e-9 against 1e-10, steps h and h/4 agreeing first)."""
     tau_is_zero = tau == 0
     if tau_is_zero:
         parameters = tuple(p for p in parameters if p != "tau")  # τ = 0 is the DAE: no τ to move
-    p0 = np.array([400.0, 1.1, max(tau, 1e-3), 0.1])
+    p0 = np.array([400.0, 1.1, tau if tau > 0 else 1e-3, 0.1])  # (τ unused at τ = 0)
     columns = [PARAMETERS.index(name) for name in parameters]
     sol = _run(p0, tau_is_zero=tau_is_zero, solver=solver, fold=fold, rtol=RTOL_GRADIENT)
     assert sol.status_name == "completed", sol.status_name
@@ -88,7 +88,7 @@ def _cell(tau, solver=None, fold="jump", parameters=PARAMETERS, tolerance=1e-3):
             differences.append((np.asarray(q(p0 + e, RTOL_DIFFERENCE)) - np.asarray(q(p0 - e, RTOL_DIFFERENCE))) / (2 * step))
         scale = np.maximum(np.abs(differences[1]), 1e-3 * np.max(np.abs(differences[1])))
         # the difference is stable in h: it measures a derivative (no jump appears or vanishes within h)
-        np.testing.assert_array_less(np.abs(differences[0] - differences[1]) / scale, tolerance / 3)
+        np.testing.assert_array_less(np.abs(differences[0] - differences[1]) / scale, 3e-4)
         assert np.all(np.isfinite(jacobian[:, k])), PARAMETERS[k]
         error = np.abs(jacobian[:, k] - differences[1]) / scale
         worst[PARAMETERS[k]] = float(np.max(error))
