@@ -36,7 +36,8 @@ singular passage the step's end has none): an impasse along the flow parametrize
 (:func:`impasse_path`), a singular passage (F̃·f vanishing with J_t) on the flow linearized at
 the crossing step's start (:func:`crossing_path`); v* by the implicit function theorem on
 J_t(x*, v*) = 0 (:func:`schur_event`). The state after the jump is differentiated by the
-implicit function theorem on G(x) = φ(v, V) at the new branch (:func:`peeljax.branches.branch_velocity`), and the α-method restarts from it with a = dψ/dt
+implicit function theorem on G(x) = φ(v, V) at the new branch
+(:func:`peeljax.branches.branch_velocity`), and the α-method restarts from it with a = dψ/dt
 differentiated too. Together these are the saltation of the state at the jump, as diffrax's
 ``Event`` differentiates its event time and state.
 """
@@ -245,7 +246,7 @@ def impasse_path(ode, t_ref, y_ref, v_star) -> tuple[Array, Array]:
 
 def crossing_path(ode, t_ref, y_ref, v_star) -> tuple[Array, Array]:
     """(t, x) where J_t reaches 0 on the flow linearized at (t_ref, y_ref), the start of the step
-    over it: t = t_ref + δ, x = x_ref + f·δ, δ = −J_t/J̇_t. J_t crosses zero transversally (a
+    over it (``v_star`` unused: the signature of :func:`impasse_path`): t = t_ref + δ, x = x_ref + f·δ, δ = −J_t/J̇_t. J_t crosses zero transversally (a
     singular passage: F̃·f vanishes with it, ψ stays finite), and the start's tangents are
     resolved where the step's end, past the singular point, has no resolved tangents."""
     evaluation = ode.evaluate(y_ref)
@@ -297,9 +298,10 @@ def find_fold(
 ) -> FoldHit:
     """Did the accepted step from ``state`` (at t0) to ``new`` (at t0 + h) reach a fold?
 
-    ``g0``, ``g1``: the fold event at both ends; ``interpolant``: the step's dense output;
-    ``reference``, ``reference_g``: see :func:`locate_fold`. A crossing (g1 ≥ 0) is located on the step's
-    interpolant; an impasse of the homogenized ODE is predicted from g² (module docstring).
+    ``g0``, ``g1``: the fold event at both ends (values); ``interpolant``: the step's dense
+    output; ``reference``, ``reference_g``: see :func:`locate_fold`; ``impasse_reference``: (t, y)
+    of the homogenized ODE's reference state (its fold event J_t = 0 is then differentiated by
+    :func:`schur_event`). A crossing (g1 ≥ 0) is located on the step's interpolant; an impasse of the homogenized ODE is predicted from g² (module docstring).
     In ``"follow"`` mode a crossing where F̃·f changes sign too (a singular passage) is none.
     """
     crossed = accept & (g0 < 0) & (g1 >= 0)
@@ -309,12 +311,6 @@ def find_fold(
     delta = jnp.where(closing, g1 * g1 * h / jnp.where(closing, g0 * g0 - g1 * g1, 1.0), jnp.inf)
     # Only the homogenized ODE's impasse is predicted (the DAE's g crosses zero: located).
     predicted = ~crossed & (delta < events.time_tol) & getattr(ode, "fold_event_is_schur", False)
-    if getattr(ode, "fold_event_is_schur", False):
-        # The same secant from the steps' own J_t, which carry derivatives: the impasse time
-        # is differentiated through the secant of J_t² (the implicit function theorem on it).
-        j0, j1 = state.J**2, new.J**2
-        delta = jnp.where(predicted, j1 * h / jnp.where(predicted, j0 - j1, 1.0), 0.0)
-
     at_impasse = impasse_reference is not None and getattr(ode, "fold_event_is_schur", False)
 
     def on_crossing():
