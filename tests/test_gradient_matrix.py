@@ -1,7 +1,7 @@
 """Gradients through the jumps, in every setting, against central differences (issue 42).
 
-The matrix: τ × stepper × fold policy × quantity × parameter, forward mode (``jax.jacfwd`` with
-``adjoint="forward"``) and reverse mode (``jax.jacrev``). The quantities: the state at the end of
+The matrix: τ × stepper × quantity × parameter, forward mode (``jax.jacfwd`` with
+``adjoint="forward"``), and reverse mode (``jax.jacrev``) in one cell. The quantities: the state at the end of
 a run that jumped several times, the first jump times, and a window statistic (the mean force at
 the slips). The parameters: a coefficient of φ (c1), V, τ and the spool's radius R. Each
 derivative is taken of a tight run (rtol 1e-9; the derivative of a run at a looser tolerance is
@@ -9,8 +9,8 @@ that run's, off by the run's own error) and compared with central differences of
 1e-10 at two steps h and h/4 that agree with each other (the difference is shown stable before it
 is trusted). Reverse mode is checked against forward mode on the same run (at rtol 1e-6: at rtol
 1e-9, with ~5·10⁴ steps, the checkpointed loop's reverse pass gave derivatives off by up to
-2.5e-3 that moved with ``max_steps``, i.e. with where it recomputes steps; see the closing note
-of issue 42). Where the run does not jump (τ = 0.01 and 0.1 over 0.3 s) the cell is the end
+2.5e-3 that moved with ``max_steps``, i.e. with where it recomputes steps: open, see
+docs/fitting.md; Tsit5's reverse mode is NaN after its second jump: open too). Where the run does not jump (τ = 0.01 and 0.1 over 0.3 s) the cell is the end
 state's. ``fold="follow"`` has no cell: at τ = 1e-3 it follows the first slip's singular
 passage and then stalls at t = 0.187 s (status ``stopped``); at τ ≥ 0.01 nothing jumps in 0.3 s.
 The fast tier's cell is ``tests/test_jumps.py::test_gradients_through_fold_jumps_match_central_differences``;
