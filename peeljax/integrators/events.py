@@ -255,12 +255,17 @@ def crossing_path(ode, t_ref, y_ref, v_star) -> tuple[Array, Array]:
     return t_ref + delta, y_ref[:_V] + evaluation.psi[:_V] * delta
 
 
+def _schur_along_v(ode, x, w) -> tuple[Array, Array]:
+    """(J_t, ∂J_t/∂v) at (x, v = w), v in the ODE's carried coordinate."""
+    return jax.jvp(lambda w: ode.evaluate(jnp.concatenate([x, w[None]])).J, (w,), (jnp.ones_like(w),))
+
+
 def _impasse_velocity(ode, y, iterations: int = 3) -> Array:
     """v* with J_t(x, v*) = 0 at y's x, by Newton's method from y's v (values only)."""
     x = y[:_V]
 
     def newton(_, w):
-        J, J_v = jax.jvp(lambda w: ode.evaluate(jnp.concatenate([x, w[None]])).J, (w,), (jnp.ones_like(w),))
+        J, J_v = _schur_along_v(ode, x, w)
         return jnp.where((J_v != 0) & jnp.isfinite(J), w - J / jnp.where(J_v != 0, J_v, 1.0), w)
 
     return jax.lax.fori_loop(0, iterations, newton, y[_V])
@@ -282,7 +287,7 @@ def _schur_event_jvp(primals, tangents, *, path):
 
     def moved(ode, t_ref, y_ref):
         t, x = path(ode, t_ref, y_ref, v_star)
-        J, J_v = jax.jvp(lambda w: ode.evaluate(jnp.concatenate([x, w[None]])).J, (v_star,), (jnp.ones_like(v_star),))
+        J, J_v = _schur_along_v(ode, x, v_star)
         v = v_star - J / jax.lax.stop_gradient(J_v)  # v* in value; dv* = −dJ_t/(∂J_t/∂v)
         return t, jnp.concatenate([x, v[None]])
 
