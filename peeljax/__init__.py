@@ -24,6 +24,11 @@ And it asks for one JAX CPU device per core this process may use
 (``xla_force_host_platform_device_count``), so that :func:`peeljax.sweep` and
 :func:`peeljax.least_tau` shard their lanes over every core (a single run uses one device, as
 before). Skipped in the same two cases, or when ``XLA_FLAGS`` sets the count itself.
+
+Finally it keeps every compiled program in JAX's persistent compilation cache, in the user's
+cache folder (``~/.cache/peeljax`` on Linux), so that a program is compiled once per machine
+rather than once per process; ``PEELJAX_COMPILATION_CACHE`` moves the folder or turns this off,
+and a cache the user configured for JAX is left alone (:mod:`peeljax._compilation_cache`).
 """
 
 import os as _os
@@ -67,6 +72,10 @@ _host_device_flag()
 import jax as _jax  # noqa: E402
 
 _jax.config.update("jax_enable_x64", True)
+
+from . import _compilation_cache  # noqa: E402
+
+_compilation_cache.enable()
 
 from .adhesion import COEFFICIENT_NAMES, PAPER_COEFFICIENTS, AdhesionLaw, safe_pow  # noqa: E402
 from .analysis import StickSlipAnalysis, analyze, bifurcation_diagram, phi_extrema, trajectory_structure  # noqa: E402

@@ -122,6 +122,9 @@ class AdhesionLaw(eqx.Module):
 
     def __call__(self, v: ArrayLike, V: ArrayLike) -> Array:
         """φ(v, V) (eq. ``sac``); v^p is 0 for v ≤ 0 (see the module docstring)."""
+        return _adhesion(self, v, V)
+
+    def _evaluate(self, v: ArrayLike, V: ArrayLike) -> Array:
         v = jnp.asarray(v)
         return (
             self.c1 * safe_pow(v, self.p1)
@@ -233,3 +236,9 @@ def as_adhesion(phi: AdhesionLaw | Callable | None) -> AdhesionLaw | Callable:
     if not callable(phi):
         raise TypeError(f"adhesion: expected an AdhesionLaw or a callable phi(v, V), got {type(phi).__name__}")
     return phi
+
+
+# φ as one compiled function: a run's program calls φ (and its derivatives) dozens of times,
+# and a gradient through the loop traces the loop's body again and again; jit traces φ once
+# per argument shape and reuses it (and its derivatives) everywhere. XLA inlines it.
+_adhesion = jax.jit(lambda law, v, V: law._evaluate(v, V))  # (a subclass's _evaluate is its own)

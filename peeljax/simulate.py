@@ -243,13 +243,16 @@ def simulate(
     integrator = integrator_for(
         solver, rho=rho, dt=dt, t_final=t_final, rtol=rtol, atol=atol, dtmin=dtmin, max_steps=max_steps,
         adjoint=adjoint, checkpoint_every=checkpoint_every, fold=fold, max_jumps=max_jumps, dae=is_dae(tau),
+        merge_jump_rows=False,  # merged below: on the host, the rows in use only
     )  # fmt: skip
     ts = None if ts is None else check_output_times(ts, t_final)
     _check_memory(integrator, ts, max_steps, memory_limit)
     ode, y0 = _prepare(model, V, tau, y0, truncation, allow_dae=True)
     solution = _run(integrator, ode, y0, float_array(t_final), ts)
-    if ts is not None and not isinstance(solution.ts, jax.core.Tracer):
-        solution = solution.without_padding()  # the output times and the jumps, not the rows left for more
+    if solution.jump_sides is not None:  # on the host the rows in use; traced all (static shapes)
+        solution = solution.jump_sides.merge(solution)
+    elif ts is not None and not isinstance(solution.ts, jax.core.Tracer):
+        solution = solution.without_padding()  # the rows left for more steps
     return solution
 
 

@@ -227,6 +227,108 @@ class JumpRecord(eqx.Module):
         }
 
 
+def jump_row_sources(n: int, pair_at, written, xp=jnp):
+    """Where the rows of a dense output with both sides of its jumps come from.
+
+    The output times' ``n`` rows and the jumps' pair rows (pair p: the state before jump p in
+    row 2p, after it in 2p + 1; ``written`` rows in use) are merged in time order: output time
+    k goes to row k + 2·#(pairs written at or before it), pair row q to ``pair_at[q // 2] + q``
+    (``pair_at[p]``: the output times written before jump p; the slots not used hold n).
+    Returns ``(source, padding)``: for each merged row its index in the rows of the output
+    times followed by the pair rows, and whether it only pads. ``xp=jnp`` (traceable): ``n +
+    2·m`` rows, those after the ones in use repeating the last of them (``padding``);
+    ``xp=np`` (host): the ``n + written`` rows in use.
+    """
+    pairs = pair_at.shape[-1]
+    k = xp.arange(n)
+    to_grid = k + 2 * xp.searchsorted(pair_at, k, side="right")
+    q = xp.arange(2 * pairs)
+    used = q < written
+    to_pairs = xp.repeat(pair_at, 2) + q
+    if xp is np:
+        source = np.empty(n + int(written), np.int64)
+        source[to_grid] = k
+        source[to_pairs[used]] = n + q[used]
+        return source, np.zeros(source.shape, bool)
+    total = n + 2 * pairs
+    source = (
+        jnp.zeros(total, k.dtype)
+        .at[to_grid].set(k, mode="drop")
+        .at[jnp.where(used, to_pairs, total)].set(n + q, mode="drop")
+    )  # fmt: skip
+    end = n + written
+    padding = jnp.arange(total) >= end
+    return jnp.where(padding, source[jnp.maximum(end - 1, 0)], source), padding
+
+
+# The columns of a jump's rows as the loop writes them (JumpSides.rows): one array, one write per step.
+PAIR_T, PAIR_AT, PAIR_ITERATIONS, PAIR_INDEX, PAIR_SCHUR, PAIR_Y = 0, 1, 2, 3, 4, 5
+
+
+class JumpSides(eqx.Module):
+    """Both sides of each jump of a dense output, kept apart from the rows at the output times
+    between the compiled run and the host, which merges them (:meth:`merge`).
+
+    Merged in the compiled run, the rows kept for ``max_jumps`` jumps (2·10⁴ by default) took
+    longer to merge, evaluate and copy than a 3 s run without any jump took to compute; the loop
+    writes them finished (physical state, J_t, local index) into one array, and the host merges
+    the rows in use only. :func:`peeljax.simulate` merges on the host; under ``jit``/``vmap``
+    the rows are merged in the compiled program.
+
+    Attributes:
+        rows: ``(m, 2, 5 + 4)``: jump p's state before it in ``rows[p, 0]``, after it in
+            ``rows[p, 1]``; columns: time, the output times written before the jump, Newton
+            iterations, local index, J_t, the state (``PAIR_*``). NaN where unused.
+        written: rows in use (two per jump kept).
+    """
+
+    rows: Float[Array, "m 2 k"]
+    written: Int[Array, ""]
+
+    def unpacked(self, xp, grid_rows: int, rows: int | None = None) -> tuple:
+        """``(ts, ys, valid, after_jump, diagnostics, pair_at)`` of the 2·m pair rows (the first
+        ``rows`` of them); ``pair_at``: per jump, ``grid_rows`` where unused."""
+        flat = xp.reshape(self.rows, (-1, self.rows.shape[-1]))
+        if rows is not None:
+            flat = flat[:rows]
+        q = xp.arange(flat.shape[0])
+        valid = q < self.written
+        pair_at = flat[::2, PAIR_AT]
+        pair_at = xp.where(valid[::2], pair_at, grid_rows).astype(np.int64 if xp is np else jnp.int32)
+        count = lambda column: xp.where(valid, flat[:, column], 0).astype(np.int32)  # noqa: E731
+        nan = xp.full(q.shape, np.nan)
+        diagnostics = StepDiagnostics(
+            newton_iterations=count(PAIR_ITERATIONS), newton_correction=nan, schur=flat[:, PAIR_SCHUR],
+            local_index=count(PAIR_INDEX), condition=nan,
+        )  # fmt: skip
+        return flat[:, PAIR_T], flat[:, PAIR_Y:], valid, valid & (q % 2 == 1), diagnostics, pair_at
+
+    def merge(self, solution: Solution) -> Solution:
+        """``solution`` (its rows: the output times) with the jumps' rows inserted in time order:
+        on the host the rows in use; traced (under ``jit``, ``vmap``, ``grad``) all
+        ``len(ts) + 2·max_jumps``, those after the rows in use repeating the last of them."""
+        n = np.shape(solution.ts)[-1]
+        after = jnp.zeros(n, bool) if solution.after_jump is None else solution.after_jump
+        grid = (solution.ts, solution.ys, solution.valid, after, solution.diagnostics)
+        if isinstance(solution.ts, jax.core.Tracer) or isinstance(self.written, jax.core.Tracer):
+            *pairs, pair_at = self.unpacked(jnp, n)
+            source, padding = jump_row_sources(n, pair_at, self.written)
+            merged = jax.tree_util.tree_map(lambda g, q: jnp.concatenate([g, q])[source], grid, tuple(pairs))
+            merged = (*merged[:3], merged[3] & ~padding, merged[4])
+        elif int(self.written) == 0:  # no jump: the rows are the output times'
+            merged = grid
+        else:  # one copy to the host and one back; indexing on the device would compile per row count
+            grid, sides = jax.device_get((grid, self))
+            written = int(sides.written)
+            *pairs, pair_at = sides.unpacked(np, n, written)
+            source, _ = jump_row_sources(n, pair_at, written, xp=np)
+            merged = jax.device_put(jax.tree_util.tree_map(lambda g, q: np.concatenate([g, q])[source], grid, tuple(pairs)))
+        ts, ys, valid, after_jump, diagnostics = merged
+        return dataclasses.replace(
+            solution, ts=ts, ys=ys, valid=valid, after_jump=after_jump, diagnostics=diagnostics, jump_sides=None
+        )
+
+
 class Solution(eqx.Module):
     """A trajectory y = (α, ω, u, v) on a time grid with the reason it ended.
 
@@ -265,6 +367,8 @@ class Solution(eqx.Module):
             jumps (a run without jump record, or one run with ``save_jumps=False``, or read from a
             file written before they were kept: :func:`peeljax.analyze` then inserts the jump
             record's v⁻ and v⁺ itself).
+        jump_sides: between the compiled run and the host only: the jumps' rows not yet merged
+            into these (:class:`JumpSides`; :meth:`without_padding` merges them). None otherwise.
     """
 
     ts: Float[Array, " n"]
@@ -277,6 +381,7 @@ class Solution(eqx.Module):
     method: str = eqx.field(static=True, default="alpha")
     jumps: JumpRecord | None = None
     after_jump: Bool[Array, " n"] | None = None
+    jump_sides: JumpSides | None = None
 
     # -------------------------------------------------------------- states by name
     @property
@@ -333,6 +438,8 @@ class Solution(eqx.Module):
         """
         if np.ndim(self.status) != 0:
             raise ValueError("without_padding() is for a single trajectory; index the batch first")
+        if self.jump_sides is not None:  # the rows in use, merged on the host: no padding
+            return self.jump_sides.merge(self)
         ts = np.asarray(self.ts)
         keep = np.isfinite(ts)
         keep[0] = True  # the start, even of a run whose start was refused

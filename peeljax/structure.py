@@ -145,6 +145,11 @@ def phi_extremum(model: PeelingModel, V: ArrayLike, kind: Literal["max", "min"] 
     """
     if kind not in ("max", "min"):
         raise ValueError(f"kind must be 'max' or 'min', got {kind!r}")
+    return _phi_extremum(model, V, kind)
+
+
+@eqx.filter_jit  # called on the host too (phi_folds): its loop would be compiled anew at every call
+def _phi_extremum(model: PeelingModel, V: ArrayLike, kind: str) -> Array:
     V = jnp.asarray(V, float)
     rising = 1.0 if kind == "max" else -1.0  # the sign of ∂φ/∂v before the extremum
     scale = jnp.maximum(V, 1.0)

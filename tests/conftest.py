@@ -21,6 +21,48 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 ERROR_PREFIX = "peeljax: error: "  # what the command line's refusals of bad input start with
 
 
+# ---------------------------------------------------------------------------- two tiers
+# `python -m pytest -q` is the fast tier, what a developer runs after every change; the tests
+# marked `slow` join with --slow or PEELJAX_SLOW_TESTS=1 (CI runs `--slow -m slow` after the fast
+# tier). Not an `addopts` -m: a user's own -m naming `slow` selects on it as written, and a test
+# named by its node id (`file.py::test`) runs whatever its tier.
+SLOW_TESTS_VARIABLE = "PEELJAX_SLOW_TESTS"
+
+
+def pytest_addoption(parser):
+    parser.addoption(
+        "--slow", action="store_true", default=False,
+        help=f"run the slow tier too (the tests marked slow; also {SLOW_TESTS_VARIABLE}=1)",
+    )  # fmt: skip
+
+
+def slow_tier_selected(config) -> bool:
+    """Whether the run includes the tests marked ``slow`` (the option, the variable or a -m naming them)."""
+    wanted = os.environ.get(SLOW_TESTS_VARIABLE, "").strip().lower() not in ("", "0", "false", "no")
+    return config.getoption("--slow") or wanted or "slow" in (config.option.markexpr or "")
+
+
+def pytest_collection_modifyitems(config, items):
+    if slow_tier_selected(config):
+        return
+    named = [(Path(arg.split("::", 1)[0]).resolve(), arg.split("::", 1)[1]) for arg in config.args if "::" in arg]
+
+    def is_named(item) -> bool:
+        test = item.nodeid.split("::", 1)[-1]
+        return any(item.path.resolve() == path and test.startswith(name) for path, name in named)
+
+    slow = [item for item in items if item.get_closest_marker("slow") and not is_named(item)]
+    if slow:
+        chosen = set(map(id, slow))
+        items[:] = [item for item in items if id(item) not in chosen]
+        config.hook.pytest_deselected(items=slow)
+
+
+def pytest_report_header(config):
+    if not slow_tier_selected(config):
+        return f"the fast tier: tests marked slow are deselected (--slow or {SLOW_TESTS_VARIABLE}=1 runs them)"
+
+
 # ---------------------------------------------------------------------------- JAX's persistent compilation cache
 # XLA's compilation is most of the suite's time. A program whose compilation took at least this
 # long is written to one folder and read back (milliseconds) by the other xdist worker, by the
@@ -45,7 +87,8 @@ def pytest_configure(config):
     """
     if not jax.config.jax_enable_compilation_cache:
         return
-    folder = jax.config.jax_compilation_cache_dir or str(config.cache.mkdir("jax-compilation-cache"))
+    # the suite's own folder, not the user cache folder importing peeljax points JAX at
+    folder = os.environ.get("JAX_COMPILATION_CACHE_DIR") or str(config.cache.mkdir("jax-compilation-cache"))
     os.environ["JAX_COMPILATION_CACHE_DIR"] = folder  # the xdist workers and the processes tests start
     seconds = os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", str(CACHE_MIN_COMPILE_SECONDS))
     limit = os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(CACHE_MAX_BYTES))

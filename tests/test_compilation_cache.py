@@ -72,3 +72,66 @@ def test_a_program_read_back_gives_the_bits_of_a_fresh_compilation():
     finally:  # the probe is of no use to a later run
         for entry in Path(jax.config.jax_compilation_cache_dir).glob(f"jit_{name}-*"):
             entry.unlink()
+
+
+# ---------------------------------------------------------------------------- the library's own cache
+# Importing peeljax points JAX's persistent compilation cache at the user's cache folder
+# (peeljax/_compilation_cache.py). Each case runs a fresh Python with a home of its own.
+_PROBE = """
+import json, sys
+import jax
+from jax import monitoring
+hits = []
+monitoring.register_event_listener(lambda event, **kw: hits.append(event) if event.endswith("cache_hits") else None)
+import peeljax as pj
+import platformdirs
+ys = pj.simulate(V=1.1, tau=0.01, t_final=0.05, dt=0.005).ys if "run" in sys.argv else None
+print(json.dumps({
+    "folder": jax.config.jax_compilation_cache_dir,
+    "expected": platformdirs.user_cache_dir("peeljax", appauthor=False),
+    "max_size": jax.config.jax_compilation_cache_max_size,
+    "hits": len(hits),
+    "ys": None if ys is None else ys.tolist(),
+}))
+"""
+
+
+def _probe(tmp_path: Path, *args: str, **environment: str) -> dict:
+    import json
+    import subprocess
+    import sys
+
+    env = {key: value for key, value in os.environ.items() if not key.startswith(("JAX_", "PEELJAX_COMPILATION"))}
+    env.update(HOME=str(tmp_path), XDG_CACHE_HOME=str(tmp_path / "cache"), **environment)
+    done = subprocess.run(
+        [sys.executable, "-c", _PROBE, *args], env=env, capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0, done.stderr
+    return json.loads(done.stdout.splitlines()[-1])
+
+
+def test_peeljax_keeps_compiled_programs_in_the_user_cache_folder(tmp_path):
+    """The platform's user cache folder by default, with a size limit (JAX then locks the folder
+    around reads and writes: processes sharing it are safe); a program compiled by one process is
+    read back by the next; an entry made unreadable is compiled again, with the same result."""
+    first = _probe(tmp_path, "run")
+    folder = Path(first["folder"])
+    assert folder == Path(first["expected"]) / "jax-compilation-cache" and folder.is_relative_to(tmp_path)
+    assert first["max_size"] > 0 and first["hits"] == 0
+    entries = [entry for entry in folder.iterdir() if entry.name.endswith("-cache")]
+    assert entries
+    second = _probe(tmp_path, "run")
+    assert second["hits"] >= 1 and second["ys"] == first["ys"]
+    for entry in entries:  # truncated, as by a process killed while writing
+        entry.write_bytes(entry.read_bytes()[:100])
+    third = _probe(tmp_path, "run")
+    assert third["hits"] == 0 and third["ys"] == first["ys"]
+
+
+def test_the_cache_folder_moves_turns_off_or_is_the_users_own(tmp_path):
+    moved = tmp_path / "elsewhere"
+    assert _probe(tmp_path, PEELJAX_COMPILATION_CACHE=str(moved))["folder"] == str(moved)
+    assert _probe(tmp_path, PEELJAX_COMPILATION_CACHE="off")["folder"] is None
+    own = tmp_path / "jax-own"
+    assert _probe(tmp_path, JAX_COMPILATION_CACHE_DIR=str(own))["folder"] == str(own)
+    assert _probe(tmp_path, JAX_ENABLE_COMPILATION_CACHE="false")["folder"] is None

@@ -49,7 +49,7 @@ from jaxtyping import Array, ArrayLike, Float
 from .._arrays import optional_float_array
 from .._validation import check_adjoint, check_max_steps
 from ..homogenized import ODE
-from ..solution import JumpRecord, Solution, StepDiagnostics, StopReason
+from ..solution import JumpRecord, JumpSides, Solution, StepDiagnostics, StopReason
 from ..structure import local_index
 from ..desingularized import tangential_fold
 from .alpha import AlphaMethod, _stop_gradient
@@ -58,7 +58,7 @@ from .base import AbstractIntegrator, ObservedRun
 from .controller import PIController
 from .dense import PhysicalTimeInterpolant
 from .events import FoldEvents, FoldHit, find_fold, fold_event, fold_fraction
-from .observers import AcceptedStep, DenseOutput, Observer, StepPoints, observer_keeps_jumps
+from .observers import AcceptedStep, DenseOutput, Observer, StepPoints, _GridWithJumps, _Output, observer_keeps_jumps
 from .steppers import AbstractStepper, AlphaStepper, RungeKutta, StepperState, alpha_attempt, as_stepper, error_constant, physical
 
 __all__ = [
@@ -412,7 +412,9 @@ def adaptive_loop(
             cut_steps=c.cut_steps + cut,
         )
 
-    buffers = None if events is None else (lambda c: c.jumps.buffers())
+    def buffers(c: _Carry) -> tuple:  # written in place, never read in the loop (static choices only)
+        return (*observer.buffers(c.record), *(() if events is None else c.jumps.buffers()))
+
     checkpoints = None if kind != "checkpointed" else reverse_checkpoints(init, buffers, max_steps)
     return ode, eqxi.while_loop(
         running, body, init, max_steps=max_steps, kind=kind, buffers=buffers, checkpoints=checkpoints
@@ -454,6 +456,7 @@ def integrate_adaptive(
     adjoint: Literal["reverse", "forward"] = "reverse",
     events: FoldEvents | None = None,
     save_jumps: bool = True,
+    merge_jump_rows: bool = True,
 ) -> Solution:
     """Integrate y' = ψ(y) from t0 to t_final with error control, any stepper.
 
@@ -479,6 +482,9 @@ def integrate_adaptive(
             None: the paper's stop at an impasse point.
         save_jumps: keep both sides of every jump in the output (two rows at its time, the
             second marked in ``Solution.after_jump``; :class:`~peeljax.integrators.observers.DenseOutput`).
+        merge_jump_rows: with output times ``ts``, insert the jumps' rows among them here (the
+            static ``len(ts) + 2·max_jumps`` rows); False: keep them apart in
+            ``Solution.jump_sides`` for the host to merge (:meth:`Solution.without_padding`).
 
     Returns:
         A :class:`Solution`; ``stats`` holds ``accepted_steps``, ``rejected_steps``,
@@ -490,13 +496,22 @@ def integrate_adaptive(
     step_points = ts is None
     jumps = _events_for(events, ode)
     jump_rows = jumps.max_jumps if save_jumps and jumps is not None and jumps.mode != "stop" else 0
-    observer = StepPoints(max_steps + 1, jump_rows) if step_points else DenseOutput(jnp.asarray(ts, float), jump_rows)
+    if step_points:
+        observer = StepPoints(max_steps + 1, jump_rows)
+    else:
+
+        def row_values(y, J):  # a jump's rows as the output has them (_rows does the others)
+            return physical(stepper, y), local_index(J, ode.tau)
+
+        observer = DenseOutput(jnp.asarray(ts, float), jump_rows, row_values)
     kind = "checkpointed" if adjoint == "reverse" else "lax"
     ode, final = adaptive_loop(
         ode, stepper, y0, t0, t_final, observer,
         controller=controller, dt0=dt0, dtmin=dtmin, max_steps=max_steps, kind=kind, events=events,
     )  # fmt: skip
-    return _solution(ode, stepper, final, step_points, jnp.asarray(t0, float), final.jumps is not None, kind)
+    return _solution(
+        ode, stepper, final, step_points, jnp.asarray(t0, float), final.jumps is not None, kind, merge_jump_rows
+    )
 
 
 def _time_of(ode, final: _Carry) -> Array:
@@ -553,34 +568,45 @@ def map_rows_in_use(fn, rows: Float[Array, "m n"], count, kind: Literal["checkpo
     return jax.tree_util.tree_map(repeat_last, out)
 
 
-def _solution(
-    ode, stepper: AbstractStepper, final: _Carry, step_points: bool, t0, folding: bool = False, kind="checkpointed"
-) -> Solution:
-    out = final.record.as_rows()  # dense output with jumps: its two sets of rows merged, once
+def _rows(ode, stepper: AbstractStepper, final: _Carry, out: _Output, step_points: bool, folding: bool, kind):
+    """``(ts, ys, valid, after_jump, diagnostics)`` of a record's rows ``out``: physical states,
+    J_t and the local index, computed on the rows up to the last valid one only (a record's
+    rows after it, most of those kept for jumps, are masked: NaN, index 0)."""
     valid = out.valid
-    # the rows up to the last valid one, and before the padding that repeats the last row
-    in_use = jnp.minimum(jnp.max(jnp.where(valid, jnp.arange(1, valid.shape[0] + 1), 0)), out.rows_in_use)
-    ys_carried = out.y
-    if folding and getattr(ode, "completes_state", False):
-        # An interpolated state's algebraic part (the DAE's v) is solved anew at that state.
-        safe = jnp.where(valid[:, None], ys_carried, final.state.y)
-        ys_carried = map_rows_in_use(ode.complete, safe, in_use, kind)
-    ys_carried = jnp.where(valid[:, None], ys_carried, jnp.nan)
-    ys = physical(stepper, ys_carried)
-    if step_points and isinstance(stepper, AlphaStepper):
-        Js = out.J
-    else:
-        # J_t at the output states (evaluated at the last state where invalid, then masked).
-        safe = jnp.where(valid[:, None], ys_carried, final.state.y)
-        Js = map_rows_in_use(lambda z: ode.evaluate(z).J, safe, in_use, kind)
-    Js = jnp.where(valid, Js, jnp.nan)
+    in_use = jnp.max(jnp.where(valid, jnp.arange(1, valid.shape[0] + 1), 0))
+    completes = folding and getattr(ode, "completes_state", False)
+    loop_J = step_points and isinstance(stepper, AlphaStepper)  # the α-method's J_t at its own steps
+
+    def row(y_carried, J):
+        if completes:  # an interpolated state's algebraic part (the DAE's v) is solved anew at it
+            y_carried = ode.complete(y_carried)
+        J = J if loop_J else ode.evaluate(y_carried).J
+        return physical(stepper, y_carried), J, local_index(J, ode.tau)
+
+    safe = jnp.where(valid[:, None], out.y, final.state.y)  # (the rows not in use are not evaluated)
+    ys, Js, index = map_rows_in_use(lambda r: row(r[:-1], r[-1]), jnp.column_stack([safe, out.J]), in_use, kind)
     diagnostics = StepDiagnostics(
         newton_iterations=jnp.where(valid, out.iterations, 0),
         newton_correction=jnp.full(valid.shape, jnp.nan),
-        schur=Js,
-        local_index=jnp.where(valid, local_index(jnp.where(valid, Js, 1.0), ode.tau), 0),
+        schur=jnp.where(valid, Js, jnp.nan),
+        local_index=jnp.where(valid, index, 0),
         condition=jnp.full(valid.shape, jnp.nan),
     )
+    return out.t, jnp.where(valid[:, None], ys, jnp.nan), valid, out.after_jump, diagnostics
+
+
+def _solution(
+    ode, stepper: AbstractStepper, final: _Carry, step_points: bool, t0, folding: bool = False, kind="checkpointed",
+    merge_jump_rows: bool = True,
+) -> Solution:
+    record = final.record
+    sides = None
+    if isinstance(record, _GridWithJumps):  # dense output with both sides of each jump
+        ts, ys, valid, after_jump, diagnostics = _rows(ode, stepper, final, record.grid, step_points, folding, kind)
+        sides = JumpSides(record.pairs, record.written)  # written finished by the loop (DenseOutput.row_values)
+    else:
+        ts, ys, valid, after_jump, diagnostics = _rows(ode, stepper, final, record, step_points, folding, kind)
+        after_jump = after_jump if observer_keeps_jumps(record) else None
     accepted = final.accepted
     stats = {
         "steps": accepted,
@@ -597,8 +623,8 @@ def _solution(
     if final.jumps is not None:
         stats["jumps"] = final.jumps.count
         stats["steps_cut_at_folds"] = final.cut_steps
-    return Solution(
-        ts=out.t,
+    solution = Solution(
+        ts=ts,
         ys=ys,
         valid=valid,
         status=final.state.status,
@@ -607,8 +633,10 @@ def _solution(
         diagnostics=diagnostics,
         method=stepper.name,
         jumps=final.jumps,
-        after_jump=out.after_jump if observer_keeps_jumps(out) else None,
+        after_jump=after_jump,
+        jump_sides=sides,
     )
+    return solution if sides is None or not merge_jump_rows else sides.merge(solution)
 
 
 class ErrorControl(AbstractIntegrator):
@@ -637,6 +665,8 @@ class ErrorControl(AbstractIntegrator):
     adjoint: str = eqx.field(static=True, default="reverse")
     events: FoldEvents | None = None
     save_jumps: bool = eqx.field(static=True, default=True)  # both sides of every jump in the output
+    # False: the jumps' rows come back apart, merged on the host (simulate, outside jit)
+    merge_jump_rows: bool = eqx.field(static=True, default=True)
 
     def __check_init__(self):
         check_adjoint(self.adjoint)
@@ -655,6 +685,7 @@ class ErrorControl(AbstractIntegrator):
         return integrate_adaptive(
             ode, self.stepper, y0, t0, t_final, controller=self.controller, ts=ts, dtmin=self.dtmin,
             max_steps=self.max_steps, adjoint=self.adjoint, events=self.events, save_jumps=self.save_jumps,
+            merge_jump_rows=self.merge_jump_rows,
         )  # fmt: skip
 
     def observe(self, ode, y0, t0, t_final, observer) -> ObservedRun:

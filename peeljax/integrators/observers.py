@@ -19,11 +19,15 @@ second marked in ``after_jump``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import equinox as eqx
 import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
+
+from ..solution import PAIR_AT, PAIR_INDEX, PAIR_ITERATIONS, PAIR_SCHUR, PAIR_T, PAIR_Y, JumpSides, jump_row_sources
 
 
 __all__ = ["AcceptedStep", "DenseOutput", "EveryNthPoint", "Observer", "Observers", "StepPoints", "observer_keeps_jumps"]
@@ -76,6 +80,13 @@ class Observer(eqx.Module):
     def update(self, record, step: AcceptedStep, kind: str):
         raise NotImplementedError
 
+    def buffers(self, record) -> tuple:
+        """The record's arrays the loop may keep as buffers (equinox's ``while_loop``): each
+        location written once with a predicate (``eqxi.buffer_at_set``), never read in the loop,
+        so that reverse mode neither copies them at its checkpoints nor carries their cotangents
+        through every step. None by default."""
+        return ()
+
 
 class _Output(eqx.Module):
     """Output rows: times, states (carried coordinates), J_t, Newton iterations, validity and
@@ -83,11 +94,8 @@ class _Output(eqx.Module):
     holds the state just before, at the same time); read through the properties ``t``, ``y``,
     ``J``, ``iterations``, ``valid``, ``after_jump``.
 
-    Dense output with jump rows (``grid``): the rows after the written ones hold the output
-    times not reached (after a stop: states NaN), and the rows left for jumps that did not
-    happen repeat the last of those (its time and state; ``after_jump`` False), so that the
-    rows stay in time order and the last row is the state at the last output time, as
-    without jumps. (The host drops them: :meth:`peeljax.Solution.without_padding`.)
+    A dense output's rows after the written ones hold the output times not reached (after a
+    stop: states NaN); with jump rows, see :class:`_GridWithJumps`.
     """
 
     row_t: Array
@@ -97,77 +105,18 @@ class _Output(eqx.Module):
     row_valid: Array
     row_after_jump: Array
     next: Array  # step points: rows written; dense output: the first output time not yet reached
-    written: Array | None = None  # dense output with jump rows: rows written (grid rows + jump pairs)
-    grid: Array | None = None  # dense output with jump rows: the output times
     keeps_jumps: bool = eqx.field(static=True, default=False)  # rows after jumps are kept
 
     def as_rows(self) -> "_Output":
         """The rows (this record itself)."""
         return self
 
-    @property
-    def rows_in_use(self) -> Array:
-        """The rows before those that only pad (dense output with jump rows: repeats of the last)."""
-        if self.grid is None:
-            return jnp.asarray(self.row_t.shape[-1])
-        return jnp.asarray(self.written) + self.grid.shape[-1] - jnp.asarray(self.next)
-
-    def _rows(self):
-        """(row index, the row a row shows, whether it is an unreached output time or padding)."""
-        r = jnp.arange(self.row_t.shape[-1])
-        written = jnp.asarray(self.written)[..., None]
-        n = self.grid.shape[-1]
-        end = written + n - jnp.asarray(self.next)[..., None]  # rows written, then the output times not reached
-        shown = jnp.where(r < end, r, end - 1)
-        return r, written, shown
-
-    def _padded(self, array: Array, unreached) -> Array:
-        """``array`` with each padding row a copy of the last meaningful one, and ``unreached``
-        (the rows of output times not reached) where given."""
-        if self.grid is None:
-            return array
-        r, written, shown = self._rows()
-        index = jnp.broadcast_to(shown, array.shape[: shown.ndim]) if array.ndim > shown.ndim else shown
-        index = index.reshape(index.shape + (1,) * (array.ndim - index.ndim))
-        taken = jnp.take_along_axis(array, jnp.broadcast_to(index, array.shape), axis=shown.ndim - 1)
-        if unreached is None:
-            return taken
-        reached = (shown < written).reshape(shown.shape + (1,) * (array.ndim - shown.ndim))
-        return jnp.where(reached, taken, unreached)
-
-    @property
-    def t(self) -> Array:
-        if self.grid is None:
-            return self.row_t
-        r, written, shown = self._rows()
-        k = jnp.asarray(self.next)[..., None] + shown - written  # the output time an unreached row holds
-        n = self.grid.shape[-1]
-        grid = jnp.broadcast_to(self.grid, k.shape[:-1] + (n,))
-        unreached = jnp.take_along_axis(grid, jnp.clip(k, 0, n - 1), axis=-1)
-        return jnp.where(shown < written, jnp.take_along_axis(self.row_t, shown, axis=-1), unreached)
-
-    @property
-    def y(self) -> Array:
-        return self._padded(self.row_y, None if self.grid is None else jnp.nan)
-
-    @property
-    def J(self) -> Array:
-        return self._padded(self.row_J, None if self.grid is None else jnp.nan)
-
-    @property
-    def iterations(self) -> Array:
-        return self._padded(self.row_iterations, None if self.grid is None else 0)
-
-    @property
-    def valid(self) -> Array:
-        return self._padded(self.row_valid, None if self.grid is None else False)
-
-    @property
-    def after_jump(self) -> Array:
-        if self.grid is None:
-            return self.row_after_jump
-        r, written, shown = self._rows()
-        return self._padded(self.row_after_jump, False) & (r == shown)
+    t = property(lambda self: self.row_t)
+    y = property(lambda self: self.row_y)
+    J = property(lambda self: self.row_J)
+    iterations = property(lambda self: self.row_iterations)
+    valid = property(lambda self: self.row_valid)
+    after_jump = property(lambda self: self.row_after_jump)
 
 
 def observer_keeps_jumps(record) -> bool:
@@ -257,41 +206,27 @@ class _GridWithJumps(eqx.Module):
     Apart, each array takes one update per step. In one set of rows, the output times' inner
     loop and the jump's pair both wrote the same arrays every step, and XLA copied them every
     step: with room for 10⁴ jumps, P1 with Tsit5 took 6.6 ms, now 1.9 (0.8 without jump rows;
-    ``benchmarks/results/jump_rows_cost.md``).
+    ``benchmarks/results/jump_rows_cost.md``). The pairs are one array of
+    :class:`~peeljax.solution.JumpSides` rows, a buffer of the loop written once per jump.
     """
 
     grid: _Output  # the output times' rows (no jump rows: row k is output time k)
-    pairs: _Output  # 2·m rows: each jump's state before and after it; ``next``: rows written
-    pair_at: Array  # (m,): the output times written before each pair (len(ts) where no jump)
+    pairs: Array  # (m, 2, k): JumpSides.rows
+    written: Array  # pair rows written
     keeps_jumps: bool = eqx.field(static=True, default=True)
 
     def as_rows(self) -> _Output:
-        """The rows in time order: output time k at k + 2·(pairs before it), pair p at pair_at[p] + 2p."""
-        grid, pairs = self.grid, self.pairs
-        n, m2 = grid.row_t.shape[-1], pairs.row_t.shape[-1]
-        k = jnp.arange(n)
-        before = 2 * jnp.searchsorted(self.pair_at, k, side="right")  # pairs at or before output time k
-        drop = n + m2  # out of range: not written
-        to_grid = jnp.where(k < grid.next, k + before, drop)
-        p = jnp.arange(m2)
-        to_pairs = jnp.where(p < pairs.next, jnp.repeat(self.pair_at, 2) + p, drop)
-
-        def merge(filler, g, q):
-            rows = jnp.full((n + m2,) + g.shape[1:], filler, g.dtype)
-            return rows.at[to_grid].set(g, mode="drop").at[to_pairs].set(q, mode="drop")
-
-        return _Output(
-            row_t=merge(jnp.nan, grid.row_t, pairs.row_t),
-            row_y=merge(jnp.nan, grid.row_y, pairs.row_y),
-            row_J=merge(jnp.nan, grid.row_J, pairs.row_J),
-            row_iterations=merge(0, grid.row_iterations, pairs.row_iterations),
-            row_valid=merge(False, grid.row_valid, pairs.row_valid),
-            row_after_jump=merge(False, grid.row_after_jump, pairs.row_after_jump),
-            next=grid.next,
-            written=grid.next + pairs.next,
-            grid=grid.row_t,
-            keeps_jumps=True,
-        )
+        """The rows in time order (:func:`peeljax.solution.jump_row_sources`): ``len(ts) + 2·m``,
+        those after the rows in use repeating the last of them (``after_jump`` False)."""
+        grid = self.grid
+        n = grid.row_t.shape[0]
+        ts, ys, valid, after, diagnostics, pair_at = JumpSides(self.pairs, self.written).unpacked(jnp, n)
+        source, padding = jump_row_sources(n, pair_at, self.written)
+        pairs = {"row_t": ts, "row_y": ys, "row_J": diagnostics.schur, "row_iterations": diagnostics.newton_iterations,
+                 "row_valid": valid, "row_after_jump": after}  # fmt: skip
+        rows = {f: jnp.concatenate([getattr(grid, f), q])[source] for f, q in pairs.items()}
+        rows["row_after_jump"] = rows["row_after_jump"] & ~padding
+        return _Output(**rows, next=grid.next, keeps_jumps=True)
 
     t = property(lambda self: self.as_rows().t)
     y = property(lambda self: self.as_rows().y)
@@ -314,6 +249,9 @@ class DenseOutput(Observer):
 
     ts: Array
     jump_rows: int = eqx.field(static=True, default=0)
+    # (carried state, J_t) -> (output state, local index): a jump's rows are written finished, so
+    # that nothing is computed after the loop on the 2·m rows kept for jumps (None: as carried)
+    row_values: Callable | None = eqx.field(static=True, default=None)
 
     def init(self, t0, y0, J0, ok):
         at_start = self.ts <= t0
@@ -328,8 +266,9 @@ class DenseOutput(Observer):
         )
         if self.jump_rows == 0:
             return grid
-        pairs = _rows(2 * self.jump_rows, jnp.nan, jnp.full_like(y0, jnp.nan), jnp.nan, False, next=0)
-        return _GridWithJumps(grid, pairs, jnp.full(self.jump_rows, self.ts.shape[0], jnp.int32))
+        m = self.jump_rows
+        width = PAIR_Y + jax.eval_shape(self._values, y0, J0)[0].shape[0]
+        return _GridWithJumps(grid, jnp.full((m, 2, width), jnp.nan), jnp.asarray(0, jnp.int32))
 
     def update(self, out, step, kind):
         if self.jump_rows == 0:
@@ -338,14 +277,29 @@ class DenseOutput(Observer):
         if step.jumped is None:
             return eqx.tree_at(lambda o: o.grid, out, grid)
         # The jump at t1, after the output times up to t1: the state before it (the step's end)
-        # and after it, while room is left.
-        pairs, pair_at = out.pairs, out.pair_at
-        count = pairs.next // 2
+        # and after it, in slot p of the pairs for the p-th jump while room is left. Each slot
+        # is written once where ``pair`` (the loop's buffers, :meth:`Observer.buffers`): reverse
+        # mode then carries no cotangent of the 2·m rows through every step.
+        count = out.written // 2
         pair = step.advance & step.jumped & (count < self.jump_rows)
         slot = jnp.minimum(count, self.jump_rows - 1)
-        pairs = _put_pair(pairs, 2 * slot, pair, pair, step, pairs.next + 2 * pair)
-        pair_at = pair_at.at[slot].set(jnp.where(pair, grid.next, pair_at[slot]))
-        return _GridWithJumps(grid, pairs, pair_at)
+
+        def row(y, J, iterations):
+            y, index = self._values(y, J)
+            columns = {PAIR_T: step.t1, PAIR_AT: grid.next, PAIR_ITERATIONS: iterations, PAIR_INDEX: index, PAIR_SCHUR: J}
+            return jnp.concatenate([jnp.stack([columns[c] for c in range(PAIR_Y)]).astype(float), y])
+
+        both = jnp.stack([row(step.y1, step.J1, step.iterations), row(step.y_after, step.J_after, 0)])
+        pairs = eqxi.buffer_at_set(out.pairs, slot, both, pred=pair)
+        return _GridWithJumps(grid, pairs, out.written + 2 * pair)
+
+    def buffers(self, record) -> tuple:
+        """The pairs' array: slot p written once, by the p-th jump. (Decided on static fields
+        only: equinox calls this on a tree whose None leaves are replaced.)"""
+        return (record.pairs,) if self.jump_rows else ()
+
+    def _values(self, y, J):
+        return (y, jnp.zeros((), jnp.int32)) if self.row_values is None else self.row_values(y, J)
 
     def _fill(self, out: _Output, step, kind) -> _Output:
         """The output times in (t0, t1], one at a time (a step covers few of them)."""
@@ -381,6 +335,9 @@ class Observers(Observer):
 
     def update(self, records, step, kind):
         return tuple(o.update(r, step, kind) for o, r in zip(self.observers, records))
+
+    def buffers(self, records) -> tuple:
+        return tuple(b for o, r in zip(self.observers, records) for b in o.buffers(r))
 
 
 class EveryNthPoint(Observer):

@@ -158,20 +158,23 @@ def _controller(rtol: float, atol: float) -> PIController:
 
 
 @functools.lru_cache(maxsize=64)
-def _error_control(rho, rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps, dae) -> ErrorControl:
+def _error_control(rho, rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps, dae, merge) -> ErrorControl:
     # The default method's integrator, built once per setting rather than on every call.
-    return _with_events(ErrorControl(_default_solver(rho), _controller(rtol, atol), dtmin, max_steps, adjoint), fold, max_jumps, dae)
+    integrator = ErrorControl(_default_solver(rho), _controller(rtol, atol), dtmin, max_steps, adjoint)
+    return _with_events(integrator, fold, max_jumps, dae, merge=merge)
 
 
 @functools.lru_cache(maxsize=64)
-def _error_control_dae(rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps) -> ErrorControl:
+def _error_control_dae(rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps, merge) -> ErrorControl:
     # τ = 0's default stepper (measured: docs/theory.md, "Choosing the stepper").
     stepper = _named(DEFAULT_DAE_STEPPER)
     integrator = ErrorControl(stepper, _controller(rtol, atol), dtmin, max_steps, adjoint)
-    return _with_events(integrator, fold, max_jumps, True, pseudo_time=True)
+    return _with_events(integrator, fold, max_jumps, True, pseudo_time=True, merge=merge)
 
 
-def _with_events(integrator: ErrorControl, fold: str, max_jumps: int, dae: bool, pseudo_time: bool = False) -> ErrorControl:
+def _with_events(
+    integrator: ErrorControl, fold: str, max_jumps: int, dae: bool, pseudo_time: bool = False, merge: bool = True
+) -> ErrorControl:
     """The integrator with its fold events. For the DAE (``dae``) an explicit Runge–Kutta
     stepper runs in pseudo-time where ``pseudo_time`` (it was named, or given as a diffrax
     solver: the default formulation, measured in docs/theory.md) and as given otherwise (a
@@ -185,7 +188,7 @@ def _with_events(integrator: ErrorControl, fold: str, max_jumps: int, dae: bool,
         method = dataclasses.replace(method, log_components=(3,), time_scale=DEFAULT_TIME_SCALE)
     elif dae and not (isinstance(method, RungeKutta) and method.time_scale is not None):
         method = dataclasses.replace(method, log_components=())
-    return dataclasses.replace(integrator, method=method, events=FoldEvents(fold, max_jumps))
+    return dataclasses.replace(integrator, method=method, events=FoldEvents(fold, max_jumps), merge_jump_rows=merge)
 
 
 def _own_loop(solver) -> bool:
@@ -231,11 +234,13 @@ def integrator_for(
     fold: str | None = None,
     max_jumps: int = DEFAULT_MAX_JUMPS,
     dae: bool = False,
+    merge_jump_rows: bool = True,
 ) -> AbstractIntegrator:
     """The integrator the options describe (module docstring), every option checked.
 
     Raises ``ValueError``/``TypeError`` naming the option and its allowed values; nothing is
-    compiled. ``rho`` is used only when ``solver`` is None.
+    compiled. ``rho`` is used only when ``solver`` is None. ``merge_jump_rows=False``: the
+    jumps' rows come back apart (``Solution.jump_sides``) for the caller to merge (simulate).
     """
     check_adjoint(adjoint)
     check_max_jumps(max_jumps)
@@ -260,8 +265,8 @@ def integrator_for(
     if _own_loop(method):
         return DiffraxIntegrator(method, rtol, atol, dtmin, None, max_steps, adjoint)
     if solver is None and dae and type(rho) in (float, int) and float(rho) == 0.0:
-        return _error_control_dae(rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps)
+        return _error_control_dae(rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps, merge_jump_rows)
     if solver is None and type(rho) in (float, int):
-        return _error_control(float(rho), rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps, dae)
+        return _error_control(float(rho), rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps, dae, merge_jump_rows)
     integrator = ErrorControl(method, _controller(rtol, atol), dtmin, max_steps, adjoint)
-    return _with_events(integrator, fold, max_jumps, dae, pseudo_time=not isinstance(solver, RungeKutta))
+    return _with_events(integrator, fold, max_jumps, dae, pseudo_time=not isinstance(solver, RungeKutta), merge=merge_jump_rows)

@@ -131,6 +131,7 @@ class Linearised(eqx.Module):
     at: object
     unravel: object
     theta: Array
+    shapes: tuple  # of ``at``'s outputs (ShapeDtypeStructs): its result made without tracing it
 
     def w(self, z: Float[Array, "2"]) -> Array:
         return jnp.concatenate([z, self.theta])
@@ -142,10 +143,10 @@ def linearised(shooting: Shooting, model, V, slips, t_max, theta_leaves: tuple[i
     theta = [jnp.ravel(jnp.asarray(leaves[i], float)) for i in theta_leaves]
     sizes = [t.size for t in theta]
     z_shape = jax.ShapeDtypeStruct((2,), jnp.dtype(float))
-    floats_shape = jax.eval_shape(
-        lambda z: eqx.partition(_return(shooting, model, V, z, slips, t_max), eqx.is_inexact_array)[0], z_shape
-    )
-    unravel = ravel_pytree(jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), floats_shape))[1]
+    returned = jax.eval_shape(lambda z: _return(shooting, model, V, z, slips, t_max), z_shape)
+    floats_shape = eqx.filter(returned, lambda a: jnp.issubdtype(a.dtype, jnp.inexact))
+    floats, unravel = ravel_pytree(jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), floats_shape))
+    w_size = 2 + sum(sizes)
 
     def outputs(w):
         new = list(leaves)
@@ -161,7 +162,8 @@ def linearised(shooting: Shooting, model, V, slips, t_max, theta_leaves: tuple[i
         jac, (r, period) = jax.jacfwd(outputs, has_aux=True)(w)
         return jac, r, period
 
-    return Linearised(at, unravel, jnp.concatenate([jnp.zeros(0), *theta]))
+    jac_shape = jax.ShapeDtypeStruct((floats.size, w_size), jnp.dtype(float))
+    return Linearised(at, unravel, jnp.concatenate([jnp.zeros(0), *theta]), (jac_shape, *returned))
 
 
 class _Newton(eqx.Module):
@@ -202,8 +204,9 @@ def _solve(shooting: Shooting, model, V, z0, slips, t_max, theta_leaves: tuple[i
         done = converged | diverged | ~period.reached | (c.iterations + 1 >= shooting.max_iterations)
         return _Newton(z, step, jac, r, period, c.iterations + 1, first, done, diverged & ~converged)
 
-    shapes = jax.eval_shape(lambda z: at(lin.w(z)), z0)
-    zeros = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), shapes)
+    # (``at``'s shapes from one trace of a period, not from a trace of its forward-mode Jacobian:
+    # each trace of that took seconds)
+    zeros = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), lin.shapes)
     # The loop's body holds the one pass (a pass outside it would be compiled twice).
     init = _Newton(z0, jnp.zeros(2), zeros[0], zeros[1], zeros[2], jnp.asarray(0), jnp.asarray(jnp.inf), jnp.asarray(False), jnp.asarray(False))
     final = jax.lax.while_loop(lambda c: ~c.done, lambda c: evaluate(c, c.z + c.step), init)

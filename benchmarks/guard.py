@@ -1,0 +1,268 @@
+"""The speed guard: ratios that do not depend on the machine, each against a limit committed beside it.
+
+A speed lost without noticing is a bug. Each check times two calls of peeljax (or peeljax and a
+peer) alternately in this one process, after their compilation, and divides the medians:
+
+* ``gradient_through_jumps``: ``jax.grad`` of the sum of the first 30 jump times w.r.t. c1
+  (V = 1.1, τ = 0, 3 s, 210 jumps, ``ts=[0, 3]``, ``max_jumps=512``) ÷ the same run forward;
+* ``p1_jump_rows``: P1, ``simulate(V=1.1, tau=0.01, t_final=3, rtol=1e-5, atol=1e-7, ts=301
+  points)`` with the default ``fold`` ÷ with ``fold="stop"`` (no jump happens: the room kept
+  for jumps should cost nothing);
+* ``p6_vs_diffrax``: P6, ``simulate(V=1.1, tau=0, t_final=3, rtol=1e-6, ts=[0, 3])`` ÷ the
+  compiled diffrax peer (``diffeqsolve`` + ``Event``, Tsit5, restarted in one
+  ``lax.while_loop``: ``peers/jump_peers.py``) at the same rtol;
+* ``orbit_vs_run``: ``periodic_orbit(V=1.1)`` ÷ the 3 s run of P6;
+* ``fit_step``: one step of ``fit_adhesion`` (c1 free, one observation of v at V = 1.1, τ =
+  0.01, 0.5 s; the value and gradient and the optimizer's update) ÷ the forward run it fits;
+* ``compile``: the first call's compilation of P6's program ÷ that of diffrax's ``diffeqsolve``
+  (Tsit5, PID controller, the homogenized ODE, 301 output times): each program made new (a
+  salt in its name), so neither comes from JAX's persistent compilation cache.
+
+Limits are in ``guard_limits.json`` (``measured``: what a quiet 2-core machine measured when
+they were set; ``limit``: a small margin over it). Exit status 1 names every ratio over its
+limit. ``--ci`` (the test suite's fast tier) doubles each limit's margin over the ratio
+measured, so that a noisy machine never fails a run but a regression such as the 5.6× slower
+gradient through jumps (3.3 → 21) does.
+
+    python benchmarks/guard.py                 # before every stop (≤ 60 s with compiled programs cached)
+    python benchmarks/guard.py --ci            # CI's limits
+    python benchmarks/guard.py --only gradient_through_jumps p1_jump_rows
+    python benchmarks/guard.py --record        # write this run's ratios as "measured" (limits unchanged)
+
+The first run on a machine compiles every program (~2 min on 2 cores); later runs read them
+from JAX's persistent compilation cache (the library's, in the user's cache folder).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import time
+import uuid
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+LIMITS = HERE / "guard_limits.json"
+V = 1.1
+
+
+# ---------------------------------------------------------------------------- the calls
+def gradient_through_jumps():
+    """(gradient, forward): d/dc1 of the sum of the first 30 jump times through 210 jumps."""
+    import equinox as eqx
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    import peeljax as pj
+
+    def jump_times(c1):
+        law = eqx.tree_at(lambda a: a.c1, pj.AdhesionLaw(), c1)
+        sol = pj.simulate(
+            pj.PeelingModel(adhesion=law), V=V, tau=0, t_final=3.0, ts=np.array([0.0, 3.0]), max_jumps=512
+        )
+        return jnp.sum(sol.jumps.t[:30])
+
+    forward, gradient = jax.jit(jump_times), jax.jit(jax.grad(jump_times))
+    c1 = jnp.asarray(400.0)
+    return (lambda: gradient(c1)), (lambda: forward(c1))
+
+
+def p1_jump_rows():
+    """(default fold, fold="stop"): P1 called as a user does."""
+    import numpy as np
+
+    import peeljax as pj
+
+    ts = np.linspace(0.0, 3.0, 301)
+
+    def p1(**fold):
+        return lambda: pj.simulate(V=V, tau=0.01, t_final=3.0, rtol=1e-5, atol=1e-7, ts=ts, **fold)
+
+    return p1(), p1(fold="stop")
+
+
+def _p6():
+    import numpy as np
+
+    import peeljax as pj
+
+    return lambda: pj.simulate(V=V, tau=0, t_final=3.0, rtol=1e-6, ts=np.array([0.0, 3.0]))
+
+
+def p6_vs_diffrax():
+    """(P6, the diffrax while-loop peer) at rtol 1e-6."""
+    sys.path.insert(0, str(HERE))
+    from peers.jump_peers import DiffraxWhileLoop
+
+    peer = DiffraxWhileLoop([1e-6])
+    peer.prepare()
+    return _p6(), (lambda: peer.run(1e-6))
+
+
+def orbit_vs_run():
+    """(periodic_orbit(V=1.1), the 3 s run of P6)."""
+    import peeljax as pj
+
+    return (lambda: pj.periodic_orbit(V=V).period), _p6()
+
+
+def fit_step():
+    """(one step of fit_adhesion, the forward run it fits)."""
+    import numpy as np
+
+    import peeljax as pj
+
+    ts = np.linspace(0.0, 0.5, 51)
+    run = pj.simulate(V=V, tau=0.01, t_final=0.5, rtol=1e-6, atol=1e-9, ts=ts)
+    observation = pj.Observation(V=V, t=ts, v=np.asarray(run.v))
+    start = pj.AdhesionLaw(c1=420.0)
+    fit = lambda: (
+        pj.fit_adhesion(  # noqa: E731
+            observation, start=start, free=("c1",), steps=1, progress=False, rtol=1e-6, atol=1e-9
+        ).final_loss
+    )
+    forward = lambda: pj.simulate(
+        pj.PeelingModel(adhesion=start), V=V, tau=0.01, t_final=0.5, rtol=1e-6, atol=1e-9, ts=ts
+    )  # noqa: E731
+    return fit, forward
+
+
+def compile_ratio():
+    """(seconds to compile P6's program, seconds to compile diffrax's diffeqsolve), each made new."""
+    import diffrax
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    import peeljax as pj
+    from peeljax.integrators.select import integrator_for
+
+    salt = uuid.uuid4().int % 2**31
+    integrator = integrator_for(None, t_final=3.0, rtol=1e-6, dae=True)
+    ode = pj.ConstrainedDAE(pj.PeelingModel(), V)
+    ts = jnp.asarray([0.0, 3.0])
+
+    def peeljax_program(y0):
+        return integrator.integrate(ode, y0, 0.0, 3.0, ts).ys + 0.0 * salt
+
+    homogenized = pj.HomogenizedODE(pj.PeelingModel(), V, 0.01)
+
+    def diffrax_program(y0):
+        sol = diffrax.diffeqsolve(
+            diffrax.ODETerm(lambda t, y, args: homogenized(y)), diffrax.Tsit5(), 0.0, 3.0, None, y0,
+            saveat=diffrax.SaveAt(ts=jnp.linspace(0.0, 3.0, 301)),
+            stepsize_controller=diffrax.PIDController(rtol=1e-6, atol=1e-9), max_steps=100_000,
+        )  # fmt: skip
+        return sol.ys + 0.0 * salt
+
+    y0 = np.asarray(pj.PeelingModel().initial_state(V))
+
+    def seconds(fn):
+        lowered = jax.jit(fn).lower(y0)
+        began = time.perf_counter()
+        lowered.compile()
+        return time.perf_counter() - began
+
+    # Programs made new are not written to the persistent cache either.
+    minimum = jax.config.jax_persistent_cache_min_compile_time_secs
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1e9)
+    try:
+        return seconds(peeljax_program), seconds(diffrax_program)
+    finally:
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", minimum)
+
+
+CHECKS = {
+    "gradient_through_jumps": gradient_through_jumps,
+    "p1_jump_rows": p1_jump_rows,
+    "p6_vs_diffrax": p6_vs_diffrax,
+    "orbit_vs_run": orbit_vs_run,
+    "fit_step": fit_step,
+}
+
+
+# ---------------------------------------------------------------------------- measuring
+def _block(value):
+    import jax
+
+    return jax.block_until_ready(value)
+
+
+def measure(names, repeats: int = 5) -> dict[str, float]:
+    """Each named check's ratio: the calls compiled (first call), then ``repeats`` rounds over
+    every check, numerator and denominator alternately; median ÷ median."""
+    pairs, setup = {}, {}
+    for name in names:
+        if name == "compile":
+            continue
+        began = time.perf_counter()
+        numerator, denominator = CHECKS[name]()
+        _block(numerator())
+        _block(denominator())
+        pairs[name] = (numerator, denominator, [], [])
+        setup[name] = time.perf_counter() - began
+    for _ in range(repeats):
+        for numerator, denominator, top, bottom in pairs.values():
+            for fn, times in ((numerator, top), (denominator, bottom)):
+                began = time.perf_counter()
+                _block(fn())
+                times.append(time.perf_counter() - began)
+    ratios = {name: statistics.median(top) / statistics.median(bottom) for name, (_, _, top, bottom) in pairs.items()}
+    print("set-up (compilation or cache reads) [s]:", {name: round(seconds, 1) for name, seconds in setup.items()})
+    if "compile" in names:
+        peeljax_seconds, diffrax_seconds = compile_ratio()
+        ratios["compile"] = peeljax_seconds / diffrax_seconds
+    return ratios
+
+
+def limits_of(table: dict, ci: bool) -> dict[str, float]:
+    """The limit of each ratio (``--ci``: its margin over the ratio measured doubled)."""
+    return {name: (2.0 * row["limit"] - row["measured"]) if ci else row["limit"] for name, row in table.items()}
+
+
+def broken(ratios: dict[str, float], limits: dict[str, float]) -> list[str]:
+    """The ratios over their limits, in words."""
+    return [
+        f"{name} = {ratio:.2f} is over its limit {limits[name]:.2f}"
+        for name, ratio in ratios.items()
+        if ratio > limits[name]
+    ]
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--ci", action="store_true", help="each limit's margin over 1 doubled (CI's fast tier)")
+    parser.add_argument("--only", nargs="+", choices=[*CHECKS, "compile"], help="these checks only")
+    parser.add_argument("--repeats", type=int, default=5, help="rounds of timed calls (default 5)")
+    parser.add_argument(
+        "--record", action="store_true", help="write the ratios measured as guard_limits.json's 'measured'"
+    )
+    parser.add_argument("--json", type=Path, help="also write the ratios and limits to this file")
+    args = parser.parse_args(argv)
+    table = json.loads(LIMITS.read_text())
+    names = args.only or [*CHECKS, "compile"]
+    began = time.perf_counter()
+    ratios = measure(names, args.repeats)
+    limits = limits_of(table, args.ci)
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    print(f"{'ratio':<24} {'measured':>9} {'limit':>7}   (load {load:.2f}, {time.perf_counter() - began:.0f} s)")
+    for name, ratio in ratios.items():
+        print(f"{name:<24} {ratio:>9.2f} {limits[name]:>7.2f}   {table[name]['what']}")
+    if args.record:
+        for name, ratio in ratios.items():
+            table[name]["measured"] = round(ratio, 2)
+        LIMITS.write_text(json.dumps(table, indent=2, ensure_ascii=False) + "\n")
+    if args.json:
+        args.json.write_text(json.dumps({"ratios": ratios, "limits": limits, "load": load}, indent=2))
+    failures = broken(ratios, limits)
+    for failure in failures:
+        print(f"guard: {failure}", file=sys.stderr)
+    return 1 if failures else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
