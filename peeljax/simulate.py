@@ -28,7 +28,7 @@ from .integrators.base import AbstractIntegrator
 from .integrators.reference import integrate_reference
 from .integrators.select import DEFAULT_MAX_JUMPS, integrator_for, refuse_with_dt, resolve_max_steps
 from .model import PeelingModel
-from .solution import Solution
+from .solution import Solution, is_traced
 
 __all__ = ["check_run_memory", "simulate", "simulate_reference"]
 
@@ -251,7 +251,7 @@ def simulate(
     solution = _run(integrator, ode, y0, float_array(t_final), ts)
     if solution.jump_sides is not None:  # on the host the rows in use; traced all (static shapes)
         solution = solution.jump_sides.merge(solution)
-    elif ts is not None and not isinstance(solution.ts, jax.core.Tracer):
+    elif ts is not None and not is_traced(solution):
         solution = solution.without_padding()  # the rows left for more steps
     return solution
 

@@ -227,6 +227,11 @@ class JumpRecord(eqx.Module):
         }
 
 
+def is_traced(tree) -> bool:
+    """Whether any array of ``tree`` is traced (inside ``jit``, ``vmap``, ``grad``, ``jvp``)."""
+    return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(tree))
+
+
 def jump_row_sources(n: int, pair_at, written, xp=jnp):
     """Where the rows of a dense output with both sides of its jumps come from.
 
@@ -310,7 +315,7 @@ class JumpSides(eqx.Module):
         n = np.shape(solution.ts)[-1]
         after = jnp.zeros(n, bool) if solution.after_jump is None else solution.after_jump
         grid = (solution.ts, solution.ys, solution.valid, after, solution.diagnostics)
-        if isinstance(solution.ts, jax.core.Tracer) or isinstance(self.written, jax.core.Tracer):
+        if is_traced((solution, self)):  # (under jax.jvp some leaves are traced, others not)
             *pairs, pair_at = self.unpacked(jnp, n)
             source, padding = jump_row_sources(n, pair_at, self.written)
             merged = jax.tree_util.tree_map(lambda g, q: jnp.concatenate([g, q])[source], grid, tuple(pairs))

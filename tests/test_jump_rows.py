@@ -207,3 +207,24 @@ def test_rows_after_those_in_use_are_not_evaluated_and_repeat_the_last(kind):
         else:  # forward mode only, as the plain while loop
             got, want = (jax.jvp(lambda r: loss(r, use), (rows,), (tangent,))[1] for use in (blocked, padded(count)))
         np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-13, atol=1e-13)
+
+
+def test_jump_rows_under_an_eager_jvp_are_merged_in_the_program():
+    """Under ``jax.jvp`` outside ``jit`` some of a run's arrays are traced and others (the output
+    times, the count of rows) are not: the jumps' rows are then merged at the static size,
+    ``len(ts) + 2·max_jumps``, as under ``jit`` — never on the host."""
+    import jax
+
+    ts = np.linspace(0.0, 0.2, 5)
+
+    def v(V):
+        return pj.simulate(V=V, tau=0.0, t_final=0.2, ts=ts, max_jumps=8, adjoint="forward").ys[:, 3]
+
+    values, tangents = jax.jvp(v, (1.1,), (1.0,))
+    assert values.shape == tangents.shape == (ts.size + 2 * 8,)
+    assert np.all(np.isfinite(np.asarray(tangents)))
+    on_host = np.asarray(v(1.1))  # the rows in use, merged on the host
+    values, used = np.asarray(values), on_host.size
+    assert ts.size < used < values.size
+    np.testing.assert_allclose(values[:used], on_host, rtol=1e-5)  # (another program: its steps may differ)
+    assert np.all(values[used:] == values[used - 1])  # the padding repeats the last row
