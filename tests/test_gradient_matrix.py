@@ -7,10 +7,12 @@ the slips). The parameters: a coefficient of φ (c1), V, τ and the spool's radi
 derivative is taken of a tight run (rtol 1e-9; the derivative of a run at a looser tolerance is
 that run's, off by the run's own error) and compared with central differences of runs at rtol
 1e-10 at two steps h and h/4 that agree with each other (the difference is shown stable before it
-is trusted). Reverse mode is checked against forward mode on the same run (at rtol 1e-6: at rtol
-1e-9, with ~5·10⁴ steps, the checkpointed loop's reverse pass gave derivatives off by up to
-2.5e-3 that moved with ``max_steps``, i.e. with where it recomputes steps: open, see
-docs/fitting.md; Tsit5's reverse mode is NaN after its second jump: open too). Where the run does not jump (τ = 0.01 and 0.1 over 0.3 s) the cell is the end
+is trusted). Reverse mode is checked against forward mode on the same run (at rtol 1e-6), for
+the α-method and Tsit5, and at two checkpoint layouts of the reverse loop (``max_steps``). Both
+used to fail: Tsit5's reverse mode was NaN after its second jump (a rejected attempt that
+overflowed got a zero cotangent, and 0·inf = NaN in its pullback), and an impasse the step
+passed rather than approached (decided by round-off, so by the program's layout) was
+differentiated as a singular passage (off by 10× at the 8th jump). Where the run does not jump (τ = 0.01 and 0.1 over 0.3 s) the cell is the end
 state's. ``fold="follow"`` has no cell: at τ = 1e-3 it follows the first slip's singular
 passage and then stalls at t = 0.187 s (status ``stopped``); at τ ≥ 0.01 nothing jumps in 0.3 s.
 The fast tier's cell is ``tests/test_jumps.py::test_gradients_through_fold_jumps_match_central_differences``;
@@ -96,17 +98,25 @@ def _cell(tau, solver=None, fold="jump", parameters=PARAMETERS, tolerance=5e-4):
     print(f"tau={tau} solver={solver} fold={fold}: worst relative difference {worst}")
 
 
-def _modes_agree(tau, solver=None, rtol=1e-6):
+def _modes_agree(tau, solver=None, rtol=1e-6, max_steps=400_000):
     """Reverse mode (the checkpointed loop, jax.jacrev) gives forward mode's derivative of the same run."""
     p0 = jnp.array([400.0, 1.1, tau, 0.1])
 
     def q(p, adjoint):
-        return _quantities(_run(p, tau_is_zero=False, solver=solver, fold="jump", rtol=rtol, adjoint=adjoint), True)
+        c1, V, tau, R = p
+        model = eqx.tree_at(lambda m: m.adhesion.c1, pj.PeelingModel(R=R), c1)
+        sol = pj.simulate(
+            model, V=V, tau=tau, t_final=T_FINAL, ts=jnp.array([0.0, T_FINAL]), rtol=rtol, atol=rtol * 1e-3,
+            solver=solver, adjoint=adjoint, max_jumps=64, max_steps=max_steps,
+        )  # fmt: skip
+        return jnp.concatenate([_quantities(sol, True), sol.jumps.t[N_JUMPS:14]])  # all 14 jumps in 0.3 s
 
     forward = np.asarray(jax.jacfwd(lambda p: q(p, "forward"))(p0))
     reverse = np.asarray(jax.jacrev(lambda p: q(p, "reverse"))(p0))
     assert np.all(np.isfinite(reverse))
-    np.testing.assert_allclose(reverse, forward, rtol=1e-6, atol=1e-9 * np.max(np.abs(forward)))
+    # (the two runs are different programs: where a step passes an impasse in one and stops short
+    # of it in the other, the states after it differ by ~1e-5, and so do their derivatives)
+    np.testing.assert_allclose(reverse, forward, rtol=1e-4, atol=1e-9 * np.max(np.abs(forward)))
 
 
 @pytest.mark.slow
@@ -118,7 +128,9 @@ def test_gradient_matrix(tau, solver):
 
 
 @pytest.mark.slow
-def test_reverse_mode_is_forward_mode():
-    """τ = 1e-3 with 14 jumps, every quantity and parameter, the α-method. (Tsit5's reverse mode
-    is NaN from the steps just after its second jump on: open, see docs/fitting.md.)"""
-    _modes_agree(1e-3)
+@pytest.mark.parametrize("solver, max_steps", [(None, 400_000), ("tsit5", 400_000), ("tsit5", 20_000)])
+def test_reverse_mode_is_forward_mode(solver, max_steps):
+    """τ = 1e-3 with 14 jumps, every quantity and parameter. Tsit5 with 400 000 steps at most keeps
+    every step's carry (no recomputation) and passes the 8th jump's impasse in its reverse-mode
+    run where the forward-mode run stops short of it; with 20 000 (199 checkpoints) it does not."""
+    _modes_agree(1e-3, solver, max_steps=max_steps)

@@ -47,6 +47,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from .._arrays import optional_float_array
+from .._cotangents import skip_zero_cotangents
 from .._validation import check_adjoint, check_max_steps
 from ..homogenized import ODE
 from ..solution import JumpRecord, JumpSides, Solution, StepDiagnostics, StopReason
@@ -283,6 +284,12 @@ def adaptive_loop(
     def running(c: _Carry):
         return (c.state.status == 0) & (clock(c.t, c.state.y) < t_final)
 
+    # Reverse mode: a rejected attempt gets a zero cotangent, and its pullback, where the attempt
+    # overflowed on its way to a rejected result, 0·inf = NaN; skip that pullback instead.
+    attempt_step = type(stepper).attempt
+    if kind == "checkpointed":
+        attempt_step = skip_zero_cotangents(attempt_step)
+
     def body(c: _Carry) -> _Carry:
         state = c.state
         if timed:  # the last step is found by its end's time, then cut (below)
@@ -293,7 +300,7 @@ def adaptive_loop(
             last = c.h >= remaining
             h = jnp.where(last, remaining, c.h)
         y_n = jax.lax.stop_gradient(state.y)
-        attempt = stepper.attempt(ode, c.t, h, state, controller.scale(y_n, y_n, is_log))
+        attempt = attempt_step(stepper, ode, c.t, h, state, controller.scale(y_n, y_n, is_log))
         new, solved = attempt.candidate, attempt.solved
         norm = jax.lax.stop_gradient(controller.error_norm(attempt.error, state.y, new.y, is_log, increment_mask))
         norm = jnp.where(solved, norm, jnp.inf)

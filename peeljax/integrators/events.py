@@ -324,10 +324,19 @@ def find_fold(
             return t0 + theta * h, interpolant.evaluate((t0 + theta * h)[None])[0]
         # The homogenized ODE's J_t crossing zero: located on the interpolant in value only (its
         # end, past the singular point, has no resolved tangents; reverse mode would carry their
-        # NaN even times a zero cotangent), differentiated from the step's start.
+        # NaN even times a zero cotangent). Where F̃·f changes sign too, a singular passage:
+        # differentiated from the step's start. Where it keeps its sign, an impasse the step
+        # passed rather than approached (whether it is predicted or crossed is decided by
+        # round-off: a run in forward mode and the same run in reverse mode differ there):
+        # differentiated as a predicted one, along the path from the reference state.
         t = jax.lax.stop_gradient(t0 + fold_fraction(ode, t0, h, interpolant) * h)
         y = jax.lax.stop_gradient(interpolant.evaluate(t[None])[0])
-        return schur_event(ode, t0, state.y, t, y, path=crossing_path)
+        passage = jax.lax.stop_gradient(state.drive * new.drive <= 0)
+        return jax.lax.cond(
+            passage,
+            lambda: schur_event(ode, t0, state.y, t, y, path=crossing_path),
+            lambda: schur_event(ode, *impasse_reference, t, y, path=impasse_path),
+        )
 
     def otherwise():
         t_end = t0 + h + jnp.where(predicted, delta, 0.0)
