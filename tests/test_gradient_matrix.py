@@ -15,8 +15,9 @@ passed rather than approached (decided by round-off, so by the program's layout)
 differentiated as a singular passage (off by 10× at the 8th jump). Where the run does not jump (τ = 0.01 and 0.1 over 0.3 s) the cell is the end
 state's. ``fold="follow"`` has no cell: at τ = 1e-3 it follows the first slip's singular
 passage and then stalls at t = 0.187 s (status ``stopped``); at τ ≥ 0.01 nothing jumps in 0.3 s.
-The fast tier's cell is ``tests/test_jumps.py::test_gradients_through_fold_jumps_match_central_differences``;
-these are ``slow``. Orbit statistics (τ = 0) are checked in ``tests/test_orbits.py``.
+All are ``slow``, as is the smallest cell, ``tests/test_jumps.py::test_gradients_through_fold_jumps_match_central_differences``
+(a program through fold jumps in reverse mode compiles for ~2 minutes); the fast tier checks the
+mechanism of the NaN fix, ``tests/test_cotangents.py``. Orbit statistics (τ = 0) are checked in ``tests/test_orbits.py``.
 """
 
 from __future__ import annotations
