@@ -21,10 +21,6 @@ import jax.numpy as jnp
 __all__ = ["skip_zero_cotangents"]
 
 
-def _is_float(x) -> bool:
-    return eqx.is_inexact_array(x)
-
-
 def skip_zero_cotangents(fn: Callable[..., Any]) -> Callable[..., Any]:
     """``fn`` with a reverse-mode rule that returns exact zeros, without running ``fn``'s
     pullback, for an incoming cotangent that is exactly zero on every output.
@@ -35,7 +31,7 @@ def skip_zero_cotangents(fn: Callable[..., Any]) -> Callable[..., Any]:
     """
 
     def call(*args):
-        diff, rest = eqx.partition(args, _is_float)
+        diff, rest = eqx.partition(args, eqx.is_inexact_array)
         rest_arrays, rest_static = eqx.partition(rest, eqx.is_array)
         static_out = []  # the outputs' non-array part and the dtypes of their integer arrays
 
@@ -46,7 +42,7 @@ def skip_zero_cotangents(fn: Callable[..., Any]) -> Callable[..., Any]:
             out_arrays, out_static = eqx.partition(out, eqx.is_array)
             if not static_out:
                 static_out.append((out_static, jax.tree.map(lambda x: x.dtype, out_arrays)))
-            return jax.tree.map(lambda x: x if _is_float(x) else x.astype(float), out_arrays)
+            return jax.tree.map(lambda x: x if eqx.is_inexact_array(x) else x.astype(float), out_arrays)
 
         @jax.custom_vjp
         def wrapped(diff, rest_arrays):
