@@ -4,7 +4,10 @@ A speed lost without noticing is a bug. Each check times two calls of peeljax (o
 peer) alternately in this one process, after their compilation, and divides the medians:
 
 * ``gradient_through_jumps``: ``jax.grad`` of the sum of the first 30 jump times w.r.t. c1
-  (V = 1.1, τ = 0, 3 s, 210 jumps, ``ts=[0, 3]``, ``max_jumps=512``) ÷ the same run forward;
+  (V = 1.1, τ = 0, 3 s, 210 jumps, ``ts=[0, 3]``, ``max_jumps=512``) ÷ the same run forward
+  (one perturbed number: reverse mode by a tangent of the plain loop);
+* ``gradient_checkpointed``: the same with ``adjoint="checkpointed"`` (the checkpointed loop's
+  pullback, what ``jax.grad`` takes for many parameters) ÷ the same run forward;
 * ``p1_jump_rows``: P1, ``simulate(V=1.1, tau=0.01, t_final=3, rtol=1e-5, atol=1e-7, ts=301
   points)`` with the default ``fold`` ÷ with ``fold="stop"`` (no jump happens: the room kept
   for jumps should cost nothing);
@@ -50,7 +53,7 @@ V = 1.1
 
 
 # ---------------------------------------------------------------------------- the calls
-def gradient_through_jumps():
+def gradient_through_jumps(adjoint="reverse"):
     """(gradient, forward): d/dc1 of the sum of the first 30 jump times through 210 jumps."""
     import equinox as eqx
     import jax
@@ -59,14 +62,15 @@ def gradient_through_jumps():
 
     import peeljax as pj
 
-    def jump_times(c1):
+    def jump_times(c1, adjoint="reverse"):
         law = eqx.tree_at(lambda a: a.c1, pj.AdhesionLaw(), c1)
         sol = pj.simulate(
-            pj.PeelingModel(adhesion=law), V=V, tau=0, t_final=3.0, ts=np.array([0.0, 3.0]), max_jumps=512
-        )
+            pj.PeelingModel(adhesion=law), V=V, tau=0, t_final=3.0, ts=np.array([0.0, 3.0]), max_jumps=512,
+            adjoint=adjoint,
+        )  # fmt: skip
         return jnp.sum(sol.jumps.t[:30])
 
-    forward, gradient = jax.jit(jump_times), jax.jit(jax.grad(jump_times))
+    forward, gradient = jax.jit(jump_times), jax.jit(jax.grad(lambda c1: jump_times(c1, adjoint)))
     c1 = jnp.asarray(400.0)
     return (lambda: gradient(c1)), (lambda: forward(c1))
 
@@ -178,6 +182,7 @@ def compile_ratio():
 
 CHECKS = {
     "gradient_through_jumps": gradient_through_jumps,
+    "gradient_checkpointed": lambda: gradient_through_jumps("checkpointed"),
     "p1_jump_rows": p1_jump_rows,
     "p6_vs_diffrax": p6_vs_diffrax,
     "orbit_vs_run": orbit_vs_run,

@@ -2,11 +2,16 @@
 
 V = 1.1 m/s, τ = 0 (the DAE with jumps; ``--tau 1e-3``: the homogenized ODE with its fold jumps,
 issue 42: at most 5× too), the paper's start, 3 s (≈ 210 jumps), error control.
-The gradient is d/dc1 of (the sum of the jump times + the mean of F at the slips), reverse mode
-(``adjoint="reverse"``, the checkpointed loop) and forward mode (``jax.jvp``, one tangent).
-Compile time is measured separately (the first call); medians of ``--repeats`` calls after it.
+The gradient is d/dc1 of (the sum of the jump times + the mean of F at the slips): reverse mode
+as ``jax.grad`` gets it by default (``adjoint="reverse"``: one perturbed number, so by a
+tangent of the plain loop, ``peeljax/integrators/adjoint.py``), reverse mode through the
+checkpointed loop (``adjoint="checkpointed"``, what ``jax.grad`` takes for many parameters) and
+forward mode (``jax.jvp``, one tangent). ``--tangents 1,4,8`` adds k tangents at once
+(``jax.vmap`` of ``jax.jvp``): the cost of a gradient with respect to k numbers by tangents,
+against which the limits in ``adjoint.TANGENT_LIMITS`` were set. Compile time is measured
+separately (the first call); medians of ``--repeats`` calls after it, the calls round-robin.
 
-    python benchmarks/jump_gradient_cost.py [--rtol 1e-6] [--repeats 15] [--tau 0]   # writes results/jump_gradient_cost[_tau=…].md
+    python benchmarks/jump_gradient_cost.py [--rtol 1e-6] [--repeats 15] [--tau 0] [--tangents 1,4,8]   # writes results/jump_gradient_cost[_tau=…].md
 
 The run is ``simulate``'s default at τ (at τ = 0 Tsit5 on the DAE in pseudo-time; at τ > 0 the α-method).
 """
@@ -14,6 +19,7 @@ The run is ``simulate``'s default at τ (at τ = 0 Tsit5 on the DAE in pseudo-ti
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import platform
 import statistics
@@ -45,16 +51,19 @@ def objective(c1, *, rtol, adjoint, tau=0.0, t_final=3.0):
     return jnp.sum(jnp.where(valid, jumps.t, 0.0)) + jnp.sum(jnp.where(up, jumps.F, 0.0)) / jnp.sum(up), jumps.count
 
 
-def timed(fn, repeats):
-    began = time.perf_counter()
-    jax.block_until_ready(fn())
-    first = time.perf_counter() - began
-    times = []
-    for _ in range(repeats):
+def timed_round_robin(calls, repeats):
+    """(first call, median of ``repeats`` later calls) per call, the later calls taken in turn."""
+    first, times = {}, {name: [] for name in calls}
+    for name, fn in calls.items():
         began = time.perf_counter()
         jax.block_until_ready(fn())
-        times.append(time.perf_counter() - began)
-    return first, statistics.median(times)
+        first[name] = time.perf_counter() - began
+    for _ in range(repeats):
+        for name, fn in calls.items():
+            began = time.perf_counter()
+            jax.block_until_ready(fn())
+            times[name].append(time.perf_counter() - began)
+    return [(name, first[name], statistics.median(times[name])) for name in calls]
 
 
 def main(argv=None):
@@ -62,26 +71,35 @@ def main(argv=None):
     parser.add_argument("--rtol", type=float, default=1e-6)
     parser.add_argument("--repeats", type=int, default=15)
     parser.add_argument("--tau", type=float, default=0.0)
+    parser.add_argument("--tangents", default="", help="comma-separated k: also time k tangents at once")
     args = parser.parse_args(argv)
     c1 = jnp.asarray(400.0)
+
+    def value(adjoint):
+        return lambda c: objective(c, rtol=args.rtol, adjoint=adjoint, tau=args.tau)[0]
+
+    def tangents(k):
+        def derivatives(c):
+            return jax.vmap(lambda t: jax.jvp(value("forward"), (c,), (t,))[1])(jnp.ones(k))
+
+        return jax.jit(derivatives)
+
     forward = jax.jit(lambda c: objective(c, rtol=args.rtol, adjoint="forward", tau=args.tau))
-    reverse_run = jax.jit(lambda c: objective(c, rtol=args.rtol, adjoint="reverse", tau=args.tau))
-    grad = jax.jit(jax.grad(lambda c: objective(c, rtol=args.rtol, adjoint="reverse", tau=args.tau)[0]))
-    jvp = jax.jit(lambda c: jax.jvp(lambda x: objective(x, rtol=args.rtol, adjoint="forward", tau=args.tau)[0], (c,), (1.0,)))
-    rows = []
-    for name, fn in (
-        ("forward run (lax loop)", lambda: forward(c1)),
-        ("forward run (checkpointed loop)", lambda: reverse_run(c1)),
-        ("gradient, reverse mode", lambda: grad(c1)),
-        ("derivative, forward mode (jvp)", lambda: jvp(c1)),
-    ):
-        rows.append((name, *timed(fn, args.repeats)))
+    programs = {
+        "forward run (plain loop)": forward,
+        "forward run (checkpointed loop)": jax.jit(value("checkpointed")),
+        "gradient, reverse mode (default)": jax.jit(jax.grad(value("reverse"))),
+        "gradient, checkpointed loop": jax.jit(jax.grad(value("checkpointed"))),
+        "derivative, forward mode (jvp)": jax.jit(lambda c: jax.jvp(value("forward"), (c,), (1.0,))),
+        **{f"{k} tangents at once": tangents(int(k)) for k in filter(None, args.tangents.split(","))},
+    }
+    rows = timed_round_robin({name: functools.partial(program, c1) for name, program in programs.items()}, args.repeats)
     jumps = int(forward(c1)[1])
     base = rows[0][2]
     table = [
         f"V = 1.1, tau = {args.tau:g}, 3 s, {jumps} jumps, rtol {args.rtol:g}; medians of {args.repeats} after the first call",
         f"{'':34} {'first call [s]':>15} {'median [s]':>11} {'/ forward':>10}",
-        *(f"{name:34} {first:>15.2f} {median:>11.3f} {median / base:>10.2f}" for name, first, median in rows),
+        *(f"{name:34} {first:>15.2f} {median:>11.4f} {median / base:>10.2f}" for name, first, median in rows),
     ]
     print("\n".join(table))
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")

@@ -118,10 +118,15 @@ def check_tolerance(name: str, value, upper: float = math.inf) -> None:
         raise ValueError(f"{name} must lie in (0, {upper:g}), got {_shown(value)!r}")
 
 
+ADJOINTS = ("reverse", "checkpointed", "forward")
+
+
 def check_adjoint(adjoint) -> None:
-    """How a loop is differentiated: "reverse" (jax.grad) or "forward" (jax.jvp)."""
-    if adjoint not in ("reverse", "forward"):
-        raise ValueError(f"adjoint must be 'reverse' or 'forward', got {adjoint!r}")
+    """How a loop is differentiated: "reverse" (jax.grad: tangents of a few perturbed inputs,
+    else the checkpointed loop), "checkpointed" (jax.grad, always the checkpointed loop) or
+    "forward" (jax.jvp)."""
+    if adjoint not in ADJOINTS:
+        raise ValueError(f"adjoint must be one of {', '.join(map(repr, ADJOINTS))}, got {adjoint!r}")
 
 
 MAX_STEPS_LIMIT = 2**31 - 1  # the loop counts attempts in int32

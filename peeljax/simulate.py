@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
+from typing import Literal
+
 import diffrax
 import equinox as eqx
 import jax
@@ -22,6 +25,7 @@ from ._validation import (
 )
 from .constrained import ConstrainedDAE
 from .homogenized import HomogenizedODE
+from .integrators.adjoint import TANGENT_BYTES, TANGENT_LIMITS, reverse_by_tangents
 from .integrators.alpha import AlphaMethod
 from .integrators.uniform_mesh import UniformMesh
 from .integrators.base import AbstractIntegrator
@@ -87,6 +91,32 @@ def _initial_state(ode, y0):
 
 
 def _integrate(integrator, ode, y0, t_final, ts):
+    """The run; ``jax.grad`` of it by tangents of the few numbers perturbed
+    (:func:`~peeljax.integrators.adjoint.reverse_by_tangents`) where the integrator's adjoint
+    is ``"reverse"``. Here, before the paper's initial data are computed from the model, a
+    φ coefficient is one perturbed number (after, the four of y0 too)."""
+    inputs = (integrator, ode, y0, t_final, ts)
+    if getattr(integrator, "adjoint", None) == "reverse":
+        return reverse_by_tangents(_integrate_with, inputs, _tangent_limit(integrator, ode, ts))
+    return _integrate_with(inputs, None)
+
+
+def _tangent_limit(integrator, ode, ts) -> int:
+    """Most perturbed numbers a reverse-mode derivative takes by tangents: the measured
+    break-even (:data:`~peeljax.integrators.adjoint.TANGENT_LIMITS`), fewer where the k tangents
+    of the output rows would take more than ``TANGENT_BYTES``."""
+    events = getattr(integrator, "events", None)
+    jumps = 0 if events is None else int(events.max_jumps)
+    rows = integrator.max_steps + 1 + jumps if ts is None else ts.shape[0] + 2 * jumps
+    limit = TANGENT_LIMITS["dae" if isinstance(ode, ConstrainedDAE) else "ode"]
+    return int(min(limit, TANGENT_BYTES // (rows * ROW_BYTES["steps"])))
+
+
+def _integrate_with(inputs, kind: Literal["lax", "checkpointed"] | None):
+    """The run with a loop of ``kind`` (None: the integrator's own)."""
+    integrator, ode, y0, t_final, ts = inputs
+    if kind is not None:
+        integrator = dataclasses.replace(integrator, adjoint="forward" if kind == "lax" else "checkpointed")
     return integrator.integrate(ode, _initial_state(ode, y0), 0.0, t_final, ts)
 
 
@@ -198,8 +228,12 @@ def simulate(
             accepted steps are the output (``ts=None``: memory grows with it), 10⁷ with
             output at ``ts`` (nothing is kept per step: the budget only guards against a
             run that never ends).
-        adjoint: error control only: ``"reverse"`` (default; a checkpointed while loop, for
-            ``jax.grad``) or ``"forward"`` (a plain while loop, for ``jax.jvp``/``jacfwd``).
+        adjoint: error control only: ``"reverse"`` (default: ``jax.grad`` works; with few
+            perturbed numbers — at most 7 at τ = 0, 16 at τ > 0 — by their tangents through
+            the plain while loop, otherwise by the checkpointed loop's pullback; a run with
+            no derivative takes the plain loop), ``"checkpointed"`` (``jax.grad`` always
+            through the checkpointed while loop: memory bounded, any number of parameters)
+            or ``"forward"`` (the plain while loop, for ``jax.jvp``/``jacfwd``).
         checkpoint_every: uniform mesh only, for reverse-mode gradients of long runs: chunks
             of this many steps under ``jax.checkpoint`` (``"sqrt"``: ≈ √N), memory ∝ √N (see
             :func:`peeljax.integrate_alpha`); values are unchanged.
@@ -228,9 +262,9 @@ def simulate(
     Gradients through a run with jumps follow the jumps: each jump time by the implicit
     function theorem on its fold event, the state after it through the constraint (see
     :mod:`peeljax.integrators.events`; the step sizes and the number of jumps are held fixed).
-    Use ``adjoint="reverse"`` (``jax.grad``) for derivatives of jump times from the paper's
-    start: ``"forward"`` (``jax.jvp``) differentiates the first, tangential slip inexactly
-    (measured in ``docs/fitting.md``); on transversal jumps the two agree to ~2e-4.
+    ``jax.grad`` with respect to one φ coefficient costs 1.1× the run at τ = 0 and 2× at
+    τ = 1e-3 through 210 and 158 jumps (``benchmarks/results/jump_gradient_cost*.md``); the
+    checkpointed loop 4.4× and 14.7×.
 
     V, tau, rho, y0, the model's parameters and the adhesion coefficients are traced: ``jit``,
     ``vmap`` and ``grad`` work over them without recompiling. ``dt`` and ``t_final`` set the

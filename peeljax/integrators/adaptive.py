@@ -511,7 +511,7 @@ def integrate_adaptive(
             return physical(stepper, y), local_index(J, ode.tau)
 
         observer = DenseOutput(jnp.asarray(ts, float), jump_rows, row_values)
-    kind = "checkpointed" if adjoint == "reverse" else "lax"
+    kind = "lax" if adjoint == "forward" else "checkpointed"
     ode, final = adaptive_loop(
         ode, stepper, y0, t0, t_final, observer,
         controller=controller, dt0=dt0, dtmin=dtmin, max_steps=max_steps, kind=kind, events=events,
@@ -699,7 +699,7 @@ class ErrorControl(AbstractIntegrator):
         stepper = self.stepper
         carried_ode, final = adaptive_loop(
             ode, stepper, y0, t0, t_final, observer, controller=self.controller, dt0=None, dtmin=self.dtmin,
-            max_steps=self.max_steps, kind="checkpointed" if self.adjoint == "reverse" else "lax",
+            max_steps=self.max_steps, kind="lax" if self.adjoint == "forward" else "checkpointed",
             events=self.events,
         )  # fmt: skip
         start_failed = (final.attempts == 0) & (final.state.status != 0)

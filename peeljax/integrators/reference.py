@@ -147,7 +147,7 @@ class DiffraxIntegrator(AbstractIntegrator):
         dt0 = 1e-6 * span if self.dt0 is None else self.dt0
         dtmin = jnp.minimum(1e-12 * span, 3e-12) if self.dtmin is None else self.dtmin
         controller = diffrax.PIDController(rtol=self.rtol, atol=self.atol, dtmin=dtmin, force_dtmin=False)
-        adjoint = diffrax.RecursiveCheckpointAdjoint() if self.adjoint == "reverse" else diffrax.ForwardMode()
+        adjoint = diffrax.ForwardMode() if self.adjoint == "forward" else diffrax.RecursiveCheckpointAdjoint()
         return diffrax.diffeqsolve(
             diffrax.ODETerm(lambda t, y, args: ode.evaluate(y).psi), self.solver, t0, t_final, dt0, jnp.asarray(y0, float),
             saveat=saveat, stepsize_controller=controller, max_steps=self.max_steps, adjoint=adjoint, throw=False,

@@ -1,0 +1,115 @@
+"""Reverse mode through a run: by forward tangents when few inputs are perturbed.
+
+``jax.grad`` of a run needs its vector–Jacobian product. The checkpointed while loop gives it
+by running every step's pullback backwards; for the α-method at τ > 0 each pullback rebuilds
+the step's exact Newton matrix (four tangents of ψ, itself holding the model's Jacobian), so
+the gradient through 158 jumps costs 17× the run (``benchmarks/jump_gradient_cost.py --tau
+1e-3``). The run's forward mode (the plain loop under ``jax.jvp``) reuses the kept matrix
+and costs 2.5× with one tangent. The usual ``jax.grad`` perturbs few numbers (one or a few of
+φ's coefficients, V, τ): with k perturbed scalars, k tangents of the plain loop give the
+whole Jacobian of the run with respect to them, and the cotangent is contracted with it.
+
+:func:`reverse_by_tangents` is that dispatch, decided at trace time from the perturbed leaves
+(``equinox.filter_custom_vjp``): at most ``limit`` perturbed scalars, tangents; more, the
+checkpointed loop's pullback (memory bounded by its checkpoints). Both give the derivative
+of the discrete run with its step sizes held fixed; they are different programs, so where
+round-off decides a step the two may differ as two runs would (``docs/fitting.md``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jax.flatten_util import ravel_pytree
+
+__all__ = ["TANGENT_BYTES", "TANGENT_LIMITS", "reverse_by_tangents"]
+
+# Most perturbed scalars differentiated by tangents, above which the checkpointed pullback is
+# faster (3 s at V = 1.1, rtol 1e-6, benchmarks/jump_gradient_cost.py --tangents): the DAE
+# (τ = 0, 210 jumps) 1, 2, 4 tangents 1.1×, 1.3×, 1.7× the run, 8 tangents 8.4×, the
+# checkpointed loop 4.4×; the homogenized ODE (τ = 1e-3, 158 jumps) 1, 4, 16 tangents 2.0×,
+# 2.7×, 5.1×, the checkpointed loop 14.7×.
+TANGENT_LIMITS = {"dae": 4, "ode": 16}
+# Most bytes the k tangents of a run's output rows may take (they are kept for the backward pass).
+TANGENT_BYTES = 256 * 2**20
+
+Solve = Callable[[Any, Literal["lax", "checkpointed"]], Any]
+
+
+def reverse_by_tangents(solve: Solve, inputs: Any, limit: int) -> Any:
+    """``solve(inputs, "lax")``, differentiated in reverse mode by tangents of the perturbed inputs.
+
+    Args:
+        solve: ``solve(inputs, kind)``, the run with its loop of ``kind``: ``"lax"`` (a plain
+            while loop: forward mode) or ``"checkpointed"`` (reverse mode). A function of its
+            arguments alone (it closes over no traced value).
+        inputs: every input a derivative may be taken with respect to (a pytree).
+        limit: most perturbed scalars that take tangents (static).
+
+    Returns:
+        ``solve``'s output. Its reverse-mode derivative with respect to the k perturbed
+        scalars of ``inputs``: k ≤ ``limit``, the cotangent contracted with the k tangents of
+        the plain loop (``jax.vmap`` of ``jax.jvp``); otherwise the checkpointed loop's pullback.
+        Forward mode (``jax.jvp``) is refused, as for any ``custom_vjp``: call the plain loop.
+    """
+    return _reverse(inputs, solve, limit)
+
+
+@eqx.filter_custom_vjp
+def _reverse(inputs, solve, limit):
+    return solve(inputs, "lax")
+
+
+@_reverse.def_fwd
+def _reverse_fwd(perturbed, inputs, solve, limit):
+    diff, fixed = eqx.partition(inputs, perturbed)
+    flat, unravel = ravel_pytree(diff)
+    static = []  # the output's part that is not an array (kept from the trace)
+
+    def arrays(kind):
+        """The run as a function of the perturbed scalars: its float arrays, and the rest as aux."""
+
+        def run(params):
+            out = solve(eqx.combine(unravel(params), fixed), kind)
+            floats, rest = eqx.partition(out, eqx.is_inexact_array)
+            rest_arrays, rest_static = eqx.partition(rest, eqx.is_array)
+            if not static:
+                static.append(rest_static)
+            return floats, rest_arrays
+
+        return run
+
+    if flat.size == 0:  # nothing perturbed that the run reads
+        floats, rest = arrays("lax")(flat)
+        return eqx.combine(floats, rest, static[0]), ("tangents", jax.tree.map(lambda x: x[None, :0], floats), None)
+    if flat.size > limit:
+        floats, pullback, rest = jax.vjp(arrays("checkpointed"), flat, has_aux=True)
+        return eqx.combine(floats, rest, static[0]), ("pullback", pullback, floats)
+
+    def tangent(direction):
+        return jax.jvp(arrays("lax"), (flat,), (direction,), has_aux=True)
+
+    floats, tangents, rest = jax.vmap(tangent, out_axes=(None, 0, None))(jnp.eye(flat.size, dtype=flat.dtype))
+    return eqx.combine(floats, rest, static[0]), ("tangents", tangents, None)
+
+
+@_reverse.def_bwd
+def _reverse_bwd(residuals, cotangent, perturbed, inputs, solve, limit):
+    how, derivative, floats = residuals
+    flat, unravel = ravel_pytree(eqx.partition(inputs, perturbed)[0])
+    if how == "pullback":  # None (a symbolic zero) becomes zeros for jax.vjp's pullback
+        leaves, treedef = jax.tree_util.tree_flatten(floats)
+        cts = treedef.flatten_up_to(cotangent)
+        filled = [jnp.zeros_like(x) if c is None else c for x, c in zip(leaves, cts, strict=True)]
+        (gradient,) = derivative(jax.tree_util.tree_unflatten(treedef, filled))
+        return unravel(gradient)
+    leaves, treedef = jax.tree_util.tree_flatten(derivative)
+    total = jnp.zeros(flat.size, flat.dtype)
+    for c, t in zip(treedef.flatten_up_to(cotangent), leaves, strict=True):
+        if c is not None:  # a zero cotangent on a NaN tangent (a padded row past a stop) adds 0
+            total = total + jnp.where(c != 0, c * t, 0.0).reshape(flat.size, -1).sum(axis=1)
+    return unravel(total)
