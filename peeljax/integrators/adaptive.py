@@ -30,7 +30,7 @@ with NaN (``valid`` False).
 
 Derivatives: the loop is equinox's checkpointed while loop (reverse mode, as diffrax's
 ``RecursiveCheckpointAdjoint``) or a plain ``lax.while_loop`` (forward mode), chosen by
-``adjoint``. Step sizes and accept/reject decisions are held constant in the derivative
+``adjoint`` (:func:`peeljax.simulate` chooses per derivative: :mod:`.adjoint`). Step sizes and accept/reject decisions are held constant in the derivative
 (``stop_gradient`` on the controller, as diffrax does).
 """
 
@@ -483,7 +483,8 @@ def integrate_adaptive(
             1e-12·(t_final − t0), at most 3e-12: the first steps from the paper's start and after
             a jump are ~1e-11 s however long the run, so a dtmin ∝ t_final would stop a long one).
         max_steps: most step attempts, accepted or rejected (static).
-        adjoint: "reverse" (checkpointed while loop: ``jax.grad``) or "forward" (``jax.jvp``).
+        adjoint: "reverse" or "checkpointed" (checkpointed while loop: ``jax.grad``) or
+            "forward" (``jax.jvp``).
         events: what happens at the folds of φ (:class:`~peeljax.integrators.events.FoldEvents`:
             jump, stop or follow; the ODE must be a :class:`~peeljax.homogenized.FoldingODE`);
             None: the paper's stop at an impasse point.
@@ -659,7 +660,9 @@ class ErrorControl(AbstractIntegrator):
         controller: the :class:`PIController` (rtol, atol, step-size update).
         dtmin: a proposed step below it stops the run (``STALLED``); None: 1e-12·(t_final − t0), at most 3e-12.
         max_steps: most step attempts, accepted or rejected (static).
-        adjoint: ``"reverse"`` (a checkpointed while loop, for ``jax.grad``) or ``"forward"``
+        adjoint: ``"reverse"`` (``simulate``: tangents of a few perturbed numbers or the
+            checkpointed loop, :mod:`.adjoint`; called directly, the checkpointed loop),
+            ``"checkpointed"`` (the checkpointed while loop, for ``jax.grad``) or ``"forward"``
             (a plain while loop: ``jax.jvp``, and the fastest run when nothing is differentiated).
         events: what happens at the folds of φ (None: the paper's impasse stop).
     """

@@ -28,12 +28,12 @@ from jax.flatten_util import ravel_pytree
 
 __all__ = ["TANGENT_BYTES", "TANGENT_LIMITS", "reverse_by_tangents"]
 
-# Most perturbed scalars differentiated by tangents, above which the checkpointed pullback is
-# faster (3 s at V = 1.1, rtol 1e-6, benchmarks/jump_gradient_cost.py --tangents): the DAE
-# (τ = 0, 210 jumps) 1, 2, 4 tangents 1.1×, 1.3×, 1.7× the run, 8 tangents 8.4×, the
-# checkpointed loop 4.4×; the homogenized ODE (τ = 1e-3, 158 jumps) 1, 4, 16 tangents 2.0×,
-# 2.7×, 5.1×, the checkpointed loop 14.7×.
-TANGENT_LIMITS = {"dae": 4, "ode": 16}
+# Most perturbed scalars differentiated by tangents (3 s at V = 1.1, rtol 1e-6, the run's
+# time ×, benchmarks/jump_gradient_cost.py --tangents, results/jump_gradient_cost*.md): the DAE
+# (τ = 0, 210 jumps) 1, 4, 7 tangents 1.1, 1.7, 2.1, then a step, 8 tangents 7.7, the
+# checkpointed loop 4.3; the homogenized ODE (τ = 1e-3, 158 jumps) 1, 4, 16 tangents 2.0, 2.7,
+# 5.1, 32 tangents 8.1, the checkpointed loop 14.7.
+TANGENT_LIMITS = {"dae": 7, "ode": 16}
 # Most bytes the k tangents of a run's output rows may take (they are kept for the backward pass).
 TANGENT_BYTES = 256 * 2**20
 

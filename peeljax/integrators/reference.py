@@ -117,7 +117,8 @@ class DiffraxIntegrator(AbstractIntegrator):
         dtmin: smallest step (None: 1e-12 of the span, at most 3e-12).
         dt0: first step (None: 1e-6 of the span).
         max_steps: diffrax's step budget (static).
-        adjoint: ``"reverse"`` (``RecursiveCheckpointAdjoint``, for ``jax.grad``) or
+        adjoint: ``"reverse"`` or ``"checkpointed"`` (``RecursiveCheckpointAdjoint``, for
+            ``jax.grad``; ``simulate`` takes tangents for a few perturbed numbers) or
             ``"forward"`` (``ForwardMode``, for ``jax.jvp``).
     """
 
