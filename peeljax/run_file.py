@@ -13,12 +13,12 @@ import os
 
 import numpy as np
 
-from ._atomic import write_npz
+from ._atomic import write_npz, write_text
 from ._files import META_KEY, STATE_UNITS, _json_safe, meta_array
 from .adhesion import AdhesionLaw
 from .model import PeelingModel
 
-__all__ = ["RUN_UNITS", "run_arrays", "write_run"]
+__all__ = ["RUN_UNITS", "TEXT_COLUMNS", "run_arrays", "write_run", "write_run_text"]
 
 RUN_UNITS: dict[str, str] = {
     "t": "s", **STATE_UNITS, "F": "N", "t_stop": "s", "V": "m/s", "tau": "s", "dt": "s", "t_final": "s",
@@ -116,3 +116,34 @@ def write_run(path: str | os.PathLike, solution, **run) -> None:
         if key not in run:
             raise TypeError(f"save needs the run's {key} (save(path, V=..., tau=...)): the Solution does not hold it")
     write_npz(path, run_arrays(solution, **run))
+
+
+# The columns of a run written as text: the rows' arrays, the constant V, units in the header.
+TEXT_COLUMNS = ("t", "alpha", "omega", "u", "v", "F", "V", "after_jump")
+
+
+def write_run_text(path: str | os.PathLike, solution, **run) -> None:
+    """``solution`` as comma-separated text: ``#`` lines with the run's settings, a header
+    ``t [s],alpha [rad],omega [rad/s],u [m],v [m/s],F [N],V [m/s],after_jump`` and one row per
+    output time up to a stop (both sides of a jump: two rows at its time, ``after_jump`` 1 on the
+    second; the rows after a stop, NaN in the .npz, are left out). ``peeljax fit --data`` reads it as a record (:func:`peeljax.fit.read_force_record`:
+    the rows not after a jump). ``run``: as :func:`write_run`."""
+    arrays = run_arrays(solution, **run)
+    n = arrays["t"].shape[0]
+    rows = {"V": np.full(n, float(arrays["V"])), "after_jump": arrays.get("after_jump", np.zeros(n, bool))}
+    valid = np.asarray(arrays["valid"], bool)
+    columns = [np.asarray(rows[name] if name in rows else arrays[name], dtype=float)[valid] for name in TEXT_COLUMNS]
+    header = ",".join(name if name == "after_jump" else f"{name} [{RUN_UNITS[name]}]" for name in TEXT_COLUMNS)
+    settings = (
+        f"# peeljax run: V = {_cell(arrays['V'])} m/s, tau = {_cell(arrays['tau'])} s, {arrays['status']} "
+        f"({arrays['reason']}), t_stop = {_cell(arrays['t_stop'])} s, method {arrays['method']}"
+    )
+    phi = str(arrays["phi_json"]) or "a Python function"
+    cells = [[_cell(x) for x in column] for column in columns[:-1]] + [["1" if x else "0" for x in columns[-1]]]
+    lines = [settings, f"# phi: {phi}", header, *(",".join(row) for row in zip(*cells))]
+    write_text(path, "\n".join(lines) + "\n")
+
+
+def _cell(x) -> str:
+    """The shortest text that reads back as the same float64."""
+    return repr(float(x))

@@ -19,6 +19,8 @@ written through :mod:`peeljax._atomic`: a failed write leaves the previous file 
 
 from __future__ import annotations
 
+import errno
+
 import json
 import math
 from collections.abc import Callable
@@ -238,6 +240,12 @@ def register_reader(kind: str, npz=None, netcdf=None) -> None:
         NETCDF_READERS[kind] = netcdf
 
 
+def _kinds_read() -> str:
+    """The kinds of file :func:`load` reads, in words."""
+    names = [kind.replace("_", " ").replace("-", " ") for kind in NPZ_READERS]
+    return ", ".join(("an " if name[0] in "aeiou" else "a ") + name for name in names)
+
+
 def _kind(arrays: dict, name: str) -> str:
     meta = read_meta(arrays, name)
     if meta is not None and isinstance(meta.get("kind"), str):
@@ -263,10 +271,13 @@ def load(path: str | Path):
     read with ``allow_pickle=False``; netCDF needs ``pip install "peeljax[xarray]"``.
 
     Raises:
+        FileNotFoundError: there is no file at ``path``.
         ValueError: naming the file, when it cannot be read, is damaged, is another kind of
             file, or lacks or misshapes the arrays of its kind.
     """
     name = str(path)
+    if not Path(name).exists():
+        raise FileNotFoundError(errno.ENOENT, "no such file (pj.load reads the files peeljax writes)", name)
     if Path(name).suffix.lower() == ".nc":
         dataset = read_netcdf(path)
         kind = dataset.attrs.get("kind")
@@ -277,7 +288,7 @@ def load(path: str | Path):
             return NETCDF_READERS[kind](dataset, name)
         except (KeyError, TypeError, ValueError) as error:
             raise ValueError(f"{name!r} is malformed: not a peeljax {kind} ({error})") from None
-    arrays = read_npz(path, fix="expected an .npz written by peeljax (a run, a sweep or a stick-slip map)")
+    arrays = read_npz(path, fix=f"expected an .npz written by peeljax (one of: {_kinds_read()})")
     kind = _kind(arrays, name)
     if kind not in NPZ_READERS:
         raise ValueError(

@@ -126,6 +126,58 @@ BAD = [
 ]
 
 
+def test_a_tau_0_run_file_is_read_and_asks_for_tau(tmp_path, monkeypatch):
+    """``simulate --tau 0 --out`` writes two rows at each jump (``after_jump``): fit --data reads
+    them as one, the left limit; without --tau it says the runs were at τ = 0 and what to give,
+    with --tau it reaches the fit with strictly increasing times."""
+    run = tmp_path / "rec.npz"
+    code, _, err = run_cli(["simulate", "--V", "1.1", "--tau", "0", "--t-final", "0.3", "--save-dt", "0.001",
+                            "--out", str(run)])  # fmt: skip
+    assert code == 0, err
+    with np.load(run, allow_pickle=False) as data:
+        assert data["after_jump"].sum() >= 2
+    seen = {}
+
+    class Reached(Exception):
+        pass
+
+    def fake(observations, **kwargs):
+        seen["observations"], seen["tau"] = observations, kwargs.get("tau")
+        raise Reached
+
+    monkeypatch.setattr("peeljax.fit.fit_adhesion", fake)
+    code, stdout, stderr = run_cli(["fit", "--data", str(run), "--free", "c1", "--out", str(tmp_path / "f.json")])
+    assert_refused(code, stderr, "--data", "tau = 0", "--tau", stdout=stdout)
+    with pytest.raises(Reached):
+        run_cli(["fit", "--data", str(run), "--free", "c1", "--tau", "1e-3", "--out", str(tmp_path / "f.json")])
+    (observation,) = seen["observations"]
+    assert np.all(np.diff(observation.t) > 0) and seen["tau"] == 1e-3
+
+
+
+def test_simulate_out_csv_is_a_text_record_of_the_run(tmp_path):
+    """``simulate --out run.csv``: the run's rows as text with a header and units; read back as a
+    force record, its left limits are those of the same run's .npz."""
+    from peeljax.fit import read_force_record
+    from peeljax.fit.records import read_npz
+
+    argv = ["simulate", "--V", "1.1", "--tau", "0", "--t-final", "0.3", "--save-dt", "0.001"]
+    for name in ("run.csv", "run.npz"):
+        code, _, err = run_cli([*argv, "--out", str(tmp_path / name)])
+        assert code == 0, err
+    lines = (tmp_path / "run.csv").read_text().splitlines()
+    assert lines[0].startswith("# peeljax run: V = 1.1 m/s, tau = 0.0 s, completed")
+    assert lines[2] == "t [s],alpha [rad],omega [rad/s],u [m],v [m/s],F [N],V [m/s],after_jump"
+    with np.load(tmp_path / "run.npz", allow_pickle=False) as data:
+        assert len(lines) - 3 == data["t"].size and sum(line.endswith(",1") for line in lines) == data["after_jump"].sum()
+    text = read_force_record(tmp_path / "run.csv")
+    (npz,), _ = read_npz(tmp_path / "run.npz")
+    assert text.V == 1.1
+    for quantity in ("v", "F", "alpha"):
+        np.testing.assert_array_equal(text.series(quantity)[0], npz.series(quantity)[0])
+        np.testing.assert_allclose(text.series(quantity)[1], npz.series(quantity)[1], rtol=0, atol=0)
+
+
 @pytest.mark.parametrize(("options", "name", "allowed"), BAD, ids=[" ".join(o) for o, *_ in BAD])
 def test_bad_input_exits_2_before_fitting(options, name, allowed, no_fit, good_npz, tmp_path):
     files = _bad_files(tmp_path)

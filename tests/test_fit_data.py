@@ -128,6 +128,8 @@ BAD_RECORDS = {
     "ragged whitespace": ("t F\n0 1\n1\n", 3, None, ["1 cells separated by whitespace"]),
     "non-increasing t": ("t,F\n0,1\n# gap\n1,2\n1,3\n", 5, "t", ["increase strictly", "line 4"]),
     "negative t": ("t,F\n-1,1\n1,2\n", 2, "t", ["negative time"]),
+    "negative F": ("t,F\n0,1\n0.5,-5\n1,2\n", 3, "F", [">= 0 N", "tension", "-5", "t = 0.5 s"]),
+    "negative v": ("t,F,v\n0,1,0.1\n1,2,-0.2\n", 3, "v", [">= 0 m/s", "peeling velocity"]),
     "empty file": ("", None, None, ["empty"]),
     "comments only": ("# nothing\n\n", None, None, ["no header"]),
     "header only": ("# c\nt,F\n", 2, None, ["header only"]),
@@ -229,6 +231,9 @@ def _bad_npz(tmp_path):
         "text tau": ({"V": 1.0, "t": t, "v": t, "tau": "0.1"}, "tau", "must be a number"),
         "missing v": ({"V": 1.0, "t": t}, "v", "missing 'v'"),
         "negative V": ({"V": -1.0, "t": t, "v": t}, "V", "(0, inf)"),
+        "negative F": ({"V": 1.0, "t": t, "v": t, "F": t - 0.3}, "F", ">= 0 N"),
+        "negative v": ({"V": 1.0, "t": t, "v": t - 0.3}, "v", ">= 0 m/s"),
+        "after_jump not booleans": ({"V": 1.0, "t": t, "v": t, "after_jump": t}, "after_jump", "booleans"),
     }
     for name, (arrays, *_) in cases.items():
         np.savez(tmp_path / f"{name}.npz", **arrays)
@@ -247,6 +252,9 @@ def _bad_npz(tmp_path):
         "text tau",
         "missing v",
         "negative V",
+        "negative F",
+        "negative v",
+        "after_jump not booleans",
     ],
 )
 def test_bad_npz_refused_naming_file_and_field(case, tmp_path):
@@ -257,6 +265,35 @@ def test_bad_npz_refused_naming_file_and_field(case, tmp_path):
     message = str(error.value)
     assert error.value.column == field and f"field {field!r}" in message and str(path) in message, message
     assert word in message, message
+
+
+def test_a_run_file_reads_as_a_record_of_left_limits(tmp_path):
+    """A ``simulate --out`` file keeps both sides of every jump (two rows at its time, the second
+    in ``after_jump``); as data its rows are the left limits, one per time, so it can be fitted."""
+    import peeljax as pj
+    from peeljax.run_file import write_run
+
+    sol = pj.simulate(V=1.1, tau=0.0, t_final=0.4, ts=np.linspace(0.0, 0.4, 201))
+    assert int(sol.jumps.count) >= 2 and np.any(np.diff(np.asarray(sol.ts)) == 0)
+    path = tmp_path / "run.npz"
+    write_run(path, sol, V=1.1, tau=0.0)
+    (observation,), settings = read_npz(path)
+    after = np.asarray(sol.after_jump)
+    t_v, v = observation.series("v")
+    assert np.all(np.diff(t_v) > 0) and settings["tau"] == 0.0
+    # every time of the run once, with the state before the jump at a jump's time
+    np.testing.assert_array_equal(t_v, np.unique(np.asarray(sol.ts)))
+    for t_jump, v_before in zip(np.asarray(sol.jumps.t)[: int(sol.jumps.count)], np.asarray(sol.jumps.v_before)):
+        np.testing.assert_allclose(v[t_v == t_jump], v_before, rtol=1e-12)
+    assert np.sum(after) == int(sol.jumps.count)
+    t_F, F = observation.series("F")
+    np.testing.assert_array_equal(t_F, t_v)
+    assert np.all(F > 0)
+    # an output time equal to a jump's time: its row holds the state before the jump, as the next
+    np.savez(path, V=1.1, t=[0.0, 1.0, 1.0, 1.0, 2.0], v=[0.1, 0.2, 0.2, 3.0, 2.5],
+             after_jump=np.array([False, False, False, True, False]))  # fmt: skip
+    (observation,), _ = read_npz(path)
+    np.testing.assert_array_equal(observation.series("v"), ([0.0, 1.0, 2.0], [0.1, 0.2, 2.5]))
 
 
 # ---------------------------------------------------------------------------- stick-slip tables

@@ -164,8 +164,13 @@ def test_load_refuses_malformed_files_naming_them(tmp_path):
         pj.load(tmp_path / "other.npz")
     with pytest.raises(ValueError, match="1-D of one length"):
         pj.load(tmp_path / "lengths.npz")
-    with pytest.raises(ValueError, match="not a readable .npz"):
+    with pytest.raises(FileNotFoundError, match="no such file"):
         pj.load(tmp_path / "missing.npz")
+    # a damaged file names every kind pj.load reads, orbits and diagrams among them
+    (tmp_path / "damaged.npz").write_bytes(b"PK\x03\x04 not the rest of a zip archive")
+    with pytest.raises(ValueError, match="damaged") as error:
+        pj.load(tmp_path / "damaged.npz")
+    assert all(kind in str(error.value) for kind in ("a run", "an orbit", "an orbit diagram", "a sweep", "a stick slip map"))
 
 
 def test_a_damaged_run_file_is_refused(tmp_path):

@@ -441,8 +441,7 @@ def _validate_records(args: argparse.Namespace, observations: list[Observation],
     if points:
         check_fit_samples(points, [f"--data {name}" for name, (kind, _) in
                                    zip(_files_of(args.data, observations), decided) if kind == "points"], "--decimate")  # fmt: skip
-    tau = args.tau if args.tau is not None else defaults.get("tau", 0.01)
-    checked(f"(0, {TAU_MAX:g}]", check_tau, tau)  # the τ of records fitted point by point
+    tau = _points_tau(args, defaults)  # the τ of records fitted point by point
     statistics = None
     if args.statistics is not None:
         from ..fit.stick_slip_table import STATISTICS
@@ -598,6 +597,20 @@ def _check_run_options(args: argparse.Namespace) -> None:
             raise ValueError(f"--quantities: unknown {unknown}; allowed: {', '.join(QUANTITIES)}")
 
 
+def _points_tau(args: argparse.Namespace, defaults: dict) -> float:
+    """τ of a fit point by point: --tau, else the data files' own (an .npz run's), else 0.01;
+    in (0, 1e6]. A run file of the DAE (τ = 0) gets a message of its own: the user gave no τ."""
+    if args.tau is None and defaults.get("tau") == 0.0:
+        raise ValueError(
+            "--data: the files hold runs at tau = 0 (the DAE with jumps; a jump's two rows read as the state "
+            "before it); a fit point by point integrates the homogenized ODE: give --tau > 0 (1e-3 is close "
+            "to the DAE)"
+        )
+    tau = args.tau if args.tau is not None else defaults.get("tau", 0.01)
+    checked(f"(0, {TAU_MAX:g}]", check_tau, tau)
+    return tau
+
+
 def _validate(args: argparse.Namespace, observations: list[Observation], defaults: dict) -> dict:
     _refuse(args, _TABLE_ONLY, "--data with v or alpha (a point-by-point fit of the runs)")
     # left out: their defaults (None until here, so that a table fit can refuse them when given)
@@ -608,9 +621,8 @@ def _validate(args: argparse.Namespace, observations: list[Observation], default
     if args.quantities is not None:
         drop = {q: None for q in ("F", "alpha") if q not in args.quantities}
         observations = [Observation(**{**o.__dict__, **drop}) for o in observations]
-    tau = args.tau if args.tau is not None else defaults.get("tau", 0.01)
+    tau = _points_tau(args, defaults)
     dt = args.dt
-    checked(f"(0, {TAU_MAX:g}]", check_tau, tau)
     t_last = max(float(np.nanmax(o.t)) for o in observations)
     t_final = args.t_final if args.t_final is not None else t_last
     rtol, atol = args.rtol, args.atol

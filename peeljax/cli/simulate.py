@@ -8,6 +8,7 @@ import json
 import math
 import sys
 import time
+from pathlib import Path
 from dataclasses import dataclass
 
 import numpy as np
@@ -119,7 +120,9 @@ def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
 def _add_output_arguments(parser: argparse.ArgumentParser) -> None:
     output = parser.add_argument_group("output")
     options.add_outputs(
-        output, out_meta="FILE.npz", out_help="write t, alpha, omega, u, v, F and the parameters (numpy; default: none)",
+        output, out_meta="FILE.npz|FILE.csv",
+        out_help="write t, alpha, omega, u, v, F and the parameters: .npz (numpy), or .csv (text with a header; "
+        "the settings on # lines) (default: none)",
         plot_help="write v(t), alpha(t), F(t) panels, or for a run with jumps v(t), G(t) and the G-v loop over "
         "phi(v, V)",
     )  # fmt: skip
@@ -136,7 +139,7 @@ def add_command(subparsers) -> None:
     )
     _add_run_arguments(parser)
     _add_output_arguments(parser)
-    parser.set_defaults(handler=_simulate_command, out_formats=(".npz",))
+    parser.set_defaults(handler=_simulate_command, out_formats=(".npz", ".csv"))
 
 
 # ---------------------------------------------------------------------------- validation
@@ -464,6 +467,25 @@ def summarize(solution: Solution) -> dict:
     return out
 
 
+def write_out(path: str, solution: Solution, config: RunConfig) -> None:
+    """--out: :func:`write_npz`, or for a ``.csv`` the run's rows as text
+    (:func:`peeljax.run_file.write_run_text`)."""
+    if Path(path).suffix.lower() != ".csv":
+        return write_npz(path, solution, config)
+    from ..run_file import write_run_text
+
+    write_run_text(path, solution, **_run_settings(solution, config))
+
+
+def _run_settings(solution: Solution, config: RunConfig) -> dict:
+    """The run's settings as :func:`peeljax.run_file.run_arrays` takes them."""
+    return dict(
+        model=config.model, V=config.V, tau=config.tau, t_final=config.t_final, dt=step_used(solution, config),
+        rho=_rho_used(solution, config), rtol=config.rtol, atol=config.atol, method_option=config.method,
+        fold=config.fold, max_jumps=config.max_jumps, transient=config.transient,
+    )  # fmt: skip
+
+
 def write_npz(path: str, solution: Solution, config: RunConfig) -> None:
     """The run as plain arrays and scalars (loads with ``np.load(path, allow_pickle=False)``).
 
@@ -485,11 +507,7 @@ def write_npz(path: str, solution: Solution, config: RunConfig) -> None:
     """
     from ..run_file import write_run  # the one writer of the format (Solution.save too); atomic
 
-    write_run(
-        path, solution, model=config.model, V=config.V, tau=config.tau, t_final=config.t_final,
-        dt=step_used(solution, config), rho=_rho_used(solution, config), rtol=config.rtol, atol=config.atol,
-        method_option=config.method, fold=config.fold, max_jumps=config.max_jumps, transient=config.transient,
-    )  # fmt: skip
+    write_run(path, solution, **_run_settings(solution, config))
 
 
 def _ran_alpha(method: str) -> bool:
@@ -674,7 +692,7 @@ def _simulate_command(args: argparse.Namespace) -> int:
     failed = []  # (option, path, error): the run is reported whatever could not be written
     if args.out is not None:
         try:
-            write_npz(args.out, solution, config)
+            write_out(args.out, solution, config)
         except OSError as error:
             failed.append(("--out", args.out, error))
             record["out"] = None

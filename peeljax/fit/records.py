@@ -42,6 +42,8 @@ message names the file, the line and the column, or for ``.npz`` the field.
 
 from __future__ import annotations
 
+import dataclasses
+
 import math
 import re
 import zipfile
@@ -68,7 +70,12 @@ FIT_BYTES_PER_SAMPLE = 44e3
 MAX_FIT_SAMPLES = 25_000
 
 # Columns of a force record and their units (the header may repeat the unit in brackets).
-FORCE_COLUMNS: dict[str, str] = {"t": "s", "F": "N", "v": "m/s", "alpha": "rad", "V": "m/s"}
+FORCE_COLUMNS: dict[str, str] = {
+    "t": "s", "F": "N", "v": "m/s", "alpha": "rad", "V": "m/s",
+    # a run written as text (``peeljax simulate --out run.csv``): ω and u are not fitted; the rows
+    # after a jump are left out (after_jump 1), as in a run's .npz
+    "omega": "rad/s", "u": "m", "after_jump": "1",
+}  # fmt: skip
 _FORCE_REQUIRED = ("t", "F")
 
 # The pull velocity in a file name: see the module docstring.
@@ -141,6 +148,14 @@ def read_force_record(path, *, V: float | None = None, memory_limit: float | Non
     if text.n_rows < 2:
         raise text.fail("one data row: a force record needs at least 2", row=0)
     columns = {name: column_numbers(text, name, missing_ok=False) for name in text.names}
+    if "after_jump" in columns:  # a run's text: its left limits, as from its .npz
+        after = columns.pop("after_jump")
+        if not np.all((after == 0) | (after == 1)):
+            row = int(np.flatnonzero((after != 0) & (after != 1))[0])
+            raise text.fail("after_jump must be 0 or 1 (1: the row just after a jump)", row=row, column="after_jump")
+        keep = left_limit_rows(columns["t"], after == 1)
+        columns = {name: column[keep] for name, column in columns.items()}
+        text = dataclasses.replace(text, columns=columns, _lines=np.asarray(text.lines)[keep])
     t = columns["t"]
     if np.any(t < 0):
         row = int(np.flatnonzero(t < 0)[0])
@@ -151,6 +166,13 @@ def read_force_record(path, *, V: float | None = None, memory_limit: float | Non
             f"t must increase strictly: {t[row]:g} s after {t[row - 1]:g} s (line {text.lines[row - 1]})",
             row=row, column="t",
         )  # fmt: skip
+    for name in ("F", "v"):  # a tension and a peeling velocity are >= 0
+        negative = _first_negative(columns.get(name))
+        if negative is not None:
+            raise text.fail(
+                f"{name} must be >= 0 {_UNITS[name]} ({_MEANING[name]}), got {columns[name][negative]:g} at t = "
+                f"{t[negative]:g} s", row=negative, column=name,
+            )  # fmt: skip
     sources = {}
     if "V" in columns:
         column = columns["V"]
@@ -260,6 +282,18 @@ def read_npz(path, *, V: float | None = None) -> tuple[list[Observation], dict[s
             raise
 
 
+_UNITS = {"F": "N", "v": "m/s"}
+_MEANING = {"F": "the tape's tension", "v": "the peeling velocity"}
+
+
+def _first_negative(values) -> int | None:
+    """The index of the first entry < 0 (NaN is a missing entry, not one), or None."""
+    if values is None:
+        return None
+    negative = np.flatnonzero(values < 0)
+    return int(negative[0]) if negative.size else None
+
+
 def _npz_error(path, key, reason) -> DataFileError:
     return DataFileError(path, reason, column=key, field=True)
 
@@ -279,10 +313,18 @@ def _array(data, key: str, path: str) -> np.ndarray:
 
 
 def _check_series(path: str, key: str, time_key: str, times: np.ndarray, values: np.ndarray) -> None:
-    """NaN in a quantity marks a missing entry (ignored); an infinite value, or times that are
-    not finite, are negative or do not increase, mean a broken file."""
+    """NaN in a quantity marks a missing entry (ignored); an infinite value, a negative tension
+    or peeling velocity, or times that are not finite, are negative or do not increase, mean a
+    broken file."""
     if np.any(np.isinf(values)):
         raise _npz_error(path, key, f"{key!r} has infinite entries (NaN marks a missing value; inf is not one)")
+    name = key.split("_")[0]
+    negative = _first_negative(values) if name in _UNITS else None
+    if negative is not None:
+        raise _npz_error(
+            path, key, f"{key!r} must be >= 0 {_UNITS[name]} ({_MEANING[name]}), got {values[negative]:g} at index "
+            f"{negative} (t = {times[negative]:g} s)",
+        )  # fmt: skip
     if not np.all(np.isfinite(times)):
         kind = "NaN" if np.any(np.isnan(times)) else "infinite"
         i = int(np.flatnonzero(~np.isfinite(times))[0])
@@ -301,6 +343,29 @@ def _check_series(path: str, key: str, time_key: str, times: np.ndarray, values:
         )
 
 
+def _left_limits(data, path: str, suffix: str, t: np.ndarray) -> np.ndarray:
+    """Which rows of a run file's ``t`` a record keeps: a run keeps both sides of every jump (two
+    rows at its time, the second marked in ``after_jump``; ``peeljax simulate --out``), a record
+    one value per time, the left limit. The rows after a jump are left out, and so is an output
+    time equal to a jump's time (it holds the same state as the row before the jump)."""
+    key = "after_jump" + suffix
+    if key not in data.files:
+        return np.ones(t.shape, bool)
+    after = np.asarray(data[key])
+    if after.dtype != bool or after.shape != t.shape:
+        raise _npz_error(path, key, f"{key!r} must be booleans of the length of 't{suffix}' (a run file's jump rows)")
+    return left_limit_rows(t, after)
+
+
+def left_limit_rows(t: np.ndarray, after_jump: np.ndarray) -> np.ndarray:
+    """The rows of a run's output that hold its left limits, one per time: not after a jump,
+    and not a second row at one time (an output time equal to a jump's: the state before it)."""
+    keep = ~np.asarray(after_jump, bool)
+    kept = np.flatnonzero(keep)
+    keep[kept[1:][t[kept[1:]] == t[kept[:-1]]]] = False
+    return keep
+
+
 def _npz_observation(data, path: str, suffix: str, V_argument: float | None) -> Observation:
     keys = set(data.files)
     for key in ("V", "t", "v"):
@@ -315,9 +380,12 @@ def _npz_observation(data, path: str, suffix: str, V_argument: float | None) -> 
     if V_argument is not None and abs(V - V_argument) > _V_RTOL * max(V, V_argument):
         raise _npz_error(path, "V" + suffix, f"V conflicts: {V:g} m/s in the file, {V_argument:g} m/s given")
     t = _array(data, "t" + suffix, path)
+    left = _left_limits(data, path, suffix, t)
+    t = t[left]
     fields = {"v": _array(data, "v" + suffix, path)}
-    if fields["v"].shape != t.shape:
+    if fields["v"].shape != left.shape:
         raise _npz_error(path, "v" + suffix, f"'t{suffix}' and 'v{suffix}' must have one length")
+    fields["v"] = fields["v"][left]
     _check_series(path, "v" + suffix, "t" + suffix, t, fields["v"])
     for q in ("F", "alpha"):
         if q + suffix in keys:
@@ -326,6 +394,8 @@ def _npz_observation(data, path: str, suffix: str, V_argument: float | None) -> 
             times = _array(data, time_key, path)
             if times.shape != values.shape:
                 raise _npz_error(path, q + suffix, f"{q}{suffix} and its times {time_key!r} must have one length")
+            if time_key == "t" + suffix:  # on the run's rows: the left limits, as v
+                times, values = times[left], values[left]
             _check_series(path, q + suffix, time_key, times, values)
             fields[q], fields[f"t_{q}"] = values, times
     observation = Observation(V=V, t=t, **fields)
@@ -357,4 +427,3 @@ def _read_npz_file(data, path, V_argument) -> tuple[list[Observation], dict[str,
         if math.isfinite(dt) and dt > 0:  # NaN: the run had error control, no uniform step
             settings["dt"] = dt
     return observations, settings
-

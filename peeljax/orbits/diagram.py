@@ -235,7 +235,7 @@ def orbit_diagram(
             continue
         branch = continue_orbit(orbit, bounds=(V_lo, V_hi), ds_max=ds_max, rtol=rtol)
         branches.append(branch)
-        say(f"branch {len(branches)}: {k} slips per period, V in [{branch.V.min():.5g}, {branch.V.max():.5g}], "
+        say(f"branch {len(branches) - 1}: {k} slips per period, V in [{branch.V.min():.5g}, {branch.V.max():.5g}], "  # (0-based: diagram.branches[i])
             f"{len(branch)} orbits, {len(branch.bifurcations)} bifurcations")  # fmt: skip
         for b in branch.bifurcations:
             queue.extend(_beyond(b, model, shooting))
