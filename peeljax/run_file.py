@@ -119,21 +119,24 @@ def write_run(path: str | os.PathLike, solution, **run) -> None:
 
 
 # The columns of a run written as text: the rows' arrays, the constant V, units in the header.
-TEXT_COLUMNS = ("t", "alpha", "omega", "u", "v", "F", "V", "after_jump")
+TEXT_COLUMNS = ("t", "alpha", "omega", "u", "v", "F", "G", "V", "after_jump")
 
 
 def write_run_text(path: str | os.PathLike, solution, **run) -> None:
     """``solution`` as comma-separated text: ``#`` lines with the run's settings, a header
-    ``t [s],alpha [rad],omega [rad/s],u [m],v [m/s],F [N],V [m/s],after_jump`` and one row per
+    ``t [s],alpha [rad],omega [rad/s],u [m],v [m/s],F [N],G [N],V [m/s],after_jump`` (G = (1 +
+    l·sinα/L)·F, the constraint's left side: what φ(v, V) balances) and one row per
     output time up to a stop (both sides of a jump: two rows at its time, ``after_jump`` 1 on the
     second; the rows after a stop, NaN in the .npz, are left out). ``peeljax fit --data`` reads it as a record (:func:`peeljax.fit.read_force_record`:
     the rows not after a jump). ``run``: as :func:`write_run`."""
     arrays = run_arrays(solution, **run)
     n = arrays["t"].shape[0]
-    rows = {"V": np.full(n, float(arrays["V"])), "after_jump": arrays.get("after_jump", np.zeros(n, bool))}
+    model = PeelingModel() if run.get("model") is None else run["model"]
+    G = np.asarray(model.shear_force(np.stack([arrays["alpha"], arrays["omega"], arrays["u"]])), dtype=float)
+    rows = {"G": G, "V": np.full(n, float(arrays["V"])), "after_jump": arrays.get("after_jump", np.zeros(n, bool))}
     valid = np.asarray(arrays["valid"], bool)
     columns = [np.asarray(rows[name] if name in rows else arrays[name], dtype=float)[valid] for name in TEXT_COLUMNS]
-    header = ",".join(name if name == "after_jump" else f"{name} [{RUN_UNITS[name]}]" for name in TEXT_COLUMNS)
+    header = ",".join(name if name == "after_jump" else f"{name} [{RUN_UNITS.get(name, 'N')}]" for name in TEXT_COLUMNS)
     settings = (
         f"# peeljax run: V = {_cell(arrays['V'])} m/s, tau = {_cell(arrays['tau'])} s, {arrays['status']} "
         f"({arrays['reason']}), t_stop = {_cell(arrays['t_stop'])} s, method {arrays['method']}"

@@ -167,7 +167,7 @@ def test_simulate_out_csv_is_a_text_record_of_the_run(tmp_path):
         assert code == 0, err
     lines = (tmp_path / "run.csv").read_text().splitlines()
     assert lines[0].startswith("# peeljax run: V = 1.1 m/s, tau = 0.0 s, completed")
-    assert lines[2] == "t [s],alpha [rad],omega [rad/s],u [m],v [m/s],F [N],V [m/s],after_jump"
+    assert lines[2] == "t [s],alpha [rad],omega [rad/s],u [m],v [m/s],F [N],G [N],V [m/s],after_jump"
     with np.load(tmp_path / "run.npz", allow_pickle=False) as data:
         assert len(lines) - 3 == data["t"].size and sum(line.endswith(",1") for line in lines) == data["after_jump"].sum()
     text = read_force_record(tmp_path / "run.csv")

@@ -274,7 +274,7 @@ def test_hand_made_map_summary_and_figure(tmp_path):
     assert smap.irregular.tolist() == [[False, False, False, True, False], [False, True, False, False, False]]
     assert smap.early.tolist() == [[False] * 5, [False, False, False, True, False]]
     text = str(smap)
-    assert "[1, 4]" in text and "no fold for V in 6" in text and "max_steps" in text
+    assert "[1, 4]" in text and "no fold at V = 6 m/s" in text and "max_steps" in text
     assert "disagree (coexisting stick-slip and steady peeling) at V = 2 m/s" in text
     path = tmp_path / "hand.png"
     plot_stick_slip_map(smap, path=path)

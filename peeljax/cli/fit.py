@@ -109,8 +109,9 @@ def add_command(subparsers) -> None:
         problem, default=f"{DEFAULT_MAX_STEPS} with --data, {_table_default('max_steps')} with --table"
     )
     options.add_statistics_window(
-        problem, transient="0.5 s with --table, where the runs end at T + W", window_default="T: the runs' "
-        "second half", what="--table: the statistics",
+        problem, transient="0.5 s with --table, where the model's runs end at T + W: their second half; with "
+        "--data force records fitted by statistics, the record's second half", window_default="T: the runs' "
+        "second half", what="the statistics (--table: of the model's runs; --data: of each force record)",
     )  # fmt: skip
     fit = parser.add_argument_group("the fit")
     fit.add_argument("--phi", metavar="START.json", help="start coefficients as JSON (default: the paper's law)")

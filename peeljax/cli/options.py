@@ -301,13 +301,13 @@ def transient_default(t_final: float) -> float:
     return t_final / 2.0
 
 
-def add_statistics_window(group, *, window: bool = True, transient: str = "t_final/2",
+def add_statistics_window(group, *, window: bool = True, transient: str = "t_final/2: the second half of the run",
                           window_default: str = "up to --t-final", what: str = "the statistics") -> None:  # fmt: skip
     """--transient T and (``window``) --window W: ``what`` covers [T, T + W] [s]."""
     group.add_argument(
         "--transient", type=float, default=None, metavar="T",
         help=f"{what} start at T [s], >= 0: what comes before (the approach to the attractor) is left out "
-        f"(default {transient}: the second half of the run)",
+        f"(default {transient})",
     )  # fmt: skip
     if window:
         group.add_argument(

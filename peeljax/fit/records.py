@@ -72,9 +72,9 @@ MAX_FIT_SAMPLES = 25_000
 # Columns of a force record and their units (the header may repeat the unit in brackets).
 FORCE_COLUMNS: dict[str, str] = {
     "t": "s", "F": "N", "v": "m/s", "alpha": "rad", "V": "m/s",
-    # a run written as text (``peeljax simulate --out run.csv``): ω and u are not fitted; the rows
+    # a run written as text (``peeljax simulate --out run.csv``): ω, u and G are not fitted; the rows
     # after a jump are left out (after_jump 1), as in a run's .npz
-    "omega": "rad/s", "u": "m", "after_jump": "1",
+    "omega": "rad/s", "u": "m", "G": "N", "after_jump": "1",
 }  # fmt: skip
 _FORCE_REQUIRED = ("t", "F")
 

@@ -320,7 +320,7 @@ class StickSlipMap:
         no_fold = self.no_fold_ranges()
         lines.append(
             "  phi has its folds for every V" if not no_fold
-            else f"  phi has no fold for V in {_ranges_text(no_fold)} m/s (no stick-slip possible)"
+            else f"  phi has no fold {_where_V(no_fold)} (no stick-slip possible)"
         )  # fmt: skip
         header = (f"  {'start':<7} {'stick-slip for V in [m/s]':<34} {'lanes':>5} {'regular':>7} {'irregular':>9} "
                   f"{'stopped':>7}")  # fmt: skip
@@ -380,6 +380,13 @@ def _runs(V: np.ndarray, mask: np.ndarray) -> list[tuple[float, float]]:
             ranges.append((float(V[begin]), float(V[end])))
             begin = None
     return ranges
+
+
+def _where_V(ranges: list[tuple[float, float]]) -> str:
+    """'at V = 6 m/s' for one value, 'for V in [0.3, 0.5], 6 m/s' otherwise."""
+    if len(ranges) == 1 and ranges[0][0] == ranges[0][1]:
+        return f"at V = {ranges[0][0]:.4g} m/s"
+    return f"for V in {_ranges_text(ranges)} m/s"
 
 
 def _ranges_text(ranges: list[tuple[float, float]]) -> str:
