@@ -97,3 +97,43 @@ def test_the_diagram_command_refuses_bad_ranges_before_running(V, message, capsy
 
 def test_the_diagram_command_refuses_slips():
     assert main(["orbit", "--V", "1:2", "--slips", "8"]) == 2
+
+
+def test_an_interrupted_diagram_keeps_what_was_finished(diagram, tmp_path, monkeypatch, capsys):
+    """Ctrl-C during ``peeljax orbit --V lo:hi:n --out``: the file holds the part finished (written
+    as the diagram grows, marked incomplete), pj.load reads it, and the line on stderr says so."""
+    import dataclasses
+
+    def interrupted_after_one_branch(*args, on_progress=None, **kwargs):
+        if on_progress is not None:  # (the command passes one only with --out)
+            on_progress(dataclasses.replace(diagram, branches=diagram.branches[:1], complete=False))
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("peeljax.orbits.orbit_diagram", interrupted_after_one_branch)
+    out = tmp_path / "branches.npz"
+    assert main(["orbit", "--V", "0.9:1.2:3", "--out", str(out)]) == 130
+    err = capsys.readouterr().err
+    assert "marked incomplete" in err and "1 branch" in err and "pj.load" in err, err
+    kept = pj.load(out)
+    assert not kept.complete and len(kept.branches) == 1 and "incomplete" in str(kept)
+    np.testing.assert_array_equal(kept.branches[0].V, diagram.branches[0].V)
+    # without --out nothing is kept, and the line says so
+    assert main(["orbit", "--V", "0.9:1.2:3"]) == 130
+    assert "nothing was saved" in capsys.readouterr().err
+    # a finished diagram's file is complete
+    diagram.save(out)
+    assert pj.load(out).complete
+
+
+@pytest.mark.slow
+def test_orbit_diagram_reports_what_it_finished_as_it_goes():
+    """A small real diagram: ``on_progress`` gets the part finished after each seed's V and each
+    branch (incomplete, growing), and the diagram returned is complete and holds them all."""
+    parts = []
+    diagram = pj.orbit_diagram(V=(1.05, 1.1), seeds=2, starts=("paper",), t_final=3.0, progress=False,
+                               on_progress=parts.append)  # fmt: skip
+    assert diagram.complete and not any(part.complete for part in parts)
+    assert [len(part.seeds) for part in parts[:2]] == [1, 2]
+    assert len(parts) == 2 + len(diagram.branches) and len(diagram.branches) >= 1
+    assert [len(part.branches) for part in parts[2:]] == list(range(1, len(diagram.branches) + 1))
+    assert [s.branch for s in parts[-1].seeds] == [s.branch for s in diagram.seeds]

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from .._validation import check_positive, check_tolerance
 from ..model import PeelingModel
 from ..orbits.api import _ATOL_PER_RTOL, DEFAULT_ORBIT_RTOL, DEFAULT_TRANSIENT_RUN
-from . import options
+from . import _interrupt, options
 from ._common import ASCII, PROG, Elapsed, checked, fail, json_safe, write_failed
 
 __all__ = ["EXIT_NOT_CONVERGED", "OrbitConfig", "add_command", "validate_orbit"]
@@ -322,6 +322,28 @@ def _diagram_record(diagram, config: OrbitConfig, args: argparse.Namespace) -> d
     }  # fmt: skip
 
 
+class _KeptSoFar:
+    """--out of an orbit diagram written as it grows (after each seed's V and each branch,
+    marked incomplete), so that Ctrl-C keeps what was finished; ``describe`` says what that is."""
+
+    def __init__(self, out: str | None):
+        self.out, self.branches, self.seeds = out, None, 0
+
+    def save(self, diagram) -> None:
+        diagram.save(self.out)
+        self.branches, self.seeds = len(diagram.branches), len(diagram.seeds)
+
+    def describe(self) -> str:
+        if self.out is None:
+            return "nothing was saved (no --out; with --out the diagram is written as it grows)"
+        if self.branches is None:
+            return f"nothing was finished to keep in {self.out!r}"
+        return (
+            f"{self.out!r} holds what was finished, marked incomplete: {self.seeds} seed runs and {self.branches} "
+            f"branch{'' if self.branches == 1 else 'es'} (pj.load reads it)"
+        )
+
+
 def _diagram_command(args: argparse.Namespace, config: OrbitConfig) -> int:
     from ..orbits import orbit_diagram
 
@@ -331,14 +353,20 @@ def _diagram_command(args: argparse.Namespace, config: OrbitConfig) -> int:
         "runs, each repeat's orbit continued over V (compiling first: minutes) ...",
         file=sys.stderr,
     )
-    try:
-        with Elapsed(options.progress_on(args), f"orbit diagram over V in [{lo:g}, {hi:g}] m/s"):
-            diagram = orbit_diagram(
-                config.model, V=(lo, hi), seeds=seeds, t_final=config.transient, rtol=config.rtol,
-                progress=options.progress_on(args),
-            )  # fmt: skip
-    except ValueError as error:
-        return fail(error)
+    kept = _KeptSoFar(args.out)
+    with _interrupt.note(kept.describe):
+        try:
+            with Elapsed(options.progress_on(args), f"orbit diagram over V in [{lo:g}, {hi:g}] m/s"):
+                diagram = orbit_diagram(
+                    config.model, V=(lo, hi), seeds=seeds, t_final=config.transient, rtol=config.rtol,
+                    progress=options.progress_on(args), on_progress=kept.save if args.out is not None else None,
+                )  # fmt: skip
+        except ValueError as error:
+            return fail(error)
+        except OSError as error:  # --out, written as the diagram grows
+            return write_failed("--out", args.out, error, "the diagram was not finished")
+        except KeyboardInterrupt:
+            return _interrupt.interrupted(kept.describe())
     record = _diagram_record(diagram, config, args)
     failed = []
     if args.out is not None:

@@ -20,7 +20,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import jax.numpy as jnp
 import numpy as np
@@ -77,6 +77,8 @@ class OrbitDiagram:
         branches: the traced branches (:class:`OrbitBranch`).
         seeds: the runs' attractors (:class:`Seed`).
         wall_time: seconds in all; seed_time: of which the seeds' runs and orbits.
+        complete: False for the part of a diagram finished before it was interrupted (what
+            :func:`orbit_diagram`'s ``on_progress`` receives, and a file written from it).
     """
 
     V_range: tuple[float, float]
@@ -84,6 +86,7 @@ class OrbitDiagram:
     seeds: list[Seed]
     wall_time: float = math.nan
     seed_time: float = math.nan
+    complete: bool = True
 
     @property
     def bifurcations(self) -> list[tuple[int, Bifurcation]]:
@@ -108,7 +111,8 @@ class OrbitDiagram:
             kinds[b.kind.value] = kinds.get(b.kind.value, 0) + 1
         lines = [
             f"orbit diagram over V in [{self.V_range[0]:g}, {self.V_range[1]:g}] m/s: {len(self.branches)} branches, "
-            f"{sum(len(b) for b in self.branches)} orbits, {self.wall_time:.1f} s",
+            f"{sum(len(b) for b in self.branches)} orbits, {self.wall_time:.1f} s"
+            + ("" if self.complete else " (incomplete: interrupted, what was finished before)"),
             f"  seeds: {len(self.seeds)} runs, {periodic} periodic, {on} of them on a traced branch",
             "  bifurcations: " + (", ".join(f"{n} {k}" for k, n in kinds.items()) or "none"),
         ]
@@ -172,6 +176,7 @@ def orbit_diagram(
     max_branches: int = 200,
     ds_max: float = 0.05,
     progress: bool = True,
+    on_progress: Callable[[OrbitDiagram], None] | None = None,
 ) -> OrbitDiagram:
     """The stick-slip orbits over V: seeds from runs, branches by continuation (module docstring).
 
@@ -185,6 +190,9 @@ def orbit_diagram(
         max_branches: at most this many branches are traced.
         ds_max: the largest continuation step (scaled coordinates).
         progress: a line on stderr per branch.
+        on_progress: called with the diagram finished so far (``complete=False``: the seeds run
+            so far, then every branch traced so far) after each seed's V and each branch, e.g.
+            to save it, so that an interruption (Ctrl-C) keeps what was finished.
     """
     import sys
 
@@ -204,6 +212,15 @@ def orbit_diagram(
 
     # 1. Seeds: each run's attractor, and its orbit where it repeats.
     found: list[tuple[Seed, object]] = []
+
+    def so_far(branches, complete=False, seed_time=math.nan) -> OrbitDiagram:
+        return OrbitDiagram((V_lo, V_hi), list(branches), _on_branches(found, branches), time.perf_counter() - began,
+                            seed_time, complete)  # fmt: skip
+
+    def report(branches, seed_time=math.nan) -> None:
+        if on_progress is not None:
+            on_progress(so_far(branches, seed_time=seed_time))
+
     for v in seed_V:
         folds = bool(_has_folds(model, jnp.asarray(v)))
         for start in starts:
@@ -222,6 +239,7 @@ def orbit_diagram(
                 except OrbitNotFound as error:
                     why = str(error).removeprefix("start: ")
             found.append((Seed(float(v), start, slips, period, F_slip, F_stick, interval, why), orbit))
+        report([])
     seed_time = time.perf_counter() - began
     say(f"seeds: {len(found)} runs in {seed_time:.1f} s, {sum(o is not None and o.converged for _, o in found)} orbits")
 
@@ -237,10 +255,14 @@ def orbit_diagram(
         branches.append(branch)
         say(f"branch {len(branches) - 1}: {k} slips per period, V in [{branch.V.min():.5g}, {branch.V.max():.5g}], "  # (0-based: diagram.branches[i])
             f"{len(branch)} orbits, {len(branch.bifurcations)} bifurcations")  # fmt: skip
+        report(branches, seed_time)
         for b in branch.bifurcations:
             queue.extend(_beyond(b, model, shooting))
+    return so_far(branches, complete=True, seed_time=seed_time)
 
-    # 3. Which branch each seed lies on.
+
+def _on_branches(found: list, branches: list[OrbitBranch]) -> list[Seed]:
+    """The seeds, each with the index of the branch its orbit lies on (-1: none)."""
     seeds_out = []
     for seed, orbit in found:
         index = -1
@@ -249,7 +271,7 @@ def orbit_diagram(
             if distances and min(distances) < _ON_BRANCH:
                 index = int(np.argmin(distances))
         seeds_out.append(dataclasses.replace(seed, branch=index))
-    return OrbitDiagram((V_lo, V_hi), branches, seeds_out, time.perf_counter() - began, seed_time)
+    return seeds_out
 
 
 def _beyond(b: Bifurcation, model: PeelingModel, shooting) -> list:
@@ -286,8 +308,8 @@ def _beyond(b: Bifurcation, model: PeelingModel, shooting) -> list:
 
 def read_diagram(arrays: dict, name: str) -> OrbitDiagram:
     """The :class:`OrbitDiagram` of a diagram file's arrays (:func:`peeljax.load`)."""
-    V_range, branches, seeds, wall, seed_time = diagram_parts(arrays, name)
-    return OrbitDiagram(V_range, branches, [Seed(*fields) for fields in seeds], wall, seed_time)
+    V_range, branches, seeds, wall, seed_time, complete = diagram_parts(arrays, name)
+    return OrbitDiagram(V_range, branches, [Seed(*fields) for fields in seeds], wall, seed_time, complete)
 
 
 register_reader(DIAGRAM_KIND, npz=read_diagram)

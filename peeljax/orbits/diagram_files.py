@@ -18,7 +18,8 @@ and the peeljax that wrote it (:mod:`peeljax._files`):
   ``bif_note``;
 * every seed run: ``seed_V``, ``seed_start``, ``seed_slips``, ``seed_period``, ``seed_F_slip``,
   ``seed_F_stick``, ``seed_interval``, ``seed_orbit``, ``seed_branch``;
-* ``V_range``, ``wall_time``, ``seed_time`` [s].
+* ``V_range``, ``wall_time``, ``seed_time`` [s]; ``complete`` (False: the diagram was
+  interrupted, and holds the seeds and branches finished before; files without it are complete).
 """
 
 from __future__ import annotations
@@ -61,6 +62,7 @@ def write_diagram(path: str | os.PathLike, diagram) -> None:
         "branch_wall_time": np.array([b.wall_time for b in branches], float),
         "V_range": np.asarray(diagram.V_range, float),
         "wall_time": np.asarray(diagram.wall_time, float), "seed_time": np.asarray(diagram.seed_time, float),
+        "complete": np.asarray(bool(getattr(diagram, "complete", True))),
     }  # fmt: skip
     found = diagram.bifurcations
     arrays.update({
@@ -81,7 +83,7 @@ def write_diagram(path: str | os.PathLike, diagram) -> None:
 
 
 def diagram_parts(arrays: dict, name: str) -> tuple:
-    """(V_range, branches, seeds' fields, wall_time, seed_time) of a diagram file's arrays
+    """(V_range, branches, seeds' fields, wall_time, seed_time, complete) of a diagram file's arrays
     (``name``: the file, for messages); a ValueError naming the file where they are malformed."""
     try:
         point_branch = np.asarray(arrays["point_branch"])
@@ -119,6 +121,7 @@ def diagram_parts(arrays: dict, name: str) -> tuple:
         V_range = tuple(float(v) for v in np.asarray(arrays["V_range"], float))
         if len(V_range) != 2:
             raise ValueError("V_range must hold two numbers")
-        return V_range, branches, seeds, float(arrays["wall_time"]), float(arrays["seed_time"])
+        complete = bool(np.asarray(arrays.get("complete", True)))  # (files before it: complete)
+        return V_range, branches, seeds, float(arrays["wall_time"]), float(arrays["seed_time"]), complete
     except (KeyError, IndexError, TypeError, ValueError) as error:
         raise ValueError(f"{name!r} is malformed: not an orbit diagram's arrays ({error})") from None
