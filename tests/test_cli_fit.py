@@ -186,3 +186,24 @@ def test_bad_input_exits_2_before_fitting(options, name, allowed, no_fit, good_n
     out = [] if "--out" in options else ["--out", str(tmp_path / "fitted.json")]
     code, stdout, stderr = run_cli(["fit", *data, *out, *options])
     assert_refused(code, stderr, name, allowed, stdout=stdout)
+
+
+def test_a_record_too_short_to_determine_a_coefficient_says_so_and_what_length_would():
+    """After a records fit: a coefficient known to worse than 5 % is named, with the length of
+    record that would give 1 % (the error falls like 1/sqrt(length))."""
+    from types import SimpleNamespace
+
+    from peeljax.cli.fit import poorly_determined
+    from peeljax.fit import Observation
+
+    record = Observation(V=1.1, t=np.linspace(0.0, 0.002, 5), v=None, F=np.full(5, 250.0))
+
+    def result(errors):
+        uncertainty = SimpleNamespace(names=("c1", "c6"), values=np.array([400.0, 415.0]), standard_errors=np.array(errors))
+        return SimpleNamespace(uncertainty=uncertainty)
+
+    line = poorly_determined(result([40.0, 2.0]), [record])
+    assert "c1 to 10 %" in line and "c6" not in line and "about 0.2 s of record (100x the 0.002 s given)" in line, line
+    assert "c6 not at all" in poorly_determined(result([1.0, np.inf]), [record])
+    assert poorly_determined(result([1.0, 2.0]), [record]) is None  # 0.25 % and 0.5 %: said nothing
+    assert poorly_determined(SimpleNamespace(), [record]) is None

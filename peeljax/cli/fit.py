@@ -503,10 +503,40 @@ def _records_command(args: argparse.Namespace, config: dict) -> int:
     print(
         f"visited v in [{result.v_range[0]:.3g}, {result.v_range[1]:.3g}] m/s: phi is determined by the data only there"
     )
+    poorly = poorly_determined(result, config["records"])
+    if poorly:
+        print(f"{PROG}: {poorly}", file=sys.stderr)
     written = [p for p in (args.out, args.plot if table is not None else None) if p is not None]
     if written:
         print("wrote " + " and ".join(written))
     return 0
+
+
+# A coefficient known to worse than this relative standard error is reported as poorly determined.
+POORLY_DETERMINED = 0.05
+
+
+def poorly_determined(result, records: list[Observation], target: float = 0.01) -> str | None:
+    """A line for the coefficients the records determine to worse than ``POORLY_DETERMINED``
+    (relative standard error), with the record length that would give ``target``: the error of
+    a fit to noisy samples falls like 1/√(its samples), so the length scales with its square
+    (an estimate: it holds while longer records add samples like these, not new physics)."""
+    uncertainty = getattr(result, "uncertainty", None)
+    if uncertainty is None:
+        return None
+    values = np.asarray(uncertainty.values, float)
+    errors = np.asarray(uncertainty.standard_errors, float)
+    relative = np.abs(errors / np.where(values != 0, values, np.nan))
+    worst = [(name, r) for name, r in zip(uncertainty.names, relative) if not r <= POORLY_DETERMINED]
+    if not worst:
+        return None
+    spans = [float(np.ptp(series[0])) for o in records if (series := o.series("F")) is not None and len(series[0])]
+    length = sum(spans)
+    said = ", ".join(f"{name} to {100 * r:.3g} %" if np.isfinite(r) else f"{name} not at all" for name, r in worst)
+    factor = max((r / target) ** 2 for _, r in worst)
+    longer = (f"; about {length * factor:.3g} s of record ({factor:.3g}x the {length:.3g} s given) would give "
+              f"{100 * target:g} %") if np.isfinite(factor) and length > 0 else ""  # fmt: skip
+    return f"the records determine {said} only (relative standard error){longer}"
 
 
 def _iteration_line(what: str):
