@@ -207,3 +207,27 @@ def test_a_record_too_short_to_determine_a_coefficient_says_so_and_what_length_w
     assert "c6 not at all" in poorly_determined(result([1.0, np.inf]), [record])
     assert poorly_determined(result([1.0, 2.0]), [record]) is None  # 0.25 % and 0.5 %: said nothing
     assert poorly_determined(SimpleNamespace(), [record]) is None
+
+
+def test_an_interrupted_fit_writes_its_best_iterate_so_far(simulated, monkeypatch, capsys):
+    """Ctrl-C after a few iterations of ``fit --data``: exit 130, --out holds the best iterate so
+    far (a file --phi reads, its stop_reason saying so), and the line on stderr says what it holds."""
+    from peeljax.fit import trajectory
+
+    folder, npz = simulated
+    real, calls = trajectory._update, []
+
+    def interrupted_on_the_third(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(trajectory, "_update", interrupted_on_the_third)
+    out = folder / "interrupted.json"
+    code = run_cli(["fit", "--data", str(npz), "--out", str(out), "--free", "c1", "--steps", "10", "--no-progress"])[0]
+    assert code == 130
+    record = json.loads(out.read_text())
+    assert record["stop_reason"] == "interrupted after 1 iterations" and len(record["loss_history"]) == 2
+    assert record["final_loss"] == min(record["loss_history"])
+    assert AdhesionLaw.from_json(out).c1 == pytest.approx(record["c1"])

@@ -48,7 +48,7 @@ from ..fit import QUANTITIES, DataFileError, Observation, fit_stick_slip, read_f
 from ..fit.records import check_fit_samples, read_npz
 from ..fit.records import decimate as thin
 from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_RTOL
-from . import options
+from . import _interrupt, options
 from ._common import ASCII, PROG, check_input_file, checked, fail, json_safe, load_phi
 
 __all__ = ["add_command", "load_observations"]
@@ -539,6 +539,34 @@ def poorly_determined(result, records: list[Observation], target: float = 0.01) 
     return f"the records determine {said} only (relative standard error){longer}"
 
 
+def _fit_runs(fit_adhesion, observations, config: dict, args: argparse.Namespace):
+    """:func:`peeljax.fit.fit_adhesion` with the command's settings."""
+    return fit_adhesion(
+        observations,
+        tau=config["tau"],
+        dt=config["dt"],
+        t_final=config["t_final"],
+        free=args.free,
+        start=config["start"],
+        optimizer=args.optimizer,
+        steps=args.steps,
+        learning_rate=args.learning_rate,
+        weights=config["weights"],
+        patience=args.patience,
+        progress=options.progress_on(args),  # a bar with the iterations and the loss (stderr)
+        rtol=config["rtol"],
+        atol=config["atol"],
+        **({"max_steps": config["max_steps"]} if "max_steps" in config else {}),
+    )
+
+
+def _write_fit(result, args: argparse.Namespace) -> None:
+    """--out: the fitted coefficients and the fit's record as JSON (``--phi`` reads it)."""
+    record = result.to_dict()
+    record["settings"] = {**record["settings"], "data": list(args.data), "phi": args.phi}
+    write_text(args.out, json.dumps(json_safe(record), indent=2, allow_nan=False) + "\n")
+
+
 def _iteration_line(what: str):
     """A progress callable for the table fit: one line per iteration on stderr."""
     began = time.perf_counter()
@@ -716,26 +744,16 @@ def _fit_command(args: argparse.Namespace) -> int:
         f"(V = {', '.join(f'{o.V:g}' for o in observations)}), {_engine(config)}; compiling first ...",
         file=sys.stderr,
     )
-    result = fit_adhesion(
-        observations,
-        tau=config["tau"],
-        dt=config["dt"],
-        t_final=config["t_final"],
-        free=args.free,
-        start=config["start"],
-        optimizer=args.optimizer,
-        steps=args.steps,
-        learning_rate=args.learning_rate,
-        weights=config["weights"],
-        patience=args.patience,
-        progress=options.progress_on(args),  # a bar with the iterations and the loss (stderr)
-        rtol=config["rtol"],
-        atol=config["atol"],
-        **({"max_steps": config["max_steps"]} if "max_steps" in config else {}),
-    )
-    record = result.to_dict()
-    record["settings"] = {**record["settings"], "data": list(args.data), "phi": args.phi}
-    write_text(args.out, json.dumps(json_safe(record), indent=2, allow_nan=False) + "\n")
+    from ..fit import FitInterrupted
+
+    try:
+        result = _fit_runs(fit_adhesion, observations, config, args)
+    except FitInterrupted as stop:  # Ctrl-C: the best iterate so far is the fit's --out, and said so
+        _write_fit(stop.best, args)
+        return _interrupt.interrupted(f"{args.out!r} holds the best iterate so far ({stop.best.stop_reason})")
+    except KeyboardInterrupt:
+        return _interrupt.interrupted(f"nothing was fitted yet; {args.out!r} not written")
+    _write_fit(result, args)
     if args.plot is not None:
         from ..plots import plot_fit
 

@@ -32,6 +32,7 @@ from .table import fit_stick_slip
 from .text_tables import DataFileError
 from .trajectory import (
     QUANTITIES,
+    FitInterrupted,
     FitResult,
     LossInfo,
     Observation,
@@ -46,6 +47,7 @@ from .uncertainty import Uncertainty
 __all__ = [
     "QUANTITIES",
     "DataFileError",
+    "FitInterrupted",
     "FitResult",
     "Instrument",
     "LossInfo",

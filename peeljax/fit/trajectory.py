@@ -52,6 +52,7 @@ from ..integrators.select import integrator_for
 from ..model import PeelingModel
 
 __all__ = [
+    "FitInterrupted",
     "FitResult",
     "LossInfo",
     "Observation",
@@ -505,50 +506,72 @@ def _fit(loss_fn: _Loss, names, settings, *, opt, steps, patience, tolerance, pr
         from tqdm.auto import tqdm
 
         bar = tqdm(total=steps, desc=description, leave=False)
-    for k in range(steps + 1):
-        new_theta, state, value, grad, aux = _update(loss_fn, opt, theta, state)
-        value = float(value)
-        if not math.isfinite(value):
-            break
-        history.append(value)
-        gnorm = float(optax.tree.norm(grad))
-        if value < best[0] * (1.0 - tolerance):
-            best = (value, theta, gnorm, aux)
-            since_best = 0
-        else:
-            if value < best[0]:
+
+    def result(stop_reason: str = "") -> FitResult:
+        value, theta_best, gnorm, aux = best
+        start = loss_fn.start
+        return FitResult(
+            adhesion=_to_law(theta_best, start),
+            start=start,
+            loss_history=np.asarray(history),
+            initial_loss=float(history[0]),
+            final_loss=float(value),
+            gradient_norm=float(gnorm),
+            steps=len(history) - 1,
+            stopped_early=early,
+            v_range=(float(np.min(aux.v_min)), float(np.max(aux.v_max))),
+            free=names,
+            settings=settings,
+            t_stop=[] if aux.t_stop is None else [float(x) for x in np.atleast_1d(aux.t_stop)],
+            wall_time_s=time.perf_counter() - began,
+            stop_reason=stop_reason,
+        )
+
+    try:
+        for k in range(steps + 1):
+            new_theta, state, value, grad, aux = _update(loss_fn, opt, theta, state)
+            value = float(value)
+            if not math.isfinite(value):
+                break
+            history.append(value)
+            gnorm = float(optax.tree.norm(grad))
+            if value < best[0] * (1.0 - tolerance):
                 best = (value, theta, gnorm, aux)
-            since_best += 1
-        if k == steps:  # θ_steps evaluated; its update is not taken
-            break
+                since_best = 0
+            else:
+                if value < best[0]:
+                    best = (value, theta, gnorm, aux)
+                since_best += 1
+            if k == steps:  # θ_steps evaluated; its update is not taken
+                break
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(loss=f"{value:.3e}")
+            theta = new_theta
+            if since_best >= patience:
+                early = True
+                break
+    except KeyboardInterrupt:
         if bar is not None:
-            bar.update(1)
-            bar.set_postfix(loss=f"{value:.3e}")
-        theta = new_theta
-        if since_best >= patience:
-            early = True
-            break
+            bar.close()
+        if best[3] is None:
+            raise
+        raise FitInterrupted(result(f"interrupted after {len(history) - 1} iterations")) from None
     if bar is not None:
         bar.close()
-    value, theta_best, gnorm, aux = best
-    if aux is None:
+    if best[3] is None:
         raise FloatingPointError(f"{description}: the loss is not finite at the start; check the data and the start")
-    start = loss_fn.start
-    return FitResult(
-        adhesion=_to_law(theta_best, start),
-        start=start,
-        loss_history=np.asarray(history),
-        initial_loss=float(history[0]),
-        final_loss=float(value),
-        gradient_norm=float(gnorm),
-        steps=len(history) - 1,
-        stopped_early=early,
-        v_range=(float(np.min(aux.v_min)), float(np.max(aux.v_max))),
-        free=names,
-        settings=settings,
-        t_stop=[] if aux.t_stop is None else [float(x) for x in np.atleast_1d(aux.t_stop)],
-        wall_time_s=time.perf_counter() - began,
-    )
+    return result()
+
+
+class FitInterrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`fit_adhesion`: still a ``KeyboardInterrupt``, which also holds the
+    fit's best iterate so far as a :class:`FitResult` (``best``; its ``stop_reason`` says after
+    how many iterations), e.g. ``except FitInterrupted as stop: stop.best.adhesion``."""
+
+    def __init__(self, best: FitResult):
+        super().__init__(best.stop_reason)
+        self.best = best
 
 
 def fit_adhesion(
