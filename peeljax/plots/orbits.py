@@ -150,8 +150,12 @@ def plot_orbit(
         label="re-sticks (F at slip → stick)",
     )
     ax_F.axhline(stats["F_mean"], color="C2", ls="--", lw=1.0, label=f"F_mean = {stats['F_mean']:.5g} N")
-    ax_F.axhline(stats["F_slip"], color=_UP_COLOR, ls=":", lw=1.0, label=f"F_slip = {stats['F_slip']:.5g} N")
-    ax_F.axhline(stats["F_stick"], color=_DOWN_COLOR, ls=":", lw=1.0, label=f"F_stick = {stats['F_stick']:.5g} N")
+    # where F meets G: the force φ balances is G = (1 + l·sinα/L)·F, above the tension F
+    G_slip, G_stick = (float(np.mean(jumps["jump_G"][side])) if np.any(side) else np.nan for side in (up, ~up))
+    ax_F.axhline(stats["F_slip"], color=_UP_COLOR, ls=":", lw=1.0,
+                 label=f"F_slip = {stats['F_slip']:.5g} N (there G = {G_slip:.5g} N: φ's maximum)")  # fmt: skip
+    ax_F.axhline(stats["F_stick"], color=_DOWN_COLOR, ls=":", lw=1.0,
+                 label=f"F_stick = {stats['F_stick']:.5g} N (there G = {G_stick:.5g} N: φ's minimum)")  # fmt: skip
     ax_F.set_xlabel("time from the slip at the section t [ms]")
     ax_F.set_ylabel("tension F [N]")
     ax_F.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=7, framealpha=0.9, borderaxespad=0.3)
