@@ -360,7 +360,7 @@ def add_outputs(parser, *, out_meta: str, out_help: str, plot_meta: str = "FILE.
     parser.add_argument("--plot", metavar=plot_meta, help=f"{plot_help} (format from the suffix; default: none)")
 
 
-_FORMATS = {".npz": "numpy", ".nc": "netCDF", ".json": "JSON"}
+_FORMATS = {".npz": "numpy", ".nc": "netCDF", ".json": "JSON", ".csv": "text"}
 
 
 def check_outputs(args: argparse.Namespace) -> None:
