@@ -111,12 +111,20 @@ def draw_phi(ax: Axes, v: np.ndarray, Vs: Sequence[float], fitted, start=None, b
         ax.plot(v, phi, "-", color=color, lw=1.4)
         if start is not None:
             ax.plot(v, np.asarray(start(jnp.asarray(v), V)), "--", color=color, lw=1.1, alpha=0.8)
-    handles = [Line2D([], [], color=color, lw=3) for color in colors]
-    labels = [f"V = {V:g} m/s" for V in Vs]
-    handles.append(Line2D([], [], color="0.3", lw=1.4))
-    labels.append("fitted" + (" (95 % band)" if band is not None else ""))
+    from matplotlib.patches import Patch
+
+    # one V: its colour is the curves' (a key in another colour would not be true to them)
+    key = colors[0] if len(colors) == 1 else "0.3"
+    handles = [Line2D([], [], color=color, lw=3) for color in colors] if len(colors) > 1 else []
+    labels = [f"V = {V:g} m/s" for V in Vs] if len(colors) > 1 else []
+    fitted_label = "fitted" + (f" (V = {Vs[0]:g} m/s)" if len(colors) == 1 else "")
+    handles.append(Line2D([], [], color=key, lw=1.4))
+    labels.append(fitted_label)
+    if band is not None:
+        handles.append(Patch(color=key, alpha=0.2, lw=0))
+        labels.append("its 95 % band")
     if start is not None:
-        handles.append(Line2D([], [], color="0.3", lw=1.1, ls="--"))
+        handles.append(Line2D([], [], color=key, lw=1.1, ls="--", alpha=0.8))
         labels.append("start")
     for handle, label in extra:  # more entries of the caller's (markers it drew)
         handles.append(handle)

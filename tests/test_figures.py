@@ -493,3 +493,32 @@ def test_table_fit_figure_colours_every_V_and_error_bars_that_stay_positive(monk
     lows = [min(seg[:, 1]) for seg in bars.get_segments()]
     assert min(lows) == 0.0 and ax_period.get_ylim()[0] >= 0.0  # 0.011 ± 0.02 stops at 0
     assert any("cut at 0" in t.get_text() for t in ax_period.get_legend().get_texts())
+
+
+def test_the_phi_panel_legend_is_true_to_its_lines_and_the_title_gives_the_fit():
+    """One V: the legend's fitted, band and start entries have the curves' colour (not a grey key
+    for a blue curve); the fit's title names each free coefficient with its 95 % interval."""
+    from types import SimpleNamespace
+
+    import jax.numpy as jnp
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import to_rgba
+
+    import peeljax as pj
+    from peeljax._panels import draw_phi
+    from peeljax.fit.plots import fitted_values
+
+    fig, ax = plt.subplots()
+    law = pj.AdhesionLaw()
+    band = lambda V: (np.asarray(law(jnp.geomspace(1e-3, 10, 50), V)), np.full(50, 5.0))  # noqa: E731
+    (color,) = draw_phi(ax, np.geomspace(1e-3, 10, 50), [1.1], law, pj.AdhesionLaw(c1=440.0), band=band)
+    legend = ax.get_legend()
+    texts = [t.get_text() for t in legend.get_texts()]
+    assert texts == ["fitted (V = 1.1 m/s)", "its 95 % band", "start"]
+    for handle in legend.legend_handles:
+        assert to_rgba(handle.get_facecolor() if hasattr(handle, "get_facecolor") and not hasattr(handle, "get_xdata")
+                       else handle.get_color())[:3] == pytest.approx(to_rgba(color)[:3])  # fmt: skip
+    plt.close(fig)
+    uncertainty = SimpleNamespace(intervals=lambda level: {"c1": (398.04, 406.61)})
+    result = SimpleNamespace(adhesion=pj.AdhesionLaw(c1=402.3), free=("c1",), uncertainty=uncertainty)
+    assert fitted_values(result) == "c1 = 402.3 [398.04, 406.61] (95 %)"

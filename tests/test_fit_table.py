@@ -91,6 +91,10 @@ def test_covariance_of_a_linear_fit_is_the_textbook_one():
     np.testing.assert_allclose(np.diag(unc.correlation), 1.0)
     assert unc.undetermined == ()
     assert unc.quantile(0.95) == pytest.approx(scipy.stats.t.ppf(0.975, 27), rel=1e-3)
+    # the table prints the 95 % interval it computes, value ± t₀.₉₇₅·σ
+    lo, hi = unc.intervals(0.95)["a"]
+    assert hi - unc.values[0] == pytest.approx(unc.quantile(0.95) * unc.standard_errors[0])
+    assert "95 % interval" in unc.table() and f"[{lo:.6g}, {hi:.6g}]" in unc.table()
 
 
 def test_a_coefficient_the_data_cannot_see_is_named():

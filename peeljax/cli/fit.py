@@ -491,7 +491,7 @@ def _records_command(args: argparse.Namespace, config: dict) -> int:
     if args.plot is not None and table is not None:
         from ..fit.plots import plot_table_fit
 
-        plot_table_fit(result, table, model=model, path=args.plot)
+        plot_table_fit(result, table, model=model, path=args.plot, what="force records fitted by their statistics")
     elif args.plot is not None:
         print(f"{PROG}: --plot: records fitted point by point only are not drawn; no figure written", file=sys.stderr)
     if args.json:

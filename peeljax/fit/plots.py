@@ -140,7 +140,7 @@ def _error_bars(values: np.ndarray, std, positive: bool):
 
 def plot_table_fit(
     result, table: StickSlipTable, *, model: PeelingModel | None = None, title: str | None = None,
-    path: str | Path | None = None, axes=None,
+    path: str | Path | None = None, axes=None, what: str = "stick-slip table fit",
 ) -> Figure:  # fmt: skip
     """A stick-slip table fit: data vs start and fitted model per statistic, residuals, φ band.
 
@@ -155,7 +155,8 @@ def plot_table_fit(
         table: the table it was fitted to.
         model: the spool and tape of the fit (default the paper's); φ is replaced by the
             start's and the fitted law.
-        title: the figure's title (default: the loss and the stop reason).
+        title: the figure's title (default: ``what``, the fitted coefficients with their 95 %
+            intervals, the loss and the stop reason).
         path: save the figure there (any format matplotlib's Agg canvas writes).
         axes: the Axes to draw into (a figure of the user's): one per fitted statistic, then the
             residuals', then φ's; None: a new figure.
@@ -246,6 +247,17 @@ def plot_table_fit(
     ax.set_title("adhesion law: fitted" + (" (95 % band)" if band else "") + " vs start", fontsize=9)
 
     reason = result.stop_reason.split(":")[0] if result.stop_reason else ""
-    default = (f"stick-slip table fit ({', '.join(result.free)}): loss {result.initial_loss:.3g} → "
-               f"{result.final_loss:.3g}" + (f", {reason}" if reason else ""))  # fmt: skip
+    default = (f"{what}: {fitted_values(result)}; loss {result.initial_loss:.3g} → {result.final_loss:.3g}"
+               + (f", {reason}" if reason else ""))  # fmt: skip
     return drawn.finish(title, path, default_title=default)
+
+
+def fitted_values(result) -> str:
+    """'c1 = 402.3 [398.0, 406.6]': each free coefficient with its 95 % interval where known."""
+    values = result.adhesion.coefficients()
+    intervals = {} if result.uncertainty is None else result.uncertainty.intervals(0.95)
+    parts = []
+    for name in result.free:
+        lo_hi = intervals.get(name)
+        parts.append(f"{name} = {values[name]:.5g}" + (f" [{lo_hi[0]:.5g}, {lo_hi[1]:.5g}]" if lo_hi else ""))
+    return ", ".join(parts) + (" (95 %)" if intervals else "")

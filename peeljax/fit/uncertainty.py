@@ -193,11 +193,14 @@ class Uncertainty:
         }
 
     def table(self) -> str:
-        """One line per coefficient: value ± standard error (relative), and the undetermined ones."""
-        lines = [f"{'coefficient':<12} {'value':>14} {'± std. error':>14} {'relative':>9}"]
+        """One line per coefficient: value ± standard error (relative) and the linearized 95 %
+        interval (:meth:`intervals`), and the undetermined ones."""
+        intervals = self.intervals(0.95)
+        lines = [f"{'coefficient':<12} {'value':>14} {'± std. error':>14} {'relative':>9}   {'95 % interval':<28}"]
         for n, v, s in zip(self.names, self.values, self.standard_errors):
             rel = abs(s / v) if v != 0 and math.isfinite(s) else math.inf
-            lines.append(f"{n:<12} {v:>14.6g} {s:>14.3g} {rel:>9.2%}")
+            lo, hi = intervals[n]
+            lines.append(f"{n:<12} {v:>14.6g} {s:>14.3g} {rel:>9.2%}   [{lo:.6g}, {hi:.6g}]")
         if self.undetermined:
             lines.append(f"not determined by the data: {', '.join(self.undetermined)}")
         if math.isfinite(self.chi2):
