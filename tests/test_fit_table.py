@@ -224,3 +224,55 @@ def test_hidden_truth_table_of_three_coefficients_is_recovered():
     assert phi_relative_error(result.adhesion, truth, V, result.v_range) < 0.02
     record = result.to_dict()
     assert record["chi2_dof"] == pytest.approx(result.chi2_dof) and len(record["optima"]) == 1
+
+
+def test_an_interrupted_levenberg_marquardt_keeps_its_best_point(monkeypatch):
+    """Ctrl-C inside the table fit's Levenberg-Marquardt (window rows, and rows on their
+    attractors): a FitInterrupted (a KeyboardInterrupt) whose best point is the lowest chi2 so far."""
+    from types import SimpleNamespace
+
+    from peeljax import AdhesionLaw
+    from peeljax.fit import FitInterrupted
+    from peeljax.fit import table as table_module
+
+    # r(z) = z - 1 on one coefficient: each step moves toward z = 1
+    def evaluated(z):
+        return np.array([z[0] - 1.0, 0.0]), np.array([[1.0], [0.0]]), np.array([0.1, 5.0])
+
+    calls = []
+
+    def batch(fit, zs, n):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return [evaluated(z) for z in zs]
+
+    monkeypatch.setattr(table_module, "_evaluate_batch", batch)
+    fit = SimpleNamespace(names=("c1",), start=AdhesionLaw())
+    options = dict(fit_rtol=1e-12, fit_atol=1e-30, max_iterations=10)
+    with pytest.raises(FitInterrupted) as stop:
+        table_module._solve(fit, np.array([[0.0]]), [evaluated(np.array([0.0]))], **options)
+    best = stop.value.best
+    assert isinstance(stop.value, KeyboardInterrupt) and best.stop_reason == "interrupted after 1 iterations"
+    assert best.final_loss < best.initial_loss == 1.0 and best.free == ("c1",)
+    assert float(best.adhesion.c1) == pytest.approx(400.0 * np.exp(1.0), rel=1e-2)  # one step to z = log(c/c0) ~ 1
+
+    # the attractor rows' loop: the same, through _fit_rows
+    class Rows:
+        n = 0
+
+        def start(self):
+            return SimpleNamespace(z=np.zeros(1), r=np.array([-1.0, 0.0]), J=np.array([[1.0], [0.0]]),
+                                   v_range=np.array([0.1, 5.0]), changes=())  # fmt: skip
+
+        def evaluate(self, z, state):
+            Rows.n += 1
+            if Rows.n == 2:
+                raise KeyboardInterrupt
+            r, J, v = evaluated(z)
+            return SimpleNamespace(z=z, r=r, J=J, v_range=v, changes=())
+
+    with pytest.raises(FitInterrupted) as stop:
+        table_module._fit_rows(Rows(), AdhesionLaw(), ("c1",), {**options, "progress": None}, scale=True,
+                               intervals="linear", level=0.95)  # fmt: skip
+    assert stop.value.best.final_loss < 1.0 and "interrupted" in stop.value.best.stop_reason

@@ -478,12 +478,15 @@ def _records_command(args: argparse.Namespace, config: dict) -> int:
     print(f"{PROG}: fitting {', '.join(config['free'])}; compiling first ...", file=sys.stderr)
     model = PeelingModel(adhesion=config["start"])
     hooked = options.progress_on(args)
-    result = fit_records(
-        config["records"], model, free=config["free"], by=config["by"], transient=config["transient"],
-        tau=config["tau"], rtol=config["rtol"], atol=config["atol"], max_iterations=config["max_iterations"],
-        statistics=config["statistics"],
-        intervals=config["intervals"], progress=_iteration_line("Levenberg-Marquardt") if hooked else None,
-    )  # fmt: skip
+    try:
+        result = fit_records(
+            config["records"], model, free=config["free"], by=config["by"], transient=config["transient"],
+            tau=config["tau"], rtol=config["rtol"], atol=config["atol"], max_iterations=config["max_iterations"],
+            statistics=config["statistics"],
+            intervals=config["intervals"], progress=_iteration_line("Levenberg-Marquardt") if hooked else None,
+        )  # fmt: skip
+    except KeyboardInterrupt as stop:
+        return _interrupted_fit(stop, args)
     result.settings.update({"data": args.data, "phi": args.phi})
     if args.out is not None:
         result.to_json(args.out)
@@ -537,6 +540,26 @@ def poorly_determined(result, records: list[Observation], target: float = 0.01) 
     longer = (f"; about {length * factor:.3g} s of record ({factor:.3g}x the {length:.3g} s given) would give "
               f"{100 * target:g} %") if np.isfinite(factor) and length > 0 else ""  # fmt: skip
     return f"the records determine {said} only (relative standard error){longer}"
+
+
+def _interrupted_fit(stop: KeyboardInterrupt, args: argparse.Namespace, write=None) -> int:
+    """Ctrl-C during a fit: its best point so far (``FitInterrupted.best``) written to --out
+    where there is one, and the line on stderr says what was kept (exit 130)."""
+    from ..fit import FitInterrupted
+
+    best = stop.best if isinstance(stop, FitInterrupted) else None
+    if best is None:
+        return _interrupt.interrupted("nothing was fitted yet" + (f"; {args.out!r} not written" if args.out else ""))
+    if args.out is None:
+        coefficients = best.adhesion.coefficients()
+        found = ", ".join(f"{name} = {coefficients[name]:.6g}" for name in best.free)
+        return _interrupt.interrupted(f"the best point so far ({best.stop_reason}): {found}; not saved (no --out)")
+    if write is not None:
+        write(best, args)
+    else:
+        best.settings.update({"data": args.data, "table": getattr(args, "table", None), "phi": args.phi})
+        best.to_json(args.out)
+    return _interrupt.interrupted(f"{args.out!r} holds the best point so far ({best.stop_reason})")
 
 
 def _fit_runs(fit_adhesion, observations, config: dict, args: argparse.Namespace):
@@ -596,13 +619,16 @@ def _table_command(args: argparse.Namespace, config: dict) -> int:
     # the hook of fit_stick_slip (progress(iteration, chi2)); left out where it has none
     hooked = options.progress_on(args) and "progress" in _TABLE_DEFAULTS
     progress = {"progress": _iteration_line("Levenberg-Marquardt")} if hooked else {}
-    result = fit_stick_slip(
-        table, model, free=config["free"], statistics=config["statistics"], tau=config["tau"],
-        method=config["method"], intervals=config["intervals"],
-        transient=config["transient"], window=config["window"], rtol=config["rtol"], atol=config["atol"],
-        max_iterations=config["max_iterations"], n_starts=config["n_starts"],
-        **({"max_steps": config["max_steps"]} if "max_steps" in config else {}), **progress,
-    )  # fmt: skip
+    try:
+        result = fit_stick_slip(
+            table, model, free=config["free"], statistics=config["statistics"], tau=config["tau"],
+            method=config["method"], intervals=config["intervals"],
+            transient=config["transient"], window=config["window"], rtol=config["rtol"], atol=config["atol"],
+            max_iterations=config["max_iterations"], n_starts=config["n_starts"],
+            **({"max_steps": config["max_steps"]} if "max_steps" in config else {}), **progress,
+        )  # fmt: skip
+    except KeyboardInterrupt as stop:
+        return _interrupted_fit(stop, args)
     result.settings.update({"table": args.table, "data": args.data, "phi": args.phi})
     if args.out is not None:
         result.to_json(args.out)
@@ -744,15 +770,10 @@ def _fit_command(args: argparse.Namespace) -> int:
         f"(V = {', '.join(f'{o.V:g}' for o in observations)}), {_engine(config)}; compiling first ...",
         file=sys.stderr,
     )
-    from ..fit import FitInterrupted
-
     try:
         result = _fit_runs(fit_adhesion, observations, config, args)
-    except FitInterrupted as stop:  # Ctrl-C: the best iterate so far is the fit's --out, and said so
-        _write_fit(stop.best, args)
-        return _interrupt.interrupted(f"{args.out!r} holds the best iterate so far ({stop.best.stop_reason})")
-    except KeyboardInterrupt:
-        return _interrupt.interrupted(f"nothing was fitted yet; {args.out!r} not written")
+    except KeyboardInterrupt as stop:
+        return _interrupted_fit(stop, args, write=_write_fit)
     _write_fit(result, args)
     if args.plot is not None:
         from ..plots import plot_fit

@@ -56,7 +56,7 @@ from .profile import profile
 from .statistics import jump_statistics, window_scatter
 from .table_rows import MISSING_RESIDUAL, V_REST, Point, TableRows, row_kinds
 from .stick_slip_table import STATISTICS, StickSlipTable
-from .trajectory import FitResult, _check_free, _to_law
+from .trajectory import FitInterrupted, FitResult, _check_free, _to_law
 from .uncertainty import uncertainty_from_jacobian
 
 __all__ = [
@@ -322,14 +322,29 @@ def _solve(fit: TableFit, starts, evaluated, *, fit_rtol, fit_atol, max_iteratio
         for z, e in zip(starts, evaluated)
     ]  # fmt: skip
     iteration = 0
-    while any(run.reason is None for run in runs):
-        trials = np.stack([run.trial() for run in runs])
-        for run, e in zip(runs, _evaluate_batch(fit, trials, len(runs))):
-            run.take(*e)
-        iteration += 1
-        if progress is not None:  # on the host, between iterations: the lowest chi2 so far
-            progress(iteration, min(run.chi2 for run in runs))
+    try:
+        while any(run.reason is None for run in runs):
+            trials = np.stack([run.trial() for run in runs])
+            for run, e in zip(runs, _evaluate_batch(fit, trials, len(runs))):
+                run.take(*e)
+            iteration += 1
+            if progress is not None:  # on the host, between iterations: the lowest chi2 so far
+                progress(iteration, min(run.chi2 for run in runs))
+    except KeyboardInterrupt:  # Ctrl-C: the best point so far goes with the interruption
+        raise FitInterrupted(_interrupted(fit.names, fit.start, min(runs, key=lambda run: run.chi2), iteration)) from None
     return runs
+
+
+def _interrupted(names, start: AdhesionLaw, run: _Marquardt, iterations: int) -> FitResult:
+    """The best point of an interrupted Levenberg–Marquardt, as a result (no uncertainty: its
+    covariance, profiles and checks were not computed)."""
+    return FitResult(
+        adhesion=_to_law({n: jnp.asarray(z) for n, z in zip(names, run.z)}, start), start=start,
+        loss_history=np.asarray(run.history), initial_loss=float(run.history[0]), final_loss=float(run.chi2),
+        gradient_norm=float(np.linalg.norm(2 * run.J.T @ run.r)), steps=len(run.history) - 1, stopped_early=False,
+        v_range=tuple(float(x) for x in np.ravel(run.v_range)[:2]), free=tuple(names), settings={},
+        stop_reason=f"interrupted after {iterations} iterations",
+    )  # fmt: skip
 
 
 def _coarse_starts(n_coarse: int, p: int, spread: float, seed: int) -> np.ndarray:
@@ -790,8 +805,20 @@ def _fit_rows(rows, start, names, options, *, scale, intervals, level) -> dict:
         rows.update_bias(point)
         point = rows.evaluate(point.z, point)
     initial = float(point.r @ point.r)
-    crossings, counter = [], [0]
-    run = _rounds(rows, point, options, crossings, counter)
+    crossings, counter, latest = [], [0], []
+    try:
+        return _fit_rows_from(rows, point, start, names, options, crossings, counter, latest, initial, scale=scale,
+                              intervals=intervals, level=level)  # fmt: skip
+    except KeyboardInterrupt:  # Ctrl-C: the best point so far goes with the interruption
+        if not latest:
+            raise
+        best = min(latest, key=lambda run: run.chi2)
+        raise FitInterrupted(_interrupted(names, start, best, counter[0])) from None
+
+
+def _fit_rows_from(rows, point, start, names, options, crossings, counter, latest, initial, *, scale, intervals,
+                   level) -> dict:  # fmt: skip
+    run = _rounds(rows, point, options, crossings, counter, latest)
     profiles = {}
     for _ in range(RESTARTS + 1):
         values = np.asarray([float(getattr(start, n)) * math.exp(run.z[k]) for k, n in enumerate(names)])
@@ -803,7 +830,7 @@ def _fit_rows(rows, start, names, options, *, scale, intervals, level) -> dict:
         crossings.append({"row": None, "V": None, "from": None, "to": None, "iteration": counter[0], "accepted": True,
                           "why": f"the profile found chi2 {float(lowest.r @ lowest.r):.4g} below the optimum's "
                           f"{run.chi2:.4g} on another branch: Levenberg-Marquardt again from there"})  # fmt: skip
-        run = _rounds(rows, lowest, options, crossings, counter)
+        run = _rounds(rows, lowest, options, crossings, counter, latest)
     return {"runs": [run], "rows": rows, "crossings": crossings, "initial": initial, "profiles": profiles}
 
 
@@ -813,13 +840,15 @@ LOWER = 0.5  # a profile point this much below the optimum's χ² is a better op
 BIAS_SETTLED = 0.05  # [σ]: the instruments' bias is settled once an update moves it less
 
 
-def _rounds(rows, point, options, crossings: list, counter: list):
+def _rounds(rows, point, options, crossings: list, counter: list, latest: list):
     """Levenberg–Marquardt from ``point``; then again from the attractors reached from rest
     where they are not the ones followed (the table was measured from rest), and with the
-    records' instrument bias updated at the optimum until it settles; at most ``ROUNDS`` times."""
+    records' instrument bias updated at the optimum until it settles; at most ``ROUNDS`` times.
+    ``latest`` gets each run as it starts (what an interruption keeps)."""
     for _ in range(ROUNDS):
         run = _Marquardt(point.z, point.r, point.J, point.v_range, fit_rtol=options["fit_rtol"],
                          fit_atol=options["fit_atol"], max_iterations=options["max_iterations"], state=point)  # fmt: skip
+        latest.append(run)
         while run.reason is None:
             trial = rows.evaluate(run.trial(), run.state)
             run.take(trial.r, trial.J, trial.v_range, state=trial, crossed=bool(trial.changes))
