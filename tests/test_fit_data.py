@@ -130,6 +130,7 @@ BAD_RECORDS = {
     "negative t": ("t,F\n-1,1\n1,2\n", 2, "t", ["negative time"]),
     "negative F": ("t,F\n0,1\n0.5,-5\n1,2\n", 3, "F", [">= 0 N", "tension", "-5", "t = 0.5 s"]),
     "negative v": ("t,F,v\n0,1,0.1\n1,2,-0.2\n", 3, "v", [">= 0 m/s", "peeling velocity"]),
+    "alpha in degrees": ("t,F,alpha\n0,1,0.1\n1,2,45\n", 3, "alpha", ["(-pi, pi) rad", "degrees?"]),
     "empty file": ("", None, None, ["empty"]),
     "comments only": ("# nothing\n\n", None, None, ["no header"]),
     "header only": ("# c\nt,F\n", 2, None, ["header only"]),
@@ -233,6 +234,7 @@ def _bad_npz(tmp_path):
         "negative V": ({"V": -1.0, "t": t, "v": t}, "V", "(0, inf)"),
         "negative F": ({"V": 1.0, "t": t, "v": t, "F": t - 0.3}, "F", ">= 0 N"),
         "negative v": ({"V": 1.0, "t": t, "v": t - 0.3}, "v", ">= 0 m/s"),
+        "alpha in degrees": ({"V": 1.0, "t": t, "v": t, "alpha": 30 * t}, "alpha", "(-pi, pi) rad"),
         "after_jump not booleans": ({"V": 1.0, "t": t, "v": t, "after_jump": t}, "after_jump", "booleans"),
     }
     for name, (arrays, *_) in cases.items():
@@ -254,6 +256,7 @@ def _bad_npz(tmp_path):
         "negative V",
         "negative F",
         "negative v",
+        "alpha in degrees",
         "after_jump not booleans",
     ],
 )

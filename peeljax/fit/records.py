@@ -173,6 +173,12 @@ def read_force_record(path, *, V: float | None = None, memory_limit: float | Non
                 f"{name} must be >= 0 {_UNITS[name]} ({_MEANING[name]}), got {columns[name][negative]:g} at t = "
                 f"{t[negative]:g} s", row=negative, column=name,
             )  # fmt: skip
+    outside = _first_outside_angle(columns.get("alpha"))
+    if outside is not None:
+        raise text.fail(
+            f"alpha must lie in (-pi, pi) rad, got {columns['alpha'][outside]:g} at t = {t[outside]:g} s (degrees?)",
+            row=outside, column="alpha",
+        )  # fmt: skip
     sources = {}
     if "V" in columns:
         column = columns["V"]
@@ -294,6 +300,14 @@ def _first_negative(values) -> int | None:
     return int(negative[0]) if negative.size else None
 
 
+def _first_outside_angle(values) -> int | None:
+    """The index of the first angle not in (−π, π) rad (NaN is a missing entry), or None."""
+    if values is None:
+        return None
+    outside = np.flatnonzero(np.abs(values) >= np.pi)
+    return int(outside[0]) if outside.size else None
+
+
 def _npz_error(path, key, reason) -> DataFileError:
     return DataFileError(path, reason, column=key, field=True)
 
@@ -319,6 +333,11 @@ def _check_series(path: str, key: str, time_key: str, times: np.ndarray, values:
     if np.any(np.isinf(values)):
         raise _npz_error(path, key, f"{key!r} has infinite entries (NaN marks a missing value; inf is not one)")
     name = key.split("_")[0]
+    outside = _first_outside_angle(values) if name == "alpha" else None
+    if outside is not None:
+        raise _npz_error(
+            path, key, f"{key!r} must lie in (-pi, pi) rad, got {values[outside]:g} at index {outside} (degrees?)"
+        )
     negative = _first_negative(values) if name in _UNITS else None
     if negative is not None:
         raise _npz_error(
