@@ -522,3 +522,28 @@ def test_the_phi_panel_legend_is_true_to_its_lines_and_the_title_gives_the_fit()
     uncertainty = SimpleNamespace(intervals=lambda level: {"c1": (398.04, 406.61)})
     result = SimpleNamespace(adhesion=pj.AdhesionLaw(c1=402.3), free=("c1",), uncertainty=uncertainty)
     assert fitted_values(result) == "c1 = 402.3 [398.04, 406.61] (95 %)"
+
+
+def test_a_records_fit_figure_shows_each_record_against_the_model(tmp_path):
+    """The force-record fit's figure: each record's measured F(t) with the fitted and the start
+    model's F(t) on its times, φ fitted against the start, the fitted value in the title."""
+    from types import SimpleNamespace
+
+    import peeljax as pj
+    from peeljax.fit import Observation
+    from peeljax.fit.plots import plot_records_fit
+
+    ts = np.linspace(0.0, 0.3, 301)
+    run = pj.simulate(V=1.1, tau=0.0, t_final=0.3, ts=ts)
+    keep = ~np.asarray(run.after_jump)
+    F = np.asarray(pj.PeelingModel().tension(run.ys[:, 2], run.ys[:, 0]))
+    record = Observation(V=1.1, t=np.asarray(run.ts)[keep], v=None, F=F[keep])
+    result = SimpleNamespace(start=pj.AdhesionLaw(c1=440.0), adhesion=pj.AdhesionLaw(), v_range=(1e-3, 10.0),
+                             uncertainty=None, free=("c1",))  # fmt: skip
+    fig = plot_records_fit(result, [record], path=tmp_path / "records.png")
+    assert (tmp_path / "records.png").read_bytes()[:8] == PNG_MAGIC
+    ax_F, ax_phi = fig.axes[:2]
+    assert [t.get_text() for t in ax_F.get_legend().get_texts()] == ["measured F(t)", "start model", "fitted model"]
+    measured, _, fitted = ax_F.get_lines()
+    np.testing.assert_allclose(fitted.get_ydata(), measured.get_ydata(), rtol=1e-9)  # the fitted law is the truth
+    assert fig._suptitle.get_text() == "force records fitted: c1 = 400"

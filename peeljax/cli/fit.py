@@ -490,16 +490,15 @@ def _records_command(args: argparse.Namespace, config: dict) -> int:
     result.settings.update({"data": args.data, "phi": args.phi})
     if args.out is not None:
         result.to_json(args.out)
-    table = getattr(result, "table", None)
-    if args.plot is not None and table is not None:
-        from ..fit.plots import plot_table_fit
+    if args.plot is not None:  # each record's F(t) against the model's, and φ
+        from ..fit.plots import plot_records_fit
 
-        plot_table_fit(result, table, model=model, path=args.plot, what="force records fitted by their statistics")
-    elif args.plot is not None:
-        print(f"{PROG}: --plot: records fitted point by point only are not drawn; no figure written", file=sys.stderr)
+        by_points = any(kind == "points" for kind, _ in config["decided"])
+        plot_records_fit(result, config["records"], model=model, tau=config["tau"] if by_points else 0.0,
+                         path=args.plot)  # fmt: skip
     if args.json:
         record = result.to_dict()
-        record.update({"out": args.out, "plot": args.plot if table is not None else None})
+        record.update({"out": args.out, "plot": args.plot})
         print(json.dumps(json_safe(record), allow_nan=False))
         return 0
     print(_ascii(result.summary()))
@@ -509,7 +508,7 @@ def _records_command(args: argparse.Namespace, config: dict) -> int:
     poorly = poorly_determined(result, config["records"])
     if poorly:
         print(f"{PROG}: {poorly}", file=sys.stderr)
-    written = [p for p in (args.out, args.plot if table is not None else None) if p is not None]
+    written = [p for p in (args.out, args.plot) if p is not None]
     if written:
         print("wrote " + " and ".join(written))
     return 0

@@ -24,11 +24,12 @@ from matplotlib.figure import Figure
 from .._panels import draw_phi, panels
 from ..adhesion import AdhesionLaw
 from ..model import PeelingModel
+from .records import left_limit_rows
 from .stick_slip_table import STATISTICS, StickSlipTable
 from .table import TableFit, build_table_fit
 from .table import attractor_statistics
 
-__all__ = ["model_statistics", "plot_table_fit"]
+__all__ = ["model_statistics", "plot_records_fit", "plot_table_fit"]
 
 _LABELS = {
     "F_mean": "mean tension F̄ [N]",
@@ -261,3 +262,66 @@ def fitted_values(result) -> str:
         lo_hi = intervals.get(name)
         parts.append(f"{name} = {values[name]:.5g}" + (f" [{lo_hi[0]:.5g}, {lo_hi[1]:.5g}]" if lo_hi else ""))
     return ", ".join(parts) + (" (95 %)" if intervals else "")
+
+
+# Most records drawn, and most points of a record's F(t) drawn (a longer one is thinned evenly).
+RECORD_PANELS, RECORD_POINTS = 6, 4000
+
+
+def plot_records_fit(
+    result, records, *, model: PeelingModel | None = None, tau: float = 0.0, title: str | None = None,
+    path: str | Path | None = None,
+) -> Figure:  # fmt: skip
+    """A fit of force records: each record's measured F(t) against the fitted model's and the
+    start's (their runs from the paper's start at the record's V, on its times), and φ(v, V)
+    fitted (with its 95 % band) against the start.
+
+    From rest the model's stick-slip and the record's are not in phase after the first slips:
+    compare their amplitude, period and mean (the fit compares statistics for such records).
+
+    Args:
+        result: :func:`~peeljax.fit.fit_records`'s result; records: the
+            :class:`~peeljax.fit.Observation` s fitted (the first ``RECORD_PANELS`` drawn).
+        model: spool and tape (default the paper's); tau: the model runs' τ (0: the DAE).
+        title: the figure's title (default: the fitted coefficients with their 95 % intervals).
+        path: save the figure there.
+    """
+    from ..simulate import simulate
+
+    model = PeelingModel() if model is None else model
+    drawn_records = [o for o in records if o.series("F") is not None][:RECORD_PANELS]
+    count = len(drawn_records) + 1
+
+    def grid(fig):
+        return list(np.ravel(fig.subplots(count, 1, squeeze=False)))
+
+    drawn = panels(None, count, grid, figsize=(9.0, 2.4 * count + 0.6))
+    axes = drawn.axes
+    for ax, record in zip(axes, drawn_records):
+        t, F = record.series("F")
+        keep = np.unique(np.linspace(0, len(t) - 1, min(len(t), RECORD_POINTS)).astype(int))
+        t, F = t[keep], F[keep]
+        ax.plot(t, F, color="0.35", lw=0.8, label="measured F(t)")
+        for law, style, color, label in ((result.start, "--", "C1", "start model"), (result.adhesion, "-", "C0", "fitted model")):
+            run = simulate(eqx.tree_at(lambda m: m.adhesion, model, law), V=record.V, tau=tau, t_final=float(t[-1]),
+                           ts=t if t[0] == 0.0 else np.concatenate([[0.0], t]))  # fmt: skip
+            times = np.asarray(run.ts)
+            left = left_limit_rows(times, np.zeros(len(times), bool) if run.after_jump is None else run.after_jump)
+            ax.plot(times[left], np.asarray(model.tension(run.ys[:, 2], run.ys[:, 0]))[left], style, color=color,
+                    lw=1.0, alpha=0.85, label=label)  # fmt: skip
+        ax.set_xlabel("t [s]")
+        ax.set_ylabel("tension F [N]")
+        ax.set_title(f"record at V = {record.V:g} m/s", fontsize=9)
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+    ax = axes[-1]
+    lo, hi = result.v_range
+    lo = max(float(lo), 1e-12)
+    v = np.geomspace(lo, max(float(hi), lo * 10), 300)
+    Vs = sorted({float(o.V) for o in records})
+    band = None if result.uncertainty is None else (lambda V_i: result.uncertainty.phi_band(result.adhesion, v, V_i))
+    draw_phi(ax, v, Vs, result.adhesion, result.start, band=band)
+    ax.set_xscale("log")
+    ax.set_xlabel("v [m/s] (range visited by the fitted runs)")
+    ax.set_ylabel("φ(v, V) [N]")
+    ax.set_title("adhesion law: fitted vs start", fontsize=9)
+    return drawn.finish(title, path, default_title=f"force records fitted: {fitted_values(result)}")
