@@ -128,8 +128,8 @@ BAD = [
 
 def test_a_tau_0_run_file_is_read_and_asks_for_tau(tmp_path, monkeypatch):
     """``simulate --tau 0 --out`` writes two rows at each jump (``after_jump``): fit --data reads
-    them as one, the left limit; without --tau it says the runs were at τ = 0 and what to give,
-    with --tau it reaches the fit with strictly increasing times."""
+    them as one, the left limit, and reaches the fit with strictly increasing times; without --tau
+    it says the runs were at τ = 0 and fits at the default τ (the homogenized ODE)."""
     run = tmp_path / "rec.npz"
     code, _, err = run_cli(["simulate", "--V", "1.1", "--tau", "0", "--t-final", "0.3", "--save-dt", "0.001",
                             "--out", str(run)])  # fmt: skip
@@ -146,8 +146,9 @@ def test_a_tau_0_run_file_is_read_and_asks_for_tau(tmp_path, monkeypatch):
         raise Reached
 
     monkeypatch.setattr("peeljax.fit.fit_adhesion", fake)
-    code, stdout, stderr = run_cli(["fit", "--data", str(run), "--free", "c1", "--out", str(tmp_path / "f.json")])
-    assert_refused(code, stderr, "--data", "tau = 0", "--tau", stdout=stdout)
+    with pytest.raises(Reached):
+        run_cli(["fit", "--data", str(run), "--free", "c1", "--out", str(tmp_path / "f.json")])
+    assert seen["tau"] == 0.01
     with pytest.raises(Reached):
         run_cli(["fit", "--data", str(run), "--free", "c1", "--tau", "1e-3", "--out", str(tmp_path / "f.json")])
     (observation,) = seen["observations"]
@@ -231,3 +232,9 @@ def test_an_interrupted_fit_writes_its_best_iterate_so_far(simulated, monkeypatc
     assert record["stop_reason"] == "interrupted after 1 iterations" and len(record["loss_history"]) == 2
     assert record["final_loss"] == min(record["loss_history"])
     assert AdhesionLaw.from_json(out).c1 == pytest.approx(record["c1"])
+
+
+def test_fit_help_says_what_transient_does_with_data():
+    _, out, _ = run_cli(["fit", "--help"])
+    text = " ".join(out.split())
+    assert "--data: of each force record" in text and "the record's second half" in text

@@ -137,3 +137,15 @@ def test_orbit_diagram_reports_what_it_finished_as_it_goes():
     assert len(parts) == 2 + len(diagram.branches) and len(diagram.branches) >= 1
     assert [len(part.branches) for part in parts[2:]] == list(range(1, len(diagram.branches) + 1))
     assert [s.branch for s in parts[-1].seeds] == [s.branch for s in diagram.seeds]
+
+
+@pytest.mark.slow
+def test_the_diagram_command_numbers_branches_alike_on_both_streams(capsys):
+    """`peeljax orbit --V lo:hi:n`: the progress on stderr and the summary on stdout name each
+    branch by the same number (its index in diagram.branches)."""
+    assert main(["orbit", "--V", "1.05:1.1:2"]) == 0
+    captured = capsys.readouterr()
+    progress = re.findall(r"branch (\d+): (\d+) slips per period", captured.err)
+    summary = re.findall(r"branch (\d+): (\d+) slips per period", captured.out)
+    assert progress and [b for b, _ in progress] == [str(i) for i in range(len(progress))]
+    assert dict(progress) == {b: k for b, k in summary}

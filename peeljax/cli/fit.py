@@ -681,16 +681,22 @@ def _check_run_options(args: argparse.Namespace) -> None:
             raise ValueError(f"--quantities: unknown {unknown}; allowed: {', '.join(QUANTITIES)}")
 
 
+DEFAULT_POINTS_TAU = 0.01  # s: --tau of a fit point by point where neither it nor the files give one
+
+
 def _points_tau(args: argparse.Namespace, defaults: dict) -> float:
     """τ of a fit point by point: --tau, else the data files' own (an .npz run's), else 0.01;
-    in (0, 1e6]. A run file of the DAE (τ = 0) gets a message of its own: the user gave no τ."""
+    in (0, 1e6]. Files of DAE runs (τ = 0) take the default too, said on stderr: a fit point by
+    point integrates the homogenized ODE."""
     if args.tau is None and defaults.get("tau") == 0.0:
-        raise ValueError(
-            "--data: the files hold runs at tau = 0 (the DAE with jumps; a jump's two rows read as the state "
-            "before it); a fit point by point integrates the homogenized ODE: give --tau > 0 (1e-3 is close "
-            "to the DAE)"
+        print(
+            f"{PROG}: --data: the files hold runs at tau = 0 (the DAE with jumps; a jump's two rows read as the "
+            f"state before it); a fit point by point integrates the homogenized ODE: tau = {DEFAULT_POINTS_TAU:g} "
+            "(--tau to choose; 1e-3 is closer to the DAE)",
+            file=sys.stderr,
         )
-    tau = args.tau if args.tau is not None else defaults.get("tau", 0.01)
+        return DEFAULT_POINTS_TAU
+    tau = args.tau if args.tau is not None else defaults.get("tau", DEFAULT_POINTS_TAU)
     checked(f"(0, {TAU_MAX:g}]", check_tau, tau)
     return tau
 
