@@ -101,6 +101,8 @@ def _bad_files(tmp_path):
     np.savez(files["infinite_v"], t=t, v=np.where(t > 0.1, np.inf, 1.0), V=1.0)
     files["unordered_t"] = tmp_path / "g.npz"
     np.savez(files["unordered_t"], t=t[::-1], v=t, V=1.0)
+    files["negative_F"] = tmp_path / "h.npz"
+    np.savez(files["negative_F"], t=t, v=t + 0.1, F=np.where(t > 0.5, -5.0, 200.0), V=1.0)
     return files
 
 
@@ -123,6 +125,7 @@ BAD = [
     (["--dt", "0.01", "--atol", "1e-9"], "--atol", "--dt"),
     (["--data", "infinite_v"], "--data", "infinite"),
     (["--data", "unordered_t"], "--data", "increase strictly"),
+    (["--data", "negative_F"], "--data", ">= 0 N"),
 ]
 
 

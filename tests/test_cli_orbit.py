@@ -172,6 +172,10 @@ def test_the_figure_draws_into_the_users_axes(shot):
     assert plot_orbit(pj.load(shot["npz"]), axes=axes) is fig
     assert axes[0].get_yscale() == "log" and axes[2].get_xscale() == "log"
     assert len(axes[1].get_lines()) >= 6  # F(t), slips, re-sticks, F_mean, F_slip, F_stick
+    # where the tension F meets the force G φ balances, the legend says which is which
+    labels = [t.get_text() for t in axes[1].get_legend().get_texts()]
+    assert any(label.startswith("F_slip") and "G = " in label and "φ's maximum" in label for label in labels)
+    assert any(label.startswith("F_stick") and "G = " in label and "φ's minimum" in label for label in labels)
     with pytest.raises(ValueError, match="did not converge"):
         plot_orbit(_not_converged())
     with pytest.raises(ValueError, match="4 Axes"):
