@@ -204,7 +204,7 @@ def test_arrays_round_trip_without_pickles(smap, tmp_path):
 @pytest.mark.slow
 def test_summary_and_figure(smap, tmp_path):
     text = str(smap)
-    assert "stick-slip for V in" in text and "no fold for V in 6" in text
+    assert "stick-slip for V in" in text and "no fold at V = 6 m/s" in text
     assert "paper" in text and "steady" in text
     path = tmp_path / "map.png"
     fig = plot_stick_slip_map(smap, title="test map", path=path)
