@@ -83,9 +83,9 @@ def _reverse_fwd(perturbed, inputs, solve, limit):
 
         return run
 
-    if flat.size == 0:  # nothing perturbed that the run reads
+    if flat.size == 0:  # nothing perturbed that the run reads: no tangent, a zero gradient
         floats, rest = arrays("lax")(flat)
-        return eqx.combine(floats, rest, static[0]), ("tangents", jax.tree.map(lambda x: x[None, :0], floats), None)
+        return eqx.combine(floats, rest, static[0]), ("tangents", jax.tree.map(lambda x: jnp.zeros((0, *x.shape)), floats), None)
     if flat.size > limit:
         floats, pullback, rest = jax.vjp(arrays("checkpointed"), flat, has_aux=True)
         return eqx.combine(floats, rest, static[0]), ("pullback", pullback, floats)
