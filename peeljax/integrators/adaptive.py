@@ -328,7 +328,13 @@ def adaptive_loop(
         else:
             impasse = jnp.asarray(False)
             if completes:  # the DAE's v, solved anew at the step's end
-                new = eqx.tree_at(lambda s: s.y, new, jnp.where(accept, ode.complete(new.y), new.y))
+                switched = accept & ode.switches(new.y) if hasattr(ode, "switches") else None
+                completed = ode.complete_step(new.y) if hasattr(ode, "complete_step") else ode.complete(new.y)
+                new = eqx.tree_at(lambda s: s.y, new, jnp.where(accept, completed, new.y))
+                if switched is not None:  # the tape released or fully stuck: a new field, start afresh
+                    new = jax.lax.cond(
+                        jax.lax.stop_gradient(switched), lambda: stepper.restart(ode, t_new, new.y, new), lambda: new
+                    )
             g_new = jax.lax.stop_gradient(new.J) if schur_event else fold_event(ode, new.y)
             if stepper.cuts_at_folds and not schur_event and not timed:
                 # A rejected attempt over the fold: its error holds the kink of v clamped past the
