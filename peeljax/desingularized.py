@@ -27,9 +27,11 @@ kept on the constraint: the field takes u = U(α, φ(v)) in closed form (F(u, α
 :meth:`PeelingModel.stretch_for_force`), so an evaluation solves nothing — no root of φ is
 searched, unlike :class:`~peeljax.ConstrainedDAE`'s v(x) — and ``complete`` projects the
 carried u back onto the constraint after every step. The fully stuck tape (v = 0 while
-G(x) < φ(0⁺, V): the constraint is then an inequality) is carried at v = v_low (the bottom of
-the stick branch, 1e-100·max(V, 1) m/s) with its own field, dt/ds = 1, ẋ = f(x, 0), and leaves
-it continuously once G(x) rises above φ(v_low, V).
+G(x) < φ(0⁺, V): the constraint is then an inequality) is carried at the marker v_low (1e-100·max(V, 1)
+m/s) with its own field, dt/ds = 1, ẋ = f(x, 0). Stuck and free are modes switched at a step's
+end (:meth:`DesingularizedDAE.complete_step`: released where G(x) has risen above φ(v_low, V),
+stuck where the branch's v has fallen below v_low), differentiated at fixed v (docs/theory.md,
+"The tape that stops").
 
 Every derivative is autodiff's (∂φ/∂(log v) and Ġ by ``jax.jvp``).
 """
