@@ -177,9 +177,18 @@ def _root_on(model: PeelingModel, V, target, lo, hi, guess, clamped=False, *, co
 
 
 def branch_velocity(
-    model: PeelingModel, x: Float[Array, "3"], V: ArrayLike, branch: ArrayLike, folds: Folds, guess: ArrayLike = 1.0
+    model: PeelingModel,
+    x: Float[Array, "3"],
+    V: ArrayLike,
+    branch: ArrayLike,
+    folds: Folds,
+    guess: ArrayLike = 1.0,
+    skip: ArrayLike = False,
 ) -> Float[Array, ""]:
     """v(x) on a branch: the root of G(x) = φ(v, V) there, clamped at the branch's ends.
+
+    ``skip``: where True the root search is skipped (the caller discards v; a search per step
+    for a value rarely used would cost a loop of φ evaluations).
 
     Past the branch's fold (G above φ(v̂, V) on the stick branch, below φ(v̌, V) on the slip
     branch) v stays at the fold velocity, a continuous extension that lets a step cross the
@@ -197,7 +206,7 @@ def branch_velocity(
     # and the root search is skipped.
     past_end = sg(target >= model.phi(hi, V))
     below_start = sg(target <= model.phi(lo, V))
-    w = _root_on(sg(model), sg(V), sg(target), sg(lo), sg(hi), sg(guess), past_end | below_start)
+    w = _root_on(sg(model), sg(V), sg(target), sg(lo), sg(hi), sg(guess), past_end | below_start | skip)
     v_star = jnp.exp(w)
     slope = jax.lax.stop_gradient(jax.grad(lambda v: model.phi(v, V))(v_star))
     interior = ~past_end & ~below_start & (slope > 0)

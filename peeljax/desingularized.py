@@ -29,7 +29,7 @@ searched, unlike :class:`~peeljax.ConstrainedDAE`'s v(x) — and ``complete`` pr
 carried u back onto the constraint after every step. The fully stuck tape (v = 0 while
 G(x) < φ(0⁺, V): the constraint is then an inequality) is carried at the marker v_low (1e-100·max(V, 1)
 m/s) with its own field, dt/ds = 1, ẋ = f(x, 0). Stuck and free are modes switched at a step's
-end (:meth:`DesingularizedDAE.complete_step`: released where G(x) has risen above φ(v_low, V),
+end (:meth:`DesingularizedDAE.switch`: released where G(x) has risen above φ(v_low, V),
 stuck where the branch's v has fallen below v_low), differentiated at fixed v (docs/theory.md,
 "The tape that stops").
 
@@ -147,28 +147,32 @@ class DesingularizedDAE(eqx.Module):
         """y with u on the constraint, G(x) = φ(v, V); a fully stuck tape keeps its x, and is
         released where G(x) has risen above φ(v_low, V): v is then the stick branch's root of
         G(x) = φ(v, V) (:func:`~peeljax.branches.branch_velocity`, differentiated at fixed t).
-        Any state (an output's too); a step's end is :meth:`complete_step`'s."""
-        root = branch_velocity(self.model, y[:3], self.V, STICK, self.folds, guess=self._v_low())
-        return self._on_constraint(y.at[3].set(jnp.where(self._releases(y), self._free(root), y[3])))
+        Any state (an output's too); a step's end where the mode switches is :meth:`switch`'s."""
+        def release(y):
+            return y.at[3].set(self._free(branch_velocity(self.model, y[:3], self.V, STICK, self.folds, self._v_low())))
 
-    def complete_step(self, y: Float[Array, "5"]) -> Float[Array, "5"]:
-        """:meth:`complete` at a step's end, where the run goes on: the tape is released
-        (stuck, G(x) above φ(v_low, V)) or sticks fully (on the branch, v below v_low), both
-        at the step's x, and differentiated at fixed v (:meth:`_at_velocity`)."""
-        sg = jax.lax.stop_gradient
-        root = branch_velocity(self.model, sg(y[:3]), sg(self.V), STICK, sg(self.folds), guess=self._v_low())
-        y = jnp.where(self._releases(y), self._at_velocity(y, self._free(root)), y)
-        y = jnp.where(self._sticks(y), self._at_velocity(y, self._v_low()), y)
-        return self._on_constraint(y)
+        # (a cond: the loop completes every step, and a release is rare)
+        return self._on_constraint(jax.lax.cond(jax.lax.stop_gradient(self._releases(y)), release, lambda y: y, y))
 
     def switches(self, y: Float[Array, "5"]) -> Array:
-        """Whether :meth:`complete_step` changes the mode at y (the tape released or fully
-        stuck). The field changes there, so the loop restarts the stepper (a Runge–Kutta
-        method's first stage, reused from the step's end, was the other mode's)."""
-        return self._releases(y) | self._sticks(y)
+        """Whether the mode switches at the step's end y (:meth:`switch`): the stuck tape
+        released (G(x) above φ(v_low, V)) or the free one fully stuck (v below v_low)."""
+        return jax.lax.stop_gradient(self._releases(y) | self._sticks(y))
+
+    def switch(self, y: Float[Array, "5"]) -> Float[Array, "5"]:
+        """:meth:`complete` at a step's end where the mode switches (:meth:`switches`): the
+        tape released onto the stick branch's root, or fully stuck at v_low, both at the step's
+        x and differentiated at fixed v (:meth:`_at_velocity`). The field changes there, so the
+        loop restarts the stepper after it (a Runge–Kutta method's first stage, reused from the
+        step's end, was the other mode's)."""
+        sg = jax.lax.stop_gradient
+        released = self._releases(y)
+        root = branch_velocity(self.model, sg(y[:3]), sg(self.V), STICK, sg(self.folds), self._v_low(), ~released)
+        return self._on_constraint(self._at_velocity(y, jnp.where(released, self._free(root), self._v_low())))
 
     def _releases(self, y) -> Array:
-        return self._stuck(y) & (self.model.shear_force(y[:3]) > self.model.phi(self._v_low(), self.V))
+        phi_zero = self.folds.phi_zero if self.folds is not None else self.model.phi(self._v_low(), self.V)
+        return self._stuck(y) & (self.model.shear_force(y[:3]) > phi_zero)
 
     def _sticks(self, y) -> Array:
         return ~self._stuck(y) & (y[3] < self._v_low())

@@ -328,13 +328,16 @@ def adaptive_loop(
         else:
             impasse = jnp.asarray(False)
             if completes:  # the DAE's v, solved anew at the step's end
-                switched = accept & ode.switches(new.y) if hasattr(ode, "switches") else None
-                completed = ode.complete_step(new.y) if hasattr(ode, "complete_step") else ode.complete(new.y)
-                new = eqx.tree_at(lambda s: s.y, new, jnp.where(accept, completed, new.y))
-                if switched is not None:  # the tape released or fully stuck: a new field, start afresh
-                    new = jax.lax.cond(
-                        jax.lax.stop_gradient(switched), lambda: stepper.restart(ode, t_new, new.y, new), lambda: new
+                completed = eqx.tree_at(lambda s: s.y, new, jnp.where(accept, ode.complete(new.y), new.y))
+                if hasattr(ode, "switch"):  # a switch of mode (the tape released or fully stuck): a new field
+                    parts = lambda s: (s.y, s.psi, s.J, s.drive, s.inner)  # noqa: E731 (small: the cond copies them)
+                    switched = jax.lax.cond(
+                        accept & ode.switches(new.y),
+                        lambda: parts(stepper.restart(ode, t_new, ode.switch(new.y), new)),
+                        lambda: parts(completed),
                     )
+                    completed = eqx.tree_at(parts, completed, switched)
+                new = completed
             g_new = jax.lax.stop_gradient(new.J) if schur_event else fold_event(ode, new.y)
             if stepper.cuts_at_folds and not schur_event and not timed:
                 # A rejected attempt over the fold: its error holds the kink of v clamped past the

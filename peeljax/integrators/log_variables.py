@@ -89,8 +89,8 @@ class LogTransformedODE(eqx.Module):
     def complete(self, z):
         return to_log(self.ode.complete(from_log(z, self.log_components)), self.log_components)
 
-    def complete_step(self, z):
-        return to_log(self.ode.complete_step(from_log(z, self.log_components)), self.log_components)
-
     def switches(self, z):
         return self.ode.switches(from_log(z, self.log_components))
+
+    def switch(self, z):
+        return to_log(self.ode.switch(from_log(z, self.log_components)), self.log_components)
