@@ -98,7 +98,7 @@ class DesingularizedDAE(eqx.Module):
 
         A mode, not a test of G: the stuck field goes on past G = φ(v_low, V) (a continuous
         extension, as v is clamped past a fold) and a v on the branch goes on below v_low, so
-        that the steps over either are ordinary ones; :meth:`complete_step` switches the mode
+        that the steps over either are ordinary ones; :meth:`switch` switches the mode
         at the step's end (:meth:`switches`)."""
         return jnp.abs(y[3] / self._v_low() - 1.0) <= _STUCK_BAND
 
