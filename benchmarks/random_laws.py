@@ -9,8 +9,9 @@ stuck until G rises back to φ(0⁺, V) (before this was handled, 9 of 120 such 
 
 Reported: how many runs complete in each, how many laws make the tape stop somewhere, and the
 agreement of the two (jump counts, the time of the last jump, the final state). A law whose φ_min
-is negative at a V asks the tape to push (G < 0) on its slip branch: those runs are outside the
-model and counted apart. ``simulate`` runs with ``max_jumps=100_000``: near the cusp where φ's
+is negative at a V asks the tape to push (G < 0) on its slip branch: the peel angle then runs to
+−π/2, where 1 + sin α = 0 and G = 0 for any stretch, and the run stops there ("step size
+collapsed"). Those runs are outside the model and counted apart. ``simulate`` runs with ``max_jumps=100_000``: near the cusp where φ's
 folds merge, some laws jump thousands of times a second (the default record of 10 000 stops a
 run there and says so).
 
