@@ -187,8 +187,8 @@ def branch_velocity(
 ) -> Float[Array, ""]:
     """v(x) on a branch: the root of G(x) = φ(v, V) there, clamped at the branch's ends.
 
-    ``skip``: where True the root search is skipped (the caller discards v; a search per step
-    for a value rarely used would cost a loop of φ evaluations).
+    ``skip``: where True the root search is skipped (the caller discards v: under ``vmap``,
+    where both sides of a ``lax.cond`` run, a rare branch would otherwise search every step).
 
     Past the branch's fold (G above φ(v̂, V) on the stick branch, below φ(v̌, V) on the slip
     branch) v stays at the fold velocity, a continuous extension that lets a step cross the
