@@ -114,7 +114,7 @@ def test_the_stuck_phases_approach_the_dae_as_tau_goes_to_zero():
     leave, moving = {}, {}
     for tau in taus:
         # τ = 0: the DAE in time, whose every output solves v (in pseudo-time an output inside
-        # the step that releases the tape keeps the stuck v, below 1e-8 m/s there)
+        # the step that releases the tape keeps the stuck v: 1.2e-8 m/s at most there)
         in_time = {"solver": RungeKutta(diffrax.Tsit5(), ())} if tau == 0 else {}
         sol = _simulate(tau, 0.1, _stuck_start(100.0, tau), rtol=1e-8, atol=1e-11, **in_time)
         assert sol.status_name == "completed"
