@@ -25,7 +25,7 @@ from ._validation import (
 )
 from .constrained import ConstrainedDAE
 from .homogenized import HomogenizedODE
-from .integrators.adjoint import TANGENT_BYTES, TANGENT_LIMITS, reverse_by_tangents
+from .integrators.adjoint import TANGENT_BYTES, TANGENT_LIMITS, reverse_by_tangents, undefined_where_unreached
 from .integrators.alpha import AlphaMethod
 from .integrators.uniform_mesh import UniformMesh
 from .integrators.base import AbstractIntegrator
@@ -113,11 +113,13 @@ def _tangent_limit(integrator, ode, ts) -> int:
 
 
 def _integrate_with(inputs, kind: Literal["lax", "checkpointed"] | None):
-    """The run with a loop of ``kind`` (None: the integrator's own)."""
+    """The run with a loop of ``kind`` (None: the integrator's own); the values it did not
+    reach have NaN derivatives (:func:`~peeljax.integrators.adjoint.undefined_where_unreached`)."""
     integrator, ode, y0, t_final, ts = inputs
     if kind is not None:
         integrator = dataclasses.replace(integrator, adjoint="forward" if kind == "lax" else "checkpointed")
-    return integrator.integrate(ode, _initial_state(ode, y0), 0.0, t_final, ts)
+    solution = integrator.integrate(ode, _initial_state(ode, y0), 0.0, t_final, ts)
+    return undefined_where_unreached(solution, inputs, reverse=getattr(integrator, "adjoint", None) == "checkpointed")
 
 
 def _integrate_packed(packed, rest, *, treedef, scalars):

@@ -94,9 +94,21 @@ class _Carry(eqx.Module):
     reference_drive: Array  # its F̃·f (the homogenized ODE's impasse reference)
     g_scale: Array
     cut_steps: Array  # rejected attempts over a fold whose retry was cut at the fold
+    # The fold's closest miss (τ = 0: the fold distance G − φ at the fold, N): a local maximum
+    # below the fold at a step end, as a fraction of g_scale, and its time; the highest value
+    # since the branch began or the last miss, and its time.
+    miss: Array
+    miss_t: Array
+    peak: Array
+    peak_t: Array
+    grazed_t: Array  # the first near miss within _GRAZING·rtol of the fold (NaN: none)
 
 
 _REFERENCE_DEPTH = 1e-5
+# A near miss of a fold closer than this × rtol (of the fold event's scale) is a grazing within
+# the run's own error: whether the tape jumped there is not decided by the run, and the
+# derivatives of what follows do not exist (``stats["grazed_at"]``).
+_GRAZING = 10.0
 # The homogenized ODE's impasse (τ > 0, fold event J_t): its derivatives are carried along v from
 # the latest state with J_t ≤ −this × |J_t| at the branch's start and F̃·f of the same sign since
 # (events.impasse_path): v is monotone from there to the impasse, and the steps' sensitivities
@@ -279,6 +291,11 @@ def adaptive_loop(
         reference_drive=state0.drive,
         g_scale=jnp.zeros(()) if events is None else jnp.abs(reference_event(state0.y)),
         cut_steps=zero,
+        miss=jnp.asarray(jnp.inf),
+        miss_t=jnp.asarray(jnp.nan),
+        peak=jnp.zeros(()) if events is None or schur_event else jax.lax.stop_gradient(reference_event(state0.y)),
+        peak_t=t0 if not timed else jax.lax.stop_gradient(state0.y[time_index]),
+        grazed_t=jnp.asarray(jnp.nan),
     )
 
     def running(c: _Carry):
@@ -401,11 +418,31 @@ def adaptive_loop(
         h_taken = jax.lax.stop_gradient(h)
         if events is None:
             deeper = jnp.asarray(False)
-        elif schur_event:  # (kept.J is the fold event: no evaluation more)
-            turned = kept.drive * c.reference_drive <= 0
-            deeper = advance & ((jax.lax.stop_gradient(kept.J) <= -_IMPASSE_REFERENCE_DEPTH * g_scale) | turned)
+            miss, miss_t, peak, peak_t, grazed_t = c.miss, c.miss_t, c.peak, c.peak_t, c.grazed_t
         else:
-            deeper = advance & (reference_event(kept.y) <= -reference_depth * g_scale)
+            # (kept.J is the Schur event: no evaluation more)
+            event = jax.lax.stop_gradient(kept.J if schur_event else reference_event(kept.y))
+            if schur_event:
+                turned = kept.drive * c.reference_drive <= 0
+                deeper = advance & ((event <= -_IMPASSE_REFERENCE_DEPTH * g_scale) | turned)
+                # (no near misses: J_t has no scale to measure one against, ~1e10 at a start from rest)
+                miss, miss_t, peak, peak_t, grazed_t = c.miss, c.miss_t, c.peak, c.peak_t, c.grazed_t
+            else:
+                deeper = advance & (event <= -reference_depth * g_scale)
+                # A near miss: the event came closest to the fold at ``peak`` and has since fallen
+                # away by more than that distance (and than the run's error): a jump that appears
+                # or vanishes under a small perturbation (a grazing).
+                fell = c.peak - jnp.maximum(-c.peak, controller.rtol * g_scale)
+                turned_back = advance & ~restarted & (c.peak < 0) & (event < fell) & jnp.isfinite(c.peak)
+                margin = jnp.where(turned_back, -c.peak / jnp.maximum(g_scale, 1e-300), jnp.inf)
+                closer = margin < c.miss
+                miss = jnp.where(closer, margin, c.miss)
+                miss_t = jnp.where(closer, c.peak_t, c.miss_t)
+                grazed = jnp.isnan(c.grazed_t) & (margin < _GRAZING * controller.rtol)
+                grazed_t = jnp.where(grazed, c.peak_t, c.grazed_t)
+                higher = advance & (restarted | turned_back | (event > c.peak))
+                peak = jnp.where(higher, event, c.peak)
+                peak_t = jnp.where(higher, jax.lax.stop_gradient(clock(t_new, kept.y)), c.peak_t)
         return _Carry(
             t=jnp.where(advance, t_new, c.t),
             h=h_next,
@@ -426,6 +463,11 @@ def adaptive_loop(
             reference_drive=jnp.where(deeper, kept.drive, c.reference_drive),
             g_scale=g_scale,
             cut_steps=c.cut_steps + cut,
+            miss=miss,
+            miss_t=miss_t,
+            peak=peak,
+            peak_t=peak_t,
+            grazed_t=grazed_t,
         )
 
     def buffers(c: _Carry) -> tuple:  # written in place, never read in the loop (static choices only)
@@ -640,6 +682,9 @@ def _solution(
     if final.jumps is not None:
         stats["jumps"] = final.jumps.count
         stats["steps_cut_at_folds"] = final.cut_steps
+        stats["fold_closest_miss"] = final.miss
+        stats["fold_closest_miss_t"] = final.miss_t
+        stats["grazed_at"] = final.grazed_t
     solution = Solution(
         ts=ts,
         ys=ys,

@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
 
-__all__ = ["TANGENT_BYTES", "TANGENT_LIMITS", "reverse_by_tangents"]
+__all__ = ["TANGENT_BYTES", "TANGENT_LIMITS", "reverse_by_tangents", "undefined_where_unreached"]
 
 # Most perturbed scalars differentiated by tangents (3 s at V = 1.1, rtol 1e-6, the run's
 # time ×, benchmarks/jump_gradient_cost.py --tangents, results/jump_gradient_cost*.md): the DAE
@@ -113,3 +113,72 @@ def _reverse_bwd(residuals, cotangent, perturbed, inputs, solve, limit):
         if c is not None:  # a zero cotangent on a NaN tangent (a padded row past a stop) adds 0
             total = total + jnp.where(c != 0, c * t, 0.0).reshape(flat.size, -1).sum(axis=1)
     return unravel(total)
+
+
+def undefined_where_unreached(solution, inputs, reverse: bool):
+    """``solution`` with NaN derivatives where they do not exist: the rows a run did not reach
+    (``valid`` False: past a stop, or padding), the jump slots it did not fill, and whatever
+    follows a grazing of a fold within the run's error (``stats["grazed_at"]``: a jump that
+    appears or vanishes under any perturbation).
+
+    Without this the derivative of a NaN value would be a finite zero (``jnp.where`` sends none
+    through the NaN branch), and past a grazing the one-sided derivative of the branch the run
+    happened to take. Forward mode: a
+    NaN tangent there. Reverse mode (``reverse``): a nonzero cotangent on such a value makes the
+    gradient with respect to every float of ``inputs`` (what the run was computed from) NaN; a
+    zero one adds nothing, so a gradient of the values that exist stays finite.
+    """
+    grazed_at = solution.stats.get("grazed_at")
+    jumps = solution.jumps
+    fields = () if jumps is None else tuple(n for n in ("t", "v_before", "v_after", "G", "F") if getattr(jumps, n) is not None)
+    values = (solution.ys, *(getattr(jumps, n) for n in fields))
+    defined = (solution.valid[:, None], *(jumps.slot_valid() for _ in fields))
+    if grazed_at is not None:  # past a grazing within the run's error (ts NaN where not valid)
+        before = (~(solution.ts > grazed_at))[:, None], *(~(jumps.t > grazed_at) for _ in fields)
+        defined = tuple(d & b for d, b in zip(defined, before, strict=True))
+    if reverse:
+        values = _undefined_reverse((values, inputs), defined)
+    else:
+        values = tuple(_undefined_forward(x, d) for x, d in zip(values, defined, strict=True))
+    solution = eqx.tree_at(lambda s: s.ys, solution, values[0])
+    if fields:
+        solution = eqx.tree_at(
+            lambda s: [getattr(s.jumps, n) for n in fields], solution, list(values[1:])
+        )
+    return solution
+
+
+@jax.custom_jvp
+def _undefined_forward(values, defined):
+    return values
+
+
+@_undefined_forward.defjvp
+def _undefined_forward_jvp(primals, tangents):
+    values, defined = primals
+    return values, jnp.where(defined, tangents[0], jnp.nan)
+
+
+@eqx.filter_custom_vjp
+def _undefined_reverse(values_and_inputs, defined):
+    return values_and_inputs[0]
+
+
+@_undefined_reverse.def_fwd
+def _undefined_reverse_fwd(perturbed, values_and_inputs, defined):
+    return values_and_inputs[0], None
+
+
+@_undefined_reverse.def_bwd
+def _undefined_reverse_bwd(residuals, cotangent, perturbed, values_and_inputs, defined):
+    values, inputs = values_and_inputs
+    cts = jax.tree_util.tree_structure(values).flatten_up_to(cotangent)
+    undefined = jnp.asarray(False)
+    for c, d in zip(cts, defined, strict=True):
+        if c is not None:
+            undefined = undefined | jnp.any(~d & (c != 0))
+    to_inputs = jax.tree.map(
+        lambda x, p: jnp.where(undefined, jnp.nan, jnp.zeros_like(x)) if p else None,
+        inputs, perturbed[1], is_leaf=lambda x: x is None,
+    )
+    return cotangent, to_inputs
