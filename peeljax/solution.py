@@ -363,7 +363,11 @@ class Solution(eqx.Module):
         valid: True where ``ys`` holds a computed state.
         status: a :class:`StopReason` code (0 = completed).
         t_stop: the last time reached (``ts[-1]`` when completed).
-        stats: run statistics (Newton iterations, safeguards fired, steps, …).
+        stats: run statistics (Newton iterations, safeguards fired, steps, …). A run through
+            the folds at τ = 0 also has ``fold_closest_miss`` (the closest the force came to a
+            fold and turned away, a fraction of the fold distance's scale), its time
+            ``fold_closest_miss_t``, and ``grazed_at``: the time of a miss within 10·rtol, a
+            grazing after which no derivative exists (NaN; otherwise ``grazed_at`` is NaN).
         diagnostics: per-time-point :class:`StepDiagnostics`.
         jumps: the :class:`JumpRecord` of a run carried through the folds of φ (``fold="jump"``);
             None for a run without jumps.
