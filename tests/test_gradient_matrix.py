@@ -13,8 +13,10 @@ used to fail: Tsit5's reverse mode was NaN after its second jump (a rejected att
 overflowed got a zero cotangent, and 0·inf = NaN in its pullback), and an impasse the step
 passed rather than approached (decided by round-off, so by the program's layout) was
 differentiated as a singular passage (off by 10× at the 8th jump). Where the run does not jump (τ = 0.01 and 0.1 over 0.3 s) the cell is the end
-state's. ``fold="follow"`` has no cell: at τ = 1e-3 it follows the first slip's singular
-passage and then stalls at t = 0.187 s (status ``stopped``); at τ ≥ 0.01 nothing jumps in 0.3 s.
+state's. ``fold="follow"`` and ``"stop"`` have a cell before the first slip (0.15 s at τ = 1e-3);
+past it ``stop`` has stopped and ``follow`` has followed a singular passage, where the
+derivatives are NaN (no derivative exists: ``tests/test_undefined_derivatives.py``); at
+τ ≥ 0.01 nothing jumps in 0.3 s, and the policies are the ``jump`` cells.
 All are ``slow``, as is the smallest cell, ``tests/test_jumps.py::test_gradients_through_fold_jumps_match_central_differences``
 (a program through fold jumps in reverse mode compiles for ~2 minutes); the fast tier checks the
 mechanism of the NaN fix, ``tests/test_cotangents.py``. Orbit statistics (τ = 0) are checked in ``tests/test_orbits.py``.
@@ -39,12 +41,12 @@ T_FINAL = 0.3
 N_JUMPS = 6
 
 
-def _run(p, *, tau_is_zero, solver, fold, rtol, adjoint="reverse"):
+def _run(p, *, tau_is_zero, solver, fold, rtol, adjoint="reverse", t_final=T_FINAL):
     c1, V, tau, R = p
     model = pj.PeelingModel(R=R)
     model = eqx.tree_at(lambda m: m.adhesion.c1, model, c1)
     return pj.simulate(
-        model, V=V, tau=0.0 if tau_is_zero else tau, t_final=T_FINAL, ts=jnp.array([0.0, T_FINAL]), rtol=rtol,
+        model, V=V, tau=0.0 if tau_is_zero else tau, t_final=t_final, ts=jnp.array([0.0, t_final]), rtol=rtol,
         atol=rtol * 1e-3, solver=solver, fold=fold, adjoint=adjoint, max_jumps=64, max_steps=400_000,
     )  # fmt: skip
 
@@ -61,7 +63,7 @@ def _quantities(sol, with_jumps):
     return jnp.concatenate([end, jumps.t[:N_JUMPS], mean_slip_force[None]])
 
 
-def _cell(tau, solver=None, fold="jump", parameters=PARAMETERS, tolerance=5e-4):
+def _cell(tau, solver=None, fold="jump", parameters=PARAMETERS, tolerance=5e-4, t_final=T_FINAL):
     """One (τ, stepper, fold) cell: every quantity × parameter, forward mode, against central
     differences (rtol 1e-9 against 1e-10, steps h and h/4 agreeing first)."""
     tau_is_zero = tau == 0
@@ -69,14 +71,14 @@ def _cell(tau, solver=None, fold="jump", parameters=PARAMETERS, tolerance=5e-4):
         parameters = tuple(p for p in parameters if p != "tau")  # τ = 0 is the DAE: no τ to move
     p0 = np.array([400.0, 1.1, tau if tau > 0 else 1e-3, 0.1])  # (τ unused at τ = 0)
     columns = [PARAMETERS.index(name) for name in parameters]
-    sol = _run(p0, tau_is_zero=tau_is_zero, solver=solver, fold=fold, rtol=RTOL_GRADIENT)
+    sol = _run(p0, tau_is_zero=tau_is_zero, solver=solver, fold=fold, rtol=RTOL_GRADIENT, t_final=t_final)
     assert sol.status_name == "completed", sol.status_name
     with_jumps = int(sol.jumps.count) > 0
     if with_jumps:
         assert int(sol.jumps.count) >= N_JUMPS + 2, int(sol.jumps.count)
 
     def q(p, rtol, adjoint="reverse"):
-        run = _run(p, tau_is_zero=tau_is_zero, solver=solver, fold=fold, rtol=rtol, adjoint=adjoint)
+        run = _run(p, tau_is_zero=tau_is_zero, solver=solver, fold=fold, rtol=rtol, adjoint=adjoint, t_final=t_final)
         return _quantities(run, with_jumps)
 
     assert np.all(np.isfinite(np.asarray(q(p0, RTOL_DIFFERENCE))))
@@ -127,6 +129,15 @@ def _modes_agree(tau, solver=None, rtol=1e-6, max_steps=400_000):
 )
 def test_gradient_matrix(tau, solver):
     _cell(tau, solver=solver)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fold", ["follow", "stop"])
+def test_gradient_matrix_other_fold_policies(fold):
+    """τ = 1e-3, up to 0.15 s: before the first slip both policies are the run itself. At the slip
+    (0.173 s) ``stop`` ends the run (rows past it: NaN, NaN derivatives) and ``follow`` follows a
+    singular passage, after which no derivative exists (``tests/test_undefined_derivatives.py``)."""
+    _cell(1e-3, fold=fold, t_final=0.15, tolerance=1e-4)
 
 
 @pytest.mark.slow

@@ -119,7 +119,8 @@ def undefined_where_unreached(solution, inputs, reverse: bool):
     """``solution`` with NaN derivatives where they do not exist: the rows a run did not reach
     (``valid`` False: past a stop, or padding), the jump slots it did not fill, and whatever
     follows a grazing of a fold within the run's error (``stats["grazed_at"]``: a jump that
-    appears or vanishes under any perturbation).
+    appears or vanishes under any perturbation) or a singular passage followed
+    (``stats["singular_passage_at"]``, ``fold="follow"``: one of several solutions there).
 
     Without this the derivative of a NaN value would be a finite zero (``jnp.where`` sends none
     through the NaN branch), and past a grazing the one-sided derivative of the branch the run
@@ -128,12 +129,15 @@ def undefined_where_unreached(solution, inputs, reverse: bool):
     gradient with respect to every float of ``inputs`` (what the run was computed from) NaN; a
     zero one adds nothing, so a gradient of the values that exist stays finite.
     """
-    grazed_at = solution.stats.get("grazed_at")
+    # past a grazing within the run's error, or a singular passage followed (fold="follow"):
+    # another solution of the DAE there, chosen by round-off
+    ends = [solution.stats[k] for k in ("grazed_at", "singular_passage_at") if k in solution.stats]
+    grazed_at = jnp.fmin(*ends) if len(ends) == 2 else (ends[0] if ends else None)
     jumps = solution.jumps
     fields = () if jumps is None else tuple(n for n in ("t", "v_before", "v_after", "G", "F") if getattr(jumps, n) is not None)
     values = (solution.ys, *(getattr(jumps, n) for n in fields))
     defined = (solution.valid[:, None], *(jumps.slot_valid() for _ in fields))
-    if grazed_at is not None:  # past a grazing within the run's error (ts NaN where not valid)
+    if grazed_at is not None:  # (ts NaN where not valid)
         before = (~(solution.ts > grazed_at))[:, None], *(~(jumps.t > grazed_at) for _ in fields)
         defined = tuple(d & b for d, b in zip(defined, before, strict=True))
     if reverse:
