@@ -63,7 +63,7 @@ def _quantities(sol, with_jumps):
     return jnp.concatenate([end, jumps.t[:N_JUMPS], mean_slip_force[None]])
 
 
-def _cell(tau, solver=None, fold="jump", parameters=PARAMETERS, tolerance=5e-4, t_final=T_FINAL):
+def _cell(tau, solver=None, fold="jump", parameters=PARAMETERS, tolerance=1e-4, t_final=T_FINAL):
     """One (τ, stepper, fold) cell: every quantity × parameter, forward mode, against central
     differences (rtol 1e-9 against 1e-10, steps h and h/4 agreeing first)."""
     tau_is_zero = tau == 0
@@ -73,7 +73,7 @@ def _cell(tau, solver=None, fold="jump", parameters=PARAMETERS, tolerance=5e-4, 
     columns = [PARAMETERS.index(name) for name in parameters]
     sol = _run(p0, tau_is_zero=tau_is_zero, solver=solver, fold=fold, rtol=RTOL_GRADIENT, t_final=t_final)
     assert sol.status_name == "completed", sol.status_name
-    with_jumps = int(sol.jumps.count) > 0
+    with_jumps = sol.jumps is not None and int(sol.jumps.count) > 0
     if with_jumps:
         assert int(sol.jumps.count) >= N_JUMPS + 2, int(sol.jumps.count)
 
@@ -137,7 +137,7 @@ def test_gradient_matrix_other_fold_policies(fold):
     """τ = 1e-3, up to 0.15 s: before the first slip both policies are the run itself. At the slip
     (0.173 s) ``stop`` ends the run (rows past it: NaN, NaN derivatives) and ``follow`` follows a
     singular passage, after which no derivative exists (``tests/test_undefined_derivatives.py``)."""
-    _cell(1e-3, fold=fold, t_final=0.15, tolerance=1e-4)
+    _cell(1e-3, fold=fold, t_final=0.15)
 
 
 @pytest.mark.slow
