@@ -63,7 +63,7 @@ def _quantities(sol, with_jumps):
     return jnp.concatenate([end, jumps.t[:N_JUMPS], mean_slip_force[None]])
 
 
-def _cell(tau, solver=None, fold="jump", parameters=PARAMETERS, tolerance=1e-4, t_final=T_FINAL):
+def _cell(tau, solver=None, fold="jump", parameters=PARAMETERS, tolerance=1e-4, t_final=T_FINAL, rtol=RTOL_GRADIENT):
     """One (τ, stepper, fold) cell: every quantity × parameter, forward mode, against central
     differences (rtol 1e-9 against 1e-10, steps h and h/4 agreeing first)."""
     tau_is_zero = tau == 0
@@ -71,7 +71,7 @@ def _cell(tau, solver=None, fold="jump", parameters=PARAMETERS, tolerance=1e-4, 
         parameters = tuple(p for p in parameters if p != "tau")  # τ = 0 is the DAE: no τ to move
     p0 = np.array([400.0, 1.1, tau if tau > 0 else 1e-3, 0.1])  # (τ unused at τ = 0)
     columns = [PARAMETERS.index(name) for name in parameters]
-    sol = _run(p0, tau_is_zero=tau_is_zero, solver=solver, fold=fold, rtol=RTOL_GRADIENT, t_final=t_final)
+    sol = _run(p0, tau_is_zero=tau_is_zero, solver=solver, fold=fold, rtol=rtol, t_final=t_final)
     assert sol.status_name == "completed", sol.status_name
     with_jumps = sol.jumps is not None and int(sol.jumps.count) > 0
     if with_jumps:
@@ -82,7 +82,7 @@ def _cell(tau, solver=None, fold="jump", parameters=PARAMETERS, tolerance=1e-4, 
         return _quantities(run, with_jumps)
 
     assert np.all(np.isfinite(np.asarray(q(p0, RTOL_DIFFERENCE))))
-    jacobian = np.asarray(jax.jacfwd(lambda p: q(p, RTOL_GRADIENT, "forward"))(jnp.asarray(p0)))
+    jacobian = np.asarray(jax.jacfwd(lambda p: q(p, rtol, "forward"))(jnp.asarray(p0)))
     worst = {}
     for k in columns:
         h = STEPS[PARAMETERS[k]] * p0[k]
@@ -128,7 +128,9 @@ def _modes_agree(tau, solver=None, rtol=1e-6, max_steps=400_000):
     "tau, solver", [(0.0, None), (1e-4, None), (1e-3, None), (0.01, None), (0.1, None), (1e-4, "tsit5"), (1e-3, "tsit5")]
 )
 def test_gradient_matrix(tau, solver):
-    _cell(tau, solver=solver)
+    # τ = 1e-4 with the α-method: the derivative of the rtol-1e-9 run is the run's own, d ω(0.3 s)/dV
+    # 2.1e-4 off the central difference (3.4e-5 at rtol 1e-10: it converges with the tolerance)
+    _cell(tau, solver=solver, rtol=1e-10 if (tau, solver) == (1e-4, None) else RTOL_GRADIENT)
 
 
 @pytest.mark.slow
