@@ -216,8 +216,9 @@ _V = 3
 # Steps of the path in v (Heun's third-order method: its stages never reach the impasse itself).
 # Only a differentiated run takes them. Measured (τ = 1e-3, V = 1.1, d/dc1 of y(0.3 s) and the
 # first 6 jump times at rtol 1e-9 against Richardson-extrapolated central differences of
-# rtol-1e-11 runs): worst 1.7e-4 with 32 steps, 3.4e-5 with 128.
-_PATH_STEPS = 128
+# rtol-1e-11 runs): worst 1.7e-4 with 32 steps, 4.9e-5 with 64, 3.4e-5 with 128 (the rest is
+# not the path's). Each step is one more stage in the checkpointed loop's pullback: 64.
+_PATH_STEPS = 64
 
 
 def impasse_path(ode, t_ref, y_ref, v_star) -> tuple[Array, Array]:
