@@ -3,7 +3,7 @@
 ``jax.grad`` of a run needs its vector–Jacobian product. The checkpointed while loop gives it
 by running every step's pullback backwards; for the α-method at τ > 0 each pullback rebuilds
 the step's exact Newton matrix (four tangents of ψ, itself holding the model's Jacobian), so
-the gradient through 158 jumps costs 15.6× the run (``benchmarks/jump_gradient_cost.py --tau
+the gradient through 158 jumps costs 20.6× the run (``benchmarks/jump_gradient_cost.py --tau
 1e-3``). The run's forward mode (the plain loop under ``jax.jvp``) reuses the kept matrix
 and costs 2.2× with one tangent. The usual ``jax.grad`` perturbs few numbers (one or a few of
 φ's coefficients, V, τ): with k perturbed scalars, k tangents of the plain loop give the
@@ -31,8 +31,8 @@ __all__ = ["TANGENT_BYTES", "TANGENT_LIMITS", "reverse_by_tangents", "undefined_
 # Most perturbed scalars differentiated by tangents (3 s at V = 1.1, rtol 1e-6, the run's
 # time ×, benchmarks/jump_gradient_cost.py --tangents, results/jump_gradient_cost*.md): the DAE
 # (τ = 0, 210 jumps) 1, 4, 7 tangents 1.1, 1.7, 2.1, then a step, 8 tangents 7.7, the
-# checkpointed loop 4.3; the homogenized ODE (τ = 1e-3, 158 jumps) 1, 4, 16 tangents 2.1, 2.8,
-# 5.3, 32 tangents 8.6, the checkpointed loop 15.6.
+# checkpointed loop 4.3; the homogenized ODE (τ = 1e-3, 158 jumps) 1, 4, 16 tangents 2.2, 3.0,
+# 5.8, 32 tangents 9.4, the checkpointed loop 20.6.
 TANGENT_LIMITS = {"dae": 7, "ode": 16}
 # Most bytes the k tangents of a run's output rows may take (they are kept for the backward pass).
 TANGENT_BYTES = 256 * 2**20
