@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 
 import peeljax as pj
-from peeljax.orbits.api import _orbit, orbit_shooting, start_from_run
+from peeljax.orbits.api import compiled_orbit, orbit_shooting, start_from_run
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import cpu_model, write_result  # noqa: E402
@@ -53,7 +53,7 @@ def main(argv=None) -> int:
     shooting = orbit_shooting()
     model = pj.PeelingModel()
     shoot = lambda: jax.block_until_ready(  # noqa: E731  (the compiled program alone, as periodic_orbit calls it)
-        _orbit(shooting, model, jnp.asarray(V), jnp.asarray(s0), jnp.asarray(k, jnp.int32), jnp.asarray(3.0 * T))
+        compiled_orbit(shooting, model, jnp.asarray(V), jnp.asarray(s0), jnp.asarray(k, jnp.int32), jnp.asarray(3.0 * T))
     )
     orbit_call = lambda: jax.block_until_ready(pj.periodic_orbit(V=V, start=run))  # noqa: E731
     began = time.perf_counter()

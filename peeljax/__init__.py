@@ -32,7 +32,6 @@ and a cache the user configured for JAX is left alone (:mod:`peeljax._compilatio
 """
 
 import os as _os
-from importlib import metadata as _metadata
 
 
 def _small_while_loop_flag() -> None:
@@ -133,10 +132,7 @@ from .structure import (  # noqa: E402
 )
 from .sweeps import LeastTau, StickSlipMap, SweepResult, least_tau, stick_slip_map, sweep  # noqa: E402
 
-try:  # the version is set in one place, pyproject.toml, and read from the installed metadata
-    __version__ = _metadata.version("peeljax")
-except _metadata.PackageNotFoundError:  # run from a source tree that was never installed
-    __version__ = "0+unknown"
+from ._version import __version__ as __version__  # noqa: E402
 
 __all__ = [
     "COEFFICIENT_NAMES",

@@ -11,6 +11,8 @@ N (s/m)^p1, written with the exponent's name.
 
 from __future__ import annotations
 
+from ._version import __version__
+
 import json
 import math
 
@@ -44,10 +46,8 @@ PARAMETER_UNITS: dict[str, str] = {"R": "m", "I": "kg m2", "k": "N", "l": "m", "
 
 
 def peeljax_version() -> str:
-    """``peeljax.__version__``, read when a file is written (the package is imported by then)."""
-    from . import __version__  # a string of the package, read late: no import of its modules
-
-    return str(__version__)
+    """``peeljax.__version__``: the version of the peeljax that writes a file."""
+    return __version__
 
 
 def metadata(kind: str, units: dict[str, str], **extra) -> dict:

@@ -18,7 +18,7 @@ import pytest
 
 import peeljax as pj
 from peeljax.orbits import OrbitStatus, SlipSection, one_period, orbit_shooting, periodic_orbit, periodic_orbits
-from peeljax.orbits.api import _orbit
+from peeljax.orbits.api import compiled_orbit
 from peeljax.orbits.continuation import BifurcationKind, continue_orbit
 
 V = 1.1
@@ -122,7 +122,7 @@ def derivative_setup(orbit):
 
     def quantities(c1, V_, start=s_star, t_max=0.7):
         m = eqx.tree_at(lambda m: m.adhesion.c1, model, c1)
-        o = _orbit(shooting, m, V_, start, 8, t_max)
+        o = compiled_orbit(shooting, m, V_, start, 8, t_max)
         st = o.statistics
         return jnp.stack([o.period] + [st[k] for k in STATS])
 

@@ -31,7 +31,7 @@ COMMANDS = (_simulate, _sweep, _orbit, _figures, _fit)
 # ---------------------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
     """The top-level parser with one subparser per command (each sets ``handler``)."""
-    from .. import __version__
+    from .._version import __version__
 
     parser = Parser(
         prog=PROG,

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 from .._validation import check_positive, check_tolerance
 from ..model import PeelingModel
-from ..orbits.api import _ATOL_PER_RTOL, DEFAULT_ORBIT_RTOL, DEFAULT_TRANSIENT_RUN
+from ..orbits.api import ATOL_PER_RTOL, DEFAULT_ORBIT_RTOL, DEFAULT_TRANSIENT_RUN
 from . import _interrupt, options
 from ._common import ASCII, PROG, Elapsed, checked, fail, json_safe, write_failed
 
@@ -96,7 +96,7 @@ def add_command(subparsers) -> None:
         help=f"Newton's iteration cap, an integer in [1, {MAX_ITERATIONS_LIMIT}] (default {_DEFAULT_MAX_ITERATIONS})",
     )  # fmt: skip
     options.add_tolerances(
-        shooting, rtol_default=f"{DEFAULT_ORBIT_RTOL:g}", atol_default=f"{_ATOL_PER_RTOL:g}*rtol",
+        shooting, rtol_default=f"{DEFAULT_ORBIT_RTOL:g}", atol_default=f"{ATOL_PER_RTOL:g}*rtol",
         note="each period's run",
     )  # fmt: skip
     output = parser.add_argument_group("output")
@@ -162,7 +162,7 @@ def validate_orbit(args: argparse.Namespace) -> OrbitConfig:
         )
     rtol = DEFAULT_ORBIT_RTOL if args.rtol is None else args.rtol
     check_tolerance("--rtol", rtol, 1.0)
-    atol = _ATOL_PER_RTOL * rtol if args.atol is None else args.atol
+    atol = ATOL_PER_RTOL * rtol if args.atol is None else args.atol
     check_tolerance("--atol", atol)
     model, phi_defaults = options.model_from(args)
     options.check_outputs(args)

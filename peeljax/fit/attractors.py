@@ -37,7 +37,7 @@ from ..adhesion import AdhesionLaw
 from ..branches import phi_folds
 from ..cycles import cycle_statistics
 from ..model import PeelingModel
-from ..orbits.api import _PERIODS_PER_RUN, _orbit_of, orbit_shooting
+from ..orbits.api import PERIODS_PER_RUN, orbit_of, orbit_shooting
 from ..orbits.section import SlipSection
 from ..orbits.shooting import OrbitStatus, Shooting
 from ..simulate import simulate
@@ -137,7 +137,7 @@ class OrbitRows(eqx.Module):
         def quantities(th):
             law = _to_law({n: th[i] for i, n in enumerate(self.names)}, self.start)
             model = eqx.tree_at(lambda m: m.adhesion, self.model, law)
-            orbit = _orbit_of(self.shooting, model, V, s0, slips, t_max)
+            orbit = orbit_of(self.shooting, model, V, s0, slips, t_max)
             section = SlipSection.at(model, V)
             stats = jnp.stack([orbit.statistics[s] for s in STATISTICS])
             z = orbit.section / section.scale
@@ -195,7 +195,7 @@ def shoot_rows(program: OrbitRows, theta: np.ndarray, V, attractors: list[Attrac
     outs = []
     for i, a in enumerate(attractors):
         out = _rows(program, jnp.asarray(theta[i : i + 1]), jnp.asarray(V[i : i + 1]), jnp.asarray(a.section[None], float),
-                    jnp.asarray([a.slips], jnp.int32), jnp.asarray([_PERIODS_PER_RUN * a.period]))  # fmt: skip
+                    jnp.asarray([a.slips], jnp.int32), jnp.asarray([PERIODS_PER_RUN * a.period]))  # fmt: skip
         outs.append(out)
     return {f.name: np.concatenate([np.asarray(getattr(o, f.name)) for o in outs]) for f in dataclasses.fields(RowOrbits)}
 

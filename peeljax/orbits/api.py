@@ -29,9 +29,9 @@ __all__ = ["DEFAULT_ORBIT_RTOL", "OrbitNotFound", "orbit_shooting", "periodic_or
 # The orbit's tolerances, chosen by measurement (docs/orbits.md, tests/test_orbits.py): at rtol
 # 1e-8 the period and the five statistics agree with rtol 1e-11 to ~1e-7 relative.
 DEFAULT_ORBIT_RTOL = 1e-8
-_ATOL_PER_RTOL = 1e-3
-_PERIODS_PER_RUN = 3.0  # one period's run is bounded by this many periods of the start
-_UNKNOWN_PERIOD_BOUND = 5.0  # [s]: the bound when no period is known
+ATOL_PER_RTOL = 1e-3
+PERIODS_PER_RUN = 3.0  # one period's run is bounded by this many periods of the start
+UNKNOWN_PERIOD_BOUND = 5.0  # [s]: the bound when no period is known
 DEFAULT_TRANSIENT_RUN = 3.0  # [s]: the run that finds the repeat when no start is given
 _MAX_STEPS_PER_SLIP = 100_000  # a bound on a runaway run only (a slip takes ~60 steps at rtol 1e-8)
 
@@ -46,7 +46,8 @@ def _check_slips(slips) -> int:
     return int(slips)
 
 
-def _check_iterations(max_iterations) -> int:
+def check_iterations(max_iterations) -> int:
+    """``max_iterations`` of Newton's method on the return map, checked (a positive integer)."""
     if isinstance(max_iterations, bool) or not isinstance(max_iterations, numbers.Integral) or max_iterations < 1:
         raise ValueError(f"max_iterations must be a positive integer, got {max_iterations!r}")
     return int(max_iterations)
@@ -55,11 +56,11 @@ def _check_iterations(max_iterations) -> int:
 def orbit_shooting(*, rtol: float = DEFAULT_ORBIT_RTOL, atol: float | None = None, max_iterations: int = 20) -> Shooting:
     """The :class:`~peeljax.orbits.Shooting` of an orbit, its options checked (nothing compiles)."""
     check_tolerance("rtol", rtol, upper=1.0)
-    atol = _ATOL_PER_RTOL * rtol if atol is None else atol
+    atol = ATOL_PER_RTOL * rtol if atol is None else atol
     integrator = integrator_for(
         None, dae=True, t_final=1.0, rtol=rtol, atol=atol, adjoint="forward", max_jumps=1, max_steps=_MAX_STEPS_PER_SLIP,
     )  # fmt: skip
-    return Shooting(integrator, max_iterations=_check_iterations(max_iterations))
+    return Shooting(integrator, max_iterations=check_iterations(max_iterations))
 
 
 def as_orbit(model: PeelingModel, V, slips, result: ShootingResult) -> PeriodicOrbit:
@@ -77,7 +78,9 @@ def as_orbit(model: PeelingModel, V, slips, result: ShootingResult) -> PeriodicO
     )  # fmt: skip
 
 
-def _orbit_of(shooting: Shooting, model: PeelingModel, V, s0, slips, t_max) -> PeriodicOrbit:
+def orbit_of(shooting: Shooting, model: PeelingModel, V, s0, slips, t_max) -> PeriodicOrbit:
+    """The orbit with ``slips`` slips per period shot from the section point ``s0`` (each
+    period's run bounded by ``t_max``): traceable, for ``jit``, ``vmap`` and ``lax.map``."""
     scale = SlipSection.at(model, V).scale
     result = shoot(shooting, model, V, jax.lax.stop_gradient(s0 / scale), slips, t_max)
     return as_orbit(model, V, slips, result)
@@ -98,10 +101,9 @@ def compiled(fn):
     return call
 
 
-_orbit = compiled(_orbit_of)
+compiled_orbit = compiled(orbit_of)  # orbit_of, compiled once per process
 
-
-_has_folds = compiled(lambda model, V: phi_folds(model, V).exist)
+phi_has_folds = compiled(lambda model, V: phi_folds(model, V).exist)  # φ(·, V) has a maximum and a minimum
 
 
 def _divisors(k: int) -> list[int]:
@@ -118,8 +120,8 @@ def least_period(shooting: Shooting, orbit: PeriodicOrbit) -> PeriodicOrbit:
     # jnp, not np: under jax.grad (no jit) the fields are tracers whose values Python can still test
     scale = SlipSection.at(orbit.model, orbit.V).scale
     for j in _divisors(k):
-        shorter = _orbit(shooting, orbit.model, orbit.V, orbit.section, jnp.asarray(j, jnp.int32),
-                         jnp.asarray(_PERIODS_PER_RUN * orbit.period * j / k))  # fmt: skip
+        shorter = compiled_orbit(shooting, orbit.model, orbit.V, orbit.section, jnp.asarray(j, jnp.int32),
+                         jnp.asarray(PERIODS_PER_RUN * orbit.period * j / k))  # fmt: skip
         same_point = bool(jnp.max(jnp.abs(shorter.section - orbit.section) / scale) < 1e-6)
         same_period = bool(jnp.abs(shorter.period * k / j - orbit.period) < 1e-6 * orbit.period)
         if int(shorter.status) == 0 and same_point and same_period:
@@ -229,9 +231,9 @@ def periodic_orbit(
         slips = _check_slips(slips)
     if period is not None:
         check_positive("period", period)
-    _check_iterations(max_iterations)
+    check_iterations(max_iterations)
     check_positive("transient", transient)
-    if not bool(_has_folds(model, jnp.asarray(V, float))):
+    if not bool(phi_has_folds(model, jnp.asarray(V, float))):
         raise OrbitNotFound(f"phi has no fold at V = {float(V):g} m/s: the peeling is steady, there is no stick-slip orbit")
 
     if start is None or isinstance(start, Solution):
@@ -245,8 +247,8 @@ def periodic_orbit(
         if slips is None:
             raise ValueError("slips is needed with a start state: the number of stick → slip events per period (>= 1)")
         s0, k, T = state[:2], slips, period
-    t_max = _PERIODS_PER_RUN * (period if period is not None else T) if (period or T) else _UNKNOWN_PERIOD_BOUND
+    t_max = PERIODS_PER_RUN * (period if period is not None else T) if (period or T) else UNKNOWN_PERIOD_BOUND
     shooting = orbit_shooting(rtol=rtol, atol=atol, max_iterations=max_iterations)
-    orbit = _orbit(shooting, model, jnp.asarray(V, float), jnp.asarray(s0, float), jnp.asarray(k, jnp.int32), jnp.asarray(t_max, float))
+    orbit = compiled_orbit(shooting, model, jnp.asarray(V, float), jnp.asarray(s0, float), jnp.asarray(k, jnp.int32), jnp.asarray(t_max, float))
     # k from a repeat may be a multiple of the orbit's own (a repeat seen before it settled).
     return orbit if slips is not None else least_period(shooting, orbit)

@@ -18,7 +18,7 @@ from jaxtyping import ArrayLike
 from .._devices import batch_mesh, deal, over_devices, put_lanes, to_host
 from .._validation import check_positive, check_tolerance
 from ..model import PeelingModel
-from .api import _PERIODS_PER_RUN, _UNKNOWN_PERIOD_BOUND, DEFAULT_ORBIT_RTOL, _check_iterations, _orbit_of, orbit_shooting
+from .api import PERIODS_PER_RUN, UNKNOWN_PERIOD_BOUND, DEFAULT_ORBIT_RTOL, check_iterations, orbit_of, orbit_shooting
 from .orbit import PeriodicOrbit
 
 __all__ = ["periodic_orbits"]
@@ -27,7 +27,7 @@ __all__ = ["periodic_orbits"]
 @eqx.filter_jit
 def _lanes(shooting, model, V, start, slips, t_max, mesh):
     def lanes(shooting, model, V, start, slips, t_max):
-        return jax.lax.map(lambda lane: _orbit_of(shooting, model, *lane), (V, start, slips, t_max))
+        return jax.lax.map(lambda lane: orbit_of(shooting, model, *lane), (V, start, slips, t_max))
 
     return over_devices(lanes, mesh, (shooting, model), (V, start, slips, t_max))
 
@@ -72,14 +72,14 @@ def periodic_orbits(
     if not np.issubdtype(slips.dtype, np.integer) or np.any(slips < 1):
         raise ValueError(f"slips must be positive integers (one per V, or one for all), got {slips!r}")
     t_max = (
-        np.full(V.shape, _UNKNOWN_PERIOD_BOUND)
+        np.full(V.shape, UNKNOWN_PERIOD_BOUND)
         if period is None
-        else _PERIODS_PER_RUN * np.broadcast_to(np.asarray(period, float), V.shape)
+        else PERIODS_PER_RUN * np.broadcast_to(np.asarray(period, float), V.shape)
     )
     if period is not None:
         check_positive("period", t_max)
     check_tolerance("rtol", rtol, upper=1.0)
-    _check_iterations(max_iterations)
+    check_iterations(max_iterations)
     shooting = orbit_shooting(rtol=rtol, atol=atol, max_iterations=max_iterations)
     devices = jax.devices() if devices is None else list(devices)
     n, n_devices = V.size, len(devices)

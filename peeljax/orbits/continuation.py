@@ -52,7 +52,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from .api import _PERIODS_PER_RUN, DEFAULT_ORBIT_RTOL, compiled, orbit_shooting
+from .api import PERIODS_PER_RUN, DEFAULT_ORBIT_RTOL, compiled, orbit_shooting
 from .floquet import multipliers
 from .orbit import PeriodicOrbit
 from .period import OnePeriod, period_statistics
@@ -323,7 +323,7 @@ def continue_orbit(
 
     def point(X, tangent, previous, k, period=float(orbit.period)):
         # One period's runs are bounded by 3 periods of the last point's (T changes along a branch).
-        t_max = jnp.asarray(_PERIODS_PER_RUN * period)
+        t_max = jnp.asarray(PERIODS_PER_RUN * period)
         p = correct(shooting, model, jnp.asarray(V0), jnp.asarray(X), jnp.asarray(tangent), jnp.asarray(k, jnp.int32),
                     t_max, jnp.asarray(scale), jnp.asarray(previous))  # fmt: skip
         return _host(p)

@@ -29,7 +29,7 @@ from jaxtyping import ArrayLike
 from .._validation import check_positive
 from ..model import PAPER_ALPHA0, PeelingModel
 from ..simulate import simulate
-from .api import DEFAULT_ORBIT_RTOL, OrbitNotFound, _has_folds, _orbit, least_period, orbit_shooting, start_from_run
+from .api import DEFAULT_ORBIT_RTOL, OrbitNotFound, phi_has_folds, compiled_orbit, least_period, orbit_shooting, start_from_run
 from ..saved import register_reader
 from .continuation import Bifurcation, BifurcationKind, OrbitBranch, continue_orbit
 from .diagram_files import DIAGRAM_KIND, diagram_parts, write_diagram
@@ -222,7 +222,7 @@ def orbit_diagram(
             on_progress(so_far(branches, seed_time=seed_time))
 
     for v in seed_V:
-        folds = bool(_has_folds(model, jnp.asarray(v)))
+        folds = bool(phi_has_folds(model, jnp.asarray(v)))
         for start in starts:
             y0 = None if start == "paper" else _steady_state(model, float(v))
             sol = simulate(model, V=float(v), tau=0, t_final=t_final, y0=y0)
@@ -232,7 +232,7 @@ def orbit_diagram(
             if folds:
                 try:
                     s0, slips, period = start_from_run(sol)
-                    orbit = _orbit(shooting, model, jnp.asarray(v), jnp.asarray(s0), jnp.asarray(slips, jnp.int32),
+                    orbit = compiled_orbit(shooting, model, jnp.asarray(v), jnp.asarray(s0), jnp.asarray(slips, jnp.int32),
                                    jnp.asarray(3.0 * period))  # fmt: skip
                     orbit = least_period(shooting, orbit)
                     why = orbit.status_name
@@ -294,9 +294,9 @@ def _beyond(b: Bifurcation, model: PeelingModel, shooting) -> list:
                 shots.append((V + side * _SWITCH_STEP, section + sign * 1e-3 * sc * v / np.linalg.norm(v), 2 * b.slips))
     out = []
     for v, s, k in shots:
-        if not bool(_has_folds(model, jnp.asarray(v))):
+        if not bool(phi_has_folds(model, jnp.asarray(v))):
             continue
-        orbit = _orbit(shooting, model, jnp.asarray(v), jnp.asarray(s), jnp.asarray(k, jnp.int32), jnp.asarray(t_max))
+        orbit = compiled_orbit(shooting, model, jnp.asarray(v), jnp.asarray(s), jnp.asarray(k, jnp.int32), jnp.asarray(t_max))
         if int(orbit.status) != OrbitStatus.CONVERGED:
             continue
         # Past a period doubling Newton may return to the k-orbit run twice: not a new orbit.
