@@ -84,13 +84,14 @@ def _jump_times(start, c1, adjoint, rtol):
 @pytest.mark.slow
 def test_derivatives_through_the_folds():
     """d/dc1 of 8 jump times and the end state: forward mode = reverse mode (to 1e-7: 1.3e-8
-    measured), and both agree with central differences — from the steady start every fold is
-    transversal (6 digits measured; asserted to 1e-5); from the paper's start the first slip is
-    tangential and differentiated from its reference state (2e-4 measured; asserted to 1e-3).
-    Both starts in one test: y0 and t_final are traced, so the second start reuses the first's
-    compiled programs."""
+    measured from the steady start, 8e-9 from the paper's), and both agree with central
+    differences — from the steady start every fold is transversal (3.3e-7 measured; asserted to
+    1e-5); from the paper's start the first slip is tangential and differentiated from its
+    reference state, 1e-3·rtol deep (1.1e-5 measured, 2e-4 with a depth of 1e-8, 7e-4 with 1e-12;
+    asserted to 1e-4). Both starts in one test: y0 and t_final are traced, so the second start
+    reuses the first's compiled programs."""
     c1, rtol, eps = 400.0, 1e-8, 0.01
-    for start, tolerance in (("steady", 1e-5), ("paper", 1e-3)):
+    for start, tolerance in (("steady", 1e-5), ("paper", 1e-4)):
         forward = jax.jvp(lambda c: _jump_times(start, c, "forward", rtol), (c1,), (1.0,))[1]
         reverse = jax.jacrev(lambda c: _jump_times(start, c, "reverse", rtol))(c1)
         up, down = (_jump_times(start, c1 + d, "forward", rtol) for d in (eps, -eps))

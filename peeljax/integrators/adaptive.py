@@ -116,12 +116,14 @@ _GRAZING = 10.0
 # are still resolved there (closer to the impasse they are not: v̇ ~ 1/J_t).
 _IMPASSE_REFERENCE_DEPTH = 0.1
 # In pseudo-time the tangents stay resolved much closer to a tangential fold, and the
-# reference's tangents are carried to the fold by f·dt* alone: the closer the better, the
-# error ∝ √depth (measured at rtol 1e-9 against Richardson-extrapolated central differences
-# of rtol-1e-11 runs, d/dV of y(0.3 s) and the first 6 jump times, V = 1.1: worst 3.4e-3 with
-# 1e-6, 3.3e-4 with 1e-8, 4.0e-5 with 1e-10, 4.0e-6 with 1e-12, and round-off, 2.7e-5, with
-# 1e-14; tangential_fold).
-_PSEUDO_TIME_REFERENCE_DEPTH = 1e-12
+# reference's tangents are carried to the fold by f·dt* alone: the closer the better, down to
+# where the fold distance is no longer resolved by the run (~rtol). So the depth is this × rtol.
+# Measured (d/dV of y(0.3 s) and the first 6 jump times, V = 1.1, against Richardson-extrapolated
+# central differences of rtol-1e-11 runs; worst relative error): rtol 1e-6: depth 1e-8 4.9e-4,
+# 1e-9 and 1e-10 2.0e-4 (the run's own error), 1e-12 4.9e-2; rtol 1e-8: 1e-8 5.4e-4, 1e-10
+# 3.2e-5, 1e-11 2.5e-5, 1e-12 6.9e-4; rtol 1e-9: 1e-8 3.3e-4, 1e-10 4.0e-5, 1e-11 1.1e-5,
+# 1e-12 4.0e-6, 1e-14 2.7e-5 (tangential_fold).
+_PSEUDO_TIME_REFERENCE_DEPTH_PER_RTOL = 1e-3
 # A retry cut at a fold ends this fraction of the step past the fold (the located root is
 # that of a rejected, inexact step): the accepted step then crosses it, and the fold is
 # located on that step's interpolant.
@@ -258,7 +260,7 @@ def adaptive_loop(
             is_tangential, y = tangential_fold(base, to(y_fold), to(y_ref))
             return jnp.where(jax.lax.stop_gradient(is_tangential), to_log(y, stepper.carried_log), y_fold)
 
-        reference_depth = _PSEUDO_TIME_REFERENCE_DEPTH
+        reference_depth = _PSEUDO_TIME_REFERENCE_DEPTH_PER_RTOL * controller.rtol
     else:
 
         def reference_event(y):
