@@ -124,21 +124,19 @@ def undefined_where_unreached(solution, inputs, reverse: bool):
 
     Without this the derivative of a NaN value would be a finite zero (``jnp.where`` sends none
     through the NaN branch), and past a grazing the one-sided derivative of the branch the run
-    happened to take. Forward mode: a
-    NaN tangent there. Reverse mode (``reverse``): a nonzero cotangent on such a value makes the
-    gradient with respect to every float of ``inputs`` (what the run was computed from) NaN; a
-    zero one adds nothing, so a gradient of the values that exist stays finite.
+    happened to take. Forward mode: a NaN tangent there. Reverse mode (``reverse``): a nonzero
+    cotangent on such a value makes the gradient with respect to every float of ``inputs``
+    (what the run was computed from) NaN; a zero one adds nothing, so a gradient of the values
+    that exist stays finite.
     """
-    # past a grazing within the run's error, or a singular passage followed (fold="follow"):
-    # another solution of the DAE there, chosen by round-off
     ends = [solution.stats[k] for k in ("grazed_at", "singular_passage_at") if k in solution.stats]
-    grazed_at = jnp.fmin(*ends) if len(ends) == 2 else (ends[0] if ends else None)
+    derivatives_end = jnp.fmin(*ends) if len(ends) == 2 else (ends[0] if ends else None)
     jumps = solution.jumps
     fields = () if jumps is None else tuple(n for n in ("t", "v_before", "v_after", "G", "F") if getattr(jumps, n) is not None)
     values = (solution.ys, *(getattr(jumps, n) for n in fields))
     defined = (solution.valid[:, None], *(jumps.slot_valid() for _ in fields))
-    if grazed_at is not None:  # (ts NaN where not valid)
-        before = (~(solution.ts > grazed_at))[:, None], *(~(jumps.t > grazed_at) for _ in fields)
+    if derivatives_end is not None:  # (NaN: none; ts is NaN where not valid)
+        before = (~(solution.ts > derivatives_end))[:, None], *(~(jumps.t > derivatives_end) for _ in fields)
         defined = tuple(d & b for d, b in zip(defined, before, strict=True))
     if reverse:
         values = _undefined_reverse((values, inputs), defined)
