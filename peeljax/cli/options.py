@@ -227,6 +227,22 @@ def add_tolerances(group, *, rtol_default: str, atol_default: str, note: str = "
     )  # fmt: skip
 
 
+def check_stepper_options(method: str, dt, rho, alpha_methods: tuple[str, ...]) -> None:
+    """A stepper other than the α-method (``method`` not in ``alpha_methods``) runs error control
+    only: no uniform mesh (--dt), no ρ (--rho)."""
+    if method in alpha_methods:
+        return
+    if dt is not None:
+        raise ValueError(
+            f"--dt asks for a uniform mesh, which only the alpha-method runs (--method default or alpha); "
+            f"--method {method} runs error control: drop --dt (and set --rtol/--atol), or give --method alpha"
+        )
+    if rho is not None:
+        raise ValueError(
+            f"--rho is the alpha-method's parameter: it applies with --method default or alpha, not --method {method}"
+        )
+
+
 def check_tolerances(rtol: float | None, atol: float | None, defaults: tuple[float, float]) -> tuple[float, float]:
     """--rtol in (0, 1) and --atol in (0, inf), each its default when not given."""
     rtol = defaults[0] if rtol is None else rtol

@@ -289,19 +289,9 @@ def _check_memory(option: str, rows: int, kind: str, remedy: str) -> None:
 
 
 def _check_method(args: argparse.Namespace) -> None:
-    """A stepper other than the α-method runs error control only: no uniform mesh, no ρ."""
-    if args.method in (*_UNIFORM_METHODS, "diffrax"):
-        return
-    if args.dt is not None:
-        raise ValueError(
-            f"--dt asks for a uniform mesh, which only the alpha-method runs (--method default or alpha); "
-            f"--method {args.method} runs error control: drop --dt (and set --rtol/--atol), or give --method alpha"
-        )
-    if args.rho is not None:
-        raise ValueError(
-            "--rho is the alpha-method's parameter: it applies with --method default or alpha, "
-            f"not --method {args.method}"
-        )
+    """A stepper other than the α-method runs error control only: no uniform mesh, no ρ (the
+    diffrax reference, ``--method diffrax``, is checked by its own rules)."""
+    options.check_stepper_options(args.method, args.dt, args.rho, (*_UNIFORM_METHODS, "diffrax"))
 
 
 def _without_error_control(args: argparse.Namespace) -> str | None:

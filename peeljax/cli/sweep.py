@@ -262,18 +262,7 @@ def _check_method(args: argparse.Namespace) -> None:
     uniform mesh, no ρ)."""
     method = getattr(args, "method", "default")
     check_choice("--method", method, ("default", *STEPPERS))
-    if method in ("default", "alpha"):
-        return
-    if args.dt is not None:
-        raise ValueError(
-            f"--dt asks for a uniform mesh, which only the alpha-method runs (--method default or alpha); "
-            f"--method {method} runs error control: drop --dt (and set --rtol/--atol), or give --method alpha"
-        )
-    if args.rho is not None:
-        raise ValueError(
-            "--rho is the alpha-method's parameter: it applies with --method default or alpha, "
-            f"not --method {method}"
-        )
+    options.check_stepper_options(method, args.dt, args.rho, ("default", "alpha"))
 
 
 def _integrator_options(args: argparse.Namespace) -> dict:
