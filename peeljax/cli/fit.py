@@ -44,7 +44,7 @@ import numpy as np
 from .._atomic import write_text
 from .._validation import TAU_MAX, check_mesh, check_positive, check_tau
 from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw
-from ..fit import QUANTITIES, DataFileError, Observation, fit_stick_slip, read_force_record
+from ..fit import QUANTITIES, DataFileError, Observation, fit_records, fit_stick_slip, read_force_record
 from ..fit.records import check_fit_samples, read_npz
 from ..fit.records import decimate as thin
 from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_RTOL
@@ -56,6 +56,8 @@ __all__ = ["add_command", "load_observations"]
 OPTIMIZERS = ("adam", "lbfgs")
 TABLE_TRANSIENT = 0.5  # s: fit --table's --transient (its --window defaults to it: the runs' second half)
 _TABLE_DEFAULTS = {name: p.default for name, p in inspect.signature(fit_stick_slip).parameters.items()}
+# the defaults of a fit to force records: the library's, never restated here
+_RECORDS_DEFAULTS = {name: p.default for name, p in inspect.signature(fit_records).parameters.items()}
 
 
 def add_command(subparsers) -> None:
@@ -117,7 +119,8 @@ def add_command(subparsers) -> None:
     fit.add_argument("--phi", metavar="START.json", help="start coefficients as JSON (default: the paper's law)")
     fit.add_argument(
         "--free", nargs="+", metavar="NAME", default=None,
-        help="coefficients to fit, of c1, p1, ..., p9 (default all 14; --table: c1 c3 c6)",
+        help=(f"coefficients to fit, of c1, p1, ..., p9 (default all 14; --table: {' '.join(_TABLE_DEFAULTS['free'])}; "
+              f"force records: {' '.join(_RECORDS_DEFAULTS['free'])})"),
     )  # fmt: skip
     fit.add_argument(
         "--quantities", nargs="+", metavar="Q", default=None,
@@ -378,7 +381,7 @@ def _validate_table(args: argparse.Namespace, table=None, source: str | None = N
         raise ValueError(f"--max-iterations must be >= 1 (allowed range: [1, inf)), got {max_iterations}")
     options.check_max_steps(args.max_steps)
     rtol, atol = options.check_tolerances(*table_tolerances(tau, args.rtol, args.atol), (None, None))
-    free = ("c1", "c3", "c6") if args.free is None else tuple(args.free)
+    free = tuple(_TABLE_DEFAULTS["free"]) if args.free is None else tuple(args.free)
     unknown = [n for n in free if n not in COEFFICIENT_NAMES]
     if unknown:
         raise ValueError(f"--free: unknown coefficient(s) {unknown}; allowed: {', '.join(COEFFICIENT_NAMES)}")
@@ -451,15 +454,15 @@ def _validate_records(args: argparse.Namespace, observations: list[Observation],
         if unknown:
             raise ValueError(f"--statistics: {unknown} is not a statistic of force records; allowed: {', '.join(STATISTICS)}")
         statistics = tuple(args.statistics)
-    max_iterations = 20 if args.max_iterations is None else args.max_iterations
+    max_iterations = _RECORDS_DEFAULTS["max_iterations"] if args.max_iterations is None else args.max_iterations
     if max_iterations < 1:
         raise ValueError(f"--max-iterations must be >= 1 (allowed range: [1, inf)), got {max_iterations}")
-    free = ("c1", "c3", "c6") if args.free is None else tuple(args.free)
+    free = tuple(_RECORDS_DEFAULTS["free"]) if args.free is None else tuple(args.free)
     unknown = [n for n in free if n not in COEFFICIENT_NAMES]
     if unknown:
         raise ValueError(f"--free: unknown coefficient(s) {unknown}; allowed: {', '.join(COEFFICIENT_NAMES)}")
-    rtol, atol = options.check_tolerances(args.rtol, args.atol, (1e-8, 1e-10))
-    intervals = _choice("--intervals", args.intervals, ("auto", "profile", "linear"), "auto")
+    rtol, atol = options.check_tolerances(args.rtol, args.atol, (_RECORDS_DEFAULTS["rtol"], _RECORDS_DEFAULTS["atol"]))
+    intervals = _choice("--intervals", args.intervals, ("auto", "profile", "linear"), _RECORDS_DEFAULTS["intervals"])
     start = AdhesionLaw() if args.phi is None else load_phi(args.phi)
     options.check_outputs(args)
     return {"records": observations, "decided": decided, "by": by, "transient": transient, "tau": float(tau),
