@@ -130,6 +130,27 @@ _PSEUDO_TIME_REFERENCE_DEPTH_PER_RTOL = 1e-3
 _CUT_PAST = 1e-3
 
 
+def _near_miss(misses, event, t, advance, restarted, g_scale, rtol):
+    """The fold's closest miss after an accepted step whose end has fold distance ``event`` (< 0
+    below the fold) at time t: the event came closest at ``peak`` and has since fallen away by
+    more than that distance (and than the run's error): a jump that appears or vanishes under a
+    small perturbation (a grazing). ``misses``: (miss, its time, peak, its time, grazed_t)."""
+    miss, miss_t, peak, peak_t, grazed_t = misses
+    fell = peak - jnp.maximum(-peak, rtol * g_scale)
+    turned_back = advance & (peak < 0) & (event < fell) & jnp.isfinite(peak)
+    margin = jnp.where(turned_back, -peak / jnp.maximum(g_scale, 1e-300), jnp.inf)
+    closer = margin < miss
+    grazed = jnp.isnan(grazed_t) & (margin < _GRAZING * rtol)
+    higher = (advance | restarted) & (restarted | turned_back | (event > peak))
+    return (
+        jnp.where(closer, margin, miss),
+        jnp.where(closer, peak_t, miss_t),
+        jnp.where(higher, event, peak),
+        jnp.where(higher, t, peak_t),
+        jnp.where(grazed, peak_t, grazed_t),
+    )
+
+
 def _initial_step(stepper: AbstractStepper, controller: PIController, ode, y, is_log, span):
     """The first step from y (at t0 and after a jump), in the error norm's weights, from
     d0 = ‖y‖, d1 = ‖ψ‖ and d2 = ‖dψ/dt‖ (by autodiff):
@@ -344,6 +365,7 @@ def adaptive_loop(
             t_new = c.t + h
             last = reach
         cut = jnp.asarray(False)
+        passed_t = c.passed_t
         if events is None:
             impasse = accept & (state.J * new.J < 0) & (state.drive * new.drive > 0)
             fold_status, g, jumps, restarted, g_scale = 0, c.g, None, jnp.asarray(False), c.g_scale
@@ -391,8 +413,6 @@ def adaptive_loop(
             if events.mode == "follow" and schur_event:  # a singular passage followed, not a fold hit
                 passage = accept & ~fold.hit & (c.g < 0) & (g_new >= 0) & (state.drive * new.drive <= 0)
                 passed_t = jnp.where(passage & jnp.isnan(c.passed_t), jax.lax.stop_gradient(t_new), c.passed_t)
-            else:
-                passed_t = c.passed_t
             g_scale = jnp.where(restarted, jnp.abs(reference_event(new.y)), c.g_scale)
             # After a jump the motion changes scale: restart the step size as at t0.
             h_next = jax.lax.cond(
@@ -427,33 +447,20 @@ def adaptive_loop(
         kept = jax.tree_util.tree_map(lambda a, b: jnp.where(advance, a, b), new, attempt.retained)
         kept = eqx.tree_at(lambda s: s.status, kept, status.astype(jnp.int32))
         h_taken = jax.lax.stop_gradient(h)
+        misses = (c.miss, c.miss_t, c.peak, c.peak_t, c.grazed_t)
         if events is None:
             deeper = jnp.asarray(False)
-            miss, miss_t, peak, peak_t, grazed_t = c.miss, c.miss_t, c.peak, c.peak_t, c.grazed_t
         else:
             # (kept.J is the Schur event: no evaluation more)
             event = jax.lax.stop_gradient(kept.J if schur_event else reference_event(kept.y))
-            if schur_event:
+            if schur_event:  # (no near misses: J_t has no scale to measure one against, ~1e10 from rest)
                 turned = kept.drive * c.reference_drive <= 0
                 deeper = advance & ((event <= -_IMPASSE_REFERENCE_DEPTH * g_scale) | turned)
-                # (no near misses: J_t has no scale to measure one against, ~1e10 at a start from rest)
-                miss, miss_t, peak, peak_t, grazed_t = c.miss, c.miss_t, c.peak, c.peak_t, c.grazed_t
             else:
                 deeper = advance & (event <= -reference_depth * g_scale)
-                # A near miss: the event came closest to the fold at ``peak`` and has since fallen
-                # away by more than that distance (and than the run's error): a jump that appears
-                # or vanishes under a small perturbation (a grazing).
-                fell = c.peak - jnp.maximum(-c.peak, controller.rtol * g_scale)
-                turned_back = advance & ~restarted & (c.peak < 0) & (event < fell) & jnp.isfinite(c.peak)
-                margin = jnp.where(turned_back, -c.peak / jnp.maximum(g_scale, 1e-300), jnp.inf)
-                closer = margin < c.miss
-                miss = jnp.where(closer, margin, c.miss)
-                miss_t = jnp.where(closer, c.peak_t, c.miss_t)
-                grazed = jnp.isnan(c.grazed_t) & (margin < _GRAZING * controller.rtol)
-                grazed_t = jnp.where(grazed, c.peak_t, c.grazed_t)
-                higher = advance & (restarted | turned_back | (event > c.peak))
-                peak = jnp.where(higher, event, c.peak)
-                peak_t = jnp.where(higher, jax.lax.stop_gradient(clock(t_new, kept.y)), c.peak_t)
+                t_kept = jax.lax.stop_gradient(clock(t_new, kept.y))
+                misses = _near_miss(misses, event, t_kept, advance & ~restarted, restarted, g_scale, controller.rtol)
+        miss, miss_t, peak, peak_t, grazed_t = misses
         return _Carry(
             t=jnp.where(advance, t_new, c.t),
             h=h_next,
@@ -479,7 +486,7 @@ def adaptive_loop(
             peak=peak,
             peak_t=peak_t,
             grazed_t=grazed_t,
-            passed_t=passed_t if events is not None else c.passed_t,
+            passed_t=passed_t,
         )
 
     def buffers(c: _Carry) -> tuple:  # written in place, never read in the loop (static choices only)
