@@ -3,8 +3,10 @@
 V = 1.1 m/s, τ = 0, the paper's φ and start. The run is ``pj.simulate(V=1.1, tau=0, t_final=3)``
 (the 3 s run whose second half shows the repeat: 8 stick → slip events, T ≈ 0.218 s); the orbit
 is ``pj.periodic_orbit(V=1.1, start=run)``: the repeat read from the run, φ's folds checked,
-then Newton on the return map from the state at the run's last slip (each iteration one
-forward-mode pass through one period). Also timed: its two parts alone, the compiled shooting
+then Newton on the return map from the state at the run's last slip (each iteration two
+forward-mode passes through one period, one per section direction), then the check that k is
+the orbit's least number of slips (a shooting of at most two Newton iterations per divisor of
+k). Also timed: its two parts alone, the compiled shooting
 and the host-side reading of the run's repeat. Each is called once first (compilation, timed
 apart), then the four are called round-robin ``--repeats`` times; medians and minima, with the
 load average of the machine beside them (the timings are taken on shared cores).
@@ -82,8 +84,11 @@ def main(argv=None) -> int:
     ]
     lines = [
         f"One periodic orbit at V = {V} m/s (τ = 0, the paper's φ): {int(orbit.slips)} stick → slip events per period, "
-        f"T = {float(orbit.period):.7f} s, {iterations} Newton iterations (each one forward-mode pass through one "
-        f"period: {steps} step attempts at rtol 1e-8), residual {float(orbit.residual):.1e}.",
+        f"T = {float(orbit.period):.7f} s, {iterations} Newton iterations (each two forward-mode passes through one "
+        f"period, one per section direction: {steps} step attempts at rtol 1e-8), residual "
+        f"{float(orbit.residual):.1e}. The orbit's time beyond its two parts timed alone is mostly the "
+        f"check that k is its least number of slips (a shooting of at most two Newton iterations per "
+        f"divisor of k).",
         "",
         f"{args.repeats} round-robin calls of each after compilation, one process; machine: {cpu_model()}, "
         f"{os.cpu_count()} cores, Python {platform.python_version()}, JAX {jax.__version__}, backend "

@@ -51,6 +51,22 @@ def test_newton_converges_from_the_runs_repeat(run, orbit):
     json.loads(orbit.to_json())  # JSON-able
 
 
+def test_an_orbit_shot_with_twice_its_slips_is_found_with_its_own(orbit):
+    """The least period (orbits.api.least_period): the orbit shot as a fixed point of P^16 is
+    that of P^8, and the check of each divisor of 16 stops Newton after two iterations."""
+    from peeljax.orbits.api import least_period
+
+    twice = compiled_orbit(
+        orbit_shooting(), orbit.model, orbit.V, orbit.section, jnp.asarray(16, jnp.int32), jnp.asarray(4 * orbit.period)
+    )
+    assert twice.status_name == "converged" and int(twice.slips) == 16
+    least = least_period(orbit_shooting(), twice)
+    assert int(least.slips) == 8 and least.status_name == "converged"
+    assert float(least.period) == pytest.approx(float(orbit.period), rel=1e-9)
+    assert float(twice.period) == pytest.approx(2 * float(orbit.period), rel=1e-9)
+    assert int(least.iterations) <= 2
+
+
 def test_orbit_matches_an_independent_implementation(orbit):
     # An independent scipy implementation of the DAE with jumps (LSODA, rtol 1e-11),
     # Newton on its return map: T, the statistics, the multipliers' moduli.

@@ -81,13 +81,13 @@ class Shooting(eqx.Module):
         integrator: the error-controlled loop with fold events whose record holds one jump
             (:func:`peeljax.integrators.integrator_for` with ``adjoint="forward"``,
             ``max_jumps=1``): each run goes from one slip to the next.
-        max_iterations: Newton's iteration cap (static).
+        max_iterations: Newton's iteration cap (traced: another cap compiles nothing new).
         tolerance: the largest |P^k(z) − z| at a converged orbit, in the scaled coordinates
             (radians and units of V/R).
     """
 
     integrator: ErrorControl
-    max_iterations: int = eqx.field(static=True, default=20)
+    max_iterations: Int[Array, ""] = eqx.field(converter=lambda n: jnp.asarray(n, jnp.int32), default=20)
     tolerance: float = eqx.field(static=True, default=1e-10)
 
 
