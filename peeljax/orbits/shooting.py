@@ -122,8 +122,10 @@ def _return(shooting: Shooting, model: PeelingModel, V, z, slips, t_max) -> tupl
 class Linearised(eqx.Module):
     """One period as a function of w = (z, θ_p) with its forward-mode Jacobian (module docstring).
 
-    ``at(w)`` → (the Jacobian of every float output in w, r, the period): one forward-mode
-    pass through one period per component of w. θ_p are the leaves of (model, V) at
+    ``at(w, is_last=None)`` → (the Jacobian of every float output in w, r, the period): one
+    forward-mode pass through one period per component of w; those of θ_p only where
+    ``is_last(r, period)`` is True, if given (their columns are zero otherwise: Newton's steps
+    need z's). θ_p are the leaves of (model, V) at
     ``theta_leaves`` (raveled); ``theta`` their values; ``unravel`` makes a column of the
     Jacobian into (r, period) tangents.
     """
@@ -147,6 +149,7 @@ def linearised(shooting: Shooting, model, V, slips, t_max, theta_leaves: tuple[i
     floats_shape = eqx.filter(returned, lambda a: jnp.issubdtype(a.dtype, jnp.inexact))
     floats, unravel = ravel_pytree(jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), floats_shape))
     w_size = 2 + sum(sizes)
+    shapes = (jax.ShapeDtypeStruct((floats.size, w_size), jnp.dtype(float)), *returned)
 
     def outputs(w):
         new = list(leaves)
@@ -162,15 +165,32 @@ def linearised(shooting: Shooting, model, V, slips, t_max, theta_leaves: tuple[i
         _, d_floats, (r, period) = jax.jvp(outputs, (w,), (dw,), has_aux=True)
         return d_floats, r, period
 
-    def at(w):
-        # One column of the Jacobian at a time (lax.map: one body, traced and compiled once), not
-        # jax.jacfwd's batch of tangents: batched, the period's loops took 1.8x as long to run
-        # and 1.6x as long to trace (the orbit at V = 1.1: 42 ms against 76, measured).
-        columns, r, period = jax.lax.map(lambda dw: column(w, dw), jnp.eye(w.shape[0]))
-        return columns.T, r[0], jax.tree_util.tree_map(lambda a: a[0], period)
+    def at(w, is_last=None):
+        # One column of the Jacobian at a time, not jax.jacfwd's batch of tangents: batched, the
+        # period's loops took 1.8x as long to run and 1.6x as long to trace (the orbit at V = 1.1:
+        # 42 ms against 76, measured). Column 0 gives r and the period; the columns of θ only
+        # where ``is_last(r, period)`` (Newton needs those of z alone). One loop: one pass compiled.
+        n = w.shape[0]
+        directions = jnp.eye(n)
 
-    jac_shape = jax.ShapeDtypeStruct((floats.size, w_size), jnp.dtype(float))
-    return Linearised(at, unravel, jnp.concatenate([jnp.zeros(0), *theta]), (jac_shape, *returned))
+        def more(carry):
+            return carry[0] < carry[-1]
+
+        def next_column(carry):
+            j, jac, r, period, wanted = carry
+            d_floats, r_j, period_j = column(w, directions[j])
+            first = j == 0
+            r, period = jax.tree_util.tree_map(lambda a, b: jnp.where(first, a, b), (r_j, period_j), (r, period))
+            last = True if is_last is None else is_last(r_j, period_j)
+            wanted = jnp.where(first, jnp.where(last, n, 2), wanted)
+            return j + 1, jac.at[:, j].set(d_floats), r, period, wanted
+
+        jac0, r0, period0 = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), shapes)
+        init = (jnp.asarray(0), jac0, r0, period0, jnp.asarray(1))
+        _, jac, r, period, _ = jax.lax.while_loop(more, next_column, init)
+        return jac, r, period
+
+    return Linearised(at, unravel, jnp.concatenate([jnp.zeros(0), *theta]), shapes)
 
 
 class _Newton(eqx.Module):
@@ -187,8 +207,9 @@ class _Newton(eqx.Module):
 
 def _solve(shooting: Shooting, model, V, z0, slips, t_max, theta_leaves: tuple[int, ...] = ()):
     """Newton's method on r(z) = 0, each iteration forward-mode passes through one period
-    (:func:`linearised`). Ends at the first point with |r| ≤ tolerance and returns what was
-    computed there — the period and its Jacobian, without another pass. Values only: nothing
+    (:func:`linearised`: the two of z, and at the last point those of θ too). Ends at the first
+    point with |r| ≤ tolerance and returns what was computed there — the period and its
+    Jacobian, without another pass. Values only: nothing
     is differentiated through the iterations. Steps are limited to 0.5 in the scaled
     coordinates; |r| growing 100× past the first residual is divergence."""
     lin = linearised(shooting, model, V, slips, t_max, theta_leaves)
@@ -198,17 +219,22 @@ def _solve(shooting: Shooting, model, V, z0, slips, t_max, theta_leaves: tuple[i
         columns = [unravel(jac[:, j])[0] for j in range(2)]
         return jnp.stack(columns, axis=1)
 
-    def evaluate(c: _Newton, z) -> _Newton:
-        jac, r, period = at(lin.w(z))
+    def outcome(c: _Newton, r, period):
+        """(|r|, first |r|, converged, diverged, done) at a point whose residual is r."""
         norm = jnp.max(jnp.abs(r))
-        r_z = residual_jacobian(jac)
-        step = -jnp.linalg.solve(jnp.where(jnp.isfinite(r_z), r_z, 0.0) + jnp.where(jnp.all(jnp.isfinite(r_z)), 0.0, jnp.eye(2)), r)
-        step = jnp.where(jnp.all(jnp.isfinite(step)), step, 0.0)
-        step = step * jnp.minimum(1.0, 0.5 / jnp.maximum(jnp.max(jnp.abs(step)), 1e-300))
         first = jnp.where(c.iterations == 0, norm, c.first_residual)
         converged = norm <= shooting.tolerance
         diverged = ~jnp.isfinite(norm) | (norm > 100.0 * jnp.maximum(first, shooting.tolerance))
         done = converged | diverged | ~period.reached | (c.iterations + 1 >= shooting.max_iterations)
+        return norm, first, converged, diverged, done
+
+    def evaluate(c: _Newton, z) -> _Newton:
+        jac, r, period = at(lin.w(z), lambda r, period: outcome(c, r, period)[-1])
+        norm, first, converged, diverged, done = outcome(c, r, period)
+        r_z = residual_jacobian(jac)
+        step = -jnp.linalg.solve(jnp.where(jnp.isfinite(r_z), r_z, 0.0) + jnp.where(jnp.all(jnp.isfinite(r_z)), 0.0, jnp.eye(2)), r)
+        step = jnp.where(jnp.all(jnp.isfinite(step)), step, 0.0)
+        step = step * jnp.minimum(1.0, 0.5 / jnp.maximum(jnp.max(jnp.abs(step)), 1e-300))
         return _Newton(z, step, jac, r, period, c.iterations + 1, first, done, diverged & ~converged)
 
     # (``at``'s shapes from one trace of a period, not from a trace of its forward-mode Jacobian:
