@@ -24,8 +24,8 @@ from .._validation import (
 )
 from ..cycles import cycle_statistics
 from ..integrators.dense import output_count, output_times
-from ..integrators.events import FOLD_MODES
 from ..integrators.select import DEFAULT_ATOL as _ALPHA_ATOL
+from ..integrators.events import check_fold
 from ..integrators.select import DEFAULT_MAX_JUMPS, resolve_fold, resolve_max_steps
 from ..integrators.select import DEFAULT_RTOL as _ALPHA_RTOL
 from ..model import GEOMETRIES, PeelingModel
@@ -324,30 +324,25 @@ def _check_tau(args: argparse.Namespace) -> None:
 
 
 def _check_folds(args: argparse.Namespace, dt: float | None) -> tuple[str, int, float]:
-    """--fold (checked against the integrator: jump and follow need error control), --max-jumps
-    and --transient; returns the fold mode (its default when not given), max_jumps and the transient."""
+    """--fold against the integrator (the library's rule, :func:`peeljax.integrators.resolve_fold`:
+    jump and follow need error control), --max-jumps and --transient; returns the fold mode (its
+    default when not given), max_jumps and the transient."""
     fold = getattr(args, "fold", None)
-    if fold is not None:
-        check_choice("--fold", fold, FOLD_MODES)
-    other = _without_error_control(args)
-    if fold not in (None, "stop") and other is not None:
-        raise ValueError(
-            f"--fold {fold} needs error control (any stepper), which cuts a step at a fold; with "
-            f"{other} a run can only stop there: give --fold stop, or {_remedy(other)}"
-        )
-    if fold == "follow" and args.tau == 0:
-        raise ValueError(
-            "--fold follow applies to tau > 0 (it follows the homogenized ODE through singular passages); "
-            "with --tau 0 give --fold jump or --fold stop"
-        )
-    # The library's own check and default; it cannot refuse what passed above.
     if args.method == "diffrax":
+        # The reference (simulate_reference) runs diffeqsolve's own loop, which has no fold events:
+        # the library has no fold option there to check against.
+        if fold not in (None, "stop"):
+            check_fold(fold)
+            raise ValueError(
+                f"--fold {fold} needs error control (any stepper), which cuts a step at a fold; with --method "
+                f"diffrax a run can only stop there: give --fold stop, or {_remedy('--method diffrax')}"
+            )
         import diffrax
 
         fold = resolve_fold(fold, solver=diffrax.Kvaerno5(), dae=args.tau == 0)
     else:
         fold = resolve_fold(fold, dt=dt, dae=args.tau == 0)
-    max_jumps = options.check_max_jumps(getattr(args, "max_jumps", None), DEFAULT_MAX_JUMPS, other)
+    max_jumps = options.check_max_jumps(getattr(args, "max_jumps", None), DEFAULT_MAX_JUMPS, _without_error_control(args))
     transient, _ = options.check_statistics_window(getattr(args, "transient", None), None, args.t_final)
     return fold, max_jumps, transient
 
@@ -379,10 +374,8 @@ def run(config: RunConfig) -> tuple[Solution, float]:
             solver=config.solver,
             **budget,
         )
-        if ts is None:  # the accepted steps: only the valid rows (the rest is padding)
-            solution = _valid_rows(solution)
-        elif solution.after_jump is not None:  # the output times and jumps: not the rows left for more jumps
-            solution = _rows(solution, np.isfinite(np.asarray(solution.ts)), jax)
+        if ts is None:  # the accepted steps, without the rows left for more
+            solution = solution.without_padding()
     elif config.uniform:
         solution = simulate(
             config.model, config.V, config.tau, config.dt, config.t_final, rho, config.y0, solver=config.solver
@@ -402,31 +395,6 @@ def run(config: RunConfig) -> tuple[Solution, float]:
         )
     solution = jax.block_until_ready(solution)  # JAX dispatches asynchronously: time the finished run
     return solution, time.perf_counter() - start
-
-
-def _valid_rows(solution: Solution) -> Solution:
-    """The rows of an accepted-step output that hold states (the rest is NaN padding)."""
-    import jax
-
-    keep = np.asarray(solution.valid).copy()
-    keep[0] = True  # a rejected start still reports its one row
-    return _rows(solution, keep, jax)
-
-
-def _rows(solution: Solution, keep: np.ndarray, jax) -> Solution:
-    rows = lambda a: np.asarray(a)[keep]
-    return Solution(
-        ts=rows(solution.ts),
-        ys=rows(solution.ys),
-        valid=rows(solution.valid),
-        status=solution.status,
-        t_stop=solution.t_stop,
-        stats=solution.stats,
-        diagnostics=jax.tree_util.tree_map(rows, solution.diagnostics),
-        method=solution.method,
-        jumps=solution.jumps,
-        after_jump=None if solution.after_jump is None else rows(solution.after_jump),
-    )
 
 
 def step_used(solution: Solution, config: RunConfig) -> float:

@@ -13,8 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from .._validation import TAU_MAX, check_choice, check_mesh, check_positive, check_rho
-from ..integrators.events import FOLD_MODES
-from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS_DENSE, DEFAULT_RTOL
+from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS_DENSE, DEFAULT_RTOL, resolve_fold
 from ..model import PeelingModel
 from ..solution import StopReason
 from ..sweeps.engine import STARTS
@@ -356,26 +355,8 @@ def _check_folds(args: argparse.Namespace, tau: list[float], dt: float | None) -
 
     Returns the keyword arguments of :func:`peeljax.sweep` they set (fold None: its default).
     """
-    dae = tau == [0.0]
+    resolve_fold(args.fold, dt=dt, dae=tau == [0.0])  # the library's rule; None: its default, left to sweep
     fold = args.fold
-    if fold is not None:
-        check_choice("--fold", fold, FOLD_MODES)
-    if dt is not None:
-        if dae:
-            raise ValueError(
-                "--tau 0 (the DAE itself, with jumps at the folds of phi) runs with error control (any stepper), "
-                "not on a uniform mesh (--dt): drop --dt, or give tau > 0 (the homogenized ODE)"
-            )
-        if fold not in (None, "stop"):
-            raise ValueError(
-                f"--fold {fold} needs error control (any stepper), which cuts a step at a fold; on a "
-                "uniform mesh (--dt) a run can only stop there: give --fold stop, or drop --dt"
-            )
-    if fold == "follow" and dae:
-        raise ValueError(
-            "--fold follow applies to tau > 0 (it follows the homogenized ODE through singular passages); "
-            "with --tau 0 give --fold jump or --fold stop"
-        )
     # None: the library's record size (DEFAULT_SWEEP_MAX_JUMPS), as an --out written before knows it
     options.check_max_jumps(args.max_jumps, DEFAULT_SWEEP_MAX_JUMPS, None if dt is None else "--dt")
     options.check_max_steps(args.max_steps, None if dt is None else "--dt")

@@ -50,6 +50,7 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from .._arrays import float_array
+from .._validation import check_choice
 from ..solution import JumpRecord
 from .cycle_accumulator import CycleAccumulator
 
@@ -103,8 +104,7 @@ class FoldEvents(eqx.Module):
 
 
 def check_fold(fold) -> None:
-    if fold not in FOLD_MODES:
-        raise ValueError(f"fold must be one of {FOLD_MODES}, got {fold!r}")
+    check_choice("fold", fold, FOLD_MODES)
 
 
 def check_max_jumps(max_jumps) -> None:
