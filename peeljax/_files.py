@@ -58,7 +58,7 @@ def metadata(kind: str, units: dict[str, str], **extra) -> dict:
 
 def meta_array(kind: str, units: dict[str, str], **extra) -> np.ndarray:
     """:func:`metadata` as the string array ``np.savez`` stores (loads without pickles)."""
-    return np.asarray(json.dumps(_json_safe(metadata(kind, units, **extra)), allow_nan=False), dtype=str)
+    return np.asarray(json.dumps(json_safe(metadata(kind, units, **extra)), allow_nan=False), dtype=str)
 
 
 def read_meta(arrays: dict, path: str) -> dict | None:
@@ -111,13 +111,14 @@ def read_netcdf(path):
         raise ValueError(f"{str(path)!r} is not a readable netCDF file ({error})") from None
 
 
-def _json_safe(value):
+def json_safe(value):
+    """``value`` as strict JSON takes it: NaN/inf → null, numpy scalars → Python's, keys → str."""
     if isinstance(value, float) and not math.isfinite(value):
         return None
     if isinstance(value, dict):
-        return {str(key): _json_safe(item) for key, item in value.items()}
+        return {str(key): json_safe(item) for key, item in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_json_safe(item) for item in value]
+        return [json_safe(item) for item in value]
     if isinstance(value, np.generic):
-        return _json_safe(value.item())
+        return json_safe(value.item())
     return value

@@ -14,7 +14,7 @@ import os
 import numpy as np
 
 from ._atomic import write_npz, write_text
-from ._files import META_KEY, STATE_UNITS, _json_safe, meta_array
+from ._files import META_KEY, STATE_UNITS, json_safe, meta_array
 from .adhesion import AdhesionLaw
 from .model import PeelingModel
 
@@ -94,7 +94,7 @@ def run_arrays(
         "method": np.asarray(solution.method, dtype=str),  # the stepper that ran
         "method_option": np.asarray(solution.method if method_option is None else method_option, dtype=str),
         "phi_json": np.asarray(phi_json, dtype=str),
-        "stats_json": np.asarray(json.dumps(_json_safe(stats), allow_nan=False), dtype=str),  # strict: NaN -> null
+        "stats_json": np.asarray(json.dumps(json_safe(stats), allow_nan=False), dtype=str),  # strict: NaN -> null
     }
     if solution.jumps is not None:
         jumps = solution.jumps.as_numpy()

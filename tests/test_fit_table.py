@@ -12,7 +12,7 @@ import scipy.stats
 from peeljax.fit import StickSlipTable, fit_stick_slip, jump_statistics, phi_relative_error
 from peeljax.fit.statistics import window_scatter
 from peeljax.fit.stick_slip_table import STATISTICS
-from peeljax.fit.table import _REASONS, CONVERGED, _Marquardt
+from peeljax.fit.table import CONVERGED, STOP_REASONS, _Marquardt
 from peeljax.fit.uncertainty import quantile, uncertainty_from_jacobian
 from peeljax.solution import JumpRecord
 
@@ -171,7 +171,7 @@ def test_levenberg_marquardt_runs_to_convergence_and_says_which_test_stopped_it(
     np.testing.assert_allclose(run.z, expected, atol=1e-5)
     assert np.all(np.diff(run.history) < 0) and run.evaluations < 20
     assert _marquardt(residuals, np.log([3.0, 0.65]), **{**options, "max_iterations": 3}).reason == "max_iterations"
-    assert "not converged" in _REASONS["max_iterations"] and "converged" in _REASONS["gauss-newton"]
+    assert "not converged" in STOP_REASONS["max_iterations"] and "converged" in STOP_REASONS["gauss-newton"]
     flat = _marquardt(lambda z: np.array([1.0 + 1e-300 * z[0], 2.0]), [0.0], **options)
     assert flat.reason == "gauss-newton"  # nothing to gain: converged at once, not an endless loop
 
@@ -261,7 +261,7 @@ def test_an_interrupted_levenberg_marquardt_keeps_its_best_point(monkeypatch):
     assert best.final_loss < best.initial_loss == 1.0 and best.free == ("c1",)
     assert float(best.adhesion.c1) == pytest.approx(400.0 * np.exp(1.0), rel=1e-2)  # one step to z = log(c/c0) ~ 1
 
-    # the attractor rows' loop: the same, through _fit_rows
+    # the attractor rows' loop: the same, through fit_rows
     class Rows:
         n = 0
 
@@ -277,6 +277,6 @@ def test_an_interrupted_levenberg_marquardt_keeps_its_best_point(monkeypatch):
             return SimpleNamespace(z=z, r=r, J=J, v_range=v, changes=())
 
     with pytest.raises(FitInterrupted) as stop:
-        table_module._fit_rows(Rows(), AdhesionLaw(), ("c1",), {**options, "progress": None}, scale=True,
+        table_module.fit_rows(Rows(), AdhesionLaw(), ("c1",), {**options, "progress": None}, scale=True,
                                intervals="linear", level=0.95)  # fmt: skip
     assert stop.value.best.final_loss < 1.0 and "interrupted" in stop.value.best.stop_reason

@@ -20,7 +20,8 @@ from . import orbit as _orbit
 from . import simulate as _simulate
 from . import sweep as _sweep
 from . import _interrupt
-from ._common import PROG, Parser, json_safe
+from .._files import json_safe
+from ._common import PROG, Parser
 from .simulate import summarize, validate_run, write_npz
 
 __all__ = ["build_parser", "json_safe", "main", "summarize", "validate_run", "write_npz"]

@@ -311,17 +311,6 @@ def stats_text(stats: dict, jumps_said: bool = False) -> str:
     return ", ".join(f"{key} {value}" for key, value in shown.items())
 
 
-def json_safe(value):
-    """NaN/inf → null, so the output is strict JSON."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {key: json_safe(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_safe(item) for item in value]
-    return value
-
-
 def fail(error: Exception) -> int:
     """A refusal: ``peeljax: error: <message>`` on stderr, in the command line's words; exit 2."""
     message = option_names(str(error))

@@ -9,7 +9,8 @@ from pathlib import Path
 
 from .._validation import check_positive
 from . import options
-from ._common import PROG, check_output_folder, checked, fail, json_safe, plot_formats, write_failed
+from .._files import json_safe
+from ._common import PROG, check_output_folder, checked, fail, plot_formats, write_failed
 
 __all__ = ["add_command"]
 

@@ -49,7 +49,8 @@ from ..fit.records import check_fit_samples, read_npz
 from ..fit.records import decimate as thin
 from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_RTOL
 from . import _interrupt, options
-from ._common import ASCII, PROG, check_input_file, checked, fail, json_safe, load_phi
+from .._files import json_safe
+from ._common import ASCII, PROG, check_input_file, checked, fail, load_phi
 
 __all__ = ["add_command", "load_observations"]
 

@@ -19,7 +19,8 @@ from .._validation import check_positive, check_tolerance
 from ..model import PeelingModel
 from ..orbits.api import ATOL_PER_RTOL, DEFAULT_ORBIT_RTOL, DEFAULT_TRANSIENT_RUN
 from . import _interrupt, options
-from ._common import ASCII, PROG, Elapsed, checked, fail, json_safe, write_failed
+from .._files import json_safe
+from ._common import ASCII, PROG, Elapsed, checked, fail, write_failed
 
 __all__ = ["EXIT_NOT_CONVERGED", "OrbitConfig", "add_command", "validate_orbit"]
 

@@ -32,6 +32,7 @@ from ..model import GEOMETRIES, PeelingModel
 from ..simulate import check_run_memory, simulate, simulate_reference
 from ..solution import Solution, StopReason
 from . import options
+from .._files import json_safe
 from ._common import (
     ASCII,
     PROG,
@@ -39,7 +40,6 @@ from ._common import (
     Elapsed,
     checked,
     fail,
-    json_safe,
     max_steps_remedy,
     option_names,
     solver_for,

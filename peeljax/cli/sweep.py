@@ -20,6 +20,7 @@ from ..sweeps.engine import STARTS
 from ..sweeps.integrators import DEFAULT_SWEEP_MAX_JUMPS
 from ..sweeps.storage import check_writable_format, is_netcdf
 from . import _interrupt, options
+from .._files import json_safe
 from ._common import (
     ASCII,
     PROG,
@@ -27,7 +28,6 @@ from ._common import (
     Elapsed,
     checked,
     fail,
-    json_safe,
     max_steps_remedy,
     solver_for,
     write_failed,

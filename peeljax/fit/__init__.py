@@ -15,6 +15,8 @@
 * :mod:`.records_fit` — records of every kind in one fit (:func:`fit_records`);
 * :mod:`.uncertainty` — covariance, standard errors, correlations, undetermined coefficients,
   the band on φ;
+* :mod:`.parameters` — θ ↔ φ: the free coefficients as the parameters every fit moves
+  (c = c_start·exp(θ));
 * :mod:`.trajectory` — point-wise fits of smooth runs v(t), F(t), α(t) (optax), and of
   steady peeling (φ's own branch);
 * :mod:`.plots` — data against fit, residuals, φ with its band and folds.

@@ -21,7 +21,8 @@ point θ of Levenberg–Marquardt, the periodic orbit each row is on (:mod:`peel
   (the system's own response to the change), as at the start.
 
 The orbit's statistics and their Jacobian come from the implicit function theorem on the fixed
-point (:mod:`peeljax.orbits.shooting`): ``jax.jacfwd`` through one period with 2 + p tangents.
+point (:mod:`peeljax.orbits.shooting`): forward-mode passes through one period, two per Newton
+iteration and 2 + p at its last point.
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ from ..orbits.shooting import OrbitStatus, Shooting
 from ..simulate import simulate
 from ..solution import Solution
 from .stick_slip_table import STATISTICS
-from .trajectory import _to_law
+from .parameters import law_from
 
 __all__ = ["CONTINUITY", "Attractor", "OrbitRows", "RowOrbits", "classify", "find_attractor", "steady_rows"]
 
@@ -135,7 +136,7 @@ class OrbitRows(eqx.Module):
 
     def row(self, theta, V, s0, slips, t_max) -> RowOrbits:
         def quantities(th):
-            law = _to_law({n: th[i] for i, n in enumerate(self.names)}, self.start)
+            law = law_from({n: th[i] for i, n in enumerate(self.names)}, self.start)
             model = eqx.tree_at(lambda m: m.adhesion, self.model, law)
             orbit = orbit_of(self.shooting, model, V, s0, slips, t_max)
             section = SlipSection.at(model, V)
@@ -236,7 +237,7 @@ def steady_force(model: PeelingModel, start: AdhesionLaw, names, theta, V):
 @eqx.filter_jit
 def _steady(start, names, theta, V):
     def force(th):
-        law = _to_law({n: th[i] for i, n in enumerate(names)}, start)
+        law = law_from({n: th[i] for i, n in enumerate(names)}, start)
         return jax.vmap(lambda Vi: law(Vi, Vi))(V)
 
     return force(theta), jax.jacfwd(force)(theta)

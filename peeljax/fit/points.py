@@ -35,7 +35,8 @@ from ..homogenized import HomogenizedODE
 from ..integrators.select import integrator_for
 from ..model import PeelingModel
 from .table_rows import MISSING_RESIDUAL, Point
-from .trajectory import Observation, _to_law
+from .parameters import law_from
+from .trajectory import Observation
 
 __all__ = ["Joint", "PointRows", "noise_level"]
 
@@ -76,7 +77,7 @@ class _PointResiduals(eqx.Module):
     t_final: float = eqx.field(static=True)
 
     def residuals(self, theta):
-        law = _to_law({n: theta[k] for k, n in enumerate(self.names)}, self.start)
+        law = law_from({n: theta[k] for k, n in enumerate(self.names)}, self.start)
         model = eqx.tree_at(lambda m: m.adhesion, self.model, law)
         s = self.series
 

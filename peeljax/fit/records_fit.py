@@ -32,8 +32,9 @@ from .instrument import Instrument
 from .measured_statistics import record_cycles, record_statistics
 from .points import PointRows
 from .stick_slip_table import StickSlipTable
-from .table import CONVERGED, _REASONS, TableFitResult, _fit_rows, fit_stick_slip
-from .trajectory import Observation, _check_free, _to_law
+from .table import CONVERGED, STOP_REASONS, TableFitResult, fit_rows, fit_stick_slip
+from .parameters import check_free, law_from
+from .trajectory import Observation
 from .uncertainty import uncertainty_from_jacobian
 
 __all__ = ["BY", "MIN_SLIPS", "fit_records", "how_fitted"]
@@ -172,7 +173,7 @@ def fit_records(
         raise ValueError(f"intervals must be one of 'auto', 'profile', 'linear', got {intervals!r}")
     if not (isinstance(level, float) and 0 < level < 1):
         raise ValueError(f"level must be a number in (0, 1), got {level!r}")
-    names = _check_free(free)
+    names = check_free(free)
     model = PeelingModel() if model is None else model
     start = model.adhesion if start is None else start
     if not isinstance(start, AdhesionLaw):
@@ -230,10 +231,10 @@ def fit_records(
 def _fit_points_only(points: PointRows, start: AdhesionLaw, names, options) -> TableFitResult:
     """Levenberg–Marquardt on records fitted point by point alone."""
     opts = {"fit_rtol": 1e-6, "fit_atol": 1e-6, "max_iterations": options["max_iterations"], "progress": options["progress"]}
-    fitted = _fit_rows(points, start, names, opts, scale=options["scale_covariance"], intervals="linear",
+    fitted = fit_rows(points, start, names, opts, scale=options["scale_covariance"], intervals="linear",
                        level=options["level"])  # fmt: skip
     run = fitted["runs"][0]
-    law = _to_law({n: float(run.z[k]) for k, n in enumerate(names)}, start)
+    law = law_from({n: float(run.z[k]) for k, n in enumerate(names)}, start)
     values = np.asarray([float(getattr(law, n)) for n in names])
     uncertainty = uncertainty_from_jacobian(run.J, run.r, values, names, scaled=options["scale_covariance"])
     v_range = np.asarray(run.v_range)
@@ -242,6 +243,6 @@ def _fit_points_only(points: PointRows, start: AdhesionLaw, names, options) -> T
         final_loss=run.chi2, gradient_norm=float(np.linalg.norm(2 * run.J.T @ run.r)), steps=run.evaluations,
         stopped_early=run.reason in CONVERGED, v_range=(float(np.nanmin(v_range[:, 0])), float(np.nanmax(v_range[:, 1]))),
         free=names, settings={"kind": "records", "method": "points"}, uncertainty=uncertainty,
-        stop_reason=_REASONS[run.reason], residuals=run.r, chi2=run.chi2, dof=uncertainty.dof,
+        stop_reason=STOP_REASONS[run.reason], residuals=run.r, chi2=run.chi2, dof=uncertainty.dof,
         converged=run.reason in CONVERGED,
     )  # fmt: skip

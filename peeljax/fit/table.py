@@ -56,15 +56,19 @@ from .profile import profile
 from .statistics import jump_statistics, window_scatter
 from .table_rows import MISSING_RESIDUAL, V_REST, Point, TableRows, row_kinds
 from .stick_slip_table import STATISTICS, StickSlipTable
-from .trajectory import FitInterrupted, FitResult, _check_free, _to_law
+from .parameters import check_free, law_from
+from .trajectory import FitInterrupted, FitResult
 from .uncertainty import uncertainty_from_jacobian
 
 __all__ = [
+    "CONVERGED",
     "MISSING_RESIDUAL",
+    "STOP_REASONS",
     "TableFit",
     "TableFitResult",
     "attractor_statistics",
     "build_table_fit",
+    "fit_rows",
     "fit_stick_slip",
     "table_residuals",
 ]
@@ -115,7 +119,7 @@ class TableFit(eqx.Module):
 
     def statistics_with_scatter(self, theta) -> tuple[Array, Array, Array, Array]:
         """:meth:`statistics` and each row's cycle-to-cycle standard errors (n, 5)."""
-        law = _to_law(theta, self.start)
+        law = law_from(theta, self.start)
         # One row after another (lax.map), not vmap: under vmap the jump branch of every step
         # (root search, bisection) runs for all rows at every step, measured 20x slower.
         return jax.lax.map(lambda V: self.run_with_scatter(law, V), self.V)
@@ -198,10 +202,10 @@ def _missing(r) -> int:
     return int(np.sum(np.asarray(r) == MISSING_RESIDUAL))
 
 
-# Why Levenberg–Marquardt stopped: the converged reasons first.
+# Why Levenberg–Marquardt stopped (the converged reasons first), and each reason in words.
 CONVERGED = ("gauss-newton", "loss", "floor", "bifurcation")
 FLOOR = 0.25  # ‖J·δ‖²: a step this small is within 0.5 standard errors
-_REASONS = {
+STOP_REASONS = {
     "gauss-newton": "converged: the Gauss-Newton step would lower chi2 by less than fit_atol "
     "(the optimum within sqrt(fit_atol) standard errors)",
     "floor": f"converged to the rough floor of chi2: a step of at most {FLOOR**0.5:g} standard errors "
@@ -339,7 +343,7 @@ def _interrupted(names, start: AdhesionLaw, run: _Marquardt, iterations: int) ->
     """The best point of an interrupted Levenberg–Marquardt, as a result (no uncertainty: its
     covariance, profiles and checks were not computed)."""
     return FitResult(
-        adhesion=_to_law({n: jnp.asarray(z) for n, z in zip(names, run.z)}, start), start=start,
+        adhesion=law_from({n: jnp.asarray(z) for n, z in zip(names, run.z)}, start), start=start,
         loss_history=np.asarray(run.history), initial_loss=float(run.history[0]), final_loss=float(run.chi2),
         gradient_norm=float(np.linalg.norm(2 * run.J.T @ run.r)), steps=len(run.history) - 1, stopped_early=False,
         v_range=tuple(float(x) for x in np.ravel(run.v_range)[:2]), free=tuple(names), settings={},
@@ -587,7 +591,7 @@ def fit_stick_slip(
             1e-9, atol 1e-12 for the default Tsit5 stepper; τ > 0: 1e-7, 1e-10).
         orbit_rtol: the tolerance of each orbit's period run (default 1e-8,
             :data:`peeljax.orbits.DEFAULT_ORBIT_RTOL`).
-        fit_rtol, fit_atol: Levenberg–Marquardt's convergence tolerances (``_REASONS``:
+        fit_rtol, fit_atol: Levenberg–Marquardt's convergence tolerances (``STOP_REASONS``:
             fit_atol on the Gauss–Newton step's predicted χ² decrease, fit_rtol on the relative
             step and χ² decrease); ``max_iterations``: its budget of model evaluations per start.
         n_coarse, coarse_spread, seed: the coarse batch (window method) — χ² at the start and at
@@ -655,7 +659,7 @@ def fit_stick_slip(
         table, transient, window, n_samples, tau, n_starts, max_iterations, fit_rtol, fit_atol, n_coarse,
         coarse_spread, scale_covariance, taper,
     )  # fmt: skip
-    names = _check_free(free)
+    names = check_free(free)
     model = PeelingModel() if model is None else model
     start = model.adhesion if start is None else start
     if not isinstance(start, AdhesionLaw):
@@ -695,7 +699,7 @@ def fit_stick_slip(
     runs.sort(key=lambda run: (_missing(run.r), run.chi2 if np.isfinite(run.chi2) else np.inf))
     best = runs[0]
     theta = {n: jnp.asarray(best.z[k]) for k, n in enumerate(names)}
-    law = _to_law(theta, start)
+    law = law_from(theta, start)
     values = np.asarray([float(getattr(law, n)) for n in names])
     uncertainty = uncertainty_from_jacobian(best.J, best.r, values, names, scaled=scale)
     measured_rows, columns = np.nonzero(measured)
@@ -746,7 +750,7 @@ def fit_stick_slip(
         settings=settings,
         wall_time_s=time.perf_counter() - began,
         uncertainty=uncertainty,
-        stop_reason=_REASONS[best.reason],
+        stop_reason=STOP_REASONS[best.reason],
         residuals=best.r,
         start_losses=np.asarray([run.chi2 for run in runs]),
         chi2=best.chi2,
@@ -773,7 +777,7 @@ def _fit_on_attractors(table, model, start, data, sigma, measured, names, window
                        options, *, scale, intervals, level, instruments=None, points=None) -> dict:  # fmt: skip
     """Levenberg–Marquardt from ``start`` with every row on its attractor (:class:`TableRows`;
     with ``points``, a :class:`~peeljax.fit.points.PointRows`, records fitted point by point
-    beside them): :func:`_fit_rows`."""
+    beside them): :func:`fit_rows`."""
     start_model = eqx.tree_at(lambda m: m.adhesion, model, start)
     kinds, starts, why = row_kinds(start_model, table.V)
     window_rows = [i for i, k in enumerate(kinds) if k == "window"]
@@ -790,11 +794,11 @@ def _fit_on_attractors(table, model, start, data, sigma, measured, names, window
         from .points import Joint
 
         rows = Joint(rows, points)
-    fitted = _fit_rows(rows, start, names, options, scale=scale, intervals=intervals, level=level)
+    fitted = fit_rows(rows, start, names, options, scale=scale, intervals=intervals, level=level)
     return {**fitted, "why": why}
 
 
-def _fit_rows(rows, start, names, options, *, scale, intervals, level) -> dict:
+def fit_rows(rows, start, names, options, *, scale, intervals, level) -> dict:
     """Levenberg–Marquardt from θ = 0 on ``rows`` (:class:`TableRows`, or anything with its
     ``start``/``evaluate``), each trial point following the attractors of the point it steps
     from; the crossings of bifurcations logged (accepted or refused); then the intervals

@@ -36,7 +36,7 @@ from ..model import PeelingModel
 from ..orbits.section import SlipSection
 from .attractors import Attractor, OrbitRows, classify, find_attractor, shoot_rows, steady_force, steady_rows
 from .stick_slip_table import STATISTICS
-from .trajectory import _to_law
+from .parameters import law_from
 
 __all__ = ["KINDS", "MISSING_RESIDUAL", "Point", "TableRows", "row_kinds"]
 
@@ -188,7 +188,7 @@ class TableRows:
 
     # -- the model at θ ---------------------------------------------------------------------
     def law(self, z) -> AdhesionLaw:
-        return _to_law({n: jnp.asarray(z[k], float) for k, n in enumerate(self.names)}, self.start_law)
+        return law_from({n: jnp.asarray(z[k], float) for k, n in enumerate(self.names)}, self.start_law)
 
     def start(self) -> Point:
         point = self.evaluate(np.zeros(len(self.names)), None)

@@ -44,12 +44,13 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .._atomic import write_text
 from .._validation import check_positive
-from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw
+from ..adhesion import AdhesionLaw
 from ..homogenized import HomogenizedODE
 from ..integrators.alpha import AlphaMethod
 from ..integrators.base import AbstractIntegrator
 from ..integrators.select import integrator_for
 from ..model import PeelingModel
+from .parameters import check_free, law_from
 
 __all__ = [
     "FitInterrupted",
@@ -221,30 +222,8 @@ def trajectory_loss(
 
 
 # ---------------------------------------------------------------------------- parametrisation
-def _to_law(theta: dict[str, Array], start: AdhesionLaw) -> AdhesionLaw:
-    """c = c_start·exp(θ) for the free coefficients; the others stay at their start values."""
-    names = tuple(theta)
-    return eqx.tree_at(
-        lambda law: tuple(getattr(law, n) for n in names),
-        start,
-        tuple(getattr(start, n) * jnp.exp(theta[n]) for n in names),
-    )
-
-
-def _check_free(free) -> tuple[str, ...]:
-    if free is None:
-        return COEFFICIENT_NAMES
-    if isinstance(free, str):
-        free = (free,)
-    free = tuple(free)
-    unknown = [n for n in free if n not in COEFFICIENT_NAMES]
-    if unknown or not free:
-        raise ValueError(f"free: unknown coefficient(s) {unknown}; choose from {list(COEFFICIENT_NAMES)}")
-    return tuple(n for n in COEFFICIENT_NAMES if n in free)  # canonical order, no duplicates
-
-
 class _Loss(eqx.Module):
-    """θ ↦ (L, :class:`LossInfo`) with φ = ``_to_law(θ, start)``: the shape of every fit's loss.
+    """θ ↦ (L, :class:`LossInfo`) with φ = ``law_from(θ, start)``: the shape of every fit's loss.
 
     A pytree, so :func:`_update`'s compiled program is cached on its structure: a new fit
     with new data or start values but the same shapes reuses it.
@@ -257,7 +236,7 @@ class _Loss(eqx.Module):
         """L and its :class:`LossInfo` for φ = ``adhesion``."""
 
     def __call__(self, theta):
-        return self.loss(_to_law(theta, self.start))
+        return self.loss(law_from(theta, self.start))
 
 
 class _TrajectoryLoss(_Loss):
@@ -511,7 +490,7 @@ def _fit(loss_fn: _Loss, names, settings, *, opt, steps, patience, tolerance, pr
         value, theta_best, gnorm, aux = best
         start = loss_fn.start
         return FitResult(
-            adhesion=_to_law(theta_best, start),
+            adhesion=law_from(theta_best, start),
             start=start,
             loss_history=np.asarray(history),
             initial_loss=float(history[0]),
@@ -655,7 +634,7 @@ def fit_adhesion(
     check_positive("tau", tau)
     if batch not in ("map", "vmap"):
         raise ValueError(f"batch must be 'map' or 'vmap', got {batch!r}")
-    names = _check_free(free)
+    names = check_free(free)
     model = PeelingModel() if model is None else model
     start = model.adhesion if start is None else start
     if not isinstance(start, AdhesionLaw):
@@ -744,7 +723,7 @@ def fit_adhesion_steady(
         raise ValueError("v and force must be 1-D arrays of one length")
     if not bool(jnp.all(v > 0)) or not bool(jnp.all(jnp.isfinite(force))):
         raise ValueError("v must be > 0 and force finite")
-    names = _check_free(free)
+    names = check_free(free)
     opt, learning_rate = _check_options(steps, optimizer, learning_rate)
     start = AdhesionLaw() if start is None else start
     loss_fn = _SteadyLoss(start=start, v=v, force=force, V=V, scale=jnp.sqrt(jnp.mean(force**2)))

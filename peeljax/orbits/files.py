@@ -41,7 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._atomic import write_npz
-from .._files import META_KEY, _json_safe, meta_array, read_meta
+from .._files import META_KEY, json_safe, meta_array, read_meta
 from ..adhesion import AdhesionLaw
 from ..model import GEOMETRIES, PeelingModel
 from ..solution import StopReason
@@ -107,7 +107,7 @@ def orbit_arrays(orbit, settings: dict | None = None) -> dict[str, np.ndarray]:
         geometry=np.asarray(model.geometry, dtype=str),
         phi_json=np.asarray(json.dumps(model.adhesion.coefficients()), dtype=str),
         settings_json=np.asarray(
-            json.dumps(_json_safe({} if settings is None else dict(settings)), allow_nan=False), dtype=str
+            json.dumps(json_safe({} if settings is None else dict(settings)), allow_nan=False), dtype=str
         ),
     )
     arrays[META_KEY] = meta_array(KIND, {key: unit for key, unit in ORBIT_UNITS.items() if key in arrays})

@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from .._files import PARAMETER_UNITS, STATE_UNITS, _json_safe, peeljax_version, require_xarray
+from .._files import PARAMETER_UNITS, STATE_UNITS, json_safe, peeljax_version, require_xarray
 from ..solution import StopReason
 
 __all__ = ["MAP_UNITS", "SWEEP_UNITS", "map_arrays", "map_dataset", "sweep_arrays", "sweep_dataset", "sweep_units"]
@@ -141,7 +141,7 @@ def sweep_dataset(result):
         value = grid(value)
         extra = tuple(f"{key}_{axis}" for axis in range(value.ndim - len(dims)))
         data[key] = ((*dims, *extra), value, _attrs(key, _SWEEP_FIELDS))
-    settings = _json_safe(result.settings)
+    settings = json_safe(result.settings)
     attrs = {
         "kind": "sweep",
         "peeljax_version": result.peeljax_version or peeljax_version(),
@@ -252,7 +252,7 @@ def map_dataset(smap):
         if name not in ("V", "starts", "settings_json", *_MAP_SCALARS)
     }
     coords = {"start": ("start", list(smap.starts)), "V": ("V", arrays["V"], _attrs("V", MAP_FIELDS))}
-    settings = _json_safe(smap.settings)
+    settings = json_safe(smap.settings)
     attrs = {
         "kind": "stick-slip-map",
         "peeljax_version": getattr(smap, "peeljax_version", None) or peeljax_version(),

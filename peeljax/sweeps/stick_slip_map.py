@@ -254,7 +254,7 @@ class StickSlipMap:
         out["jump_up"] = np.asarray(self.jump_up, bool)
         for name in FOLD_FIELDS:
             out[name] = np.asarray(getattr(self, name), float)
-        out["settings_json"] = np.asarray(json.dumps(_json_safe(self.settings), allow_nan=False), dtype=str)
+        out["settings_json"] = np.asarray(json.dumps(json_safe(self.settings), allow_nan=False), dtype=str)
         return out
 
     @classmethod
@@ -393,15 +393,15 @@ def _ranges_text(ranges: list[tuple[float, float]]) -> str:
     return ", ".join(f"{a:.4g}" if a == b else f"[{a:.4g}, {b:.4g}]" for a, b in ranges)
 
 
-def _json_safe(value):
+def json_safe(value):
     if isinstance(value, float) and not math.isfinite(value):
         return None
     if isinstance(value, dict):
-        return {str(key): _json_safe(item) for key, item in value.items()}
+        return {str(key): json_safe(item) for key, item in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_json_safe(item) for item in value]
+        return [json_safe(item) for item in value]
     if isinstance(value, np.generic):
-        return _json_safe(value.item())
+        return json_safe(value.item())
     return value
 
 

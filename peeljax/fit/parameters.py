@@ -1,0 +1,38 @@
+"""θ ↔ φ: the free coefficients of the adhesion law as the parameters a fit moves.
+
+Every fit moves θ, one number per free coefficient, with c = c_start·exp(θ) (so a coefficient
+keeps its sign and θ = 0 is the start); the others stay at their start values.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array
+
+from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw
+
+__all__ = ["check_free", "law_from"]
+
+
+def law_from(theta: dict[str, Array], start: AdhesionLaw) -> AdhesionLaw:
+    """φ at θ: c = c_start·exp(θ) for the coefficients named in ``theta``, the others as in ``start``."""
+    names = tuple(theta)
+    return eqx.tree_at(
+        lambda law: tuple(getattr(law, n) for n in names),
+        start,
+        tuple(getattr(start, n) * jnp.exp(theta[n]) for n in names),
+    )
+
+
+def check_free(free) -> tuple[str, ...]:
+    """The free coefficients' names, checked, in φ's order without duplicates (None: all of them)."""
+    if free is None:
+        return COEFFICIENT_NAMES
+    if isinstance(free, str):
+        free = (free,)
+    free = tuple(free)
+    unknown = [n for n in free if n not in COEFFICIENT_NAMES]
+    if unknown or not free:
+        raise ValueError(f"free: unknown coefficient(s) {unknown}; choose from {list(COEFFICIENT_NAMES)}")
+    return tuple(n for n in COEFFICIENT_NAMES if n in free)  # canonical order, no duplicates
