@@ -149,7 +149,11 @@ def adaptive_alpha_loss(v_data):
         sol = peeljax.simulate(
             model_of(c), V=V, tau=P4_TAU, t_final=P4_T_FINAL, rtol=rtol, atol=ADAPTIVE_ALPHA_ATOL * rtol, ts=P4_TIMES,
         )  # fmt: skip
-        v = jnp.where(sol.valid, sol.ys[:, 3], 0.0)
-        return jnp.mean((v - vd) ** 2), sol.status
+        # Under jit the rows are the output times' and room for the jumps' sides, in time order:
+        # P4 (τ = 0.1) has no jump, so its output times' rows come first (a jump would make L NaN).
+        rows = vd.shape[0]
+        v = jnp.where(sol.valid[:rows], sol.ys[:rows, 3], 0.0)
+        loss = jnp.where(sol.jumps.count == 0, jnp.mean((v - vd) ** 2), jnp.nan)
+        return loss, sol.status
 
     return loss
