@@ -171,8 +171,12 @@ def phi_extrema_of(model: PeelingModel, V: ArrayLike) -> tuple[Array, Array]:
     found = jnp.any(changes, axis=1)
     lo, hi = log_v[index], log_v[index + 1]
 
-    def signed_slope(w, sign):  # > 0 before the extremum, ≤ 0 after it
-        return sign * slope(w)
+    frozen_model, frozen_V = jax.tree_util.tree_map(
+        lambda a: jax.lax.stop_gradient(a) if eqx.is_inexact_array(a) else a, (model, V)
+    )
+
+    def signed_slope(w, sign):  # > 0 before the extremum, ≤ 0 after it; the search is not differentiated
+        return sign * jax.grad(lambda v: frozen_model.phi(v, frozen_V))(jnp.exp(w))
 
     def newton(carry):
         lo, hi, w, step, k = carry

@@ -24,8 +24,8 @@ from .._validation import (
 )
 from ..cycles import cycle_statistics
 from ..integrators.dense import output_count, output_times
-from ..integrators.select import DEFAULT_ATOL as _ALPHA_ATOL
 from ..integrators.events import check_fold
+from ..integrators.select import DEFAULT_ATOL as _ALPHA_ATOL
 from ..integrators.select import DEFAULT_MAX_JUMPS, resolve_fold, resolve_max_steps
 from ..integrators.select import DEFAULT_RTOL as _ALPHA_RTOL
 from ..model import GEOMETRIES, PeelingModel
