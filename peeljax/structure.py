@@ -39,7 +39,6 @@ __all__ = [
     "truncated_schur_complement",
     "neumann_radius",
     "is_fast_scale",
-    "phi_extrema_of",
     "phi_extremum",
     "MAX_INDEX",
 ]
@@ -131,77 +130,52 @@ def is_fast_scale(J: ArrayLike, tau: ArrayLike) -> Bool[Array, "..."]:
 
 PHI_SEARCH_RANGE = (1e-8, 1e2)  # × max(V, 1) m/s
 _PHI_GRID = 256
-# Safeguarded Newton steps at most (a bisection wherever Newton leaves the bracket): from the
-# grid's bracket, 0.09 wide in log v, 60 bisections alone reach round-off.
-_PHI_REFINEMENTS = 60
+_PHI_BISECTIONS = 60
 
 
 def phi_extremum(model: PeelingModel, V: ArrayLike, kind: Literal["max", "min"] = "max") -> Array:
     """The first maximum (∂φ/∂v from + to −) or minimum (− to +) of φ(·, V); NaN if none.
 
     ∂φ/∂v (``jax.grad``) is sampled at 256 points log-spaced in v ∈ [1e-8, 1e2]·max(V, 1); the
-    first sign change of the kind asked brackets the extremum, and Newton's method on ∂φ/∂v in
-    log v, kept in the bracket by bisection, refines it to round-off (∂²φ by autodiff; ~5
-    steps from the grid's bracket). Traced in V and the model: ``jit`` and ``vmap`` work (the
-    sweep engine finds v̂ per lane this way; :func:`peeljax.phi_extrema` calls it on the host).
-    Its derivatives are the implicit function theorem's on ∂φ/∂v(v̂) = 0 (the search is not
-    differentiated).
+    first sign change of the kind asked brackets the extremum, and 60 bisection steps in log v
+    refine it (relative accuracy ~1e-14). Traced in V and the model: ``jit`` and ``vmap`` work
+    (the sweep engine finds v̂ per lane this way; :func:`peeljax.phi_extrema` calls it on the host).
+    Its derivatives are the implicit function theorem's on ∂φ/∂v(v̂) = 0 (the bisection is
+    not differentiated).
     """
     if kind not in ("max", "min"):
         raise ValueError(f"kind must be 'max' or 'min', got {kind!r}")
-    v_max, v_min = phi_extrema_of(model, V)
-    return v_max if kind == "max" else v_min
+    return _phi_extremum(model, V, kind)
 
 
-@eqx.filter_jit  # called on the host too (phi_extrema): its loop would be compiled anew at every call
-def phi_extrema_of(model: PeelingModel, V: ArrayLike) -> tuple[Array, Array]:
-    """(v̂, v̌): φ's first maximum and first minimum in v (:func:`phi_extremum`), from one grid
-    of ∂φ/∂v and one refinement of both."""
+@eqx.filter_jit  # called on the host too (phi_folds): its loop would be compiled anew at every call
+def _phi_extremum(model: PeelingModel, V: ArrayLike, kind: str) -> Array:
     V = jnp.asarray(V, float)
+    rising = 1.0 if kind == "max" else -1.0  # the sign of ∂φ/∂v before the extremum
     scale = jnp.maximum(V, 1.0)
     log_v = jnp.linspace(jnp.log(PHI_SEARCH_RANGE[0]), jnp.log(PHI_SEARCH_RANGE[1]), _PHI_GRID) + jnp.log(scale)
 
     def slope(log_v):
-        return jax.grad(lambda v: model.phi(v, V))(jnp.exp(log_v))
+        return rising * jax.grad(lambda v: model.phi(v, V))(jnp.exp(log_v))
 
     slopes = jax.vmap(slope)(log_v)
-    rising = jnp.array([1.0, -1.0])  # the sign of ∂φ/∂v before a maximum, before a minimum
-    changes = (rising[:, None] * slopes[:-1] > 0) & (rising[:, None] * slopes[1:] <= 0)
-    index = jnp.argmax(changes, axis=1)
-    found = jnp.any(changes, axis=1)
-    lo, hi = log_v[index], log_v[index + 1]
+    falls = (slopes[:-1] > 0) & (slopes[1:] <= 0)
+    index = jnp.argmax(falls)
+    bracket = (log_v[index], log_v[index + 1])
 
-    frozen_model, frozen_V = jax.tree_util.tree_map(
-        lambda a: jax.lax.stop_gradient(a) if eqx.is_inexact_array(a) else a, (model, V)
-    )
+    def bisect(_, bracket):
+        lo, hi = bracket
+        mid = 0.5 * (lo + hi)
+        before = slope(mid) > 0
+        return jnp.where(before, mid, lo), jnp.where(before, hi, mid)
 
-    def signed_slope(w, sign):  # > 0 before the extremum, ≤ 0 after it; the search is not differentiated
-        return sign * jax.grad(lambda v: frozen_model.phi(v, frozen_V))(jnp.exp(w))
-
-    def newton(carry):
-        lo, hi, w, step, k = carry
-        value, rate = jax.vmap(lambda w, sign: jax.jvp(lambda w: signed_slope(w, sign), (w,), (1.0,)))(w, rising)
-        before = value > 0
-        lo, hi = jnp.where(before, w, lo), jnp.where(before, hi, w)
-        proposed = w - value / jnp.where(rate < 0, rate, -1.0)
-        inside = (rate < 0) & (proposed > lo) & (proposed < hi)
-        new = jnp.where(inside, proposed, 0.5 * (lo + hi))
-        return lo, hi, new, jnp.abs(new - w), k + 1
-
-    def refining(carry):
-        lo, hi, w, step, k = carry
-        resolution = 4 * jnp.finfo(float).eps * jnp.maximum(jnp.abs(w), 1.0)
-        unresolved = found & (step > resolution) & (hi - lo > resolution)
-        return (k < _PHI_REFINEMENTS) & jnp.any(unresolved)
-
-    start = (lo, hi, 0.5 * (lo + hi), jnp.full(2, jnp.inf), 0)
-    _, _, log_root, _, _ = jax.lax.while_loop(refining, newton, jax.lax.stop_gradient(start))
-    log_root = jax.lax.stop_gradient(jnp.where(found, log_root, 0.0))
+    lo, hi = jax.lax.fori_loop(0, _PHI_BISECTIONS, bisect, bracket)
+    found = jnp.any(falls)
+    log_root = jax.lax.stop_gradient(jnp.where(found, 0.5 * (lo + hi), 0.0))
     # Derivatives by the implicit function theorem on ∂φ/∂v(v̂) = 0 (zero in value):
     # d log v̂ = −d(∂φ/∂v)/(∂²φ/∂v∂log v) at fixed v̂, with the curvature held constant.
-    curvature = jax.lax.stop_gradient(jax.vmap(jax.grad(slope))(log_root))
+    curvature = jax.lax.stop_gradient(jax.grad(slope)(log_root))
     curvature = jnp.where(curvature != 0, curvature, 1.0)
-    residual = jax.vmap(slope)(log_root)
+    residual = slope(log_root)
     log_root = log_root - (residual - jax.lax.stop_gradient(residual)) / curvature
-    extrema = jnp.where(found, jnp.exp(log_root), jnp.nan)
-    return extrema[0], extrema[1]
+    return jnp.where(found, jnp.exp(log_root), jnp.nan)
