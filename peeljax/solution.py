@@ -266,8 +266,10 @@ def jump_row_sources(n: int, pair_at, written, xp=jnp):
     return jnp.where(padding, source[jnp.maximum(end - 1, 0)], source), padding
 
 
-# The columns of a jump's rows as the loop writes them (JumpSides.rows): one array, one write per step.
-PAIR_T, PAIR_AT, PAIR_ITERATIONS, PAIR_INDEX, PAIR_SCHUR, PAIR_Y = 0, 1, 2, 3, 4, 5
+# The columns of a jump's rows as the loop writes them, one write per array and step: the floats
+# (JumpSides.rows; they carry derivatives) and the counts (JumpSides.counts; integers, none).
+PAIR_T, PAIR_SCHUR, PAIR_Y = 0, 1, 2
+PAIR_AT, PAIR_ITERATIONS, PAIR_INDEX = 0, 1, 2
 
 
 class JumpSides(eqx.Module):
@@ -281,26 +283,33 @@ class JumpSides(eqx.Module):
     the rows are merged in the compiled program.
 
     Attributes:
-        rows: ``(m, 2, 5 + 4)``: jump p's state before it in ``rows[p, 0]``, after it in
-            ``rows[p, 1]``; columns: time, the output times written before the jump, Newton
-            iterations, local index, J_t, the state (``PAIR_*``). NaN where unused.
+        rows: ``(m, 2, 2 + 4)``: jump p's state before it in ``rows[p, 0]``, after it in
+            ``rows[p, 1]``; columns: time, J_t, the state (``PAIR_T``, ``PAIR_SCHUR``,
+            ``PAIR_Y``). NaN where unused.
+        counts: ``(m, 2, 3)`` integers: the output times written before the jump, Newton
+            iterations, local index (``PAIR_AT``, ``PAIR_ITERATIONS``, ``PAIR_INDEX``). Apart
+            from the floats: ``jax.grad`` by tangents keeps k tangents of every float the run
+            returns, and these have none (P4's gradient: the room for 10⁴ jumps in tangents
+            took 4.4 of its 10 ms; measured).
         written: rows in use (two per jump kept).
     """
 
     rows: Float[Array, "m 2 k"]
+    counts: Int[Array, "m 2 3"]
     written: Int[Array, ""]
 
     def unpacked(self, xp, grid_rows: int, rows: int | None = None) -> tuple:
         """``(ts, ys, valid, after_jump, diagnostics, pair_at)`` of the 2·m pair rows (the first
         ``rows`` of them); ``pair_at``: per jump, ``grid_rows`` where unused."""
         flat = xp.reshape(self.rows, (-1, self.rows.shape[-1]))
+        counts = xp.reshape(self.counts, (-1, self.counts.shape[-1]))
         if rows is not None:
-            flat = flat[:rows]
+            flat, counts = flat[:rows], counts[:rows]
         q = xp.arange(flat.shape[0])
         valid = q < self.written
-        pair_at = flat[::2, PAIR_AT]
+        pair_at = counts[::2, PAIR_AT]
         pair_at = xp.where(valid[::2], pair_at, grid_rows).astype(np.int64 if xp is np else jnp.int32)
-        count = lambda column: xp.where(valid, flat[:, column], 0).astype(np.int32)  # noqa: E731
+        count = lambda column: xp.where(valid, counts[:, column], 0).astype(np.int32)  # noqa: E731
         nan = xp.full(q.shape, np.nan)
         diagnostics = StepDiagnostics(
             newton_iterations=count(PAIR_ITERATIONS), newton_correction=nan, schur=flat[:, PAIR_SCHUR],

@@ -681,7 +681,7 @@ def _solution(
     sides = None
     if isinstance(record, _GridWithJumps):  # dense output with both sides of each jump
         ts, ys, valid, after_jump, diagnostics = _rows(ode, stepper, final, record.grid, step_points, folding, kind)
-        sides = JumpSides(record.pairs, record.written)  # written finished by the loop (DenseOutput.row_values)
+        sides = JumpSides(record.pairs, record.pair_counts, record.written)  # written finished by the loop (DenseOutput.row_values)
     else:
         ts, ys, valid, after_jump, diagnostics = _rows(ode, stepper, final, record, step_points, folding, kind)
         after_jump = after_jump if observer_keeps_jumps(record) else None

@@ -206,12 +206,13 @@ class _GridWithJumps(eqx.Module):
     Apart, each array takes one update per step. In one set of rows, the output times' inner
     loop and the jump's pair both wrote the same arrays every step, and XLA copied them every
     step: with room for 10⁴ jumps, P1 with Tsit5 took 6.6 ms, now 1.9 (0.8 without jump rows;
-    ``benchmarks/results/jump_rows_cost.md``). The pairs are one array of
-    :class:`~peeljax.solution.JumpSides` rows, a buffer of the loop written once per jump.
+    ``benchmarks/results/jump_rows_cost.md``). The pairs are two arrays of
+    :class:`~peeljax.solution.JumpSides` rows (floats, counts), buffers of the loop written once per jump.
     """
 
     grid: _Output  # the output times' rows (no jump rows: row k is output time k)
     pairs: Array  # (m, 2, k): JumpSides.rows
+    pair_counts: Array  # (m, 2, 3): JumpSides.counts
     written: Array  # pair rows written
     keeps_jumps: bool = eqx.field(static=True, default=True)
 
@@ -220,7 +221,7 @@ class _GridWithJumps(eqx.Module):
         those after the rows in use repeating the last of them (``after_jump`` False)."""
         grid = self.grid
         n = grid.row_t.shape[0]
-        ts, ys, valid, after, diagnostics, pair_at = JumpSides(self.pairs, self.written).unpacked(jnp, n)
+        ts, ys, valid, after, diagnostics, pair_at = JumpSides(self.pairs, self.pair_counts, self.written).unpacked(jnp, n)
         source, padding = jump_row_sources(n, pair_at, self.written)
         pairs = {"row_t": ts, "row_y": ys, "row_J": diagnostics.schur, "row_iterations": diagnostics.newton_iterations,
                  "row_valid": valid, "row_after_jump": after}  # fmt: skip
@@ -268,7 +269,8 @@ class DenseOutput(Observer):
             return grid
         m = self.jump_rows
         width = PAIR_Y + jax.eval_shape(self._values, y0, J0)[0].shape[0]
-        return _GridWithJumps(grid, jnp.full((m, 2, width), jnp.nan), jnp.asarray(0, jnp.int32))
+        counts = jnp.zeros((m, 2, 3), jnp.int32)
+        return _GridWithJumps(grid, jnp.full((m, 2, width), jnp.nan), counts, jnp.asarray(0, jnp.int32))
 
     def update(self, out, step, kind):
         if self.jump_rows == 0:
@@ -286,17 +288,22 @@ class DenseOutput(Observer):
 
         def row(y, J, iterations):
             y, index = self._values(y, J)
-            columns = {PAIR_T: step.t1, PAIR_AT: grid.next, PAIR_ITERATIONS: iterations, PAIR_INDEX: index, PAIR_SCHUR: J}
-            return jnp.concatenate([jnp.stack([columns[c] for c in range(PAIR_Y)]).astype(float), y])
+            floats = {PAIR_T: step.t1, PAIR_SCHUR: J}
+            counts = {PAIR_AT: grid.next, PAIR_ITERATIONS: iterations, PAIR_INDEX: index}
+            return (
+                jnp.concatenate([jnp.stack([floats[c] for c in range(PAIR_Y)]).astype(float), y]),
+                jnp.stack([counts[c] for c in range(3)]).astype(jnp.int32),
+            )
 
-        both = jnp.stack([row(step.y1, step.J1, step.iterations), row(step.y_after, step.J_after, 0)])
-        pairs = eqxi.buffer_at_set(out.pairs, slot, both, pred=pair)
-        return _GridWithJumps(grid, pairs, out.written + 2 * pair)
+        (before, before_counts), (after, after_counts) = row(step.y1, step.J1, step.iterations), row(step.y_after, step.J_after, 0)
+        pairs = eqxi.buffer_at_set(out.pairs, slot, jnp.stack([before, after]), pred=pair)
+        counts = eqxi.buffer_at_set(out.pair_counts, slot, jnp.stack([before_counts, after_counts]), pred=pair)
+        return _GridWithJumps(grid, pairs, counts, out.written + 2 * pair)
 
     def buffers(self, record) -> tuple:
-        """The pairs' array: slot p written once, by the p-th jump. (Decided on static fields
+        """The pairs' arrays: slot p written once, by the p-th jump. (Decided on static fields
         only: equinox calls this on a tree whose None leaves are replaced.)"""
-        return (record.pairs,) if self.jump_rows else ()
+        return (record.pairs, record.pair_counts) if self.jump_rows else ()
 
     def _values(self, y, J):
         return (y, jnp.zeros((), jnp.int32)) if self.row_values is None else self.row_values(y, J)
