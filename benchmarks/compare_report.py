@@ -331,7 +331,7 @@ def batch_section(emit, d):
         tuned = per_batch["tuned"]
         accepted_tuned = np.asarray(d["accepted_tuned"])
         emit(f"Tuned (ρ = {d['tuned']['rho']:g}, atol = {d['tuned']['atol_factor']:g}·rtol, the peers' atol rule; "
-             f"`benchmarks/studies/lane_levers.py` measures each lever): {tuned:.2f} s per batch at rtol = "
+             f"`benchmarks/studies/results/lane_levers.md` measured each lever): {tuned:.2f} s per batch at rtol = "
              f"{m['tuned']['setting']:g}, {np.mean(accepted_tuned):.0f} accepted steps per trajectory (default: "
              f"{np.mean(accepted):.0f}); {base / tuned:.2f}× the default sweep's speed, {per_batch['diffrax'] / tuned:.2f}× "
              f"diffrax's, against CasADi's loop split over the same cores {casadi_shared / tuned:.2f}× "

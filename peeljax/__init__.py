@@ -16,7 +16,7 @@ spans v from 1e-10 to 10 m/s and stiff Newton solves, which float32 cannot carry
 It also asks XLA:CPU to compile small while loops (the α-method's Newton and step loops) as
 one function instead of one kernel launch per operation
 (``xla_cpu_small_while_loop_byte_threshold``): faster per step, results bit-identical
-(measured by ``benchmarks/studies/step_cost.py --default-xla-flags``; figures in the README). This only takes effect if peeljax is imported before JAX's CPU
+(measured by ``benchmarks/studies/step_cost.py --default-xla-flags`` (retired: ``benchmarks/studies/README.md``); figures in the README). This only takes effect if peeljax is imported before JAX's CPU
 backend starts, and is skipped when the environment variable ``PEELJAX_KEEP_XLA_FLAGS`` is
 set or ``XLA_FLAGS`` already sets that option.
 

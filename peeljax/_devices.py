@@ -50,7 +50,7 @@ def to_host(tree):
 def default_lane_batch(devices, chunk: int) -> int:
     """Lanes ``vmap``ped together by error control: 1 on CPUs, the whole chunk on accelerators.
 
-    Measured (``benchmarks/studies/sweep_throughput.py``): on a CPU a ``vmap``ped while loop runs every
+    Measured (``benchmarks/studies/sweep_throughput.py`` (retired: ``benchmarks/studies/README.md``)): on a CPU a ``vmap``ped while loop runs every
     lane until the slowest is done and turns the kept-matrix ``cond`` into a select that
     computes the Jacobian at every step, so one lane at a time is fastest; a GPU's time is set
     by the number of loop iterations, not by the lanes, so it takes them all at once.

@@ -143,7 +143,7 @@ def _run(integrator: AbstractIntegrator, ode, y0, t_final, ts) -> Solution:
 
     The float parameters held on the host (about 30: the model's, φ's, the integrator's)
     travel as one vector, one host-to-device copy instead of one each (a call's fixed cost is
-    measured by ``benchmarks/studies/adaptive_drivers.py``);
+    measured by ``benchmarks/studies/adaptive_drivers.py`` (retired: ``benchmarks/studies/README.md``));
     the integrator's static fields (step budgets, mesh size) are in the tree's structure. A
     leaf that is not an array (a φ given as a plain Python function, a diffrax solver's
     settings) takes ``eqx.filter_jit`` instead.

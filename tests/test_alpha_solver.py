@@ -145,7 +145,7 @@ def _bound_ratio(detest, name, solver):
 @pytest.mark.parametrize("name", ["a5", "d5"])
 def test_within_diffrax_bounds_on_the_classic_nonstiff_set(detest, name):
     """Hull et al. (1972) A5 (the problem first reported) and D5 (the worst of the set; all 25 in
-    benchmarks/studies/detest.py): the default estimate is within diffrax's bound for
+    benchmarks/studies/detest.py, retired): the default estimate is within diffrax's bound for
     second-order solvers at ρ = 0 and 0.5; the local one, controlled step by step, is not on D5."""
     for rho in (0.0, 0.5):  # ρ traced: one compilation
         assert _bound_ratio(detest, name, pj.AlphaSolver(rho=jnp.asarray(rho))) < 0.6, (name, rho)

@@ -106,8 +106,27 @@ def test_every_result_file_names_the_command_that_made_it():
         found = MADE_BY.match(line)
         assert found, f"{path.relative_to(ROOT)}: {line[:100]!r}"
         script = ROOT / found.group(2)
-        # a script removed since names where git keeps it
-        assert script.is_file() or ("removed" in line and "git show" in line), (path, found.group(2))
+        # a script removed since names where git keeps it, or the index of retired studies does
+        retired = found.group(2) in _retired_scripts() or ("removed" in line and "git show" in line)
+        assert script.is_file() or retired, (path, found.group(2))
+
+
+def _retired_scripts() -> set[str]:
+    """The scripts ``benchmarks/studies/README.md`` lists as retired (in its table, by path)."""
+    index = (BENCH / "studies" / "README.md").read_text(encoding="utf-8")
+    return set(re.findall(r"^\| `(benchmarks/\S+\.py)`", index, flags=re.M))
+
+
+def test_the_retired_scripts_are_gone_and_nothing_imports_them():
+    retired = _retired_scripts()
+    assert len(retired) >= 20
+    assert not any((ROOT / path).exists() for path in retired), retired
+    names = {Path(path).stem for path in retired}
+    for module in _benchmark_modules().values():
+        tree = ast.parse(module.read_text(encoding="utf-8"))
+        imported = {alias.name.split(".")[-1] for node in ast.walk(tree) if isinstance(node, ast.Import) for alias in node.names}
+        imported |= {node.module.split(".")[-1] for node in ast.walk(tree) if isinstance(node, ast.ImportFrom) and node.module}
+        assert not imported & names, (module, imported & names)
 
 
 def _benchmark_modules():

@@ -62,7 +62,7 @@ __all__ = [
 ]  # fmt: skip
 
 # A point-by-point fit (fit_adhesion) compiles a program that holds the model's state at every
-# sample time, forward and for the gradient: 44 kB a sample measured (benchmarks/fit_memory.py,
+# sample time, forward and for the gradient: 44 kB a sample measured (benchmarks/fit_memory.py, retired,
 # results/fit_memory.md: the peak memory's slope from 2 000 to 32 000 samples; XLA asked for
 # 228 GB, 38 kB a sample, for a 6e6-row record). MAX_FIT_SAMPLES keeps it near 1 GB; a denser
 # record is refused before compiling, and may be decimated on request.

@@ -24,7 +24,7 @@ The error estimate (``error_estimate``):
   It overestimates the α-method's local error by a factor ∝ 1/h, and that is what makes the
   global error proportional to the tolerance: on the non-stiff test set of Hull, Enright, Fellen
   and Sedgwick (1972) at rtol = atol = 1e-6 over [0, 20] every end point is within diffrax's
-  bound for second-order solvers, 1e-3·(1 + |y|) (``benchmarks/studies/detest.py``).
+  bound for second-order solvers, 1e-3·(1 + |y|) (``benchmarks/studies/detest.py`` (retired: ``benchmarks/studies/README.md``)).
 * ``"local"``: C·h²·(a_{n+1} − a_n) (:func:`peeljax.integrators.steppers.error_constant`), the
   α-method's own local error C·h³·y‴ (the estimate of peeljax's loop), of order 3. It is honest
   step by step — measured within a factor 1.6 of the true local error on every accepted step of

@@ -9,7 +9,7 @@ reverse pass recomputes the step from it, then its tangent. A step's linearizati
 replay of its substep path (:meth:`~peeljax.integrators.alpha.AlphaMethod._replay`): stored,
 it is ~600 arrays per step (the residuals of both branches of the replay's ``cond``), and the
 compiled gradient of the paper's 82-step run spent about half of its compile time on them
-(``benchmarks/compile_cost.py``: XLA's CPU time 32.5 → 18 s); recomputed, the gradient's run
+(``benchmarks/compile_cost.py`` (retired: ``benchmarks/studies/README.md``): XLA's CPU time 32.5 → 18 s); recomputed, the gradient's run
 is no slower (0.82–0.89× the stored one's, both compiled in one process and called in turn:
 the step's Newton solves cost less than storing and reading back its linearization). Values and derivatives are unchanged (to 7e-15); forward-mode
 derivatives and plain runs do not see it.

@@ -310,7 +310,7 @@ def sweep(
         rho: the α-method's ρ ∈ [0, 1) (default 0, the paper's choice for the best-conditioned
             Newton matrix). A speed lever under error control: the local error constant falls
             from 1/3 (ρ = 0) to 1/9 (ρ = 0.5), and at equal error on the 1024-lane batch of
-            ``benchmarks/studies/lane_levers.py`` ρ = 0.5 took about 0.6× the step attempts and
+            ``benchmarks/studies/lane_levers.py`` (retired: ``benchmarks/studies/README.md``) ρ = 0.5 took about 0.6× the step attempts and
             the time, with the τ = 0 jump times no less accurate
             (``benchmarks/studies/results/lane_levers.md``).
         solver: an :class:`AlphaMethod` (default ``AlphaMethod(rho=rho)``), or any
