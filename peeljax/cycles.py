@@ -46,6 +46,7 @@ import numpy as np
 from .solution import JumpRecord, Solution
 
 __all__ = [
+    "STATISTICS",
     "CycleStatistics",
     "RepeatPattern",
     "Spread",
@@ -54,6 +55,12 @@ __all__ = [
     "repeat_outlook",
     "repeat_pattern",
 ]
+
+# The five statistics of stick-slip that a table gives per V, a periodic orbit has exactly and a
+# fit compares (the one definition: the fit's tables, the orbits and their files read it here):
+# the mean force, the forces at the slip and at the re-stick [N], the time between slips and the
+# slip's duration [s].
+STATISTICS = ("F_mean", "F_slip", "F_stick", "period", "slip_duration")
 
 # repeat_outlook: a near repeat matches its last repeat to within NEAR of the intervals' range, and a
 # settling one shrinks its deviation by at least CONTRACTION per repeat; below MIN_EVENTS stick →

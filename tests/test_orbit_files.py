@@ -1,4 +1,4 @@
-"""An orbit's file (peeljax.orbits.files, .saved_orbit): PeriodicOrbit.save, read back by
+"""An orbit's file (peeljax.orbits.files): PeriodicOrbit.save, read back by
 peeljax.load as a SavedOrbit with every field, data only; malformed files refused naming the
 file and the array.
 

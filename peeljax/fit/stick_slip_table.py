@@ -27,12 +27,12 @@ import numpy as np
 
 from .._atomic import write_text
 from .measured_statistics import record_cycles, sample_std
+from ..cycles import STATISTICS
 from .text_tables import TextTable, column_numbers, read_text_table
 from .trajectory import Observation
 
 __all__ = ["STATISTICS", "TABLE_UNITS", "StickSlipTable", "read_stick_slip_table"]
 
-STATISTICS = ("F_mean", "F_slip", "F_stick", "period", "slip_duration")
 _STAT_UNITS = {"F_mean": "N", "F_slip": "N", "F_stick": "N", "period": "s", "slip_duration": "s"}
 # Columns of a stick-slip table and their units.
 TABLE_UNITS: dict[str, str] = {"V": "m/s", **_STAT_UNITS, **{f"{k}_std": u for k, u in _STAT_UNITS.items()}}

@@ -8,15 +8,15 @@ The layers of this package, each a module with one job:
                   the period's statistics (what a stick-slip table holds), exact
     shooting.py   Newton on P^k(s) − s; derivatives by the implicit function theorem
     floquet.py    Floquet multipliers and the test functions of fold, period doubling, torus
-    orbit.py      the result, :class:`PeriodicOrbit`
-    files.py      its file's format: :meth:`PeriodicOrbit.save` writes it
-    saved_orbit.py  :class:`SavedOrbit`, an orbit read back by :func:`peeljax.load`
+    orbit.py      the result, :class:`PeriodicOrbit`, and :class:`SavedOrbit`, one read back by
+                  :func:`peeljax.load`
     api.py        :func:`periodic_orbit`: options checked, a start found from a run
     batch.py      :func:`periodic_orbits`: many orbits in one compiled call, over every device
     continuation.py   a branch over V or a coefficient of φ: pseudo-arclength, stability, the
                   bifurcations located (fold, period doubling, torus, grazing, the end)
     diagram.py    :func:`orbit_diagram`: seeds from runs, every branch and what lies beyond
-    diagram_files.py  its file, read back by :func:`peeljax.load`
+    files.py      the two file formats, an orbit's and a diagram's (arrays; it imports no
+                  class: :mod:`.orbit` and :mod:`.diagram` write and read through it)
 """
 
 from .api import DEFAULT_ORBIT_RTOL, OrbitNotFound, least_period, orbit_shooting, periodic_orbit, start_from_run
@@ -24,9 +24,8 @@ from .batch import periodic_orbits
 from .continuation import Bifurcation, BifurcationKind, OrbitBranch, continue_orbit
 from .diagram import OrbitDiagram, Seed, orbit_diagram
 from .floquet import multipliers, test_functions
-from .orbit import PeriodicOrbit
+from .orbit import PeriodicOrbit, SavedOrbit
 from .period import ForceIntegral, OnePeriod, one_period, period_statistics
-from .saved_orbit import SavedOrbit
 from .section import SlipSection
 from .shooting import OrbitStatus, Shooting, ShootingResult, shoot
 

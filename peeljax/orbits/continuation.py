@@ -52,6 +52,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from ..cycles import STATISTICS
 from .api import PERIODS_PER_RUN, DEFAULT_ORBIT_RTOL, compiled, orbit_shooting
 from .floquet import multipliers
 from .orbit import PeriodicOrbit
@@ -61,7 +62,6 @@ from .shooting import OrbitStatus, Shooting, linearised
 
 __all__ = ["Bifurcation", "BifurcationKind", "BranchPoint", "OrbitBranch", "continue_orbit", "parameter_leaf"]
 
-STATISTICS = ("F_mean", "F_slip", "F_stick", "period", "slip_duration")
 _CORRECTOR_ITERATIONS = 6  # from a predictor on the branch Newton needs 2–3
 _MOST_MOVED = 0.5  # × the step: the farthest a correction may move off its prediction
 _LEAST_ALIGNED = 0.95  # cos of the sharpest turn of the tangent over one step (18°)

@@ -32,7 +32,7 @@ from ..simulate import simulate
 from .api import DEFAULT_ORBIT_RTOL, OrbitNotFound, phi_has_folds, compiled_orbit, least_period, orbit_shooting, start_from_run
 from ..saved import register_reader
 from .continuation import Bifurcation, BifurcationKind, OrbitBranch, continue_orbit
-from .diagram_files import DIAGRAM_KIND, diagram_parts, write_diagram
+from .files import DIAGRAM_KIND, diagram_parts, write_diagram
 from .section import SlipSection
 from .shooting import OrbitStatus
 
@@ -100,7 +100,7 @@ class OrbitDiagram:
         return sum(s.branch >= 0 for s in periodic), len(periodic)
 
     def save(self, path) -> None:
-        """Write the diagram to ``path`` (``.npz``, :mod:`peeljax.orbits.diagram_files`);
+        """Write the diagram to ``path`` (``.npz``, :mod:`peeljax.orbits.files`);
         :func:`peeljax.load` reads it back."""
         write_diagram(path, self)
 
@@ -309,6 +309,13 @@ def _beyond(b: Bifurcation, model: PeelingModel, shooting) -> list:
 def read_diagram(arrays: dict, name: str) -> OrbitDiagram:
     """The :class:`OrbitDiagram` of a diagram file's arrays (:func:`peeljax.load`)."""
     V_range, branches, seeds, wall, seed_time, complete = diagram_parts(arrays, name)
+    try:
+        branches = [
+            OrbitBranch(**{**fields, "bifurcations": [Bifurcation(BifurcationKind[kind], *rest) for kind, *rest in fields["bifurcations"]]})
+            for fields in branches
+        ]  # fmt: skip
+    except KeyError as error:
+        raise ValueError(f"{name!r} is malformed: not an orbit diagram's arrays (no bifurcation kind {error})") from None
     return OrbitDiagram(V_range, branches, [Seed(*fields) for fields in seeds], wall, seed_time, complete)
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -12,11 +13,13 @@ from jaxtyping import Array, ArrayLike, Bool, Complex, Float, Int
 from ..model import PeelingModel
 from ..simulate import simulate
 from ..solution import Solution, StopReason
+from ..saved import register_reader
+from .files import KIND, orbit_fields, write_orbit
 from .floquet import test_functions
 from .section import SlipSection
 from .shooting import OrbitStatus
 
-__all__ = ["PeriodicOrbit"]
+__all__ = ["PeriodicOrbit", "SavedOrbit", "read_orbit"]
 
 _UNITS = {"F_mean": "N", "F_slip": "N", "F_stick": "N", "period": "s", "slip_duration": "s"}
 
@@ -147,8 +150,6 @@ class PeriodicOrbit(eqx.Module):
         """Write the orbit to an ``.npz`` that :func:`peeljax.load` reads back as a
         :class:`~peeljax.orbits.SavedOrbit` (:mod:`peeljax.orbits.files`; single orbits
         only); ``settings``: JSON-able notes on how it was found (rtol, …). Written atomically."""
-        from .files import write_orbit  # the file's format (it imports no orbit class)
-
         write_orbit(path, self, settings)
 
     def __str__(self) -> str:
@@ -182,3 +183,44 @@ def _complex(m: complex) -> str:
     if abs(m.imag) < 1e-12 * max(abs(m), 1e-300):
         return f"{m.real:.4g}"
     return f"{m.real:.4g}{'+' if m.imag >= 0 else '−'}{abs(m.imag):.4g}i (|λ| {abs(m):.4g})"
+
+
+class SavedOrbit(PeriodicOrbit):
+    """A :class:`PeriodicOrbit` read from a file (:func:`peeljax.load`), with what the file says
+    about how it was found.
+
+    Attributes (besides the orbit's):
+        settings: how the orbit was found (``rtol``, ``atol``, ``transient``, … as saved; empty
+            where the writer gave none).
+        path: the file it was read from.
+        units: the units of the file's arrays.
+        peeljax_version: the version of the peeljax that wrote the file.
+    """
+
+    settings: dict = eqx.field(default_factory=dict)
+    path: str = eqx.field(static=True, default="")
+    units: dict = eqx.field(default_factory=dict)
+    peeljax_version: str = eqx.field(static=True, default="")
+
+    def save(self, path: str | os.PathLike, settings: dict | None = None) -> None:
+        """Write the orbit to ``path`` as it was read (its settings kept unless ``settings``)."""
+        write_orbit(path, self, self.settings if settings is None else settings)
+
+    def __repr__(self) -> str:
+        return (
+            f"SavedOrbit({self.path!r}: V = {float(self.V):g} m/s, {int(self.slips)} slips per period, "
+            f"T = {float(self.period):.7g} s, {self.status_name})"
+        )
+
+
+def read_orbit(arrays: dict, name: str) -> SavedOrbit:
+    """The :class:`SavedOrbit` of an orbit's ``.npz`` arrays (``name``: the file, for messages);
+    a ValueError naming the file where they are malformed."""
+    try:
+        return SavedOrbit(**orbit_fields(arrays, name), path=name)
+    except (KeyError, TypeError) as error:
+        raise ValueError(f"{name!r} is malformed: not an orbit's arrays ({error})") from None
+
+
+# peeljax.load reads an orbit's file.
+register_reader(KIND, npz=read_orbit)
