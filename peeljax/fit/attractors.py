@@ -34,6 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from .._devices import batch_mesh, over_devices, put_lanes
 from ..adhesion import AdhesionLaw
 from ..branches import phi_folds
 from ..cycles import cycle_statistics
@@ -184,21 +185,34 @@ class RowOrbits(eqx.Module):
     v_slip: Array
 
 
-_rows = eqx.filter_jit(lambda program, *args: program(*args))
+@eqx.filter_jit
+def _rows(program: OrbitRows, theta, V, s0, slips, t_max, mesh):
+    """The rows under ``shard_map`` over ``mesh`` (one row per device), or as they are (None)."""
+    return over_devices(lambda program, *row: program(*row), mesh, (program,), (theta, V, s0, slips, t_max))
 
 
 def shoot_rows(program: OrbitRows, theta: np.ndarray, V, attractors: list[Attractor]) -> dict[str, np.ndarray]:
     """The orbits of the rows at ``V`` from their ``attractors`` at θ ((p,) for all rows, or
-    (n, p): one per row), as NumPy arrays with a leading axis over the rows. One call of the
-    compiled program per row: a program compiled once serves tables of any length."""
-    theta = np.broadcast_to(np.asarray(theta, float), (len(attractors), len(program.names)))
-    V = np.asarray(V, float)
+    (n, p): one per row), as NumPy arrays with a leading axis over the rows.
+
+    The rows go to the devices one each (on a CPU one device per core: the rows of a table
+    run side by side), as many calls as it takes, the last padded with a repeat of its last
+    row: one compiled program, of one row per device, serves tables of any length."""
+    n = len(attractors)
+    theta = np.broadcast_to(np.asarray(theta, float), (n, len(program.names)))
+    lanes = [theta, np.asarray(V, float), np.stack([np.asarray(a.section, float) for a in attractors]),
+             np.asarray([a.slips for a in attractors], np.int32),
+             np.asarray([PERIODS_PER_RUN * a.period for a in attractors], float)]  # fmt: skip
+    devices = jax.local_devices()  # a fit is one process's work, even under jax.distributed
+    mesh = batch_mesh(devices)
     outs = []
-    for i, a in enumerate(attractors):
-        out = _rows(program, jnp.asarray(theta[i : i + 1]), jnp.asarray(V[i : i + 1]), jnp.asarray(a.section[None], float),
-                    jnp.asarray([a.slips], jnp.int32), jnp.asarray([PERIODS_PER_RUN * a.period]))  # fmt: skip
-        outs.append(out)
-    return {f.name: np.concatenate([np.asarray(getattr(o, f.name)) for o in outs]) for f in dataclasses.fields(RowOrbits)}
+    for begin in range(0, n, len(devices)):  # every call dispatched before any is read
+        rows = np.minimum(np.arange(begin, begin + len(devices)), n - 1)
+        chunk = [a[rows] for a in lanes]
+        chunk = put_lanes(chunk, devices) if mesh is not None else [jnp.asarray(a) for a in chunk]
+        outs.append(_rows(program, *chunk, mesh=mesh))
+    outs = [jax.tree_util.tree_map(np.asarray, o) for o in outs]
+    return {f.name: np.concatenate([np.asarray(getattr(o, f.name)) for o in outs])[:n] for f in dataclasses.fields(RowOrbits)}
 
 
 def classify(row: dict, i: int, before: dict | None, i_before: int | None, d_theta: np.ndarray) -> str:

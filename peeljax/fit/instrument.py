@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..model import PeelingModel
-from ..orbits.section import SlipSection
+from ..orbits.section import state_after_slip
 from ..simulate import simulate
 from .measured_statistics import MIN_DROP_NOISE, record_statistics
 from .stick_slip_table import STATISTICS
@@ -83,7 +83,7 @@ class Instrument:
 def orbit_force(model: PeelingModel, V: float, section, period: float, n: int = DENSE) -> tuple[np.ndarray, np.ndarray]:
     """(t, F) over one period [0, T] of the orbit through ``section`` (s = (α, ω) before the
     slip), densely, with both sides of every jump (F is continuous, its slope jumps)."""
-    y0 = np.asarray(SlipSection.at(model, V).after_slip(jnp.asarray(section, float)))
+    y0 = state_after_slip(model, V, section)
     t_final = _RUN_BOUND if period < _RUN_BOUND else float(period)
     sol = simulate(model, V=float(V), tau=0, y0=y0, t_final=t_final, ts=np.linspace(0.0, period, n), rtol=1e-9,
                    atol=1e-12)  # fmt: skip

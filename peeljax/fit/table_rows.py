@@ -33,7 +33,7 @@ import numpy as np
 
 from ..adhesion import AdhesionLaw
 from ..model import PeelingModel
-from ..orbits.section import SlipSection
+from ..orbits.section import state_after_slip
 from .attractors import Attractor, OrbitRows, classify, find_attractor, shoot_rows, steady_force, steady_rows
 from .stick_slip_table import STATISTICS
 from .parameters import law_from
@@ -298,7 +298,7 @@ class TableRows:
         model = eqx.tree_at(lambda m: m.adhesion, self.model, self.law(z))
         y0 = None
         if previous is not None:
-            y0 = np.asarray(SlipSection.at(model, float(self.V[i])).after_slip(jnp.asarray(previous.section)))
+            y0 = state_after_slip(model, float(self.V[i]), previous.section)
         found = find_attractor(model, float(self.V[i]), y0=y0)
         if not isinstance(found, Attractor):
             return None

@@ -16,7 +16,7 @@ from ..solution import Solution, StopReason
 from ..saved import register_reader
 from .files import KIND, orbit_fields, write_orbit
 from .floquet import test_functions
-from .section import SlipSection
+from .section import state_after_slip
 from .shooting import OrbitStatus
 
 __all__ = ["PeriodicOrbit", "SavedOrbit", "read_orbit"]
@@ -120,7 +120,7 @@ class PeriodicOrbit(eqx.Module):
         it, and ends with the slip at T that closes the period). Single orbits only."""
         period = float(self.period)
         ts = np.linspace(0.0, period, 2001) if ts is None else np.asarray(ts, float)
-        y0 = np.asarray(SlipSection.at(self.model, self.V).after_slip(self.section))
+        y0 = state_after_slip(self.model, self.V, self.section)
         return simulate(self.model, V=float(self.V), tau=0, y0=y0, t_final=period, ts=ts, rtol=rtol, atol=atol)
 
     # -- output -----------------------------------------------------------------------------

@@ -23,12 +23,13 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from ..branches import STICK, Folds, jump_velocity, phi_folds
 from ..model import PeelingModel
 
-__all__ = ["SlipSection"]
+__all__ = ["SlipSection", "state_after_slip"]
 
 
 class SlipSection(eqx.Module):
@@ -73,3 +74,15 @@ class SlipSection(eqx.Module):
     def coordinates(self, y: Float[Array, "... 4"]) -> Float[Array, "... 2"]:
         """s = (α, ω) of a state (the state is not checked to lie on Σ)."""
         return jnp.asarray(y)[..., :2]
+
+
+@eqx.filter_jit
+def _after_slip(model: PeelingModel, V, s) -> Array:
+    return SlipSection.at(model, V).after_slip(s)
+
+
+def state_after_slip(model: PeelingModel, V, s) -> np.ndarray:
+    """:meth:`SlipSection.after_slip` at (model, V, s) from the host, as a NumPy array: one compiled
+    program for every model and V (called eagerly, the root search's loop was compiled afresh at
+    each call: 80 ms, 2.5 s of a 15 s table fit)."""
+    return np.asarray(_after_slip(model, jnp.asarray(V, float), jnp.asarray(s, float)))
