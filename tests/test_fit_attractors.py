@@ -89,6 +89,34 @@ def test_profile_across_a_bifurcation_is_a_union_with_the_jump_located():
     assert len(p.jumps) == 1 and math.log(p.jumps[0][0]) / se < 1.5 < math.log(p.jumps[0][1]) / se
 
 
+def test_auto_profiles_only_the_coefficients_whose_interval_holds_a_bifurcation():
+    """Two uncorrelated coefficients, a bifurcation at z₁ = 1 SE (inside c1's linearized
+    interval) and none along c2's: ``intervals="auto"`` profiles c1 alone and keeps c2's
+    linearized interval; ``"profile"`` profiles both."""
+    from peeljax.fit.table import _profiles_if_needed
+    from peeljax.fit.uncertainty import uncertainty_from_jacobian
+
+    se = 0.01
+    A = np.diag([1 / se, 1 / se])
+
+    class Rows(_Rows):  # a point on another branch than the one it steps from names the change
+        def evaluate(self, z, base=None):
+            point = super().evaluate(z, base)
+            if base is not None and base.branch != point.branch:
+                point.changes = [{"row": 0, "V": 1.0, "from": base.branch[0], "to": point.branch[0], "why": "test"}]
+            return point
+
+    rows = Rows(lambda z: (int(z[0] > se), A @ z, A))
+    start = rows.evaluate(np.zeros(2))
+    best = _Marquardt(start.z, start.r, start.J, start.v_range, fit_rtol=1e-10, fit_atol=1e-10, max_iterations=10,
+                      state=start)  # fmt: skip
+    uncertainty = uncertainty_from_jacobian(best.J, best.r, np.ones(2), ("c1", "c2"), scaled=False)
+    options = {"fit_rtol": 1e-10, "fit_atol": 1e-10}
+    auto = _profiles_if_needed(rows, best, uncertainty, "auto", 0.95, options)
+    assert sorted(auto) == ["c1"] and auto["c1"].jumps
+    assert sorted(_profiles_if_needed(rows, best, uncertainty, "profile", 0.95, options)) == ["c1", "c2"]
+
+
 # ---------------------------------------------------------------------------- records
 
 

@@ -613,10 +613,10 @@ def fit_stick_slip(
             ramps (:func:`peeljax.fit.statistics.jump_statistics`), in [0, 0.5]; default 0.25
             for the orbit method's window rows (continuous in the coefficients), 0 for the
             window method (the table must be made with the same taper).
-        intervals: ``"auto"`` (default: profile-likelihood intervals beside the linearized ones
-            wherever a bifurcation lies within them — a row's attractor changed during the fit
-            or at the linearized intervals' ends — :mod:`peeljax.fit.profile`), ``"profile"``
-            (always), ``"linear"`` (never).
+        intervals: ``"auto"`` (default: a profile-likelihood interval beside the linearized one
+            of each coefficient whose linearized interval holds a bifurcation — a row on another
+            attractor at one of its ends —, :mod:`peeljax.fit.profile`), ``"profile"`` (for
+            every coefficient), ``"linear"`` (never).
         level: the confidence level of the profile intervals (default 0.95).
         max_jumps, max_steps: each window run's jump record and step budget.
         progress: None, or ``progress(iteration, chi2)`` called on the host after each
@@ -896,29 +896,29 @@ def _row_report(rows: TableRows, point, why) -> list[dict]:
 
 
 def _profiles_if_needed(rows: TableRows, best, uncertainty, intervals, level, options) -> dict:
-    """Profile-likelihood intervals (:mod:`peeljax.fit.profile`) where ``intervals`` asks: always
-    (``"profile"``), or (``"auto"``) where a bifurcation lies within the linearized intervals —
-    a row's attractor changed during the fit, or at a linearized interval's end."""
+    """Profile-likelihood intervals (:mod:`peeljax.fit.profile`) where ``intervals`` asks: for
+    every coefficient (``"profile"``), or (``"auto"``) for each coefficient whose linearized
+    interval has an end where a row's attractor is another than at the optimum (a bifurcation
+    within it)."""
     if intervals == "linear" or best.state is None or not np.isfinite(best.chi2):
         return {}
     q = uncertainty.quantile(level)
     cov = np.asarray(uncertainty.covariance_log)
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    doubtful = [j for j in range(best.z.size) if np.isfinite(se[j]) and se[j] > 0]
     if intervals == "auto":
         # the ends of each linearized interval, the others moved along the linear profile
-        ends = []
-        for j in range(best.z.size):
-            if not (np.isfinite(se[j]) and se[j] > 0):
-                continue
-            direction = cov[:, j] / se[j]  # θ̂ + t·direction: θ_j = θ̂_j + t·se_j, the others re-fitted
-            ends += [best.z + q * direction, best.z - q * direction]
-        if not any(rows.evaluate(end, best.state).changes for end in ends):
-            return {}
+        # (θ̂ ± q·direction: θ_j = θ̂_j ± q·se_j, the others re-fitted); a coefficient whose two
+        # ends lie on the optimum's attractors keeps its linearized interval
+        def crosses(j):
+            direction = cov[:, j] / se[j]
+            return any(rows.evaluate(best.z + sign * q * direction, best.state).changes for sign in (1.0, -1.0))
+
+        doubtful = [j for j in doubtful if crosses(j)]
     threshold = uncertainty.residual_variance * q**2
     out = {}
-    for j, name in enumerate(uncertainty.names):
-        if not (np.isfinite(se[j]) and se[j] > 0):
-            continue
+    for j in doubtful:
+        name = uncertainty.names[j]
         prof = profile(rows, best.state, j, se_log=float(se[j]), threshold=threshold, level=level,
                        c_hat=float(uncertainty.values[j]), marquardt=_Marquardt, fit_rtol=options["fit_rtol"],
                        fit_atol=options["fit_atol"], valley=cov[:, j] / cov[j, j])  # fmt: skip
