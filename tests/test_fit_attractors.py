@@ -17,7 +17,7 @@ from peeljax.fit.measured_statistics import record_cycles
 from peeljax.fit.points import noise_level
 from peeljax.fit.profile import profile
 from peeljax.fit.records_fit import MIN_SLIPS, how_fitted
-from peeljax.fit.table import _Marquardt
+from peeljax.fit.levenberg_marquardt import LevenbergMarquardt
 from peeljax.fit.table_rows import Point
 from peeljax.fit.trajectory import Observation
 from peeljax.fit.uncertainty import quantile
@@ -44,7 +44,7 @@ class _Rows:
 def _profile(rows, z_hat, j, se):
     best = rows.evaluate(z_hat)
     return profile(rows, best, j, se_log=se, threshold=quantile(0.95, None) ** 2, level=0.95, c_hat=1.0,
-                   marquardt=_Marquardt, fit_rtol=1e-10, fit_atol=1e-10)  # fmt: skip
+                   fit_rtol=1e-10, fit_atol=1e-10)  # fmt: skip
 
 
 def test_profile_of_a_quadratic_chi2_is_the_linearized_interval():
@@ -108,7 +108,7 @@ def test_auto_profiles_only_the_coefficients_whose_interval_holds_a_bifurcation(
 
     rows = Rows(lambda z: (int(z[0] > se), A @ z, A))
     start = rows.evaluate(np.zeros(2))
-    best = _Marquardt(start.z, start.r, start.J, start.v_range, fit_rtol=1e-10, fit_atol=1e-10, max_iterations=10,
+    best = LevenbergMarquardt(start.z, start.r, start.J, start.v_range, fit_rtol=1e-10, fit_atol=1e-10, max_iterations=10,
                       state=start)  # fmt: skip
     uncertainty = uncertainty_from_jacobian(best.J, best.r, np.ones(2), ("c1", "c2"), scaled=False)
     options = {"fit_rtol": 1e-10, "fit_atol": 1e-10}

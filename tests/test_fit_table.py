@@ -12,7 +12,7 @@ import scipy.stats
 from peeljax.fit import StickSlipTable, fit_stick_slip, jump_statistics, phi_relative_error
 from peeljax.fit.statistics import window_scatter
 from peeljax.fit.stick_slip_table import STATISTICS
-from peeljax.fit.table import CONVERGED, STOP_REASONS, _Marquardt
+from peeljax.fit.levenberg_marquardt import CONVERGED, STOP_REASONS, LevenbergMarquardt
 from peeljax.fit.uncertainty import quantile, uncertainty_from_jacobian
 from peeljax.solution import JumpRecord
 
@@ -141,14 +141,14 @@ def test_singular_directions_name_the_combination_the_data_determine():
 
 
 def _marquardt(residuals, z0, **options):
-    """Drive _Marquardt to its end on an analytic problem (J by finite differences of 1e-7)."""
+    """Drive LevenbergMarquardt to its end on an analytic problem (J by finite differences of 1e-7)."""
 
     def evaluate(z):
         r = residuals(z)
         J = np.stack([(residuals(z + 1e-7 * e) - r) / 1e-7 for e in np.eye(len(z))], axis=1)
         return r, J, np.zeros((1, 2))
 
-    run = _Marquardt(np.asarray(z0, float), *evaluate(np.asarray(z0, float)), **options)
+    run = LevenbergMarquardt(np.asarray(z0, float), *evaluate(np.asarray(z0, float)), **options)
     while run.reason is None:
         run.take(*evaluate(run.trial()))
     return run

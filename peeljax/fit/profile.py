@@ -26,6 +26,8 @@ import math
 
 import numpy as np
 
+from .levenberg_marquardt import LevenbergMarquardt
+
 __all__ = ["Profile", "profile"]
 
 STEPS = 3  # grid points per linearized half-width
@@ -71,11 +73,11 @@ def _attractor_key(point) -> tuple:
     return point.branch
 
 
-def profile(rows, best, j: int, *, se_log: float, threshold: float, level: float, c_hat: float, marquardt,
+def profile(rows, best, j: int, *, se_log: float, threshold: float, level: float, c_hat: float,
             fit_rtol: float, fit_atol: float, valley=None) -> Profile:  # fmt: skip
     """The profile of coefficient ``j`` (module docstring) about the optimum ``best`` (a
     :class:`~peeljax.fit.table_rows.Point`) of ``rows``; ``se_log``: its linearized standard
-    error in log c; ``c_hat``: its fitted value; ``marquardt``: the Levenberg–Marquardt class."""
+    error in log c; ``c_hat``: its fitted value."""
     p = best.z.size
     others = [k for k in range(p) if k != j]
     chi2_min = float(best.r @ best.r)
@@ -96,7 +98,7 @@ def profile(rows, best, j: int, *, se_log: float, threshold: float, level: float
         z0[j] = z_j
         point = rows.evaluate(z0, start)
         evaluations += 1
-        run = marquardt(z0[others], point.r, point.J[:, others], point.v_range, fit_rtol=fit_rtol, fit_atol=fit_atol,
+        run = LevenbergMarquardt(z0[others], point.r, point.J[:, others], point.v_range, fit_rtol=fit_rtol, fit_atol=fit_atol,
                         max_iterations=INNER_ITERATIONS, state=point)  # fmt: skip
         while run.reason is None:
             trial = np.insert(run.trial(), j, z_j)

@@ -32,7 +32,8 @@ from .instrument import Instrument
 from .measured_statistics import record_cycles, record_statistics
 from .points import PointRows
 from .stick_slip_table import StickSlipTable
-from .table import CONVERGED, STOP_REASONS, TableFitResult, fit_rows, fit_stick_slip
+from .levenberg_marquardt import CONVERGED, STOP_REASONS
+from .table import TableFitResult, fit_rows, fit_stick_slip
 from .parameters import check_free, law_from
 from .trajectory import Observation
 from .uncertainty import uncertainty_from_jacobian

@@ -21,7 +21,7 @@ and a point-wise misfit of two sawtooths with slightly different periods is domi
 drift (``docs/fitting.md`` measures it).
 
 Solver: a coarse batch of starts (χ² at the start and at a Latin hypercube around it), then
-Levenberg–Marquardt from the best few (:class:`_Marquardt`, host-driven, the runs of every start
+Levenberg–Marquardt from the best few (:class:`LevenbergMarquardt`, host-driven, the runs of every start
 in lockstep through one compiled program that gives r and its forward-mode Jacobian — one
 tangent per free coefficient, through every jump by the implicit function theorem); its stop
 reason names the test that stopped it. σ² is the table's plus the model window's
@@ -52,6 +52,7 @@ from ..integrators.select import integrator_for
 from ..model import PeelingModel
 from ..orbits.api import DEFAULT_ORBIT_RTOL, orbit_shooting
 from .attractors import OrbitRows
+from .levenberg_marquardt import CONVERGED, STOP_REASONS, LevenbergMarquardt, missing_entries
 from .profile import profile
 from .statistics import jump_statistics, window_scatter
 from .table_rows import MISSING_RESIDUAL, V_REST, Point, TableRows, row_kinds
@@ -197,114 +198,6 @@ def _evaluate(fit: TableFit, thetas):
     return jax.lax.map(one, thetas)
 
 
-def _missing(r) -> int:
-    """The entries at ``MISSING_RESIDUAL``: statistics the runs did not produce."""
-    return int(np.sum(np.asarray(r) == MISSING_RESIDUAL))
-
-
-# Why Levenberg–Marquardt stopped (the converged reasons first), and each reason in words.
-CONVERGED = ("gauss-newton", "loss", "floor", "bifurcation")
-FLOOR = 0.25  # ‖J·δ‖²: a step this small is within 0.5 standard errors
-STOP_REASONS = {
-    "gauss-newton": "converged: the Gauss-Newton step would lower chi2 by less than fit_atol "
-    "(the optimum within sqrt(fit_atol) standard errors)",
-    "floor": f"converged to the rough floor of chi2: a step of at most {FLOOR**0.5:g} standard errors "
-    "(|J step|^2 <= 0.25) does not lower chi2 (the window statistics jump where a slip crosses the window's edge)",
-    "bifurcation": f"converged at a bifurcation: a step of at most {FLOOR**0.5:g} standard errors crosses to another "
-    "attractor of a row, where chi2 is higher (the optimum lies on the edge of its branch; see the profile intervals)",
-    "loss": "converged: the last step and the Gauss-Newton step lower chi2 by less than fit_rtol (relative)",
-    "max_iterations": "not converged: max_iterations model evaluations reached",
-    "stalled": "not converged: no step lowers chi2 any more (the damping grew past 1e9): the "
-    "residuals' own numerical noise, or a start where the runs lose their stick-slip",
-    "nonfinite": "not converged: the residuals or the Jacobian at the start are not finite",
-}
-
-
-class _Marquardt:
-    """One Levenberg–Marquardt run on χ²(z) = ‖r(z)‖² (Nielsen's damping update, Marquardt's
-    diagonal scaling), driven from outside: :meth:`trial` proposes the next point, :meth:`take`
-    judges r and J there (every evaluation gives both from one forward-mode trace, so an
-    accepted trial point needs no second run). ``reason`` is set once it stops, on the first of:
-
-    * ``gauss-newton``: the Gauss–Newton step's predicted decrease of χ², ‖J·δ_GN‖², is at most
-      fit_atol·max(1, χ²/dof) — the optimum is within √fit_atol standard errors;
-    * ``loss``: an accepted step lowered χ² by at most fit_rtol·χ², and the Gauss–Newton
-      step would too;
-    * ``floor``: a trial refused whose step moves the linearised residuals by ‖J·δ‖² ≤ ``FLOOR``
-      = 0.25, half a standard error: χ² is rough at that scale (the window statistics jump where
-      a slip crosses the window's edge) and the optimum is found to it;
-    * ``max_iterations`` evaluations; ``stalled``: the damping λ past 1e9 (no descent found);
-      ``nonfinite`` r or J at the start.
-
-    A trial point where the runs lose a statistic the current point has (no slip in a window) is
-    refused whatever its χ².
-    """
-
-    def __init__(self, z, r, J, v_range, *, fit_rtol, fit_atol, max_iterations, state=None):
-        self.z, self.r, self.J, self.v_range = np.asarray(z, float), r, J, v_range
-        self.state = state  # what the caller keeps of the current point (the attractors it follows)
-        self.fit_rtol, self.fit_atol, self.max_iterations = fit_rtol, fit_atol, max_iterations
-        self.evaluations, self.chi2 = 1, float(r @ r)
-        self.history, self.reason, self.step = [self.chi2], None, None
-        if not (np.isfinite(self.chi2) and np.all(np.isfinite(J))):
-            self.reason = "nonfinite"
-            return
-        self.lam = 1e-3  # dimensionless: the damping is λ·diag(JᵀJ) (Marquardt's scaling)
-        self.lam_max, self.nu = 1e9, 2.0
-        self._check()
-
-    def _check(self):
-        """Set ``reason`` where the Gauss–Newton test or the budget stops the run."""
-        m, p = self.J.shape
-        gauss_newton = np.linalg.lstsq(self.J, -self.r, rcond=None)[0]
-        self.predicted_gn = float(np.sum((self.J @ gauss_newton) ** 2))
-        if self.predicted_gn <= self.fit_atol * max(1.0, self.chi2 / max(m - p, 1)):
-            self.reason = "gauss-newton"
-        elif self.evaluations >= self.max_iterations:
-            self.reason = "max_iterations"
-
-    def trial(self) -> np.ndarray:
-        """The next point to evaluate (the current one once stopped)."""
-        if self.reason is not None:
-            return self.z
-        A, g = self.J.T @ self.J, self.J.T @ self.r
-        D = np.maximum(np.diag(A), 1e-12 * max(float(np.max(np.diag(A))), 1e-300))
-        self.step = np.linalg.solve(A + self.lam * np.diag(D), -g)
-        self.predicted = float(-(2 * g @ self.step + self.step @ A @ self.step))
-        return self.z + self.step
-
-    def take(self, r, J, v_range, state=None, crossed: bool = False) -> None:
-        """r, J and the v range at :meth:`trial`'s point; ``state``: kept with it where it is
-        accepted; ``crossed``: the trial point lies across a bifurcation from the current one."""
-        if self.reason is not None:
-            return
-        self.evaluations += 1
-        chi2 = float(r @ r)
-        rho = (self.chi2 - chi2) / self.predicted if self.predicted > 0 else -1.0
-        keeps = _missing(r) <= _missing(self.r)
-        if keeps and np.isfinite(chi2) and np.all(np.isfinite(J)) and rho > 1e-4:
-            decrease = self.chi2 - chi2
-            self.z, self.r, self.J, self.v_range, self.chi2 = self.z + self.step, r, J, v_range, chi2
-            self.state = state
-            self.history.append(chi2)
-            self.lam *= max(1 / 3, 1 - (2 * rho - 1) ** 3)
-            self.nu = 2.0
-            self._check()
-            if self.reason is None and decrease <= self.fit_rtol * chi2 and self.predicted_gn <= self.fit_rtol * chi2:
-                self.reason = "loss"
-        else:
-            self.lam *= self.nu
-            self.nu *= 2.0
-            # the refused step moves the linearised residuals by at most √FLOOR σ in all: χ² is
-            # rough at this scale (a slip crossing a window's edge), the optimum found to it
-            if float(np.sum((self.J @ self.step) ** 2)) <= FLOOR:
-                self.reason = "bifurcation" if crossed else "floor"
-            elif self.lam > self.lam_max:
-                self.reason = "stalled"
-            elif self.evaluations >= self.max_iterations:
-                self.reason = "max_iterations"
-
-
 def _evaluate_batch(fit: TableFit, zs: np.ndarray, batch: int):
     """r, J, v range at the rows of ``zs`` (θ in ``fit.names`` order), ``batch`` at a time
     through the one compiled program :func:`_evaluate` (the last chunk padded)."""
@@ -317,12 +210,12 @@ def _evaluate_batch(fit: TableFit, zs: np.ndarray, batch: int):
     return out
 
 
-def _solve(fit: TableFit, starts, evaluated, *, fit_rtol, fit_atol, max_iterations, progress=None) -> list[_Marquardt]:
+def _solve(fit: TableFit, starts, evaluated, *, fit_rtol, fit_atol, max_iterations, progress=None) -> list[LevenbergMarquardt]:
     """Levenberg–Marquardt from each start (rows of ``starts``, already ``evaluated``: (r, J, v
     range) each) in lockstep: each iteration evaluates every run's trial point in one call of
     :func:`_evaluate`."""
     runs = [
-        _Marquardt(z, *e, fit_rtol=fit_rtol, fit_atol=fit_atol, max_iterations=max_iterations)
+        LevenbergMarquardt(z, *e, fit_rtol=fit_rtol, fit_atol=fit_atol, max_iterations=max_iterations)
         for z, e in zip(starts, evaluated)
     ]  # fmt: skip
     iteration = 0
@@ -339,7 +232,7 @@ def _solve(fit: TableFit, starts, evaluated, *, fit_rtol, fit_atol, max_iteratio
     return runs
 
 
-def _interrupted(names, start: AdhesionLaw, run: _Marquardt, iterations: int) -> FitResult:
+def _interrupted(names, start: AdhesionLaw, run: LevenbergMarquardt, iterations: int) -> FitResult:
     """The best point of an interrupted Levenberg–Marquardt, as a result (no uncertainty: its
     covariance, profiles and checks were not computed)."""
     return FitResult(
@@ -690,13 +583,13 @@ def fit_stick_slip(
         coarse = _coarse_starts(n_coarse, len(names), coarse_spread, seed)
         evaluated = _evaluate_batch(fit, coarse, n_starts)
         coarse_losses = np.asarray([float(r @ r) for r, _, _ in evaluated])
-        coarse_missing = np.asarray([_missing(r) for r, _, _ in evaluated])
+        coarse_missing = np.asarray([missing_entries(r) for r, _, _ in evaluated])
         # fewest missing statistics first (a point where the runs lose their stick-slip is worse
         # than any that keeps it, whatever its χ²), then χ²
         order = np.lexsort((np.where(np.isfinite(coarse_losses), coarse_losses, np.inf), coarse_missing))[:n_starts]
         runs = _solve(fit, coarse[order], [evaluated[k] for k in order], **options)
         rows_model, initial = None, float(coarse_losses[0])  # the coarse batch's first point is ``start`` itself
-    runs.sort(key=lambda run: (_missing(run.r), run.chi2 if np.isfinite(run.chi2) else np.inf))
+    runs.sort(key=lambda run: (missing_entries(run.r), run.chi2 if np.isfinite(run.chi2) else np.inf))
     best = runs[0]
     theta = {n: jnp.asarray(best.z[k]) for k, n in enumerate(names)}
     law = law_from(theta, start)
@@ -850,7 +743,7 @@ def _rounds(rows, point, options, crossings: list, counter: list, latest: list):
     records' instrument bias updated at the optimum until it settles; at most ``ROUNDS`` times.
     ``latest`` gets each run as it starts (what an interruption keeps)."""
     for _ in range(ROUNDS):
-        run = _Marquardt(point.z, point.r, point.J, point.v_range, fit_rtol=options["fit_rtol"],
+        run = LevenbergMarquardt(point.z, point.r, point.J, point.v_range, fit_rtol=options["fit_rtol"],
                          fit_atol=options["fit_atol"], max_iterations=options["max_iterations"], state=point)  # fmt: skip
         latest.append(run)
         while run.reason is None:
@@ -920,7 +813,7 @@ def _profiles_if_needed(rows: TableRows, best, uncertainty, intervals, level, op
     for j in doubtful:
         name = uncertainty.names[j]
         prof = profile(rows, best.state, j, se_log=float(se[j]), threshold=threshold, level=level,
-                       c_hat=float(uncertainty.values[j]), marquardt=_Marquardt, fit_rtol=options["fit_rtol"],
+                       c_hat=float(uncertainty.values[j]), fit_rtol=options["fit_rtol"],
                        fit_atol=options["fit_atol"], valley=cov[:, j] / cov[j, j])  # fmt: skip
         out[name] = dataclasses.replace(prof, name=name)
     return out
