@@ -117,7 +117,7 @@ def run_table(*, V=TABLE_V, multipliers=None, seed=1, noise=0.01, **options) -> 
     """The table acceptance fit (module docstring): the result, the truth and the wall time of
     the fit (compilation included)."""
     from peeljax.fit import fit_stick_slip
-    from peeljax.fit.plots import synthetic_table
+    from peeljax.fit.synthetic import synthetic_table
     from peeljax.fit.table import table_tolerances
 
     truth = hidden_truth(multipliers)

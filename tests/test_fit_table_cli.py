@@ -63,7 +63,7 @@ def test_fit_table_end_to_end(tmp_path):
     """A 2-row table made by the model itself (φ with c1 = 420, window statistics of runs from rest)
     fitted from the paper's c1 = 400 with ``--method window`` (the command line's plumbing: the
     orbit method's fits are tested in tests/test_fit_attractors.py)."""
-    from peeljax.fit.plots import model_statistics
+    from peeljax.fit.synthetic import model_statistics
 
     V = [1.1, 1.5]
     stats, _ = model_statistics(AdhesionLaw(c1=420.0), V, method="window", transient=0.2, window=0.3)

@@ -120,7 +120,7 @@ def test_a_periodic_orbit_through_stuck_phases_converges():
 def test_a_table_made_by_a_law_that_stops_the_tape_has_every_row():
     """``synthetic_table`` returned the V = 0.5 row all NaN for this truth (the run stopped),
     and a fit refused the table."""
-    from peeljax.fit.plots import synthetic_table
+    from peeljax.fit.synthetic import synthetic_table
 
     table = synthetic_table(pj.AdhesionLaw(c6=C6), [0.5, 1.1], noise=0.01)
     assert all(np.all(np.isfinite(np.asarray(column))) for column in table.values.values())

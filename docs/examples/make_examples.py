@@ -11,7 +11,7 @@ repository root; name some of ``record``, ``table``, ``figure`` to write only th
 * ``stick_slip_table.csv``: a stick-slip table at 4 pull velocities (0.8 … 2 m/s) from a
   hidden φ — the paper's with c1 × 1.1 — with 1 % Gaussian noise (seed 1; one draw for the
   three forces of a row, see :func:`stick_slip_table`) and its 1 % standard deviations: the
-  statistics of ``peeljax.fit.plots.model_statistics`` over [0.3, 0.8] s at rtol 1e-6, the
+  statistics of ``peeljax.fit.synthetic.model_statistics`` over [0.3, 0.8] s at rtol 1e-6, the
   settings ``peeljax fit --table`` is run with in docs/fitting.md.
 """
 
@@ -76,7 +76,7 @@ def stick_slip_table(path: Path = HERE / "stick_slip_table.csv", noise: float = 
     calibration scales them together (one draw of 1 + noise·N(0, 1) per row). Independent draws
     put F_mean below F_stick at V = 2, where the sawtooth spans 4 N and 1 % is 3.3 N: a row no
     run can produce. The period and the slip duration get draws of their own."""
-    from peeljax.fit.plots import model_statistics
+    from peeljax.fit.synthetic import model_statistics
     from peeljax.fit.stick_slip_table import STATISTICS, StickSlipTable
 
     truth = pj.AdhesionLaw(**{**pj.AdhesionLaw().coefficients(), **HIDDEN})
