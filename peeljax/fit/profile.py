@@ -99,7 +99,7 @@ def profile(rows, best, j: int, *, se_log: float, threshold: float, level: float
         point = rows.evaluate(z0, start)
         evaluations += 1
         run = LevenbergMarquardt(z0[others], point.r, point.J[:, others], point.v_range, fit_rtol=fit_rtol, fit_atol=fit_atol,
-                        max_iterations=INNER_ITERATIONS, state=point)  # fmt: skip
+                                 max_iterations=INNER_ITERATIONS, state=point)  # fmt: skip
         while run.reason is None:
             trial = np.insert(run.trial(), j, z_j)
             q = rows.evaluate(trial, run.state)
