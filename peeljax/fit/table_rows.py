@@ -226,6 +226,7 @@ class TableRows:
             live = [j for j, a in enumerate(follow) if a is not None]
             found = dict(zip(live, self._shoot(z, [rows[j] for j in live], [follow[j] for j in live])))
             d_theta = z - (base.z if base is not None else np.zeros(p))
+            why = {} if base is None else self._not_followed(z, rows, live, follow, found, base, d_theta)
             for j, i in enumerate(rows):
                 if j not in live:  # lost at the point stepped from: look for it again from rest
                     found_i = self._refind(z, i, None, "its attractor was lost at the point stepped from")
@@ -235,23 +236,16 @@ class TableRows:
                 elif base is None:  # the start: shot from the run's repeat, reduced to its least k
                     found_i = found[j] if not classify(_as_batch(found[j]), 0, None, 0, None) else None
                     found_i = None if found_i is None else self._minimal(z, i, found_i)
-                else:
+                elif j not in why:
                     found_i = found[j]
+                else:
                     previous = base.orbits.get(i)
-                    why = classify(_as_batch(found_i), 0, _as_batch(previous), 0, d_theta)
-                    if why:  # Newton again from the section point its derivative predicts
-                        scale = np.asarray(previous["section"]) / np.asarray(previous["z"])
-                        guess = np.asarray(previous["section"]) + scale * (previous["z_jacobian"] @ d_theta)
-                        retry = self._shoot(z, [i], [dataclasses.replace(follow[j], section=guess)])[0]
-                        if not classify(_as_batch(retry), 0, _as_batch(previous), 0, d_theta):
-                            found_i, why = retry, ""
-                    if why:
-                        found_i = self._refind(z, i, follow[j], why)
-                        # the same orbit found again (Newton had only failed from a long step): no change
-                        if found_i is None or classify(_as_batch(found_i), 0, _as_batch(previous), 0, d_theta):
-                            to = None if found_i is None else found_i["attractor"].slips
-                            changes.append({"row": i, "V": float(self.V[i]), "from": follow[j].slips, "to": to,
-                                            "why": why if to is not None else why + "; no periodic attractor found"})  # fmt: skip
+                    found_i = self._refind(z, i, follow[j], why[j])
+                    # the same orbit found again (Newton had only failed from a long step): no change
+                    if found_i is None or classify(_as_batch(found_i), 0, _as_batch(previous), 0, d_theta):
+                        to = None if found_i is None else found_i["attractor"].slips
+                        changes.append({"row": i, "V": float(self.V[i]), "from": follow[j].slips, "to": to,
+                                        "why": why[j] if to is not None else why[j] + "; no periodic attractor found"})  # fmt: skip
                 if found_i is None:
                     continue
                 attractors[i] = found_i["attractor"]
@@ -279,6 +273,28 @@ class TableRows:
                      attractors=attractors, orbits=orbits, changes=changes, branch=tuple(branch))  # fmt: skip
 
     # -- orbits -----------------------------------------------------------------------------
+    def _not_followed(self, z, rows, live, follow, found, base: Point, d_theta) -> dict[int, str]:
+        """Why the orbit shot is not the row's attractor followed from ``base`` (:func:`classify`),
+        for each live row (index into ``rows``) where it is not, after Newton again from the
+        section point its derivative predicts — those rows in one batched call; ``found`` gets
+        the retries that are."""
+        why = {}
+        for j in live:
+            reason = classify(_as_batch(found[j]), 0, _as_batch(base.orbits.get(rows[j])), 0, d_theta)
+            if reason:
+                why[j] = reason
+        guesses = []
+        for j in why:
+            previous = base.orbits[rows[j]]
+            scale = np.asarray(previous["section"]) / np.asarray(previous["z"])
+            guess = np.asarray(previous["section"]) + scale * (previous["z_jacobian"] @ d_theta)
+            guesses.append(dataclasses.replace(follow[j], section=guess))
+        for j, retry in zip(list(why), self._shoot(z, [rows[j] for j in why], guesses)):
+            if not classify(_as_batch(retry), 0, _as_batch(base.orbits[rows[j]]), 0, d_theta):
+                found[j] = retry
+                del why[j]
+        return why
+
     def _shoot(self, z, rows: list[int], attractors: list[Attractor]) -> list[dict]:
         """Each row's orbit from its attractor at θ = z, as a dict of that row's values."""
         if not rows:
@@ -322,9 +338,10 @@ class TableRows:
         smallest first, is shot from the orbit's section point: where P^d returns there (Newton
         converged on the point itself), the orbit has d slips per period."""
         k = int(row["slips"])
-        for d in [d for d in range(1, k) if k % d == 0]:
-            a = row["attractor"]
-            trial = self._shoot(z, [i], [Attractor(a.section, d, a.period * d / k, a.how)])[0]
+        divisors = [d for d in range(1, k) if k % d == 0]
+        a = row["attractor"]
+        trials = self._shoot(z, [i] * len(divisors), [Attractor(a.section, d, a.period * d / k, a.how) for d in divisors])
+        for d, trial in zip(divisors, trials):  # every divisor in one batched call, the smallest that returns taken
             if int(trial["status"]) == 0 and np.max(np.abs(trial["z"] - row["z"])) <= SAME_POINT:
                 if not classify(_as_batch(trial), 0, None, 0, None):
                     trial["attractor"] = dataclasses.replace(trial["attractor"], how=f"{a.how}: an orbit of {d} slips")
