@@ -3,6 +3,7 @@
     python benchmarks/ci_time.py                          # the whole suite as CI runs it (-n auto)
     python benchmarks/ci_time.py tests/test_fit.py -n 0   # a subset: any pytest arguments
     python benchmarks/ci_time.py --report times.json      # print a saved record again
+    python benchmarks/ci_time.py --long-tests tests/durations.json --slow   # and update the long tests' record
 
 It runs ``python -m pytest`` with this file as a plugin (``-p ci_time``), which records for every
 test (setup, call and teardown, where a module-scoped fixture's compilation lands in its first
@@ -284,14 +285,36 @@ def report(record: dict, top: int = 40) -> str:
     return "\n".join(lines)
 
 
+def update_durations(record: dict, path: Path, least: float = 20.0) -> int:
+    """Merge the wall seconds (setup, call, teardown) of the tests that took ``least`` or more into ``path``.
+
+    ``tests/conftest.py`` runs the tests of that record first, longest first, under xdist; a test
+    measured again replaces its entry, one now faster than ``least`` leaves it. Returns how many it holds.
+    """
+    seconds = json.loads(path.read_text(encoding="utf-8")) if path.is_file() else {}
+    for nodeid, test in record["tests"].items():
+        wall = sum(test.get(when, {}).get("wall", 0.0) for when in ("setup", "call", "teardown"))
+        if wall >= least:
+            seconds[nodeid] = round(wall, 1)
+        else:
+            seconds.pop(nodeid, None)
+    ordered = dict(sorted(seconds.items(), key=lambda kv: -kv[1]))
+    path.write_text(json.dumps(ordered, indent=1) + "\n", encoding="utf-8")
+    return len(ordered)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         description="Run pytest and print where the time goes (other arguments go to pytest).",
-        usage="python benchmarks/ci_time.py [--json PATH] [--top N] [--report PATH] [PYTEST ARGS ...]",
+        usage="python benchmarks/ci_time.py [--json PATH] [--top N] [--report PATH] [--long-tests PATH] [PYTEST ARGS ...]",
     )
     parser.add_argument("--json", type=Path, default=DEFAULT_JSON, help=f"the record (default {DEFAULT_JSON})")
     parser.add_argument("--top", type=int, default=40, help="how many of the slowest tests to list (default 40)")
     parser.add_argument("--report", type=Path, metavar="PATH", help="print a saved record; run nothing")
+    parser.add_argument(
+        "--long-tests", type=Path, metavar="PATH",
+        help="merge the tests of 20 s or more into this record of long tests (tests/durations.json)",
+    )  # fmt: skip
     args, pytest_args = parser.parse_known_args(argv)
     if args.report is not None:
         print(report(json.loads(args.report.read_text(encoding="utf-8")), args.top))
@@ -302,7 +325,10 @@ def main(argv: list[str] | None = None) -> int:
     print("$", " ".join(command), f"(load average {os.getloadavg()[0]:.1f})", flush=True)
     code = subprocess.call(command, cwd=ROOT, env=env)
     if args.json.is_file():
-        print(report(json.loads(args.json.read_text(encoding="utf-8")), args.top))
+        record = json.loads(args.json.read_text(encoding="utf-8"))
+        print(report(record, args.top))
+        if args.long_tests is not None:
+            print(f"{args.long_tests}: {update_durations(record, args.long_tests)} long tests")
     return code
 
 

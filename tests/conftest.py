@@ -6,6 +6,7 @@ import contextlib
 import gc
 import importlib
 import io
+import json
 import os
 from pathlib import Path
 from types import ModuleType
@@ -43,8 +44,13 @@ def slow_tier_selected(config) -> bool:
 
 
 def pytest_collection_modifyitems(config, items):
-    if slow_tier_selected(config):
-        return
+    if not slow_tier_selected(config):
+        _deselect_slow(config, items)
+    if hasattr(config, "workerinput"):  # an xdist worker: every worker orders its collection alike
+        _longest_first(items)
+
+
+def _deselect_slow(config, items):
     named = [(Path(arg.split("::", 1)[0]).resolve(), arg.split("::", 1)[1]) for arg in config.args if "::" in arg]
 
     def is_named(item) -> bool:
@@ -56,6 +62,28 @@ def pytest_collection_modifyitems(config, items):
         chosen = set(map(id, slow))
         items[:] = [item for item in items if id(item) not in chosen]
         config.hook.pytest_deselected(items=slow)
+
+
+# ---------------------------------------------------------------------------- longest first
+# The workers (`--dist worksteal`) each take half of the collection and an idle one steals from the
+# other's queue; a long test that starts last keeps one worker busy alone (the slow tier once ran
+# 43 min on 2 cores for 30 min of CPU per core). Tests measured at LONG_TEST_SECONDS or more run
+# first, longest first; the others keep their order (a module's fixtures stay with its tests).
+# The record: `python benchmarks/ci_time.py --long-tests tests/durations.json …` updates it.
+DURATIONS_FILE = Path(__file__).with_name("durations.json")
+LONG_TEST_SECONDS = 20.0
+
+
+def _longest_first(items):
+    try:
+        seconds = json.loads(DURATIONS_FILE.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return
+    long = {
+        item.nodeid: float(seconds[item.nodeid]) for item in items if seconds.get(item.nodeid, 0) >= LONG_TEST_SECONDS
+    }
+    if long:
+        items.sort(key=lambda item: -long.get(item.nodeid, 0.0))  # stable: the rest keep their order
 
 
 def pytest_report_header(config):
