@@ -2,9 +2,10 @@
 
 Each case runs in a new Python process whose JAX persistent compilation cache
 (``PEELJAX_COMPILATION_CACHE``) is an empty folder ("empty cache") or the folder a first run of
-the same case filled ("cache warm"). JAX's own monitoring events split the first call into
-tracing (Python into a jaxpr: never cached), lowering (jaxpr into MLIR) and XLA's compilation
-(or the cache's read); ``wall`` is the whole first call, import of peeljax excluded:
+the same case filled ("cache warm": the compiled programs, and the traced ones peeljax keeps
+beside them, ``peeljax._exported``). JAX's own monitoring events split the first call into
+tracing (Python into a jaxpr), lowering (jaxpr into MLIR) and XLA's compilation (or the
+cache's read); ``wall`` is the whole first call, import of peeljax excluded:
 
 * ``forward``: ``simulate(V=1.1, tau=0, t_final=1)`` (the README's first command);
 * ``gradient through jumps``: ``jax.grad`` of the sum of the first 30 jump times w.r.t. c1

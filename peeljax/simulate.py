@@ -13,6 +13,7 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 from ._arrays import float_array
+from ._exported import ExportedProgram
 from ._memory import check_output_memory
 from ._validation import (
     check_max_steps,
@@ -135,6 +136,12 @@ def _integrate_packed(packed, rest, *, treedef, scalars):
 
 
 _packed_jit = jax.jit(_integrate_packed, static_argnames=("treedef", "scalars"))
+# the same program, its tracing kept on disk (peeljax._exported): a new process reads it back
+_kept_run = ExportedProgram(
+    "simulate",
+    lambda static, packed, rest: _integrate_packed(packed, rest, treedef=static[0], scalars=static[1]),
+    lambda static, packed, rest: _packed_jit(packed, rest, treedef=static[0], scalars=static[1]),
+)
 _filter_jit = eqx.filter_jit(_integrate)
 
 
@@ -155,7 +162,7 @@ def _run(integrator: AbstractIntegrator, ode, y0, t_final, ts) -> Solution:
     if all(isinstance(leaf, (jax.Array, np.ndarray, np.generic)) for leaf in leaves):
         packed = np.array([leaf for leaf, is_scalar in zip(leaves, scalars) if is_scalar], dtype=float)
         rest = [leaf for leaf, is_scalar in zip(leaves, scalars) if not is_scalar]
-        return _packed_jit(packed, rest, treedef=treedef, scalars=scalars)
+        return _kept_run((treedef, scalars), packed, rest)
     return _filter_jit(integrator, ode, y0, t_final, ts)
 
 

@@ -67,8 +67,10 @@ def _deselect_slow(config, items):
 # ---------------------------------------------------------------------------- longest first
 # The workers (`--dist worksteal`) each take half of the collection and an idle one steals from the
 # other's queue; a long test that starts last keeps one worker busy alone (the slow tier once ran
-# 43 min on 2 cores for 30 min of CPU per core). Tests measured at LONG_TEST_SECONDS or more run
-# first, longest first; the others keep their order (a module's fixtures stay with its tests).
+# 43 min on 2 cores for 30 min of CPU per core). The test files whose tests were measured long
+# (LONG_TEST_SECONDS or more, setup included) run first, the longest in all first; a file's tests
+# stay together and in their order (its module fixtures compile once per worker: taking a file's
+# long tests out alone set those fixtures up again, +1 min of the fast tier measured).
 # The record: `python benchmarks/ci_time.py --long-tests tests/durations.json …` updates it.
 DURATIONS_FILE = Path(__file__).with_name("durations.json")
 LONG_TEST_SECONDS = 20.0
@@ -79,11 +81,14 @@ def _longest_first(items):
         seconds = json.loads(DURATIONS_FILE.read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return
-    long = {
-        item.nodeid: float(seconds[item.nodeid]) for item in items if seconds.get(item.nodeid, 0) >= LONG_TEST_SECONDS
-    }
-    if long:
-        items.sort(key=lambda item: -long.get(item.nodeid, 0.0))  # stable: the rest keep their order
+    per_file: dict[str, float] = {}
+    for item in items:
+        measured = float(seconds.get(item.nodeid, 0.0))
+        if measured >= LONG_TEST_SECONDS:
+            file = item.nodeid.split("::", 1)[0]
+            per_file[file] = per_file.get(file, 0.0) + measured
+    if per_file:  # a stable sort: the other files, and every file's tests, keep their order
+        items.sort(key=lambda item: -per_file.get(item.nodeid.split("::", 1)[0], 0.0))
 
 
 def pytest_report_header(config):

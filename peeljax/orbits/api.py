@@ -9,8 +9,9 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import ArrayLike
+from jaxtyping import Array, ArrayLike
 
+from .._exported import ExportedProgram
 from .._validation import check_positive, check_tolerance, is_concrete
 from ..cycles import cycle_statistics
 from ..integrators.select import integrator_for
@@ -53,7 +54,9 @@ def check_iterations(max_iterations) -> int:
     return int(max_iterations)
 
 
-def orbit_shooting(*, rtol: float = DEFAULT_ORBIT_RTOL, atol: float | None = None, max_iterations: int = 20) -> Shooting:
+def orbit_shooting(
+    *, rtol: float = DEFAULT_ORBIT_RTOL, atol: float | None = None, max_iterations: int = 20
+) -> Shooting:
     """The :class:`~peeljax.orbits.Shooting` of an orbit, its options checked (nothing compiles)."""
     check_tolerance("rtol", rtol, upper=1.0)
     atol = ATOL_PER_RTOL * rtol if atol is None else atol
@@ -86,24 +89,27 @@ def orbit_of(shooting: Shooting, model: PeelingModel, V, s0, slips, t_max) -> Pe
     return as_orbit(model, V, slips, result)
 
 
-def compiled(fn):
+def compiled(fn, name: str):
     """``fn`` compiled: called through ``jax.jit``'s C++ dispatch where every leaf of the
     arguments is an array (~1 ms of overhead per orbit call against ~10 for
     ``eqx.filter_jit``, measured at V = 1.1), else through ``eqx.filter_jit`` (a φ given as a
-    Python function)."""
+    Python function). Called with concrete arrays, its traced program is kept on disk under
+    ``name`` (:mod:`peeljax._exported`): a new process skips the tracing too."""
     plain, filtered = jax.jit(fn), eqx.filter_jit(fn)
+    kept = ExportedProgram(name, lambda _, *args: fn(*args), lambda _, *args: plain(*args))
 
     def call(*args):
         if all(isinstance(leaf, (jax.Array, np.ndarray, np.generic)) for leaf in jax.tree_util.tree_leaves(args)):
-            return plain(*args)
+            return kept(None, *args)
         return filtered(*args)
 
     return call
 
 
-compiled_orbit = compiled(orbit_of)  # orbit_of, compiled once per process
+compiled_orbit = compiled(orbit_of, "orbit")  # orbit_of, compiled once per process
 
-phi_has_folds = compiled(lambda model, V: phi_folds(model, V).exist)  # φ(·, V) has a maximum and a minimum
+# φ(·, V) has a maximum and a minimum
+phi_has_folds = compiled(lambda model, V: phi_folds(model, V).exist, "phi_has_folds")
 
 
 # Newton's iterations to tell a fixed point of P^j at the orbit's point (one step, then the test)
@@ -121,19 +127,28 @@ def least_period(shooting: Shooting, orbit: PeriodicOrbit) -> PeriodicOrbit:
     k = int(orbit.slips)
     if int(orbit.status) != 0 or k == 1:
         return orbit
-    # jnp, not np: under jax.grad (no jit) the fields are tracers whose values Python can still test
-    scale = SlipSection.at(orbit.model, orbit.V).scale
     # From a fixed point of P^j Newton stops at once; a point that is none would lead it, in 7–10
     # iterations, to another orbit with j slips (measured at V = 1.1 and 2), discarded anyway.
     check = eqx.tree_at(lambda s: s.max_iterations, shooting, jnp.asarray(_SUB_PERIOD_ITERATIONS, jnp.int32))
     for j in _divisors(k):
+        ratio = jnp.asarray(j / k)
         shorter = compiled_orbit(check, orbit.model, orbit.V, orbit.section, jnp.asarray(j, jnp.int32),
-                         jnp.asarray(PERIODS_PER_RUN * orbit.period * j / k))  # fmt: skip
-        same_point = bool(jnp.max(jnp.abs(shorter.section - orbit.section) / scale) < 1e-6)
-        same_period = bool(jnp.abs(shorter.period * k / j - orbit.period) < 1e-6 * orbit.period)
-        if int(shorter.status) == 0 and same_point and same_period:
+                                 PERIODS_PER_RUN * ratio * orbit.period)  # fmt: skip
+        # (a Python bool: under jax.grad without jit the fields are tracers whose values can be tested)
+        if bool(_is_the_orbit(shorter, orbit, ratio)):
             return shorter
     return orbit
+
+
+def _the_orbit_again(shorter: PeriodicOrbit, orbit: PeriodicOrbit, ratio) -> Array:
+    """``shorter`` (j slips) converged to ``orbit``'s point with its period times j/k = ``ratio``."""
+    scale = SlipSection.at(orbit.model, orbit.V).scale
+    same_point = jnp.max(jnp.abs(shorter.section - orbit.section) / scale) < 1e-6
+    same_period = jnp.abs(shorter.period - ratio * orbit.period) < 1e-6 * ratio * orbit.period
+    return (shorter.status == 0) & same_point & same_period
+
+
+_is_the_orbit = compiled(_the_orbit_again, "the_orbit_again")  # one program, not a dozen eager operations
 
 
 def start_from_run(sol: Solution, slips: int | None = None) -> tuple[np.ndarray, int, float]:
@@ -148,13 +163,20 @@ def start_from_run(sol: Solution, slips: int | None = None) -> tuple[np.ndarray,
     if not isinstance(sol, Solution):
         raise TypeError(f"start must be a Solution, a state (alpha, omega[, u, v]) or None, got {type(sol).__name__}")
     if sol.jumps is None or np.ndim(sol.t_stop) != 0:
-        raise ValueError("start: a single run of the DAE with jumps is needed (tau=0, fold='jump'), not a batch or a run without a jump record")
+        raise ValueError(
+            "start: a single run of the DAE with jumps is needed (tau=0, fold='jump'), not a batch or a run without a jump record"
+        )
     t_stop = float(sol.t_stop)
     if not t_stop > 0:
         raise OrbitNotFound("start: the run ended at t = 0; there is nothing to find a repeat in")
     stats = cycle_statistics(sol, t_stop, transient=0.5 * t_stop)
     repeat = stats.repeat
-    if repeat is None and stats.too_few is not None and stats.too_few.events > 0 and math.isfinite(stats.too_few.period):
+    if (
+        repeat is None
+        and stats.too_few is not None
+        and stats.too_few.events > 0
+        and math.isfinite(stats.too_few.period)
+    ):
         repeat = stats.too_few  # a near repeat: k and T to shoot from
     if repeat is None:
         if stats.slips == 0:
@@ -162,7 +184,9 @@ def start_from_run(sol: Solution, slips: int | None = None) -> tuple[np.ndarray,
         elif stats.too_few is not None:
             why = f"too few stick → slip events in the run's second half to look for a repeat ({stats.too_few}): run longer"
         else:
-            why = "no repeat in the run's second half (irregular): give start=(alpha, omega) and slips= to shoot near it"
+            why = (
+                "no repeat in the run's second half (irregular): give start=(alpha, omega) and slips= to shoot near it"
+            )
         raise OrbitNotFound(f"start: {why}")
     k = repeat.events if slips is None else slips
     period = repeat.period * k / repeat.events
@@ -241,7 +265,9 @@ def periodic_orbit(
     check_iterations(max_iterations)
     check_positive("transient", transient)
     if not bool(phi_has_folds(model, jnp.asarray(V, float))):
-        raise OrbitNotFound(f"phi has no fold at V = {float(V):g} m/s: the peeling is steady, there is no stick-slip orbit")
+        raise OrbitNotFound(
+            f"phi has no fold at V = {float(V):g} m/s: the peeling is steady, there is no stick-slip orbit"
+        )
 
     if start is None or isinstance(start, Solution):
         if start is None:
@@ -256,6 +282,13 @@ def periodic_orbit(
         s0, k, T = state[:2], slips, period
     t_max = PERIODS_PER_RUN * (period if period is not None else T) if (period or T) else UNKNOWN_PERIOD_BOUND
     shooting = orbit_shooting(rtol=rtol, atol=atol, max_iterations=max_iterations)
-    orbit = compiled_orbit(shooting, model, jnp.asarray(V, float), jnp.asarray(s0, float), jnp.asarray(k, jnp.int32), jnp.asarray(t_max, float))
+    orbit = compiled_orbit(
+        shooting,
+        model,
+        jnp.asarray(V, float),
+        jnp.asarray(s0, float),
+        jnp.asarray(k, jnp.int32),
+        jnp.asarray(t_max, float),
+    )
     # k from a repeat may be a multiple of the orbit's own (a repeat seen before it settled).
     return orbit if slips is not None else least_period(shooting, orbit)

@@ -199,7 +199,7 @@ def _orbit_at(model, V, z, slips, A, r, period: OnePeriod, converged, iterations
 @functools.lru_cache(maxsize=None)
 def _corrector(leaf: int):
     """The compiled corrector for the parameter at ``leaf`` (static: it picks the tangent)."""
-    return compiled(functools.partial(_point, leaf=leaf))
+    return compiled(functools.partial(_point, leaf=leaf), f"continuation_point[{leaf}]")
 
 
 @dataclasses.dataclass

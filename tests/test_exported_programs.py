@@ -1,0 +1,148 @@
+"""Traced programs kept on disk (peeljax/_exported.py): read back without tracing, the same bits,
+never a crash, never a program of a class that could have changed under its name."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import peeljax as pj
+from peeljax import _exported
+from peeljax._exported import ExportedProgram
+
+
+@pytest.fixture
+def folder(tmp_path, monkeypatch):
+    """An empty folder of exported programs for the test (what was read from another forgotten)."""
+    monkeypatch.setattr(_exported, "programs_folder", lambda: tmp_path)
+    _exported.forget()
+    yield tmp_path
+    _exported.forget()
+
+
+def _law(c1):
+    return eqx.tree_at(lambda law: law.c1, pj.AdhesionLaw(), jnp.asarray(c1))
+
+
+def _double(scale, law, v):
+    return {"phi": scale * law(v, 1.1), "law": law}
+
+
+def _program(name="double"):
+    return ExportedProgram(name, _double, jax.jit(_double, static_argnums=0))
+
+
+def test_a_program_is_exported_once_and_read_back_without_tracing(folder, monkeypatch):
+    program = _program()
+    v = jnp.linspace(0.01, 2.0, 7)
+    first = program(2.0, _law(400.0), v)
+    entries = list(folder.glob("*.jaxexport"))
+    assert len(entries) == 1
+    # a new process (a fresh program object): read from the folder, nothing traced or exported
+    again = _program()
+    with monkeypatch.context() as patch:
+        patch.setattr(_exported.export, "export", lambda *a, **k: pytest.fail("exported again"))
+        second = again(2.0, _law(400.0), v)
+        np.testing.assert_array_equal(np.asarray(second["phi"]), np.asarray(first["phi"]))
+        assert isinstance(second["law"], pj.AdhesionLaw) and float(second["law"].c1) == 400.0
+        # other values, the same program
+        other = again(2.0, _law(410.0), v)["phi"]
+        np.testing.assert_array_equal(np.asarray(other), np.asarray(_double(2.0, _law(410.0), v)["phi"]))
+    # another static value or another shape: another entry
+    again(3.0, _law(400.0), v)
+    again(2.0, _law(400.0), v[:3])
+    assert len(list(folder.glob("*.jaxexport"))) == 3
+
+
+def test_a_run_gives_the_same_bits_read_back(folder):
+    """simulate through its kept program equals the same call traced anew."""
+    simulate_module = sys.modules["peeljax.simulate"]
+    sol = pj.simulate(V=1.1, tau=0, t_final=0.3)
+    assert list(folder.glob("*.jaxexport"))  # the run's program was kept
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(_exported, "programs_folder", lambda: None)  # off: traced and compiled as before
+        patch.setattr(simulate_module._kept_run, "_programs", {})
+        plain = pj.simulate(V=1.1, tau=0, t_final=0.3)
+        assert simulate_module._kept_run._programs == {next(iter(simulate_module._kept_run._programs)): None}
+    np.testing.assert_array_equal(np.asarray(sol.ys), np.asarray(plain.ys))
+    np.testing.assert_array_equal(np.asarray(sol.jumps.t), np.asarray(plain.jumps.t))
+
+
+@pytest.mark.slow
+def test_an_orbit_gives_the_same_bits_read_back(folder):
+    """The orbit through its kept program equals jax.jit of the same function (two compilations
+    of the orbit: 40 s)."""
+    from peeljax.orbits import api
+
+    shooting = api.orbit_shooting()
+    args = (
+        pj.PeelingModel(),
+        jnp.asarray(1.1),
+        jnp.asarray([0.3334, 16.02]),
+        jnp.asarray(8, jnp.int32),
+        jnp.asarray(0.7),
+    )
+    kept = api.compiled_orbit(shooting, *args)
+    assert list(folder.glob("*.jaxexport"))
+    direct = jax.jit(api.orbit_of)(shooting, *args)
+    assert int(kept.status) == 0
+    for a, b in zip(jax.tree_util.tree_leaves(kept), jax.tree_util.tree_leaves(direct)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_a_corrupt_entry_is_exported_again(folder):
+    program = _program()
+    v = jnp.linspace(0.01, 2.0, 5)
+    expected = np.asarray(program(2.0, _law(400.0), v)["phi"])
+    (entry,) = folder.glob("*.jaxexport")
+    entry.write_bytes(entry.read_bytes()[:100])  # truncated
+    again = _program()
+    np.testing.assert_array_equal(np.asarray(again(2.0, _law(400.0), v)["phi"]), expected)
+    assert entry.stat().st_size > 100  # written anew
+
+
+def test_tracers_and_classes_of_the_user_run_as_before(folder):
+    """Under jax.grad the program is traced as before (its derivative is the jit's); a class
+    defined outside peeljax and its libraries could change under its name: never kept."""
+    program = _program()
+    v = jnp.linspace(0.01, 2.0, 5)
+    gradient = jax.grad(lambda c1: jnp.sum(program(2.0, _law(c1), v)["phi"]))(400.0)
+    assert float(gradient) == pytest.approx(float(2.0 * jnp.sum(v**0.35)), rel=1e-12)
+    assert not list(folder.glob("*"))
+
+    class MyLaw(pj.AdhesionLaw):
+        pass
+
+    mine = eqx.tree_at(lambda law: law.c1, MyLaw(), jnp.asarray(400.0))
+    np.testing.assert_array_equal(np.asarray(program(2.0, mine, v)["phi"]), np.asarray(_double(2.0, mine, v)["phi"]))
+    assert not list(folder.glob("*"))
+
+
+def test_a_program_that_cannot_be_exported_is_remembered_and_runs(folder):
+    def with_callback(scale, x):
+        jax.debug.callback(lambda value: None, x)
+        return scale * x
+
+    program = ExportedProgram("callback", with_callback, jax.jit(with_callback, static_argnums=0))
+    assert float(program(2.0, jnp.asarray(3.0))) == 6.0
+    assert len(list(folder.glob("*.refused"))) == 1 and not list(folder.glob("*.jaxexport"))
+    assert (
+        float(
+            ExportedProgram("callback", with_callback, jax.jit(with_callback, static_argnums=0))(2.0, jnp.asarray(4.0))
+        )
+        == 8.0
+    )
+
+
+def test_the_folder_follows_the_compilation_cache(monkeypatch):
+    folder = jax.config.jax_compilation_cache_dir
+    monkeypatch.delenv(_exported.VARIABLE, raising=False)
+    assert folder and _exported.programs_folder() == Path(folder) / _exported.SUBFOLDER  # the suite's cache
+    monkeypatch.setenv(_exported.VARIABLE, "off")
+    assert _exported.programs_folder() is None
