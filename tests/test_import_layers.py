@@ -18,7 +18,7 @@ ROOT = Path(__file__).resolve().parents[1] / "peeljax"
 # The layers, first to last (README's layer table; peeljax/__init__'s docstring): a module may
 # import its own layer and those before it. Keyed by the first name under peeljax/.
 LAYERS = [
-    ("utilities", {"_devices", "_arrays", "_atomic", "_compilation_cache", "_cotangents", "_files", "_linalg", "_memory", "_npz", "_panels", "_validation"}),
+    ("utilities", {"_devices", "_arrays", "_atomic", "_compilation_cache", "_exported", "_cotangents", "_files", "_linalg", "_memory", "_npz", "_panels", "_validation"}),
     ("model", {"model", "adhesion"}),
     ("structure", {"structure", "branches"}),
     ("homogenized ODE and the DAE", {"homogenized", "constrained", "desingularized"}),
