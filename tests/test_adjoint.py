@@ -64,9 +64,11 @@ def _run(c1, adjoint, **law):
     return sol.ys[-1]
 
 
+@pytest.mark.slow
 def test_grad_of_a_run_is_its_forward_mode():
     """One φ coefficient perturbed: reverse mode is the forward-mode derivative of the same
-    program (tangents), to round-off."""
+    program (tangents), to round-off (slow: 90–110 s in the fast tier, compiling both
+    derivative programs; the fast tier checks the dispatch on a toy run above)."""
     c1 = jnp.asarray(400.0)
     reverse = jax.jacrev(lambda c: _run(c, "reverse"))(c1)
     forward = jax.jacfwd(lambda c: _run(c, "forward"))(c1)
