@@ -273,9 +273,7 @@ class ExportedProgram:
             program = self._programs[signature] = self._load_or_export(static, treedef, leaves)
         if program is None:
             return self.fallback(static, *args)
-        # On one device, committed: an exported program's outputs are committed arrays, and one
-        # handed back in (an orbit's model) would otherwise compile the program a second time.
-        return program(*jax.device_put(leaves, _device()))
+        return program(*leaves)
 
     def _load_or_export(self, static, treedef, leaves):
         folder = programs_folder()
@@ -304,7 +302,9 @@ class ExportedProgram:
                     refused.parent.mkdir(parents=True, exist_ok=True)
                     refused.touch()
                 return None
-        return jax.jit(exported.call)
+        # Every argument placed on one device: an exported program's outputs are committed
+        # arrays, and one handed back in (an orbit's model) would otherwise compile it again.
+        return jax.jit(exported.call, in_shardings=jax.sharding.SingleDeviceSharding(_device()))
 
     def _export(self, static, treedef, leaves, path: Path):
         def flat(*leaves):  # the arguments' structure is in the key: the export sees arrays only
