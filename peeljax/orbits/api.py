@@ -106,7 +106,7 @@ def compiled(fn, name: str):
     return call
 
 
-compiled_orbit = compiled(orbit_of, "orbit")  # orbit_of, compiled once per process
+compiled_orbit = compiled(orbit_of, "orbit")  # orbit_of, traced and compiled once per machine
 
 # φ(·, V) has a maximum and a minimum
 phi_has_folds = compiled(lambda model, V: phi_folds(model, V).exist, "phi_has_folds")
