@@ -104,8 +104,8 @@ def _trusted(cls: type) -> bool:
     return cls.__module__.split(".", 1)[0] in TRUSTED_PACKAGES and "<locals>" not in cls.__qualname__
 
 
-def _key(name: str, static: object, treedef, leaves: list) -> str:
-    classes = sorted(_class_name(cls) for cls in _node_classes(treedef))
+def _key(name: str, static: object, treedef, classes: set[type], leaves: list) -> str:
+    classes = sorted(_class_name(cls) for cls in classes)
     text = f"{static!r}|{treedef}|{classes}"
     if " at 0x" in text or "..." in text:  # a function, a summarized array: what it is cannot be told
         raise NotExportable(f"{name}: an argument without a stable description")
@@ -157,9 +157,14 @@ def _decode(value):
 
 
 def _missing():
-    from equinox._module import _flatten
+    """equinox's marker of a field without a value (a private name: where it moves, no static
+    field matches it and modules holding one are traced in each process, as before)."""
+    try:
+        from equinox._module import _flatten
 
-    return _flatten.MISSING
+        return _flatten.MISSING
+    except (ImportError, AttributeError):
+        return object()
 
 
 _MISSING = _missing()
@@ -280,9 +285,10 @@ class ExportedProgram:
         if folder is None:
             return None
         try:
-            if not all(_trusted(cls) for cls in _node_classes(treedef)):
+            classes = _node_classes(treedef)
+            if not all(_trusted(cls) for cls in classes):
                 raise NotExportable(f"{self.name}: a class outside peeljax and its libraries")
-            path = folder / f"{_key(self.name, static, treedef, leaves)}{SUFFIX}"
+            path = folder / f"{_key(self.name, static, treedef, classes, leaves)}{SUFFIX}"
         except NotExportable:
             return None
         refused = path.with_suffix(".refused")
