@@ -106,6 +106,7 @@ from .integrators import (  # noqa: E402
     integrate_alpha_adaptive,
     integrate_reference,
 )
+from .lyapunov import LyapunovExponents, lyapunov_exponents  # noqa: E402
 from .model import PeelingModel  # noqa: E402
 from .orbits import (  # noqa: E402
     OrbitDiagram,
@@ -150,6 +151,7 @@ __all__ = [
     "Jacobians",
     "JumpRecord",
     "LeastTau",
+    "LyapunovExponents",
     "LogTransformedODE",
     "Observation",
     "OrbitDiagram",
@@ -187,6 +189,7 @@ __all__ = [
     "orbit_diagram",
     "periodic_orbit",
     "periodic_orbits",
+    "lyapunov_exponents",
     "local_index",
     "neumann_radius",
     "neumann_terms",

@@ -1,0 +1,223 @@
+"""Lyapunov exponents of the peeling, through its jumps: Benettin's method on the run's own tangents.
+
+The tangent map of a segment of the run, M_k = ∂y(t_k + Δ)/∂y(t_k), is the forward-mode
+derivative of :func:`peeljax.simulate` with respect to its initial state. Through each jump it
+carries the saltation: the jump time moves by the implicit function theorem on its fold event
+and the state after the jump through the constraint (:mod:`peeljax.integrators.events`) — the
+derivative the periodic orbits' monodromy is made of (:mod:`peeljax.orbits.shooting`). No
+derivative is written by hand.
+
+Benettin, Galgani, Giorgilli & Strelcyn (1980): k orthonormal tangents Q_0 are carried over each
+segment and orthonormalized again, M_k Q_{k−1} = Q_k R_k (QR with diag R > 0), and
+
+    λ_i = lim_{n→∞} 1/(nΔ) · Σ_{k=1..n} log R_k[i, i],   i = 1 … k,
+
+the i-th Lyapunov exponent (1/s), of the DAE itself (τ = 0): the state is x = (α, ω, u), v being
+algebraic (solved from the constraint (sac) at every state).
+
+Only τ = 0. At τ > 0 the run's tangents are not error-controlled where the steps grow: over
+0.5 s at the steady state the homogenized ODE settles to at V = 1.1, τ = 0.01, the forward-mode
+tangent map differs from exp(A·0.5) (A = ∂ψ/∂y there) by 2.6 in relative norm with the α-method
+and by 5·10³ with Tsit5, whose linearized step is unstable at the step sizes the controller takes
+where the state no longer moves.
+
+On a periodic orbit of period T with nontrivial Floquet multipliers μ₁, μ₂ (|μ₁| ≥ |μ₂|;
+:func:`peeljax.periodic_orbit`): λ₁ = 0 (the flow's direction) and λ₂ = ln|μ₁| / T. A positive
+λ₁ marks chaos; λ₁ = λ₂ = 0 a quasi-periodic (torus) attractor. Measured at V = 1.1 m/s
+(``tests/test_lyapunov.py``): λ₂ = −2.68 and λ₃ = −21.33 1/s against ln|μ|/T = −2.670 and
+−21.336, λ₁ = 0.014 ± 0.029, over 100 s.
+
+Steady peeling is not classified by it: at V = 0.2 m/s λ₁ reads 1e-4 ± 2e-4 1/s, while the
+linearization at the steady state decays at −11.7 1/s (its three eigenvalues −11.7 ± 28.7i and
+−74.7). A perturbation of u moves the run to a nearby state it does not leave within 0.5 s,
+by finite differences of the run as well: not understood yet.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from ._validation import check_positive, check_y0
+from .model import PeelingModel
+from .simulate import simulate
+from .solution import StopReason
+
+__all__ = ["LyapunovExponents", "lyapunov_exponents"]
+
+_BATCHES = 10  # batch means for the standard error
+
+
+class LyapunovExponents(eqx.Module):
+    """The result of :func:`lyapunov_exponents`.
+
+    Attributes:
+        exponents: λ₁ ≥ λ₂ ≥ … (1/s), the mean growth rates over the segments run.
+        standard_error: each exponent's standard error, from the means of 10 batches of
+            consecutive segments (NaN with fewer than 10 segments).
+        history: (n, k) the estimates after each segment (their convergence).
+        t: (n,) the time after the transient at each segment's end (s).
+        V, segment, t_transient: what was run.
+        status: :class:`~peeljax.StopReason` of the run (``COMPLETED``, or why a segment stopped).
+        stopped_at: the time after the transient where the run stopped (NaN if it completed);
+            the exponents are those of the segments before it.
+    """
+
+    exponents: Float[Array, " k"]
+    standard_error: Float[Array, " k"]
+    history: Float[Array, "n k"]
+    t: Float[Array, " n"]
+    V: float
+    segment: float
+    t_transient: float
+    status: int
+    stopped_at: float
+
+    @property
+    def message(self) -> str:
+        reason = StopReason(self.status)
+        if reason == StopReason.COMPLETED:
+            return (
+                f"completed: {self.t.size} segments of {self.segment:g} s after a transient of {self.t_transient:g} s"
+            )
+        return f"stopped at t = {self.stopped_at:g} s after the transient: {reason.message}"
+
+    def __str__(self) -> str:
+        rows = ", ".join(
+            f"λ{i + 1} = {lam:.4g} ± {se:.2g} 1/s"
+            for i, (lam, se) in enumerate(zip(self.exponents, self.standard_error))
+        )
+        return f"Lyapunov exponents at V = {self.V:g} m/s (τ = 0): {rows} ({self.message})"
+
+
+@eqx.filter_jit
+def _segment(model, V, y, Q, *, duration: float, rtol: float, atol: float, max_steps: int):
+    """One segment: the state after ``duration``, the tangents Q carried and orthonormalized
+    again (Q_k, log diag R_k) and the run's status."""
+    d = Q.shape[0]
+
+    def run(x):
+        y0 = jnp.concatenate([x, y[d:]])  # at τ = 0 y's v starts the root search on its branch
+        solution = simulate(
+            model, V=V, tau=0, t_final=duration, y0=y0, ts=np.array([0.0, duration]), rtol=rtol, atol=atol,
+            max_steps=max_steps, adjoint="forward",
+        )  # fmt: skip
+        return solution.ys[-1, :d], (solution.ys[-1], solution.status)
+
+    x = y[:d]
+    # k tangents along one run (its values unbatched: computed once)
+    _, pushed, (y_end, status) = jax.vmap(
+        lambda q: jax.jvp(run, (x,), (q,), has_aux=True), in_axes=1, out_axes=(None, 1, None)
+    )(Q)
+    Q_new, R = jnp.linalg.qr(pushed)
+    signs = jnp.where(jnp.diagonal(R) < 0, -1.0, 1.0)
+    return y_end, Q_new * signs, jnp.log(jnp.abs(jnp.diagonal(R))), status
+
+
+def lyapunov_exponents(
+    model: PeelingModel | None = None,
+    V: float = 1.1,
+    *,
+    n: int = 2,
+    t_total: float = 100.0,
+    segment: float = 0.5,
+    t_transient: float = 10.0,
+    y0: ArrayLike | None = None,
+    rtol: float = 1e-8,
+    atol: float = 1e-10,
+    max_steps: int = 100_000,
+    seed: int = 0,
+    progress: bool = False,
+) -> LyapunovExponents:
+    """The ``n`` largest Lyapunov exponents of the DAE (τ = 0) on the attractor reached from
+    ``y0`` (module docstring); τ > 0 is not offered (module docstring: its tangents).
+
+    Args:
+        model: the peeling model (default: the paper's).
+        V: the pull velocity (m/s).
+        n: how many exponents, 1 … 3 (x = (α, ω, u)).
+        t_total: time over which the growth rates are averaged, after the transient (s); the
+            exponents converge like 1/t_total on a periodic orbit.
+        segment: the time between two orthonormalizations (s); ``t_total`` is run as
+            round(t_total / segment) segments of one compiled program.
+        t_transient: time run first, from ``y0``, to reach the attractor (s); then a tenth of
+            the segments (at least one) is run to turn the tangents towards the leading directions,
+            their growth not counted (it holds the start's orientation, a bias ∝ 1/t_total).
+        y0: the initial state (α, ω, u, v) (default: the paper's initial data); a run's last
+            state (``run.ys[-1]``) continues that run.
+        rtol, atol, max_steps: each segment's error control (:func:`peeljax.simulate`).
+        seed: the random orthonormal tangents the method starts from.
+        progress: a line on stderr every tenth of the segments.
+
+    Returns:
+        A :class:`LyapunovExponents`; a segment whose run stopped ends the estimate there
+        (``status``, ``stopped_at``; the exponents are those of the segments before it).
+    """
+    model = PeelingModel() if model is None else model
+    if np.ndim(V) != 0:
+        raise ValueError(f"V must be one pull velocity (a number in (0, inf)), got an array of shape {np.shape(V)}")
+    check_positive("V", V)
+    if y0 is not None:
+        check_y0(y0)
+    dimension = 3
+    if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= dimension:
+        raise ValueError(f"n must be an integer in [1, {dimension}] (x = (alpha, omega, u)), got {n!r}")
+    for name, value in (("t_total", t_total), ("segment", segment), ("rtol", rtol), ("atol", atol)):
+        check_positive(name, value)
+    if not (isinstance(t_transient, (int, float)) and math.isfinite(t_transient) and t_transient >= 0):
+        raise ValueError(f"t_transient must be a number in [0, inf), got {t_transient!r}")
+    if segment > t_total:
+        raise ValueError(f"segment must lie in (0, t_total] = (0, {t_total:g}], got {segment:g}")
+    count = round(t_total / segment)
+
+    start = model.initial_state(V) if y0 is None else jnp.asarray(y0, float)
+    if t_transient > 0:
+        transient = simulate(
+            model, V=V, tau=0, t_final=float(t_transient), y0=start, ts=np.array([0.0, float(t_transient)]),
+            rtol=rtol, atol=atol, max_steps=max_steps,
+        )  # fmt: skip
+        if int(transient.status) != StopReason.COMPLETED:
+            raise ValueError(
+                f"the transient run stopped at t = {float(transient.t_stop):g} s: {StopReason(int(transient.status)).message}"
+            )
+        start = transient.ys[-1]
+    y = jnp.asarray(start, float)
+    Q, _ = np.linalg.qr(np.random.default_rng(seed).normal(size=(dimension, n)))
+    Q = jnp.asarray(Q)
+    settings = {"duration": float(segment), "rtol": float(rtol), "atol": float(atol), "max_steps": int(max_steps)}
+    for _ in range(max(count // 10, 1)):  # the tangents turned towards the leading directions
+        y, Q, log_r, run_status = _segment(model, V, y, Q, **settings)
+        if int(run_status) != StopReason.COMPLETED or not np.all(np.isfinite(log_r)):
+            raise ValueError(f"the run that aligns the tangents stopped: {StopReason(int(run_status)).message}")
+    growth = np.zeros((count, n))
+    status, done = StopReason.COMPLETED, count
+    for k in range(count):
+        y_next, Q_next, log_r, run_status = _segment(model, V, y, Q, **settings)
+        if int(run_status) != StopReason.COMPLETED or not np.all(np.isfinite(log_r)):
+            status = int(run_status) if int(run_status) != StopReason.COMPLETED else StopReason.NONFINITE
+            done = k
+            break
+        growth[k] = np.asarray(log_r) / segment
+        y, Q = y_next, Q_next
+        if progress and (k + 1) % max(count // 10, 1) == 0:
+            print(f"lyapunov_exponents: {k + 1}/{count} segments, λ = {growth[: k + 1].mean(axis=0)}", file=sys.stderr)
+    growth = growth[:done]
+    steps = np.arange(1, done + 1)[:, None]
+    history = np.cumsum(growth, axis=0) / steps if done else np.zeros((0, n))
+    exponents = history[-1] if done else np.full(n, np.nan)
+    if done >= _BATCHES:
+        batches = np.array([b.mean(axis=0) for b in np.array_split(growth, _BATCHES)])
+        standard_error = batches.std(axis=0, ddof=1) / math.sqrt(_BATCHES)
+    else:
+        standard_error = np.full(n, np.nan)
+    return LyapunovExponents(
+        exponents=jnp.asarray(exponents), standard_error=jnp.asarray(standard_error), history=jnp.asarray(history),
+        t=jnp.asarray(segment * np.arange(1, done + 1)), V=float(V), segment=float(segment),
+        t_transient=float(t_transient), status=int(status), stopped_at=math.nan if done == count else segment * done,
+    )  # fmt: skip
