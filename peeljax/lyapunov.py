@@ -15,22 +15,24 @@ segment and orthonormalized again, M_k Q_{k−1} = Q_k R_k (QR with diag R > 0),
 the i-th Lyapunov exponent (1/s), of the DAE itself (τ = 0): the state is x = (α, ω, u), v being
 algebraic (solved from the constraint (sac) at every state).
 
-Only τ = 0. At τ > 0 the run's tangents are not error-controlled where the steps grow: over
-0.5 s at the steady state the homogenized ODE settles to at V = 1.1, τ = 0.01, the forward-mode
-tangent map differs from exp(A·0.5) (A = ∂ψ/∂y there) by 2.6 in relative norm with the α-method
-and by 5·10³ with Tsit5, whose linearized step is unstable at the step sizes the controller takes
-where the state no longer moves.
+The tangents are those of the run's steps, which the error control does not look at. Where the
+state stops moving (steady peeling) nothing holds the steps back: they grow to the stepper's
+stability limit, and the tangent map no longer follows the flow's. At the steady state of
+V = 0.2 m/s, τ = 0, over 0.5 s (13 steps), it differs from exp(A·0.5) (A = ∂ẋ/∂x there) by 14.5
+in relative norm with Tsit5 in pseudo-time (the default), 10.2 with the α-method, 1.5 with
+Kvaerno5, and Benettin's λ₁ read 1e-4 ± 2e-4 1/s where A's eigenvalues are −11.7 ± 28.7i and
+−74.7. A steady attractor is therefore recognised (no jump and no motion over one segment) and
+its exponents are the real parts of A's eigenvalues, exact by autodiff (``steady`` is True).
+At τ > 0 the same happens wherever the homogenized ODE settles (the steady state of V = 1.1,
+τ = 0.01: 2.6 with the α-method, 5·10³ with Tsit5, over 0.5 s), and v's fast relaxation keeps
+the steps at that limit along the whole run: τ > 0 is not offered.
 
 On a periodic orbit of period T with nontrivial Floquet multipliers μ₁, μ₂ (|μ₁| ≥ |μ₂|;
 :func:`peeljax.periodic_orbit`): λ₁ = 0 (the flow's direction) and λ₂ = ln|μ₁| / T. A positive
 λ₁ marks chaos; λ₁ = λ₂ = 0 a quasi-periodic (torus) attractor. Measured at V = 1.1 m/s
 (``tests/test_lyapunov.py``): λ₂ = −2.68 and λ₃ = −21.33 1/s against ln|μ|/T = −2.670 and
-−21.336, λ₁ = 0.014 ± 0.029, over 100 s.
-
-Steady peeling is not classified by it: at V = 0.2 m/s λ₁ reads 1e-4 ± 2e-4 1/s, while the
-linearization at the steady state decays at −11.7 1/s (its three eigenvalues −11.7 ± 28.7i and
-−74.7). A perturbation of u moves the run to a nearby state it does not leave within 0.5 s,
-by finite differences of the run as well: not understood yet.
+−21.336, λ₁ = 0.014 ± 0.029, over 100 s; at 0.8 and 2 m/s the pair −2.975, −2.967 and −3.917,
+−3.932 against −2.971 and −3.917.
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from ._validation import check_positive, check_y0
+from .constrained import ConstrainedDAE
 from .model import PeelingModel
 from .simulate import simulate
 from .solution import StopReason
@@ -58,15 +61,18 @@ class LyapunovExponents(eqx.Module):
     """The result of :func:`lyapunov_exponents`.
 
     Attributes:
-        exponents: λ₁ ≥ λ₂ ≥ … (1/s), the mean growth rates over the segments run.
+        exponents: λ₁ ≥ λ₂ ≥ … (1/s), the mean growth rates over the segments run (on a
+            steady attractor: the real parts of the linearization's eigenvalues).
         standard_error: each exponent's standard error, from the means of 10 batches of
             consecutive segments (NaN with fewer than 10 segments).
         history: (n, k) the estimates after each segment (their convergence).
         t: (n,) the time after the transient at each segment's end (s).
         V, segment, t_transient: what was run.
         status: :class:`~peeljax.StopReason` of the run (``COMPLETED``, or why a segment stopped).
-        stopped_at: the time after the transient where the run stopped (NaN if it completed);
-            the exponents are those of the segments before it.
+        stopped_at: the time after the transient where the run stopped (NaN if it completed;
+            negative: within the transient); the exponents are those of the segments before it.
+        steady: the attractor is steady peeling (module docstring): no segment was run, the
+            standard errors are 0 and the history is the one exact row.
     """
 
     exponents: Float[Array, " k"]
@@ -78,14 +84,19 @@ class LyapunovExponents(eqx.Module):
     t_transient: float
     status: int
     stopped_at: float
+    steady: bool = False
 
     @property
     def message(self) -> str:
         reason = StopReason(self.status)
+        if self.steady:
+            return "steady peeling: the real parts of the linearization's eigenvalues at the steady state"
         if reason == StopReason.COMPLETED:
             return (
                 f"completed: {self.t.size} segments of {self.segment:g} s after a transient of {self.t_transient:g} s"
             )
+        if self.stopped_at < 0:
+            return f"the transient stopped at t = {self.t_transient + self.stopped_at:g} s: {reason.message}"
         return f"stopped at t = {self.stopped_at:g} s after the transient: {reason.message}"
 
     def __str__(self) -> str:
@@ -120,6 +131,27 @@ def _segment(model, V, y, Q, *, duration: float, rtol: float, atol: float, max_s
     return y_end, Q_new * signs, jnp.log(jnp.abs(jnp.diagonal(R))), status
 
 
+def _is_steady(model, V, y, settings) -> bool:
+    """No jump and no motion beyond the error control's tolerance over one segment from y."""
+    run = simulate(
+        model, V=V, tau=0, t_final=settings["duration"], y0=y, ts=np.array([0.0, settings["duration"]]),
+        rtol=settings["rtol"], atol=settings["atol"], max_steps=settings["max_steps"],
+    )  # fmt: skip
+    if int(run.status) != StopReason.COMPLETED or int(run.stats["jumps"]) > 0:
+        return False
+    x0, x1 = np.asarray(y)[:3], np.asarray(run.ys[-1])[:3]
+    return bool(np.all(np.abs(x1 - x0) <= 100 * (settings["rtol"] * np.abs(x0) + settings["atol"])))
+
+
+def _linearized_exponents(model, V, y) -> np.ndarray:
+    """The real parts of the eigenvalues of A = ∂ẋ/∂x at y, v solved from the constraint
+    (autodiff through the root: :class:`~peeljax.ConstrainedDAE`), largest first."""
+    dae = ConstrainedDAE(model, V).with_folds()
+    v = jnp.asarray(y)[3:]
+    A = jax.jacfwd(lambda x: dae(jnp.concatenate([x, v]))[:3])(jnp.asarray(y)[:3])
+    return np.sort(np.linalg.eigvals(np.asarray(A)).real)[::-1]
+
+
 def lyapunov_exponents(
     model: PeelingModel | None = None,
     V: float = 1.1,
@@ -151,13 +183,15 @@ def lyapunov_exponents(
             their growth not counted (it holds the start's orientation, a bias ∝ 1/t_total).
         y0: the initial state (α, ω, u, v) (default: the paper's initial data); a run's last
             state (``run.ys[-1]``) continues that run.
-        rtol, atol, max_steps: each segment's error control (:func:`peeljax.simulate`).
+        rtol, atol, max_steps: each segment's error control (:func:`peeljax.simulate`; the
+            transient gets ``max_steps`` per segment's duration).
         seed: the random orthonormal tangents the method starts from.
         progress: a line on stderr every tenth of the segments.
 
     Returns:
         A :class:`LyapunovExponents`; a segment whose run stopped ends the estimate there
-        (``status``, ``stopped_at``; the exponents are those of the segments before it).
+        (``status``, ``stopped_at``; the exponents are those of the segments before it, NaN
+        where none was counted, the message says where and why).
     """
     model = PeelingModel() if model is None else model
     if np.ndim(V) != 0:
@@ -176,25 +210,37 @@ def lyapunov_exponents(
         raise ValueError(f"segment must lie in (0, t_total] = (0, {t_total:g}], got {segment:g}")
     count = round(t_total / segment)
 
+    def stopped(status: int, at: float) -> LyapunovExponents:  # before any growth was counted
+        nan = jnp.full(n, jnp.nan)
+        return LyapunovExponents(
+            exponents=nan, standard_error=nan, history=jnp.zeros((0, n)), t=jnp.zeros(0), V=float(V),
+            segment=float(segment), t_transient=float(t_transient), status=status, stopped_at=at,
+        )  # fmt: skip
+
     start = model.initial_state(V) if y0 is None else jnp.asarray(y0, float)
     if t_transient > 0:
         transient = simulate(
             model, V=V, tau=0, t_final=float(t_transient), y0=start, ts=np.array([0.0, float(t_transient)]),
-            rtol=rtol, atol=atol, max_steps=max_steps,
+            rtol=rtol, atol=atol, max_steps=max_steps * math.ceil(t_transient / segment),
         )  # fmt: skip
         if int(transient.status) != StopReason.COMPLETED:
-            raise ValueError(
-                f"the transient run stopped at t = {float(transient.t_stop):g} s: {StopReason(int(transient.status)).message}"
-            )
+            return stopped(int(transient.status), float(transient.t_stop) - t_transient)
         start = transient.ys[-1]
     y = jnp.asarray(start, float)
+    settings = {"duration": float(segment), "rtol": float(rtol), "atol": float(atol), "max_steps": int(max_steps)}
+    if _is_steady(model, V, y, settings):
+        exponents = _linearized_exponents(model, V, y)[:n]
+        return LyapunovExponents(
+            exponents=jnp.asarray(exponents), standard_error=jnp.zeros(n), history=jnp.asarray(exponents)[None],
+            t=jnp.zeros(1), V=float(V), segment=float(segment), t_transient=float(t_transient),
+            status=int(StopReason.COMPLETED), stopped_at=math.nan, steady=True,
+        )  # fmt: skip
     Q, _ = np.linalg.qr(np.random.default_rng(seed).normal(size=(dimension, n)))
     Q = jnp.asarray(Q)
-    settings = {"duration": float(segment), "rtol": float(rtol), "atol": float(atol), "max_steps": int(max_steps)}
     for _ in range(max(count // 10, 1)):  # the tangents turned towards the leading directions
         y, Q, log_r, run_status = _segment(model, V, y, Q, **settings)
         if int(run_status) != StopReason.COMPLETED or not np.all(np.isfinite(log_r)):
-            raise ValueError(f"the run that aligns the tangents stopped: {StopReason(int(run_status)).message}")
+            return stopped(int(run_status) or StopReason.NONFINITE, 0.0)
     growth = np.zeros((count, n))
     status, done = StopReason.COMPLETED, count
     for k in range(count):

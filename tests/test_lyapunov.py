@@ -48,3 +48,27 @@ def test_exponents_of_the_periodic_orbit_are_its_floquet_exponents():
     # the estimate converges: the last half moves λ₂ less than the first tenth's spread
     history = np.asarray(result.history)
     assert abs(history[-1, 1] - history[100, 1]) < abs(history[19, 1] - floquet[0])
+
+
+@pytest.mark.slow
+def test_steady_peeling_exponents_are_those_of_its_linearization():
+    """On steady peeling the run's tangents are not the flow's (module docstring): the exponents
+    are the real parts of the eigenvalues of ∂ẋ/∂x there, here against central differences."""
+    result = pj.lyapunov_exponents(V=0.2, n=3)
+    assert result.steady and result.status == pj.StopReason.COMPLETED
+    assert "steady peeling" in result.message and np.all(np.asarray(result.standard_error) == 0)
+    y = np.asarray(pj.simulate(V=0.2, tau=0, t_final=10.0, ts=np.array([0.0, 10.0])).ys[-1])
+    dae = pj.ConstrainedDAE(pj.PeelingModel(), 0.2).with_folds()
+    rhs = lambda x: np.asarray(dae(np.concatenate([x, y[3:]]))[:3])  # noqa: E731
+    h = 1e-6
+    A = np.stack([(rhs(y[:3] + h * e) - rhs(y[:3] - h * e)) / (2 * h) for e in np.eye(3)], axis=1)
+    expected = np.sort(np.linalg.eigvals(A).real)[::-1]
+    np.testing.assert_allclose(np.asarray(result.exponents), expected, rtol=1e-5)  # -11.73 (twice), -74.70
+
+
+@pytest.mark.slow
+def test_a_stopped_transient_says_where_and_why():
+    result = pj.lyapunov_exponents(V=1.1, max_steps=20)
+    assert result.status == pj.StopReason.MAX_STEPS and result.stopped_at < 0
+    assert np.all(np.isnan(np.asarray(result.exponents))) and result.history.shape == (0, 2)
+    assert result.message.startswith("the transient stopped at t = ")
