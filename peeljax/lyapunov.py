@@ -33,6 +33,17 @@ On a periodic orbit of period T with nontrivial Floquet multipliers μ₁, μ₂
 (``tests/test_lyapunov.py``): λ₂ = −2.68 and λ₃ = −21.33 1/s against ln|μ|/T = −2.670 and
 −21.336, λ₁ = 0.014 ± 0.029, over 100 s; at 0.8 and 2 m/s the pair −2.975, −2.967 and −3.917,
 −3.932 against −2.971 and −3.917.
+
+Each segment checks its leading tangent against a run from a nearby state (10⁻⁶·|x| along it):
+where their growths differ by more than 10×, the estimate stops and says so (``why``). A jump at
+a tangential fold (ġ → 0 at the jump: the slip ends just as G turns) is where the run's
+derivative leaves the flow's: at V = 4.9 m/s, from the state 10 s after the paper's start, the
+first jump (t = 0.1044 s, ġ = −3·10⁻⁵ against 15 N/s 10 ms before) takes the tangent map's
+norm from 87 to 6.9·10¹⁶ while central differences of the run give ~200, and Benettin's λ₁ read
+110 1/s where runs from nearby states separate linearly. (The same fault reaches
+``jax.jvp`` of a run's end through that region: d x(10.3 s)/dc1 = (−174, 22239, 45) against
+(0.032, −8.65, −0.0072) by central differences.) At 4.9 and 5.3 m/s the check stops the
+estimate at once.
 """
 
 from __future__ import annotations
@@ -49,12 +60,14 @@ from jaxtyping import Array, ArrayLike, Float
 from ._validation import check_positive, check_y0
 from .constrained import ConstrainedDAE
 from .model import PeelingModel
-from .simulate import simulate
+from .simulate import DEFAULT_MAX_JUMPS, simulate
 from .solution import StopReason
 
 __all__ = ["LyapunovExponents", "lyapunov_exponents"]
 
 _BATCHES = 10  # batch means for the standard error
+_CHECK_STEP = 1e-6  # the nearby run's distance, relative to |x| (the runs' rtol 1e-8: FD error ~1 %)
+_CHECK_FACTOR = 10.0  # the leading tangent's growth and the nearby run's may differ by this factor
 
 
 class LyapunovExponents(eqx.Module):
@@ -73,6 +86,8 @@ class LyapunovExponents(eqx.Module):
             negative: within the transient); the exponents are those of the segments before it.
         steady: the attractor is steady peeling (module docstring): no segment was run, the
             standard errors are 0 and the history is the one exact row.
+        why: why the estimate stopped where no run did (``status`` ``COMPLETED``): the leading
+            tangent left the growth of a run from a nearby state (module docstring).
     """
 
     exponents: Float[Array, " k"]
@@ -85,19 +100,20 @@ class LyapunovExponents(eqx.Module):
     status: int
     stopped_at: float
     steady: bool = False
+    why: str = ""
 
     @property
     def message(self) -> str:
         reason = StopReason(self.status)
         if self.steady:
             return "steady peeling: the real parts of the linearization's eigenvalues at the steady state"
-        if reason == StopReason.COMPLETED:
+        if reason == StopReason.COMPLETED and not self.why:
             return (
                 f"completed: {self.t.size} segments of {self.segment:g} s after a transient of {self.t_transient:g} s"
             )
         if self.stopped_at < 0:
             return f"the transient stopped at t = {self.t_transient + self.stopped_at:g} s: {reason.message}"
-        return f"stopped at t = {self.stopped_at:g} s after the transient: {reason.message}"
+        return f"stopped at t = {self.stopped_at:g} s after the transient: {self.why or reason.message}"
 
     def __str__(self) -> str:
         rows = ", ".join(
@@ -123,12 +139,16 @@ def _segment(model, V, y, Q, *, duration: float, rtol: float, atol: float, max_s
 
     x = y[:d]
     # k tangents along one run (its values unbatched: computed once)
-    _, pushed, (y_end, status) = jax.vmap(
+    x_end, pushed, (y_end, status) = jax.vmap(
         lambda q: jax.jvp(run, (x,), (q,), has_aux=True), in_axes=1, out_axes=(None, 1, None)
     )(Q)
+    # The leading tangent against a run from a nearby state (module docstring: a tangential fold)
+    step = _CHECK_STEP * jnp.maximum(jnp.linalg.norm(x), 1.0)
+    separated = jnp.linalg.norm(run(x + step * Q[:, 0])[0] - x_end) / step
+    disagreement = jnp.abs(jnp.log(separated / jnp.linalg.norm(pushed[:, 0])))
     Q_new, R = jnp.linalg.qr(pushed)
     signs = jnp.where(jnp.diagonal(R) < 0, -1.0, 1.0)
-    return y_end, Q_new * signs, jnp.log(jnp.abs(jnp.diagonal(R))), status
+    return y_end, Q_new * signs, jnp.log(jnp.abs(jnp.diagonal(R))), status, disagreement
 
 
 def _is_steady(model, V, y, settings) -> bool:
@@ -184,7 +204,8 @@ def lyapunov_exponents(
         y0: the initial state (α, ω, u, v) (default: the paper's initial data); a run's last
             state (``run.ys[-1]``) continues that run.
         rtol, atol, max_steps: each segment's error control (:func:`peeljax.simulate`; the
-            transient gets ``max_steps`` per segment's duration).
+            transient gets ``max_steps`` per segment's duration, and room for as many jumps per
+            segment's duration as a segment has).
         seed: the random orthonormal tangents the method starts from.
         progress: a line on stderr every tenth of the segments.
 
@@ -210,18 +231,33 @@ def lyapunov_exponents(
         raise ValueError(f"segment must lie in (0, t_total] = (0, {t_total:g}], got {segment:g}")
     count = round(t_total / segment)
 
-    def stopped(status: int, at: float) -> LyapunovExponents:  # before any growth was counted
+    def stopped(status: int, at: float, why: str = "") -> LyapunovExponents:  # before any growth was counted
         nan = jnp.full(n, jnp.nan)
         return LyapunovExponents(
             exponents=nan, standard_error=nan, history=jnp.zeros((0, n)), t=jnp.zeros(0), V=float(V),
-            segment=float(segment), t_transient=float(t_transient), status=status, stopped_at=at,
+            segment=float(segment), t_transient=float(t_transient), status=status, stopped_at=at, why=why,
         )  # fmt: skip
+
+    def trouble(run_status, log_r, disagreement) -> tuple[int, str] | None:
+        """(status, why) where a segment cannot be counted, else None."""
+        if int(run_status) != StopReason.COMPLETED:
+            return int(run_status), ""
+        if not np.all(np.isfinite(np.asarray(log_r))):
+            return int(StopReason.NONFINITE), "the tangents overflowed"
+        if not float(disagreement) <= math.log(_CHECK_FACTOR):
+            return int(StopReason.COMPLETED), (
+                f"the leading tangent's growth over the segment and that of a run from a nearby state differ by a "
+                f"factor {math.exp(min(float(disagreement), 700.0)):.3g} (> {_CHECK_FACTOR:g}): the run's derivative is "
+                f"not the flow's there (a tangential fold or a grazing: peeljax.lyapunov's docstring)"
+            )
+        return None
 
     start = model.initial_state(V) if y0 is None else jnp.asarray(y0, float)
     if t_transient > 0:
         transient = simulate(
             model, V=V, tau=0, t_final=float(t_transient), y0=start, ts=np.array([0.0, float(t_transient)]),
             rtol=rtol, atol=atol, max_steps=max_steps * math.ceil(t_transient / segment),
+            max_jumps=DEFAULT_MAX_JUMPS * math.ceil(t_transient / segment),
         )  # fmt: skip
         if int(transient.status) != StopReason.COMPLETED:
             return stopped(int(transient.status), float(transient.t_stop) - t_transient)
@@ -238,16 +274,15 @@ def lyapunov_exponents(
     Q, _ = np.linalg.qr(np.random.default_rng(seed).normal(size=(dimension, n)))
     Q = jnp.asarray(Q)
     for _ in range(max(count // 10, 1)):  # the tangents turned towards the leading directions
-        y, Q, log_r, run_status = _segment(model, V, y, Q, **settings)
-        if int(run_status) != StopReason.COMPLETED or not np.all(np.isfinite(log_r)):
-            return stopped(int(run_status) or StopReason.NONFINITE, 0.0)
+        y, Q, log_r, run_status, disagreement = _segment(model, V, y, Q, **settings)
+        if (problem := trouble(run_status, log_r, disagreement)) is not None:
+            return stopped(problem[0], 0.0, problem[1])
     growth = np.zeros((count, n))
-    status, done = StopReason.COMPLETED, count
+    status, done, why = StopReason.COMPLETED, count, ""
     for k in range(count):
-        y_next, Q_next, log_r, run_status = _segment(model, V, y, Q, **settings)
-        if int(run_status) != StopReason.COMPLETED or not np.all(np.isfinite(log_r)):
-            status = int(run_status) if int(run_status) != StopReason.COMPLETED else StopReason.NONFINITE
-            done = k
+        y_next, Q_next, log_r, run_status, disagreement = _segment(model, V, y, Q, **settings)
+        if (problem := trouble(run_status, log_r, disagreement)) is not None:
+            (status, why), done = problem, k
             break
         growth[k] = np.asarray(log_r) / segment
         y, Q = y_next, Q_next
@@ -265,5 +300,5 @@ def lyapunov_exponents(
     return LyapunovExponents(
         exponents=jnp.asarray(exponents), standard_error=jnp.asarray(standard_error), history=jnp.asarray(history),
         t=jnp.asarray(segment * np.arange(1, done + 1)), V=float(V), segment=float(segment),
-        t_transient=float(t_transient), status=int(status), stopped_at=math.nan if done == count else segment * done,
+        t_transient=float(t_transient), status=int(status), stopped_at=math.nan if done == count else segment * done, why=why,
     )  # fmt: skip

@@ -72,3 +72,14 @@ def test_a_stopped_transient_says_where_and_why():
     assert result.status == pj.StopReason.MAX_STEPS and result.stopped_at < 0
     assert np.all(np.isnan(np.asarray(result.exponents))) and result.history.shape == (0, 2)
     assert result.message.startswith("the transient stopped at t = ")
+
+
+@pytest.mark.slow
+def test_a_tangent_that_leaves_the_flow_stops_the_estimate():
+    """At V = 4.9 a jump at a tangential fold takes the run's tangent to ~1e16 where nearby runs
+    separate ~200-fold (module docstring): the check against a nearby run stops the estimate and
+    says why, instead of reporting λ₁ ≈ 110 1/s."""
+    result = pj.lyapunov_exponents(V=4.9, t_total=10.0)
+    assert result.status == pj.StopReason.COMPLETED and result.stopped_at >= 0
+    assert "a run from a nearby state differ by a factor" in result.message
+    assert result.why and result.history.shape[0] < 20  # stopped before its 20 segments
