@@ -1,6 +1,6 @@
 """Lyapunov exponents of the peeling, through its jumps: Benettin's method on the run's own tangents.
 
-The tangent map of a segment of the run, M_k = ∂y(t_k + Δ)/∂y(t_k), is the forward-mode
+The tangent map of a segment of the run, M_k = ∂x(t_k + Δ)/∂x(t_k), is the forward-mode
 derivative of :func:`peeljax.simulate` with respect to its initial state. Through each jump it
 carries the saltation: the jump time moves by the implicit function theorem on its fold event
 and the state after the jump through the constraint (:mod:`peeljax.integrators.events`) — the
@@ -34,8 +34,9 @@ On a periodic orbit of period T with nontrivial Floquet multipliers μ₁, μ₂
 −21.336, λ₁ = 0.014 ± 0.029, over 100 s; at 0.8 and 2 m/s the pair −2.975, −2.967 and −3.917,
 −3.932 against −2.971 and −3.917.
 
-Each segment checks its leading tangent against a run from a nearby state (10⁻⁶·|x| along it):
-where their growths differ by more than 10×, the estimate stops and says so (``why``). A jump at
+Each segment checks its leading tangent against a run from a nearby state (10⁻⁶·|x| along it;
+one more run per segment): at V = 1.1 m/s their growths agree to 0.13 % at worst over 60
+segments (median 4·10⁻⁴ %); where they differ by more than 10×, the estimate stops and says so (``why``). A jump at
 a tangential fold (ġ → 0 at the jump: the slip ends just as G turns) is where the run's
 derivative leaves the flow's: at V = 4.9 m/s, from the state 10 s after the paper's start, the
 first jump (t = 0.1044 s, ġ = −3·10⁻⁵ against 15 N/s 10 ms before) takes the tangent map's
@@ -66,7 +67,7 @@ from .solution import StopReason
 __all__ = ["LyapunovExponents", "lyapunov_exponents"]
 
 _BATCHES = 10  # batch means for the standard error
-_CHECK_STEP = 1e-6  # the nearby run's distance, relative to |x| (the runs' rtol 1e-8: FD error ~1 %)
+_CHECK_STEP = 1e-6  # the nearby run's distance, relative to |x| (V = 1.1: the growths agree to 0.13 % at worst)
 _CHECK_FACTOR = 10.0  # the leading tangent's growth and the nearby run's may differ by this factor
 
 
