@@ -127,7 +127,7 @@ class LyapunovExponents(eqx.Module):
 @eqx.filter_jit
 def _segment(model, V, y, Q, *, duration: float, rtol: float, atol: float, max_steps: int):
     """One segment: the state after ``duration``, the tangents Q carried and orthonormalized
-    again (Q_k, log diag R_k) and the run's status."""
+    again (Q_k), the run's status, log diag R_k and the check's |log(growth ratio)|."""
     d = Q.shape[0]
 
     def run(x):
@@ -149,7 +149,7 @@ def _segment(model, V, y, Q, *, duration: float, rtol: float, atol: float, max_s
     disagreement = jnp.abs(jnp.log(separated / jnp.linalg.norm(pushed[:, 0])))
     Q_new, R = jnp.linalg.qr(pushed)
     signs = jnp.where(jnp.diagonal(R) < 0, -1.0, 1.0)
-    return y_end, Q_new * signs, jnp.log(jnp.abs(jnp.diagonal(R))), status, disagreement
+    return y_end, Q_new * signs, status, jnp.log(jnp.abs(jnp.diagonal(R))), disagreement
 
 
 def _is_steady(model, V, y, settings) -> bool:
@@ -232,11 +232,11 @@ def lyapunov_exponents(
         raise ValueError(f"segment must lie in (0, t_total] = (0, {t_total:g}], got {segment:g}")
     count = round(t_total / segment)
 
-    def stopped(status: int, at: float, why: str = "") -> LyapunovExponents:  # before any growth was counted
+    def stopped(status: int, at: float) -> LyapunovExponents:  # the transient stopped
         nan = jnp.full(n, jnp.nan)
         return LyapunovExponents(
             exponents=nan, standard_error=nan, history=jnp.zeros((0, n)), t=jnp.zeros(0), V=float(V),
-            segment=float(segment), t_transient=float(t_transient), status=status, stopped_at=at, why=why,
+            segment=float(segment), t_transient=float(t_transient), status=status, stopped_at=at,
         )  # fmt: skip
 
     def trouble(run_status, log_r, disagreement) -> tuple[int, str] | None:
@@ -274,20 +274,20 @@ def lyapunov_exponents(
         )  # fmt: skip
     Q, _ = np.linalg.qr(np.random.default_rng(seed).normal(size=(dimension, n)))
     Q = jnp.asarray(Q)
-    for _ in range(max(count // 10, 1)):  # the tangents turned towards the leading directions
-        y, Q, log_r, run_status, disagreement = _segment(model, V, y, Q, **settings)
-        if (problem := trouble(run_status, log_r, disagreement)) is not None:
-            return stopped(problem[0], 0.0, problem[1])
+    align = max(count // 10, 1)  # segments that turn the tangents towards the leading directions, not counted
     growth = np.zeros((count, n))
     status, done, why = StopReason.COMPLETED, count, ""
-    for k in range(count):
-        y_next, Q_next, log_r, run_status, disagreement = _segment(model, V, y, Q, **settings)
+    for k in range(-align, count):
+        y_next, Q_next, *checked = _segment(model, V, y, Q, **settings)
+        run_status, log_r, disagreement = jax.device_get(checked)  # one transfer to the host per segment
         if (problem := trouble(run_status, log_r, disagreement)) is not None:
-            (status, why), done = problem, k
+            (status, why), done = problem, max(k, 0)
             break
-        growth[k] = np.asarray(log_r) / segment
         y, Q = y_next, Q_next
-        if progress and (k + 1) % max(count // 10, 1) == 0:
+        if k < 0:
+            continue
+        growth[k] = log_r / segment
+        if progress and (k + 1) % align == 0:
             print(f"lyapunov_exponents: {k + 1}/{count} segments, λ = {growth[: k + 1].mean(axis=0)}", file=sys.stderr)
     growth = growth[:done]
     steps = np.arange(1, done + 1)[:, None]
