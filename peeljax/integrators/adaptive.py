@@ -91,6 +91,7 @@ class _Carry(eqx.Module):
     # where the branch began: where a tangential fold's time is differentiated (events module).
     reference: Array
     reference_t: Array  # its time
+    reference_far: Array  # τ = 0 in pseudo-time: the latest _FAR_REFERENCE × deeper
     reference_drive: Array  # its F̃·f (the homogenized ODE's impasse reference)
     g_scale: Array
     cut_steps: Array  # rejected attempts over a fold whose retry was cut at the fold
@@ -115,15 +116,16 @@ _GRAZING = 10.0
 # (events.impasse_path): v is monotone from there to the impasse, and the steps' sensitivities
 # are still resolved there (closer to the impasse they are not: v̇ ~ 1/J_t).
 _IMPASSE_REFERENCE_DEPTH = 0.1
-# In pseudo-time the tangents stay resolved much closer to a tangential fold, and the
-# reference's tangents are carried to the fold by f·dt* alone: the closer the better, down to
-# where the fold distance is no longer resolved by the run (~rtol). So the depth is this × rtol.
-# Measured (d/dV of y(0.3 s) and the first 6 jump times, V = 1.1, against Richardson-extrapolated
-# central differences of rtol-1e-11 runs; worst relative error): rtol 1e-6: depth 1e-8 4.9e-4,
-# 1e-9 and 1e-10 2.0e-4 (the run's own error), 1e-12 4.9e-2; rtol 1e-8: 1e-8 5.4e-4, 1e-10
-# 3.2e-5, 1e-11 2.5e-5, 1e-12 6.9e-4; rtol 1e-9: 1e-8 3.3e-4, 1e-10 4.0e-5, 1e-11 1.1e-5,
-# 1e-12 4.0e-6, 1e-14 2.7e-5 (tangential_fold).
-_PSEUDO_TIME_REFERENCE_DEPTH_PER_RTOL = 1e-3
+# A tangential fold in pseudo-time takes its derivatives from two reference states, the latest
+# with g ≤ −depth·max(|g₀|, |φ at the folds|) (g₀ where the branch began) and the latest 16×
+# deeper (desingularized.tangential_fold), depth = max(1e-7, 0.1·rtol). Closer to the fold the
+# steps no longer resolve the tangent of v; farther, the linearization errs (in proportion to the
+# time to the fold: the two estimates are extrapolated to zero). Measured in
+# tests/test_jump_gradients.py and CHANGELOG 0.x "Fixed" (V = 4.9: from 1e-3·rtol deep, d/dc1 of
+# a jump time 5.7e7 off at rtol 1e-6, 0.22 at 1e-8).
+_PSEUDO_TIME_REFERENCE_DEPTH = 1e-7
+_PSEUDO_TIME_REFERENCE_DEPTH_PER_RTOL = 0.1
+_FAR_REFERENCE = 16.0
 # A retry cut at a fold ends this fraction of the step past the fold (the located root is
 # that of a rejected, inexact step): the accepted step then crosses it, and the fold is
 # located on that step's interpolant.
@@ -276,18 +278,23 @@ def adaptive_loop(
         def reference_event(y):
             return jax.lax.stop_gradient(_stop_gradient(base).fold_distance(jax.lax.stop_gradient(from_log(y, stepper.carried_log))))
 
-        def tangential(y_fold, y_ref):
+        def tangential(y_fold, y_ref, y_far):
             to = functools.partial(from_log, log_components=stepper.carried_log)
-            is_tangential, y = tangential_fold(base, to(y_fold), to(y_ref))
+            is_tangential, y = tangential_fold(base, to(y_fold), to(y_ref), to(y_far))
             return jnp.where(jax.lax.stop_gradient(is_tangential), to_log(y, stepper.carried_log), y_fold)
 
-        reference_depth = _PSEUDO_TIME_REFERENCE_DEPTH_PER_RTOL * controller.rtol
+        reference_depth = jnp.maximum(_PSEUDO_TIME_REFERENCE_DEPTH, _PSEUDO_TIME_REFERENCE_DEPTH_PER_RTOL * controller.rtol)
+        # A branch that begins close to its fold (|g| ≪ φ) would put the reference where the
+        # pseudo-time tangents are no longer resolved: the depth is measured against φ at the folds too.
+        folds = jax.lax.stop_gradient(base.folds)
+        depth_floor = 0.0 if folds is None else jnp.nan_to_num(jnp.maximum(jnp.abs(folds.phi_max), jnp.abs(folds.phi_min)))
     else:
 
         def reference_event(y):
             return fold_event(ode, y)
 
         reference_depth = _REFERENCE_DEPTH
+        depth_floor = 0.0
     increment_mask = log_mask(n, (time_index,)) if timed else None
     if dt0 is None:
         h0 = _initial_step(stepper, controller, _stop_gradient(ode), jax.lax.stop_gradient(state0.y), is_log, span)
@@ -314,6 +321,7 @@ def adaptive_loop(
         jumps=None if events is None else events.empty_record(),
         reference=state0.y,
         reference_t=t0,
+        reference_far=state0.y,
         reference_drive=state0.drive,
         g_scale=jnp.zeros(()) if events is None else jnp.abs(reference_event(state0.y)),
         cut_steps=zero,
@@ -404,7 +412,7 @@ def adaptive_loop(
             )  # fmt: skip
             if timed:  # a tangential fold's derivatives from the reference state (tangential_fold)
                 fold = eqx.tree_at(
-                    lambda f: f.y, fold, jax.lax.cond(fold.hit, lambda: tangential(fold.y, c.reference), lambda: fold.y)
+                    lambda f: f.y, fold, jax.lax.cond(fold.hit, lambda: tangential(fold.y, c.reference, c.reference_far), lambda: fold.y)
                 )
             new, t_new, g, jumps, fold_status, step_end = _at_fold(
                 events, ode, stepper, fold, new, t_new, g_new, c.jumps, clock
@@ -448,6 +456,7 @@ def adaptive_loop(
         kept = eqx.tree_at(lambda s: s.status, kept, status.astype(jnp.int32))
         h_taken = jax.lax.stop_gradient(h)
         misses = (c.miss, c.miss_t, c.peak, c.peak_t, c.grazed_t)
+        deeper_far = jnp.asarray(False)
         if events is None:
             deeper = jnp.asarray(False)
         else:
@@ -457,7 +466,9 @@ def adaptive_loop(
                 turned = kept.drive * c.reference_drive <= 0
                 deeper = advance & ((event <= -_IMPASSE_REFERENCE_DEPTH * g_scale) | turned)
             else:
-                deeper = advance & (event <= -reference_depth * g_scale)
+                depth = reference_depth * jnp.maximum(g_scale, depth_floor)
+                deeper = advance & (event <= -depth)
+                deeper_far = advance & (event <= -_FAR_REFERENCE * depth) if timed else deeper_far
                 t_kept = jax.lax.stop_gradient(clock(t_new, kept.y))
                 misses = _near_miss(misses, event, t_kept, advance & ~restarted, restarted, g_scale, controller.rtol)
         miss, miss_t, peak, peak_t, grazed_t = misses
@@ -478,6 +489,7 @@ def adaptive_loop(
             jumps=jumps,
             reference=c.reference if events is None else jnp.where(deeper, kept.y, c.reference),
             reference_t=jnp.where(deeper, jnp.where(advance, t_new, c.t), c.reference_t),
+            reference_far=jnp.where(deeper_far, kept.y, c.reference_far),
             reference_drive=jnp.where(deeper, kept.drive, c.reference_drive),
             g_scale=g_scale,
             cut_steps=c.cut_steps + cut,
