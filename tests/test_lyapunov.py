@@ -76,9 +76,9 @@ def test_a_stopped_transient_says_where_and_why():
 
 @pytest.mark.slow
 def test_a_tangent_that_leaves_the_flow_stops_the_estimate():
-    """At V = 4.9 a jump at a tangential fold takes the run's tangent to ~1e16 where nearby runs
-    separate ~200-fold (module docstring): the check against a nearby run stops the estimate and
-    says why, instead of reporting λ₁ ≈ 110 1/s."""
+    """At V = 4.9 the run's leading tangent and a nearby run part in the first segment (16.7×;
+    before the two-reference tangential folds, 1e16 against ~200): the check stops the estimate
+    and says why."""
     result = pj.lyapunov_exponents(V=4.9, t_total=10.0)
     assert result.status == pj.StopReason.COMPLETED and result.stopped_at >= 0
     assert "a run from a nearby state differ by a factor" in result.message
