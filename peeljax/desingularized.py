@@ -273,8 +273,8 @@ def tangential_fold(
     near_sigma = jax.lax.stop_gradient(y_fold[index] - y_ref[index])
     far_sigma = jax.lax.stop_gradient(y_fold[index] - y_far[index])
     apart = tangential & far_tangential & (near_sigma > 0) & (far_sigma > 2.0 * near_sigma)
-    weight = jnp.where(apart, near_sigma / jnp.where(apart, far_sigma - near_sigma, 1.0), 0.0)
-    return tangential, y + weight * (y - far)  # (the values of y and far are y_fold's)
+    weight = near_sigma / jnp.where(apart, far_sigma - near_sigma, 1.0)
+    return tangential, jnp.where(apart, y + weight * (y - far), y)  # (the values of y and far are y_fold's)
 
 
 def _from_reference(ode: DesingularizedDAE, y_fold: Float[Array, "5"], y_ref: Float[Array, "5"]):
