@@ -265,35 +265,33 @@ def tangential_fold(
 
     Tangential: ġ at the fold below half the mean rate since the reference.
     """
-    tangential, y = _from_reference(ode, y_fold, y_ref)
-    if y_far is None:
-        return tangential, y
-    far_tangential, far = _from_reference(ode, y_fold, y_far)
-    index = ode.time_index
-    near_sigma = jax.lax.stop_gradient(y_fold[index] - y_ref[index])
-    far_sigma = jax.lax.stop_gradient(y_fold[index] - y_far[index])
-    apart = tangential & far_tangential & (near_sigma > 0) & (far_sigma > 2.0 * near_sigma)
-    weight = near_sigma / jnp.where(apart, far_sigma - near_sigma, 1.0)
-    return tangential, jnp.where(apart, y + weight * (y - far), y)  # (the values of y and far are y_fold's)
-
-
-def _from_reference(ode: DesingularizedDAE, y_fold: Float[Array, "5"], y_ref: Float[Array, "5"]):
-    """:func:`tangential_fold` from one reference state."""
     sg = jax.lax.stop_gradient
     index = ode.time_index
-    ref = ode.complete(y_ref)
     slip = branch_of(sg(y_fold[3]), ode.folds) == 1
     sign = jnp.where(slip, -1.0, 1.0)
-    g_ref = ode.fold_distance(ref)
-    rate_ref = sg(sign * ode.evaluate(ref).drive)
     rate_fold = sg(sign * ode.evaluate(y_fold).drive)
-    elapsed = sg(y_fold[index] - ref[index])
-    mean_rate = sg(-g_ref) / jnp.where(elapsed > 0, elapsed, 1.0)
-    tangential = (elapsed > 0) & (rate_ref > 0) & (rate_fold < 0.5 * mean_rate)
-    dt_star = _tangent(ref[index]) - _tangent(g_ref) / jnp.where(rate_ref > 0, rate_ref, 1.0)
-    dx_ref = _tangent(ref[:3]) - ode.velocity_field(sg(ref)) * _tangent(ref[index])
-    x = sg(y_fold[:3]) + dx_ref + ode.velocity_field(sg(y_fold)) * dt_star
+    f_fold = ode.velocity_field(sg(y_fold))
+
+    def from_reference(y_ref):  # (tangential, dt*, dx* (both tangents only), σ)
+        ref = ode.complete(y_ref)
+        g_ref = ode.fold_distance(ref)
+        rate_ref = sg(sign * ode.evaluate(ref).drive)
+        sigma = sg(y_fold[index] - ref[index])
+        mean_rate = sg(-g_ref) / jnp.where(sigma > 0, sigma, 1.0)
+        tangential = (sigma > 0) & (rate_ref > 0) & (rate_fold < 0.5 * mean_rate)
+        dt_star = _tangent(ref[index]) - _tangent(g_ref) / jnp.where(rate_ref > 0, rate_ref, 1.0)
+        dx_ref = _tangent(ref[:3]) - ode.velocity_field(sg(ref)) * _tangent(ref[index])
+        return tangential, dt_star, dx_ref + f_fold * dt_star, sigma
+
+    tangential, dt_star, dx_star, sigma = from_reference(y_ref)
+    if y_far is not None:
+        far_tangential, far_dt, far_dx, far_sigma = from_reference(y_far)
+        apart = tangential & far_tangential & (sigma > 0) & (far_sigma > 2.0 * sigma)
+        weight = sigma / jnp.where(apart, far_sigma - sigma, 1.0)
+        dt_star = jnp.where(apart, dt_star + weight * (dt_star - far_dt), dt_star)
+        dx_star = jnp.where(apart, dx_star + weight * (dx_star - far_dx), dx_star)
     v_fold = jnp.where(slip, ode.folds.v_min, ode.folds.v_max)
+    x = sg(y_fold[:3]) + dx_star
     v = sg(y_fold[3]) + _tangent(v_fold)
     t = sg(y_fold[index]) + dt_star
     return tangential, jnp.concatenate([x, jnp.stack([v, t])])
