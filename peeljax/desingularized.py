@@ -283,9 +283,14 @@ def tangential_fold(
         dx_ref = _tangent(ref[:3]) - ode.velocity_field(sg(ref)) * _tangent(ref[index])
         return tangential, dt_star, dx_ref + f_fold * dt_star, sigma
 
-    tangential, dt_star, dx_star, sigma = from_reference(y_ref)
-    if y_far is not None:
-        far_tangential, far_dt, far_dx, far_sigma = from_reference(y_far)
+    if y_far is None:
+        tangential, dt_star, dx_star, sigma = from_reference(y_ref)
+    else:  # (one trace for both: the loop's program compiles as with one reference)
+        both = jax.vmap(from_reference)(jnp.stack([y_ref, y_far]))
+        (tangential, dt_star, dx_star, sigma), (far_tangential, far_dt, far_dx, far_sigma) = (
+            jax.tree_util.tree_map(lambda a: a[0], both),
+            jax.tree_util.tree_map(lambda a: a[1], both),
+        )
         apart = tangential & far_tangential & (sigma > 0) & (far_sigma > 2.0 * sigma)
         weight = sigma / jnp.where(apart, far_sigma - sigma, 1.0)
         dt_star = jnp.where(apart, dt_star + weight * (dt_star - far_dt), dt_star)
