@@ -121,7 +121,7 @@ _IMPASSE_REFERENCE_DEPTH = 0.1
 # deeper (desingularized.tangential_fold), depth = max(1e-7, 0.1·rtol). Closer to the fold the
 # steps no longer resolve the tangent of v; farther, the linearization errs (in proportion to the
 # time to the fold: the two estimates are extrapolated to zero). Measured in
-# tests/test_jump_gradients.py and CHANGELOG 0.x "Fixed" (V = 4.9: from 1e-3·rtol deep, d/dc1 of
+# tests/test_jump_gradients.py and CHANGELOG [Unreleased] "Fixed" (V = 4.9: from 1e-3·rtol deep, d/dc1 of
 # a jump time 5.7e7 off at rtol 1e-6, 0.22 at 1e-8).
 _PSEUDO_TIME_REFERENCE_DEPTH = 1e-7
 _PSEUDO_TIME_REFERENCE_DEPTH_PER_RTOL = 0.1
