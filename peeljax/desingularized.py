@@ -239,10 +239,10 @@ def _tangent(a: Array) -> Array:
 
 
 def tangential_fold(
-    ode: DesingularizedDAE, y_fold: Float[Array, "5"], y_ref: Float[Array, "5"], y_far: Float[Array, "5"] | None = None
+    ode: DesingularizedDAE, y_fold: Float[Array, "5"], y_ref: Float[Array, "5"], y_far: Float[Array, "5"]
 ):
     """(Whether the fold at ``y_fold`` is reached tangentially, ``y_fold`` with the derivatives
-    of a tangential fold taken from ``y_ref``, and from ``y_far`` where given.)
+    of a tangential fold taken from the reference states ``y_ref`` and ``y_far``.)
 
     At a tangential fold (G reaches φ's extremum with Ġ → 0: a folded singularity, the paper's
     first slip from its slow creep) the pseudo-time field (Ġ, ∂φ/∂v)/N is a ratio of two
@@ -283,18 +283,13 @@ def tangential_fold(
         dx_ref = _tangent(ref[:3]) - ode.velocity_field(sg(ref)) * _tangent(ref[index])
         return tangential, dt_star, dx_ref + f_fold * dt_star, sigma
 
-    if y_far is None:
-        tangential, dt_star, dx_star, sigma = from_reference(y_ref)
-    else:  # (one trace for both: the loop's program compiles as with one reference)
-        both = jax.vmap(from_reference)(jnp.stack([y_ref, y_far]))
-        (tangential, dt_star, dx_star, sigma), (far_tangential, far_dt, far_dx, far_sigma) = (
-            jax.tree_util.tree_map(lambda a: a[0], both),
-            jax.tree_util.tree_map(lambda a: a[1], both),
-        )
-        apart = tangential & far_tangential & (sigma > 0) & (far_sigma > 2.0 * sigma)
-        weight = sigma / jnp.where(apart, far_sigma - sigma, 1.0)
-        dt_star = jnp.where(apart, dt_star + weight * (dt_star - far_dt), dt_star)
-        dx_star = jnp.where(apart, dx_star + weight * (dx_star - far_dx), dx_star)
+    # (one trace for both references: the loop's program compiles as with one)
+    tangential, dt_star, dx_star, sigma = jax.vmap(from_reference)(jnp.stack([y_ref, y_far]))
+    apart = tangential[0] & tangential[1] & (sigma[0] > 0) & (sigma[1] > 2.0 * sigma[0])
+    weight = sigma[0] / jnp.where(apart, sigma[1] - sigma[0], 1.0)
+    dt_star = jnp.where(apart, dt_star[0] + weight * (dt_star[0] - dt_star[1]), dt_star[0])
+    dx_star = jnp.where(apart, dx_star[0] + weight * (dx_star[0] - dx_star[1]), dx_star[0])
+    tangential = tangential[0]
     v_fold = jnp.where(slip, ode.folds.v_min, ode.folds.v_max)
     x = sg(y_fold[:3]) + dx_star
     v = sg(y_fold[3]) + _tangent(v_fold)

@@ -91,7 +91,7 @@ class _Carry(eqx.Module):
     # where the branch began: where a tangential fold's time is differentiated (events module).
     reference: Array
     reference_t: Array  # its time
-    reference_far: Array  # τ = 0 in pseudo-time: the latest _FAR_REFERENCE × deeper
+    reference_far: Array | None  # τ = 0 in pseudo-time (else None): the latest _FAR_REFERENCE × deeper
     reference_drive: Array  # its F̃·f (the homogenized ODE's impasse reference)
     g_scale: Array
     cut_steps: Array  # rejected attempts over a fold whose retry was cut at the fold
@@ -321,7 +321,7 @@ def adaptive_loop(
         jumps=None if events is None else events.empty_record(),
         reference=state0.y,
         reference_t=t0,
-        reference_far=state0.y,
+        reference_far=state0.y if timed else None,
         reference_drive=state0.drive,
         g_scale=jnp.zeros(()) if events is None else jnp.abs(reference_event(state0.y)),
         cut_steps=zero,
@@ -468,7 +468,8 @@ def adaptive_loop(
             else:
                 depth = reference_depth * jnp.maximum(g_scale, depth_floor)
                 deeper = advance & (event <= -depth)
-                deeper_far = advance & (event <= -_FAR_REFERENCE * depth) if timed else deeper_far
+                if timed:
+                    deeper_far = advance & (event <= -_FAR_REFERENCE * depth)
                 t_kept = jax.lax.stop_gradient(clock(t_new, kept.y))
                 misses = _near_miss(misses, event, t_kept, advance & ~restarted, restarted, g_scale, controller.rtol)
         miss, miss_t, peak, peak_t, grazed_t = misses
@@ -489,7 +490,7 @@ def adaptive_loop(
             jumps=jumps,
             reference=c.reference if events is None else jnp.where(deeper, kept.y, c.reference),
             reference_t=jnp.where(deeper, jnp.where(advance, t_new, c.t), c.reference_t),
-            reference_far=jnp.where(deeper_far, kept.y, c.reference_far),
+            reference_far=jnp.where(deeper_far, kept.y, c.reference_far) if timed else None,
             reference_drive=jnp.where(deeper, kept.drive, c.reference_drive),
             g_scale=g_scale,
             cut_steps=c.cut_steps + cut,
