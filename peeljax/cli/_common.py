@@ -262,6 +262,13 @@ def plot_formats() -> set[str]:
     return set(FigureCanvasAgg(Figure()).get_supported_filetypes())
 
 
+def library_default(function, name: str):
+    """The default of ``function``'s parameter ``name``: the command line's default, never restated."""
+    import inspect
+
+    return inspect.signature(function).parameters[name].default
+
+
 def checked(allowed: str, check, *args):
     """Run a library check; add the allowed range where its message lacks one (e.g. "must be finite")."""
     try:

@@ -20,7 +20,7 @@ from ..model import PeelingModel
 from ..orbits.api import ATOL_PER_RTOL, DEFAULT_ORBIT_RTOL, DEFAULT_TRANSIENT_RUN
 from . import _interrupt, options
 from .._files import json_safe
-from ._common import ASCII, PROG, Elapsed, checked, fail, write_failed
+from ._common import ASCII, PROG, Elapsed, checked, fail, library_default, write_failed
 
 __all__ = ["EXIT_NOT_CONVERGED", "OrbitConfig", "add_command", "validate_orbit"]
 
@@ -28,7 +28,7 @@ EXIT_NOT_CONVERGED = 1
 _MORE_ASCII = str.maketrans({"−": "-", "λ": "lambda", "≤": "<="})  # beside _common.ASCII: the orbits' messages
 MAX_ITERATIONS_LIMIT = 1000  # Newton's cap: a typo must not run for hours
 MAX_SLIPS = 1000  # k: each Newton iteration runs k slips (a typo must not run for hours)
-_DEFAULT_MAX_ITERATIONS = 20
+MAX_SEEDS = 2000  # seed runs of a diagram: a typo must not run for days
 _STATISTICS_WORDS = (
     ("F_mean", "F_mean", "N", 1.0),
     ("F_slip", "F_slip", "N", 1.0),
@@ -38,8 +38,11 @@ _STATISTICS_WORDS = (
 )
 
 
-MAX_SEEDS = 2000  # seed runs of a diagram: a typo must not run for days
-_DEFAULT_SEEDS = 52
+def _defaults() -> tuple[int, int]:
+    """Newton's iteration cap and a diagram's seed runs: the library's defaults."""
+    from ..orbits import orbit_diagram, periodic_orbit
+
+    return library_default(periodic_orbit, "max_iterations"), library_default(orbit_diagram, "seeds")
 
 
 def _one_V(token: str) -> float | tuple:
@@ -50,7 +53,7 @@ def _one_V(token: str) -> float | tuple:
     if len(parts) not in (2, 3):
         raise argparse.ArgumentTypeError(f"{token!r}: give one V, or START:STOP or START:STOP:SEEDS")
     lo, hi = (options.number("--V")(part) for part in parts[:2])
-    seeds = _DEFAULT_SEEDS
+    seeds = _defaults()[1]
     if len(parts) == 3:
         try:
             seeds = int(parts[2])
@@ -60,6 +63,7 @@ def _one_V(token: str) -> float | tuple:
 
 
 def add_command(subparsers) -> None:
+    max_iterations, seeds = _defaults()
     parser = subparsers.add_parser(
         "orbit",
         help="find the periodic stick-slip orbit at one V: period, stability, statistics",
@@ -77,7 +81,7 @@ def add_command(subparsers) -> None:
     problem.add_argument(
         "--V", type=_one_V, default=1.1, metavar="V|START:STOP[:SEEDS]",
         help="pull velocity [m/s], > 0 (default 1.1); or a range START:STOP: the bifurcation diagram over it — "
-        f"seed runs at SEEDS equally spaced V (default {_DEFAULT_SEEDS}) from the tape at rest and from steady "
+        f"seed runs at SEEDS equally spaced V (default {seeds}) from the tape at rest and from steady "
         "peeling, each repeat's orbit continued over V, every bifurcation located and the branch beyond it traced",
     )  # fmt: skip
     options.add_geometry_and_phi(problem)
@@ -93,8 +97,8 @@ def add_command(subparsers) -> None:
         f"shows the repeat (k, T and the state at its last slip) that Newton starts from (default {DEFAULT_TRANSIENT_RUN:g})",
     )  # fmt: skip
     shooting.add_argument(
-        "--max-iterations", dest="max_iterations", type=int, default=_DEFAULT_MAX_ITERATIONS, metavar="N",
-        help=f"Newton's iteration cap, an integer in [1, {MAX_ITERATIONS_LIMIT}] (default {_DEFAULT_MAX_ITERATIONS})",
+        "--max-iterations", dest="max_iterations", type=int, default=max_iterations, metavar="N",
+        help=f"Newton's iteration cap, an integer in [1, {MAX_ITERATIONS_LIMIT}] (default {max_iterations})",
     )  # fmt: skip
     options.add_tolerances(
         shooting, rtol_default=f"{DEFAULT_ORBIT_RTOL:g}", atol_default=f"{ATOL_PER_RTOL:g}*rtol",
@@ -116,10 +120,11 @@ def add_command(subparsers) -> None:
 # ---------------------------------------------------------------------------- validation
 @dataclass(frozen=True)
 class OrbitConfig:
-    """A validated ``peeljax orbit``: what :func:`peeljax.periodic_orbit` and the writers need."""
+    """A validated ``peeljax orbit``: what :func:`peeljax.periodic_orbit` (or, with ``V_range``,
+    :func:`peeljax.orbits.orbit_diagram`) and the writers need; the commands read nothing else."""
 
     model: PeelingModel
-    V: float
+    V: float  # the one V, or a diagram's STOP
     slips: int | None
     transient: float
     rtol: float
@@ -127,6 +132,11 @@ class OrbitConfig:
     max_iterations: int
     phi: str | None
     phi_defaults: tuple[str, ...] | None
+    V_range: tuple[float, float, int] | None = None  # a diagram's START, STOP and SEEDS
+    out: str | None = None
+    plot: str | None = None
+    json: bool = False
+    progress: bool = True
 
     def settings(self) -> dict:
         """How the orbit is found, as the ``--out`` file and ``--json`` keep it."""
@@ -137,26 +147,26 @@ class OrbitConfig:
 
 
 def validate_orbit(args: argparse.Namespace) -> OrbitConfig:
-    """Every option checked in plain Python, before anything compiles.
+    """Every option checked in plain Python, before anything compiles (V once: a diagram's
+    START, the rest as for one V).
 
     Raises:
         ValueError: naming the option and its allowed range.
     """
-    if isinstance(args.V, tuple):
-        lo, hi, seeds = args.V
-        checked("(0, inf)", check_positive, "--V", lo)
-        if not lo < hi:
-            raise ValueError(f"--V START:STOP must have 0 < START < STOP, got {lo:g}:{hi:g}")
+    V_range = args.V if isinstance(args.V, tuple) else None
+    V = args.V if V_range is None else V_range[0]
+    checked("(0, inf)", check_positive, "--V", V)
+    if V_range is not None:
+        lo, V, seeds = V_range
+        if not lo < V:
+            raise ValueError(f"--V START:STOP must have 0 < START < STOP, got {lo:g}:{V:g}")
         if not 2 <= seeds <= MAX_SEEDS:
             raise ValueError(f"--V START:STOP:SEEDS: SEEDS must be an integer in [2, {MAX_SEEDS}] (allowed range), got {seeds}")
         if args.slips is not None:
             raise ValueError("--slips applies to one orbit (--V a number); a diagram takes k from each seed run's repeat")
-        args = argparse.Namespace(**{**vars(args), "V": hi})  # the rest is checked as for one V
-    checked("(0, inf)", check_positive, "--V", args.V)
     if args.slips is not None and not 1 <= args.slips <= MAX_SLIPS:
         raise ValueError(f"--slips must be an integer in [1, {MAX_SLIPS}] (allowed range), got {args.slips}")
-    if not (math.isfinite(args.transient) and args.transient > 0):
-        raise ValueError(f"--transient must be finite and > 0 (allowed range: (0, inf)) [s], got {args.transient:g}")
+    checked("(0, inf)", check_positive, "--transient", args.transient)
     if not 1 <= args.max_iterations <= MAX_ITERATIONS_LIMIT:
         raise ValueError(
             f"--max-iterations must be an integer in [1, {MAX_ITERATIONS_LIMIT}] (allowed range), got {args.max_iterations}"
@@ -168,13 +178,14 @@ def validate_orbit(args: argparse.Namespace) -> OrbitConfig:
     model, phi_defaults = options.model_from(args)
     options.check_outputs(args)
     return OrbitConfig(
-        model=model, V=float(args.V), slips=args.slips, transient=float(args.transient), rtol=float(rtol),
+        model=model, V=float(V), slips=args.slips, transient=float(args.transient), rtol=float(rtol),
         atol=float(atol), max_iterations=int(args.max_iterations), phi=args.phi, phi_defaults=phi_defaults,
+        V_range=V_range, out=args.out, plot=args.plot, json=args.json, progress=options.progress_on(args),
     )  # fmt: skip
 
 
 # ---------------------------------------------------------------------------- the command
-def _record(orbit, config: OrbitConfig, wall: float, args: argparse.Namespace) -> dict:
+def _record(orbit, config: OrbitConfig, wall: float) -> dict:
     """The ``--json`` object: the orbit (:meth:`~peeljax.PeriodicOrbit.as_dict`), its test
     functions, how it was found, the wall time and the files written."""
     record = {"command": "orbit", **orbit.as_dict()}
@@ -182,8 +193,8 @@ def _record(orbit, config: OrbitConfig, wall: float, args: argparse.Namespace) -
     record["settings"] = config.settings()
     record["phi_paper_defaults"] = None if config.phi_defaults is None else list(config.phi_defaults)
     record["wall_time_s"] = wall
-    record["out"] = args.out
-    record["plot"] = args.plot
+    record["out"] = config.out
+    record["plot"] = config.plot
     return record
 
 
@@ -247,8 +258,8 @@ def _orbit_command(args: argparse.Namespace) -> int:
         config = validate_orbit(args)
     except (ValueError, TypeError) as error:
         return fail(error)
-    if isinstance(args.V, tuple):
-        return _diagram_command(args, config)
+    if config.V_range is not None:
+        return _diagram_command(config)
     from ..orbits import OrbitNotFound, periodic_orbit
 
     print(
@@ -258,7 +269,7 @@ def _orbit_command(args: argparse.Namespace) -> int:
     )
     start = time.perf_counter()
     try:
-        with Elapsed(options.progress_on(args), f"orbit at V = {config.V:g} m/s"):
+        with Elapsed(config.progress, f"orbit at V = {config.V:g} m/s"):
             orbit = periodic_orbit(
                 config.model, config.V, slips=config.slips, rtol=config.rtol, atol=config.atol,
                 max_iterations=config.max_iterations, transient=config.transient,
@@ -269,27 +280,27 @@ def _orbit_command(args: argparse.Namespace) -> int:
         return fail(error)
     wall = time.perf_counter() - start
     converged = bool(orbit.converged)
-    record = _record(orbit, config, wall, args)
+    record = _record(orbit, config, wall)
     failed = []  # (option, path, error): the orbit is reported whatever could not be written
-    if args.out is not None:
+    if config.out is not None:
         try:
-            orbit.save(args.out, config.settings())
+            orbit.save(config.out, config.settings())
         except OSError as error:
-            failed.append(("--out", args.out, error))
+            failed.append(("--out", config.out, error))
             record["out"] = None
-    if args.plot is not None:
+    if config.plot is not None:
         if not converged:
             record["plot"] = None
-            print(f"{PROG}: no figure: the orbit did not converge (--plot {args.plot} not written)", file=sys.stderr)
+            print(f"{PROG}: no figure: the orbit did not converge (--plot {config.plot} not written)", file=sys.stderr)
         else:
             from ..plots import plot_orbit  # matplotlib only when a figure is asked for
 
             try:
-                plot_orbit(orbit, path=args.plot)
+                plot_orbit(orbit, path=config.plot)
             except OSError as error:
-                failed.append(("--plot", args.plot, error))
+                failed.append(("--plot", config.plot, error))
                 record["plot"] = None
-    if args.json:
+    if config.json:
         print(json.dumps(json_safe(record), allow_nan=False))
     else:
         text = "\n".join(_summary(record, config)).translate(ASCII).translate(_MORE_ASCII)
@@ -302,7 +313,7 @@ def _orbit_command(args: argparse.Namespace) -> int:
 
 
 # ---------------------------------------------------------------------------- the diagram
-def _diagram_record(diagram, config: OrbitConfig, args: argparse.Namespace) -> dict:
+def _diagram_record(diagram, config: OrbitConfig) -> dict:
     on, periodic = diagram.covered()
     return {
         "command": "orbit",
@@ -318,8 +329,8 @@ def _diagram_record(diagram, config: OrbitConfig, args: argparse.Namespace) -> d
         "seeds": {"runs": len(diagram.seeds), "periodic": periodic, "on_a_branch": on},
         "settings": config.settings(),
         "wall_time_s": diagram.wall_time,
-        "out": args.out,
-        "plot": args.plot,
+        "out": config.out,
+        "plot": config.plot,
     }  # fmt: skip
 
 
@@ -345,46 +356,46 @@ class _KeptSoFar:
         )
 
 
-def _diagram_command(args: argparse.Namespace, config: OrbitConfig) -> int:
+def _diagram_command(config: OrbitConfig) -> int:
     from ..orbits import orbit_diagram
 
-    lo, hi, seeds = args.V
+    (lo, hi, seeds), out, plot = config.V_range, config.out, config.plot
     print(
         f"{PROG}: the orbit diagram over V in [{lo:g}, {hi:g}] m/s: {seeds} V x 2 starts of {config.transient:g} s "
         "runs, each repeat's orbit continued over V (compiling first: minutes) ...",
         file=sys.stderr,
     )
-    kept = _KeptSoFar(args.out)
+    kept = _KeptSoFar(out)
     with _interrupt.note(kept.describe):
         try:
-            with Elapsed(options.progress_on(args), f"orbit diagram over V in [{lo:g}, {hi:g}] m/s"):
+            with Elapsed(config.progress, f"orbit diagram over V in [{lo:g}, {hi:g}] m/s"):
                 diagram = orbit_diagram(
                     config.model, V=(lo, hi), seeds=seeds, t_final=config.transient, rtol=config.rtol,
-                    progress=options.progress_on(args), on_progress=kept.save if args.out is not None else None,
+                    progress=config.progress, on_progress=kept.save if out is not None else None,
                 )  # fmt: skip
         except ValueError as error:
             return fail(error)
         except OSError as error:  # --out, written as the diagram grows
-            return write_failed("--out", args.out, error, "the diagram was not finished")
+            return write_failed("--out", out, error, "the diagram was not finished")
         except KeyboardInterrupt:
             return _interrupt.interrupted(kept.describe())
-    record = _diagram_record(diagram, config, args)
+    record = _diagram_record(diagram, config)
     failed = []
-    if args.out is not None:
+    if out is not None:
         try:
-            diagram.save(args.out)
+            diagram.save(out)
         except OSError as error:
-            failed.append(("--out", args.out, error))
+            failed.append(("--out", out, error))
             record["out"] = None
-    if args.plot is not None:
+    if plot is not None:
         from ..plots import plot_orbit_diagram
 
         try:
-            plot_orbit_diagram(diagram, path=args.plot)
+            plot_orbit_diagram(diagram, path=plot)
         except OSError as error:
-            failed.append(("--plot", args.plot, error))
+            failed.append(("--plot", plot, error))
             record["plot"] = None
-    if args.json:
+    if config.json:
         print(json.dumps(json_safe(record), allow_nan=False))
     else:
         lines = [str(diagram)]
