@@ -53,6 +53,7 @@ __all__ = [
     "add_V",
     "check_max_jumps",
     "check_max_steps",
+    "check_method",
     "check_outputs",
     "check_positive_values",
     "check_statistics_window",
@@ -227,9 +228,10 @@ def add_tolerances(group, *, rtol_default: str, atol_default: str, note: str = "
     )  # fmt: skip
 
 
-def check_stepper_options(method: str, dt, rho, alpha_methods: tuple[str, ...]) -> None:
-    """A stepper other than the α-method (``method`` not in ``alpha_methods``) runs error control
-    only: no uniform mesh (--dt), no ρ (--rho)."""
+def check_method(method: str, allowed: tuple[str, ...], dt, rho, alpha_methods=("default", "alpha")) -> None:
+    """--method among ``allowed``; a stepper other than the α-method (``method`` not in
+    ``alpha_methods``) runs error control only: no uniform mesh (--dt), no ρ (--rho)."""
+    check_choice("--method", method, allowed)
     if method in alpha_methods:
         return
     if dt is not None:

@@ -205,8 +205,7 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
         ValueError: naming the option and its allowed range.
     """
     check_choice("--geometry", args.geometry, GEOMETRIES)
-    check_choice("--method", args.method, METHODS)
-    _check_method(args)
+    options.check_method(args.method, METHODS, args.dt, args.rho, (*_UNIFORM_METHODS, "diffrax"))
     positive = "(0, inf)"
     checked(positive, check_positive, "--V", args.V)
     _check_tau(args)
@@ -286,12 +285,6 @@ def _check_memory(option: str, rows: int, kind: str, remedy: str) -> None:
         check_run_memory(rows, kind, remedy=remedy)
     except ValueError as error:  # the library's message names max_steps: here it is --max-steps
         raise ValueError(f"{option}: {str(error).replace('max_steps', '--max-steps')}") from None
-
-
-def _check_method(args: argparse.Namespace) -> None:
-    """A stepper other than the α-method runs error control only: no uniform mesh, no ρ (the
-    diffrax reference, ``--method diffrax``, is checked by its own rules)."""
-    options.check_stepper_options(args.method, args.dt, args.rho, (*_UNIFORM_METHODS, "diffrax"))
 
 
 def _without_error_control(args: argparse.Namespace) -> str | None:

@@ -256,16 +256,8 @@ def _rho(args: argparse.Namespace) -> float:
     return 0.0 if args.rho is None else float(args.rho)
 
 
-def _check_method(args: argparse.Namespace) -> None:
-    """--method: "default" or a stepper; one other than the α-method runs error control only (no
-    uniform mesh, no ρ)."""
-    method = getattr(args, "method", "default")
-    check_choice("--method", method, ("default", *STEPPERS))
-    options.check_stepper_options(method, args.dt, args.rho, ("default", "alpha"))
-
-
 def _integrator_options(args: argparse.Namespace) -> dict:
-    _check_method(args)
+    options.check_method(getattr(args, "method", "default"), ("default", *STEPPERS), args.dt, args.rho)
     save_dt = getattr(args, "save_dt", None)
     save_every = getattr(args, "save_every", None)
     if args.dt is not None:
