@@ -42,11 +42,14 @@ from pathlib import Path
 import numpy as np
 
 from .._atomic import write_text
-from .._validation import TAU_MAX, check_mesh, check_positive, check_tau
+from .._validation import TAU_MAX, check_choice, check_mesh, check_positive, check_tau
 from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw
-from ..fit import QUANTITIES, DataFileError, Observation, fit_records, fit_stick_slip, read_force_record
+from ..fit import QUANTITIES, DataFileError, Observation, fit_adhesion, fit_records, fit_stick_slip, read_force_record
+from ..fit.parameters import check_free
 from ..fit.records import check_fit_samples, read_npz
 from ..fit.records import decimate as thin
+from ..fit.table import INTERVALS
+from ..fit.trajectory import OPTIMIZERS
 from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_RTOL
 from . import _interrupt, options
 from .._files import json_safe
@@ -54,11 +57,15 @@ from ._common import ASCII, PROG, check_input_file, checked, fail, load_phi
 
 __all__ = ["add_command", "load_observations"]
 
-OPTIMIZERS = ("adam", "lbfgs")
-TABLE_TRANSIENT = 0.5  # s: fit --table's --transient (its --window defaults to it: the runs' second half)
-_TABLE_DEFAULTS = {name: p.default for name, p in inspect.signature(fit_stick_slip).parameters.items()}
-# the defaults of a fit to force records: the library's, never restated here
-_RECORDS_DEFAULTS = {name: p.default for name, p in inspect.signature(fit_records).parameters.items()}
+
+def _defaults(function) -> dict:
+    """A fit's defaults, read from the library once (tests replace the functions later)."""
+    return {name: p.default for name, p in inspect.signature(function).parameters.items()}
+
+
+_TABLE_DEFAULTS = _defaults(fit_stick_slip)  # --table
+_RECORDS_DEFAULTS = _defaults(fit_records)  # --data force records (t, F)
+_POINTS_DEFAULTS = _defaults(fit_adhesion)  # --data runs with v or alpha, fitted point by point
 
 
 def add_command(subparsers) -> None:
@@ -109,7 +116,7 @@ def add_command(subparsers) -> None:
         atol_default=f"{DEFAULT_ATOL:g}; --table: 1e-12 at tau 0, else 1e-10",
     )  # fmt: skip
     options.add_max_steps(
-        problem, default=f"{DEFAULT_MAX_STEPS} with --data, {_table_default('max_steps')} with --table"
+        problem, default=f"{DEFAULT_MAX_STEPS} with --data, {_TABLE_DEFAULTS['max_steps']} with --table"
     )
     options.add_statistics_window(
         problem, transient="0.5 s with --table, where the model's runs end at T + W: their second half; with "
@@ -148,19 +155,25 @@ def add_command(subparsers) -> None:
         "--statistics", nargs="+", metavar="S", default=None,
         help="--table: the table's statistics to fit (default: all it has)",
     )  # fmt: skip
-    fit.add_argument("--steps", type=int, default=None, help=f"--data: optimizer iterations, >= 1 (default {_STEPS})")
-    fit.add_argument("--optimizer", default=None, metavar="{adam,lbfgs}", help="--data: adam or lbfgs (default adam)")
+    fit.add_argument(
+        "--steps", type=int, default=None, help=f"--data: optimizer iterations, >= 1 (default {_POINTS_DEFAULTS['steps']})"
+    )
+    fit.add_argument(
+        "--optimizer", default=None, metavar="{adam,lbfgs}",
+        help=f"--data: adam or lbfgs (default {_POINTS_DEFAULTS['optimizer']})",
+    )  # fmt: skip
     fit.add_argument(
         "--learning-rate", dest="learning_rate", type=float, default=None,
         help="--data: > 0 (default adam 0.02, lbfgs its line search)",
     )  # fmt: skip
     fit.add_argument(
         "--patience", type=int, default=None,
-        help=f"--data: stop after this many iterations without progress, >= 1 (default {_PATIENCE})",
+        help=f"--data: stop after this many iterations without progress, >= 1 (default {_POINTS_DEFAULTS['patience']})",
     )  # fmt: skip
     fit.add_argument(
         "--max-iterations", dest="max_iterations", type=int, default=None,
-        help="--table: Levenberg-Marquardt iterations at most, >= 1 (default 30)",
+        help=f"--table: Levenberg-Marquardt iterations at most, >= 1 (default {_TABLE_DEFAULTS['max_iterations']}; "
+        f"force records {_RECORDS_DEFAULTS['max_iterations']})",
     )  # fmt: skip
     fit.add_argument(
         "--n-starts", dest="n_starts", type=int, default=None, metavar="N",
@@ -185,10 +198,7 @@ def _V_per_file(paths: list[str], V) -> list[float | None]:
     """--V: one pull velocity for every --data file, or one per file in order (None: not given)."""
     if V is None:
         return [None] * len(paths)
-    values = options.flatten(V) if isinstance(V, (list, tuple)) else [V]
-    for value in values:
-        if not (math.isfinite(value) and value > 0):
-            raise ValueError(f"--V must be > 0 [m/s] (allowed range: (0, inf)), got {value:g}")
+    values = options.check_positive_values("--V", V if isinstance(V, (list, tuple)) else [V])
     if len(values) == 1:
         return values * len(paths)
     if len(values) != len(paths):
@@ -237,7 +247,6 @@ def _files_of(paths: list[str], observations: list[Observation]) -> list[str]:
     return [f"{', '.join(paths)} (the run at V = {o.V:g})" for o in observations]
 
 
-_STEPS, _PATIENCE = 500, 50  # --steps and --patience left out (a point-by-point fit)
 _TABLE_ONLY = ("transient", "window", "n_starts", "starts_deprecated", "max_iterations", "statistics", "method",
                "intervals")
 _DATA_ONLY = ("V", "dt", "t_final", "learning_rate", "quantities", "steps", "optimizer", "patience")
@@ -270,16 +279,6 @@ def _refuse(args: argparse.Namespace, names: tuple[str, ...], source: str) -> No
             raise ValueError(f"{_option(name)} does not apply to {source}{instead}")
 
 
-def force_records_only(observations: list[Observation]) -> bool:
-    """True where no observation has v or α: force records (t, F), what a load cell gives."""
-
-    def has(o, quantity):  # on the arrays as read: no copy of a long record (Observation.series copies)
-        values = getattr(o, quantity)
-        return values is not None and bool(np.isfinite(values).any())
-
-    return all(not has(o, "v") and not has(o, "alpha") and has(o, "F") for o in observations)
-
-
 def any_force_record(observations: list[Observation]) -> bool:
     """True where some observation has F but neither v nor α: a force record (t, F), fitted by
     its statistics or point by point (:func:`peeljax.fit.fit_records`)."""
@@ -291,11 +290,6 @@ def any_force_record(observations: list[Observation]) -> bool:
     return any(not has(o, "v") and not has(o, "alpha") and has(o, "F") for o in observations)
 
 
-def _table_default(name: str):
-    """A default of :func:`peeljax.fit.fit_stick_slip` (the help and the checks state it)."""
-    return _TABLE_DEFAULTS[name]
-
-
 def _table_window(args: argparse.Namespace) -> tuple[float, float]:
     """--transient T and --window W of the table fit: statistics over [T, T + W], the runs end
     at T + W; the same rule as the other commands' (the second half of the run): W defaults
@@ -305,7 +299,7 @@ def _table_window(args: argparse.Namespace) -> tuple[float, float]:
         raise ValueError(f"--window must be > 0 [s] (allowed range: (0, inf)), got {window:g}")
     transient = args.transient
     if transient is None:
-        transient = TABLE_TRANSIENT if window is None else window
+        transient = _TABLE_DEFAULTS["transient"] if window is None else window
     if not (math.isfinite(transient) and transient >= 0):
         raise ValueError(f"--transient must be >= 0 [s] (allowed range: [0, inf)), got {transient:g}")
     if window is None and transient == 0:
@@ -372,20 +366,14 @@ def _validate_table(args: argparse.Namespace, table=None, source: str | None = N
 
     if table is None:
         table, source = _read_table(args), f"the stick-slip table {args.table}"
-    tau = 0.0 if args.tau is None else args.tau
-    if not (math.isfinite(tau) and 0 <= tau <= TAU_MAX):
-        raise ValueError(f"--tau must lie in [0, {TAU_MAX:g}] with a stick-slip table (allowed range), got {tau:g}")
+    tau = _TABLE_DEFAULTS["tau"] if args.tau is None else args.tau
+    checked(f"[0, {TAU_MAX:g}]", check_tau, tau, True)
     transient, window = _table_window(args)
     n_starts = _n_starts(args)
-    max_iterations = 30 if args.max_iterations is None else args.max_iterations
-    if max_iterations < 1:
-        raise ValueError(f"--max-iterations must be >= 1 (allowed range: [1, inf)), got {max_iterations}")
+    max_iterations = _max_iterations(args, _TABLE_DEFAULTS)
     options.check_max_steps(args.max_steps)
     rtol, atol = options.check_tolerances(*table_tolerances(tau, args.rtol, args.atol), (None, None))
-    free = tuple(_TABLE_DEFAULTS["free"]) if args.free is None else tuple(args.free)
-    unknown = [n for n in free if n not in COEFFICIENT_NAMES]
-    if unknown:
-        raise ValueError(f"--free: unknown coefficient(s) {unknown}; allowed: {', '.join(COEFFICIENT_NAMES)}")
+    free = _free(args, _TABLE_DEFAULTS)
     statistics = table.statistics if args.statistics is None else tuple(args.statistics)
     unknown = [s for s in statistics if s not in table.statistics]
     if unknown:
@@ -402,7 +390,7 @@ def _validate_table(args: argparse.Namespace, table=None, source: str | None = N
     method = _choice("--method", args.method, ("orbit", "window"), "orbit" if tau == 0 else "window")
     if method == "orbit" and tau != 0:
         raise ValueError(f"--method orbit needs --tau 0 (orbits of the DAE with jumps); --tau {tau:g} needs --method window")
-    intervals = _choice("--intervals", args.intervals, ("auto", "profile", "linear"), "auto")
+    intervals = _choice("--intervals", args.intervals, INTERVALS, _TABLE_DEFAULTS["intervals"])
     start = AdhesionLaw() if args.phi is None else load_phi(args.phi)
     options.check_outputs(args)
     return {
@@ -416,11 +404,26 @@ def _validate_table(args: argparse.Namespace, table=None, source: str | None = N
 
 
 def _choice(option: str, value, allowed: tuple[str, ...], default: str) -> str:
+    """An option among ``allowed``; ``default`` (the library's) when not given."""
     if value is None:
         return default
-    if value not in allowed:
-        raise ValueError(f"{option} must be one of {', '.join(allowed)}, got {value!r}")
+    check_choice(option, value, allowed)
     return value
+
+
+def _max_iterations(args: argparse.Namespace, defaults: dict) -> int:
+    """--max-iterations >= 1; the fit's own default (``defaults``, the library's) when not given."""
+    n = defaults["max_iterations"] if args.max_iterations is None else args.max_iterations
+    if n < 1:
+        raise ValueError(f"--max-iterations must be >= 1 (allowed range: [1, inf)), got {n}")
+    return int(n)
+
+
+def _free(args: argparse.Namespace, defaults: dict) -> tuple[str, ...]:
+    """--free, checked by the library; the fit's own default (``defaults``) when not given."""
+    free = tuple(defaults["free"]) if args.free is None else tuple(args.free)
+    check_free(free)
+    return free
 
 
 def _validate_records(args: argparse.Namespace, observations: list[Observation], defaults: dict) -> dict:
@@ -455,15 +458,10 @@ def _validate_records(args: argparse.Namespace, observations: list[Observation],
         if unknown:
             raise ValueError(f"--statistics: {unknown} is not a statistic of force records; allowed: {', '.join(STATISTICS)}")
         statistics = tuple(args.statistics)
-    max_iterations = _RECORDS_DEFAULTS["max_iterations"] if args.max_iterations is None else args.max_iterations
-    if max_iterations < 1:
-        raise ValueError(f"--max-iterations must be >= 1 (allowed range: [1, inf)), got {max_iterations}")
-    free = tuple(_RECORDS_DEFAULTS["free"]) if args.free is None else tuple(args.free)
-    unknown = [n for n in free if n not in COEFFICIENT_NAMES]
-    if unknown:
-        raise ValueError(f"--free: unknown coefficient(s) {unknown}; allowed: {', '.join(COEFFICIENT_NAMES)}")
+    max_iterations = _max_iterations(args, _RECORDS_DEFAULTS)
+    free = _free(args, _RECORDS_DEFAULTS)
     rtol, atol = options.check_tolerances(args.rtol, args.atol, (_RECORDS_DEFAULTS["rtol"], _RECORDS_DEFAULTS["atol"]))
-    intervals = _choice("--intervals", args.intervals, ("auto", "profile", "linear"), _RECORDS_DEFAULTS["intervals"])
+    intervals = _choice("--intervals", args.intervals, INTERVALS, _RECORDS_DEFAULTS["intervals"])
     start = AdhesionLaw() if args.phi is None else load_phi(args.phi)
     options.check_outputs(args)
     return {"records": observations, "decided": decided, "by": by, "transient": transient, "tau": float(tau),
@@ -666,51 +664,43 @@ def _ascii(text: str) -> str:
 
 def _check_run_options(args: argparse.Namespace) -> None:
     """The options of a point-by-point fit whose ranges need no data file (checked first)."""
-    if args.optimizer is not None and args.optimizer not in OPTIMIZERS:
-        raise ValueError(f"--optimizer must be one of {', '.join(OPTIMIZERS)}, got {args.optimizer!r}")
-    if args.steps is not None and args.steps < 1:
-        raise ValueError(f"--steps must be >= 1 (allowed range: [1, inf)), got {args.steps}")
-    if args.patience is not None and args.patience < 1:
-        raise ValueError(f"--patience must be >= 1 (allowed range: [1, inf)), got {args.patience}")
+    if args.optimizer is not None:
+        check_choice("--optimizer", args.optimizer, OPTIMIZERS)
+    for option, value in (("--steps", args.steps), ("--patience", args.patience)):
+        if value is not None and value < 1:
+            raise ValueError(f"{option} must be >= 1 (allowed range: [1, inf)), got {value}")
     options.check_max_steps(args.max_steps, None if args.dt is None else "--dt")
     if args.learning_rate is not None:
         checked("(0, inf)", check_positive, "--learning-rate", args.learning_rate)
     if args.free is not None:
-        unknown = [n for n in args.free if n not in COEFFICIENT_NAMES]
-        if unknown:
-            raise ValueError(f"--free: unknown coefficient(s) {unknown}; allowed: {', '.join(COEFFICIENT_NAMES)}")
-    if args.quantities is not None:
-        unknown = [q for q in args.quantities if q not in QUANTITIES]
-        if unknown or "v" not in args.quantities and not args.quantities:
-            raise ValueError(f"--quantities: unknown {unknown}; allowed: {', '.join(QUANTITIES)}")
-
-
-DEFAULT_POINTS_TAU = 0.01  # s: --tau of a fit point by point where neither it nor the files give one
+        check_free(args.free)
+    for quantity in args.quantities or ():
+        check_choice("--quantities", quantity, QUANTITIES)
 
 
 def _points_tau(args: argparse.Namespace, defaults: dict) -> float:
-    """τ of a fit point by point: --tau, else the data files' own (an .npz run's), else 0.01;
-    in (0, 1e6]. Files of DAE runs (τ = 0) take the default too, said on stderr: a fit point by
-    point integrates the homogenized ODE."""
+    """τ of a fit point by point: --tau, else the data files' own (an .npz run's), else the
+    library's; in (0, 1e6]. Files of DAE runs (τ = 0) take the default too, said on stderr: a
+    fit point by point integrates the homogenized ODE."""
+    default = _POINTS_DEFAULTS["tau"]
     if args.tau is None and defaults.get("tau") == 0.0:
         print(
             f"{PROG}: --data: the files hold runs at tau = 0 (the DAE with jumps; a jump's two rows read as the "
-            f"state before it); a fit point by point integrates the homogenized ODE: tau = {DEFAULT_POINTS_TAU:g} "
+            f"state before it); a fit point by point integrates the homogenized ODE: tau = {default:g} "
             "(--tau to choose; 1e-3 is closer to the DAE)",
             file=sys.stderr,
         )
-        return DEFAULT_POINTS_TAU
-    tau = args.tau if args.tau is not None else defaults.get("tau", DEFAULT_POINTS_TAU)
+        return default
+    tau = args.tau if args.tau is not None else defaults.get("tau", default)
     checked(f"(0, {TAU_MAX:g}]", check_tau, tau)
     return tau
 
 
 def _validate(args: argparse.Namespace, observations: list[Observation], defaults: dict) -> dict:
     _refuse(args, _TABLE_ONLY, "--data with v or alpha (a point-by-point fit of the runs)")
-    # left out: their defaults (None until here, so that a table fit can refuse them when given)
-    args.optimizer = args.optimizer or "adam"
-    args.steps = _STEPS if args.steps is None else args.steps
-    args.patience = _PATIENCE if args.patience is None else args.patience
+    for name in ("optimizer", "steps", "patience"):  # None until here, so that a table fit can refuse them
+        if getattr(args, name) is None:
+            setattr(args, name, _POINTS_DEFAULTS[name])
     check_fit_samples(observations, [f"--data {name}" for name in _files_of(args.data, observations)], "--decimate")
     if args.quantities is not None:
         drop = {q: None for q in ("F", "alpha") if q not in args.quantities}

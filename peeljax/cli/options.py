@@ -56,6 +56,7 @@ __all__ = [
     "check_method",
     "check_outputs",
     "check_positive_values",
+    "check_save_dt",
     "check_statistics_window",
     "check_tolerances",
     "deprecated",
@@ -252,6 +253,22 @@ def check_tolerances(rtol: float | None, atol: float | None, defaults: tuple[flo
     check_tolerance("--rtol", rtol, 1.0)
     check_tolerance("--atol", atol)
     return float(rtol), float(atol)
+
+
+MAX_SAVE_TIMES = 10_000_001  # --save-dt: output times per run (a typo must not fill the memory)
+
+
+def check_save_dt(save_dt: float, t_final: float) -> int:
+    """--save-dt S in (0, t_final]; returns the count of output times (0, S, 2S, ... and
+    t_final), at most :data:`MAX_SAVE_TIMES` (counted without making them)."""
+    from ..integrators.dense import output_count
+
+    if not (math.isfinite(save_dt) and 0 < save_dt <= t_final):
+        raise ValueError(f"--save-dt must lie in (0, t_final] = (0, {t_final:g}], got {save_dt:g}")
+    n_save = output_count(save_dt, t_final) if math.isfinite(t_final / save_dt) else math.inf  # inf: a subnormal S
+    if n_save > MAX_SAVE_TIMES:
+        raise ValueError(f"--save-dt {save_dt:g} gives {n_save:.3g} output times per run; the limit is 1e7")
+    return n_save
 
 
 def add_max_steps(group, *, default: str | None = None) -> None:

@@ -17,7 +17,8 @@ from dataclasses import dataclass
 
 from .._validation import check_positive, check_tolerance
 from ..model import PeelingModel
-from ..orbits.api import ATOL_PER_RTOL, DEFAULT_ORBIT_RTOL, DEFAULT_TRANSIENT_RUN
+from ..orbits.api import ATOL_PER_RTOL, DEFAULT_ORBIT_RTOL, DEFAULT_TRANSIENT_RUN, periodic_orbit
+from ..orbits.diagram import orbit_diagram
 from . import _interrupt, options
 from .._files import json_safe
 from ._common import ASCII, PROG, Elapsed, checked, fail, library_default, write_failed
@@ -38,11 +39,9 @@ _STATISTICS_WORDS = (
 )
 
 
-def _defaults() -> tuple[int, int]:
-    """Newton's iteration cap and a diagram's seed runs: the library's defaults."""
-    from ..orbits import orbit_diagram, periodic_orbit
-
-    return library_default(periodic_orbit, "max_iterations"), library_default(orbit_diagram, "seeds")
+# Newton's iteration cap and a diagram's seed runs: the library's defaults
+_MAX_ITERATIONS = library_default(periodic_orbit, "max_iterations")
+_SEEDS = library_default(orbit_diagram, "seeds")
 
 
 def _one_V(token: str) -> float | tuple:
@@ -53,7 +52,7 @@ def _one_V(token: str) -> float | tuple:
     if len(parts) not in (2, 3):
         raise argparse.ArgumentTypeError(f"{token!r}: give one V, or START:STOP or START:STOP:SEEDS")
     lo, hi = (options.number("--V")(part) for part in parts[:2])
-    seeds = _defaults()[1]
+    seeds = _SEEDS
     if len(parts) == 3:
         try:
             seeds = int(parts[2])
@@ -63,7 +62,7 @@ def _one_V(token: str) -> float | tuple:
 
 
 def add_command(subparsers) -> None:
-    max_iterations, seeds = _defaults()
+    max_iterations, seeds = _MAX_ITERATIONS, _SEEDS
     parser = subparsers.add_parser(
         "orbit",
         help="find the periodic stick-slip orbit at one V: period, stability, statistics",

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import inspect
 import json
 import math
 import sys
@@ -23,7 +22,7 @@ from .._validation import (
     check_y0,
 )
 from ..cycles import cycle_statistics
-from ..integrators.dense import output_count, output_times
+from ..integrators.dense import output_times
 from ..integrators.events import check_fold
 from ..integrators.select import DEFAULT_ATOL as _ALPHA_ATOL
 from ..integrators.select import DEFAULT_MAX_JUMPS, resolve_fold, resolve_max_steps
@@ -40,6 +39,7 @@ from ._common import (
     Elapsed,
     checked,
     fail,
+    library_default,
     max_steps_remedy,
     option_names,
     solver_for,
@@ -59,8 +59,10 @@ _METHOD_TITLES = {
     "alpha-adaptive": "alpha-method",
     "diffrax": "diffrax Kvaerno5 reference",
 }
-_DEFAULT_RTOL, _DEFAULT_ATOL = 1e-8, 1e-10  # diffrax
-_DIFFRAX_OUTPUT_DT = 1 / 82  # diffrax's output spacing when neither --dt nor --save-dt is given
+
+
+# the diffrax reference's defaults (--method diffrax), read once from the library
+_REFERENCE = {name: library_default(simulate_reference, name) for name in ("dt", "rtol", "atol", "max_steps")}
 
 
 def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
@@ -94,8 +96,8 @@ def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
         "--rho", type=float, default=None, help="alpha-method's rho in [0, 1) (default 0; --method default or alpha)"
     )
     options.add_tolerances(
-        solver, rtol_default=f"{_ALPHA_RTOL:g}; {_DEFAULT_RTOL:g} for diffrax",
-        atol_default=f"{_ALPHA_ATOL:g}; {_DEFAULT_ATOL:g} for diffrax", note="not on the uniform mesh",
+        solver, rtol_default=f"{_ALPHA_RTOL:g}; {_REFERENCE['rtol']:g} for diffrax",
+        atol_default=f"{_ALPHA_ATOL:g}; {_REFERENCE['atol']:g} for diffrax", note="not on the uniform mesh",
     )  # fmt: skip
     options.add_max_steps(solver)
     solver.add_argument(
@@ -189,7 +191,7 @@ class RunConfig:
         if self.max_steps is not None:
             return self.max_steps
         if self.method == "diffrax":
-            return inspect.signature(simulate_reference).parameters["max_steps"].default
+            return _REFERENCE["max_steps"]
         return resolve_max_steps(None, keeps_steps=self.save_ts is None)
 
     @property
@@ -212,42 +214,32 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
     checked(positive, check_positive, "--t-final", args.t_final)
     dt = args.dt
     if args.method == "diffrax" and dt is None and args.save_dt is None:
-        dt = _DIFFRAX_OUTPUT_DT
+        dt = _REFERENCE["dt"]  # the reference's output spacing
     n_steps = None if dt is None else checked("dt in (0, t_final], t_final in (0, inf)", check_mesh, dt, args.t_final)
     save_ts = None
     if args.save_dt is not None:
-        if not (math.isfinite(args.save_dt) and 0 < args.save_dt <= args.t_final):
-            raise ValueError(f"--save-dt must lie in (0, t_final] = (0, {args.t_final:g}], got {args.save_dt:g}")
+        n_save = options.check_save_dt(args.save_dt, args.t_final)  # counted first: the times could fill memory
         if args.method != "diffrax" and dt is not None:
             raise ValueError("--save-dt sets the output of error control; with --dt the output is the uniform mesh")
-        if not math.isfinite(args.t_final / args.save_dt):  # a subnormal S: no count of output times
-            raise ValueError(f"--save-dt {args.save_dt:g} gives more output times than can be counted; the limit is 1e7")
-        n_save = output_count(args.save_dt, args.t_final)  # counted first: the times themselves could fill memory
         _check_memory(f"--save-dt {args.save_dt:g}", n_save, "ts", "give a larger --save-dt or a shorter --t-final")
-        if n_save > 10_000_001:
-            raise ValueError(f"--save-dt {args.save_dt:g} gives {n_save} output times; the limit is 1e7")
         save_ts = tuple(output_times(args.save_dt, args.t_final))
     elif n_steps is not None:
         option = f"--dt {dt:g}" if args.dt is not None else "the diffrax output grid"
         kind = "mesh" if args.method != "diffrax" else "ts"
         _check_memory(option, n_steps + 1, kind, "give a larger --dt or a shorter --t-final")
     rho = rtol = atol = None
-    if args.method != "diffrax":
-        if args.method in _UNIFORM_METHODS:
-            rho = 0.0 if args.rho is None else args.rho
-            checked("[0, 1)", check_rho, rho)
-        if dt is not None and (args.rtol is not None or args.atol is not None):
+    if args.method in _UNIFORM_METHODS:  # the α-method may run: its ρ
+        rho = 0.0 if args.rho is None else args.rho
+        checked("[0, 1)", check_rho, rho)
+    if args.method != "diffrax" and dt is not None:
+        if args.rtol is not None or args.atol is not None:
             raise ValueError(
                 "--rtol/--atol set the error control of the alpha-method; --dt asks for a uniform mesh: give one or the other"
             )
-        if dt is None:
-            rtol = _ALPHA_RTOL if args.rtol is None else args.rtol
-            atol = _ALPHA_ATOL if args.atol is None else args.atol
-    else:
-        rtol = _DEFAULT_RTOL if args.rtol is None else args.rtol
-        atol = _DEFAULT_ATOL if args.atol is None else args.atol
-    if rtol is not None:
-        rtol, atol = options.check_tolerances(rtol, atol, (rtol, atol))
+    else:  # error control, or the diffrax reference with its own defaults
+        reference = args.method == "diffrax"
+        defaults = (_REFERENCE["rtol"], _REFERENCE["atol"]) if reference else (_ALPHA_RTOL, _ALPHA_ATOL)
+        rtol, atol = options.check_tolerances(args.rtol, args.atol, defaults)
     fold, max_jumps, transient = _check_folds(args, dt)
     max_steps = getattr(args, "max_steps", None)
     options.check_max_steps(max_steps, "--dt" if args.method != "diffrax" and dt is not None else None)
@@ -283,8 +275,8 @@ def _check_memory(option: str, rows: int, kind: str, remedy: str) -> None:
     """The run's output must fit in memory (the rule of ``peeljax.simulate`` and ``peeljax.sweep``)."""
     try:
         check_run_memory(rows, kind, remedy=remedy)
-    except ValueError as error:  # the library's message names max_steps: here it is --max-steps
-        raise ValueError(f"{option}: {str(error).replace('max_steps', '--max-steps')}") from None
+    except ValueError as error:  # said with the option that asked for the rows
+        raise ValueError(f"{option}: {error}") from None
 
 
 def _without_error_control(args: argparse.Namespace) -> str | None:

@@ -235,9 +235,6 @@ def tau_grid(tau: list[float], n_tau: int | None) -> list[float]:
     return np.geomspace(tau[0], tau[1], n_tau).tolist()
 
 
-_MAX_SAVE_TIMES = 10_000_001
-
-
 def _integrator(args: argparse.Namespace) -> dict:
     """The integrator's options, checked: ``dt`` (uniform mesh) or ``rtol``/``atol`` (error control).
 
@@ -285,14 +282,7 @@ def _integrator_options(args: argparse.Namespace) -> dict:
     chosen = {"dt": None, "rtol": rtol, "atol": atol}
     if hasattr(args, "save_dt"):
         if save_dt is not None:
-            if not (math.isfinite(save_dt) and 0 < save_dt <= args.t_final):
-                raise ValueError(f"--save-dt must lie in (0, t_final] = (0, {args.t_final:g}], got {save_dt:g}")
-            ratio = args.t_final / save_dt  # inf for a subnormal S: more than any limit
-            n_save = math.floor(ratio) + 2 if math.isfinite(ratio) else math.inf
-            if n_save > _MAX_SAVE_TIMES:
-                raise ValueError(
-                    f"--save-dt {save_dt:g} gives {n_save:.3g} save times per trajectory; the limit is 1e7"
-                )
+            options.check_save_dt(save_dt, args.t_final)
         chosen.update(save_every=None, save_dt=None if save_dt is None else float(save_dt))
     return chosen
 

@@ -34,5 +34,5 @@ def check_free(free) -> tuple[str, ...]:
     free = tuple(free)
     unknown = [n for n in free if n not in COEFFICIENT_NAMES]
     if unknown or not free:
-        raise ValueError(f"free: unknown coefficient(s) {unknown}; choose from {list(COEFFICIENT_NAMES)}")
+        raise ValueError(f"free: unknown coefficient(s) {unknown}; allowed: {', '.join(COEFFICIENT_NAMES)}")
     return tuple(n for n in COEFFICIENT_NAMES if n in free)  # canonical order, no duplicates
