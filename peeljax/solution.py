@@ -488,7 +488,10 @@ class Solution(eqx.Module):
         if np.ndim(self.status) != 0:
             raise ValueError("summary() is for a single trajectory; index the batch first")
         v = np.asarray(self.v)[np.asarray(self.valid)]
-        last = int(np.flatnonzero(np.asarray(self.valid))[-1])
+        if v.size == 0:  # a run whose initial state was already rejected: no velocity to say
+            v = np.full(1, np.nan)
+        rows = np.flatnonzero(np.asarray(self.valid))
+        last = int(rows[-1]) if rows.size else 0
         out = {
             "status": self.status_name,
             "reason": self.reason,

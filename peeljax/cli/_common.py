@@ -14,6 +14,7 @@ import threading
 import time
 from pathlib import Path
 
+from .._files import json_safe
 from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw, read_json
 
 PROG = "peeljax"
@@ -416,4 +417,50 @@ class Elapsed:
 
 
 # The summaries use a few non-ASCII signs; the plain output promises ASCII.
-ASCII = str.maketrans({"→": "->", "—": "-", "–": "-", "≈": "~", "τ": "tau", "φ": "phi", "≥": ">=", "±": "+-"})
+ASCII = str.maketrans({"→": "->", "—": "-", "–": "-", "≈": "~", "τ": "tau", "φ": "phi", "≥": ">=", "±": "+-",
+                       "−": "-", "λ": "lambda", "≤": "<="})  # fmt: skip
+
+
+def ascii_text(text: str) -> str:
+    """``text`` in plain ASCII, whatever the terminal's encoding (what has no spelling: ``?``)."""
+    return text.translate(ASCII).encode("ascii", "replace").decode("ascii")
+
+
+def write_files(record: dict, *writers) -> list:
+    """Each ``(option, path, write)`` with a path: ``write(path)``. A failure is kept as ``(option,
+    path, error)`` and its key of ``record`` (``out``, ``plot``) set to None: the result is
+    reported whatever could not be written."""
+    failed = []
+    for option, path, write in writers:
+        if path is None:
+            continue
+        try:
+            write(path)
+        except OSError as error:
+            failed.append((option, path, error))
+            record[option.lstrip("-")] = None
+    return failed
+
+
+def plotter(name: str, *args, module: str = "peeljax.plots", **kwargs):
+    """A writer for :func:`write_files`: ``module.name(*args, path=path, **kwargs)``, imported
+    (matplotlib) only when the figure is drawn."""
+    import importlib
+
+    return lambda path: getattr(importlib.import_module(module), name)(*args, path=path, **kwargs)
+
+
+def report(record: dict, as_json: bool, lines, failed=(), what: str = "", notes=()) -> int:
+    """``--json``: ``record`` as the one JSON object on stdout (strict: NaN is null); else the
+    summary ``lines`` (ASCII). Then on stderr the ``notes`` and each file that could not be
+    written (``failed``, after ``what`` was reported). Returns the exit status: 1 when a file
+    failed, else 0."""
+    if as_json:
+        print(json.dumps(json_safe(record), allow_nan=False))
+    else:
+        print(ascii_text("\n".join(lines() if callable(lines) else lines)))
+    for note in notes:
+        print(note, file=sys.stderr)
+    for option, path, error in failed:
+        write_failed(option, path, error, what)
+    return 1 if failed else 0

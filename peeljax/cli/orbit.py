@@ -9,7 +9,6 @@ shoot for (φ has no fold at V, or the run shows no repeat), before any shooting
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
@@ -20,13 +19,11 @@ from ..model import PeelingModel
 from ..orbits.api import ATOL_PER_RTOL, DEFAULT_ORBIT_RTOL, DEFAULT_TRANSIENT_RUN, periodic_orbit
 from ..orbits.diagram import orbit_diagram
 from . import _interrupt, options
-from .._files import json_safe
-from ._common import ASCII, PROG, Elapsed, checked, fail, library_default, write_failed
+from ._common import PROG, Elapsed, checked, fail, library_default, plotter, report, write_failed, write_files
 
 __all__ = ["EXIT_NOT_CONVERGED", "OrbitConfig", "add_command", "validate_orbit"]
 
 EXIT_NOT_CONVERGED = 1
-_MORE_ASCII = str.maketrans({"−": "-", "λ": "lambda", "≤": "<="})  # beside _common.ASCII: the orbits' messages
 MAX_ITERATIONS_LIMIT = 1000  # Newton's cap: a typo must not run for hours
 MAX_SLIPS = 1000  # k: each Newton iteration runs k slips (a typo must not run for hours)
 MAX_SEEDS = 2000  # seed runs of a diagram: a typo must not run for days
@@ -277,38 +274,17 @@ def _orbit_command(args: argparse.Namespace) -> int:
         return fail(ValueError(f"no orbit to shoot for at V = {config.V:g} m/s: {_in_cli_terms(str(error))}"))
     except ValueError as error:  # a refusal of the library the checks above did not foresee: one line, not a traceback
         return fail(error)
-    wall = time.perf_counter() - start
     converged = bool(orbit.converged)
-    record = _record(orbit, config, wall)
-    failed = []  # (option, path, error): the orbit is reported whatever could not be written
-    if config.out is not None:
-        try:
-            orbit.save(config.out, config.settings())
-        except OSError as error:
-            failed.append(("--out", config.out, error))
-            record["out"] = None
-    if config.plot is not None:
-        if not converged:
-            record["plot"] = None
-            print(f"{PROG}: no figure: the orbit did not converge (--plot {config.plot} not written)", file=sys.stderr)
-        else:
-            from ..plots import plot_orbit  # matplotlib only when a figure is asked for
-
-            try:
-                plot_orbit(orbit, path=config.plot)
-            except OSError as error:
-                failed.append(("--plot", config.plot, error))
-                record["plot"] = None
-    if config.json:
-        print(json.dumps(json_safe(record), allow_nan=False))
+    record = _record(orbit, config, time.perf_counter() - start)
+    failed = write_files(record, ("--out", config.out, lambda path: orbit.save(path, config.settings())))
+    if config.plot is not None and not converged:
+        record["plot"] = None
+        print(f"{PROG}: no figure: the orbit did not converge (--plot {config.plot} not written)", file=sys.stderr)
     else:
-        text = "\n".join(_summary(record, config)).translate(ASCII).translate(_MORE_ASCII)
-        print(text.encode("ascii", "replace").decode("ascii"))
-    if not converged:
-        print(f"{PROG}: the orbit did not converge ({record['status']}): {record['reason']}", file=sys.stderr)
-    for option, path, error in failed:
-        write_failed(option, path, error, "the orbit's summary is above")
-    return EXIT_NOT_CONVERGED if (failed or not converged) else 0
+        failed += write_files(record, ("--plot", config.plot, plotter("plot_orbit", orbit)))
+    notes = [] if converged else [f"{PROG}: the orbit did not converge ({record['status']}): {record['reason']}"]
+    code = report(record, config.json, lambda: _summary(record, config), failed, "the orbit's summary is above", notes)
+    return EXIT_NOT_CONVERGED if not converged else code
 
 
 # ---------------------------------------------------------------------------- the diagram
@@ -379,35 +355,18 @@ def _diagram_command(config: OrbitConfig) -> int:
         except KeyboardInterrupt:
             return _interrupt.interrupted(kept.describe())
     record = _diagram_record(diagram, config)
-    failed = []
-    if out is not None:
-        try:
-            diagram.save(out)
-        except OSError as error:
-            failed.append(("--out", out, error))
-            record["out"] = None
-    if plot is not None:
-        from ..plots import plot_orbit_diagram
+    failed = write_files(record, ("--out", out, diagram.save), ("--plot", plot, plotter("plot_orbit_diagram", diagram)))
+    return report(record, config.json, lambda: _diagram_lines(diagram, record), failed, "the diagram's summary is above")
 
-        try:
-            plot_orbit_diagram(diagram, path=plot)
-        except OSError as error:
-            failed.append(("--plot", plot, error))
-            record["plot"] = None
-    if config.json:
-        print(json.dumps(json_safe(record), allow_nan=False))
-    else:
-        lines = [str(diagram)]
-        for i, branch in enumerate(diagram.branches):
-            ks = ", ".join(str(k) for k in sorted({int(k) for k in branch.slips}))
-            lines.append(
-                f"branch {i}: {ks} slips per period, V in [{branch.V.min():.6g}, {branch.V.max():.6g}] m/s, "
-                f"{len(branch)} orbits ({int(branch.stable.sum())} stable)"
-            )
-            lines += [f"  {b}" for b in branch.bifurcations]
-        lines += [f"wrote {record[key]}" for key in ("out", "plot") if record.get(key)]
-        text = "\n".join(lines).translate(ASCII).translate(_MORE_ASCII)
-        print(text.encode("ascii", "replace").decode("ascii"))
-    for option, path, error in failed:
-        write_failed(option, path, error, "the diagram's summary is above")
-    return 1 if failed else 0
+
+def _diagram_lines(diagram, record: dict) -> list[str]:
+    """The diagram's summary: its table, each branch with its bifurcations, the files written."""
+    lines = [str(diagram)]
+    for i, branch in enumerate(diagram.branches):
+        ks = ", ".join(str(k) for k in sorted({int(k) for k in branch.slips}))
+        lines.append(
+            f"branch {i}: {ks} slips per period, V in [{branch.V.min():.6g}, {branch.V.max():.6g}] m/s, "
+            f"{len(branch)} orbits ({int(branch.stable.sum())} stable)"
+        )
+        lines += [f"  {b}" for b in branch.bifurcations]
+    return lines + [f"wrote {record[key]}" for key in ("out", "plot") if record.get(key)]

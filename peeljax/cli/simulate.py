@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
@@ -12,18 +11,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import (
-    TAU_MAX,
-    check_choice,
-    check_mesh,
-    check_positive,
-    check_rho,
-    check_tau,
-    check_y0,
-)
+from .._validation import TAU_MAX, check_choice, check_mesh, check_positive, check_rho, check_tau, check_y0
 from ..cycles import cycle_statistics
 from ..integrators.dense import output_times
-from ..integrators.events import check_fold
+from ..integrators.events import FOLD_MODES
 from ..integrators.select import DEFAULT_ATOL as _ALPHA_ATOL
 from ..integrators.select import DEFAULT_MAX_JUMPS, resolve_fold, resolve_max_steps
 from ..integrators.select import DEFAULT_RTOL as _ALPHA_RTOL
@@ -31,9 +22,7 @@ from ..model import GEOMETRIES, PeelingModel
 from ..simulate import check_run_memory, simulate, simulate_reference
 from ..solution import Solution, StopReason
 from . import options
-from .._files import json_safe
 from ._common import (
-    ASCII,
     PROG,
     STEPPERS,
     Elapsed,
@@ -42,9 +31,11 @@ from ._common import (
     library_default,
     max_steps_remedy,
     option_names,
+    plotter,
+    report,
     solver_for,
     stats_text,
-    write_failed,
+    write_files,
 )
 
 __all__ = ["add_command", "run", "summarize", "validate_run", "write_npz"]
@@ -312,23 +303,21 @@ def _check_folds(args: argparse.Namespace, dt: float | None) -> tuple[str, int, 
     """--fold against the integrator (the library's rule, :func:`peeljax.integrators.resolve_fold`:
     jump and follow need error control), --max-jumps and --transient; returns the fold mode (its
     default when not given), max_jumps and the transient."""
-    fold = getattr(args, "fold", None)
-    if args.method == "diffrax":
+    fold = args.fold
+    if args.method == "diffrax" and fold not in (None, "stop"):
         # The reference (simulate_reference) runs diffeqsolve's own loop, which has no fold events:
         # the library has no fold option there to check against.
-        if fold not in (None, "stop"):
-            check_fold(fold)
-            raise ValueError(
-                f"--fold {fold} needs error control (any stepper), which cuts a step at a fold; with --method "
-                f"diffrax a run can only stop there: give --fold stop, or {_remedy('--method diffrax')}"
-            )
-        import diffrax
-
-        fold = resolve_fold(fold, solver=diffrax.Kvaerno5(), dae=args.tau == 0)
+        check_choice("--fold", fold, FOLD_MODES)
+        raise ValueError(
+            f"--fold {fold} needs error control (any stepper), which cuts a step at a fold; with --method "
+            f"diffrax a run can only stop there: give --fold stop, or {_remedy('--method diffrax')}"
+        )
+    if args.method == "diffrax":
+        fold = "stop"
     else:
         fold = resolve_fold(fold, dt=dt, dae=args.tau == 0)
-    max_jumps = options.check_max_jumps(getattr(args, "max_jumps", None), DEFAULT_MAX_JUMPS, _without_error_control(args))
-    transient, _ = options.check_statistics_window(getattr(args, "transient", None), None, args.t_final)
+    max_jumps = options.check_max_jumps(args.max_jumps, DEFAULT_MAX_JUMPS, _without_error_control(args))
+    transient, _ = options.check_statistics_window(args.transient, None, args.t_final)
     return fold, max_jumps, transient
 
 
@@ -394,20 +383,8 @@ def step_used(solution: Solution, config: RunConfig) -> float:
 
 
 def summarize(solution: Solution) -> dict:
-    """:meth:`Solution.summary`, also for a run whose initial state was already rejected."""
-    if np.asarray(solution.valid).any():
-        return solution.summary()
-    out = {
-        "status": solution.status_name,
-        "reason": solution.reason,
-        "t_stop": float(solution.t_stop),
-        "steps": 0,
-        "v_final": math.nan,
-        "v_min": math.nan,
-        "v_max": math.nan,
-    }
-    out.update({key: np.asarray(value).tolist() for key, value in solution.stats.items()})
-    return out
+    """:meth:`Solution.summary` (the ``--json`` fields of a run)."""
+    return solution.summary()
 
 
 def write_out(path: str, solution: Solution, config: RunConfig) -> None:
@@ -453,14 +430,9 @@ def write_npz(path: str, solution: Solution, config: RunConfig) -> None:
     write_run(path, solution, **_run_settings(solution, config))
 
 
-def _ran_alpha(method: str) -> bool:
-    """The Solution's ``method`` names the α-method (uniform or error-controlled)."""
-    return method.startswith("alpha")
-
-
 def _rho_used(solution: Solution, config: RunConfig) -> float | None:
     """ρ where the α-method ran (--method default may choose another stepper), else None."""
-    return config.rho if config.rho is not None and _ran_alpha(solution.method) else None
+    return config.rho if config.rho is not None and solution.method.startswith("alpha") else None
 
 
 def method_title(method: str, option: str | None = None) -> str:
@@ -470,26 +442,23 @@ def method_title(method: str, option: str | None = None) -> str:
     return f"{title} (the default stepper)" if option == "default" else title
 
 
-def _plot_title(config: RunConfig, dt: float, record: dict | None = None) -> str:
+def _plot_title(config: RunConfig, record: dict) -> str:
+    """The figure's title: the run's settings, and its outcome on a line of its own."""
     tau = "τ = 0 (the DAE)" if config.dae else f"τ = {config.tau:g} s"
-    method = config.method if record is None else record["method"]  # the stepper that ran
-    rho = config.rho if record is None else record.get("rho")
-    parts = [f"V = {config.V:g} m/s", tau, method_title(method, config.method).replace("alpha-method", "α-method")]
+    rho = record.get("rho")
+    parts = [f"V = {config.V:g} m/s", tau, method_title(record["method"], config.method).replace("alpha-method", "α-method")]
     if config.adaptive:
         parts += [f"rtol = {config.rtol:g}", f"atol = {config.atol:g}"] + ([] if rho is None else [f"ρ = {rho:g}"])
     elif config.uniform:
-        parts += [f"dt = {dt:.4g} s", f"ρ = {config.rho:g}"]
+        parts += [f"dt = {record['dt']:.4g} s", f"ρ = {config.rho:g}"]
     else:
-        parts += [f"rtol = {config.rtol:g}", f"output every {dt:.4g} s"]
+        parts += [f"rtol = {config.rtol:g}", f"output every {record['dt']:.4g} s"]
     if config.model.geometry != "paper":
         parts.append(f"{config.model.geometry} geometry")
-    title = ", ".join(parts)
-    if record is not None:  # the run's outcome, on a line of its own
-        outcome = "completed" if record["status"] == "completed" else f"stopped at t = {record['t_stop']:.4g} s"
-        if record.get("jumps") is not None:
-            outcome += f", {record['jumps']} jump{'' if record['jumps'] == 1 else 's'} at the folds of φ"
-        title += f"\n{outcome}"
-    return title
+    outcome = "completed" if record["status"] == "completed" else f"stopped at t = {record['t_stop']:.4g} s"
+    if record.get("jumps") is not None:
+        outcome += f", {record['jumps']} jump{'' if record['jumps'] == 1 else 's'} at the folds of φ"
+    return f"{', '.join(parts)}\n{outcome}"
 
 
 def _regime_note(config: RunConfig) -> str | None:
@@ -506,8 +475,8 @@ def _regime_note(config: RunConfig) -> str | None:
     )
 
 
-def _print_summary(record: dict, config: RunConfig, stats: dict, cycles=None) -> None:
-    """A few human-readable lines (ASCII, whatever the terminal's encoding)."""
+def _summary(record: dict, config: RunConfig, cycles=None) -> list[str]:
+    """A few human-readable lines (:func:`report` makes them ASCII)."""
     settings = [] if record.get("rho") is None else [f"rho = {record['rho']:g}"]
     if config.rtol is not None:
         settings.append(f"rtol = {config.rtol:g}, atol = {config.atol:g}")
@@ -519,39 +488,31 @@ def _print_summary(record: dict, config: RunConfig, stats: dict, cycles=None) ->
     else:
         mesh = f"dt = {record['dt']:.6g} s ({config.n_steps} steps)"
     tau = "tau = 0 (the DAE)" if config.dae else f"tau = {config.tau:g} s"
-    print(
-        f"peeljax simulate: {method_title(record['method'], config.method)}, V = {config.V:g} m/s, {tau}, "
-        f"{mesh}, t_final = {config.t_final:g} s, {', '.join(settings)}, geometry {config.model.geometry}"
-    )
+    stopped = f"stopped at t = {record['t_stop']:.6g} s"
     if record["status"] == "completed":
-        print(f"completed: reached t = {record['t_stop']:.6g} s")
-    elif record.get("status_code") == int(StopReason.MAX_STEPS):
-        print(
-            f"stopped at t = {record['t_stop']:.6g} s: the step budget ({config.budget} step attempts, --max-steps) "
-            "was used up before t_final: raise --max-steps or loosen --rtol"
-        )
-    elif record.get("status_code") == int(StopReason.MAX_JUMPS):  # the reason names the parameter max_jumps
-        print(f"stopped at t = {record['t_stop']:.6g} s: the jump record is full (--max-jumps {config.max_jumps}): "
-              "raise --max-jumps to go on")  # fmt: skip
+        ended = f"completed: reached t = {record['t_stop']:.6g} s"
+    elif record["status_code"] == int(StopReason.MAX_STEPS):
+        ended = (f"{stopped}: the step budget ({config.budget} step attempts, --max-steps) was used up before "
+                 "t_final: raise --max-steps or loosen --rtol")  # fmt: skip
+    elif record["status_code"] == int(StopReason.MAX_JUMPS):  # the reason names the parameter max_jumps
+        ended = f"{stopped}: the jump record is full (--max-jumps {config.max_jumps}): raise --max-jumps to go on"
     else:
-        print(f"stopped at t = {record['t_stop']:.6g} s: {option_names(record['reason'])}")
-    print(f"v [m/s]: final {record['v_final']:.6g}, min {record['v_min']:.6g}, max {record['v_max']:.6g}")
+        ended = f"{stopped}: {option_names(record['reason'])}"
+    lines = [
+        f"peeljax simulate: {method_title(record['method'], config.method)}, V = {config.V:g} m/s, {tau}, "
+        f"{mesh}, t_final = {config.t_final:g} s, {', '.join(settings)}, geometry {config.model.geometry}",
+        ended,
+        f"v [m/s]: final {record['v_final']:.6g}, min {record['v_min']:.6g}, max {record['v_max']:.6g}",
+    ]
     if record.get("jumps") is not None:
-        print(
-            f"jumps at the folds of phi: {record['jumps']} ({record['jumps_up']} stick -> slip, "
-            f"{record['jumps'] - record['jumps_up']} slip -> stick)"
-        )
-        if cycles is not None:
-            print(str(cycles).translate(ASCII).encode("ascii", "replace").decode("ascii"))
-        else:
-            print(f"cycles: {record['cycles_note']}")
+        up = record["jumps_up"]
+        lines.append(f"jumps at the folds of phi: {record['jumps']} ({up} stick -> slip, {record['jumps'] - up} slip -> stick)")
+        lines.append(str(cycles) if cycles is not None else f"cycles: {record['cycles_note']}")
     if record.get("note"):
-        print(f"note: {record['note']}")
-    print("stats: " + stats_text(stats, jumps_said=record.get("jumps") is not None))
-    print(f"wall time {record['wall_time_s']:.3g} s (including compilation)")
-    for key in ("out", "plot"):
-        if record.get(key):
-            print(f"wrote {record[key]}")
+        lines.append(f"note: {record['note']}")
+    lines.append("stats: " + stats_text(record["stats"], jumps_said=record.get("jumps") is not None))
+    lines.append(f"wall time {record['wall_time_s']:.3g} s (including compilation)")
+    return lines + [f"wrote {record[key]}" for key in ("out", "plot") if record.get(key)]
 
 
 def _cycles(solution: Solution, config: RunConfig, record: dict):
@@ -576,11 +537,8 @@ def _cycles(solution: Solution, config: RunConfig, record: dict):
     return cycles
 
 
-def _simulate_command(args: argparse.Namespace) -> int:
-    try:
-        config = validate_run(args)
-    except (ValueError, TypeError) as error:
-        return fail(error)
+def _announce(config: RunConfig) -> None:
+    """What runs, on stderr, before it compiles."""
     if config.adaptive:
         mesh = "error control"
     elif config.n_steps is None:
@@ -593,79 +551,58 @@ def _simulate_command(args: argparse.Namespace) -> int:
         f"{PROG}: {method} run with {mesh} to t = {config.t_final:g} s{budget} (compiling first: a few seconds) ...",
         file=sys.stderr,
     )
+
+
+def _simulate_command(args: argparse.Namespace) -> int:
+    try:
+        config = validate_run(args)
+    except (ValueError, TypeError) as error:
+        return fail(error)
+    _announce(config)
     # The run is one compiled loop: it reports its simulated time only at the end (a report from
     # inside would be a host callback in the integrator's loop); meanwhile the wall time is shown.
     with Elapsed(options.progress_on(args), f"simulating to t = {config.t_final:g} s"):
         solution, wall = run(config)
-    dt = step_used(solution, config)
     summary = summarize(solution)
-    stats = {key: summary[key] for key in solution.stats if key in summary}
     record = {
         **summary,
         "status_code": int(np.asarray(solution.status)),  # the StopReason (as in the .npz)
-        "V": config.V,
-        "tau": config.tau,
-        "dt": dt,
-        "dt_requested": config.dt,
-        "save_dt": args.save_dt,
-        "t_final": config.t_final,
-        "n_steps": config.n_steps,
+        "V": config.V, "tau": config.tau, "dt": step_used(solution, config), "dt_requested": config.dt,
+        "save_dt": args.save_dt, "t_final": config.t_final, "n_steps": config.n_steps,
         "method": solution.method,  # the stepper that ran
         "method_option": config.method,  # --method as given
-        "geometry": config.model.geometry,
-        "rho": _rho_used(solution, config),
-        "rtol": config.rtol,
-        "atol": config.atol,
-        "y0": None if config.y0 is None else list(config.y0),
-        "phi": config.phi,
+        "geometry": config.model.geometry, "rho": _rho_used(solution, config), "rtol": config.rtol,
+        "atol": config.atol, "y0": None if config.y0 is None else list(config.y0), "phi": config.phi,
         "phi_paper_defaults": None if config.phi_defaults is None else list(config.phi_defaults),
-        "fold": config.fold,
-        "max_jumps": config.max_jumps if config.adaptive else None,
+        "fold": config.fold, "max_jumps": config.max_jumps if config.adaptive else None,
         "max_steps": config.max_steps,  # --max-steps; null: the library's budget
-        "transient": config.transient,
-        "stats": stats,
-        "wall_time_s": wall,
-        "out": args.out,
-        "plot": args.plot,
-    }
+        "transient": config.transient, "stats": {key: summary[key] for key in solution.stats if key in summary},
+        "wall_time_s": wall, "out": args.out, "plot": args.plot,
+    }  # fmt: skip
     note = _regime_note(config)
     if note:
         record["note"] = note
     cycles = _cycles(solution, config, record)
-    failed = []  # (option, path, error): the run is reported whatever could not be written
-    if args.out is not None:
-        try:
-            write_out(args.out, solution, config)
-        except OSError as error:
-            failed.append(("--out", args.out, error))
-            record["out"] = None
-    if args.plot is not None:
-        from ..plots import plot_run, plot_stick_slip  # matplotlib only when a plot is asked for
-
-        title = _plot_title(config, dt, record)
-        try:
-            if record.get("jumps"):  # the stick-slip figure: v(t) and G(t) with the jumps, the G-v loop
-                settled = config.transient if config.transient < record["t_stop"] else None
-                plot_stick_slip(solution, config.model, config.V, title=title, path=args.plot, transient=settled)
-            else:
-                plot_run(solution, config.model, V=config.V, title=title, path=args.plot)
-        except OSError as error:
-            failed.append(("--plot", args.plot, error))
-            record["plot"] = None
-    if args.json:
-        print(json.dumps(json_safe(record), allow_nan=False))
+    if record.get("jumps"):  # the stick-slip figure: v(t) and G(t) with the jumps, the G-v loop
+        settled = config.transient if config.transient < record["t_stop"] else None
+        figure = plotter("plot_stick_slip", solution, config.model, config.V, transient=settled,
+                         title=_plot_title(config, record))  # fmt: skip
     else:
-        _print_summary(record, config, stats, cycles)
-    _print_remedy(solution, config)
-    for option, path, error in failed:
-        write_failed(option, path, error, "the run's summary is above")
-    return 1 if failed else 0
+        figure = plotter("plot_run", solution, config.model, V=config.V, title=_plot_title(config, record))
+    failed = write_files(
+        record, ("--out", args.out, lambda path: write_out(path, solution, config)), ("--plot", args.plot, figure)
+    )
+    return report(
+        record, args.json, lambda: _summary(record, config, cycles), failed, "the run's summary is above",
+        _remedy_notes(solution, config),
+    )  # fmt: skip
 
 
-def _print_remedy(solution: Solution, config: RunConfig) -> None:
+def _remedy_notes(solution: Solution, config: RunConfig) -> list[str]:
     """After a run that ran out of its step budget or its jump record: the option to raise (stderr)."""
     status = int(np.asarray(solution.status))
     if status == StopReason.MAX_STEPS:
-        print(max_steps_remedy(config.budget), file=sys.stderr)
-    elif status == StopReason.MAX_JUMPS:
-        print(f"{PROG}: the jump record is full: raise --max-jumps (now {config.max_jumps})", file=sys.stderr)
+        return [max_steps_remedy(config.budget)]
+    if status == StopReason.MAX_JUMPS:
+        return [f"{PROG}: the jump record is full: raise --max-jumps (now {config.max_jumps})"]
+    return []

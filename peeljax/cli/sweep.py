@@ -20,23 +20,29 @@ from ..sweeps.engine import STARTS
 from ..sweeps.integrators import DEFAULT_SWEEP_MAX_JUMPS
 from ..sweeps.storage import check_writable_format, is_netcdf
 from . import _interrupt, options
-from .._files import json_safe
+from ..sweeps.api import sweep as _sweep_api
+from ..sweeps.least_tau import least_tau as _least_tau_api
 from ._common import (
-    ASCII,
     PROG,
     STEPPERS,
     Elapsed,
     checked,
     fail,
+    library_default,
     max_steps_remedy,
+    plotter,
+    report,
     solver_for,
     write_failed,
+    write_files,
 )
 from ._distributed import add_distributed_options, distributed_settings, join_processes
 
 __all__ = ["add_command", "engine_text", "tau_grid", "validate_map", "validate_sweep", "validate_tau_star"]
 
-DEFAULT_CHUNK = 256  # peeljax.sweep's chunk (--chunk left out)
+DEFAULT_CHUNK = library_default(_sweep_api, "chunk")  # --chunk left out: peeljax.sweep's
+# tau-star's search, left out: peeljax.least_tau's
+_TAU_STAR = {name: library_default(_least_tau_api, name) for name in ("V", "tau_range", "tau_rtol", "n_points")}
 
 
 # ---------------------------------------------------------------------------- parsers
@@ -44,7 +50,7 @@ def _add_model_arguments(parser: argparse.ArgumentParser):
     """The problem's and the integrator's options (shared ones from :mod:`.options`); returns the
     integrator's argument group."""
     group = parser.add_argument_group("problem")
-    options.add_V(group, many=True, default=[1.1, 2.0, 4.0])
+    options.add_V(group, many=True, default=list(_TAU_STAR["V"]))  # peeljax.least_tau's grid of V, a sweep's too
     options.add_t_final(group)
     options.add_geometry_and_phi(group)
     solver = parser.add_argument_group("integrator")
@@ -150,15 +156,18 @@ def add_command(subparsers) -> None:
     )
     _add_model_arguments(star)
     search = star.add_argument_group("the search")
-    search.add_argument("--tau-range", dest="tau_range", type=float, nargs=2, default=[1e-5, 1.0], metavar=("LO", "HI"),
-                        help="search interval [s], 0 < LO < HI (default 1e-5 1)")  # fmt: skip
+    lo, hi = _TAU_STAR["tau_range"]
     search.add_argument(
-        "--tau-rtol", dest="tau_rtol", type=float, default=0.05,
-        help="relative resolution of tau* in (0, 1), not an integrator tolerance (default 0.05)",
+        "--tau-range", dest="tau_range", type=float, nargs=2, default=[lo, hi], metavar=("LO", "HI"),
+        help=f"search interval [s], 0 < LO < HI (default {lo:g} {hi:g})",
     )  # fmt: skip
     search.add_argument(
-        "--n-points", dest="n_points", type=int, default=8,
-        help="tau values per V and round, an integer >= 2 (default 8)",
+        "--tau-rtol", dest="tau_rtol", type=float, default=_TAU_STAR["tau_rtol"],
+        help=f"relative resolution of tau* in (0, 1), not an integrator tolerance (default {_TAU_STAR['tau_rtol']:g})",
+    )  # fmt: skip
+    search.add_argument(
+        "--n-points", dest="n_points", type=int, default=_TAU_STAR["n_points"],
+        help=f"tau values per V and round, an integer >= 2 (default {_TAU_STAR['n_points']})",
     )  # fmt: skip
     output = star.add_argument_group("output")
     options.add_json(output)
@@ -523,62 +532,35 @@ def _sweep_command(args: argparse.Namespace) -> int:
     wall = time.perf_counter() - start
     if not kwargs["progress"]:  # the progress bar's own line said it otherwise
         _print_resumed(result, args.out)
-    plot_error, record_plot = None, args.plot
-    if args.plot is not None:
-        from ..plots import plot_sweep_map
-
-        try:
-            plot_sweep_map(result, path=args.plot)
-        except OSError as error:
-            plot_error = error
-            args.plot = None
-    completed = result.completed
-    ran = result.settings.get("method")  # the stepper that ran (absent on the uniform mesh)
     record = {
-        "n": len(result),
-        "n_completed": int(completed.sum()),
-        "V": kwargs["V"],
-        "tau": kwargs["tau"],
-        **_engine_record(kwargs, ran),
+        "n": len(result), "n_completed": int(result.completed.sum()), "V": kwargs["V"], "tau": kwargs["tau"],
+        **_engine_record(kwargs, result.settings.get("method")),  # the stepper that ran (absent on the uniform mesh)
         "method_option": args.method,  # --method as given
         "max_steps": result.settings.get("max_steps"),  # the budget of step attempts (error control)
-        "save_dt": kwargs["save_dt"],
-        "save_every": kwargs["save_every"],
-        "t_final": kwargs["t_final"],
+        "save_dt": kwargs["save_dt"], "save_every": kwargs["save_every"], "t_final": kwargs["t_final"],
         "window": list(kwargs["window"]),  # fractions of t_final, as pj.sweep takes them
         "transient": kwargs["window"][0] * kwargs["t_final"],  # [s]: --transient
         "window_s": (kwargs["window"][1] - kwargs["window"][0]) * kwargs["t_final"],  # [s]: --window
-        "fold": result.settings.get("fold"),
-        "max_jumps": result.settings.get("max_jumps"),
-        "start": kwargs["start"],
-        "wall_time_s": wall,
-        "phi_paper_defaults": _phi_defaults(args),
-        "computed_chunks": list(result.computed_chunks),
-        "out": args.out,
-        "plot": args.plot,
+        "fold": result.settings.get("fold"), "max_jumps": result.settings.get("max_jumps"), "start": kwargs["start"],
+        "wall_time_s": wall, "phi_paper_defaults": _phi_defaults(args),
+        "computed_chunks": list(result.computed_chunks), "out": args.out, "plot": args.plot,
         "trajectories": {key: np.asarray(getattr(result, key)).tolist() for key in _TRAJECTORY_KEYS},
         "jumps": _jump_record(result.jumps),
-    }
-    if args.json:
-        print(json.dumps(json_safe(record), allow_nan=False))
-    else:
-        _print_sweep(record, result, kwargs, wall)
-    _print_remedy(result.status, result.settings.get("max_steps", kwargs.get("max_steps")))
-    if plot_error is not None:
-        return write_failed("--plot", record_plot, plot_error, "the sweep's results are above")
-    return 0
+    }  # fmt: skip
+    failed = write_files(record, ("--plot", args.plot, plotter("plot_sweep_map", result)))
+    notes = _remedy_notes(result.status, result.settings.get("max_steps", kwargs.get("max_steps")))
+    lines = lambda: _sweep_lines(record, result, kwargs, wall)  # noqa: E731
+    return report(record, args.json, lines, failed, "the sweep's results are above", notes)
 
 
-def _print_remedy(status, budget) -> None:
+def _remedy_notes(status, budget) -> list[str]:
     """After trajectories that used up their step budget: how many, and the remedy (stderr)."""
     status = np.asarray(status).ravel()
     out_of_steps = int(np.count_nonzero(status == int(StopReason.MAX_STEPS)))
-    if out_of_steps:
-        print(
-            f"{PROG}: {out_of_steps} of {status.size} trajectories stopped at their step budget",
-            file=sys.stderr,
-        )
-        print(max_steps_remedy(budget), file=sys.stderr)
+    if not out_of_steps:
+        return []
+    return [f"{PROG}: {out_of_steps} of {status.size} trajectories stopped at their step budget",
+            max_steps_remedy(budget)]  # fmt: skip
 
 
 def _saved_chunks(out: str | None) -> str:
@@ -607,29 +589,27 @@ def _print_resumed(result, out: str | None) -> None:
         print(f"resumed: {loaded} of {n_chunks} chunks loaded from {str(out) + '.chunks'!r}", file=sys.stderr)
 
 
-def _print_sweep(record: dict, result, kwargs: dict, wall: float) -> None:
-    print(f"{PROG} sweep: {record['n']} trajectories, {record['n_completed']} completed t = {kwargs['t_final']:g} s, "
-          f"wall time {wall:.3g} s")  # fmt: skip
-    w0, w1 = kwargs["window"]
+def _sweep_lines(record: dict, result, kwargs: dict, wall: float) -> list[str]:
+    """The sweep's summary: what ran, then one row per trajectory."""
+    t_final, (w0, w1) = kwargs["t_final"], kwargs["window"]
     jumps = None if result.jumps is None else np.asarray(result.jumps["jump_count"])
-    folds = (
-        "" if jumps is None else f"; start {record['start']}, fold {record['fold']} (max_jumps {record['max_jumps']})"
-    )
-    engine = engine_text(kwargs, result.settings.get("method"))
-    print(f"{engine}; v statistics over t in [{w0 * kwargs['t_final']:g}, {w1 * kwargs['t_final']:g}] s "
-          f"(--transient {w0 * kwargs['t_final']:g} --window {(w1 - w0) * kwargs['t_final']:g}){folds}")  # fmt: skip
-    print(f"{'V':>8} {'tau':>10} {'status':>14} {'t_stop':>8} {'v_mean':>10} {'v_std':>10} {'events':>6} "
-          f"{'steps':>8} {'rejected':>8}{'' if jumps is None else f' {chr(32) * 2}jumps'}")  # fmt: skip
+    folds = "" if jumps is None else f"; start {record['start']}, fold {record['fold']} (max_jumps {record['max_jumps']})"
+    lines = [
+        f"{PROG} sweep: {record['n']} trajectories, {record['n_completed']} completed t = {t_final:g} s, "
+        f"wall time {wall:.3g} s",
+        f"{engine_text(kwargs, result.settings.get('method'))}; v statistics over t in [{w0 * t_final:g}, "
+        f"{w1 * t_final:g}] s (--transient {w0 * t_final:g} --window {(w1 - w0) * t_final:g}){folds}",
+        f"{'V':>8} {'tau':>10} {'status':>14} {'t_stop':>8} {'v_mean':>10} {'v_std':>10} {'events':>6} "
+        f"{'steps':>8} {'rejected':>8}{'' if jumps is None else f' {chr(32) * 2}jumps'}",
+    ]
     for i in range(len(result)):
-        print(
+        lines.append(
             f"{result.V[i]:8.4g} {result.tau[i]:10.4g} {result.reasons[i]:>14} {result.t_stop[i]:8.4g} "
             f"{result.v_mean[i]:10.4g} {result.v_std[i]:10.4g} {result.events[i]:6d} "
             f"{result.accepted_steps[i]:8d} {result.rejected_steps[i]:8d}"
             + ("" if jumps is None else f" {jumps[i]:7d}")
         )
-    for key in ("out", "plot"):
-        if record[key]:
-            print(f"wrote {record[key]}")
+    return lines + [f"wrote {record[key]}" for key in ("out", "plot") if record[key]]
 
 
 def _phi_defaults(args: argparse.Namespace) -> list[str] | None:
@@ -684,36 +664,15 @@ def _map_command(args: argparse.Namespace) -> int:
     except ValueError as error:
         return fail(error)
     wall = time.perf_counter() - start
-    failed = None
-    if args.out is not None:
-        try:
-            smap.save(args.out)
-        except OSError as error:
-            failed = ("--out", args.out, error)
-            args.out = None
-    if args.plot is not None and failed is None:
-        from ..plots import plot_stick_slip_map
-
-        try:
-            plot_stick_slip_map(smap, path=args.plot)
-        except OSError as error:
-            failed = ("--plot", args.plot, error)
-            args.plot = None
     record = _map_record(smap, kwargs, args, wall)
-    if args.json:
-        print(json.dumps(json_safe(record), allow_nan=False))
-    else:
-        print(str(smap).translate(ASCII))
-        engine = engine_text({**kwargs, "dt": None}, smap.settings.get("sweep", {}).get("method"))
-        print(f"{engine}, max_steps {record['max_steps']}; wall time {wall:.3g} s")
-        for key in ("out", "plot"):
-            if record[key]:
-                print(f"wrote {record[key]}")
-    _print_remedy(smap.status, record["max_steps"])
-    if failed is not None:
-        return write_failed(*failed, "the map is above")
-    return 0
-
+    failed = write_files(record, ("--out", args.out, smap.save))
+    if not failed:  # the figure only beside a written map
+        failed = write_files(record, ("--plot", args.plot, plotter("plot_stick_slip_map", smap)))
+    engine = engine_text({**kwargs, "dt": None}, smap.settings.get("sweep", {}).get("method"))
+    lines = [str(smap), f"{engine}, max_steps {record['max_steps']}; wall time {wall:.3g} s"]
+    lines += [f"wrote {record[key]}" for key in ("out", "plot") if record[key]]
+    notes = _remedy_notes(smap.status, record["max_steps"])
+    return report(record, args.json, lines, failed, "the map is above", notes)
 
 
 def _tau_star_command(args: argparse.Namespace) -> int:
@@ -743,14 +702,10 @@ def _tau_star_command(args: argparse.Namespace) -> int:
         "wall_time_s": wall,
         "phi_paper_defaults": _phi_defaults(args),
     }
-    if args.json:
-        print(json.dumps(json_safe(record), allow_nan=False))
-        return 0
-    print(f"{PROG} tau-star: {engine_text(kwargs)}, t_final = {kwargs['t_final']:g} s, "
-          f"tau_rtol = {kwargs['tau_rtol']:g}, {result.rounds} batched runs, {wall:.3g} s")  # fmt: skip
+    lines = [f"{PROG} tau-star: {engine_text(kwargs)}, t_final = {kwargs['t_final']:g} s, "
+             f"tau_rtol = {kwargs['tau_rtol']:g}, {result.rounds} batched runs, {wall:.3g} s"]  # fmt: skip
     for i, V in enumerate(result.V):
         note = "" if result.found[i] else "  (not bracketed inside --tau-range)"
-        print(
-            f"V = {V:g} m/s: tau* = {result.tau_star[i]:.6g} s (tau*(1-tau_rtol) stops at t = {result.t_stop_below[i]:.4g} s){note}"
-        )
-    return 0
+        lines.append(f"V = {V:g} m/s: tau* = {result.tau_star[i]:.6g} s (tau*(1-tau_rtol) stops at t = "
+                     f"{result.t_stop_below[i]:.4g} s){note}")  # fmt: skip
+    return report(record, args.json, lines)
