@@ -47,13 +47,14 @@ from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw
 from ..fit import QUANTITIES, DataFileError, Observation, fit_adhesion, fit_records, fit_stick_slip, read_force_record
 from ..fit.parameters import check_free
 from ..fit.records import check_fit_samples, read_npz
+from ..fit.records_fit import is_force_record
 from ..fit.records import decimate as thin
 from ..fit.table import INTERVALS
 from ..fit.trajectory import OPTIMIZERS
 from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_RTOL
 from . import _interrupt, options
 from .._files import json_safe
-from ._common import ASCII, PROG, check_input_file, checked, fail, load_phi
+from ._common import PROG, check_input_file, checked, fail, load_phi, plotter, report, write_files
 
 __all__ = ["add_command", "load_observations"]
 
@@ -279,17 +280,6 @@ def _refuse(args: argparse.Namespace, names: tuple[str, ...], source: str) -> No
             raise ValueError(f"{_option(name)} does not apply to {source}{instead}")
 
 
-def any_force_record(observations: list[Observation]) -> bool:
-    """True where some observation has F but neither v nor α: a force record (t, F), fitted by
-    its statistics or point by point (:func:`peeljax.fit.fit_records`)."""
-
-    def has(o, quantity):
-        values = getattr(o, quantity)
-        return values is not None and bool(np.isfinite(values).any())
-
-    return any(not has(o, "v") and not has(o, "alpha") and has(o, "F") for o in observations)
-
-
 def _table_window(args: argparse.Namespace) -> tuple[float, float]:
     """--transient T and --window W of the table fit: statistics over [T, T + W], the runs end
     at T + W; the same rule as the other commands' (the second half of the run): W defaults
@@ -489,31 +479,32 @@ def _records_command(args: argparse.Namespace, config: dict) -> int:
         )  # fmt: skip
     except KeyboardInterrupt as stop:
         return _interrupted_fit(stop, args)
-    result.settings.update({"data": args.data, "phi": args.phi})
-    if args.out is not None:
-        result.to_json(args.out)
-    if args.plot is not None:  # each record's F(t) against the model's, and φ
-        from ..fit.plots import plot_records_fit
+    by_points = any(kind == "points" for kind, _ in config["decided"])  # each record's F(t) against the model's, and φ
+    figure = plotter("plot_records_fit", result, config["records"], model=model, tau=config["tau"] if by_points else 0.0,
+                     module="peeljax.fit.plots")  # fmt: skip
+    poorly = None if args.json else poorly_determined(result, config["records"])
+    notes = [] if poorly is None else [f"{PROG}: {poorly}"]
+    return _report_lm(result, args, {"data": args.data, "phi": args.phi}, [result.summary()], figure, notes)
 
-        by_points = any(kind == "points" for kind, _ in config["decided"])
-        plot_records_fit(result, config["records"], model=model, tau=config["tau"] if by_points else 0.0,
-                         path=args.plot)  # fmt: skip
-    if args.json:
-        record = result.to_dict()
-        record.update({"out": args.out, "plot": args.plot})
-        print(json.dumps(json_safe(record), allow_nan=False))
-        return 0
-    print(_ascii(result.summary()))
-    print(
-        f"visited v in [{result.v_range[0]:.3g}, {result.v_range[1]:.3g}] m/s: phi is determined by the data only there"
-    )
-    poorly = poorly_determined(result, config["records"])
-    if poorly:
-        print(f"{PROG}: {poorly}", file=sys.stderr)
-    written = [p for p in (args.out, args.plot) if p is not None]
-    if written:
-        print("wrote " + " and ".join(written))
-    return 0
+
+def _finish(record: dict, args: argparse.Namespace, lines: list[str], failed, notes=()) -> int:
+    """A fit's report: --json or ``lines`` and the files written."""
+    written = [record[key] for key in ("out", "plot") if record.get(key)]
+    lines = lines + (["wrote " + " and ".join(written)] if written else [])
+    return report(record, args.json, lines, failed, "the fit's result is above", notes)
+
+
+def _visited_line(record: dict) -> str:
+    low, high = record["v_range"]
+    return f"visited v in [{low:.3g}, {high:.3g}] m/s: phi is determined by the data only there"
+
+
+def _report_lm(result, args: argparse.Namespace, settings: dict, lines: list[str], figure, notes=()) -> int:
+    """A Levenberg-Marquardt fit's result (--table, force records): --out, --plot, the report."""
+    result.settings.update(settings)
+    record = {**result.to_dict(), "out": args.out, "plot": args.plot}
+    failed = write_files(record, ("--out", args.out, result.to_json), ("--plot", args.plot, figure))
+    return _finish(record, args, [*lines, _visited_line(record)], failed, notes)
 
 
 # A coefficient known to worse than this relative standard error is reported as poorly determined.
@@ -630,36 +621,15 @@ def _table_command(args: argparse.Namespace, config: dict) -> int:
         )  # fmt: skip
     except KeyboardInterrupt as stop:
         return _interrupted_fit(stop, args)
-    result.settings.update({"table": args.table, "data": args.data, "phi": args.phi})
-    if args.out is not None:
-        result.to_json(args.out)
-    if args.plot is not None:
-        from ..fit.plots import plot_table_fit
-
-        plot_table_fit(result, table, model=model, path=args.plot)
-    if args.json:
-        record = result.to_dict()
-        record.update({"out": args.out, "plot": args.plot})
-        print(json.dumps(json_safe(record), allow_nan=False))
-        return 0
-    print(
+    lines = [
         f"peeljax fit: {result.steps} iterations (Levenberg-Marquardt), loss {result.initial_loss:.4g} -> "
-        f"{result.final_loss:.4g}"
-    )
-    print(f"stopped: {result.stop_reason}")
-    # the coefficients, then each row's attractor, the bifurcations crossed, the profile intervals
-    print(_ascii("\n".join(result.summary().splitlines()[2:])))
-    print(
-        f"visited v in [{result.v_range[0]:.3g}, {result.v_range[1]:.3g}] m/s: phi is determined by the data only there"
-    )
-    written = [p for p in (args.out, args.plot) if p is not None]
-    if written:
-        print("wrote " + " and ".join(written))
-    return 0
-
-
-def _ascii(text: str) -> str:
-    return text.translate(ASCII).encode("ascii", "replace").decode("ascii")
+        f"{result.final_loss:.4g}",
+        f"stopped: {result.stop_reason}",
+        # the coefficients, then each row's attractor, the bifurcations crossed, the profile intervals
+        *result.summary().splitlines()[2:],
+    ]
+    figure = plotter("plot_table_fit", result, table, model=model, module="peeljax.fit.plots")
+    return _report_lm(result, args, {"table": args.table, "data": args.data, "phi": args.phi}, lines, figure)
 
 
 def _check_run_options(args: argparse.Namespace) -> None:
@@ -751,7 +721,7 @@ def _fit_command(args: argparse.Namespace) -> int:
         else:
             _check_run_options(args)
             observations, defaults = load_observations(args.data, args.V, args.decimate)
-            if args.by is not None or any_force_record(observations):
+            if args.by is not None or any(is_force_record(o) for o in observations):
                 config = _validate_records(args, observations, defaults)
             else:
                 config = _validate(args, observations, defaults)
@@ -773,39 +743,22 @@ def _fit_command(args: argparse.Namespace) -> int:
         result = _fit_runs(fit_adhesion, observations, config, args)
     except KeyboardInterrupt as stop:
         return _interrupted_fit(stop, args, write=_write_fit)
-    _write_fit(result, args)
-    if args.plot is not None:
-        from ..plots import plot_fit
-
-        plot_fit(result, observations, path=args.plot)
     uncertainty = getattr(result, "uncertainty", None)
-    summary = {
-        "out": args.out,
-        "plot": args.plot,
-        "steps": result.steps,
-        "initial_loss": result.initial_loss,
-        "final_loss": result.final_loss,
-        "loss_reduction": result.loss_reduction,
-        "gradient_norm": result.gradient_norm,
-        "v_range": list(result.v_range),
-        "free": list(result.free),
+    record = {
+        "out": args.out, "plot": args.plot, "steps": result.steps, "initial_loss": result.initial_loss,
+        "final_loss": result.final_loss, "loss_reduction": result.loss_reduction,
+        "gradient_norm": result.gradient_norm, "v_range": list(result.v_range), "free": list(result.free),
         "coefficients": result.adhesion.coefficients(),
-        "uncertainty": None if uncertainty is None else uncertainty.as_dict(),
-        "wall_time_s": result.wall_time_s,
-    }
-    if args.json:
-        print(json.dumps(json_safe(summary), allow_nan=False))
-        return 0
-    print(
-        f"peeljax fit: {result.steps} iterations ({args.optimizer}), loss {result.initial_loss:.4g} -> {result.final_loss:.4g} "
-        f"({result.loss_reduction:.3g}x), gradient norm {result.gradient_norm:.3g}"
-    )
-    print(
-        f"visited v in [{result.v_range[0]:.3g}, {result.v_range[1]:.3g}] m/s: phi is determined by the data only there"
-    )
-    if uncertainty is not None:  # values +- standard errors, correlations
-        print(_ascii(uncertainty.table()))
-    else:
-        print("fitted: " + ", ".join(f"{n} {result.adhesion.coefficients()[n]:.6g}" for n in result.free))
-    print(f"wrote {args.out}" + (f" and {args.plot}" if args.plot else ""))
-    return 0
+        "uncertainty": None if uncertainty is None else uncertainty.as_dict(), "wall_time_s": result.wall_time_s,
+    }  # fmt: skip
+    failed = write_files(record, ("--out", args.out, lambda path: _write_fit(result, args)),
+                         ("--plot", args.plot, plotter("plot_fit", result, observations)))  # fmt: skip
+    fitted = ", ".join(f"{n} {result.adhesion.coefficients()[n]:.6g}" for n in result.free)
+    lines = [
+        f"peeljax fit: {result.steps} iterations ({args.optimizer}), loss {result.initial_loss:.4g} -> "
+        f"{result.final_loss:.4g} ({result.loss_reduction:.3g}x), gradient norm {result.gradient_norm:.3g}",
+        _visited_line(record),
+        # values +- standard errors, correlations
+        uncertainty.table() if uncertainty is not None else f"fitted: {fitted}",
+    ]
+    return _finish(record, args, lines, failed)

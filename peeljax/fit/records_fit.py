@@ -38,7 +38,7 @@ from .parameters import check_free, law_from
 from .trajectory import Observation
 from .uncertainty import uncertainty_from_jacobian
 
-__all__ = ["BY", "MIN_SLIPS", "fit_records", "how_fitted"]
+__all__ = ["BY", "MIN_SLIPS", "fit_records", "how_fitted", "is_force_record"]
 
 BY = ("auto", "statistics", "points")
 MIN_SLIPS = 10  # a record with fewer slips after its transient is fitted point by point
@@ -51,6 +51,11 @@ LONG = 50  # slips: a record without a repeat has to hold this many for the halv
 def _holds(o: Observation, quantity: str) -> bool:
     values = getattr(o, quantity)
     return values is not None and bool(np.isfinite(values).any())
+
+
+def is_force_record(o: Observation) -> bool:
+    """A force record (t, F): F but neither v nor alpha, what a load cell gives."""
+    return not _holds(o, "v") and not _holds(o, "alpha") and _holds(o, "F")
 
 
 def how_fitted(observations: Sequence[Observation], by: str = "auto", transient: float | None = None) -> list[tuple[str, str]]:
