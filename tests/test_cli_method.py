@@ -19,6 +19,7 @@ from conftest import assert_refused, forbid, run_cli
 from peeljax import AlphaMethod, sweep
 from peeljax.cli import build_parser, validate_run
 from peeljax.cli import sweep as sweep_cli
+from peeljax.cli import tau_star as tau_star_cli
 
 REMEDY = "raise --max-steps (now {}) or loosen --rtol"
 
@@ -34,7 +35,8 @@ def nothing_runs(no_compilation, monkeypatch):
     """conftest's ``no_compilation``, and the command line's own calls of the integrators fail the test too."""
     reason = "bad input reached the integrator: it must be rejected before compilation"
     forbid(monkeypatch, "peeljax.cli.simulate", "simulate", "simulate_reference", reason=reason)
-    forbid(monkeypatch, sweep_cli, "_run_sweep", "_run_map", "_run_tau_star", reason=reason)
+    forbid(monkeypatch, sweep_cli, "_run_sweep", "_run_map", reason=reason)
+    forbid(monkeypatch, tau_star_cli, "_run_tau_star", reason=reason)
 
 
 # ---------------------------------------------------------------------------- refusals, before compiling

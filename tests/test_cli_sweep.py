@@ -17,6 +17,7 @@ from conftest import PNG_MAGIC, forbid, run_cli, run_cli_writing
 
 from peeljax.cli import build_parser
 from peeljax.cli import sweep as sweep_cli
+from peeljax.cli import tau_star as tau_star_cli
 from peeljax.sweeps import LeastTau, least_tau, sweep
 
 SWEEP = ["sweep", "--V", "1.1", "2", "--tau", "1e-3", "1e-2", "--n-tau", "2", "--dt", "0.01", "--t-final", "0.4",
@@ -160,7 +161,7 @@ def test_tau_star_without_dt_runs_error_control():
     assert 1e-3 < record["tau_star"][0] <= 1e-2
     assert record["tau_below"][0] == pytest.approx(record["tau_star"][0] * 0.8, rel=1e-9)
     args = build_parser().parse_args(["tau-star", "--rtol", "1e-5", "--atol", "1e-10"])
-    kwargs = sweep_cli.validate_tau_star(args)
+    kwargs = tau_star_cli.validate_tau_star(args)
     assert (kwargs["dt"], kwargs["rtol"], kwargs["atol"]) == (None, 1e-5, 1e-10)
     assert set(kwargs) <= set(inspect.signature(least_tau).parameters)
 
@@ -172,7 +173,7 @@ def test_tau_star_json(monkeypatch):
                         found=np.ones(V.size, bool), t_stop_below=np.full(V.size, 0.3), rounds=3, tested=[],
                         settings={})  # fmt: skip
 
-    monkeypatch.setattr(sweep_cli, "_run_tau_star", fake)
+    monkeypatch.setattr(tau_star_cli, "_run_tau_star", fake)
     code, out, err = run_cli(["tau-star", "--V", "1.1", "2", "4", "--dt", "0.01", "--t-final", "1", "--json"])
     assert code == 0, err
     record = json.loads(out)
@@ -232,7 +233,8 @@ def test_tau_star_json(monkeypatch):
     ],
 )
 def test_bad_input_exits_2_without_compiling(argv, message, monkeypatch):
-    forbid(monkeypatch, sweep_cli, "_run_sweep", "_run_tau_star", reason="must not run")
+    forbid(monkeypatch, sweep_cli, "_run_sweep", reason="must not run")
+    forbid(monkeypatch, tau_star_cli, "_run_tau_star", reason="must not run")
     code, out, err = run_cli(argv)
     assert code == 2
     assert message in err, err

@@ -21,6 +21,7 @@ from conftest import PNG_MAGIC, assert_refused, forbid, run_cli
 from peeljax import PeelingModel, StopReason, phi_folds
 from peeljax.cli import build_parser
 from peeljax.cli import sweep as sweep_cli
+from peeljax.cli import tau_star as tau_star_cli
 from peeljax.plots import plot_stick_slip_map
 from peeljax.sweeps import StickSlipMap, stick_slip_map, sweep
 from peeljax.sweeps.stick_slip_map import FOLD_FIELDS, LANE_FIELDS
@@ -319,7 +320,8 @@ def test_map_refuses_bad_input_before_compiling(kwargs, words, no_compilation):
 
 @pytest.fixture
 def cli_not_running(no_compilation, monkeypatch):
-    forbid(monkeypatch, sweep_cli, "_run_sweep", "_run_map", "_run_tau_star", reason="must not run")
+    forbid(monkeypatch, sweep_cli, "_run_sweep", "_run_map", reason="must not run")
+    forbid(monkeypatch, tau_star_cli, "_run_tau_star", reason="must not run")
 
 
 MAP = ["sweep", "--V", "1.1", "--stick-slip-map"]

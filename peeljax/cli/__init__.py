@@ -19,6 +19,7 @@ from . import fit as _fit
 from . import orbit as _orbit
 from . import simulate as _simulate
 from . import sweep as _sweep
+from . import tau_star as _tau_star
 from . import _interrupt
 from .._files import json_safe
 from ._common import PROG, Parser
@@ -26,7 +27,7 @@ from .simulate import summarize, validate_run, write_npz
 
 __all__ = ["build_parser", "json_safe", "main", "summarize", "validate_run", "write_npz"]
 
-COMMANDS = (_simulate, _sweep, _orbit, _figures, _fit)
+COMMANDS = (_simulate, _sweep, _tau_star, _orbit, _figures, _fit)
 
 
 # ---------------------------------------------------------------------------- parser

@@ -1,32 +1,15 @@
-"""``peeljax fit``: fit the adhesion law's coefficients to observed runs.
+"""``peeljax fit``: fit the adhesion law's coefficients to observed runs (docs/fitting.md).
 
-Data files (``--data``, repeatable; read by :mod:`peeljax.fit.records`, never executed):
+* ``--data`` (repeatable): runs as ``.npz`` (a ``peeljax simulate --out`` file among them: its
+  ``tau`` becomes the default) or force records as text (columns t, F; optionally v, alpha and
+  V), read by :mod:`peeljax.fit.records`, never executed. Runs with v or alpha are fitted point
+  by point (:func:`peeljax.fit.fit_adhesion`), force records by their stick-slip statistics or
+  point by point (:func:`peeljax.fit.fit_records`).
+* ``--table``: a stick-slip table (:func:`peeljax.fit.read_stick_slip_table`), fitted by
+  Levenberg-Marquardt with uncertainties (:func:`peeljax.fit.fit_stick_slip`).
 
-* a force record: CSV or whitespace-separated text, ``#`` comment lines, a header naming the
-  columns ``t`` [s] and ``F`` [N] (the tension), optionally ``v`` [m/s], ``alpha`` [rad] and a
-  constant ``V`` [m/s]; the pull velocity from that column, the file name (``peel_V=1.1.csv``)
-  or ``--V`` (one value for all such files, or one per ``--data``), which must agree;
-* ``.npz`` (``np.load(..., allow_pickle=False)``), either layout:
-
-  - one pull velocity per file: a scalar ``V`` and 1-D arrays ``t``, ``v`` of one length, and
-    optionally ``F`` (the tension [N]) and ``alpha`` [rad], on the same times ``t`` or on their
-    own ``t_F`` / ``t_alpha``. A ``peeljax simulate --out`` file is such a file (its NaN
-    entries after a stop are ignored; its ``tau`` becomes the default);
-  - several pull velocities in one file: ``V_0, t_0, v_0`` (and ``F_0, alpha_0, t_F_0,
-    t_alpha_0``), ``V_1, t_1, v_1``, … with consecutive indices from 0.
-
-A stick-slip table (``--table``, instead of ``--data``; :func:`peeljax.fit.read_stick_slip_table`):
-one row per pull velocity V with any of the statistics ``F_mean``, ``F_slip``, ``F_stick``,
-``period``, ``slip_duration`` (each optionally with ``<name>_std``). It is fitted by
-Levenberg-Marquardt (:func:`peeljax.fit.table.fit_stick_slip`; ``--transient``, ``--window``,
-``--starts``, ``--max-iterations``, ``--max-steps``, ``--statistics``, ``--tau`` >= 0, default 0: the DAE with
-jumps); stdout gets the coefficients' values +- standard errors and why the fit stopped,
-``--out`` the result with its uncertainty, ``--plot`` :func:`peeljax.fit.plots.plot_table_fit`.
-
-Output (``--out``): a JSON object with the 14 coefficients ``c1, p1, …, p9`` at top level
-(``AdhesionLaw.from_json`` and ``--phi`` read it), ``loss_history``, ``initial_loss``,
-``final_loss``, ``gradient_norm``, ``v_range`` (the visited v: φ is determined only there),
-``start`` and ``settings``.
+``--out`` gets the fitted coefficients at top level (``--phi`` and ``AdhesionLaw.from_json``
+read it) with the fit's record; every default is the library function's.
 """
 
 from __future__ import annotations
@@ -44,13 +27,13 @@ import numpy as np
 from .._atomic import write_text
 from .._validation import TAU_MAX, check_choice, check_mesh, check_positive, check_tau
 from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw
-from ..fit import QUANTITIES, DataFileError, Observation, fit_adhesion, fit_records, fit_stick_slip, read_force_record
+from ..fit import QUANTITIES, DataFileError, Observation, read_force_record
 from ..fit.parameters import check_free
 from ..fit.records import check_fit_samples, read_npz
-from ..fit.records_fit import is_force_record
 from ..fit.records import decimate as thin
-from ..fit.table import INTERVALS
-from ..fit.trajectory import OPTIMIZERS
+from ..fit.records_fit import fit_records, is_force_record
+from ..fit.table import INTERVALS, fit_stick_slip
+from ..fit.trajectory import OPTIMIZERS, fit_adhesion
 from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_RTOL
 from . import _interrupt, options
 from .._files import json_safe
@@ -60,7 +43,7 @@ __all__ = ["add_command", "load_observations"]
 
 
 def _defaults(function) -> dict:
-    """A fit's defaults, read from the library once (tests replace the functions later)."""
+    """A fit's defaults, read from its home module (the commands call ``peeljax.fit``'s)."""
     return {name: p.default for name, p in inspect.signature(function).parameters.items()}
 
 
@@ -327,25 +310,6 @@ def _read_table(args: argparse.Namespace):
         raise ValueError(f"--table: {error}") from None
     except OSError as error:
         raise ValueError(f"--table: cannot read {args.table!r} ({error.strerror or error})") from None
-
-
-def _records_table(args: argparse.Namespace, observations: list[Observation]):
-    """The stick-slip table of force records (``StickSlipTable.from_force_records``): each
-    record's statistics after --transient, one row per V."""
-    from ..fit import StickSlipTable
-
-    _refuse(args, _DATA_ONLY[1:], "force records (t, F) fitted through their statistics")
-    transient, _ = _table_window(args)
-    t_end = min(float(np.nanmax(o.series("F")[0])) for o in observations)
-    if transient >= t_end:
-        raise ValueError(
-            f"--transient must lie in [0, {t_end:g}) [s] for these records (their statistics are taken after it), "
-            f"got {transient:g}"
-        )
-    try:
-        return StickSlipTable.from_force_records(observations, transient=transient)
-    except ValueError as error:
-        raise ValueError(f"--data: {error}") from None
 
 
 def _validate_table(args: argparse.Namespace, table=None, source: str | None = None) -> dict:
@@ -681,9 +645,7 @@ def _validate(args: argparse.Namespace, observations: list[Observation], default
     t_final = args.t_final if args.t_final is not None else t_last
     rtol, atol = args.rtol, args.atol
     if dt is not None:
-        for option, value in (("--rtol", rtol), ("--atol", atol)):
-            if value is not None:
-                raise ValueError(f"{option} sets the error control that --dt replaces by a uniform mesh: give one of them")
+        options.refuse_with_dt(dt, {"--rtol": rtol, "--atol": atol})
         n_steps = checked("dt in (0, t_final], t_final in (0, inf)", check_mesh, dt, t_final)
     else:
         checked("(0, inf)", check_positive, "--t-final", t_final)

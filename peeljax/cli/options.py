@@ -64,6 +64,7 @@ __all__ = [
     "number",
     "numbers",
     "progress_on",
+    "refuse_with_dt",
     "transient_default",
 ]
 
@@ -243,6 +244,17 @@ def check_method(method: str, allowed: tuple[str, ...], dt, rho, alpha_methods=(
     if rho is not None:
         raise ValueError(
             f"--rho is the alpha-method's parameter: it applies with --method default or alpha, not --method {method}"
+        )
+
+
+def refuse_with_dt(dt, given: dict) -> None:
+    """Error control's options (``given``: values by option, None when left out) do not go with
+    --dt's uniform mesh (the library's rule, :func:`peeljax.integrators.select.refuse_with_dt`)."""
+    named = [option for option, value in given.items() if value is not None]
+    if dt is not None and named:
+        raise ValueError(
+            f"{'/'.join(named)} set{'s' if len(named) == 1 else ''} the alpha-method's error control; --dt asks for "
+            "a uniform mesh: give one or the other"
         )
 
 

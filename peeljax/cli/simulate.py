@@ -18,7 +18,7 @@ from ..integrators.events import FOLD_MODES
 from ..integrators.select import DEFAULT_ATOL as _ALPHA_ATOL
 from ..integrators.select import DEFAULT_MAX_JUMPS, resolve_fold, resolve_max_steps
 from ..integrators.select import DEFAULT_RTOL as _ALPHA_RTOL
-from ..model import GEOMETRIES, PeelingModel
+from ..model import PeelingModel
 from ..simulate import check_run_memory, simulate, simulate_reference
 from ..solution import Solution, StopReason
 from . import options
@@ -197,7 +197,6 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
     Raises:
         ValueError: naming the option and its allowed range.
     """
-    check_choice("--geometry", args.geometry, GEOMETRIES)
     options.check_method(args.method, METHODS, args.dt, args.rho, (*_UNIFORM_METHODS, "diffrax"))
     positive = "(0, inf)"
     checked(positive, check_positive, "--V", args.V)
@@ -210,8 +209,7 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
     save_ts = None
     if args.save_dt is not None:
         n_save = options.check_save_dt(args.save_dt, args.t_final)  # counted first: the times could fill memory
-        if args.method != "diffrax" and dt is not None:
-            raise ValueError("--save-dt sets the output of error control; with --dt the output is the uniform mesh")
+        options.refuse_with_dt(None if args.method == "diffrax" else dt, {"--save-dt": args.save_dt})
         _check_memory(f"--save-dt {args.save_dt:g}", n_save, "ts", "give a larger --save-dt or a shorter --t-final")
         save_ts = tuple(output_times(args.save_dt, args.t_final))
     elif n_steps is not None:
@@ -223,10 +221,7 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
         rho = 0.0 if args.rho is None else args.rho
         checked("[0, 1)", check_rho, rho)
     if args.method != "diffrax" and dt is not None:
-        if args.rtol is not None or args.atol is not None:
-            raise ValueError(
-                "--rtol/--atol set the error control of the alpha-method; --dt asks for a uniform mesh: give one or the other"
-            )
+        options.refuse_with_dt(dt, {"--rtol": args.rtol, "--atol": args.atol})
     else:  # error control, or the diffrax reference with its own defaults
         reference = args.method == "diffrax"
         defaults = (_REFERENCE["rtol"], _REFERENCE["atol"]) if reference else (_ALPHA_RTOL, _ALPHA_ATOL)
@@ -407,25 +402,9 @@ def _run_settings(solution: Solution, config: RunConfig) -> dict:
 
 
 def write_npz(path: str, solution: Solution, config: RunConfig) -> None:
-    """The run as plain arrays and scalars (loads with ``np.load(path, allow_pickle=False)``).
-
-    Arrays t, alpha, omega, u, v, F (tension) and valid share one length, NaN after a stop.
-    Scalars: status, status_code (the :class:`~peeljax.StopReason`), reason, t_stop, V, tau (0: the DAE itself), dt (the uniform step used;
-    NaN with error control), t_final, rho (NaN for diffrax), rtol and atol (NaN on the uniform
-    mesh), geometry, method, phi_json (the 14 coefficients, "" for a callable φ) and stats_json
-    (strict JSON: NaN is null, as in ``--json``). :func:`peeljax.load` reads it back as a Solution.
-
-    A run with a jump record (error control: ``fold`` jump, stop or follow) also has its jumps
-    at the folds of φ, one entry per jump in time order (empty arrays when there were none):
-    jump_t [s], jump_up (True: stick → slip, v jumps up; False: slip → stick), jump_v_before
-    and jump_v_after [m/s] (v just before and just after; 0: the tape landed fully stuck) and
-    jump_G [N] (G = (1 + l·sinα/L)·F, continuous across the jump); and the scalars fold (the
-    mode), max_jumps (the record's size) and transient [s] (where the cycle statistics start:
-    ``peeljax.cycle_statistics(np.load(path), t_stop, transient=transient)``). The rows keep
-    both sides of every jump: two rows with the jump's time, the state just before it and the
-    state just after it, the second marked True in the array after_jump (as long as t).
-    """
-    from ..run_file import write_run  # the one writer of the format (Solution.save too); atomic
+    """The run as plain arrays and scalars (``np.load(path, allow_pickle=False)``; :func:`peeljax.load`
+    reads it back): :func:`peeljax.run_file.write_run`, the one writer of the format, atomic."""
+    from ..run_file import write_run
 
     write_run(path, solution, **_run_settings(solution, config))
 

@@ -1,10 +1,10 @@
-"""``peeljax sweep`` (a batched sweep over V and τ) and ``peeljax tau-star`` (τ* per V)."""
+"""``peeljax sweep``: a batched sweep over V and τ, or (``--stick-slip-map``) the stick-slip map
+over V; its engine's options are ``peeljax tau-star``'s too (:mod:`.tau_star`)."""
 
 from __future__ import annotations
 
 import argparse
 import json
-import math
 import re
 import sys
 import time
@@ -25,7 +25,6 @@ from ..sweeps.least_tau import least_tau as _least_tau_api
 from ._common import (
     PROG,
     STEPPERS,
-    Elapsed,
     checked,
     fail,
     library_default,
@@ -38,11 +37,9 @@ from ._common import (
 )
 from ._distributed import add_distributed_options, distributed_settings, join_processes
 
-__all__ = ["add_command", "engine_text", "tau_grid", "validate_map", "validate_sweep", "validate_tau_star"]
+__all__ = ["add_command", "engine_text", "tau_grid", "validate_map", "validate_sweep"]
 
 DEFAULT_CHUNK = library_default(_sweep_api, "chunk")  # --chunk left out: peeljax.sweep's
-# tau-star's search, left out: peeljax.least_tau's
-_TAU_STAR = {name: library_default(_least_tau_api, name) for name in ("V", "tau_range", "tau_rtol", "n_points")}
 
 
 # ---------------------------------------------------------------------------- parsers
@@ -50,7 +47,7 @@ def _add_model_arguments(parser: argparse.ArgumentParser):
     """The problem's and the integrator's options (shared ones from :mod:`.options`); returns the
     integrator's argument group."""
     group = parser.add_argument_group("problem")
-    options.add_V(group, many=True, default=list(_TAU_STAR["V"]))  # peeljax.least_tau's grid of V, a sweep's too
+    options.add_V(group, many=True, default=list(library_default(_least_tau_api, "V")))  # least_tau's grid, a sweep's too
     options.add_t_final(group)
     options.add_geometry_and_phi(group)
     solver = parser.add_argument_group("integrator")
@@ -145,41 +142,8 @@ def add_command(subparsers) -> None:
     add_distributed_options(parser)
     parser.set_defaults(handler=_sweep_command, out_formats=(".npz", ".nc"))
 
-    star = subparsers.add_parser(
-        "tau-star",
-        help="the least resolvable tau per V",
-        description=(
-            "For each V, tau* = the least tested tau above which every tested tau completes [0, t_final], "
-            "with tau*(1 - tau_rtol) stopping (docs/sweeps.md). All V are searched in parallel. The runs use "
-            "error control (--rtol, --atol) by default, a uniform mesh with --dt."
-        ),
-    )
-    _add_model_arguments(star)
-    search = star.add_argument_group("the search")
-    lo, hi = _TAU_STAR["tau_range"]
-    search.add_argument(
-        "--tau-range", dest="tau_range", type=float, nargs=2, default=[lo, hi], metavar=("LO", "HI"),
-        help=f"search interval [s], 0 < LO < HI (default {lo:g} {hi:g})",
-    )  # fmt: skip
-    search.add_argument(
-        "--tau-rtol", dest="tau_rtol", type=float, default=_TAU_STAR["tau_rtol"],
-        help=f"relative resolution of tau* in (0, 1), not an integrator tolerance (default {_TAU_STAR['tau_rtol']:g})",
-    )  # fmt: skip
-    search.add_argument(
-        "--n-points", dest="n_points", type=int, default=_TAU_STAR["n_points"],
-        help=f"tau values per V and round, an integer >= 2 (default {_TAU_STAR['n_points']})",
-    )  # fmt: skip
-    output = star.add_argument_group("output")
-    options.add_json(output)
-    options.add_progress(output, "progress (the elapsed wall time)")
-    star.set_defaults(handler=_tau_star_command)
-
 
 # ---------------------------------------------------------------------------- validation
-def _positive_list(option: str, values) -> list[float]:
-    return options.check_positive_values(option, values)
-
-
 # The settings a sweep's --out records (peeljax.sweep's names) and the options that set them.
 _SETTING_OPTIONS = {
     "V": "--V", "tau": "--tau", "dae": "--tau", "t_final": "--t-final", "window": "--transient/--window",
@@ -230,7 +194,7 @@ def tau_grid(tau: list[float], n_tau: int | None) -> list[float]:
             f"--tau must be finite and > 0 (the homogenized ODE), or 0 alone (the DAE itself); got {tau}: "
             "the two are different problems, sweep them separately"
         )
-    tau = _positive_list("--tau", tau)
+    tau = options.check_positive_values("--tau", tau)
     if any(value > TAU_MAX for value in tau):
         raise ValueError(f"--tau must lie in (0, {TAU_MAX:g}] (allowed range), got {max(tau):g}")
     if n_tau is None:
@@ -267,13 +231,7 @@ def _integrator_options(args: argparse.Namespace) -> dict:
     save_dt = getattr(args, "save_dt", None)
     save_every = getattr(args, "save_every", None)
     if args.dt is not None:
-        given = [option for option, value in (("--rtol", args.rtol), ("--atol", args.atol), ("--save-dt", save_dt))
-                 if value is not None]  # fmt: skip
-        if given:
-            raise ValueError(
-                f"{'/'.join(given)} set{'s' if len(given) == 1 else ''} the alpha-method's error control; "
-                f"--dt asks for a uniform mesh: give one or the other"
-            )
+        options.refuse_with_dt(args.dt, {"--rtol": args.rtol, "--atol": args.atol, "--save-dt": save_dt})
         n_steps = checked("dt in (0, t_final], t_final in (0, inf)", check_mesh, args.dt, args.t_final)
         if save_every is not None and not 1 <= save_every <= n_steps:
             raise ValueError(f"--save-every must lie in [1, {n_steps}] (the number of steps), got {save_every}")
@@ -376,7 +334,7 @@ def _check_outputs(args: argparse.Namespace) -> None:
 
 def validate_sweep(args: argparse.Namespace) -> dict:
     """Every option checked, nothing compiled; returns the keyword arguments of :func:`peeljax.sweep`."""
-    V = _positive_list("--V", args.V)
+    V = options.check_positive_values("--V", args.V)
     tau = tau_grid([1e-3, 1e-1] if args.tau is None else args.tau, args.n_tau)
     chosen = _integrator(args)
     folds = _check_folds(args, tau, chosen["dt"])
@@ -411,7 +369,7 @@ def _window(args: argparse.Namespace) -> tuple[float, float]:
 def validate_map(args: argparse.Namespace) -> dict:
     """``--stick-slip-map``: every option checked, nothing compiled; returns the keyword arguments
     of :func:`peeljax.sweeps.stick_slip_map`."""
-    V = _positive_list("--V", args.V)
+    V = options.check_positive_values("--V", args.V)
     if args.n_tau is not None:
         raise ValueError("--n-tau makes a grid of tau; --stick-slip-map runs over V at one --tau")
     tau = tau_grid([0.0] if args.tau is None else args.tau, None)
@@ -441,24 +399,6 @@ def validate_map(args: argparse.Namespace) -> dict:
     }  # fmt: skip
 
 
-def validate_tau_star(args: argparse.Namespace) -> dict:
-    V = _positive_list("--V", args.V)
-    chosen = _integrator(args)
-    options.check_max_steps(args.max_steps, None if chosen["dt"] is None else "--dt")
-    if args.max_steps is not None:  # left out: the library's budget
-        chosen["max_steps"] = int(args.max_steps)
-    model = _model(args)
-    lo, hi = args.tau_range
-    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
-        raise ValueError(f"--tau-range LO HI must satisfy 0 < LO < HI (finite), got {lo:g} {hi:g}")
-    if not (math.isfinite(args.tau_rtol) and 0 < args.tau_rtol < 1):
-        raise ValueError(f"--tau-rtol must lie in (0, 1), got {args.tau_rtol:g}")
-    if args.n_points < 2:
-        raise ValueError(f"--n-points must be an integer >= 2 (allowed range: [2, inf)), got {args.n_points}")
-    return {"model": model, "V": V, **chosen, "t_final": float(args.t_final), "tau_range": (lo, hi),
-                "tau_rtol": float(args.tau_rtol), "n_points": args.n_points, "rho": _rho(args)}  # fmt: skip
-
-
 # ---------------------------------------------------------------------------- commands
 _TRAJECTORY_KEYS = ("V", "tau", "completed", "status", "t_stop", "v_mean", "v_std", "v_min", "v_max", "events",
                     "accepted_steps", "rejected_steps", "window_time")  # fmt: skip
@@ -468,12 +408,6 @@ def _run_sweep(kwargs: dict):
     from ..sweeps import sweep
 
     return sweep(**kwargs)
-
-
-def _run_tau_star(kwargs: dict):
-    from ..sweeps import least_tau
-
-    return least_tau(**kwargs)
 
 
 def _run_map(kwargs: dict):
@@ -673,39 +607,3 @@ def _map_command(args: argparse.Namespace) -> int:
     lines += [f"wrote {record[key]}" for key in ("out", "plot") if record[key]]
     notes = _remedy_notes(smap.status, record["max_steps"])
     return report(record, args.json, lines, failed, "the map is above", notes)
-
-
-def _tau_star_command(args: argparse.Namespace) -> int:
-    try:
-        kwargs = validate_tau_star(args)
-    except (ValueError, TypeError) as error:
-        return fail(error)
-    print(f"{PROG}: searching tau* for V = {kwargs['V']}, {engine_text(kwargs)} (compiling first: a few seconds) ...",
-          file=sys.stderr)  # fmt: skip
-    start = time.perf_counter()
-    # least_tau runs its rounds as compiled batches and reports nothing in between: the wall time is shown
-    with Elapsed(options.progress_on(args), "searching tau*"):
-        result = _run_tau_star(kwargs)
-    wall = time.perf_counter() - start
-    record = {
-        "V": result.V.tolist(),
-        "tau_star": result.tau_star.tolist(),
-        "tau_below": result.tau_below.tolist(),
-        "found": result.found.tolist(),
-        "t_stop_below": result.t_stop_below.tolist(),
-        "rounds": result.rounds,
-        **_engine_record(kwargs),
-        "t_final": kwargs["t_final"],
-        "tau_range": list(kwargs["tau_range"]),
-        "tau_rtol": kwargs["tau_rtol"],
-        "max_steps": kwargs.get("max_steps"),  # --max-steps; null: the library's budget
-        "wall_time_s": wall,
-        "phi_paper_defaults": _phi_defaults(args),
-    }
-    lines = [f"{PROG} tau-star: {engine_text(kwargs)}, t_final = {kwargs['t_final']:g} s, "
-             f"tau_rtol = {kwargs['tau_rtol']:g}, {result.rounds} batched runs, {wall:.3g} s"]  # fmt: skip
-    for i, V in enumerate(result.V):
-        note = "" if result.found[i] else "  (not bracketed inside --tau-range)"
-        lines.append(f"V = {V:g} m/s: tau* = {result.tau_star[i]:.6g} s (tau*(1-tau_rtol) stops at t = "
-                     f"{result.t_stop_below[i]:.4g} s){note}")  # fmt: skip
-    return report(record, args.json, lines)

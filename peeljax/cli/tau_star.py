@@ -1,0 +1,110 @@
+"""``peeljax tau-star``: τ* per V, the least resolvable τ (:func:`peeljax.least_tau`), with the
+engine options of ``peeljax sweep``."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+
+from .._validation import check_tolerance
+from ..sweeps.least_tau import least_tau as _least_tau_api
+from . import options
+from ._common import PROG, Elapsed, fail, library_default, report
+from .sweep import _add_model_arguments, _engine_record, _integrator, _model, _phi_defaults, _rho, engine_text
+
+__all__ = ["add_command", "validate_tau_star"]
+
+# the search, left out: peeljax.least_tau's
+_TAU_STAR = {name: library_default(_least_tau_api, name) for name in ("tau_range", "tau_rtol", "n_points")}
+
+
+def add_command(subparsers) -> None:
+    star = subparsers.add_parser(
+        "tau-star",
+        help="the least resolvable tau per V",
+        description=(
+            "For each V, tau* = the least tested tau above which every tested tau completes [0, t_final], "
+            "with tau*(1 - tau_rtol) stopping (docs/sweeps.md). All V are searched in parallel. The runs use "
+            "error control (--rtol, --atol) by default, a uniform mesh with --dt."
+        ),
+    )
+    _add_model_arguments(star)
+    search = star.add_argument_group("the search")
+    lo, hi = _TAU_STAR["tau_range"]
+    search.add_argument(
+        "--tau-range", dest="tau_range", type=float, nargs=2, default=[lo, hi], metavar=("LO", "HI"),
+        help=f"search interval [s], 0 < LO < HI (default {lo:g} {hi:g})",
+    )  # fmt: skip
+    search.add_argument(
+        "--tau-rtol", dest="tau_rtol", type=float, default=_TAU_STAR["tau_rtol"],
+        help=f"relative resolution of tau* in (0, 1), not an integrator tolerance (default {_TAU_STAR['tau_rtol']:g})",
+    )  # fmt: skip
+    search.add_argument(
+        "--n-points", dest="n_points", type=int, default=_TAU_STAR["n_points"],
+        help=f"tau values per V and round, an integer >= 2 (default {_TAU_STAR['n_points']})",
+    )  # fmt: skip
+    output = star.add_argument_group("output")
+    options.add_json(output)
+    options.add_progress(output, "progress (the elapsed wall time)")
+    star.set_defaults(handler=_tau_star_command)
+
+
+def validate_tau_star(args: argparse.Namespace) -> dict:
+    V = options.check_positive_values("--V", args.V)
+    chosen = _integrator(args)
+    options.check_max_steps(args.max_steps, None if chosen["dt"] is None else "--dt")
+    if args.max_steps is not None:  # left out: the library's budget
+        chosen["max_steps"] = int(args.max_steps)
+    model = _model(args)
+    lo, hi = args.tau_range
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
+        raise ValueError(f"--tau-range LO HI must satisfy 0 < LO < HI (finite), got {lo:g} {hi:g}")
+    check_tolerance("--tau-rtol", args.tau_rtol, 1.0)
+    if args.n_points < 2:
+        raise ValueError(f"--n-points must be an integer >= 2 (allowed range: [2, inf)), got {args.n_points}")
+    return {"model": model, "V": V, **chosen, "t_final": float(args.t_final), "tau_range": (lo, hi),
+                "tau_rtol": float(args.tau_rtol), "n_points": args.n_points, "rho": _rho(args)}  # fmt: skip
+
+
+def _run_tau_star(kwargs: dict):
+    from ..sweeps import least_tau
+
+    return least_tau(**kwargs)
+
+
+def _tau_star_command(args: argparse.Namespace) -> int:
+    try:
+        kwargs = validate_tau_star(args)
+    except (ValueError, TypeError) as error:
+        return fail(error)
+    print(f"{PROG}: searching tau* for V = {kwargs['V']}, {engine_text(kwargs)} (compiling first: a few seconds) ...",
+          file=sys.stderr)  # fmt: skip
+    start = time.perf_counter()
+    # least_tau runs its rounds as compiled batches and reports nothing in between: the wall time is shown
+    with Elapsed(options.progress_on(args), "searching tau*"):
+        result = _run_tau_star(kwargs)
+    wall = time.perf_counter() - start
+    record = {
+        "V": result.V.tolist(),
+        "tau_star": result.tau_star.tolist(),
+        "tau_below": result.tau_below.tolist(),
+        "found": result.found.tolist(),
+        "t_stop_below": result.t_stop_below.tolist(),
+        "rounds": result.rounds,
+        **_engine_record(kwargs),
+        "t_final": kwargs["t_final"],
+        "tau_range": list(kwargs["tau_range"]),
+        "tau_rtol": kwargs["tau_rtol"],
+        "max_steps": kwargs.get("max_steps"),  # --max-steps; null: the library's budget
+        "wall_time_s": wall,
+        "phi_paper_defaults": _phi_defaults(args),
+    }
+    lines = [f"{PROG} tau-star: {engine_text(kwargs)}, t_final = {kwargs['t_final']:g} s, "
+             f"tau_rtol = {kwargs['tau_rtol']:g}, {result.rounds} batched runs, {wall:.3g} s"]  # fmt: skip
+    for i, V in enumerate(result.V):
+        note = "" if result.found[i] else "  (not bracketed inside --tau-range)"
+        lines.append(f"V = {V:g} m/s: tau* = {result.tau_star[i]:.6g} s (tau*(1-tau_rtol) stops at t = "
+                     f"{result.t_stop_below[i]:.4g} s){note}")  # fmt: skip
+    return report(record, args.json, lines)
