@@ -52,19 +52,20 @@ _METHOD_TITLES = {
 }
 
 
-# the diffrax reference's defaults (--method diffrax), read once from the library
+# the defaults of a run and of the diffrax reference (--method diffrax), read once from the library
+_RUN = {name: library_default(simulate, name) for name in ("V", "tau", "t_final", "rho")}
 _REFERENCE = {name: library_default(simulate_reference, name) for name in ("dt", "rtol", "atol", "max_steps")}
 
 
 def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
     """The problem's and the integrator's options of ``simulate`` (shared ones from :mod:`.options`)."""
     physics = parser.add_argument_group("problem")
-    options.add_V(physics, many=False, default=1.1)
+    options.add_V(physics, many=False, default=_RUN["V"])
     physics.add_argument(
-        "--tau", type=options.number("--tau"), default=0.01,
+        "--tau", type=options.number("--tau"), default=_RUN["tau"],
         help=f"{options.tau_help(options.TAU_RANGE)}; 0 needs error control (default %(default)s)",
     )  # fmt: skip
-    options.add_t_final(physics)
+    options.add_t_final(physics, default=_RUN["t_final"])
     physics.add_argument(
         "--y0", type=float, nargs=4, metavar=("ALPHA0", "OMEGA0", "U0", "v0"),
         help="initial state: peel angle alpha0 [rad], spool speed omega0 [rad/s], tape stretch u0 [m] and "
@@ -81,11 +82,12 @@ def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
     solver.add_argument(
         "--dt", type=float, default=None,
         help="default/alpha: a uniform mesh of N = round(t_final/dt) alpha-method steps instead of error control, "
-        "dt in (0, t_final]; diffrax: the output spacing (default: error control; 1/82 for diffrax)",
+        f"dt in (0, t_final]; diffrax: the output spacing (default: error control; 1/{1 / _REFERENCE['dt']:g} for diffrax)",
     )  # fmt: skip
     solver.add_argument(
-        "--rho", type=float, default=None, help="alpha-method's rho in [0, 1) (default 0; --method default or alpha)"
-    )
+        "--rho", type=float, default=None,
+        help=f"alpha-method's rho in [0, 1) (default {_RUN['rho']:g}; --method default or alpha)",
+    )  # fmt: skip
     options.add_tolerances(
         solver, rtol_default=f"{_ALPHA_RTOL:g}; {_REFERENCE['rtol']:g} for diffrax",
         atol_default=f"{_ALPHA_ATOL:g}; {_REFERENCE['atol']:g} for diffrax", note="not on the uniform mesh",
@@ -218,7 +220,7 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
         _check_memory(option, n_steps + 1, kind, "give a larger --dt or a shorter --t-final")
     rho = rtol = atol = None
     if args.method in _UNIFORM_METHODS:  # the α-method may run: its ρ
-        rho = 0.0 if args.rho is None else args.rho
+        rho = _RUN["rho"] if args.rho is None else args.rho
         checked("[0, 1)", check_rho, rho)
     if args.method != "diffrax" and dt is not None:
         options.refuse_with_dt(dt, {"--rtol": args.rtol, "--atol": args.atol})
@@ -227,7 +229,7 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
         defaults = (_REFERENCE["rtol"], _REFERENCE["atol"]) if reference else (_ALPHA_RTOL, _ALPHA_ATOL)
         rtol, atol = options.check_tolerances(args.rtol, args.atol, defaults)
     fold, max_jumps, transient = _check_folds(args, dt)
-    max_steps = getattr(args, "max_steps", None)
+    max_steps = args.max_steps
     options.check_max_steps(max_steps, "--dt" if args.method != "diffrax" and dt is not None else None)
     if max_steps is not None and save_ts is None and args.method != "diffrax":
         # the accepted steps are the output: max_steps + 1 rows (diffrax's reference keeps its output grid)
@@ -236,25 +238,12 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
     model, phi_defaults = options.model_from(args)
     options.check_outputs(args)
     return RunConfig(
-        model=model,
-        V=float(args.V),
-        tau=float(args.tau),
-        dt=None if dt is None else float(dt),
-        t_final=float(args.t_final),
-        n_steps=n_steps,
-        method=args.method,
-        rho=rho,
-        rtol=rtol,
-        atol=atol,
-        y0=None if args.y0 is None else tuple(args.y0),
-        phi=args.phi,
-        save_ts=save_ts,
-        fold=fold,
-        max_jumps=max_jumps,
-        transient=transient,
-        phi_defaults=phi_defaults,
+        model=model, V=float(args.V), tau=float(args.tau), dt=None if dt is None else float(dt),
+        t_final=float(args.t_final), n_steps=n_steps, method=args.method, rho=rho, rtol=rtol, atol=atol,
+        y0=None if args.y0 is None else tuple(args.y0), phi=args.phi, save_ts=save_ts, fold=fold,
+        max_jumps=max_jumps, transient=transient, phi_defaults=phi_defaults,
         max_steps=None if max_steps is None else int(max_steps),
-    )
+    )  # fmt: skip
 
 
 def _check_memory(option: str, rows: int, kind: str, remedy: str) -> None:
@@ -325,43 +314,21 @@ def run(config: RunConfig) -> tuple[Solution, float]:
     ts = None if config.save_ts is None else np.asarray(config.save_ts)
     # --max-steps left out: the library's own budget (it depends on the output asked for)
     budget = {} if config.max_steps is None else {"max_steps": config.max_steps}
-    rho = 0.0 if config.rho is None else config.rho
-    if config.adaptive:
-        solution = simulate(
-            config.model,
-            config.V,
-            config.tau,
-            None,
-            config.t_final,
-            rho,
-            config.y0,
-            rtol=config.rtol,
-            atol=config.atol,
-            ts=ts,
-            fold=config.fold,
-            max_jumps=config.max_jumps,
-            solver=config.solver,
-            **budget,
-        )
-        if ts is None:  # the accepted steps, without the rows left for more
-            solution = solution.without_padding()
-    elif config.uniform:
-        solution = simulate(
-            config.model, config.V, config.tau, config.dt, config.t_final, rho, config.y0, solver=config.solver
-        )
-    else:
+    if config.method == "diffrax":
         solution = simulate_reference(
-            config.model,
-            config.V,
-            config.tau,
-            config.dt if ts is None else None,
-            config.t_final,
-            config.y0,
-            rtol=config.rtol,
-            atol=config.atol,
-            ts=ts,
-            **budget,
-        )
+            config.model, config.V, config.tau, config.dt if ts is None else None, config.t_final, config.y0,
+            rtol=config.rtol, atol=config.atol, ts=ts, **budget,
+        )  # fmt: skip
+    else:  # error control, or the uniform mesh (config.dt)
+        control = {} if config.uniform else {"rtol": config.rtol, "atol": config.atol, "ts": ts, "fold": config.fold,
+                                             "max_jumps": config.max_jumps, **budget}  # fmt: skip
+        rho = _RUN["rho"] if config.rho is None else config.rho
+        solution = simulate(
+            config.model, config.V, config.tau, config.dt, config.t_final, rho, config.y0, solver=config.solver,
+            **control,
+        )  # fmt: skip
+        if config.adaptive and ts is None:  # the accepted steps, without the rows left for more
+            solution = solution.without_padding()
     solution = jax.block_until_ready(solution)  # JAX dispatches asynchronously: time the finished run
     return solution, time.perf_counter() - start
 
