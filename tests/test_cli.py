@@ -460,7 +460,8 @@ def test_help_states_every_default_and_the_shared_options():
 def test_transient_and_window_mean_the_same_everywhere(no_compilation, capsys):
     """--transient T and --window W [s]: statistics over [T, T + W]; default the run's second half."""
     from peeljax.cli import sweep as sweep_cli
-    from peeljax.cli.fit import _table_window
+    from peeljax.cli import sweep_map as sweep_map_cli
+    from peeljax.cli.fit_table import _table_window
 
     def window(*options):
         args = build_parser().parse_args(["sweep", "--V", "1.1", "--tau", "0.01", "--t-final", "2", *options])
@@ -474,7 +475,7 @@ def test_transient_and_window_mean_the_same_everywhere(no_compilation, capsys):
     simulate = validate_run(build_parser().parse_args(["simulate", "--tau", "0", "--t-final", "2"]))
     assert simulate.transient == 1.0
     args = build_parser().parse_args(["sweep", "--V", "1.1", "--stick-slip-map", "--t-final", "2"])
-    assert sweep_cli.validate_map(args)["transient"] == 1.0
+    assert sweep_map_cli.validate_map(args)["transient"] == 1.0
 
     def table(*options):
         return _table_window(build_parser().parse_args(["fit", "--table", "t.csv", *options]))

@@ -19,6 +19,7 @@ from conftest import assert_refused, forbid, run_cli
 from peeljax import AlphaMethod, sweep
 from peeljax.cli import build_parser, validate_run
 from peeljax.cli import sweep as sweep_cli
+from peeljax.cli import sweep_map as sweep_map_cli
 from peeljax.cli import tau_star as tau_star_cli
 
 REMEDY = "raise --max-steps (now {}) or loosen --rtol"
@@ -35,7 +36,8 @@ def nothing_runs(no_compilation, monkeypatch):
     """conftest's ``no_compilation``, and the command line's own calls of the integrators fail the test too."""
     reason = "bad input reached the integrator: it must be rejected before compilation"
     forbid(monkeypatch, "peeljax.cli.simulate", "simulate", "simulate_reference", reason=reason)
-    forbid(monkeypatch, sweep_cli, "_run_sweep", "_run_map", reason=reason)
+    forbid(monkeypatch, sweep_cli, "_run_sweep", reason=reason)
+    forbid(monkeypatch, sweep_map_cli, "_run_map", reason=reason)
     forbid(monkeypatch, tau_star_cli, "_run_tau_star", reason=reason)
 
 
@@ -126,7 +128,7 @@ def test_sweep_method_and_max_steps_reach_the_api(nothing_runs):
     assert chosen["solver"] == "tsit5" and chosen["max_steps"] == 5000
     assert isinstance(kwargs("--method", "alpha", "--rho", "0.5")["solver"], AlphaMethod)
     args = build_parser().parse_args(["sweep", "--V", "1.1", "--stick-slip-map", "--method", "kvaerno5"])
-    assert sweep_cli.validate_map(args)["solver"] == "kvaerno5"
+    assert sweep_map_cli.validate_map(args)["solver"] == "kvaerno5"
 
 
 # ---------------------------------------------------------------------------- runs

@@ -21,6 +21,7 @@ from conftest import PNG_MAGIC, assert_refused, forbid, run_cli
 from peeljax import PeelingModel, StopReason, phi_folds
 from peeljax.cli import build_parser
 from peeljax.cli import sweep as sweep_cli
+from peeljax.cli import sweep_map as sweep_map_cli
 from peeljax.cli import tau_star as tau_star_cli
 from peeljax.plots import plot_stick_slip_map
 from peeljax.sweeps import StickSlipMap, stick_slip_map, sweep
@@ -320,7 +321,8 @@ def test_map_refuses_bad_input_before_compiling(kwargs, words, no_compilation):
 
 @pytest.fixture
 def cli_not_running(no_compilation, monkeypatch):
-    forbid(monkeypatch, sweep_cli, "_run_sweep", "_run_map", reason="must not run")
+    forbid(monkeypatch, sweep_cli, "_run_sweep", reason="must not run")
+    forbid(monkeypatch, sweep_map_cli, "_run_map", reason="must not run")
     forbid(monkeypatch, tau_star_cli, "_run_tau_star", reason="must not run")
 
 
@@ -372,13 +374,13 @@ def test_cli_options_reach_the_api():
     assert kwargs["start"] == "steady" and kwargs["max_steps"] == 5000
     assert set(kwargs) <= set(inspect.signature(sweep).parameters)
     args = build_parser().parse_args(["sweep", "--V", "1", "2", "--stick-slip-map", "--t-final", "2"])
-    kwargs = sweep_cli.validate_map(args)
+    kwargs = sweep_map_cli.validate_map(args)
     assert kwargs["tau"] == 0.0 and kwargs["starts"] == ("paper", "steady") and kwargs["transient"] == 1.0
     accepted = set(inspect.signature(stick_slip_map).parameters) | set(inspect.signature(sweep).parameters)
     assert set(kwargs) <= accepted
     args = build_parser().parse_args(["sweep", "--stick-slip-map", "--start", "paper", "--tau", "0.01",
                                       "--transient", "0.5"])  # fmt: skip
-    kwargs = sweep_cli.validate_map(args)
+    kwargs = sweep_map_cli.validate_map(args)
     assert kwargs["starts"] == ("paper",) and kwargs["tau"] == 0.01 and kwargs["transient"] == 0.5
 
 

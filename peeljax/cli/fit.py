@@ -15,41 +15,44 @@ read it) with the fit's record; every default is the library function's.
 from __future__ import annotations
 
 import argparse
-import inspect
 import json
-import math
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 from .._atomic import write_text
-from .._validation import TAU_MAX, check_choice, check_mesh, check_positive, check_tau
+from .._files import json_safe
+from .._validation import check_choice, check_mesh, check_positive
 from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw
 from ..fit import QUANTITIES, DataFileError, Observation, read_force_record
 from ..fit.parameters import check_free
 from ..fit.records import check_fit_samples, read_npz
 from ..fit.records import decimate as thin
-from ..fit.records_fit import fit_records, is_force_record
-from ..fit.table import INTERVALS, fit_stick_slip
-from ..fit.trajectory import OPTIMIZERS, fit_adhesion
+from ..fit.records_fit import is_force_record
+from ..fit.trajectory import OPTIMIZERS
 from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_RTOL
-from . import _interrupt, options
-from .._files import json_safe
-from ._common import PROG, check_input_file, checked, fail, load_phi, plotter, report, write_files
+from . import options
+from ._common import PROG, check_input_file, checked, fail, load_phi, plotter, write_files
+from .fit_table import (
+    _DATA_ONLY,
+    _POINTS_DEFAULTS,
+    _RECORDS_DEFAULTS,
+    _TABLE_DEFAULTS,
+    _TABLE_ONLY,
+    _files_of,
+    _finish,
+    _interrupted_fit,
+    _points_tau,
+    _records_command,
+    _refuse,
+    _table_command,
+    _validate_records,
+    _validate_table,
+    _visited_line,
+)
 
 __all__ = ["add_command", "load_observations"]
-
-
-def _defaults(function) -> dict:
-    """A fit's defaults, read from its home module (the commands call ``peeljax.fit``'s)."""
-    return {name: p.default for name, p in inspect.signature(function).parameters.items()}
-
-
-_TABLE_DEFAULTS = _defaults(fit_stick_slip)  # --table
-_RECORDS_DEFAULTS = _defaults(fit_records)  # --data force records (t, F)
-_POINTS_DEFAULTS = _defaults(fit_adhesion)  # --data runs with v or alpha, fitted point by point
 
 
 def add_command(subparsers) -> None:
@@ -224,22 +227,6 @@ def load_observations(paths: list[str], V=None, decimate: int | None = None) -> 
     return observations, {k: next(iter(v)) for k, v in defaults.items() if len(v) == 1}
 
 
-def _files_of(paths: list[str], observations: list[Observation]) -> list[str]:
-    """The --data file of each observation (an .npz may hold several; matched by order)."""
-    if len(paths) == len(observations):
-        return list(paths)
-    return [f"{', '.join(paths)} (the run at V = {o.V:g})" for o in observations]
-
-
-_TABLE_ONLY = ("transient", "window", "n_starts", "starts_deprecated", "max_iterations", "statistics", "method",
-               "intervals")
-_DATA_ONLY = ("V", "dt", "t_final", "learning_rate", "quantities", "steps", "optimizer", "patience")
-
-
-def _option(name: str) -> str:
-    return "--starts" if name == "starts_deprecated" else "--" + name.replace("_", "-")
-
-
 def _check_source(args: argparse.Namespace) -> None:
     """Exactly one of --data and --table, and no option of the other kind."""
     if args.data is not None and args.table is not None:
@@ -250,272 +237,6 @@ def _check_source(args: argparse.Namespace) -> None:
         _refuse(args, (*_DATA_ONLY, "decimate", "by"), "--table")
     if args.data is not None and args.out is None:
         raise ValueError("--out FITTED.json is required with --data")
-
-
-# The option of the other kind of fit that does the same job.
-_COUNTERPART = {"steps": "--max-iterations", "max_iterations": "--steps"}
-
-
-def _refuse(args: argparse.Namespace, names: tuple[str, ...], source: str) -> None:
-    for name in names:
-        if getattr(args, name) is not None:
-            instead = f" (its counterpart there is {_COUNTERPART[name]})" if name in _COUNTERPART else ""
-            raise ValueError(f"{_option(name)} does not apply to {source}{instead}")
-
-
-def _table_window(args: argparse.Namespace) -> tuple[float, float]:
-    """--transient T and --window W of the table fit: statistics over [T, T + W], the runs end
-    at T + W; the same rule as the other commands' (the second half of the run): W defaults
-    to T, T to 0.5 s (or to W when only --window is given)."""
-    _, window = options.one_window(args.window, fractions_allowed=False)
-    if window is not None and not (math.isfinite(window) and window > 0):
-        raise ValueError(f"--window must be > 0 [s] (allowed range: (0, inf)), got {window:g}")
-    transient = args.transient
-    if transient is None:
-        transient = _TABLE_DEFAULTS["transient"] if window is None else window
-    if not (math.isfinite(transient) and transient >= 0):
-        raise ValueError(f"--transient must be >= 0 [s] (allowed range: [0, inf)), got {transient:g}")
-    if window is None and transient == 0:
-        raise ValueError("--window must be > 0 [s] (allowed range: (0, inf)): with --transient 0 give --window")
-    window = transient if window is None else window
-    return float(transient), float(window)
-
-
-def _n_starts(args: argparse.Namespace) -> int | None:
-    if args.starts_deprecated is not None:
-        options.deprecated(f"--starts {args.starts_deprecated}", f"--n-starts {args.starts_deprecated}")
-        if args.n_starts is not None:
-            raise ValueError("--starts is the old spelling of --n-starts: give --n-starts only")
-    n = args.n_starts if args.starts_deprecated is None else args.starts_deprecated
-    if n is None:
-        return None  # the library's default: 1 with --method orbit, 3 with window
-    if n < 1:
-        spelled = "--n-starts" if args.starts_deprecated is None else "--starts (now --n-starts)"
-        raise ValueError(f"{spelled} must be >= 1 (allowed range: [1, inf)), got {n}")
-    return int(n)
-
-
-def _read_table(args: argparse.Namespace):
-    from ..fit import read_stick_slip_table
-
-    check_input_file("--table", args.table)
-    if Path(args.table).suffix.lower() == ".npz":
-        raise ValueError(
-            f"--table {args.table!r}: a stick-slip table is text (CSV or whitespace columns V, F_mean, ...); "
-            "runs in an .npz are fitted with --data"
-        )
-    try:
-        return read_stick_slip_table(args.table)
-    except DataFileError as error:
-        raise ValueError(f"--table: {error}") from None
-    except OSError as error:
-        raise ValueError(f"--table: cannot read {args.table!r} ({error.strerror or error})") from None
-
-
-def _validate_table(args: argparse.Namespace, table=None, source: str | None = None) -> dict:
-    """--table's options (or those of force records fitted through their ``table``), all
-    checked before anything is compiled."""
-    from ..fit.stick_slip_table import STATISTICS
-    from ..fit.table import table_tolerances
-
-    if table is None:
-        table, source = _read_table(args), f"the stick-slip table {args.table}"
-    tau = _TABLE_DEFAULTS["tau"] if args.tau is None else args.tau
-    checked(f"[0, {TAU_MAX:g}]", check_tau, tau, True)
-    transient, window = _table_window(args)
-    n_starts = _n_starts(args)
-    max_iterations = _max_iterations(args, _TABLE_DEFAULTS)
-    options.check_max_steps(args.max_steps)
-    rtol, atol = options.check_tolerances(*table_tolerances(tau, args.rtol, args.atol), (None, None))
-    free = _free(args, _TABLE_DEFAULTS)
-    statistics = table.statistics if args.statistics is None else tuple(args.statistics)
-    unknown = [s for s in statistics if s not in table.statistics]
-    if unknown:
-        raise ValueError(
-            f"--statistics: {unknown} not in {source}, which has {', '.join(table.statistics)} "
-            f"(of {', '.join(STATISTICS)})"
-        )
-    n_measured = sum(int(np.sum(~np.isnan(table.values[s]))) for s in statistics)
-    if n_measured <= len(free):
-        raise ValueError(
-            f"--free: {n_measured} measured values in {source} cannot determine {len(free)} coefficient(s) "
-            "with an error estimate; fit fewer"
-        )
-    method = _choice("--method", args.method, ("orbit", "window"), "orbit" if tau == 0 else "window")
-    if method == "orbit" and tau != 0:
-        raise ValueError(f"--method orbit needs --tau 0 (orbits of the DAE with jumps); --tau {tau:g} needs --method window")
-    intervals = _choice("--intervals", args.intervals, INTERVALS, _TABLE_DEFAULTS["intervals"])
-    start = AdhesionLaw() if args.phi is None else load_phi(args.phi)
-    options.check_outputs(args)
-    return {
-        "method": method, "intervals": intervals,
-        "table": table, "source": source, "tau": float(tau), "transient": transient, "window": window,
-        "n_starts": n_starts, "max_iterations": int(max_iterations), "rtol": rtol, "atol": atol,
-        "free": free, "statistics": tuple(statistics), "start": start,
-        # left out: fit_stick_slip's own budget
-        **({} if args.max_steps is None else {"max_steps": int(args.max_steps)}),
-    }  # fmt: skip
-
-
-def _choice(option: str, value, allowed: tuple[str, ...], default: str) -> str:
-    """An option among ``allowed``; ``default`` (the library's) when not given."""
-    if value is None:
-        return default
-    check_choice(option, value, allowed)
-    return value
-
-
-def _max_iterations(args: argparse.Namespace, defaults: dict) -> int:
-    """--max-iterations >= 1; the fit's own default (``defaults``, the library's) when not given."""
-    n = defaults["max_iterations"] if args.max_iterations is None else args.max_iterations
-    if n < 1:
-        raise ValueError(f"--max-iterations must be >= 1 (allowed range: [1, inf)), got {n}")
-    return int(n)
-
-
-def _free(args: argparse.Namespace, defaults: dict) -> tuple[str, ...]:
-    """--free, checked by the library; the fit's own default (``defaults``) when not given."""
-    free = tuple(defaults["free"]) if args.free is None else tuple(args.free)
-    check_free(free)
-    return free
-
-
-def _validate_records(args: argparse.Namespace, observations: list[Observation], defaults: dict) -> dict:
-    """The options of force records fitted by statistics and/or point by point
-    (:func:`peeljax.fit.fit_records`), all checked before anything is compiled."""
-    from ..fit.records_fit import BY, how_fitted
-
-    _refuse(args, _DATA_ONLY[1:], "force records (t, F): fitted by their statistics or point by point")
-    _refuse(args, ("window", "n_starts", "starts_deprecated", "method"),
-            "force records (t, F) (their statistics run from --transient to each record's end)")  # fmt: skip
-    by = _choice("--by", args.by, BY, "auto")
-    transient = args.transient
-    if transient is not None:
-        t_end = min(float(np.nanmax(o.series("F")[0])) for o in observations if o.series("F") is not None)
-        if not (math.isfinite(transient) and 0 <= transient < t_end):
-            raise ValueError(f"--transient must lie in [0, {t_end:g}) [s] for these records (their statistics are "
-                             f"taken after it), got {transient:g}")  # fmt: skip
-    try:
-        decided = how_fitted(observations, by, transient)
-    except ValueError as error:
-        raise ValueError(f"--by {by}: {error}") from None
-    points = [o for o, (kind, _) in zip(observations, decided) if kind == "points"]
-    if points:
-        check_fit_samples(points, [f"--data {name}" for name, (kind, _) in
-                                   zip(_files_of(args.data, observations), decided) if kind == "points"], "--decimate")  # fmt: skip
-    tau = _points_tau(args, defaults)  # the τ of records fitted point by point
-    statistics = None
-    if args.statistics is not None:
-        from ..fit.stick_slip_table import STATISTICS
-
-        unknown = [name for name in args.statistics if name not in STATISTICS]
-        if unknown:
-            raise ValueError(f"--statistics: {unknown} is not a statistic of force records; allowed: {', '.join(STATISTICS)}")
-        statistics = tuple(args.statistics)
-    max_iterations = _max_iterations(args, _RECORDS_DEFAULTS)
-    free = _free(args, _RECORDS_DEFAULTS)
-    rtol, atol = options.check_tolerances(args.rtol, args.atol, (_RECORDS_DEFAULTS["rtol"], _RECORDS_DEFAULTS["atol"]))
-    intervals = _choice("--intervals", args.intervals, INTERVALS, _RECORDS_DEFAULTS["intervals"])
-    start = AdhesionLaw() if args.phi is None else load_phi(args.phi)
-    options.check_outputs(args)
-    return {"records": observations, "decided": decided, "by": by, "transient": transient, "tau": float(tau),
-            "statistics": statistics,
-            "max_iterations": int(max_iterations), "free": free, "rtol": rtol, "atol": atol, "intervals": intervals,
-            "start": start}  # fmt: skip
-
-
-def _records_command(args: argparse.Namespace, config: dict) -> int:
-    """``peeljax fit --data`` with force records: :func:`peeljax.fit.fit_records`."""
-    from ..fit import fit_records
-    from ..model import PeelingModel
-
-    for name, (kind, why) in zip(_files_of(args.data, config["records"]), config["decided"]):
-        print(f"{PROG}: --data {name}: fitted by {kind} ({why})", file=sys.stderr)
-    print(f"{PROG}: fitting {', '.join(config['free'])}; compiling first ...", file=sys.stderr)
-    model = PeelingModel(adhesion=config["start"])
-    hooked = options.progress_on(args)
-    try:
-        result = fit_records(
-            config["records"], model, free=config["free"], by=config["by"], transient=config["transient"],
-            tau=config["tau"], rtol=config["rtol"], atol=config["atol"], max_iterations=config["max_iterations"],
-            statistics=config["statistics"],
-            intervals=config["intervals"], progress=_iteration_line("Levenberg-Marquardt") if hooked else None,
-        )  # fmt: skip
-    except KeyboardInterrupt as stop:
-        return _interrupted_fit(stop, args)
-    by_points = any(kind == "points" for kind, _ in config["decided"])  # each record's F(t) against the model's, and φ
-    figure = plotter("plot_records_fit", result, config["records"], model=model, tau=config["tau"] if by_points else 0.0,
-                     module="peeljax.fit.plots")  # fmt: skip
-    poorly = None if args.json else poorly_determined(result, config["records"])
-    notes = [] if poorly is None else [f"{PROG}: {poorly}"]
-    return _report_lm(result, args, {"data": args.data, "phi": args.phi}, [result.summary()], figure, notes)
-
-
-def _finish(record: dict, args: argparse.Namespace, lines: list[str], failed, notes=()) -> int:
-    """A fit's report: --json or ``lines`` and the files written."""
-    written = [record[key] for key in ("out", "plot") if record.get(key)]
-    lines = lines + (["wrote " + " and ".join(written)] if written else [])
-    return report(record, args.json, lines, failed, "the fit's result is above", notes)
-
-
-def _visited_line(record: dict) -> str:
-    low, high = record["v_range"]
-    return f"visited v in [{low:.3g}, {high:.3g}] m/s: phi is determined by the data only there"
-
-
-def _report_lm(result, args: argparse.Namespace, settings: dict, lines: list[str], figure, notes=()) -> int:
-    """A Levenberg-Marquardt fit's result (--table, force records): --out, --plot, the report."""
-    result.settings.update(settings)
-    record = {**result.to_dict(), "out": args.out, "plot": args.plot}
-    failed = write_files(record, ("--out", args.out, result.to_json), ("--plot", args.plot, figure))
-    return _finish(record, args, [*lines, _visited_line(record)], failed, notes)
-
-
-# A coefficient known to worse than this relative standard error is reported as poorly determined.
-POORLY_DETERMINED = 0.05
-
-
-def poorly_determined(result, records: list[Observation], target: float = 0.01) -> str | None:
-    """A line for the coefficients the records determine to worse than ``POORLY_DETERMINED``
-    (relative standard error), with the record length that would give ``target``: the error of
-    a fit to noisy samples falls like 1/√(its samples), so the length scales with its square
-    (an estimate: it holds while longer records add samples like these, not new physics)."""
-    uncertainty = getattr(result, "uncertainty", None)
-    if uncertainty is None:
-        return None
-    values = np.asarray(uncertainty.values, float)
-    errors = np.asarray(uncertainty.standard_errors, float)
-    relative = np.abs(errors / np.where(values != 0, values, np.nan))
-    worst = [(name, r) for name, r in zip(uncertainty.names, relative) if not r <= POORLY_DETERMINED]
-    if not worst:
-        return None
-    spans = [float(np.ptp(series[0])) for o in records if (series := o.series("F")) is not None and len(series[0])]
-    length = sum(spans)
-    said = ", ".join(f"{name} to {100 * r:.3g} %" if np.isfinite(r) else f"{name} not at all" for name, r in worst)
-    factor = max((r / target) ** 2 for _, r in worst)
-    longer = (f"; about {length * factor:.3g} s of record ({factor:.3g}x the {length:.3g} s given) would give "
-              f"{100 * target:g} %") if np.isfinite(factor) and length > 0 else ""  # fmt: skip
-    return f"the records determine {said} only (relative standard error){longer}"
-
-
-def _interrupted_fit(stop: KeyboardInterrupt, args: argparse.Namespace, write=None) -> int:
-    """Ctrl-C during a fit: its best point so far (``FitInterrupted.best``) written to --out
-    where there is one, and the line on stderr says what was kept (exit 130)."""
-    from ..fit import FitInterrupted
-
-    best = stop.best if isinstance(stop, FitInterrupted) else None
-    if best is None:
-        return _interrupt.interrupted("nothing was fitted yet" + (f"; {args.out!r} not written" if args.out else ""))
-    if args.out is None:
-        coefficients = best.adhesion.coefficients()
-        found = ", ".join(f"{name} = {coefficients[name]:.6g}" for name in best.free)
-        return _interrupt.interrupted(f"the best point so far ({best.stop_reason}): {found}; not saved (no --out)")
-    if write is not None:
-        write(best, args)
-    else:
-        best.settings.update({"data": args.data, "table": getattr(args, "table", None), "phi": args.phi})
-        best.to_json(args.out)
-    return _interrupt.interrupted(f"{args.out!r} holds the best point so far ({best.stop_reason})")
 
 
 def _fit_runs(fit_adhesion, observations, config: dict, args: argparse.Namespace):
@@ -546,56 +267,6 @@ def _write_fit(result, args: argparse.Namespace) -> None:
     write_text(args.out, json.dumps(json_safe(record), indent=2, allow_nan=False) + "\n")
 
 
-def _iteration_line(what: str):
-    """A progress callable for the table fit: one line per iteration on stderr."""
-    began = time.perf_counter()
-
-    def progress(iteration: int, loss: float) -> None:
-        print(f"{PROG}: {what}: iteration {iteration}, loss {loss:.6g} ({time.perf_counter() - began:.0f} s)",
-              file=sys.stderr, flush=True)  # fmt: skip
-
-    return progress
-
-
-def _table_command(args: argparse.Namespace, config: dict) -> int:
-    """``peeljax fit --table``: Levenberg-Marquardt on the stick-slip statistics, with uncertainties."""
-    from ..fit import fit_stick_slip
-    from ..model import PeelingModel
-
-    table = config["table"]
-    print(
-        f"{PROG}: fitting {', '.join(config['free'])} to {config['source']} "
-        f"({len(table)} rows, V = {', '.join(f'{V:g}' for V in table.V)}; {', '.join(config['statistics'])}), "
-        f"tau {config['tau']:g}, statistics over [{config['transient']:g}, {config['transient'] + config['window']:g}] s "
-        f"(--transient {config['transient']:g} --window {config['window']:g}), at most {config['max_iterations']} "
-        "iterations; compiling first ...",
-        file=sys.stderr,
-    )
-    model = PeelingModel(adhesion=config["start"])
-    # the hook of fit_stick_slip (progress(iteration, chi2)); left out where it has none
-    hooked = options.progress_on(args) and "progress" in _TABLE_DEFAULTS
-    progress = {"progress": _iteration_line("Levenberg-Marquardt")} if hooked else {}
-    try:
-        result = fit_stick_slip(
-            table, model, free=config["free"], statistics=config["statistics"], tau=config["tau"],
-            method=config["method"], intervals=config["intervals"],
-            transient=config["transient"], window=config["window"], rtol=config["rtol"], atol=config["atol"],
-            max_iterations=config["max_iterations"], n_starts=config["n_starts"],
-            **({"max_steps": config["max_steps"]} if "max_steps" in config else {}), **progress,
-        )  # fmt: skip
-    except KeyboardInterrupt as stop:
-        return _interrupted_fit(stop, args)
-    lines = [
-        f"peeljax fit: {result.steps} iterations (Levenberg-Marquardt), loss {result.initial_loss:.4g} -> "
-        f"{result.final_loss:.4g}",
-        f"stopped: {result.stop_reason}",
-        # the coefficients, then each row's attractor, the bifurcations crossed, the profile intervals
-        *result.summary().splitlines()[2:],
-    ]
-    figure = plotter("plot_table_fit", result, table, model=model, module="peeljax.fit.plots")
-    return _report_lm(result, args, {"table": args.table, "data": args.data, "phi": args.phi}, lines, figure)
-
-
 def _check_run_options(args: argparse.Namespace) -> None:
     """The options of a point-by-point fit whose ranges need no data file (checked first)."""
     if args.optimizer is not None:
@@ -610,24 +281,6 @@ def _check_run_options(args: argparse.Namespace) -> None:
         check_free(args.free)
     for quantity in args.quantities or ():
         check_choice("--quantities", quantity, QUANTITIES)
-
-
-def _points_tau(args: argparse.Namespace, defaults: dict) -> float:
-    """τ of a fit point by point: --tau, else the data files' own (an .npz run's), else the
-    library's; in (0, 1e6]. Files of DAE runs (τ = 0) take the default too, said on stderr: a
-    fit point by point integrates the homogenized ODE."""
-    default = _POINTS_DEFAULTS["tau"]
-    if args.tau is None and defaults.get("tau") == 0.0:
-        print(
-            f"{PROG}: --data: the files hold runs at tau = 0 (the DAE with jumps; a jump's two rows read as the "
-            f"state before it); a fit point by point integrates the homogenized ODE: tau = {default:g} "
-            "(--tau to choose; 1e-3 is closer to the DAE)",
-            file=sys.stderr,
-        )
-        return default
-    tau = args.tau if args.tau is not None else defaults.get("tau", default)
-    checked(f"(0, {TAU_MAX:g}]", check_tau, tau)
-    return tau
 
 
 def _validate(args: argparse.Namespace, observations: list[Observation], defaults: dict) -> dict:

@@ -32,12 +32,19 @@ import sys
 
 import numpy as np
 
-from .._validation import TAU_MAX, check_choice, check_tolerance
-from ..integrators.select import DEFAULT_MAX_STEPS, DEFAULT_MAX_STEPS_DENSE
+from .._validation import TAU_MAX, check_choice, check_mesh, check_positive, check_rho, check_tolerance
+from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_MAX_STEPS_DENSE, DEFAULT_RTOL
 from ..model import GEOMETRIES, PeelingModel
-from ._common import PROG, check_output_path, plot_formats, read_phi
+from ..sweeps.least_tau import least_tau
+from ._common import PROG, STEPPERS, check_output_path, checked, library_default, plot_formats, read_phi, solver_for
 
 __all__ = [
+    "add_engine",
+    "engine",
+    "engine_model",
+    "engine_record",
+    "engine_rho",
+    "engine_text",
     "MAX_JUMPS_LIMIT",
     "MAX_STEPS_LIMIT",
     "MAX_VALUES",
@@ -340,6 +347,123 @@ def check_max_jumps(max_jumps: int | None, default: int, uniform_option: str | N
             f"is allocated in full), got {max_jumps}"
         )
     return int(max_jumps)
+
+
+# ---------------------------------------------------------------------------- the batched engine
+# The problem's and the integrator's options of peeljax sweep (its map too) and tau-star, checked as
+# the keyword arguments of peeljax.sweep / peeljax.least_tau that choose the engine.
+def add_engine(parser: argparse.ArgumentParser):
+    """The problem's and the integrator's options of the batched engine; returns the integrator's
+    argument group."""
+    group = parser.add_argument_group("problem")
+    add_V(group, many=True, default=list(library_default(least_tau, "V")))  # least_tau's grid, a sweep's too
+    add_t_final(group)
+    add_geometry_and_phi(group)
+    solver = parser.add_argument_group("integrator")
+    solver.add_argument(
+        "--dt", type=float, default=None,
+        help="uniform-mesh step [s] of the alpha-method, in (0, t_final] (default: error control)",
+    )  # fmt: skip
+    add_tolerances(solver, rtol_default=f"{DEFAULT_RTOL:g}", atol_default=f"{DEFAULT_ATOL:g}")
+    solver.add_argument("--rho", type=float, default=None, help="alpha-method's rho in [0, 1) (default 0)")
+    solver.add_argument(
+        "--method", default="default", metavar="NAME",
+        help=f"the stepper of error control: default (the library's choice) or one of {', '.join(STEPPERS)}; "
+        "--dt and --rho with default or alpha only (default: default)",
+    )  # fmt: skip
+    add_max_steps(solver, default=f"{DEFAULT_MAX_STEPS_DENSE:.0e}; stick-slip takes about 50-100 a jump")
+    return solver
+
+
+def engine(args: argparse.Namespace) -> dict:
+    """The integrator's options, checked: ``dt`` (uniform mesh) or ``rtol``/``atol`` (error control).
+
+    Returns the keyword arguments of :func:`peeljax.sweep` / :func:`peeljax.least_tau` that choose
+    the engine (``save_dt``/``save_every`` only where the namespace has them, ``solver`` where
+    ``--method`` names a stepper), all others None.
+    """
+    chosen = _engine_options(args)
+    method = getattr(args, "method", "default")
+    if method != "default":
+        chosen["solver"] = solver_for(method, engine_rho(args))
+    return chosen
+
+
+def engine_rho(args: argparse.Namespace) -> float:
+    return 0.0 if args.rho is None else float(args.rho)
+
+
+def _engine_options(args: argparse.Namespace) -> dict:
+    check_method(getattr(args, "method", "default"), ("default", *STEPPERS), args.dt, args.rho)
+    save_dt = getattr(args, "save_dt", None)
+    save_every = getattr(args, "save_every", None)
+    if args.dt is not None:
+        refuse_with_dt(args.dt, {"--rtol": args.rtol, "--atol": args.atol, "--save-dt": save_dt})
+        n_steps = checked("dt in (0, t_final], t_final in (0, inf)", check_mesh, args.dt, args.t_final)
+        if save_every is not None and not 1 <= save_every <= n_steps:
+            raise ValueError(f"--save-every must lie in [1, {n_steps}] (the number of steps), got {save_every}")
+        chosen = {"dt": float(args.dt), "rtol": None, "atol": None}
+        if hasattr(args, "save_every"):
+            chosen.update(save_every=save_every, save_dt=None)
+        return chosen
+    if save_every is not None:
+        raise ValueError(
+            "--save-every counts the steps of a uniform mesh and needs --dt; "
+            "with error control (no --dt) save on times with --save-dt"
+        )
+    checked("(0, inf)", check_positive, "--t-final", args.t_final)
+    rtol, atol = check_tolerances(args.rtol, args.atol, (DEFAULT_RTOL, DEFAULT_ATOL))
+    chosen = {"dt": None, "rtol": rtol, "atol": atol}
+    if hasattr(args, "save_dt"):
+        if save_dt is not None:
+            check_save_dt(save_dt, args.t_final)
+        chosen.update(save_every=None, save_dt=None if save_dt is None else float(save_dt))
+    return chosen
+
+
+def _stepper(kwargs: dict, ran: str | None = None) -> str | None:
+    """The stepper's name: the one that ran (a result's ``settings["method"]``), else the one
+    --method chose ("alpha" for an AlphaMethod); None: the library's default, not known before it ran."""
+    if ran is not None:
+        return "alpha" if ran.startswith("alpha") else ran
+    solver = kwargs.get("solver")
+    if kwargs["dt"] is not None or (solver is not None and not isinstance(solver, str)):
+        return "alpha"  # the uniform mesh, or --method alpha's AlphaMethod
+    return solver
+
+
+def engine_text(kwargs: dict, ran: str | None = None) -> str:
+    """Which engine runs, in words (ASCII): the stepper (``ran``: the one that ran, from the
+    result's settings), error control with its tolerances or the uniform mesh, and ρ for the
+    α-method."""
+    stepper = _stepper(kwargs, ran)
+    name = {"alpha": "alpha-method", None: "default stepper"}.get(stepper, stepper)
+    if kwargs["dt"] is None:
+        text = f"{name}, error control rtol = {kwargs['rtol']:g}, atol = {kwargs['atol']:g}"
+    else:
+        n_steps = check_mesh(kwargs["dt"], kwargs["t_final"])
+        text = f"{name}, uniform mesh dt = {kwargs['t_final'] / n_steps:.6g} s ({n_steps} steps)"
+    return text if stepper not in ("alpha", None) else f"{text}, rho = {kwargs['rho']:g}"
+
+
+def engine_record(kwargs: dict, ran: str | None = None) -> dict:
+    """The integrator's settings for the JSON output: method (the stepper that ran, from the
+    result's settings, when given), dt (null with error control), rtol, atol, rho (null when the
+    stepper is not the α-method)."""
+    default = "alpha" if kwargs["dt"] is not None else "alpha-adaptive"
+    return {
+        "method": default if ran is None else ran,
+        "dt": kwargs["dt"],
+        "rtol": kwargs["rtol"],
+        "atol": kwargs["atol"],
+        "rho": kwargs["rho"] if _stepper(kwargs, ran) in ("alpha", None) else None,
+    }
+
+
+def engine_model(args) -> PeelingModel:
+    checked("[0, 1)", check_rho, engine_rho(args))
+    model, args.phi_defaults = model_from(args)
+    return model
 
 
 # ---------------------------------------------------------------------------- statistics window

@@ -12,60 +12,32 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validation import TAU_MAX, check_choice, check_mesh, check_positive, check_rho
-from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS_DENSE, DEFAULT_RTOL, resolve_fold
-from ..model import PeelingModel
+from .._validation import TAU_MAX, check_choice
+from ..integrators.select import resolve_fold
 from ..solution import StopReason
 from ..sweeps.engine import STARTS
 from ..sweeps.integrators import DEFAULT_SWEEP_MAX_JUMPS
 from ..sweeps.storage import check_writable_format, is_netcdf
 from . import _interrupt, options
 from ..sweeps.api import sweep as _sweep_api
-from ..sweeps.least_tau import least_tau as _least_tau_api
 from ._common import (
     PROG,
-    STEPPERS,
-    checked,
     fail,
     library_default,
     max_steps_remedy,
     plotter,
     report,
-    solver_for,
     write_failed,
     write_files,
 )
 from ._distributed import add_distributed_options, distributed_settings, join_processes
 
-__all__ = ["add_command", "engine_text", "tau_grid", "validate_map", "validate_sweep"]
+__all__ = ["add_command", "tau_grid", "validate_sweep"]
 
 DEFAULT_CHUNK = library_default(_sweep_api, "chunk")  # --chunk left out: peeljax.sweep's
 
 
 # ---------------------------------------------------------------------------- parsers
-def _add_model_arguments(parser: argparse.ArgumentParser):
-    """The problem's and the integrator's options (shared ones from :mod:`.options`); returns the
-    integrator's argument group."""
-    group = parser.add_argument_group("problem")
-    options.add_V(group, many=True, default=list(library_default(_least_tau_api, "V")))  # least_tau's grid, a sweep's too
-    options.add_t_final(group)
-    options.add_geometry_and_phi(group)
-    solver = parser.add_argument_group("integrator")
-    solver.add_argument(
-        "--dt", type=float, default=None,
-        help="uniform-mesh step [s] of the alpha-method, in (0, t_final] (default: error control)",
-    )  # fmt: skip
-    options.add_tolerances(solver, rtol_default=f"{DEFAULT_RTOL:g}", atol_default=f"{DEFAULT_ATOL:g}")
-    solver.add_argument("--rho", type=float, default=None, help="alpha-method's rho in [0, 1) (default 0)")
-    solver.add_argument(
-        "--method", default="default", metavar="NAME",
-        help=f"the stepper of error control: default (the library's choice) or one of {', '.join(STEPPERS)}; "
-        "--dt and --rho with default or alpha only (default: default)",
-    )  # fmt: skip
-    options.add_max_steps(solver, default=f"{DEFAULT_MAX_STEPS_DENSE:.0e}; stick-slip takes about 50-100 a jump")
-    return solver
-
-
 def add_command(subparsers) -> None:
     parser = subparsers.add_parser(
         "sweep",
@@ -78,7 +50,7 @@ def add_command(subparsers) -> None:
             "by chunk and a rerun resumes."
         ),
     )
-    solver = _add_model_arguments(parser)
+    solver = options.add_engine(parser)
     solver.add_argument(
         "--save-dt", dest="save_dt", type=float, default=None, metavar="S",
         help="error control only: also save the states at t = 0, S, 2S, ... and t_final [s], S in (0, t_final] "
@@ -208,97 +180,6 @@ def tau_grid(tau: list[float], n_tau: int | None) -> list[float]:
     return np.geomspace(tau[0], tau[1], n_tau).tolist()
 
 
-def _integrator(args: argparse.Namespace) -> dict:
-    """The integrator's options, checked: ``dt`` (uniform mesh) or ``rtol``/``atol`` (error control).
-
-    Returns the keyword arguments of :func:`peeljax.sweep` / :func:`peeljax.least_tau` that choose
-    the engine (``save_dt``/``save_every`` only where the namespace has them, ``solver`` where
-    ``--method`` names a stepper), all others None.
-    """
-    chosen = _integrator_options(args)
-    method = getattr(args, "method", "default")
-    if method != "default":
-        chosen["solver"] = solver_for(method, _rho(args))
-    return chosen
-
-
-def _rho(args: argparse.Namespace) -> float:
-    return 0.0 if args.rho is None else float(args.rho)
-
-
-def _integrator_options(args: argparse.Namespace) -> dict:
-    options.check_method(getattr(args, "method", "default"), ("default", *STEPPERS), args.dt, args.rho)
-    save_dt = getattr(args, "save_dt", None)
-    save_every = getattr(args, "save_every", None)
-    if args.dt is not None:
-        options.refuse_with_dt(args.dt, {"--rtol": args.rtol, "--atol": args.atol, "--save-dt": save_dt})
-        n_steps = checked("dt in (0, t_final], t_final in (0, inf)", check_mesh, args.dt, args.t_final)
-        if save_every is not None and not 1 <= save_every <= n_steps:
-            raise ValueError(f"--save-every must lie in [1, {n_steps}] (the number of steps), got {save_every}")
-        chosen = {"dt": float(args.dt), "rtol": None, "atol": None}
-        if hasattr(args, "save_every"):
-            chosen.update(save_every=save_every, save_dt=None)
-        return chosen
-    if save_every is not None:
-        raise ValueError(
-            "--save-every counts the steps of a uniform mesh and needs --dt; "
-            "with error control (no --dt) save on times with --save-dt"
-        )
-    checked("(0, inf)", check_positive, "--t-final", args.t_final)
-    rtol, atol = options.check_tolerances(args.rtol, args.atol, (DEFAULT_RTOL, DEFAULT_ATOL))
-    chosen = {"dt": None, "rtol": rtol, "atol": atol}
-    if hasattr(args, "save_dt"):
-        if save_dt is not None:
-            options.check_save_dt(save_dt, args.t_final)
-        chosen.update(save_every=None, save_dt=None if save_dt is None else float(save_dt))
-    return chosen
-
-
-def _stepper(kwargs: dict, ran: str | None = None) -> str | None:
-    """The stepper's name: the one that ran (a result's ``settings["method"]``), else the one
-    --method chose ("alpha" for an AlphaMethod); None: the library's default, not known before it ran."""
-    if ran is not None:
-        return "alpha" if ran.startswith("alpha") else ran
-    solver = kwargs.get("solver")
-    if kwargs["dt"] is not None or (solver is not None and not isinstance(solver, str)):
-        return "alpha"  # the uniform mesh, or --method alpha's AlphaMethod
-    return solver
-
-
-def engine_text(kwargs: dict, ran: str | None = None) -> str:
-    """Which engine runs, in words (ASCII): the stepper (``ran``: the one that ran, from the
-    result's settings), error control with its tolerances or the uniform mesh, and ρ for the
-    α-method."""
-    stepper = _stepper(kwargs, ran)
-    name = {"alpha": "alpha-method", None: "default stepper"}.get(stepper, stepper)
-    if kwargs["dt"] is None:
-        text = f"{name}, error control rtol = {kwargs['rtol']:g}, atol = {kwargs['atol']:g}"
-    else:
-        n_steps = check_mesh(kwargs["dt"], kwargs["t_final"])
-        text = f"{name}, uniform mesh dt = {kwargs['t_final'] / n_steps:.6g} s ({n_steps} steps)"
-    return text if stepper not in ("alpha", None) else f"{text}, rho = {kwargs['rho']:g}"
-
-
-def _engine_record(kwargs: dict, ran: str | None = None) -> dict:
-    """The integrator's settings for the JSON output: method (the stepper that ran, from the
-    result's settings, when given), dt (null with error control), rtol, atol, rho (null when the
-    stepper is not the α-method)."""
-    default = "alpha" if kwargs["dt"] is not None else "alpha-adaptive"
-    return {
-        "method": default if ran is None else ran,
-        "dt": kwargs["dt"],
-        "rtol": kwargs["rtol"],
-        "atol": kwargs["atol"],
-        "rho": kwargs["rho"] if _stepper(kwargs, ran) in ("alpha", None) else None,
-    }
-
-
-def _model(args) -> PeelingModel:
-    checked("[0, 1)", check_rho, _rho(args))
-    model, args.phi_defaults = options.model_from(args)
-    return model
-
-
 def _check_folds(args: argparse.Namespace, tau: list[float], dt: float | None) -> dict:
     """--fold, --max-jumps, --max-steps and --start, checked against --tau and the integrator.
 
@@ -336,9 +217,9 @@ def validate_sweep(args: argparse.Namespace) -> dict:
     """Every option checked, nothing compiled; returns the keyword arguments of :func:`peeljax.sweep`."""
     V = options.check_positive_values("--V", args.V)
     tau = tau_grid([1e-3, 1e-1] if args.tau is None else args.tau, args.n_tau)
-    chosen = _integrator(args)
+    chosen = options.engine(args)
     folds = _check_folds(args, tau, chosen["dt"])
-    model = _model(args)
+    model = options.engine_model(args)
     window = _window(args)
     if args.plot is not None and tau == [0.0]:
         raise ValueError(
@@ -348,7 +229,7 @@ def validate_sweep(args: argparse.Namespace) -> dict:
     _check_outputs(args)
     return {
         "model": model, "V": V, "tau": tau, **chosen, **folds, "t_final": float(args.t_final), "grid": "outer",
-        "window": window, "chunk": _chunk(args), "out": args.out, "rho": _rho(args),
+        "window": window, "chunk": _chunk(args), "out": args.out, "rho": options.engine_rho(args),
         "start": "paper" if args.start is None else args.start, "progress": args.progress and not args.json,
     }  # fmt: skip
 
@@ -366,39 +247,6 @@ def _window(args: argparse.Namespace) -> tuple[float, float]:
     return (T / t_final, min(1.0, (T + W) / t_final))
 
 
-def validate_map(args: argparse.Namespace) -> dict:
-    """``--stick-slip-map``: every option checked, nothing compiled; returns the keyword arguments
-    of :func:`peeljax.sweeps.stick_slip_map`."""
-    V = options.check_positive_values("--V", args.V)
-    if args.n_tau is not None:
-        raise ValueError("--n-tau makes a grid of tau; --stick-slip-map runs over V at one --tau")
-    tau = tau_grid([0.0] if args.tau is None else args.tau, None)
-    if len(tau) != 1:
-        raise ValueError(f"--stick-slip-map runs over V at one --tau (0: the DAE itself), got {len(tau)} values")
-    for option, value in (("--dt", args.dt), ("--save-dt", args.save_dt), ("--save-every", args.save_every)):
-        if value is not None:
-            what = "a uniform mesh, which keeps no jumps" if option != "--save-dt" else "saved states"
-            raise ValueError(f"{option} asks for {what}; --stick-slip-map reads the jumps of error-controlled runs")
-    if args.window is not None:
-        raise ValueError(
-            "--window: the stick-slip map's cycle statistics run from --transient to each run's end; give "
-            "--transient (and --t-final)"
-        )
-    chosen = _integrator(args)
-    folds = _check_folds(args, tau, None)
-    if folds["fold"] == "stop":
-        raise ValueError("--fold stop ends every run at its first fold: --stick-slip-map needs --fold jump (or follow)")
-    model = _model(args)
-    transient, _ = options.check_statistics_window(args.transient, None, args.t_final)
-    _check_outputs(args)
-    return {
-        "model": model, "V": V, "tau": tau[0], "t_final": float(args.t_final), "transient": transient,
-        "starts": STARTS if args.start is None else (args.start,), "rtol": chosen["rtol"], "atol": chosen["atol"],
-        **({"solver": chosen["solver"]} if "solver" in chosen else {}),
-        **folds, "chunk": _chunk(args), "rho": _rho(args), "progress": args.progress and not args.json,
-    }  # fmt: skip
-
-
 # ---------------------------------------------------------------------------- commands
 _TRAJECTORY_KEYS = ("V", "tau", "completed", "status", "t_stop", "v_mean", "v_std", "v_min", "v_max", "events",
                     "accepted_steps", "rejected_steps", "window_time")  # fmt: skip
@@ -408,12 +256,6 @@ def _run_sweep(kwargs: dict):
     from ..sweeps import sweep
 
     return sweep(**kwargs)
-
-
-def _run_map(kwargs: dict):
-    from ..sweeps import stick_slip_map
-
-    return stick_slip_map(**kwargs)
 
 
 _JUMP_RECORD_KEYS = ("jump_t", "jump_up", "jump_v_before", "jump_v_after", "jump_G")
@@ -440,8 +282,10 @@ def _sweep_command(args: argparse.Namespace) -> int:
         processes = distributed_settings(args)  # checked first, joined after the sweep's own checks
     except ValueError as error:
         return fail(error)
-    if args.stick_slip_map:
-        return _map_command(args)
+    if args.stick_slip_map:  # its own module, which uses this one's checks
+        from .sweep_map import map_command
+
+        return map_command(args)
     try:
         kwargs = validate_sweep(args)
     except (ValueError, TypeError) as error:
@@ -450,7 +294,7 @@ def _sweep_command(args: argparse.Namespace) -> int:
     if joined is not None:
         return joined
     n = len(kwargs["V"]) * len(kwargs["tau"])
-    print(f"{PROG}: sweep of {n} trajectories, {engine_text(kwargs)} (compiling first: a few seconds) ...",
+    print(f"{PROG}: sweep of {n} trajectories, {options.engine_text(kwargs)} (compiling first: a few seconds) ...",
           file=sys.stderr)  # fmt: skip
     start = time.perf_counter()
     # Ctrl-C's line says how many chunks are saved, whichever thread prints it (cli._interrupt)
@@ -468,7 +312,7 @@ def _sweep_command(args: argparse.Namespace) -> int:
         _print_resumed(result, args.out)
     record = {
         "n": len(result), "n_completed": int(result.completed.sum()), "V": kwargs["V"], "tau": kwargs["tau"],
-        **_engine_record(kwargs, result.settings.get("method")),  # the stepper that ran (absent on the uniform mesh)
+        **options.engine_record(kwargs, result.settings.get("method")),  # the stepper that ran (absent on the uniform mesh)
         "method_option": args.method,  # --method as given
         "max_steps": result.settings.get("max_steps"),  # the budget of step attempts (error control)
         "save_dt": kwargs["save_dt"], "save_every": kwargs["save_every"], "t_final": kwargs["t_final"],
@@ -483,7 +327,7 @@ def _sweep_command(args: argparse.Namespace) -> int:
     }  # fmt: skip
     failed = write_files(record, ("--plot", args.plot, plotter("plot_sweep_map", result)))
     notes = _remedy_notes(result.status, result.settings.get("max_steps", kwargs.get("max_steps")))
-    lines = lambda: _sweep_lines(record, result, kwargs, wall)  # noqa: E731
+    lines = lambda: _sweep_lines(record, result, kwargs, wall)
     return report(record, args.json, lines, failed, "the sweep's results are above", notes)
 
 
@@ -531,7 +375,7 @@ def _sweep_lines(record: dict, result, kwargs: dict, wall: float) -> list[str]:
     lines = [
         f"{PROG} sweep: {record['n']} trajectories, {record['n_completed']} completed t = {t_final:g} s, "
         f"wall time {wall:.3g} s",
-        f"{engine_text(kwargs, result.settings.get('method'))}; v statistics over t in [{w0 * t_final:g}, "
+        f"{options.engine_text(kwargs, result.settings.get('method'))}; v statistics over t in [{w0 * t_final:g}, "
         f"{w1 * t_final:g}] s (--transient {w0 * t_final:g} --window {(w1 - w0) * t_final:g}){folds}",
         f"{'V':>8} {'tau':>10} {'status':>14} {'t_stop':>8} {'v_mean':>10} {'v_std':>10} {'events':>6} "
         f"{'steps':>8} {'rejected':>8}{'' if jumps is None else f' {chr(32) * 2}jumps'}",
@@ -550,60 +394,3 @@ def _phi_defaults(args: argparse.Namespace) -> list[str] | None:
     """The coefficients --phi left at the paper's values (None without --phi)."""
     kept = getattr(args, "phi_defaults", None)
     return None if kept is None else list(kept)
-
-
-def _map_record(smap, kwargs: dict, args: argparse.Namespace, wall: float) -> dict:
-    """The map as one JSON object: settings, the ranges, and every per-lane field (rows: starts)."""
-    from ..sweeps.stick_slip_map import FOLD_FIELDS, LANE_FIELDS
-
-    settings = smap.settings.get("sweep", {})
-    engine = _engine_record({**kwargs, "dt": None}, settings.get("method"))
-    return {
-        "V": smap.V.tolist(),
-        "starts": list(smap.starts),
-        "tau": smap.tau,
-        "t_final": smap.t_final,
-        "transient": smap.transient,
-        "method": engine["method"],  # the stepper that ran
-        "method_option": args.method,  # --method as given
-        "rtol": kwargs["rtol"],
-        "atol": kwargs["atol"],
-        "rho": engine["rho"],
-        "fold": settings.get("fold"),
-        "max_jumps": settings.get("max_jumps"),
-        "max_steps": settings.get("max_steps", kwargs.get("max_steps")),
-        "wall_time_s": wall,
-        "phi_paper_defaults": _phi_defaults(args),
-        "out": args.out,
-        "plot": args.plot,
-        "stick_slip_ranges": {start: [list(r) for r in smap.stick_slip_ranges(start)] for start in smap.starts},
-        "no_fold_ranges": [list(r) for r in smap.no_fold_ranges()],
-        "lanes": {name: np.asarray(getattr(smap, name)).tolist() for name in (*LANE_FIELDS, "stick_slip")},
-        "folds": {name: np.asarray(getattr(smap, name)).tolist() for name in FOLD_FIELDS},
-    }
-
-
-def _map_command(args: argparse.Namespace) -> int:
-    try:
-        kwargs = validate_map(args)
-    except (ValueError, TypeError) as error:
-        return fail(error)
-    tau = "tau = 0 (the DAE)" if kwargs["tau"] == 0 else f"tau = {kwargs['tau']:g} s"
-    print(f"{PROG}: stick-slip map over {len(kwargs['V'])} values of V, {tau}, start {' and '.join(kwargs['starts'])} "
-          f"({len(kwargs['V']) * len(kwargs['starts'])} runs), {engine_text({**kwargs, 'dt': None})} "
-          "(compiling first: a few seconds) ...", file=sys.stderr)  # fmt: skip
-    start = time.perf_counter()
-    try:
-        smap = _run_map(kwargs)
-    except ValueError as error:
-        return fail(error)
-    wall = time.perf_counter() - start
-    record = _map_record(smap, kwargs, args, wall)
-    failed = write_files(record, ("--out", args.out, smap.save))
-    if not failed:  # the figure only beside a written map
-        failed = write_files(record, ("--plot", args.plot, plotter("plot_stick_slip_map", smap)))
-    engine = engine_text({**kwargs, "dt": None}, smap.settings.get("sweep", {}).get("method"))
-    lines = [str(smap), f"{engine}, max_steps {record['max_steps']}; wall time {wall:.3g} s"]
-    lines += [f"wrote {record[key]}" for key in ("out", "plot") if record[key]]
-    notes = _remedy_notes(smap.status, record["max_steps"])
-    return report(record, args.json, lines, failed, "the map is above", notes)

@@ -12,7 +12,7 @@ from .._validation import check_tolerance
 from ..sweeps.least_tau import least_tau as _least_tau_api
 from . import options
 from ._common import PROG, Elapsed, fail, library_default, report
-from .sweep import _add_model_arguments, _engine_record, _integrator, _model, _phi_defaults, _rho, engine_text
+from .sweep import _phi_defaults
 
 __all__ = ["add_command", "validate_tau_star"]
 
@@ -30,7 +30,7 @@ def add_command(subparsers) -> None:
             "error control (--rtol, --atol) by default, a uniform mesh with --dt."
         ),
     )
-    _add_model_arguments(star)
+    options.add_engine(star)
     search = star.add_argument_group("the search")
     lo, hi = _TAU_STAR["tau_range"]
     search.add_argument(
@@ -53,11 +53,11 @@ def add_command(subparsers) -> None:
 
 def validate_tau_star(args: argparse.Namespace) -> dict:
     V = options.check_positive_values("--V", args.V)
-    chosen = _integrator(args)
+    chosen = options.engine(args)
     options.check_max_steps(args.max_steps, None if chosen["dt"] is None else "--dt")
     if args.max_steps is not None:  # left out: the library's budget
         chosen["max_steps"] = int(args.max_steps)
-    model = _model(args)
+    model = options.engine_model(args)
     lo, hi = args.tau_range
     if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
         raise ValueError(f"--tau-range LO HI must satisfy 0 < LO < HI (finite), got {lo:g} {hi:g}")
@@ -65,7 +65,7 @@ def validate_tau_star(args: argparse.Namespace) -> dict:
     if args.n_points < 2:
         raise ValueError(f"--n-points must be an integer >= 2 (allowed range: [2, inf)), got {args.n_points}")
     return {"model": model, "V": V, **chosen, "t_final": float(args.t_final), "tau_range": (lo, hi),
-                "tau_rtol": float(args.tau_rtol), "n_points": args.n_points, "rho": _rho(args)}  # fmt: skip
+                "tau_rtol": float(args.tau_rtol), "n_points": args.n_points, "rho": options.engine_rho(args)}  # fmt: skip
 
 
 def _run_tau_star(kwargs: dict):
@@ -79,7 +79,7 @@ def _tau_star_command(args: argparse.Namespace) -> int:
         kwargs = validate_tau_star(args)
     except (ValueError, TypeError) as error:
         return fail(error)
-    print(f"{PROG}: searching tau* for V = {kwargs['V']}, {engine_text(kwargs)} (compiling first: a few seconds) ...",
+    print(f"{PROG}: searching tau* for V = {kwargs['V']}, {options.engine_text(kwargs)} (compiling first: a few seconds) ...",
           file=sys.stderr)  # fmt: skip
     start = time.perf_counter()
     # least_tau runs its rounds as compiled batches and reports nothing in between: the wall time is shown
@@ -93,7 +93,7 @@ def _tau_star_command(args: argparse.Namespace) -> int:
         "found": result.found.tolist(),
         "t_stop_below": result.t_stop_below.tolist(),
         "rounds": result.rounds,
-        **_engine_record(kwargs),
+        **options.engine_record(kwargs),
         "t_final": kwargs["t_final"],
         "tau_range": list(kwargs["tau_range"]),
         "tau_rtol": kwargs["tau_rtol"],
@@ -101,7 +101,7 @@ def _tau_star_command(args: argparse.Namespace) -> int:
         "wall_time_s": wall,
         "phi_paper_defaults": _phi_defaults(args),
     }
-    lines = [f"{PROG} tau-star: {engine_text(kwargs)}, t_final = {kwargs['t_final']:g} s, "
+    lines = [f"{PROG} tau-star: {options.engine_text(kwargs)}, t_final = {kwargs['t_final']:g} s, "
              f"tau_rtol = {kwargs['tau_rtol']:g}, {result.rounds} batched runs, {wall:.3g} s"]  # fmt: skip
     for i, V in enumerate(result.V):
         note = "" if result.found[i] else "  (not bracketed inside --tau-range)"

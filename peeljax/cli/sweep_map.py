@@ -1,0 +1,113 @@
+"""``peeljax sweep --stick-slip-map``: the stick-slip map over V at one τ
+(:func:`peeljax.sweeps.stick_slip_map`), with the options and checks of ``peeljax sweep``."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+
+from ..sweeps.engine import STARTS
+from . import options
+from ._common import PROG, fail, plotter, report, write_files
+from .sweep import _check_folds, _check_outputs, _chunk, _phi_defaults, _remedy_notes, tau_grid
+
+__all__ = ["map_command", "validate_map"]
+
+
+def validate_map(args: argparse.Namespace) -> dict:
+    """``--stick-slip-map``: every option checked, nothing compiled; returns the keyword arguments
+    of :func:`peeljax.sweeps.stick_slip_map`."""
+    V = options.check_positive_values("--V", args.V)
+    if args.n_tau is not None:
+        raise ValueError("--n-tau makes a grid of tau; --stick-slip-map runs over V at one --tau")
+    tau = tau_grid([0.0] if args.tau is None else args.tau, None)
+    if len(tau) != 1:
+        raise ValueError(f"--stick-slip-map runs over V at one --tau (0: the DAE itself), got {len(tau)} values")
+    for option, value in (("--dt", args.dt), ("--save-dt", args.save_dt), ("--save-every", args.save_every)):
+        if value is not None:
+            what = "a uniform mesh, which keeps no jumps" if option != "--save-dt" else "saved states"
+            raise ValueError(f"{option} asks for {what}; --stick-slip-map reads the jumps of error-controlled runs")
+    if args.window is not None:
+        raise ValueError(
+            "--window: the stick-slip map's cycle statistics run from --transient to each run's end; give "
+            "--transient (and --t-final)"
+        )
+    chosen = options.engine(args)
+    folds = _check_folds(args, tau, None)
+    if folds["fold"] == "stop":
+        raise ValueError("--fold stop ends every run at its first fold: --stick-slip-map needs --fold jump (or follow)")
+    model = options.engine_model(args)
+    transient, _ = options.check_statistics_window(args.transient, None, args.t_final)
+    _check_outputs(args)
+    return {
+        "model": model, "V": V, "tau": tau[0], "t_final": float(args.t_final), "transient": transient,
+        "starts": STARTS if args.start is None else (args.start,), "rtol": chosen["rtol"], "atol": chosen["atol"],
+        **({"solver": chosen["solver"]} if "solver" in chosen else {}),
+        **folds, "chunk": _chunk(args), "rho": options.engine_rho(args), "progress": args.progress and not args.json,
+    }  # fmt: skip
+
+
+def _run_map(kwargs: dict):
+    from ..sweeps import stick_slip_map
+
+    return stick_slip_map(**kwargs)
+
+
+def _map_record(smap, kwargs: dict, args: argparse.Namespace, wall: float) -> dict:
+    """The map as one JSON object: settings, the ranges, and every per-lane field (rows: starts)."""
+    from ..sweeps.stick_slip_map import FOLD_FIELDS, LANE_FIELDS
+
+    settings = smap.settings.get("sweep", {})
+    engine = options.engine_record({**kwargs, "dt": None}, settings.get("method"))
+    return {
+        "V": smap.V.tolist(),
+        "starts": list(smap.starts),
+        "tau": smap.tau,
+        "t_final": smap.t_final,
+        "transient": smap.transient,
+        "method": engine["method"],  # the stepper that ran
+        "method_option": args.method,  # --method as given
+        "rtol": kwargs["rtol"],
+        "atol": kwargs["atol"],
+        "rho": engine["rho"],
+        "fold": settings.get("fold"),
+        "max_jumps": settings.get("max_jumps"),
+        "max_steps": settings.get("max_steps", kwargs.get("max_steps")),
+        "wall_time_s": wall,
+        "phi_paper_defaults": _phi_defaults(args),
+        "out": args.out,
+        "plot": args.plot,
+        "stick_slip_ranges": {start: [list(r) for r in smap.stick_slip_ranges(start)] for start in smap.starts},
+        "no_fold_ranges": [list(r) for r in smap.no_fold_ranges()],
+        "lanes": {name: np.asarray(getattr(smap, name)).tolist() for name in (*LANE_FIELDS, "stick_slip")},
+        "folds": {name: np.asarray(getattr(smap, name)).tolist() for name in FOLD_FIELDS},
+    }
+
+
+def map_command(args: argparse.Namespace) -> int:
+    try:
+        kwargs = validate_map(args)
+    except (ValueError, TypeError) as error:
+        return fail(error)
+    tau = "tau = 0 (the DAE)" if kwargs["tau"] == 0 else f"tau = {kwargs['tau']:g} s"
+    print(f"{PROG}: stick-slip map over {len(kwargs['V'])} values of V, {tau}, start {' and '.join(kwargs['starts'])} "
+          f"({len(kwargs['V']) * len(kwargs['starts'])} runs), {options.engine_text({**kwargs, 'dt': None})} "
+          "(compiling first: a few seconds) ...", file=sys.stderr)  # fmt: skip
+    start = time.perf_counter()
+    try:
+        smap = _run_map(kwargs)
+    except ValueError as error:
+        return fail(error)
+    wall = time.perf_counter() - start
+    record = _map_record(smap, kwargs, args, wall)
+    failed = write_files(record, ("--out", args.out, smap.save))
+    if not failed:  # the figure only beside a written map
+        failed = write_files(record, ("--plot", args.plot, plotter("plot_stick_slip_map", smap)))
+    engine = options.engine_text({**kwargs, "dt": None}, smap.settings.get("sweep", {}).get("method"))
+    lines = [str(smap), f"{engine}, max_steps {record['max_steps']}; wall time {wall:.3g} s"]
+    lines += [f"wrote {record[key]}" for key in ("out", "plot") if record[key]]
+    notes = _remedy_notes(smap.status, record["max_steps"])
+    return report(record, args.json, lines, failed, "the map is above", notes)
