@@ -1,10 +1,14 @@
-"""The ``peeljax`` command line: ``peeljax simulate ...`` (one module per subcommand).
+"""The ``peeljax`` command line: ``peeljax simulate ...`` (one module per subcommand; a part of one
+in its own module: :mod:`.simulate_report`, :mod:`.sweep_map`, :mod:`.fit_table`).
 
-Every input is checked with the Python API's own checks (:mod:`peeljax._validation`) before
-anything is compiled: bad input prints ``peeljax: error: <message>`` on stderr and exits with
-status 2, as argparse's own usage errors do. A run that completes or stops early (an impasse
-point, a failed Newton iteration, …) exits with status 0: stopping is a result, reported in
-the summary, the ``--json`` object and the ``--out`` file.
+The command line only translates: it parses, calls one library function and prints. Inputs
+are checked with the Python API's own checks (:mod:`peeljax._validation`, the library
+functions' own) before anything is compiled; defaults are read from the library functions;
+the one error path (:func:`._common.fail`) says the library's parameter names as options. Bad
+input prints ``peeljax: error: <message>`` on stderr and exits with status 2, as argparse's own
+usage errors do. A run that completes or stops early (an impasse point, a failed Newton
+iteration, …) exits with status 0: stopping is a result, reported in the summary, the
+``--json`` object and the ``--out`` file.
 
 With ``--json`` stdout carries exactly one JSON object; progress notes always go to stderr.
 Each subcommand module has ``add_command(subparsers)``, which sets the parser's ``handler``.

@@ -14,16 +14,16 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
+
 from .._files import json_safe
 from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw, read_json
+from ..integrators import STEPPER_NAMES
+from ..solution import StopReason
 
 PROG = "peeljax"
 
-try:  # the steppers that the error-controlled loop takes (peeljax.integrators.STEPPER_NAMES)
-    from ..integrators import STEPPER_NAMES
-except ImportError:  # a peeljax from before the loop took any stepper: the same names
-    STEPPER_NAMES = ("alpha", "tsit5", "dopri5", "dopri8", "kvaerno3", "kvaerno4", "kvaerno5")
-STEPPERS = tuple(STEPPER_NAMES)
+STEPPERS = tuple(STEPPER_NAMES)  # the steppers that the error-controlled loop takes
 
 # A negative number in any spelling float() reads (-1e-6, -inf, -nan, -.5): argparse's own
 # pattern (-1, -0.5) takes "-1e-6" for an option and answers "expected one argument", so the
@@ -184,9 +184,9 @@ def _in_json_terms(message: str, path: str) -> str:
     return f"{message[: found.start()]}coefficient '{found.group(1)}' {found.group(2)}, got {shown} (JSON)"
 
 
-def load_phi(path: str) -> AdhesionLaw:
-    """:func:`read_phi`'s law."""
-    return read_phi(path)[0]
+def load_phi(path: str | None) -> AdhesionLaw:
+    """:func:`read_phi`'s law; without a file (None) the paper's."""
+    return AdhesionLaw() if path is None else read_phi(path)[0]
 
 
 def check_input_file(option: str, path: str) -> None:
@@ -300,6 +300,23 @@ def max_steps_remedy(budget) -> str:
     return f"{PROG}: the step budget was used up before t_final: raise --max-steps{now} or loosen --rtol"
 
 
+def remedy_notes(status, budget) -> list[str]:
+    """After trajectories (a sweep's, a map's) that used up their step budget: how many, and the
+    remedy (stderr)."""
+    status = np.asarray(status).ravel()
+    out_of_steps = int(np.count_nonzero(status == int(StopReason.MAX_STEPS)))
+    if not out_of_steps:
+        return []
+    return [f"{PROG}: {out_of_steps} of {status.size} trajectories stopped at their step budget",
+            max_steps_remedy(budget)]  # fmt: skip
+
+
+def phi_defaults(args: argparse.Namespace) -> list[str] | None:
+    """The coefficients --phi left at the paper's values (None without --phi)."""
+    kept = getattr(args, "phi_defaults", None)
+    return None if kept is None else list(kept)
+
+
 def stats_text(stats: dict, jumps_said: bool = False) -> str:
     """The run's counters as ``key value, ...``, only those that mean something for this run: no
     NaN (``step_size`` under error control, which has no one step), no Newton counts where none
@@ -365,18 +382,28 @@ _FOLD_MODE = re.compile(r"\bfold='(jump|stop|follow)'")
 _GIVEN = re.compile(r"(?<![\w-])(dt|tau)=([^\s,;()']+)")
 _DIFFRAX_SOLVER = re.compile(r"\ba diffrax solver \(\w+\)")
 # Names that open a library message ("tau must be ...", "y0: ...").
+# Remedies said in the Python API's words (peeljax.OrbitNotFound's), in the command line's.
+_PHRASES = (
+    ("run longer", "run longer (a larger --transient)"),
+    ("a run too short", "a run too short (--transient)"),
+    ("give start=(alpha, omega) and slips= to shoot near it",
+     "the Python API shoots from a given state: peeljax.periodic_orbit(start=(alpha, omega), slips=K)"),
+)  # fmt: skip
 _LEADING = re.compile(r"^(V|tau|dt|rtol|atol|rho|y0|geometry|transient|window|fold|start|free|statistics)\b(?![-=])")
 
 
 def option_names(message: str) -> str:
     """A library message in the command line's words: ``max_jumps`` → ``--max-jumps``,
-    ``fold='stop'`` → ``--fold stop``, ``dt=0.01`` → ``--dt 0.01``, and a message that opens
-    with a parameter's name (``tau must be ...``) opens with its option."""
+    ``fold='stop'`` → ``--fold stop``, ``dt=0.01`` → ``--dt 0.01``, a remedy in the API's words
+    in the options', and a message that opens with a parameter's name (``tau must be ...``)
+    opens with its option."""
     message = _UNDERSCORED.sub(lambda m: _PARAMETERS[m.group(1)], message)
     message = _ANOTHER_OUT.sub("another --out", message)  # the library's "choose another out"
     message = _FOLD_MODE.sub(r"--fold \1", message)  # fold='stop' -> --fold stop
     message = _GIVEN.sub(r"--\1 \2", message)  # dt=0.01 -> --dt 0.01
     message = _DIFFRAX_SOLVER.sub("--method diffrax", message).replace("drop dt/solver", "drop --dt/--method")
+    for said, option in _PHRASES:
+        message = message.replace(said, option)
     return _LEADING.sub(lambda m: "--" + m.group(1), message)
 
 

@@ -24,7 +24,7 @@ import numpy as np
 from .._atomic import write_text
 from .._files import json_safe
 from .._validation import check_choice, check_mesh, check_positive
-from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw
+from ..adhesion import COEFFICIENT_NAMES
 from ..fit import QUANTITIES, DataFileError, Observation, read_force_record
 from ..fit.parameters import check_free
 from ..fit.records import check_fit_samples, read_npz
@@ -304,7 +304,7 @@ def _validate(args: argparse.Namespace, observations: list[Observation], default
         checked("(0, inf)", check_positive, "--t-final", t_final)
         rtol, atol = options.check_tolerances(rtol, atol, (DEFAULT_RTOL, DEFAULT_ATOL))
         n_steps = None
-    start = AdhesionLaw() if args.phi is None else load_phi(args.phi)
+    start = load_phi(args.phi)
     options.check_outputs(args)
     weights = {q: (1.0 if args.quantities is None or q in args.quantities else 0.0) for q in QUANTITIES}
     return {

@@ -16,7 +16,6 @@ from pathlib import Path
 import numpy as np
 
 from .._validation import TAU_MAX, check_choice, check_tau
-from ..adhesion import AdhesionLaw
 from ..fit import DataFileError, Observation
 from ..fit.parameters import check_free
 from ..fit.records import check_fit_samples
@@ -148,7 +147,7 @@ def _validate_table(args: argparse.Namespace, table=None, source: str | None = N
     if method == "orbit" and tau != 0:
         raise ValueError(f"--method orbit needs --tau 0 (orbits of the DAE with jumps); --tau {tau:g} needs --method window")
     intervals = _choice("--intervals", args.intervals, INTERVALS, _TABLE_DEFAULTS["intervals"])
-    start = AdhesionLaw() if args.phi is None else load_phi(args.phi)
+    start = load_phi(args.phi)
     options.check_outputs(args)
     return {
         "method": method, "intervals": intervals,
@@ -219,7 +218,7 @@ def _validate_records(args: argparse.Namespace, observations: list[Observation],
     free = _free(args, _RECORDS_DEFAULTS)
     rtol, atol = options.check_tolerances(args.rtol, args.atol, (_RECORDS_DEFAULTS["rtol"], _RECORDS_DEFAULTS["atol"]))
     intervals = _choice("--intervals", args.intervals, INTERVALS, _RECORDS_DEFAULTS["intervals"])
-    start = AdhesionLaw() if args.phi is None else load_phi(args.phi)
+    start = load_phi(args.phi)
     options.check_outputs(args)
     return {"records": observations, "decided": decided, "by": by, "transient": transient, "tau": float(tau),
             "statistics": statistics,

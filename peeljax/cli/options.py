@@ -35,7 +35,11 @@ import numpy as np
 from .._validation import TAU_MAX, check_choice, check_mesh, check_positive, check_rho, check_tolerance
 from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_MAX_STEPS_DENSE, DEFAULT_RTOL
 from ..model import GEOMETRIES, PeelingModel
+from ..sweeps.api import sweep
+from ..sweeps.engine import STARTS
+from ..sweeps.integrators import DEFAULT_SWEEP_MAX_JUMPS
 from ..sweeps.least_tau import least_tau
+from ..sweeps.storage import check_writable_format, is_netcdf
 from ._common import PROG, STEPPERS, check_output_path, checked, library_default, plot_formats, read_phi, solver_for
 
 __all__ = [
@@ -58,6 +62,7 @@ __all__ = [
     "add_t_final",
     "add_tolerances",
     "add_V",
+    "check_folds",
     "check_max_jumps",
     "check_max_steps",
     "check_method",
@@ -65,6 +70,9 @@ __all__ = [
     "check_positive_values",
     "check_save_dt",
     "check_statistics_window",
+    "check_sweep_folds",
+    "check_sweep_outputs",
+    "chunk",
     "check_tolerances",
     "deprecated",
     "model_from",
@@ -72,6 +80,7 @@ __all__ = [
     "numbers",
     "progress_on",
     "refuse_with_dt",
+    "tau_grid",
     "transient_default",
 ]
 
@@ -182,14 +191,12 @@ def add_V(group, *, many: bool, default, help: str | None = None) -> None:
         )
 
 
-def add_t_final(group, *, default: float | None = 3.0, help: str | None = None) -> None:
+def add_t_final(group, *, default: float | None, help: str | None = None) -> None:
+    """--t-final: the end of each run [s]; ``default`` the library function's."""
     group.add_argument(
-        "--t-final",
-        dest="t_final",
-        type=float,
-        default=default,
+        "--t-final", dest="t_final", type=float, default=default,
         help=help or f"end time of each run [s], > 0 (default {default:g})",
-    )
+    )  # fmt: skip
 
 
 def add_geometry_and_phi(group, *, phi_meta: str = "COEFFS.json", phi_help: str | None = None) -> None:
@@ -277,14 +284,19 @@ def check_tolerances(rtol: float | None, atol: float | None, defaults: tuple[flo
 MAX_SAVE_TIMES = 10_000_001  # --save-dt: output times per run (a typo must not fill the memory)
 
 
-def check_save_dt(save_dt: float, t_final: float) -> int:
+def check_save_dt(save_dt: float, t_final: float, memory=None) -> int:
     """--save-dt S in (0, t_final]; returns the count of output times (0, S, 2S, ... and
-    t_final), at most :data:`MAX_SAVE_TIMES` (counted without making them)."""
+    t_final), counted without making them: ``memory(count)``, the caller's check that they fit,
+    first (it says what they would take), then at most :data:`MAX_SAVE_TIMES`."""
     from ..integrators.dense import output_count
 
     if not (math.isfinite(save_dt) and 0 < save_dt <= t_final):
         raise ValueError(f"--save-dt must lie in (0, t_final] = (0, {t_final:g}], got {save_dt:g}")
-    n_save = output_count(save_dt, t_final) if math.isfinite(t_final / save_dt) else math.inf  # inf: a subnormal S
+    if not math.isfinite(t_final / save_dt):  # a subnormal S: no count
+        raise ValueError(f"--save-dt {save_dt:g} gives more output times than can be counted; the limit is 1e7")
+    n_save = output_count(save_dt, t_final)
+    if memory is not None:
+        memory(n_save)
     if n_save > MAX_SAVE_TIMES:
         raise ValueError(f"--save-dt {save_dt:g} gives {n_save:.3g} output times per run; the limit is 1e7")
     return n_save
@@ -323,6 +335,16 @@ def check_max_steps(max_steps: int | None, uniform_option: str | None = None) ->
         )
 
 
+def check_folds(fold: str | None, max_jumps: int | None, *, dt, dae: bool, default_max_jumps: int,
+                uniform_option: str | None = None) -> tuple[str, int]:  # fmt: skip
+    """--fold against the integrator (the library's rule, :func:`peeljax.integrators.resolve_fold`:
+    jump and follow need error control) and --max-jumps (:func:`check_max_jumps`): the fold mode
+    and the record's size, their defaults when not given."""
+    from ..integrators.select import resolve_fold
+
+    return resolve_fold(fold, dt=dt, dae=dae), check_max_jumps(max_jumps, default_max_jumps, uniform_option)
+
+
 def add_max_jumps(group, *, default: int, per: str = "run") -> None:
     group.add_argument(
         "--max-jumps", dest="max_jumps", type=int, default=None, metavar="N",
@@ -357,7 +379,7 @@ def add_engine(parser: argparse.ArgumentParser):
     argument group."""
     group = parser.add_argument_group("problem")
     add_V(group, many=True, default=list(library_default(least_tau, "V")))  # least_tau's grid, a sweep's too
-    add_t_final(group)
+    add_t_final(group, default=library_default(least_tau, "t_final"))  # peeljax.sweep's too
     add_geometry_and_phi(group)
     solver = parser.add_argument_group("integrator")
     solver.add_argument(
@@ -464,6 +486,68 @@ def engine_model(args) -> PeelingModel:
     checked("[0, 1)", check_rho, engine_rho(args))
     model, args.phi_defaults = model_from(args)
     return model
+
+
+DEFAULT_CHUNK = library_default(sweep, "chunk")  # --chunk left out: peeljax.sweep's
+
+
+def tau_grid(tau: list[float], n_tau: int | None) -> list[float]:
+    """--tau values as given (all > 0, or all 0: the DAE), or with --n-tau a log-spaced grid between two values."""
+    tau = flatten(tau)
+    if tau and all(value == 0 for value in tau):
+        if n_tau is not None:
+            raise ValueError("--n-tau spaces tau logarithmically between LO > 0 and HI; --tau 0 is the DAE itself")
+        return [0.0]
+    if tau and any(value == 0 for value in tau):
+        raise ValueError(
+            f"--tau must be finite and > 0 (the homogenized ODE), or 0 alone (the DAE itself); got {tau}: "
+            "the two are different problems, sweep them separately"
+        )
+    tau = check_positive_values("--tau", tau)
+    if any(value > TAU_MAX for value in tau):
+        raise ValueError(f"--tau must lie in (0, {TAU_MAX:g}] (allowed range), got {max(tau):g}")
+    if n_tau is None:
+        return tau
+    if isinstance(n_tau, bool) or n_tau < 2:
+        raise ValueError(f"--n-tau must be an integer >= 2 (allowed range: [2, inf)), got {n_tau}")
+    if len(tau) != 2:
+        raise ValueError(f"--n-tau needs exactly two --tau values LO HI, got {len(tau)}")
+    if tau[0] >= tau[1]:
+        raise ValueError(f"--tau LO HI needs LO < HI, got {tau[0]:g} {tau[1]:g}")
+    return np.geomspace(tau[0], tau[1], n_tau).tolist()
+
+
+def check_sweep_folds(args: argparse.Namespace, tau: list[float], dt: float | None) -> dict:
+    """--fold, --max-jumps, --max-steps and --start, checked against --tau and the integrator.
+
+    Returns the keyword arguments of :func:`peeljax.sweep` they set: --fold and --max-jumps as
+    given (None: the library's defaults, as an --out written before knows them).
+    """
+    uniform = None if dt is None else "--dt"
+    check_folds(args.fold, args.max_jumps, dt=dt, dae=tau == [0.0], default_max_jumps=DEFAULT_SWEEP_MAX_JUMPS,
+                        uniform_option=uniform)  # fmt: skip
+    check_max_steps(args.max_steps, uniform)
+    if args.start is not None:
+        check_choice("--start", args.start, STARTS)
+    chosen = {"fold": args.fold, "max_jumps": args.max_jumps}
+    if dt is None and args.max_steps is not None:  # left out: the library's budget
+        chosen["max_steps"] = int(args.max_steps)
+    return chosen
+
+
+def chunk(args: argparse.Namespace) -> int:
+    return DEFAULT_CHUNK if args.chunk is None else int(args.chunk)
+
+
+def check_sweep_outputs(args: argparse.Namespace) -> None:
+    if args.chunk is not None and args.chunk < 1:
+        raise ValueError(f"--chunk must be a positive integer (allowed range: [1, inf)), got {args.chunk}")
+    check_outputs(args)
+    if args.out is not None and is_netcdf(args.out):  # before the run: the extra may be missing
+        try:
+            check_writable_format(args.out)
+        except ImportError as error:
+            raise ValueError(f"--out {args.out!r}: {error}") from None
 
 
 # ---------------------------------------------------------------------------- statistics window

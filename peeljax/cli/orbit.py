@@ -232,17 +232,6 @@ def _status_line(record: dict) -> str:
     return reason if reason.startswith(status) else f"{status}: {reason}"
 
 
-def _in_cli_terms(message: str) -> str:
-    """:class:`~peeljax.OrbitNotFound`'s message in the command line's words."""
-    message = message.removeprefix("start: ")
-    message = message.replace("run longer", "run longer (a larger --transient)")
-    message = message.replace("a run too short", "a run too short (--transient)")
-    return message.replace(
-        "give start=(alpha, omega) and slips= to shoot near it",
-        "the Python API shoots from a given state: peeljax.periodic_orbit(start=(alpha, omega), slips=K)",
-    )
-
-
 def _complex(re: float, im: float) -> str:
     if abs(im) < 1e-12 * max(math.hypot(re, im), 1e-300):
         return f"{re:.4g}"
@@ -271,7 +260,8 @@ def _orbit_command(args: argparse.Namespace) -> int:
                 max_iterations=config.max_iterations, transient=config.transient,
             )  # fmt: skip
     except OrbitNotFound as error:  # nothing to shoot for: said before any shooting
-        return fail(ValueError(f"no orbit to shoot for at V = {config.V:g} m/s: {_in_cli_terms(str(error))}"))
+        reason = str(error).removeprefix("start: ")
+        return fail(ValueError(f"no orbit to shoot for at V = {config.V:g} m/s: {reason}"))
     except ValueError as error:  # a refusal of the library the checks above did not foresee: one line, not a traceback
         return fail(error)
     converged = bool(orbit.converged)

@@ -4,39 +4,24 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 import time
-from pathlib import Path
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from .._validation import TAU_MAX, check_choice, check_mesh, check_positive, check_rho, check_tau, check_y0
-from ..cycles import cycle_statistics
 from ..integrators.dense import output_times
 from ..integrators.events import FOLD_MODES
 from ..integrators.select import DEFAULT_ATOL as _ALPHA_ATOL
-from ..integrators.select import DEFAULT_MAX_JUMPS, resolve_fold, resolve_max_steps
+from ..integrators.select import DEFAULT_MAX_JUMPS, resolve_max_steps
 from ..integrators.select import DEFAULT_RTOL as _ALPHA_RTOL
 from ..model import PeelingModel
 from ..simulate import check_run_memory, simulate, simulate_reference
-from ..solution import Solution, StopReason
+from ..solution import Solution
 from . import options
-from ._common import (
-    PROG,
-    STEPPERS,
-    Elapsed,
-    checked,
-    fail,
-    library_default,
-    max_steps_remedy,
-    option_names,
-    plotter,
-    report,
-    solver_for,
-    stats_text,
-    write_files,
-)
+from ._common import STEPPERS, Elapsed, checked, fail, library_default, plotter, report, solver_for, write_files
+from .simulate_report import announce, cycles, plot_title, regime_note, remedy_notes, summary_lines
 
 __all__ = ["add_command", "run", "summarize", "validate_run", "write_npz"]
 
@@ -44,14 +29,6 @@ __all__ = ["add_command", "run", "summarize", "validate_run", "write_npz"]
 # output grid) and the other steppers of the error-controlled loop.
 METHODS = ("default", "alpha", "diffrax", *(name for name in STEPPERS if name != "alpha"))
 _UNIFORM_METHODS = ("default", "alpha")  # those that run the uniform mesh (--dt) and take --rho
-# The stepper that ran (the Solution's ``method``), in words; other names are shown as they are.
-_METHOD_TITLES = {
-    "alpha": "alpha-method",
-    "alpha-adaptive": "alpha-method",
-    "diffrax": "diffrax Kvaerno5 reference",
-}
-
-
 # the defaults of a run and of the diffrax reference (--method diffrax), read once from the library
 _RUN = {name: library_default(simulate, name) for name in ("V", "tau", "t_final", "rho")}
 _REFERENCE = {name: library_default(simulate_reference, name) for name in ("dt", "rtol", "atol", "max_steps")}
@@ -210,9 +187,10 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
     n_steps = None if dt is None else checked("dt in (0, t_final], t_final in (0, inf)", check_mesh, dt, args.t_final)
     save_ts = None
     if args.save_dt is not None:
-        n_save = options.check_save_dt(args.save_dt, args.t_final)  # counted first: the times could fill memory
+        remedy = "give a larger --save-dt or a shorter --t-final"
+        memory = lambda n: _check_memory(f"--save-dt {args.save_dt:g}", n, "ts", remedy)
+        options.check_save_dt(args.save_dt, args.t_final, memory)  # counted first: the times could fill memory
         options.refuse_with_dt(None if args.method == "diffrax" else dt, {"--save-dt": args.save_dt})
-        _check_memory(f"--save-dt {args.save_dt:g}", n_save, "ts", "give a larger --save-dt or a shorter --t-final")
         save_ts = tuple(output_times(args.save_dt, args.t_final))
     elif n_steps is not None:
         option = f"--dt {dt:g}" if args.dt is not None else "the diffrax output grid"
@@ -271,36 +249,30 @@ def _check_tau(args: argparse.Namespace) -> None:
     """τ ∈ [0, 1e6] under error control (any stepper); τ = 0 (the DAE, with jumps) needs it, so
     with --dt or --method diffrax the range is (0, 1e6]."""
     other = _without_error_control(args)
-    if other is None:
-        checked(f"[0, {TAU_MAX:g}]", check_tau, args.tau, True)
-        return
-    if args.tau == 0:
+    if other is not None and args.tau == 0:
         what = "a uniform mesh (--dt)" if other == "--dt" else "the diffrax reference (--method diffrax)"
         raise ValueError(
             f"--tau 0 (the DAE itself, with jumps at the folds of phi) runs with error control (any stepper), "
             f"not on {what}: {_remedy(other)}, or give tau in (0, {TAU_MAX:g}] (the homogenized ODE)"
         )
-    checked(f"(0, {TAU_MAX:g}]", check_tau, args.tau)
+    checked(f"{'[' if other is None else '('}0, {TAU_MAX:g}]", check_tau, args.tau, other is None)
 
 
 def _check_folds(args: argparse.Namespace, dt: float | None) -> tuple[str, int, float]:
-    """--fold against the integrator (the library's rule, :func:`peeljax.integrators.resolve_fold`:
-    jump and follow need error control), --max-jumps and --transient; returns the fold mode (its
-    default when not given), max_jumps and the transient."""
-    fold = args.fold
-    if args.method == "diffrax" and fold not in (None, "stop"):
-        # The reference (simulate_reference) runs diffeqsolve's own loop, which has no fold events:
-        # the library has no fold option there to check against.
-        check_choice("--fold", fold, FOLD_MODES)
+    """--fold and --max-jumps (:func:`.options.check_folds`; the diffrax reference runs diffeqsolve's
+    own loop, which has no fold events: it can only stop) and --transient; returns the fold mode
+    (its default when not given), max_jumps and the transient."""
+    reference = args.method == "diffrax"
+    if reference and args.fold not in (None, "stop"):
+        check_choice("--fold", args.fold, FOLD_MODES)
         raise ValueError(
-            f"--fold {fold} needs error control (any stepper), which cuts a step at a fold; with --method "
+            f"--fold {args.fold} needs error control (any stepper), which cuts a step at a fold; with --method "
             f"diffrax a run can only stop there: give --fold stop, or {_remedy('--method diffrax')}"
         )
-    if args.method == "diffrax":
-        fold = "stop"
-    else:
-        fold = resolve_fold(fold, dt=dt, dae=args.tau == 0)
-    max_jumps = options.check_max_jumps(args.max_jumps, DEFAULT_MAX_JUMPS, _without_error_control(args))
+    fold, max_jumps = options.check_folds(
+        "stop" if reference else args.fold, args.max_jumps, dt=None if reference else dt, dae=args.tau == 0,
+        default_max_jumps=DEFAULT_MAX_JUMPS, uniform_option=_without_error_control(args),
+    )  # fmt: skip
     transient, _ = options.check_statistics_window(args.transient, None, args.t_final)
     return fold, max_jumps, transient
 
@@ -381,130 +353,12 @@ def _rho_used(solution: Solution, config: RunConfig) -> float | None:
     return config.rho if config.rho is not None and solution.method.startswith("alpha") else None
 
 
-def method_title(method: str, option: str | None = None) -> str:
-    """The stepper that ran (the Solution's ``method``) in words; "(the default stepper)" when
-    --method left the choice to the library."""
-    title = _METHOD_TITLES.get(method, method)
-    return f"{title} (the default stepper)" if option == "default" else title
-
-
-def _plot_title(config: RunConfig, record: dict) -> str:
-    """The figure's title: the run's settings, and its outcome on a line of its own."""
-    tau = "τ = 0 (the DAE)" if config.dae else f"τ = {config.tau:g} s"
-    rho = record.get("rho")
-    parts = [f"V = {config.V:g} m/s", tau, method_title(record["method"], config.method).replace("alpha-method", "α-method")]
-    if config.adaptive:
-        parts += [f"rtol = {config.rtol:g}", f"atol = {config.atol:g}"] + ([] if rho is None else [f"ρ = {rho:g}"])
-    elif config.uniform:
-        parts += [f"dt = {record['dt']:.4g} s", f"ρ = {config.rho:g}"]
-    else:
-        parts += [f"rtol = {config.rtol:g}", f"output every {record['dt']:.4g} s"]
-    if config.model.geometry != "paper":
-        parts.append(f"{config.model.geometry} geometry")
-    outcome = "completed" if record["status"] == "completed" else f"stopped at t = {record['t_stop']:.4g} s"
-    if record.get("jumps") is not None:
-        outcome += f", {record['jumps']} jump{'' if record['jumps'] == 1 else 's'} at the folds of φ"
-    return f"{', '.join(parts)}\n{outcome}"
-
-
-def _regime_note(config: RunConfig) -> str | None:
-    """A plain word when φ(·, V) has no maximum: then there is no stick-slip to resolve (the
-    paper's φ loses its maximum between V = 4 and 8 m/s) and large V makes the run stiff."""
-    from ..analysis import phi_extrema
-
-    v_peak, _ = phi_extrema(config.model, config.V)
-    if math.isfinite(v_peak):
-        return None
-    return (
-        f"phi(v, V = {config.V:g}) has no maximum for v in [1e-3, 50] m/s: no stick-slip regime at this V "
-        "(the paper's law has one up to V of about 7 m/s)"
-    )
-
-
-def _summary(record: dict, config: RunConfig, cycles=None) -> list[str]:
-    """A few human-readable lines (:func:`report` makes them ASCII)."""
-    settings = [] if record.get("rho") is None else [f"rho = {record['rho']:g}"]
-    if config.rtol is not None:
-        settings.append(f"rtol = {config.rtol:g}, atol = {config.atol:g}")
-    if config.adaptive:
-        settings.append(f"fold {config.fold} (--max-jumps {config.max_jumps}, --max-steps {config.budget})")
-        mesh = f"error control ({record['accepted_steps']} accepted, {record['rejected_steps']} rejected steps)"
-    elif config.n_steps is None:
-        mesh = f"output at {len(config.save_ts)} times"
-    else:
-        mesh = f"dt = {record['dt']:.6g} s ({config.n_steps} steps)"
-    tau = "tau = 0 (the DAE)" if config.dae else f"tau = {config.tau:g} s"
-    stopped = f"stopped at t = {record['t_stop']:.6g} s"
-    if record["status"] == "completed":
-        ended = f"completed: reached t = {record['t_stop']:.6g} s"
-    elif record["status_code"] == int(StopReason.MAX_STEPS):
-        ended = (f"{stopped}: the step budget ({config.budget} step attempts, --max-steps) was used up before "
-                 "t_final: raise --max-steps or loosen --rtol")  # fmt: skip
-    elif record["status_code"] == int(StopReason.MAX_JUMPS):  # the reason names the parameter max_jumps
-        ended = f"{stopped}: the jump record is full (--max-jumps {config.max_jumps}): raise --max-jumps to go on"
-    else:
-        ended = f"{stopped}: {option_names(record['reason'])}"
-    lines = [
-        f"peeljax simulate: {method_title(record['method'], config.method)}, V = {config.V:g} m/s, {tau}, "
-        f"{mesh}, t_final = {config.t_final:g} s, {', '.join(settings)}, geometry {config.model.geometry}",
-        ended,
-        f"v [m/s]: final {record['v_final']:.6g}, min {record['v_min']:.6g}, max {record['v_max']:.6g}",
-    ]
-    if record.get("jumps") is not None:
-        up = record["jumps_up"]
-        lines.append(f"jumps at the folds of phi: {record['jumps']} ({up} stick -> slip, {record['jumps'] - up} slip -> stick)")
-        lines.append(str(cycles) if cycles is not None else f"cycles: {record['cycles_note']}")
-    if record.get("note"):
-        lines.append(f"note: {record['note']}")
-    lines.append("stats: " + stats_text(record["stats"], jumps_said=record.get("jumps") is not None))
-    lines.append(f"wall time {record['wall_time_s']:.3g} s (including compilation)")
-    return lines + [f"wrote {record[key]}" for key in ("out", "plot") if record.get(key)]
-
-
-def _cycles(solution: Solution, config: RunConfig, record: dict):
-    """With a jump record: its count (``record["jumps"]``, ``"jumps_up"``) and the cycle statistics
-    over [transient, t_stop] (``record["cycles"]``, returned too; None with a note when the run
-    stopped before the transient was over)."""
-    if solution.jumps is None:
-        return None
-    jumps = solution.jumps.as_numpy()
-    record["jumps"] = int(jumps["jump_t"].size)
-    record["jumps_up"] = int(np.count_nonzero(jumps["jump_up"]))
-    t_stop = float(solution.t_stop)
-    if not config.transient < t_stop:
-        record["cycles"] = None
-        record["cycles_note"] = (
-            f"the run stopped at t = {t_stop:.6g} s, before its transient ended (--transient {config.transient:g} s): "
-            "no cycle statistics"
-        )
-        return None
-    cycles = cycle_statistics(jumps, t_stop, transient=config.transient)
-    record["cycles"] = cycles.as_dict()
-    return cycles
-
-
-def _announce(config: RunConfig) -> None:
-    """What runs, on stderr, before it compiles."""
-    if config.adaptive:
-        mesh = "error control"
-    elif config.n_steps is None:
-        mesh = f"output at {len(config.save_ts)} times"
-    else:
-        mesh = f"{config.n_steps} step{'' if config.n_steps == 1 else 's'}"
-    method = "default stepper" if config.method == "default" else config.method
-    budget = "" if config.budget is None else f", at most {config.budget} step attempts (--max-steps)"
-    print(
-        f"{PROG}: {method} run with {mesh} to t = {config.t_final:g} s{budget} (compiling first: a few seconds) ...",
-        file=sys.stderr,
-    )
-
-
 def _simulate_command(args: argparse.Namespace) -> int:
     try:
         config = validate_run(args)
     except (ValueError, TypeError) as error:
         return fail(error)
-    _announce(config)
+    announce(config)
     # The run is one compiled loop: it reports its simulated time only at the end (a report from
     # inside would be a host callback in the integrator's loop); meanwhile the wall time is shown.
     with Elapsed(options.progress_on(args), f"simulating to t = {config.t_final:g} s"):
@@ -525,30 +379,20 @@ def _simulate_command(args: argparse.Namespace) -> int:
         "transient": config.transient, "stats": {key: summary[key] for key in solution.stats if key in summary},
         "wall_time_s": wall, "out": args.out, "plot": args.plot,
     }  # fmt: skip
-    note = _regime_note(config)
+    note = regime_note(config)
     if note:
         record["note"] = note
-    cycles = _cycles(solution, config, record)
+    found = cycles(solution, config, record)
     if record.get("jumps"):  # the stick-slip figure: v(t) and G(t) with the jumps, the G-v loop
         settled = config.transient if config.transient < record["t_stop"] else None
         figure = plotter("plot_stick_slip", solution, config.model, config.V, transient=settled,
-                         title=_plot_title(config, record))  # fmt: skip
+                         title=plot_title(config, record))  # fmt: skip
     else:
-        figure = plotter("plot_run", solution, config.model, V=config.V, title=_plot_title(config, record))
+        figure = plotter("plot_run", solution, config.model, V=config.V, title=plot_title(config, record))
     failed = write_files(
         record, ("--out", args.out, lambda path: write_out(path, solution, config)), ("--plot", args.plot, figure)
     )
     return report(
-        record, args.json, lambda: _summary(record, config, cycles), failed, "the run's summary is above",
-        _remedy_notes(solution, config),
+        record, args.json, lambda: summary_lines(record, config, found), failed, "the run's summary is above",
+        remedy_notes(solution, config),
     )  # fmt: skip
-
-
-def _remedy_notes(solution: Solution, config: RunConfig) -> list[str]:
-    """After a run that ran out of its step budget or its jump record: the option to raise (stderr)."""
-    status = int(np.asarray(solution.status))
-    if status == StopReason.MAX_STEPS:
-        return [max_steps_remedy(config.budget)]
-    if status == StopReason.MAX_JUMPS:
-        return [f"{PROG}: the jump record is full: raise --max-jumps (now {config.max_jumps})"]
-    return []

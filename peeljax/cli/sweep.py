@@ -12,29 +12,23 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validation import TAU_MAX, check_choice
-from ..integrators.select import resolve_fold
-from ..solution import StopReason
-from ..sweeps.engine import STARTS
 from ..sweeps.integrators import DEFAULT_SWEEP_MAX_JUMPS
-from ..sweeps.storage import check_writable_format, is_netcdf
 from . import _interrupt, options
-from ..sweeps.api import sweep as _sweep_api
 from ._common import (
     PROG,
     fail,
-    library_default,
-    max_steps_remedy,
+    phi_defaults,
     plotter,
+    remedy_notes,
     report,
     write_failed,
     write_files,
 )
+from .sweep_map import map_command
 from ._distributed import add_distributed_options, distributed_settings, join_processes
 
-__all__ = ["add_command", "tau_grid", "validate_sweep"]
+__all__ = ["add_command", "validate_sweep"]
 
-DEFAULT_CHUNK = library_default(_sweep_api, "chunk")  # --chunk left out: peeljax.sweep's
 
 
 # ---------------------------------------------------------------------------- parsers
@@ -73,7 +67,7 @@ def add_command(subparsers) -> None:
         "values as given)",
     )  # fmt: skip
     grid.add_argument(
-        "--chunk", type=int, default=None, help=f"trajectories per compiled batch, >= 1 (default {DEFAULT_CHUNK})"
+        "--chunk", type=int, default=None, help=f"trajectories per compiled batch, >= 1 (default {options.DEFAULT_CHUNK})"
     )
     folds = parser.add_argument_group("folds of phi (stick-slip jumps; error control only)")
     folds.add_argument(
@@ -147,78 +141,19 @@ def resume_refusal(message: str, args: argparse.Namespace) -> str:
         if option == "--tau" and args.n_tau is not None:
             option = "--tau/--n-tau"
         if option == "--chunk" and args.chunk is None:
-            option = f"the batch size (--chunk, default {DEFAULT_CHUNK}, at most the number of trajectories)"
+            option = f"the batch size (--chunk, default {options.DEFAULT_CHUNK}, at most the number of trajectories)"
         if option not in said:
             said.append(option)
     joined = " and ".join(said) if len(said) <= 2 else ", ".join(said[:-1]) + " and " + said[-1]
     return f"{message[: found.start()]}made with a different {joined}{message[found.end() :]}"
 
 
-def tau_grid(tau: list[float], n_tau: int | None) -> list[float]:
-    """--tau values as given (all > 0, or all 0: the DAE), or with --n-tau a log-spaced grid between two values."""
-    tau = options.flatten(tau)
-    if tau and all(value == 0 for value in tau):
-        if n_tau is not None:
-            raise ValueError("--n-tau spaces tau logarithmically between LO > 0 and HI; --tau 0 is the DAE itself")
-        return [0.0]
-    if tau and any(value == 0 for value in tau):
-        raise ValueError(
-            f"--tau must be finite and > 0 (the homogenized ODE), or 0 alone (the DAE itself); got {tau}: "
-            "the two are different problems, sweep them separately"
-        )
-    tau = options.check_positive_values("--tau", tau)
-    if any(value > TAU_MAX for value in tau):
-        raise ValueError(f"--tau must lie in (0, {TAU_MAX:g}] (allowed range), got {max(tau):g}")
-    if n_tau is None:
-        return tau
-    if isinstance(n_tau, bool) or n_tau < 2:
-        raise ValueError(f"--n-tau must be an integer >= 2 (allowed range: [2, inf)), got {n_tau}")
-    if len(tau) != 2:
-        raise ValueError(f"--n-tau needs exactly two --tau values LO HI, got {len(tau)}")
-    if tau[0] >= tau[1]:
-        raise ValueError(f"--tau LO HI needs LO < HI, got {tau[0]:g} {tau[1]:g}")
-    return np.geomspace(tau[0], tau[1], n_tau).tolist()
-
-
-def _check_folds(args: argparse.Namespace, tau: list[float], dt: float | None) -> dict:
-    """--fold, --max-jumps, --max-steps and --start, checked against --tau and the integrator.
-
-    Returns the keyword arguments of :func:`peeljax.sweep` they set (fold None: its default).
-    """
-    resolve_fold(args.fold, dt=dt, dae=tau == [0.0])  # the library's rule; None: its default, left to sweep
-    fold = args.fold
-    # None: the library's record size (DEFAULT_SWEEP_MAX_JUMPS), as an --out written before knows it
-    options.check_max_jumps(args.max_jumps, DEFAULT_SWEEP_MAX_JUMPS, None if dt is None else "--dt")
-    options.check_max_steps(args.max_steps, None if dt is None else "--dt")
-    if args.start is not None:
-        check_choice("--start", args.start, STARTS)
-    chosen = {"fold": fold, "max_jumps": args.max_jumps}
-    if dt is None and args.max_steps is not None:  # left out: the library's budget
-        chosen["max_steps"] = int(args.max_steps)
-    return chosen
-
-
-def _chunk(args: argparse.Namespace) -> int:
-    return DEFAULT_CHUNK if args.chunk is None else int(args.chunk)
-
-
-def _check_outputs(args: argparse.Namespace) -> None:
-    if args.chunk is not None and args.chunk < 1:
-        raise ValueError(f"--chunk must be a positive integer (allowed range: [1, inf)), got {args.chunk}")
-    options.check_outputs(args)
-    if args.out is not None and is_netcdf(args.out):  # before the run: the extra may be missing
-        try:
-            check_writable_format(args.out)
-        except ImportError as error:
-            raise ValueError(f"--out {args.out!r}: {error}") from None
-
-
 def validate_sweep(args: argparse.Namespace) -> dict:
     """Every option checked, nothing compiled; returns the keyword arguments of :func:`peeljax.sweep`."""
     V = options.check_positive_values("--V", args.V)
-    tau = tau_grid([1e-3, 1e-1] if args.tau is None else args.tau, args.n_tau)
+    tau = options.tau_grid([1e-3, 1e-1] if args.tau is None else args.tau, args.n_tau)
     chosen = options.engine(args)
-    folds = _check_folds(args, tau, chosen["dt"])
+    folds = options.check_sweep_folds(args, tau, chosen["dt"])
     model = options.engine_model(args)
     window = _window(args)
     if args.plot is not None and tau == [0.0]:
@@ -226,10 +161,10 @@ def validate_sweep(args: argparse.Namespace) -> dict:
             "--plot draws the (V, tau) map, whose tau axis is logarithmic: with --tau 0 (the DAE) add "
             "--stick-slip-map for the map against V"
         )
-    _check_outputs(args)
+    options.check_sweep_outputs(args)
     return {
         "model": model, "V": V, "tau": tau, **chosen, **folds, "t_final": float(args.t_final), "grid": "outer",
-        "window": window, "chunk": _chunk(args), "out": args.out, "rho": options.engine_rho(args),
+        "window": window, "chunk": options.chunk(args), "out": args.out, "rho": options.engine_rho(args),
         "start": "paper" if args.start is None else args.start, "progress": args.progress and not args.json,
     }  # fmt: skip
 
@@ -282,9 +217,7 @@ def _sweep_command(args: argparse.Namespace) -> int:
         processes = distributed_settings(args)  # checked first, joined after the sweep's own checks
     except ValueError as error:
         return fail(error)
-    if args.stick_slip_map:  # its own module, which uses this one's checks
-        from .sweep_map import map_command
-
+    if args.stick_slip_map:
         return map_command(args)
     try:
         kwargs = validate_sweep(args)
@@ -320,25 +253,15 @@ def _sweep_command(args: argparse.Namespace) -> int:
         "transient": kwargs["window"][0] * kwargs["t_final"],  # [s]: --transient
         "window_s": (kwargs["window"][1] - kwargs["window"][0]) * kwargs["t_final"],  # [s]: --window
         "fold": result.settings.get("fold"), "max_jumps": result.settings.get("max_jumps"), "start": kwargs["start"],
-        "wall_time_s": wall, "phi_paper_defaults": _phi_defaults(args),
+        "wall_time_s": wall, "phi_paper_defaults": phi_defaults(args),
         "computed_chunks": list(result.computed_chunks), "out": args.out, "plot": args.plot,
         "trajectories": {key: np.asarray(getattr(result, key)).tolist() for key in _TRAJECTORY_KEYS},
         "jumps": _jump_record(result.jumps),
     }  # fmt: skip
     failed = write_files(record, ("--plot", args.plot, plotter("plot_sweep_map", result)))
-    notes = _remedy_notes(result.status, result.settings.get("max_steps", kwargs.get("max_steps")))
+    notes = remedy_notes(result.status, result.settings.get("max_steps", kwargs.get("max_steps")))
     lines = lambda: _sweep_lines(record, result, kwargs, wall)
     return report(record, args.json, lines, failed, "the sweep's results are above", notes)
-
-
-def _remedy_notes(status, budget) -> list[str]:
-    """After trajectories that used up their step budget: how many, and the remedy (stderr)."""
-    status = np.asarray(status).ravel()
-    out_of_steps = int(np.count_nonzero(status == int(StopReason.MAX_STEPS)))
-    if not out_of_steps:
-        return []
-    return [f"{PROG}: {out_of_steps} of {status.size} trajectories stopped at their step budget",
-            max_steps_remedy(budget)]  # fmt: skip
 
 
 def _saved_chunks(out: str | None) -> str:
@@ -388,9 +311,3 @@ def _sweep_lines(record: dict, result, kwargs: dict, wall: float) -> list[str]:
             + ("" if jumps is None else f" {jumps[i]:7d}")
         )
     return lines + [f"wrote {record[key]}" for key in ("out", "plot") if record[key]]
-
-
-def _phi_defaults(args: argparse.Namespace) -> list[str] | None:
-    """The coefficients --phi left at the paper's values (None without --phi)."""
-    kept = getattr(args, "phi_defaults", None)
-    return None if kept is None else list(kept)

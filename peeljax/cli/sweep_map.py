@@ -11,8 +11,7 @@ import numpy as np
 
 from ..sweeps.engine import STARTS
 from . import options
-from ._common import PROG, fail, plotter, report, write_files
-from .sweep import _check_folds, _check_outputs, _chunk, _phi_defaults, _remedy_notes, tau_grid
+from ._common import PROG, fail, phi_defaults, plotter, remedy_notes, report, write_files
 
 __all__ = ["map_command", "validate_map"]
 
@@ -23,7 +22,7 @@ def validate_map(args: argparse.Namespace) -> dict:
     V = options.check_positive_values("--V", args.V)
     if args.n_tau is not None:
         raise ValueError("--n-tau makes a grid of tau; --stick-slip-map runs over V at one --tau")
-    tau = tau_grid([0.0] if args.tau is None else args.tau, None)
+    tau = options.tau_grid([0.0] if args.tau is None else args.tau, None)
     if len(tau) != 1:
         raise ValueError(f"--stick-slip-map runs over V at one --tau (0: the DAE itself), got {len(tau)} values")
     for option, value in (("--dt", args.dt), ("--save-dt", args.save_dt), ("--save-every", args.save_every)):
@@ -36,17 +35,17 @@ def validate_map(args: argparse.Namespace) -> dict:
             "--transient (and --t-final)"
         )
     chosen = options.engine(args)
-    folds = _check_folds(args, tau, None)
+    folds = options.check_sweep_folds(args, tau, None)
     if folds["fold"] == "stop":
         raise ValueError("--fold stop ends every run at its first fold: --stick-slip-map needs --fold jump (or follow)")
     model = options.engine_model(args)
     transient, _ = options.check_statistics_window(args.transient, None, args.t_final)
-    _check_outputs(args)
+    options.check_sweep_outputs(args)
     return {
         "model": model, "V": V, "tau": tau[0], "t_final": float(args.t_final), "transient": transient,
         "starts": STARTS if args.start is None else (args.start,), "rtol": chosen["rtol"], "atol": chosen["atol"],
         **({"solver": chosen["solver"]} if "solver" in chosen else {}),
-        **folds, "chunk": _chunk(args), "rho": options.engine_rho(args), "progress": args.progress and not args.json,
+        **folds, "chunk": options.chunk(args), "rho": options.engine_rho(args), "progress": args.progress and not args.json,
     }  # fmt: skip
 
 
@@ -77,7 +76,7 @@ def _map_record(smap, kwargs: dict, args: argparse.Namespace, wall: float) -> di
         "max_jumps": settings.get("max_jumps"),
         "max_steps": settings.get("max_steps", kwargs.get("max_steps")),
         "wall_time_s": wall,
-        "phi_paper_defaults": _phi_defaults(args),
+        "phi_paper_defaults": phi_defaults(args),
         "out": args.out,
         "plot": args.plot,
         "stick_slip_ranges": {start: [list(r) for r in smap.stick_slip_ranges(start)] for start in smap.starts},
@@ -109,5 +108,5 @@ def map_command(args: argparse.Namespace) -> int:
     engine = options.engine_text({**kwargs, "dt": None}, smap.settings.get("sweep", {}).get("method"))
     lines = [str(smap), f"{engine}, max_steps {record['max_steps']}; wall time {wall:.3g} s"]
     lines += [f"wrote {record[key]}" for key in ("out", "plot") if record[key]]
-    notes = _remedy_notes(smap.status, record["max_steps"])
+    notes = remedy_notes(smap.status, record["max_steps"])
     return report(record, args.json, lines, failed, "the map is above", notes)

@@ -11,8 +11,7 @@ import time
 from .._validation import check_tolerance
 from ..sweeps.least_tau import least_tau as _least_tau_api
 from . import options
-from ._common import PROG, Elapsed, fail, library_default, report
-from .sweep import _phi_defaults
+from ._common import PROG, Elapsed, fail, library_default, phi_defaults, report
 
 __all__ = ["add_command", "validate_tau_star"]
 
@@ -99,7 +98,7 @@ def _tau_star_command(args: argparse.Namespace) -> int:
         "tau_rtol": kwargs["tau_rtol"],
         "max_steps": kwargs.get("max_steps"),  # --max-steps; null: the library's budget
         "wall_time_s": wall,
-        "phi_paper_defaults": _phi_defaults(args),
+        "phi_paper_defaults": phi_defaults(args),
     }
     lines = [f"{PROG} tau-star: {options.engine_text(kwargs)}, t_final = {kwargs['t_final']:g} s, "
              f"tau_rtol = {kwargs['tau_rtol']:g}, {result.rounds} batched runs, {wall:.3g} s"]  # fmt: skip
