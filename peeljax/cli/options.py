@@ -32,7 +32,7 @@ import sys
 
 import numpy as np
 
-from .._validation import TAU_MAX, check_choice, check_mesh, check_positive, check_rho, check_tolerance
+from .._validation import MAX_STEPS_LIMIT, TAU_MAX, check_choice, check_mesh, check_positive, check_rho, check_tolerance
 from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_MAX_STEPS_DENSE, DEFAULT_RTOL
 from ..model import GEOMETRIES, PeelingModel
 from ..sweeps.api import sweep
@@ -43,15 +43,12 @@ from ..sweeps.storage import check_writable_format, is_netcdf
 from ._common import PROG, STEPPERS, check_output_path, checked, library_default, plot_formats, read_phi, solver_for
 
 __all__ = [
-    "add_engine",
-    "engine",
-    "engine_model",
-    "engine_record",
-    "engine_rho",
-    "engine_text",
+    "DEFAULT_CHUNK",
     "MAX_JUMPS_LIMIT",
+    "MAX_SAVE_TIMES",
     "MAX_STEPS_LIMIT",
     "MAX_VALUES",
+    "add_engine",
     "add_geometry_and_phi",
     "add_json",
     "add_max_jumps",
@@ -72,9 +69,14 @@ __all__ = [
     "check_statistics_window",
     "check_sweep_folds",
     "check_sweep_outputs",
-    "chunk",
     "check_tolerances",
+    "chunk",
     "deprecated",
+    "engine",
+    "engine_model",
+    "engine_record",
+    "engine_rho",
+    "engine_text",
     "model_from",
     "number",
     "numbers",
@@ -84,8 +86,6 @@ __all__ = [
     "transient_default",
 ]
 
-# --max-steps: the loop counts its step attempts in 32 bits (a larger budget would wrap around).
-MAX_STEPS_LIMIT = 2**31 - 1
 # --max-jumps: the jump record is allocated in full (5 arrays of max_jumps, per trajectory).
 MAX_JUMPS_LIMIT = 10_000_000
 # A range START:STOP:COUNT makes at most this many values (a typo must not fill the memory).
@@ -201,9 +201,10 @@ def add_t_final(group, *, default: float | None, help: str | None = None) -> Non
 
 def add_geometry_and_phi(group, *, phi_meta: str = "COEFFS.json", phi_help: str | None = None) -> None:
     """--geometry and --phi: the model's spool approximations and its adhesion law."""
+    geometry = library_default(PeelingModel, "geometry")
     group.add_argument(
-        "--geometry", default="paper", metavar="{paper,full}",
-        help="'paper' (the paper's approximations) or 'full' (default paper)",
+        "--geometry", default=geometry, metavar="{paper,full}",
+        help=f"'paper' (the paper's approximations) or 'full' (default {geometry})",
     )  # fmt: skip
     group.add_argument(
         "--phi", metavar=phi_meta,
