@@ -381,7 +381,6 @@ _FOLD_MODE = re.compile(r"\bfold='(jump|stop|follow)'")
 # ("a diffrax solver (Kvaerno5)": the command line's --method diffrax) and its remedy.
 _GIVEN = re.compile(r"(?<![\w-])(dt|tau)=([^\s,;()']+)")
 _DIFFRAX_SOLVER = re.compile(r"\ba diffrax solver \(\w+\)")
-# Names that open a library message ("tau must be ...", "y0: ...").
 # Remedies said in the Python API's words (peeljax.OrbitNotFound's), in the command line's.
 _PHRASES = (
     ("run longer", "run longer (a larger --transient)"),
@@ -389,6 +388,7 @@ _PHRASES = (
     ("give start=(alpha, omega) and slips= to shoot near it",
      "the Python API shoots from a given state: peeljax.periodic_orbit(start=(alpha, omega), slips=K)"),
 )  # fmt: skip
+# Names that open a library message ("tau must be ...", "y0: ...").
 _LEADING = re.compile(r"^(V|tau|dt|rtol|atol|rho|y0|geometry|transient|window|fold|start|free|statistics)\b(?![-=])")
 
 
