@@ -14,21 +14,11 @@ import numpy as np
 
 from ..sweeps.integrators import DEFAULT_SWEEP_MAX_JUMPS
 from . import _interrupt, options
-from ._common import (
-    PROG,
-    fail,
-    phi_defaults,
-    plotter,
-    remedy_notes,
-    report,
-    write_failed,
-    write_files,
-)
-from .sweep_map import map_command
+from ._common import PROG, fail, phi_defaults, plotter, remedy_notes, report, write_failed, write_files
 from ._distributed import add_distributed_options, distributed_settings, join_processes
+from .sweep_map import map_command
 
 __all__ = ["add_command", "validate_sweep"]
-
 
 
 # ---------------------------------------------------------------------------- parsers
