@@ -67,6 +67,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from jaxtyping import ArrayLike
 
+from .._files import json_safe
 from ..cycles import cycle_statistics, repeat_pattern
 from ..integrators.cycle_accumulator import KEPT_SLIPS, MAX_REPEAT_EVENTS
 from ..model import PeelingModel
@@ -391,18 +392,6 @@ def _where_V(ranges: list[tuple[float, float]]) -> str:
 
 def _ranges_text(ranges: list[tuple[float, float]]) -> str:
     return ", ".join(f"{a:.4g}" if a == b else f"[{a:.4g}, {b:.4g}]" for a, b in ranges)
-
-
-def json_safe(value):
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {str(key): json_safe(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_safe(item) for item in value]
-    if isinstance(value, np.generic):
-        return json_safe(value.item())
-    return value
 
 
 def _check_V(V) -> np.ndarray:
