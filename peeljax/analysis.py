@@ -58,7 +58,7 @@ from .structure import (
     PHI_SEARCH_RANGE,
     jacobians,
     local_index,
-    phi_extremum_pair,
+    phi_extremum,
     schur_complement,
     truncated_schur_complement,
 )
@@ -119,8 +119,13 @@ def phi_extrema(model: PeelingModel | None = None, V: float = 1.1) -> tuple[floa
     the host: v ∈ [1e-8, 1e2]·max(V, 1), a log grid refined by bisection in log v.
     """
     model = PeelingModel() if model is None else model
-    top, bottom = phi_extremum_pair(model, jnp.asarray(V, float))
+    top, bottom = _phi_extrema_jit(model, jnp.asarray(V, float))
     return float(top), float(bottom)
+
+
+@eqx.filter_jit  # module level: compiled once per model structure, not per call
+def _phi_extrema_jit(model, V):
+    return phi_extremum(model, V, "max"), phi_extremum(model, V, "min")
 
 
 _SLOPE_GRID = 4096  # log-spaced v of the search for min ∂φ/∂v: 400 points a decade

@@ -40,7 +40,6 @@ __all__ = [
     "neumann_radius",
     "is_fast_scale",
     "phi_extremum",
-    "phi_extremum_pair",
     "MAX_INDEX",
 ]
 
@@ -146,40 +145,37 @@ def phi_extremum(model: PeelingModel, V: ArrayLike, kind: Literal["max", "min"] 
     """
     if kind not in ("max", "min"):
         raise ValueError(f"kind must be 'max' or 'min', got {kind!r}")
-    return phi_extremum_pair(model, V)[0 if kind == "max" else 1]
+    return _phi_extremum(model, V, kind)
 
 
 @eqx.filter_jit  # called on the host too (phi_folds): its loop would be compiled anew at every call
-def phi_extremum_pair(model: PeelingModel, V: ArrayLike) -> tuple[Array, Array]:
-    """(v̂, v̌): :func:`phi_extremum`'s first maximum and first minimum of φ(·, V), both from one
-    grid of ∂φ/∂v and one bisection loop over the pair (a fixed cost of every run with folds)."""
+def _phi_extremum(model: PeelingModel, V: ArrayLike, kind: str) -> Array:
     V = jnp.asarray(V, float)
+    rising = 1.0 if kind == "max" else -1.0  # the sign of ∂φ/∂v before the extremum
     scale = jnp.maximum(V, 1.0)
     log_v = jnp.linspace(jnp.log(PHI_SEARCH_RANGE[0]), jnp.log(PHI_SEARCH_RANGE[1]), _PHI_GRID) + jnp.log(scale)
-    rising = jnp.array([1.0, -1.0])  # the sign of ∂φ/∂v before a maximum, before a minimum
 
     def slope(log_v):
-        return jax.grad(lambda v: model.phi(v, V))(jnp.exp(log_v))
+        return rising * jax.grad(lambda v: model.phi(v, V))(jnp.exp(log_v))
 
-    slopes = rising[:, None] * jax.vmap(slope)(log_v)[None, :]
-    falls = (slopes[:, :-1] > 0) & (slopes[:, 1:] <= 0)
-    index = jnp.argmax(falls, axis=1)
+    slopes = jax.vmap(slope)(log_v)
+    falls = (slopes[:-1] > 0) & (slopes[1:] <= 0)
+    index = jnp.argmax(falls)
     bracket = (log_v[index], log_v[index + 1])
 
     def bisect(_, bracket):
         lo, hi = bracket
         mid = 0.5 * (lo + hi)
-        before = rising * jax.vmap(slope)(mid) > 0
+        before = slope(mid) > 0
         return jnp.where(before, mid, lo), jnp.where(before, hi, mid)
 
     lo, hi = jax.lax.fori_loop(0, _PHI_BISECTIONS, bisect, bracket)
-    found = jnp.any(falls, axis=1)
+    found = jnp.any(falls)
     log_root = jax.lax.stop_gradient(jnp.where(found, 0.5 * (lo + hi), 0.0))
     # Derivatives by the implicit function theorem on ∂φ/∂v(v̂) = 0 (zero in value):
     # d log v̂ = −d(∂φ/∂v)/(∂²φ/∂v∂log v) at fixed v̂, with the curvature held constant.
-    curvature = jax.lax.stop_gradient(jax.vmap(jax.grad(slope))(log_root))
+    curvature = jax.lax.stop_gradient(jax.grad(slope)(log_root))
     curvature = jnp.where(curvature != 0, curvature, 1.0)
-    residual = jax.vmap(slope)(log_root)
+    residual = slope(log_root)
     log_root = log_root - (residual - jax.lax.stop_gradient(residual)) / curvature
-    roots = jnp.where(found, jnp.exp(log_root), jnp.nan)
-    return roots[0], roots[1]
+    return jnp.where(found, jnp.exp(log_root), jnp.nan)
