@@ -183,9 +183,9 @@ class JumpRecord(eqx.Module):
         """The slot arrays: written in place, as buffers of a while loop (never read in it)."""
         return (self.t, self.up, self.v_before, self.v_after, self.G, self.F)
 
-    def record(self, do: Bool[Array, ""], t, up, v_before, v_after, G, F=jnp.nan) -> "JumpRecord":
+    def record(self, do: Bool[Array, ""], t, up, v_before, v_after, G, F=jnp.nan, y=None) -> "JumpRecord":
         """This record with one more jump where ``do`` (nothing changes where not, or when a
-        plain record is full); ``statistics`` see the jump too."""
+        plain record is full); ``statistics`` see the jump too (and ``y``, the state at the fold)."""
         if self.ring:
             slot = self.count % max(self.max_jumps, 1)
             write = jnp.asarray(do)
@@ -205,7 +205,7 @@ class JumpRecord(eqx.Module):
 
         statistics = self.statistics
         if statistics is not None:
-            statistics = statistics.add(write, t, up, v_before, v_after, G)
+            statistics = statistics.add(write, t, up, v_before, v_after, G, y)
         return JumpRecord(
             t=put(self.t, t), up=put(self.up, up), v_before=put(self.v_before, v_before),
             v_after=put(self.v_after, v_after), G=put(self.G, G), count=self.count + counted,

@@ -188,6 +188,9 @@ def _at_fold(
 
     nan = jnp.full((), jnp.nan)
     no_jump = (jnp.asarray(False), nan, jnp.asarray(False), nan, nan, nan, nan)  # (write, t, up, v⁻, v⁺, G, F)
+    keeps_state = jumps.statistics is not None  # the cycle statistics keep the state at slips
+    if keeps_state:
+        no_jump = (*no_jump, jnp.full(physical(stepper, fold.y).shape, jnp.nan))
 
     def at_fold():
         y_fold = ode.complete(fold.y) if getattr(ode, "completes_state", False) else fold.y
@@ -201,6 +204,8 @@ def _at_fold(
         y = jnp.where(full, y_fold, jump.y)
         restarted = stepper.restart(ode, fold.t, y, new)
         entry = (~full, clock(fold.t, y_fold), jump.up, jump.v_before, jump.v_after, jump.G, jump.F)
+        if keeps_state:
+            entry = (*entry, physical(stepper, y_fold))
         status = jnp.where(full, StopReason.MAX_JUMPS, 0).astype(jnp.int32)
         return restarted, fold_event(ode, y), entry, status, end
 

@@ -70,6 +70,7 @@ class CycleAccumulator(eqx.Module):
     interval_sum: Float[Array, ""]  # Σ d_j
     slip_times: Float[Array, " R"]  # the last KEPT_SLIPS stick → slip times, slot j mod KEPT_SLIPS
     deviation: Float[Array, " K"]  # max_j |d_{j+k} − d_j|, k = 1 … MAX_REPEAT_EVENTS
+    slip_state: Float[Array, " 4"]  # the state (α, ω, u, v) at the latest stick → slip fold in the window
 
     @classmethod
     def over(cls, w0, w1) -> CycleAccumulator:
@@ -94,10 +95,12 @@ class CycleAccumulator(eqx.Module):
             interval_sum=jnp.asarray(0.0),
             slip_times=jnp.full(KEPT_SLIPS, jnp.nan),
             deviation=jnp.full(MAX_REPEAT_EVENTS, -jnp.inf),
+            slip_state=jnp.full(4, jnp.nan),
         )
 
-    def add(self, do: Bool[Array, ""], t, up, v_before, v_after, G) -> CycleAccumulator:
-        """The statistics with the jump (t, up, v⁻, v⁺, G) added where ``do``."""
+    def add(self, do: Bool[Array, ""], t, up, v_before, v_after, G, y=None) -> CycleAccumulator:
+        """The statistics with the jump (t, up, v⁻, v⁺, G) added where ``do``; ``y``: the state at
+        the fold (before the jump), kept at stick → slip ones (``slip_state``)."""
         t = jnp.asarray(t, float)
         up = jnp.asarray(up, bool)
         down = ~up
@@ -164,6 +167,7 @@ class CycleAccumulator(eqx.Module):
             interval_sum=jnp.where(slip & has_slip, self.interval_sum + interval, self.interval_sum),
             slip_times=jnp.where(slip, self.slip_times.at[self.slips % KEPT_SLIPS].set(t), self.slip_times),
             deviation=deviation,
+            slip_state=self.slip_state if y is None else jnp.where(slip, jnp.asarray(y, float), self.slip_state),
         )
 
     def finish(self, t_end) -> dict[str, Array]:
@@ -172,7 +176,8 @@ class CycleAccumulator(eqx.Module):
         ``v_stick_min|max``, ``v_slip_min|max``, ``stick_fraction`` (NaN: no jump at all, or an
         empty window), and for the repeat ``first_slip``, ``interval_sum``, ``slip_times`` (the
         last :data:`KEPT_SLIPS` in time order, NaN-padded) and ``deviation`` (per k; −inf where
-        no pair was compared)."""
+        no pair was compared); ``slip_state``, the state at the window's last stick → slip fold
+        (on the section of :mod:`peeljax.orbits`; NaN: none)."""
         end = jnp.minimum(self.w1, jnp.asarray(t_end, float))
         length = end - self.w0
         have = self.spread_n > 0
@@ -200,5 +205,6 @@ class CycleAccumulator(eqx.Module):
             interval_sum=self.interval_sum,
             slip_times=jnp.where(jnp.arange(KEPT_SLIPS) < kept, self.slip_times[slots], nan),
             deviation=self.deviation,
+            slip_state=self.slip_state,
         )
         return out

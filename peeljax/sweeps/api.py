@@ -9,6 +9,7 @@ merged into a :class:`SweepResult`.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import os
 import sys
 from collections.abc import Sequence
@@ -31,6 +32,7 @@ from ..solution import StopReason
 from .devices import batch_mesh, deal, default_lane_batch, put_lanes, to_host
 from .distributed import check_same_settings, is_multiprocess, open_shared_store
 from .grid import axis, check_window, trajectories
+from .engine import GIVEN_START
 from .integrators import sweep_plan
 from .lane_cycles import CYCLE_BYTES, CYCLE_KEYS, cycle_arrays, sweep_cycle_statistics
 from .storage import FORMAT, VERSION, ChunkStore, check_writable_format
@@ -270,7 +272,7 @@ def sweep(
     lane_batch: int | None = None,
     fold: str | None = None,
     max_jumps: int | None = None,
-    start: str = "paper",
+    start: str | ArrayLike = "paper",
 ) -> SweepResult:
     """Integrate eq. ``hv`` with (``av``)–(``str``) by the α-method for many (V, τ, …) at once.
 
@@ -332,9 +334,11 @@ def sweep(
         max_jumps: each lane keeps its last ``max_jumps`` jumps (a ring buffer, default 64;
             ``result.jumps``); the cycle statistics of the window are accumulated in the loop
             over all of its jumps (``result.cycles``), and no lane stops for a full record.
-        start: each lane's initial state: ``"paper"`` (the paper's, the tape at rest) or
+        start: each lane's initial state: ``"paper"`` (the paper's, the tape at rest),
             ``"steady"`` (steady peeling, v = V): stick-slip and steady peeling coexist for
-            some V, so the start decides which one a lane shows.
+            some V, so the start decides which one a lane shows; or the states (α, ω, u, v)
+            themselves, shape (4,) for every lane or (n, 4), one per trajectory in the grid's
+            order (consistent at τ = 0: :meth:`PeelingModel.consistent_state`).
 
     Returns:
         A :class:`SweepResult` (see there for the summaries and :mod:`peeljax.sweeps.engine`
@@ -350,6 +354,9 @@ def sweep(
     check_choice("grid", grid, ("outer", "pairs"))
     taus_given = axis("tau", tau)
     dae = bool(np.all(taus_given == 0))
+    given_states = None
+    if not isinstance(start, str):
+        given_states, start = start, GIVEN_START
     plan = sweep_plan(
         solver, rho, dt, t_final, rtol, atol, save_dt, save_every, dtmin, max_steps, fold, max_jumps, dae, start
     )
@@ -368,6 +375,7 @@ def sweep(
         raise ValueError(f"lane_batch must be a positive integer, got {lane_batch!r}")
     Vs, taus, param_values, grid_shape = trajectories(V, tau, params, grid)
     n = Vs.size
+    states = None if given_states is None else _start_states(given_states, n)
     devices = list(jax.devices()) if devices is None else list(devices)
     multiprocess = is_multiprocess()  # jax.distributed: every process's devices, one program
     if not multiprocess:  # (there every process must keep its devices, even with padding only)
@@ -396,6 +404,8 @@ def sweep(
         model, plan, axis("V", V), axis("tau", tau), {k: axis(k, v) for k, v in params.items()},
         grid, t_final, window, chunk, truncation,
     )  # fmt: skip
+    if states is not None:  # (a resumed sweep must have started from the same states)
+        settings["start_states_sha256"] = hashlib.sha256(states.tobytes()).hexdigest()
     n_chunks = -(-n // chunk)
     sizes = [min(chunk, n - i * chunk) for i in range(n_chunks)]
     keys = tuple(_SUMMARY_FIELDS) + (("ys",) if save_ts is not None else ())
@@ -440,8 +450,9 @@ def sweep(
             if chunks[i] is not None:
                 continue
             lanes = deal(np.arange(i * chunk, i * chunk + chunk).clip(max=n - 1), n_dev)  # padded
-            inputs = put_lanes((Vs[lanes], taus[lanes], {k: v[lanes] for k, v in param_values.items()}), devices)
-            summary = plan.run(model, *inputs, t_final_array, window_array, truncation, mesh, lane_batch)
+            given = {} if states is None else {"y0": states[lanes]}
+            inputs = put_lanes((Vs[lanes], taus[lanes], {k: v[lanes] for k, v in param_values.items()}, given), devices)
+            summary = plan.run(model, *inputs[:3], t_final_array, window_array, truncation, mesh, lane_batch, inputs[3])
             host = to_host({key: _summary_field(summary, key) for key in keys})
             back = np.argsort(deal(np.arange(chunk), n_dev))
             arrays = {key: value[back][: sizes[i]] for key, value in host.items()}
@@ -463,6 +474,23 @@ def sweep(
     return result
 
 
+def _start_states(states, n: int) -> np.ndarray:
+    """A sweep's given starts as (n, 4) float64: one state (α, ω, u, v) for all, or one each."""
+    try:
+        array = np.asarray(states, float)
+    except (TypeError, ValueError):
+        raise ValueError(f"start must be 'paper', 'steady' or states (alpha, omega, u, v), got {states!r}") from None
+    if array.shape == (4,):
+        array = np.broadcast_to(array, (n, 4))
+    if array.shape != (n, 4):
+        raise ValueError(
+            f"start states must have shape (4,) or (n, 4) with n = {n}, the sweep's trajectories, got shape {array.shape}"
+        )
+    if not np.all(np.isfinite(array)):
+        raise ValueError("start states must be finite")
+    return np.ascontiguousarray(array)
+
+
 def _summary_field(summary, key: str):
     if key in _JUMP_FIELDS:
         return getattr(summary.jumps, _JUMP_FIELDS[key])
@@ -474,7 +502,10 @@ def _summary_field(summary, key: str):
 def _result(arrays, Vs, taus, params, save_ts, t_final, window, grid_shape, settings, computed) -> SweepResult:
     status = np.asarray(arrays["status"], dtype=np.int32)
     jumps = {key: np.asarray(arrays[key]) for key in JUMP_KEYS} if "jump_count" in arrays else None
-    cycles = {key: np.asarray(arrays[key]) for key in CYCLE_KEYS} if CYCLE_KEYS[0] in arrays else None
+    cycles = None
+    if CYCLE_KEYS[0] in arrays:  # (files written before the slip states were kept: NaN)
+        missing = {"cycle_slip_state": np.full((status.size, 4), np.nan)}
+        cycles = {key: np.asarray(arrays[key]) if key in arrays else missing[key] for key in CYCLE_KEYS}
     summaries = {key: np.asarray(arrays[key]) for key in _SUMMARY_FIELDS if key != "status"}
     w0, w1 = window[0] * float(t_final), window[1] * float(t_final)
     window_time = np.clip(np.minimum(summaries["t_stop"], w1) - w0, 0.0, None)

@@ -63,6 +63,7 @@ __all__ = [
     "MODEL_PARAMETERS",
     "STARTS",
     "BatchSummary",
+    "GIVEN_START",
     "keep_last_jumps",
     "PointStatistics",
     "WindowStatistics",
@@ -73,11 +74,15 @@ __all__ = [
 
 MODEL_PARAMETERS: tuple[str, ...] = ("R", "I", "k", "l", *COEFFICIENT_NAMES)
 STARTS = ("paper", "steady")
+GIVEN_START = "given"  # each lane's state given (a sweep's ``start`` array)
 
 
-def initial_state(model: PeelingModel, V, start: str):
-    """The lane's start: the paper's consistent data (v0 = 1e-10·V, the tape at rest), or
-    ``"steady"``: steady peeling, v = V and ω = V/R at the paper's α0, u from the constraint."""
+def initial_state(model: PeelingModel, V, start: str, given: dict | None = None):
+    """The lane's start: the paper's consistent data (v0 = 1e-10·V, the tape at rest),
+    ``"steady"``: steady peeling, v = V and ω = V/R at the paper's α0, u from the constraint,
+    or :data:`GIVEN_START`: the state ``given["y0"]``."""
+    if start == GIVEN_START:
+        return given["y0"]
     if start == "paper":
         return model.initial_state(V)
     return model.consistent_state(V, PAPER_ALPHA0, V / model.R, V)
@@ -319,11 +324,12 @@ def _lane(
     truncation: int | None,
     dae: bool = False,
     start: str = "paper",
+    given: dict | None = None,
 ) -> BatchSummary:
     """One trajectory: the integrator's steps shown to the window statistics (and ``save``).
 
-    ``dae``: τ = 0, the DAE itself (:class:`~peeljax.ConstrainedDAE`); ``start``: see
-    :func:`initial_state`."""
+    ``dae``: τ = 0, the DAE itself (:class:`~peeljax.ConstrainedDAE`); ``start``, ``given``:
+    see :func:`initial_state`."""
     model = with_parameters(model, params)
     integrator = _with_cycle_window(integrator, window[0] * t_final, window[1] * t_final)
     ode = ConstrainedDAE(model, V) if dae else HomogenizedODE(model, V, tau, truncation)
@@ -332,7 +338,7 @@ def _lane(
     statistics_type = WindowStatistics if integrator.dense_output else PointStatistics
     statistics = statistics_type(window[0] * t_final, window[1] * t_final, v_slip, carried_log)
     observers = (statistics,) if save is None else (statistics, save)
-    run = integrator.observe(ode, initial_state(model, ode.V, start), 0.0, t_final, Observers(observers))
+    run = integrator.observe(ode, initial_state(model, ode.V, start, given), 0.0, t_final, Observers(observers))
     summary = statistics.summary(run.record[0])
     jumps, cycles = run.jumps, None
     if jumps is not None:
@@ -379,6 +385,7 @@ def run_batch(
     mesh: jax.sharding.Mesh | None = None,
     dae: bool = False,
     start: str = "paper",
+    given: dict[str, Float[Array, "B 4"]] | None = None,
 ) -> BatchSummary:
     """All lanes, each the run the integrator makes alone, summarised by :func:`_lane`.
 
@@ -398,17 +405,18 @@ def run_batch(
     every array are traced.
     """
 
-    def lanes(model, integrator, t_final, window, save, V, tau, params):
+    def lanes(model, integrator, t_final, window, save, V, tau, params, given):
         def one(lane):
-            return _lane(model, integrator, *lane, t_final, window, save, truncation, dae, start)
+            V, tau, params, given = lane
+            return _lane(model, integrator, V, tau, params, t_final, window, save, truncation, dae, start, given)
 
         if lane_batch >= V.shape[0]:  # one group: nothing to sort
-            return jax.vmap(one)((V, tau, params))
+            return jax.vmap(one)((V, tau, params, given))
         order = jnp.argsort(tau)
         inverse = jnp.argsort(order)
-        lanes = jax.tree_util.tree_map(lambda x: x[order], (V, tau, params))
+        lanes = jax.tree_util.tree_map(lambda x: x[order], (V, tau, params, given))
         results = jax.lax.map(one, lanes, batch_size=lane_batch) if lane_batch > 1 else jax.lax.map(one, lanes)
         return jax.tree_util.tree_map(lambda x: x[inverse], results)
 
     shared = (model, integrator, t_final, window, save)
-    return over_devices(lanes, mesh, shared, (V, tau, params))
+    return over_devices(lanes, mesh, shared, (V, tau, params, {} if given is None else given))

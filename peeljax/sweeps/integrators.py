@@ -87,7 +87,7 @@ class SweepPlan:
         save_ts = self.save_times()
         return None if save_ts is None else DenseOutput(jnp.asarray(save_ts))
 
-    def run(self, model, V, tau, params, t_final, window, truncation, mesh, lane_batch) -> engine.BatchSummary:
+    def run(self, model, V, tau, params, t_final, window, truncation, mesh, lane_batch, given=None) -> engine.BatchSummary:
         if self.uniform:
             lane_batch = V.shape[0]  # every lane takes the same steps: one vmap
         method = getattr(self.integrator, "method", None)
@@ -98,7 +98,7 @@ class SweepPlan:
             mesh = None
         return engine.run_batch(
             model, self.integrator, V, tau, params, t_final, window, self.save_observer(), truncation, lane_batch, mesh,
-            self.dae, self.start,
+            self.dae, self.start, given,
         )  # fmt: skip
 
 
@@ -109,7 +109,8 @@ def sweep_plan(
     """Check the options (uniform mesh when ``dt`` is given, else error control) and plan the sweep."""
     if dt is not None:
         refuse_with_dt(dt, rtol=rtol, atol=atol, save_dt=save_dt, dtmin=dtmin)
-    check_choice("start", start, engine.STARTS)
+    if start != engine.GIVEN_START:  # (a sweep's start array: checked there)
+        check_choice("start", start, engine.STARTS)
     # A sweep keeps nothing per step: the budget only guards against runs that never end.
     max_steps = resolve_max_steps(max_steps, keeps_steps=False)
     # A sweep differentiates nothing: the plain while loop is the fastest.

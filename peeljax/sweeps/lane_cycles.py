@@ -27,11 +27,11 @@ _NAMES = (
     "jumps", "slips",
     *(f"{name}_{part}" for name in SPREADS for part in ("mean", "min", "max", "n")),
     "v_stick_min", "v_stick_max", "v_slip_min", "v_slip_max", "stick_fraction",
-    "first_slip", "interval_sum", "slip_times", "deviation",
+    "first_slip", "interval_sum", "slip_times", "deviation", "slip_state",
 )  # fmt: skip
 CYCLE_KEYS: tuple[str, ...] = tuple(f"cycle_{name}" for name in _NAMES)
 # Host bytes of a lane's cycle statistics: the scalars, the kept stick → slip times and the deviations.
-CYCLE_BYTES = 8 * (len(_NAMES) - 2 + KEPT_SLIPS + MAX_REPEAT_EVENTS)
+CYCLE_BYTES = 8 * (len(_NAMES) - 3 + KEPT_SLIPS + MAX_REPEAT_EVENTS + 4)
 
 
 def cycle_arrays(cycles: dict) -> dict:

@@ -560,7 +560,7 @@ _FROM_CYCLES = {
 _CYCLE_FIELDS = (*_FROM_CYCLES, "period", "events", "repeats", "repeat_start")
 
 
-def _map_lanes(result, transient: float, repeat_rtol: float, settle: bool) -> dict[str, np.ndarray]:
+def map_lanes(result, transient: float, repeat_rtol: float, settle: bool) -> dict[str, np.ndarray]:
     """The per-lane fields of one start's sweep (arrays over its lanes), and ``G``, ``up``: the
     kept jumps in each lane's window, (lanes, width) padded with NaN / False.
 
@@ -688,7 +688,7 @@ def stick_slip_map(
             raise ValueError("the sweep kept no jump records: the map needs fold='jump' under error control")
         results.append(result)
 
-    rows = [_map_lanes(r, transient, float(repeat_rtol), settle) for r in results]
+    rows = [map_lanes(r, transient, float(repeat_rtol), settle) for r in results]
     fields = {
         name: np.stack([row[name] for row in rows]).astype(np.int64 if name in _INT_FIELDS else float)
         for name in LANE_FIELDS
