@@ -132,6 +132,7 @@ from .structure import (  # noqa: E402
     truncated_schur_complement,
 )
 from .sweeps import LeastTau, StickSlipMap, SweepResult, least_tau, stick_slip_map, sweep  # noqa: E402
+from .attractor_map import AttractorMap, attractor_map  # noqa: E402
 
 from ._version import __version__ as __version__  # noqa: E402
 
@@ -167,6 +168,7 @@ __all__ = [
     "StepDiagnostics",
     "StickSlipAnalysis",
     "StickSlipMap",
+    "AttractorMap",
     "StickSlipTable",
     "StopReason",
     "SweepResult",
@@ -190,6 +192,7 @@ __all__ = [
     "periodic_orbit",
     "periodic_orbits",
     "lyapunov_exponents",
+    "attractor_map",
     "local_index",
     "neumann_radius",
     "neumann_terms",

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 
+from . import attractor_map as _attractor_map
 from . import figures as _figures
 from . import fit as _fit
 from . import orbit as _orbit
@@ -31,7 +32,7 @@ from .simulate import summarize, validate_run, write_npz
 
 __all__ = ["build_parser", "json_safe", "main", "summarize", "validate_run", "write_npz"]
 
-COMMANDS = (_simulate, _sweep, _tau_star, _orbit, _figures, _fit)
+COMMANDS = (_simulate, _sweep, _tau_star, _orbit, _attractor_map, _figures, _fit)
 
 
 # ---------------------------------------------------------------------------- parser

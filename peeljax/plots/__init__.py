@@ -6,8 +6,10 @@
 - :mod:`.stick_slip_map`: the stick-slip map over V (:func:`plot_stick_slip_map`);
 - :mod:`.orbits`: a periodic stick-slip orbit over one period (:func:`plot_orbit`).
 - :mod:`.orbit_diagram`: the orbits' bifurcation diagram over V (:func:`plot_orbit_diagram`).
+- :mod:`.attractor_map`: every attractor over V, its basin share and the boundaries (:func:`plot_attractor_map`).
 """
 
+from .attractor_map import plot_attractor_map
 from .orbit_diagram import plot_orbit_diagram
 from .orbits import plot_orbit
 from .runs import SWEEP_MAP_MAX_LINES, plot_fit, plot_run, plot_runs, plot_stick_slip, plot_sweep_map, short_reason
@@ -15,6 +17,7 @@ from .stick_slip_map import plot_stick_slip_map
 
 __all__ = [
     "SWEEP_MAP_MAX_LINES",
+    "plot_attractor_map",
     "plot_fit",
     "plot_orbit",
     "plot_orbit_diagram",

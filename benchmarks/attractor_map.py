@@ -1,0 +1,99 @@
+"""The attractor map over V against the brute-force stick-slip map at the same V resolution.
+
+Both run at τ = 0 over ``--n-V`` values of V in [0.3, 5.4] m/s on this machine's cores:
+
+* ``peeljax.attractor_map(V)``: rest, steady and ``--random-starts`` random starts per V, the
+  neighbours' seeds, the periodic orbits refined, the undecided runs again and their Lyapunov
+  exponents, the boundaries bisected to 1e-4 m/s (its defaults);
+* ``peeljax.stick_slip_map(V)``: one 3 s run per V from rest and one from steady peeling (its
+  defaults), no labels beyond its repeat search.
+
+Each is first run once on a 16-V grid (its compilation: the same programs), then timed once on
+the full grid (a map takes minutes: one timing each, both in this process, the load stated).
+What the attractor map finds is tabulated: the attractors by label, and every attractor the
+brute-force map's repeat search finds (periodic with k slips at a V) checked to be on it.
+
+    python benchmarks/attractor_map.py                  # 200 V (several minutes on 2 cores)
+    python benchmarks/attractor_map.py --n-V 40         # a check
+
+Writes ``results/attractor_map.md`` (``results/attractor_map_quick.md`` with ``--n-V`` < 200).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+import peeljax as pj
+from peeljax.attractor_map import PERIODIC
+
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--n-V", dest="n_V", type=int, default=200)
+    parser.add_argument("--random-starts", dest="random_starts", type=int, default=None)
+    args = parser.parse_args(argv)
+    kwargs = {} if args.random_starts is None else {"random_starts": args.random_starts}
+    V = np.linspace(0.3, 5.4, args.n_V)
+    small = np.linspace(0.3, 5.4, 16)
+
+    begin = time.perf_counter()
+    pj.attractor_map(V=small, progress=False, **kwargs)
+    pj.stick_slip_map(V=small, progress=False)
+    warm = time.perf_counter() - begin
+
+    load = os.getloadavg()[0]
+    t0 = time.perf_counter()
+    amap = pj.attractor_map(V=V, **kwargs)
+    t_map = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    smap = pj.stick_slip_map(V=V, progress=False)
+    t_brute = time.perf_counter() - t0
+
+    labels = Counter(amap.labels)
+    missing = []
+    for s, start in enumerate(smap.starts):
+        for j in np.flatnonzero(smap.events[s] > 0):
+            k = int(smap.events[s][j])
+            here = amap.V_index == j
+            if not np.any(here & (amap.kind == PERIODIC) & (amap.slips == k)):
+                missing.append(f"V = {V[j]:.4f}: periodic k = {k} (from {start})")
+    b = amap.boundaries
+    lines = [
+        f"# The attractor map against the brute-force map ({args.n_V} V in [0.3, 5.4] m/s, τ = 0)",
+        "",
+        f"{os.cpu_count()} cores, load {load:.1f} at the start; compilation and a 16-V warm-up: {warm:.0f} s.",
+        "",
+        "| map | wall time [s] | ratio |",
+        "|---|---:|---:|",
+        f"| `attractor_map` (rounds of lanes: {', '.join(map(str, amap.rounds))}) | {t_map:.1f} | {t_map / t_brute:.2f} |",
+        f"| `stick_slip_map` (2 starts × {args.n_V} V, 3 s) | {t_brute:.1f} | 1 |",
+        "",
+        "Attractors: " + ", ".join(f"{n} {label}" for label, n in sorted(labels.items())),
+        "",
+        f"Periodic attractors of the brute-force map not on the attractor map: {len(missing)}",
+        *(f"- {line}" for line in missing[:20]),
+        "",
+        f"Boundaries located: {b['branch'].size}",
+        "",
+        "| branch | V inside | V outside | change |",
+        "|---:|---:|---:|---|",
+        *(f"| {b['branch'][i]} | {b['V_inside'][i]:.5f} | {b['V_outside'][i]:.5f} | {b['change'][i]} |" for i in range(b["branch"].size)),
+    ]
+    text = "\n".join(lines) + "\n"
+    print(text)
+    name = "attractor_map.md" if args.n_V >= 200 else "attractor_map_quick.md"
+    (RESULTS / name).write_text(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,770 @@
+"""The attractor map over V: every attractor the DAE (τ = 0) settles on, labelled, with its basin
+share and the boundaries in V where the set of attractors changes.
+
+:func:`attractor_map` works in batched rounds of :func:`peeljax.sweep` runs (every lane one
+trajectory, all lanes of a round one compiled program over every device):
+
+1. **Starts.** At every V: the tape at rest (the paper's start), steady peeling (v = V), and
+   ``random_starts`` states on the stick branch, the same draws at every V (α ∈ [−0.3, 0.4] rad,
+   ω ∈ [0, 2V/R], v = s·v̂(V) with s ∈ [0.05, 0.95], u from the constraint (sac)).
+2. **Features** of each run over its window [transient, t_final] (:mod:`peeljax.sweeps.stick_slip_map`):
+   stick-slip or not, the repeat of its stick → slip events, the five statistics, the stick
+   fraction, and the state at its last slip (on the section of :mod:`peeljax.orbits`).
+3. **Labels.** *steady*: no jump in the window. *periodic (k slips per period)*: the repeat found
+   (strictly, or to 3 % on the later part of the window) and the orbit found from the last slip
+   by :func:`peeljax.periodic_orbits` (batched Newton on the return map; converged with
+   |μ₁| < 1), with its exact period and Floquet multipliers. Otherwise the largest two Lyapunov
+   exponents through the jumps (:func:`peeljax.lyapunov_exponents`, from the last slip):
+   *chaotic* where λ₁ > 0 beyond three standard errors and ``chaos_threshold``, *quasi-periodic*
+   where λ₁ and λ₂ are both 0 within them, *irregular* where neither can be said (a periodic
+   orbit of more than 32 slips per period, or a run the exponents' check stopped);
+   *unresolved*: a run that stopped before t_final.
+4. **Attractors per V**: runs whose labels agree and whose orbits (periodic: the period to 1e-5)
+   or statistics (others: the slip force and mean v to 2 %) agree are one attractor; its basin
+   share is the fraction of the random starts that end on it, with the binomial standard error.
+5. **Neighbours' seeds** (``seed_rounds``): an attractor found at a neighbouring V but not at V is
+   looked for from its last slip moved to V (α, ω kept, v at the same fraction of v̂); repeated
+   until no round finds a new one. Attractors of neighbouring V are linked into branches (same
+   label and k, the slip force within ``branch_tol``).
+6. **Boundaries** where a branch ends between two V of the grid: bisection in V, every boundary
+   of a round in the same batch, from the branch's last state, to ``boundary_tol``; the bracket's
+   ends are direct runs, one on each side (the attractor found there / not found from its seed),
+   and the change is named from what the seed reaches beyond it: *stick-slip ends* (it peels
+   steadily), *period doubling* (2k slips), *grazing* (another k, the slip force continuous to
+   5 %), *steady peeling ends*, or *lost* (to another attractor).
+
+A steady run at V where φ has no fold and a periodic orbit are exact; the other labels rest on
+finite runs: the tolerances above say how far. :func:`peeljax.plots.plot_attractor_map` draws
+the result.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import sys
+import time
+
+import jax
+import numpy as np
+from jaxtyping import ArrayLike
+
+from ._files import json_safe
+from .cycles import repeat_pattern
+from .model import PAPER_ALPHA0, PeelingModel
+from .saved import register_reader
+from .solution import StopReason
+from .sweeps.stick_slip_map import fold_table, map_lanes
+
+__all__ = ["ATTRACTOR_KINDS", "AttractorMap", "attractor_map", "check_attractor_map_options"]
+
+ATTRACTOR_KINDS: tuple[str, ...] = ("steady", "periodic", "quasi-periodic", "chaotic", "irregular", "unresolved")
+STEADY, PERIODIC, QUASI_PERIODIC, CHAOTIC, IRREGULAR, UNRESOLVED = range(len(ATTRACTOR_KINDS))
+
+_LOOSE_REPEAT = 3e-2  # the repeat looked for on the later part of a window that shows none strictly
+_SAME_PERIOD = 1e-5  # two refined orbits with these relative periods are one
+_SAME_STATISTICS = 2e-2  # two irregular runs with these relative slip forces and mean v are one
+_GRAZING_JUMP = 5e-2  # a change of k with the slip force continuous to this: a grazing
+_KEPT_JUMPS = 512  # each lane's last jumps (ring buffer): the repeat of up to 127 slips per period is looked for
+_MAX_SLIPS = 127
+_CHUNK = 16  # lanes per compiled batch: every round's sweep is padded to it (one program)
+
+# Per attractor: the fields of AttractorMap (float unless named in _INT_FIELDS).
+ATTRACTOR_FIELDS: tuple[str, ...] = (
+    "V_index", "V", "kind", "slips", "period", "multiplier", "lyapunov", "lyapunov_2", "lyapunov_se",
+    "G_slip_max", "G_stick_min", "slip_interval", "stick_fraction", "v_mean", "hits", "basin", "basin_se",
+    "branch",
+)  # fmt: skip
+_INT_FIELDS = ("V_index", "kind", "slips", "hits", "branch")
+BOUNDARY_FIELDS: tuple[str, ...] = ("branch", "V_inside", "V_outside", "change", "becomes_kind", "becomes_slips")
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class AttractorMap:
+    """The attractors over V (definitions: :mod:`peeljax.attractor_map`).
+
+    Attributes:
+        V: the pull velocities of the grid [m/s], shape (m,).
+        V_index, V, kind, …: per attractor (shape (n,), in order of V): the grid index and V,
+            the label (an index into :data:`ATTRACTOR_KINDS`), k = slips per period (0 where not
+            periodic), the period [s] and |μ₁| of a periodic orbit (NaN otherwise), λ₁, λ₂ and
+            λ₁'s standard error [1/s] (NaN where not computed), the statistics of a run on it
+            (largest slip force and smallest re-stick force G [N], mean time between slips [s],
+            stick fraction, mean v [m/s]), how many runs ended on it (``hits``), its basin share
+            among the random starts with its binomial standard error, and its branch.
+        state: (n, 4) a state on it (the last slip, before the jump; steady: the steady state).
+        boundaries: per boundary of a branch (shape (b,) each): ``branch``, the bracket's ends
+            ``V_inside`` (the attractor found) and ``V_outside`` (not found from its seed),
+            ``change`` (the kind of change, text), and what the seed became beyond it
+            (``becomes_kind``, ``becomes_slips``).
+        random_starts, t_final, transient: what was run; settings: every option (JSON-able).
+        rounds: lanes run per round (starts, seeds, bisection); wall_time: seconds in all.
+    """
+
+    grid_V: np.ndarray
+    fields: dict[str, np.ndarray]
+    state: np.ndarray
+    boundaries: dict[str, np.ndarray]
+    random_starts: int
+    t_final: float
+    transient: float
+    settings: dict = dataclasses.field(default_factory=dict)
+    rounds: tuple = ()
+    wall_time: float = math.nan
+
+    def __getattr__(self, name):
+        fields = self.__dict__.get("fields", {})
+        if name in fields:
+            return fields[name]
+        raise AttributeError(name)
+
+    @property
+    def labels(self) -> list[str]:
+        """Each attractor's label: its kind, with k for a periodic one (``"periodic (k=2)"``)."""
+        return [
+            f"periodic (k={k})" if kind == PERIODIC else ATTRACTOR_KINDS[kind]
+            for kind, k in zip(self.fields["kind"], self.fields["slips"])
+        ]
+
+    def at(self, V: float) -> list[int]:
+        """The attractors at the grid's V nearest to ``V`` (indices into the per-attractor fields)."""
+        j = int(np.argmin(np.abs(self.grid_V - float(V))))
+        return [int(i) for i in np.flatnonzero(self.fields["V_index"] == j)]
+
+    def summary(self) -> str:
+        """A few lines: the attractors by label, the branches and the boundaries."""
+        labels = self.labels
+        counts = {label: labels.count(label) for label in dict.fromkeys(labels)}
+        lines = [
+            f"attractor map: {self.grid_V.size} values of V in [{self.grid_V[0]:g}, {self.grid_V[-1]:g}] m/s, "
+            f"{self.random_starts} random starts each, {self.wall_time:.1f} s",
+            "attractors: " + ", ".join(f"{n} {label}" for label, n in counts.items()),
+            f"branches: {len(set(self.fields['branch'].tolist()))}",
+        ]
+        b = self.boundaries
+        for i in range(b["branch"].size):
+            lo, hi = sorted((b["V_inside"][i], b["V_outside"][i]))
+            lines.append(f"  boundary of branch {b['branch'][i]} in [{lo:.5f}, {hi:.5f}] m/s: {b['change'][i]}")
+        return "\n".join(lines)
+
+    # ------------------------------------------------------------------ files
+    def save(self, path) -> None:
+        """Write the map as .npz (arrays, no pickles) with its settings as JSON; :func:`peeljax.load` reads it."""
+        meta = {
+            "kind": "attractor_map", "random_starts": self.random_starts, "t_final": self.t_final,
+            "transient": self.transient, "settings": json_safe(self.settings), "rounds": list(self.rounds),
+            "wall_time": self.wall_time,
+        }  # fmt: skip
+        arrays = {f"attractor_{k}": v for k, v in self.fields.items()}
+        arrays |= {f"boundary_{k}": np.asarray(v, str if k == "change" else None) for k, v in self.boundaries.items()}
+        np.savez(path, grid_V=self.grid_V, state=self.state, meta=np.asarray(json.dumps(meta)), **arrays)
+
+    def to_xarray(self):
+        """The attractors as an ``xarray.Dataset`` over the dimension ``attractor``."""
+        import xarray as xr
+
+        data = {name: ("attractor", value) for name, value in self.fields.items()}
+        data["label"] = ("attractor", np.asarray(self.labels, str))
+        data["state"] = (("attractor", "component"), self.state)
+        attrs = {"t_final": self.t_final, "transient": self.transient, "random_starts": self.random_starts}
+        return xr.Dataset(data, coords={"component": ["alpha", "omega", "u", "v"]}, attrs=attrs)
+
+
+def _read_npz(arrays: dict, name: str) -> AttractorMap:
+    try:
+        meta = json.loads(str(arrays["meta"]))
+        fields = {k: np.asarray(arrays[f"attractor_{k}"]) for k in ATTRACTOR_FIELDS}
+        boundaries = {k: np.asarray(arrays[f"boundary_{k}"]) for k in BOUNDARY_FIELDS}
+        return AttractorMap(
+            grid_V=np.asarray(arrays["grid_V"], float), fields=fields, state=np.asarray(arrays["state"], float),
+            boundaries=boundaries, random_starts=int(meta["random_starts"]), t_final=float(meta["t_final"]),
+            transient=float(meta["transient"]), settings=meta["settings"], rounds=tuple(meta["rounds"]),
+            wall_time=float(meta["wall_time"]),
+        )  # fmt: skip
+    except (KeyError, ValueError, TypeError) as error:
+        raise ValueError(f"{name!r} is not an attractor map written by AttractorMap.save ({error})") from None
+
+
+register_reader("attractor_map", _read_npz)
+
+
+# ---------------------------------------------------------------------------- starts
+def _random_draws(n: int, seed: int) -> np.ndarray:
+    """(n, 3) draws (α, ω·R/V, s) of the random starts, the same at every V."""
+    rng = np.random.default_rng(seed)
+    return np.column_stack([rng.uniform(-0.3, 0.4, n), rng.uniform(0.0, 2.0, n), rng.uniform(0.05, 0.95, n)])
+
+
+def _top_of_stick_branch(v_max: np.ndarray, V: np.ndarray) -> np.ndarray:
+    """v̂(V), or V where φ has no fold (no stick branch to speak of)."""
+    return np.where(np.isfinite(v_max), v_max, V)
+
+
+def _consistent(model: PeelingModel, V, alpha, omega, v) -> np.ndarray:
+    """(n, 4) consistent states (u from the constraint) at the lanes' V."""
+    states = jax.jit(jax.vmap(model.consistent_state))(*(np.asarray(a, float) for a in (V, alpha, omega, v)))
+    return np.asarray(states)
+
+
+# ---------------------------------------------------------------------------- one round of runs
+def _run(model, V: np.ndarray, y0: np.ndarray, t_final: float, transient: float, sweep_kwargs: dict) -> dict:
+    """Sweep the lanes (V, y0) at τ = 0 (padded to whole chunks: one compiled program for every
+    round) and return each lane's map fields, plus ``slip_state``."""
+    from .sweeps.api import sweep
+
+    n = V.size
+    pad = -n % _CHUNK
+    V_all = np.concatenate([V, np.repeat(V[-1:], pad)])
+    y_all = np.concatenate([y0, np.repeat(y0[-1:], pad, axis=0)])
+    kwargs = {"max_jumps": _KEPT_JUMPS} | sweep_kwargs
+    result = sweep(
+        model, V=V_all, tau=0.0, t_final=t_final, grid="pairs", start=y_all, window=(transient / t_final, 1.0),
+        chunk=_CHUNK, progress=False, **kwargs,
+    )  # fmt: skip
+    fields = map_lanes(result, transient, 1e-3, settle=True)
+    fields = {k: np.asarray(v)[:n] for k, v in fields.items() if k not in ("G", "up")}
+    fields["slip_state"] = np.asarray(result.cycles["cycle_slip_state"])[:n]
+    # The stick → slip times in the window, from the lane's last jumps (its ring buffer).
+    t, up = np.asarray(result.jumps["jump_t"], float), np.asarray(result.jumps["jump_up"], bool)
+    kept = np.minimum(np.asarray(result.jumps["jump_count"]), t.shape[1])
+    fields["kept_slips"] = [t[i, : kept[i]][up[i, : kept[i]] & (t[i, : kept[i]] >= transient)] for i in range(n)]
+    return fields
+
+
+def _candidates(lanes: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per lane: the first label (steady / periodic candidate / irregular / unresolved), k and T."""
+    n = lanes["status"].size
+    kind = np.full(n, IRREGULAR)
+    slips = np.asarray(lanes["events"], int).copy()
+    period = np.asarray(lanes["period"], float).copy()
+    completed = lanes["status"] == StopReason.COMPLETED
+    kind[~completed] = UNRESOLVED
+    steady = completed & (lanes["jumps"] == 0) & (lanes["crossings"] == 0)
+    kind[steady] = STEADY
+    for i in np.flatnonzero(completed & ~steady):
+        if slips[i] == 0:  # no strict repeat: a looser one on the later part of the window
+            times = lanes["kept_slips"][i]
+            tail = times[times.size // 2 :]
+            repeat = repeat_pattern(tail, rtol=_LOOSE_REPEAT) if tail.size >= 5 else None
+            if repeat is not None and repeat.events <= _MAX_SLIPS:
+                slips[i], period[i] = repeat.events, repeat.period
+        if slips[i] > 0 and np.all(np.isfinite(lanes["slip_state"][i])):
+            kind[i] = PERIODIC  # a candidate until its orbit is found
+    slips[kind != PERIODIC] = 0
+    period[kind != PERIODIC] = np.nan
+    return kind, slips, period
+
+
+def _refine(model, V, state, slips, period, orbit_rtol) -> tuple[np.ndarray, ...]:
+    """The periodic candidates' orbits, batched: (converged and stable, k, period, |μ₁|), k the
+    orbit's own (at most the candidate's)."""
+    slips = np.array(slips, np.int64)
+    if V.size == 0:
+        return np.zeros(0, bool), slips, np.zeros(0), np.zeros(0)
+    orbits = _padded_orbits(model, V, state, slips, period, orbit_rtol)
+    status = orbits["status"]
+    mu = np.abs(orbits["multipliers"])
+    mu1 = mu.max(axis=1) if mu.ndim == 2 else mu
+    ok = (status == 0) & (mu1 < 1.0)
+    T = np.asarray(orbits["period"], float)
+    # An orbit of k slips may repeat after k/p of them (p a prime factor of k): Newton on P^k
+    # finds it too. Each such orbit shoots again with k/p; kept where it closes in T·(k/p)/k.
+    while True:
+        lanes = [(i, k // p) for i, k in enumerate(slips) if ok[i] for p in _prime_factors(int(k))]
+        if not lanes:
+            break
+        idx = np.asarray([i for i, _ in lanes])
+        fewer = np.asarray([k for _, k in lanes], np.int64)
+        short = _padded_orbits(model, V[idx], orbits["state"][idx], fewer, T[idx] * fewer / slips[idx], orbit_rtol)
+        T_short = np.asarray(short["period"], float)
+        closes = (short["status"] == 0) & (np.abs(T_short * slips[idx] / fewer - T[idx]) <= 1e-6 * T[idx])
+        changed = False
+        for lane, i in enumerate(idx):
+            if closes[lane] and fewer[lane] < slips[i]:
+                slips[i], T[i], mu1[i], changed = fewer[lane], T_short[lane], np.abs(short["multipliers"][lane]).max(), True
+        if not changed:
+            break
+    return ok, slips, T, mu1
+
+
+def _padded_orbits(model, V, state, slips, period, orbit_rtol):
+    """:func:`peeljax.periodic_orbits` on lanes padded to whole chunks (one compiled program for
+    any number of lanes), the padding dropped."""
+    from .orbits.batch import periodic_orbits
+
+    n = V.size
+    pad = -n % _CHUNK
+
+    def padded(a):
+        a = np.asarray(a)
+        return np.concatenate([a, np.repeat(a[-1:], pad, axis=0)])
+
+    orbits = periodic_orbits(model, V=padded(V), start=padded(state), slips=padded(np.asarray(slips, np.int64)),
+                             period=padded(period), rtol=orbit_rtol)  # fmt: skip
+    return {name: np.asarray(getattr(orbits, name))[:n] for name in ("status", "multipliers", "period", "state")}
+
+
+def _prime_factors(k: int) -> list[int]:
+    factors, p = [], 2
+    while p * p <= k:
+        if k % p == 0:
+            factors.append(p)
+            while k % p == 0:
+                k //= p
+        p += 1
+    return factors + ([k] if k > 1 else [])
+
+
+def _exponents(model, V: float, state: np.ndarray, lyapunov_time: float):
+    from .lyapunov import lyapunov_exponents
+
+    result = lyapunov_exponents(model, V, n=2, t_total=lyapunov_time, t_transient=0.5, y0=state)
+    lam = np.asarray(result.exponents, float)
+    se = np.asarray(result.standard_error, float)
+    return lam, se
+
+
+def _label_irregular(lam, se, chaos_threshold: float) -> int:
+    """Chaotic, quasi-periodic or (neither can be said) irregular, from λ₁, λ₂ and their
+    standard errors: each exponent is 0 or not to within 3 SE + ``chaos_threshold``; a λ₁ known
+    only to worse than ``chaos_threshold`` decides nothing but chaos."""
+    if not np.all(np.isfinite(lam)):
+        return IRREGULAR
+    margin = 3.0 * np.where(np.isfinite(se), se, 0.0) + chaos_threshold
+    if lam[0] > margin[0]:
+        return CHAOTIC
+    precise = np.all(np.isfinite(se)) and se[0] <= chaos_threshold
+    if precise and abs(lam[0]) <= margin[0] and abs(lam[1]) <= margin[1]:
+        return QUASI_PERIODIC
+    return IRREGULAR
+
+
+# ---------------------------------------------------------------------------- attractors
+@dataclasses.dataclass
+class _Attractor:
+    j: int
+    kind: int
+    slips: int
+    period: float
+    multiplier: float
+    lanes: dict  # the lane fields of its first run
+    state: np.ndarray
+    hits: int = 0
+    random_hits: int = 0
+    lyapunov: tuple = (math.nan, math.nan, math.nan)
+    branch: int = -1
+
+    def same(self, other: "_Attractor") -> bool:
+        if (self.kind, self.slips) != (other.kind, other.slips):
+            return False
+        if self.kind == PERIODIC:
+            return abs(self.period - other.period) <= _SAME_PERIOD * self.period
+        if self.kind in (STEADY, UNRESOLVED):
+            return True
+        return all(
+            abs(self.lanes[key] - other.lanes[key]) <= _SAME_STATISTICS * max(abs(self.lanes[key]), 1e-12)
+            for key in ("G_slip_max", "v_mean")
+        )
+
+
+def _lane_dict(lanes: dict, i: int) -> dict:
+    return {k: v[i] for k, v in lanes.items() if k != "kept_slips"}
+
+
+def _steady_states(model, V: np.ndarray) -> np.ndarray:
+    """(n, 4) steady peeling at each V: v = V, ω = V/R, at the paper's α0 (u consistent)."""
+    return _consistent(model, V, np.full(V.size, PAPER_ALPHA0), V / float(model.R), V)
+
+
+def _labels(model, V: np.ndarray, lanes: dict, options) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per lane: label, k, period and |μ₁| from the run and the orbits refined from it."""
+    kind, slips, period = _candidates(lanes)
+    cand = np.flatnonzero(kind == PERIODIC)
+    multiplier = np.full(kind.size, np.nan)
+    if cand.size:
+        ok, k, T, mu1 = _refine(model, V[cand], lanes["slip_state"][cand], slips[cand], period[cand], options["orbit_rtol"])
+        slips[cand[ok]], period[cand[ok]], multiplier[cand[ok]] = k[ok], T[ok], mu1[ok]
+        kind[cand[~ok]], slips[cand[~ok]], period[cand[~ok]] = IRREGULAR, 0, np.nan
+    return kind, slips, period, multiplier
+
+
+def _classify(model, V_grid, js, y_start, lanes, options) -> list[_Attractor]:
+    """One attractor candidate per lane (refined orbits; lanes without one run again, longer, from
+    their last slip; exponents of those still without, one per V and statistics), in lane order."""
+    V = V_grid[js]
+    say = options["say"]
+    kind, slips, period, multiplier = _labels(model, V, lanes, options)
+    say(f"{np.sum(kind == PERIODIC)} periodic orbits refined, {np.sum(kind == STEADY)} steady, {np.sum(kind == IRREGULAR)} undecided")
+    # Run again, longer, where a longer window could show the repeat: runs with few slips in
+    # theirs (a run with many shows any repeat of up to _MAX_SLIPS slips already).
+    few = np.asarray([times.size for times in lanes["kept_slips"]]) < 2 * _MAX_SLIPS + 1
+    longer = np.flatnonzero((kind == IRREGULAR) & few & np.all(np.isfinite(lanes["slip_state"]), axis=1))
+    if longer.size and options["extend"] > 1:
+        t_long = options["extend"] * options["t_final"]
+        say(f"{longer.size} undecided runs again, {t_long:g} s each")
+        again = _run(model, V[longer], lanes["slip_state"][longer], t_long, t_long / 2, options["sweep_kwargs"])
+        k2, s2, p2, m2 = _labels(model, V[longer], again, options)
+        kind[longer], slips[longer], period[longer], multiplier[longer] = k2, s2, p2, m2
+        for key in lanes:
+            if key != "kept_slips":
+                lanes[key][longer] = again[key]
+    steady = np.flatnonzero(kind == STEADY)
+    steady_states = _steady_states(model, V_grid[js[steady]])
+    found = []
+    for i in range(kind.size):
+        state = steady_states[np.searchsorted(steady, i)] if kind[i] == STEADY else lanes["slip_state"][i]
+        found.append(_Attractor(int(js[i]), int(kind[i]), int(slips[i]), float(period[i]), float(multiplier[i]),
+                                _lane_dict(lanes, i), np.asarray(state, float)))  # fmt: skip
+    if options["lyapunov"]:
+        undecided = sum(a.kind == IRREGULAR for a in found)
+        if undecided:
+            say(f"Lyapunov exponents of the {undecided} runs still undecided (one per V and attractor)")
+        done: list[_Attractor] = []
+        for a in found:
+            if a.kind != IRREGULAR or not np.all(np.isfinite(a.state)):
+                continue
+            twin = next((b for b in done if b.j == a.j and b.same(a)), None)
+            if twin is None:
+                lam, se = _exponents(model, float(V_grid[a.j]), a.state, options["lyapunov_time"])
+                a.lyapunov = (float(lam[0]), float(lam[1]), float(se[0]))
+                a.kind = _label_irregular(lam, se, options["chaos_threshold"])
+                done.append(a)
+            else:
+                a.lyapunov, a.kind = twin.lyapunov, twin.kind
+    return found
+
+
+def _merge(attractors: dict[int, list[_Attractor]], found: list[_Attractor], random: np.ndarray) -> list[_Attractor]:
+    """Add each run's attractor at its V (a known one gets a hit); returns the new ones. A run
+    that stopped early is kept (as *unresolved*) only where it was a random start: its share."""
+    new = []
+    for a, is_random in zip(found, random):
+        if a.kind == UNRESOLVED and not is_random:
+            continue
+        known = next((b for b in attractors.setdefault(a.j, []) if b.same(a)), None)
+        if known is None:
+            attractors[a.j].append(a)
+            new.append(a)
+            known = a
+        known.hits += 1
+        known.random_hits += int(is_random)
+    return new
+
+
+def _moved(model, state: np.ndarray, v_top_from: float, V_to: float, v_top_to: float) -> np.ndarray:
+    """A state of V_from moved to V_to: α, ω kept, v at the same fraction of v̂ (at most 0.99), u consistent."""
+    fraction = min(state[3] / v_top_from, 0.99) if v_top_from > 0 else 0.5
+    return np.asarray(model.consistent_state(V_to, state[0], state[1], fraction * v_top_to), float)
+
+
+def _link(attractors: dict[int, list[_Attractor]], m: int, branch_tol: float) -> int:
+    """Branch ids: an attractor continues the nearest one of the previous V with its label and k
+    (slip force within branch_tol, relative); returns the number of branches."""
+    n_branches = 0
+    for j in range(m):
+        previous = attractors.get(j - 1, [])
+        taken = set()
+        for a in attractors.get(j, []):
+            best, best_d = None, math.inf
+            for b in previous:
+                if (b.kind, b.slips) != (a.kind, a.slips) or id(b) in taken:
+                    continue
+                ga, gb = a.lanes.get("G_slip_max", math.nan), b.lanes.get("G_slip_max", math.nan)
+                d = 0.0 if a.kind == STEADY else abs(ga - gb) / max(abs(gb), 1e-12)
+                if d <= branch_tol and d < best_d:
+                    best, best_d = b, d
+            if best is None:
+                a.branch, n_branches = n_branches, n_branches + 1
+            else:
+                a.branch = best.branch
+                taken.add(id(best))
+    return n_branches
+
+
+def _change(branch_kind: int, branch_slips: int, branch_G: float, became: _Attractor | None) -> str:
+    if became is None:
+        return "lost"
+    if branch_kind != STEADY and became.kind == STEADY:
+        return "stick-slip ends"
+    if branch_kind == STEADY:
+        return "steady peeling ends"
+    if branch_kind == PERIODIC and became.kind == PERIODIC:
+        G = became.lanes.get("G_slip_max", math.nan)
+        continuous = abs(G - branch_G) <= _GRAZING_JUMP * abs(branch_G)
+        if became.slips == 2 * branch_slips:
+            return "period doubling"
+        if continuous:
+            return f"grazing (k {branch_slips} -> {became.slips})"
+    return f"lost to {'periodic (k=%d)' % became.slips if became.kind == PERIODIC else ATTRACTOR_KINDS[became.kind]}"
+
+
+# ---------------------------------------------------------------------------- the map
+def attractor_map(
+    model: PeelingModel | None = None,
+    V: ArrayLike = np.linspace(0.3, 5.4, 200),
+    *,
+    random_starts: int = 4,
+    seed: int = 0,
+    t_final: float = 4.0,
+    transient: float | None = None,
+    seed_rounds: int = 3,
+    extend: float = 3.0,
+    boundary_tol: float | None = 1e-4,
+    branch_tol: float = 0.1,
+    lyapunov: bool = True,
+    lyapunov_time: float = 20.0,
+    chaos_threshold: float = 0.05,
+    orbit_rtol: float = 1e-8,
+    progress: bool = True,
+    **sweep_kwargs,
+) -> AttractorMap:
+    """Every attractor of the peeling (τ = 0) over V, labelled, with basins and boundaries.
+
+    The rounds, the labels and their tolerances: :mod:`peeljax.attractor_map`.
+
+    Args:
+        model: the model (default: the paper's).
+        V: the grid of pull velocities [m/s], increasing, > 0 (default 200 in [0.3, 5.4]).
+        random_starts: random states on the stick branch per V (≥ 0; the basin shares are
+            fractions of them).
+        seed: the random starts' seed.
+        t_final, transient: each run's length and the start of its window [s] (default
+            transient: t_final/2).
+        seed_rounds: rounds of runs from the neighbours' attractors (0: none).
+        extend: a run without a periodic orbit is run again from its last slip, ``extend`` times
+            as long (1: not), before its exponents are computed.
+        boundary_tol: the width to which each boundary is bracketed [m/s] (None: not located).
+        branch_tol: how far (relative slip force) an attractor may move between neighbouring V
+            and still continue a branch.
+        lyapunov: label runs without a periodic orbit by their Lyapunov exponents (else *irregular*).
+        lyapunov_time, chaos_threshold: the exponents' averaging time [s] and the smallest λ₁
+            [1/s] called chaotic (beyond three standard errors).
+        orbit_rtol: the tolerance of the periodic orbits' runs.
+        progress: a line on stderr per round.
+        **sweep_kwargs: options of :func:`peeljax.sweep` (``rtol``, ``atol``, ``max_steps``,
+            ``devices``, ``lane_batch``, ``max_jumps``, …).
+
+    Returns:
+        An :class:`AttractorMap`.
+
+    Raises:
+        ValueError: bad input, named with its allowed range, before anything is compiled.
+    """
+    begin = time.perf_counter()
+    model, grid, t_final, transient, boundary_tol = check_attractor_map_options(
+        model, V, random_starts, seed, t_final, transient, seed_rounds, extend, boundary_tol, branch_tol,
+        lyapunov_time, chaos_threshold, orbit_rtol, sweep_kwargs,
+    )  # fmt: skip
+    options = {"orbit_rtol": float(orbit_rtol), "branch_tol": float(branch_tol), "t_final": t_final,
+               "extend": float(extend), "sweep_kwargs": sweep_kwargs, "lyapunov": bool(lyapunov),
+               "lyapunov_time": float(lyapunov_time), "chaos_threshold": float(chaos_threshold)}  # fmt: skip
+    say = _progress(progress, begin)
+    options["say"] = say
+
+    m = grid.size
+    v_top = _top_of_stick_branch(fold_table(model, grid)["v_max"], grid)
+    R = float(model.R)
+    draws = _random_draws(random_starts, seed)
+    # Round 1: rest, steady and the random starts at every V.
+    js = np.tile(np.arange(m), 2 + random_starts)
+    rest = np.stack([np.asarray(model.initial_state(V)) for V in grid])
+    steady = _steady_states(model, grid)
+    randoms = [_consistent(model, grid, np.full(m, a), w * grid / R, s * v_top) for a, w, s in draws]
+    y0 = np.concatenate([rest, steady, *randoms])
+    random = np.arange(js.size) >= 2 * m
+    say(f"{js.size} runs from rest, steady peeling and {random_starts} random starts at {m} values of V")
+    rounds = [int(js.size)]
+    attractors: dict[int, list[_Attractor]] = {}
+    lanes = _run(model, grid[js], y0, t_final, transient, sweep_kwargs)
+    _merge(attractors, _classify(model, grid, js, y0, lanes, options), random)
+
+    # Seeds from the neighbours, until a round finds nothing new.
+    fresh = {id(a) for found in attractors.values() for a in found}
+    for _ in range(seed_rounds):
+        seeds_j, seeds_y = [], []
+        for j in range(m):
+            for a in [a for k in (j - 1, j + 1) for a in attractors.get(k, []) if id(a) in fresh]:
+                if a.kind in (STEADY, UNRESOLVED) or not np.all(np.isfinite(a.state)):
+                    continue
+                if any((b.kind, b.slips) == (a.kind, a.slips) for b in attractors.get(j, [])):
+                    continue
+                seeds_j.append(j)
+                seeds_y.append(_moved(model, a.state, v_top[a.j], grid[j], v_top[j]))
+        if not seeds_j:
+            break
+        js = np.asarray(seeds_j)
+        say(f"{js.size} runs from the neighbours' attractors")
+        rounds.append(int(js.size))
+        y0 = np.stack(seeds_y)
+        lanes = _run(model, grid[js], y0, t_final, transient, sweep_kwargs)
+        new = _merge(attractors, _classify(model, grid, js, y0, lanes, options), np.zeros(js.size, bool))
+        fresh = {id(a) for a in new}
+        if not new:
+            break
+
+    _link(attractors, m, branch_tol)
+    boundaries = _boundaries(model, grid, v_top, attractors, boundary_tol, t_final, transient, sweep_kwargs,
+                             options, say, rounds) if boundary_tol is not None else None  # fmt: skip
+    return _result(grid, attractors, boundaries, random_starts, t_final, transient, rounds, begin, {
+        "random_starts": random_starts, "seed": seed, "t_final": t_final, "transient": transient,
+        "seed_rounds": seed_rounds, "boundary_tol": boundary_tol,
+        **{k: v for k, v in options.items() if k not in ("sweep_kwargs", "say")},
+        "sweep": {k: v for k, v in sweep_kwargs.items() if k != "devices"},
+    })  # fmt: skip
+
+
+def check_attractor_map_options(
+    model, V, random_starts, seed, t_final, transient, seed_rounds, extend, boundary_tol, branch_tol, lyapunov_time,
+    chaos_threshold, orbit_rtol, sweep_kwargs,
+) -> tuple:  # fmt: skip
+    """:func:`attractor_map`'s own checks, nothing compiled: (model, V, t_final, transient, boundary_tol)."""
+    model = PeelingModel() if model is None else model
+    if not isinstance(model, PeelingModel):
+        raise TypeError(f"model must be a PeelingModel, got {type(model).__name__}")
+    grid = _check_grid(V)
+    for name, value in (("random_starts", random_starts), ("seed_rounds", seed_rounds), ("seed", seed)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+            raise ValueError(f"{name} must be an integer >= 0, got {value!r}")
+    t_final = _positive("t_final", t_final)
+    transient = t_final / 2 if transient is None else float(transient)
+    if not 0 <= transient < t_final:
+        raise ValueError(f"transient must lie in [0, t_final) = [0, {t_final:g}), got {transient!r}")
+    if boundary_tol is not None:
+        boundary_tol = _positive("boundary_tol", boundary_tol)
+    if not float(extend) >= 1:
+        raise ValueError(f"extend must be >= 1, got {extend!r}")
+    for name, value in (("branch_tol", branch_tol), ("lyapunov_time", lyapunov_time), ("orbit_rtol", orbit_rtol)):
+        _positive(name, value)
+    if not float(chaos_threshold) >= 0:
+        raise ValueError(f"chaos_threshold must be >= 0, got {chaos_threshold!r}")
+    own = sorted(set(sweep_kwargs) & {"V", "tau", "t_final", "grid", "start", "window", "chunk", "progress", "out"})
+    if own:
+        raise ValueError(f"attractor_map sets {', '.join(own)} itself")
+    return model, grid, t_final, transient, boundary_tol
+
+
+def _boundaries(model, grid, v_top, attractors, tol, t_final, transient, sweep_kwargs, options, say, rounds) -> dict:
+    """Bisect every branch end inside the grid, all in the same rounds (module docstring, 6)."""
+    ends = []  # [branch attractor (inside), V_inside, V_outside, seed state, v_top of the seed's V, became]
+    by_branch: dict[int, list[_Attractor]] = {}
+    for j in sorted(attractors):
+        for a in attractors[j]:
+            by_branch.setdefault(a.branch, []).append(a)
+    for branch, members in by_branch.items():
+        if members[0].kind == UNRESOLVED:
+            continue
+        first, last = members[0], members[-1]
+        for a, outside in ((first, first.j - 1), (last, last.j + 1)):
+            if 0 <= outside < grid.size:
+                ends.append([a, float(grid[a.j]), float(grid[outside]), a.state, float(v_top[a.j]), None])
+    if not ends:
+        return {k: np.zeros(0) for k in BOUNDARY_FIELDS} | {"change": np.zeros(0, str)}
+    first_round = True
+    while True:
+        todo = [e for e in ends if first_round or abs(e[2] - e[1]) > tol]
+        if not todo:
+            break
+        # The first round runs each seed at the outside end itself (the confirming run there).
+        Vs = np.asarray([e[2] if first_round else 0.5 * (e[1] + e[2]) for e in todo])
+        tops = _top_of_stick_branch(fold_table(model, Vs)["v_max"], Vs)
+        y0 = np.stack([
+            e[3] if e[0].kind == STEADY else _moved(model, e[3], e[4], V, top) for e, V, top in zip(todo, Vs, tops)
+        ])  # fmt: skip
+        steady = [i for i, e in enumerate(todo) if e[0].kind == STEADY]
+        if steady:
+            y0[steady] = _steady_states(model, Vs[steady])
+        say(f"{len(todo)} runs bisecting the boundaries")
+        rounds.append(len(todo))
+        lanes = _run(model, Vs, y0, t_final, transient, sweep_kwargs)
+        found = _classify_free(model, Vs, y0, lanes, options)
+        for e, a, V, top in zip(todo, found, Vs, tops):
+            branch = e[0]
+            still = (a.kind, a.slips) == (branch.kind, branch.slips) and (
+                branch.kind == STEADY
+                or abs(a.lanes["G_slip_max"] - branch.lanes["G_slip_max"]) <= options["branch_tol"] * abs(branch.lanes["G_slip_max"])
+            )
+            if first_round and still:
+                e[2] = e[1]  # found at the outside end too: no boundary from this seed
+                e[5] = "kept"
+            elif still:
+                e[1], e[4] = float(V), float(top)
+                e[3] = a.state if np.all(np.isfinite(a.state)) else e[3]
+            else:
+                e[2], e[5] = float(V), a
+        first_round = False
+    out = {k: [] for k in BOUNDARY_FIELDS}
+    for branch, V_in, V_out, _, _, became in ends:
+        if isinstance(became, str):  # the seed kept its attractor at the neighbour: no boundary
+            continue
+        out["branch"].append(branch.branch)
+        out["V_inside"].append(V_in)
+        out["V_outside"].append(V_out)
+        out["change"].append(_change(branch.kind, branch.slips, branch.lanes.get("G_slip_max", math.nan), became))
+        out["becomes_kind"].append(-1 if became is None else became.kind)
+        out["becomes_slips"].append(0 if became is None else became.slips)
+    return {k: np.asarray(v, str if k == "change" else (int if k in ("branch", "becomes_kind", "becomes_slips") else float))
+            for k, v in out.items()}  # fmt: skip
+
+
+def _classify_free(model, Vs, y0, lanes, options) -> list[_Attractor]:
+    """:func:`_classify` for lanes at V off the grid (each lane its own V)."""
+    return _classify(model, Vs, np.arange(Vs.size), y0, lanes, options)
+
+
+def _result(grid, attractors, boundaries, random_starts, t_final, transient, rounds, begin, settings) -> AttractorMap:
+    rows = [a for j in sorted(attractors) for a in attractors[j]]
+    n = len(rows)
+    fields = {name: np.zeros(n, int if name in _INT_FIELDS else float) for name in ATTRACTOR_FIELDS}
+    for i, a in enumerate(rows):
+        p = a.random_hits / random_starts if random_starts else math.nan
+        values = {
+            "V_index": a.j, "V": grid[a.j], "kind": a.kind, "slips": a.slips, "period": a.period,
+            "multiplier": a.multiplier, "lyapunov": a.lyapunov[0], "lyapunov_2": a.lyapunov[1],
+            "lyapunov_se": a.lyapunov[2], "G_slip_max": a.lanes.get("G_slip_max", math.nan),
+            "G_stick_min": a.lanes.get("G_stick_min", math.nan), "slip_interval": a.lanes.get("slip_interval", math.nan),
+            "stick_fraction": a.lanes.get("stick_fraction", math.nan), "v_mean": a.lanes.get("v_mean", math.nan),
+            "hits": a.hits, "basin": p, "basin_se": math.sqrt(p * (1 - p) / random_starts) if random_starts else math.nan,
+            "branch": a.branch,
+        }  # fmt: skip
+        for name, value in values.items():
+            fields[name][i] = value
+    state = np.stack([a.state for a in rows]) if rows else np.zeros((0, 4))
+    if boundaries is None:
+        boundaries = {k: np.zeros(0, int if k in ("branch", "becomes_kind", "becomes_slips") else float) for k in BOUNDARY_FIELDS}
+        boundaries["change"] = np.zeros(0, str)
+    return AttractorMap(
+        grid_V=grid, fields=fields, state=state, boundaries=boundaries, random_starts=random_starts,
+        t_final=t_final, transient=transient, settings=settings, rounds=tuple(rounds),
+        wall_time=time.perf_counter() - begin,
+    )  # fmt: skip
+
+
+def _progress(on: bool, begin: float):
+    """A line on stderr with the elapsed time (nothing when not ``on``)."""
+    if not on:
+        return lambda text: None
+    return lambda text: print(f"attractor map [{time.perf_counter() - begin:6.1f} s]: {text}", file=sys.stderr)
+
+
+def _positive(name: str, value) -> float:
+    if isinstance(value, bool):
+        raise TypeError(f"{name} must be a real number, got {value!r}")
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a real number > 0, got {value!r}") from None
+    if not (math.isfinite(number) and number > 0):
+        raise ValueError(f"{name} must be finite and > 0, got {value!r}")
+    return number
+
+
+def _check_grid(V) -> np.ndarray:
+    grid = np.atleast_1d(np.asarray(V, float))
+    if grid.ndim != 1 or grid.size == 0:
+        raise ValueError(f"V must be a number or a 1-d array of pull velocities, got shape {grid.shape}")
+    if not np.all(np.isfinite(grid)) or np.any(grid <= 0):
+        raise ValueError("V must be finite and > 0 (m/s)")
+    if np.any(np.diff(grid) <= 0):
+        raise ValueError("V must be increasing")
+    return grid

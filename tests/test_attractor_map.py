@@ -1,0 +1,101 @@
+"""The attractor map: sweeps from given states, the state kept at each lane's last slip, labels
+checked against the periodic orbit and the Lyapunov exponents' rule, files, and bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import peeljax as pj
+from peeljax.attractor_map import (
+    ATTRACTOR_KINDS,
+    CHAOTIC,
+    IRREGULAR,
+    PERIODIC,
+    QUASI_PERIODIC,
+    _label_irregular,
+    attractor_map,
+)
+from peeljax.branches import phi_folds
+
+
+def test_a_sweep_from_given_states_is_the_run_from_them():
+    model = pj.PeelingModel()
+    y0 = np.asarray(model.consistent_state(1.1, 0.1, 5.0, 0.05))
+    result = pj.sweep(V=[1.1, 1.1], tau=0, grid="pairs", start=np.stack([y0, model.initial_state(1.1)]), t_final=1.0,
+                      progress=False)  # fmt: skip
+    run = pj.simulate(V=1.1, tau=0, t_final=1.0, y0=y0)
+    assert result.jumps["jump_count"][0] == run.stats["jumps"]
+    paper = pj.sweep(V=1.1, tau=0, t_final=1.0, progress=False)
+    assert result.jumps["jump_count"][1] == paper.jumps["jump_count"][0]
+    np.testing.assert_allclose(result.v_mean[1], paper.v_mean[0], rtol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("start", "message"),
+    [(np.zeros((3, 4)), r"shape \(4,\) or \(n, 4\) with n = 2"), (np.full(4, np.nan), "finite"), ("rest", "start")],
+)
+def test_bad_start_states_are_refused_before_compiling(start, message):
+    with pytest.raises(ValueError, match=message):
+        pj.sweep(V=[1.1, 2.0], tau=0, grid="pairs", start=start, progress=False)
+
+
+def test_each_lane_keeps_the_state_at_its_last_slip_on_the_section():
+    model = pj.PeelingModel()
+    result = pj.sweep(V=[1.1, 2.0], tau=0, grid="pairs", t_final=1.0, progress=False)
+    for V, y in zip((1.1, 2.0), result.cycles["cycle_slip_state"]):
+        folds = phi_folds(model, V)
+        np.testing.assert_allclose(y[3], float(folds.v_max), rtol=1e-9)  # v = v̂: just before the slip
+        np.testing.assert_allclose(float(model.shear_force(y[:3])), float(folds.phi_max), rtol=1e-9)  # G = φ(v̂)
+
+
+@pytest.mark.parametrize(
+    ("lam", "se", "kind"),
+    [
+        ((0.8, -0.1), (0.05, 0.05), CHAOTIC),
+        ((0.01, -0.02), (0.01, 0.01), QUASI_PERIODIC),
+        ((0.0, -2.7), (0.01, 0.01), IRREGULAR),  # a periodic orbit not resolved as one
+        ((np.nan, np.nan), (np.nan, np.nan), IRREGULAR),
+    ],
+)
+def test_the_exponents_rule(lam, se, kind):
+    assert _label_irregular(np.asarray(lam), np.asarray(se), 0.05) == kind
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"V": [1.1, 0.5]}, "increasing"),
+        ({"V": [0.0, 1.0]}, "> 0"),
+        ({"random_starts": -1}, "random_starts must be an integer >= 0"),
+        ({"t_final": 2.0, "transient": 2.0}, r"transient must lie in \[0, t_final\)"),
+        ({"boundary_tol": 0.0}, "boundary_tol must be finite and > 0"),
+        ({"extend": 0.5}, "extend must be >= 1"),
+        ({"chunk": 4}, "attractor_map sets chunk itself"),
+    ],
+)
+def test_bad_input_is_refused_before_compiling(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        attractor_map(**kwargs, progress=False)
+
+
+@pytest.mark.slow
+def test_the_map_finds_the_paper_orbit_with_its_period_and_basins(tmp_path):
+    amap = attractor_map(V=[1.05, 1.1], random_starts=3, t_final=3.0, boundary_tol=None, progress=False)
+    assert set(amap.kind.tolist()) <= set(range(len(ATTRACTOR_KINDS)))
+    orbit = pj.periodic_orbit(V=1.1)
+    at = [i for i in amap.at(1.1) if amap.kind[i] == PERIODIC and amap.slips[i] == int(orbit.slips)]
+    assert len(at) == 1, amap.summary()
+    i = at[0]
+    np.testing.assert_allclose(amap.period[i], float(orbit.period), rtol=1e-7)
+    np.testing.assert_allclose(amap.multiplier[i], np.abs(np.asarray(orbit.multipliers)).max(), rtol=1e-5)
+    for j in range(amap.grid_V.size):  # every random start ends on exactly one attractor
+        here = amap.V_index == j
+        np.testing.assert_allclose(amap.basin[here].sum(), 1.0)
+    path = tmp_path / "map.npz"
+    amap.save(path)
+    back = pj.load(path)
+    assert back.labels == amap.labels
+    np.testing.assert_array_equal(back.period, amap.period)
+    assert "periodic (k=" in back.summary()
+    assert back.to_xarray()["label"].size == amap.kind.size
