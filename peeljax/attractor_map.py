@@ -68,6 +68,9 @@ _SAME_STATISTICS = 2e-2  # two irregular runs with these relative slip forces an
 _GRAZING_JUMP = 5e-2  # a change of k with the slip force continuous to this: a grazing
 _KEPT_JUMPS = 512  # each lane's last jumps (ring buffer): the repeat of up to 127 slips per period is looked for
 _MAX_SLIPS = 127
+# A run's step budget per second run: stick-slip at 5.4 m/s takes about 2·10⁴ a second; a run
+# near a grazing can take without end (it stops, unresolved, rather than hold up its round).
+_MAX_STEPS_PER_SECOND = 60_000
 _CHUNK = 16  # lanes per compiled batch: every round's sweep is padded to it (one program)
 
 # Per attractor: the fields of AttractorMap (float unless named in _INT_FIELDS).
@@ -217,7 +220,7 @@ def _run(model, V: np.ndarray, y0: np.ndarray, t_final: float, transient: float,
     pad = -n % _CHUNK
     V_all = np.concatenate([V, np.repeat(V[-1:], pad)])
     y_all = np.concatenate([y0, np.repeat(y0[-1:], pad, axis=0)])
-    kwargs = {"max_jumps": _KEPT_JUMPS} | sweep_kwargs
+    kwargs = {"max_jumps": _KEPT_JUMPS, "max_steps": _MAX_STEPS_PER_SECOND * math.ceil(t_final)} | sweep_kwargs
     result = sweep(
         model, V=V_all, tau=0.0, t_final=t_final, grid="pairs", start=y_all, window=(transient / t_final, 1.0),
         chunk=_CHUNK, progress=False, **kwargs,
@@ -289,8 +292,8 @@ def _refine(model, V, state, slips, period, orbit_rtol) -> tuple[np.ndarray, ...
 
 
 def _padded_orbits(model, V, state, slips, period, orbit_rtol):
-    """:func:`peeljax.periodic_orbits` on lanes padded to whole chunks (one compiled program for
-    any number of lanes), the padding dropped."""
+    """:func:`peeljax.periodic_orbits` in chunks of ``_CHUNK`` lanes, the last one padded (one
+    compiled program for any number of lanes), the padding dropped."""
     from .orbits.batch import periodic_orbits
 
     n = V.size
@@ -300,9 +303,13 @@ def _padded_orbits(model, V, state, slips, period, orbit_rtol):
         a = np.asarray(a)
         return np.concatenate([a, np.repeat(a[-1:], pad, axis=0)])
 
-    orbits = periodic_orbits(model, V=padded(V), start=padded(state), slips=padded(np.asarray(slips, np.int64)),
-                             period=padded(period), rtol=orbit_rtol)  # fmt: skip
-    return {name: np.asarray(getattr(orbits, name))[:n] for name in ("status", "multipliers", "period", "state")}
+    lanes = [padded(V), padded(state), padded(np.asarray(slips, np.int64)), padded(period)]
+    blocks = []
+    for i in range(0, n + pad, _CHUNK):
+        V_i, state_i, slips_i, period_i = (a[i : i + _CHUNK] for a in lanes)
+        orbits = periodic_orbits(model, V=V_i, start=state_i, slips=slips_i, period=period_i, rtol=orbit_rtol)
+        blocks.append({name: np.asarray(getattr(orbits, name)) for name in ("status", "multipliers", "period", "state")})
+    return {name: np.concatenate([b[name] for b in blocks])[:n] for name in blocks[0]}
 
 
 def _prime_factors(k: int) -> list[int]:
@@ -331,10 +338,12 @@ def _label_irregular(lam, se, chaos_threshold: float) -> int:
     only to worse than ``chaos_threshold`` decides nothing but chaos."""
     if not np.all(np.isfinite(lam)):
         return IRREGULAR
-    margin = 3.0 * np.where(np.isfinite(se), se, 0.0) + chaos_threshold
+    if not np.all(np.isfinite(se)):
+        return IRREGULAR  # (fewer segments than batches: no standard error)
+    margin = 3.0 * se + chaos_threshold
     if lam[0] > margin[0]:
         return CHAOTIC
-    precise = np.all(np.isfinite(se)) and se[0] <= chaos_threshold
+    precise = se[0] <= chaos_threshold
     if precise and abs(lam[0]) <= margin[0] and abs(lam[1]) <= margin[1]:
         return QUASI_PERIODIC
     return IRREGULAR
@@ -482,7 +491,9 @@ def _link(attractors: dict[int, list[_Attractor]], m: int, branch_tol: float) ->
     return n_branches
 
 
-def _change(branch_kind: int, branch_slips: int, branch_G: float, became: _Attractor | None) -> str:
+def _change(branch_kind: int, branch_slips: int, branch_G: float, became) -> str:
+    if became == "stopped":
+        return "not located (a run in the bracket stopped early)"
     if became is None:
         return "lost"
     if branch_kind != STEADY and became.kind == STEADY:
@@ -660,9 +671,9 @@ def _boundaries(model, grid, v_top, attractors, tol, t_final, transient, sweep_k
                 ends.append([a, float(grid[a.j]), float(grid[outside]), a.state, float(v_top[a.j]), None])
     if not ends:
         return {k: np.zeros(0) for k in BOUNDARY_FIELDS} | {"change": np.zeros(0, str)}
-    first_round = True
+    first_round, frozen = True, set()
     while True:
-        todo = [e for e in ends if first_round or abs(e[2] - e[1]) > tol]
+        todo = [e for e in ends if id(e) not in frozen and (first_round or abs(e[2] - e[1]) > tol)]
         if not todo:
             break
         # The first round runs each seed at the outside end itself (the confirming run there).
@@ -677,10 +688,16 @@ def _boundaries(model, grid, v_top, attractors, tol, t_final, transient, sweep_k
         say(f"{len(todo)} runs bisecting the boundaries")
         rounds.append(len(todo))
         lanes = _run(model, Vs, y0, t_final, transient, sweep_kwargs)
-        found = _classify_free(model, Vs, y0, lanes, options)
+        # Which attractor a seed reaches: its label and k, no exponents (they only tell
+        # undecided runs apart, and a bisection needs none of that).
+        found = _classify_free(model, Vs, y0, lanes, options | {"lyapunov": False, "extend": 1.0})
         for e, a, V, top in zip(todo, found, Vs, tops):
             branch = e[0]
-            still = (a.kind, a.slips) == (branch.kind, branch.slips) and (
+            if a.kind == UNRESOLVED:  # a run that stopped says nothing: the bracket stays where it is
+                e[5] = e[5] if e[5] is not None else "stopped"
+                frozen.add(id(e))
+                continue
+            still = _family(a) == _family(branch) and (
                 branch.kind == STEADY
                 or abs(a.lanes["G_slip_max"] - branch.lanes["G_slip_max"]) <= options["branch_tol"] * abs(branch.lanes["G_slip_max"])
             )
@@ -695,16 +712,22 @@ def _boundaries(model, grid, v_top, attractors, tol, t_final, transient, sweep_k
         first_round = False
     out = {k: [] for k in BOUNDARY_FIELDS}
     for branch, V_in, V_out, _, _, became in ends:
-        if isinstance(became, str):  # the seed kept its attractor at the neighbour: no boundary
+        if became == "kept":  # the seed kept its attractor at the neighbour: no boundary
             continue
         out["branch"].append(branch.branch)
         out["V_inside"].append(V_in)
         out["V_outside"].append(V_out)
         out["change"].append(_change(branch.kind, branch.slips, branch.lanes.get("G_slip_max", math.nan), became))
-        out["becomes_kind"].append(-1 if became is None else became.kind)
-        out["becomes_slips"].append(0 if became is None else became.slips)
+        known = isinstance(became, _Attractor)
+        out["becomes_kind"].append(became.kind if known else -1)
+        out["becomes_slips"].append(became.slips if known else 0)
     return {k: np.asarray(v, str if k == "change" else (int if k in ("branch", "becomes_kind", "becomes_slips") else float))
             for k, v in out.items()}  # fmt: skip
+
+
+def _family(a: _Attractor) -> tuple[int, int]:
+    """What a bisection compares: steady, periodic with k, or stick-slip without an orbit."""
+    return (a.kind, a.slips) if a.kind in (STEADY, PERIODIC, UNRESOLVED) else (IRREGULAR, 0)
 
 
 def _classify_free(model, Vs, y0, lanes, options) -> list[_Attractor]:

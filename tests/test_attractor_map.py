@@ -56,6 +56,7 @@ def test_each_lane_keeps_the_state_at_its_last_slip_on_the_section():
         ((0.01, -0.02), (0.01, 0.01), QUASI_PERIODIC),
         ((0.0, -2.7), (0.01, 0.01), IRREGULAR),  # a periodic orbit not resolved as one
         ((np.nan, np.nan), (np.nan, np.nan), IRREGULAR),
+        ((0.8, -0.1), (np.nan, np.nan), IRREGULAR),  # no standard error: nothing decided
     ],
 )
 def test_the_exponents_rule(lam, se, kind):
