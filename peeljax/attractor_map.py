@@ -141,7 +141,7 @@ class AttractorMap:
         counts = {label: labels.count(label) for label in dict.fromkeys(labels)}
         lines = [
             f"attractor map: {self.grid_V.size} values of V in [{self.grid_V[0]:g}, {self.grid_V[-1]:g}] m/s, "
-            f"{self.random_starts} random starts each, {self.wall_time:.1f} s",
+            f"{self.random_starts} random starts each",
             "attractors: " + ", ".join(f"{n} {label}" for label, n in counts.items()),
             f"branches: {len(set(self.fields['branch'].tolist()))}",
         ]

@@ -100,3 +100,30 @@ def test_the_map_finds_the_paper_orbit_with_its_period_and_basins(tmp_path):
     np.testing.assert_array_equal(back.period, amap.period)
     assert "periodic (k=" in back.summary()
     assert back.to_xarray()["label"].size == amap.kind.size
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["map", "--V", "1.1", "0.5"], "--V must be increasing"),
+        (["map", "--random-starts", "-1"], "random_starts must be an integer >= 0"),
+        (["map", "--out", "map.csv"], "writes FILE.npz"),
+    ],
+)
+def test_the_command_line_refuses_bad_input_before_compiling(argv, message):
+    from conftest import run_cli
+
+    code, _, err = run_cli(argv)
+    assert code == 2 and message in err, err
+
+
+@pytest.mark.slow
+def test_the_command_line_writes_the_map_and_its_figure(tmp_path):
+    from conftest import run_cli_writing
+
+    done = run_cli_writing(tmp_path, ["map", "--V", "1.1", "--random-starts", "1", "--t-final", "3",
+                                      "--boundary-tol", "0", "--no-progress"])  # fmt: skip
+    assert done["code"] == 0, done["stderr"]
+    assert done["png"].stat().st_size > 0
+    back = pj.load(done["npz"])
+    assert "periodic (k=8)" in back.labels

@@ -30,7 +30,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = ["README.md", *sorted(str(p.relative_to(ROOT)) for p in (ROOT / "docs").rglob("*.md"))]
 # Pages whose blocks need more than a few seconds (each compiles its own programs).
-SLOW = {"README.md", "docs/fitting.md", "docs/orbits.md", "docs/plotting.md", "docs/reproduction.md", "docs/sweeps.md", "docs/running.md"}
+SLOW = {"README.md", "docs/attractors.md", "docs/fitting.md", "docs/orbits.md", "docs/plotting.md", "docs/reproduction.md", "docs/sweeps.md", "docs/running.md"}
 # The only blocks that do not run here, with the reason the page gives.
 ALLOWED_SKIPS = {("docs/sweeps.md", "several processes")}
 

@@ -34,8 +34,11 @@ def add_command(subparsers) -> None:
     )
     problem = parser.add_argument_group("problem")
     grid = library_default(attractor_map, "V")
-    options.add_V(problem, many=True, default=[f"{grid[0]:g}:{grid[-1]:g}:{grid.size}"],
-                  help="the grid of pull velocities [m/s], increasing")  # fmt: skip
+    problem.add_argument(
+        "--V", type=options.numbers("--V"), nargs="+", default=None, metavar="V",
+        help="the grid of pull velocities [m/s], increasing, each > 0: numbers separated by spaces, or "
+        f"START:STOP:COUNT for COUNT equally spaced values (default {grid[0]:g}:{grid[-1]:g}:{grid.size})",
+    )  # fmt: skip
     options.add_t_final(problem, default=_DEFAULTS["t_final"], help=f"length of each run [s], > 0 (default {_DEFAULTS['t_final']:g}; its second half is the window)")  # fmt: skip
     options.add_geometry_and_phi(problem)
     search = parser.add_argument_group("the search")
@@ -58,7 +61,7 @@ def add_command(subparsers) -> None:
 
 def validate_attractor_map(args: argparse.Namespace) -> dict:
     """Every option checked, nothing compiled; the keyword arguments of :func:`peeljax.attractor_map`."""
-    V = np.asarray(options.check_positive_values("--V", args.V))
+    V = library_default(attractor_map, "V") if args.V is None else np.asarray(options.check_positive_values("--V", args.V))
     if np.any(np.diff(V) <= 0):
         raise ValueError("--V must be increasing")
     options.check_outputs(args)
