@@ -59,6 +59,8 @@ from .sweeps.stick_slip_map import fold_table, map_lanes
 
 __all__ = ["ATTRACTOR_KINDS", "AttractorMap", "attractor_map", "check_attractor_map_options"]
 
+DEFAULT_V = np.linspace(0.3, 5.4, 200)  # [m/s]: the stick-slip range of the paper's φ and its ends
+DEFAULT_V.setflags(write=False)
 ATTRACTOR_KINDS: tuple[str, ...] = ("steady", "periodic", "quasi-periodic", "chaotic", "irregular", "unresolved")
 STEADY, PERIODIC, QUASI_PERIODIC, CHAOTIC, IRREGULAR, UNRESOLVED = range(len(ATTRACTOR_KINDS))
 
@@ -513,7 +515,7 @@ def _change(branch_kind: int, branch_slips: int, branch_G: float, became) -> str
 # ---------------------------------------------------------------------------- the map
 def attractor_map(
     model: PeelingModel | None = None,
-    V: ArrayLike = np.linspace(0.3, 5.4, 200),
+    V: ArrayLike = DEFAULT_V,
     *,
     random_starts: int = 4,
     seed: int = 0,

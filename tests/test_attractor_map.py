@@ -19,6 +19,7 @@ from peeljax.attractor_map import (
 from peeljax.branches import phi_folds
 
 
+@pytest.mark.slow
 def test_a_sweep_from_given_states_is_the_run_from_them():
     model = pj.PeelingModel()
     y0 = np.asarray(model.consistent_state(1.1, 0.1, 5.0, 0.05))

@@ -55,6 +55,7 @@ HEAVY = (
     ("peeljax.fit", "fit_adhesion"),
     ("peeljax.fit", "fit_stick_slip"),
     ("peeljax.figures", "write_figures"),
+    ("peeljax.cli.attractor_map", "attractor_map"),
     ("peeljax.cli.sweep", "join_processes"),  # for several processes only (see run_guarded)
 )
 

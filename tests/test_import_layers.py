@@ -26,7 +26,7 @@ LAYERS = [
     ("integrators", {"integrators"}),
     ("one run", {"simulate", "bound", "saved"}),
     ("a run's cycles, periodic orbits", {"cycles", "orbits"}),
-    ("many runs, fit, analysis", {"sweeps", "fit", "analysis", "alternatives", "lyapunov"}),
+    ("many runs, fit, analysis", {"sweeps", "fit", "analysis", "alternatives", "lyapunov", "attractor_map"}),
     ("CLI and plots", {"cli", "plots", "stick_slip_plots", "figures"}),  # stick_slip_plots: a deprecated alias
     ("the package's public names", {""}),
 ]

@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 
-from ..attractor_map import ATTRACTOR_FIELDS, attractor_map, check_attractor_map_options
+from ..attractor_map import ATTRACTOR_FIELDS, DEFAULT_V, attractor_map, check_attractor_map_options
 from . import options
 from ._common import PROG, fail, library_default, phi_defaults, plotter, report, write_files
 
@@ -33,7 +33,7 @@ def add_command(subparsers) -> None:
         ),
     )
     problem = parser.add_argument_group("problem")
-    grid = library_default(attractor_map, "V")
+    grid = DEFAULT_V
     problem.add_argument(
         "--V", type=options.numbers("--V"), nargs="+", default=None, metavar="V",
         help="the grid of pull velocities [m/s], increasing, each > 0: numbers separated by spaces, or "
@@ -61,7 +61,7 @@ def add_command(subparsers) -> None:
 
 def validate_attractor_map(args: argparse.Namespace) -> dict:
     """Every option checked, nothing compiled; the keyword arguments of :func:`peeljax.attractor_map`."""
-    V = library_default(attractor_map, "V") if args.V is None else np.asarray(options.check_positive_values("--V", args.V))
+    V = DEFAULT_V if args.V is None else np.asarray(options.check_positive_values("--V", args.V))
     if np.any(np.diff(V) <= 0):
         raise ValueError("--V must be increasing")
     options.check_outputs(args)
