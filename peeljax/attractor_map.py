@@ -51,6 +51,7 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 from ._files import json_safe
+from ._validation import check_positive
 from .cycles import repeat_pattern
 from .model import PAPER_ALPHA0, PeelingModel
 from .saved import register_reader
@@ -773,23 +774,17 @@ def _progress(on: bool, begin: float):
 
 
 def _positive(name: str, value) -> float:
-    if isinstance(value, bool):
-        raise TypeError(f"{name} must be a real number, got {value!r}")
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a real number > 0, got {value!r}") from None
-    if not (math.isfinite(number) and number > 0):
-        raise ValueError(f"{name} must be finite and > 0, got {value!r}")
-    return number
+    if isinstance(value, bool) or np.ndim(value) != 0:
+        raise TypeError(f"{name} must be one real number, got {value!r}")
+    check_positive(name, value)
+    return float(value)
 
 
 def _check_grid(V) -> np.ndarray:
     grid = np.atleast_1d(np.asarray(V, float))
     if grid.ndim != 1 or grid.size == 0:
         raise ValueError(f"V must be a number or a 1-d array of pull velocities, got shape {grid.shape}")
-    if not np.all(np.isfinite(grid)) or np.any(grid <= 0):
-        raise ValueError("V must be finite and > 0 (m/s)")
+    check_positive("V", grid)
     if np.any(np.diff(grid) <= 0):
         raise ValueError("V must be increasing")
     return grid

@@ -71,7 +71,7 @@ def test_the_exponents_rule(lam, se, kind):
         ({"V": [0.0, 1.0]}, "> 0"),
         ({"random_starts": -1}, "random_starts must be an integer >= 0"),
         ({"t_final": 2.0, "transient": 2.0}, r"transient must lie in \[0, t_final\)"),
-        ({"boundary_tol": 0.0}, "boundary_tol must be finite and > 0"),
+        ({"boundary_tol": 0.0}, r"boundary_tol must be > 0 \(allowed range: \(0, inf\)\)"),
         ({"extend": 0.5}, "extend must be >= 1"),
         ({"chunk": 4}, "attractor_map sets chunk itself"),
     ],
