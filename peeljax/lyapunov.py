@@ -269,11 +269,12 @@ def lyapunov_exponents(
         )  # fmt: skip
     Q, _ = np.linalg.qr(np.random.default_rng(seed).normal(size=(dimension, n)))
     Q = jnp.asarray(Q)
+    V_traced = jnp.asarray(float(V))  # (a Python float would be a static argument: one compilation per V)
     align = max(count // 10, 1)  # segments that turn the tangents towards the leading directions, not counted
     growth = np.zeros((count, n))
     status, done, why = StopReason.COMPLETED, count, ""
     for k in range(-align, count):
-        y_next, Q_next, *checked = _segment(model, V, y, Q, **settings)
+        y_next, Q_next, *checked = _segment(model, V_traced, y, Q, **settings)
         run_status, log_r, disagreement = jax.device_get(checked)  # one transfer to the host per segment
         if (problem := trouble(run_status, log_r, disagreement)) is not None:
             (status, why), done = problem, max(k, 0)

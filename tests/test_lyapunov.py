@@ -1,6 +1,7 @@
 """Lyapunov exponents through the jumps (peeljax.lyapunov): against the Floquet multipliers of the
 periodic orbit, and bad input refused before anything compiles."""
 
+import jax
 import numpy as np
 import pytest
 
@@ -83,3 +84,15 @@ def test_a_tangent_that_leaves_the_flow_stops_the_estimate():
     assert result.status == pj.StopReason.COMPLETED and result.stopped_at >= 0
     assert "a run from a nearby state differ by a factor" in result.message
     assert result.why and result.history.shape[0] < 20  # stopped before its 20 segments
+
+
+def test_a_new_V_compiles_nothing_new(caplog):
+    """V is traced: exponents over many V reuse one compiled segment (V was a static argument,
+    one compilation of ~8 s per V)."""
+    import logging
+
+    pj.lyapunov_exponents(V=1.1, t_total=1.0, t_transient=0.5)
+    with jax.log_compiles(), caplog.at_level(logging.WARNING):
+        pj.lyapunov_exponents(V=1.2, t_total=1.0, t_transient=0.5)
+    compiled = [r.getMessage() for r in caplog.records if "Compiling" in r.getMessage() and "_segment" in r.getMessage()]
+    assert not compiled, compiled
