@@ -41,7 +41,6 @@ the result.
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import sys
 import time
@@ -50,7 +49,7 @@ import jax
 import numpy as np
 from jaxtyping import ArrayLike
 
-from ._files import json_safe
+from ._files import META_KEY, json_safe, meta_array, read_meta
 from ._validation import check_positive
 from .cycles import repeat_pattern
 from .model import PAPER_ALPHA0, PeelingModel
@@ -83,6 +82,9 @@ ATTRACTOR_FIELDS: tuple[str, ...] = (
     "branch",
 )  # fmt: skip
 _INT_FIELDS = ("V_index", "kind", "slips", "hits", "branch")
+_KIND = "attractor-map"  # the files' kind (peeljax.load)
+_UNITS = {"V": "m/s", "period": "s", "lyapunov": "1/s", "lyapunov_2": "1/s", "lyapunov_se": "1/s", "G_slip_max": "N",
+          "G_stick_min": "N", "slip_interval": "s", "v_mean": "m/s", "boundary_V_inside": "m/s", "boundary_V_outside": "m/s"}  # fmt: skip
 BOUNDARY_FIELDS: tuple[str, ...] = ("branch", "V_inside", "V_outside", "change", "becomes_kind", "becomes_slips")
 
 
@@ -156,15 +158,16 @@ class AttractorMap:
 
     # ------------------------------------------------------------------ files
     def save(self, path) -> None:
-        """Write the map as .npz (arrays, no pickles) with its settings as JSON; :func:`peeljax.load` reads it."""
-        meta = {
-            "kind": "attractor_map", "random_starts": self.random_starts, "t_final": self.t_final,
-            "transient": self.transient, "settings": json_safe(self.settings), "rounds": list(self.rounds),
-            "wall_time": self.wall_time,
+        """Write the map as .npz (arrays, no pickles; its settings as JSON in ``meta_json``);
+        :func:`peeljax.load` reads it."""
+        extra = {
+            "random_starts": self.random_starts, "t_final": self.t_final, "transient": self.transient,
+            "settings": json_safe(self.settings), "rounds": list(self.rounds), "wall_time": self.wall_time,
         }  # fmt: skip
         arrays = {f"attractor_{k}": v for k, v in self.fields.items()}
         arrays |= {f"boundary_{k}": np.asarray(v, str if k == "change" else None) for k, v in self.boundaries.items()}
-        np.savez(path, grid_V=self.grid_V, state=self.state, meta=np.asarray(json.dumps(meta)), **arrays)
+        arrays[META_KEY] = meta_array(_KIND, _UNITS, **extra)
+        np.savez(path, grid_V=self.grid_V, state=self.state, **arrays)
 
     def to_xarray(self):
         """The attractors as an ``xarray.Dataset`` over the dimension ``attractor``."""
@@ -179,7 +182,7 @@ class AttractorMap:
 
 def _read_npz(arrays: dict, name: str) -> AttractorMap:
     try:
-        meta = json.loads(str(arrays["meta"]))
+        meta = read_meta(arrays, name) or {}
         fields = {k: np.asarray(arrays[f"attractor_{k}"]) for k in ATTRACTOR_FIELDS}
         boundaries = {k: np.asarray(arrays[f"boundary_{k}"]) for k in BOUNDARY_FIELDS}
         return AttractorMap(
@@ -192,7 +195,7 @@ def _read_npz(arrays: dict, name: str) -> AttractorMap:
         raise ValueError(f"{name!r} is not an attractor map written by AttractorMap.save ({error})") from None
 
 
-register_reader("attractor_map", _read_npz)
+register_reader(_KIND, _read_npz)
 
 
 # ---------------------------------------------------------------------------- starts
