@@ -67,7 +67,10 @@ def main(argv=None) -> int:
             if not np.any(here & (amap.kind == PERIODIC) & (amap.slips == k)):
                 missing.append(f"V = {V[j]:.4f}: periodic k = {k} (from {start})")
     b = amap.boundaries
+    command = "python benchmarks/attractor_map.py" + ("" if args.n_V == 200 else f" --n-V {args.n_V}")
     lines = [
+        f"Made by `{command}`.",
+        "",
         f"# The attractor map against the brute-force map ({args.n_V} V in [0.3, 5.4] m/s, τ = 0)",
         "",
         f"{os.cpu_count()} cores, load {load:.1f} at the start; compilation and a 16-V warm-up: {warm:.0f} s.",
