@@ -668,7 +668,7 @@ def _boundaries(model, grid, v_top, attractors, tol, t_final, transient, sweep_k
     for j in sorted(attractors):
         for a in attractors[j]:
             by_branch.setdefault(a.branch, []).append(a)
-    for branch, members in by_branch.items():
+    for members in by_branch.values():
         if members[0].kind == UNRESOLVED:
             continue
         first, last = members[0], members[-1]
