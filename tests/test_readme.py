@@ -10,6 +10,9 @@ README = (ROOT / "README.md").read_text()
 def test_ci_runs_the_readme_test_command():
     ci = (ROOT / ".ci" / "run").read_text()
     command = next(line for line in ci.splitlines() if "pytest" in line).strip()
+    # set -e does not stop at a failure inside a && list: CI must, or a lint error skips the fast tier
+    assert command.endswith(" || exit 1"), command
+    command = command.removesuffix(" || exit 1")
     assert command.startswith("python3 -m venv .venv") and "mkdocs build --strict" in command and "ruff check" in command
     assert command in README
     assert README.index(command) < README.index("## Example")  # among the opening commands
