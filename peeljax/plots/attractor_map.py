@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.ticker import ScalarFormatter
 
 __all__ = ["plot_attractor_map"]
 
@@ -16,8 +17,9 @@ _COLOURS = ("0.35", "tab:blue", "tab:green", "tab:red", "tab:orange", "tab:purpl
 def plot_attractor_map(amap, *, title: str | None = None, path: str | Path | None = None) -> Figure:
     """The attractors of an :class:`peeljax.AttractorMap` against V, three panels.
 
-    (a) The largest slip force G of each attractor (steady peeling: none, drawn at the bottom
-        edge), coloured by its label, one marker per attractor and V; the boundaries located
+    (a) The smallest re-stick force G of each attractor (at τ = 0 every slip starts at φ's
+        maximum, so the force where the tape sticks again is what tells attractors apart;
+        steady peeling: none, drawn at the bottom edge), coloured by its label, one marker per attractor and V; the boundaries located
         by bisection as vertical lines at their brackets' middles, named by their change.
     (b) The period T of periodic attractors (log axis), with k (slips per period) beside
         each branch's first point; |μ₁| of the orbit as the marker's fill (1: white).
@@ -34,7 +36,7 @@ def plot_attractor_map(amap, *, title: str | None = None, path: str | Path | Non
     fig = Figure(figsize=(9.0, 9.0), layout="constrained")
     ax_force, ax_period, ax_basin = fig.subplots(3, 1, sharex=True, height_ratios=(3, 2, 2))
     V, kind = np.asarray(amap.V), np.asarray(amap.kind)
-    G = np.asarray(amap.G_slip_max, float)
+    G = np.asarray(amap.G_stick_min, float)
     floor = np.nanmin(G) * 0.9 if np.any(np.isfinite(G)) else 0.0
     for code, name in enumerate(ATTRACTOR_KINDS):
         mask = kind == code
@@ -49,7 +51,7 @@ def plot_attractor_map(amap, *, title: str | None = None, path: str | Path | Non
             ax.axvline(where, color="0.6", lw=0.6, ls=":")
         ax_force.annotate(str(b["change"][i]), (where, 1.0), xycoords=("data", "axes fraction"), rotation=90,
                           fontsize=6, va="top", ha="right", color="0.3")  # fmt: skip
-    ax_force.set_ylabel("slip force G [N]")
+    ax_force.set_ylabel("re-stick force G [N]")
     ax_force.legend(fontsize=7, loc="lower right")
 
     periodic = kind == PERIODIC
@@ -58,6 +60,8 @@ def plot_attractor_map(amap, *, title: str | None = None, path: str | Path | Non
         ax_period.scatter(V[periodic], np.asarray(amap.period)[periodic], c=1.0 - mu, cmap="Blues", vmin=0, vmax=1,
                           edgecolors="tab:blue", s=14, linewidths=0.5)  # fmt: skip
         ax_period.set_yscale("log")
+        ax_period.yaxis.set_major_formatter(ScalarFormatter())
+        ax_period.yaxis.set_minor_formatter(ScalarFormatter())
         branch = np.asarray(amap.branch)[periodic]
         slips = np.asarray(amap.slips)[periodic]
         for i in np.unique(branch, return_index=True)[1]:
