@@ -40,6 +40,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--n-V", dest="n_V", type=int, default=200)
     parser.add_argument("--random-starts", dest="random_starts", type=int, default=None)
+    parser.add_argument("--save", default=None, help="also write the map there (.npz, peeljax.load reads it)")
     args = parser.parse_args(argv)
     kwargs = {} if args.random_starts is None else {"random_starts": args.random_starts}
     V = np.linspace(0.3, 5.4, args.n_V)
@@ -54,6 +55,8 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     amap = pj.attractor_map(V=V, **kwargs)
     t_map = time.perf_counter() - t0
+    if args.save:
+        amap.save(args.save)
     t0 = time.perf_counter()
     smap = pj.stick_slip_map(V=V, progress=False)
     t_brute = time.perf_counter() - t0

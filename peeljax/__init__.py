@@ -107,7 +107,7 @@ from .integrators import (  # noqa: E402
     integrate_alpha_adaptive,
     integrate_reference,
 )
-from .lyapunov import LyapunovExponents, lyapunov_exponents  # noqa: E402
+from .lyapunov import LyapunovExponents, lyapunov_exponents, lyapunov_spectra  # noqa: E402
 from .model import PeelingModel  # noqa: E402
 from .orbits import (  # noqa: E402
     OrbitDiagram,
@@ -193,6 +193,7 @@ __all__ = [
     "periodic_orbit",
     "periodic_orbits",
     "lyapunov_exponents",
+    "lyapunov_spectra",
     "attractor_map",
     "local_index",
     "neumann_radius",

@@ -14,24 +14,30 @@ trajectory, all lanes of a round one compiled program over every device):
    (strictly, or to 3 % on the later part of the window) and the orbit found from the last slip
    by :func:`peeljax.periodic_orbits` (batched Newton on the return map; converged with
    |μ₁| < 1), with its exact period and Floquet multipliers. Otherwise the largest two Lyapunov
-   exponents through the jumps (:func:`peeljax.lyapunov_exponents`, from the last slip):
-   *chaotic* where λ₁ > 0 beyond three standard errors and ``chaos_threshold``, *quasi-periodic*
-   where λ₁ and λ₂ are both 0 within them, *irregular* where neither can be said (a periodic
-   orbit of more than 32 slips per period, or a run the exponents' check stopped);
-   *unresolved*: a run that stopped before t_final.
+   exponents through the jumps (:func:`peeljax.lyapunov_spectra`, all such runs in one batch,
+   from their last slips): *chaotic* where λ₁ > 0 beyond three standard errors and
+   ``chaos_threshold``; *periodic (k=?)* where λ₂ < 0 beyond them (a bounded attractor of a
+   flow has a zero exponent along the flow; λ₂ < 0 makes it λ₁, and an attractor with no other
+   exponent ≥ 0 is a limit cycle: its orbit not found, k not known); *quasi-periodic* where λ₁
+   and λ₂ are both 0 within them; *irregular* where none can be said (a run the exponents'
+   check stopped, or exponents too uncertain); *unresolved*: a run that stopped before t_final.
 4. **Attractors per V**: runs whose labels agree and whose orbits (periodic: the period to 1e-5)
-   or statistics (others: the slip force and mean v to 2 %) agree are one attractor; its basin
-   share is the fraction of the random starts that end on it, with the binomial standard error.
+   or statistics (others: the mean time between slips and the stick fraction to 5 %) agree are
+   one attractor; its basin share is the fraction of the random starts that end on it, with the
+   binomial standard error. (At τ = 0 every slip starts at φ's maximum and every stick at its
+   minimum: the forces at the jumps are V's alone, the same for every attractor; the time
+   between slips is the attractor's own.)
 5. **Neighbours' seeds** (``seed_rounds``): an attractor found at a neighbouring V but not at V is
    looked for from its last slip moved to V (α, ω kept, v at the same fraction of v̂); repeated
    until no round finds a new one. Attractors of neighbouring V are linked into branches (same
-   label and k, the slip force within ``branch_tol``).
-6. **Boundaries** where a branch ends between two V of the grid: bisection in V, every boundary
+   label and k, the mean time between slips within ``branch_tol``).
+6. **Boundaries** where a branch of steady peeling or of refined periodic orbits (what a run
+   tells apart without exponents) ends between two V of the grid: bisection in V, every boundary
    of a round in the same batch, from the branch's last state, to ``boundary_tol``; the bracket's
    ends are direct runs, one on each side (the attractor found there / not found from its seed),
    and the change is named from what the seed reaches beyond it: *stick-slip ends* (it peels
-   steadily), *period doubling* (2k slips), *grazing* (another k, the slip force continuous to
-   5 %), *steady peeling ends*, or *lost* (to another attractor).
+   steadily), *period doubling* (2k slips, the period doubled to 5 %), *grazing* (another k,
+   the period continuous to 5 %), *steady peeling ends*, or *lost* (to another attractor).
 
 A steady run at V where φ has no fold and a periodic orbit are exact; the other labels rest on
 finite runs: the tolerances above say how far. :func:`peeljax.plots.plot_attractor_map` draws
@@ -57,7 +63,7 @@ from .saved import register_reader
 from .solution import StopReason
 from .sweeps.stick_slip_map import fold_table, map_lanes
 
-__all__ = ["ATTRACTOR_KINDS", "AttractorMap", "attractor_map", "check_attractor_map_options"]
+__all__ = ["ATTRACTOR_KINDS", "AttractorMap", "attractor_label", "attractor_map", "check_attractor_map_options"]
 
 DEFAULT_V = np.linspace(0.3, 5.4, 200)  # [m/s]: the stick-slip range of the paper's φ and its ends
 DEFAULT_V.setflags(write=False)
@@ -66,8 +72,8 @@ STEADY, PERIODIC, QUASI_PERIODIC, CHAOTIC, IRREGULAR, UNRESOLVED = range(len(ATT
 
 _LOOSE_REPEAT = 3e-2  # the repeat looked for on the later part of a window that shows none strictly
 _SAME_PERIOD = 1e-5  # two refined orbits with these relative periods are one
-_SAME_STATISTICS = 2e-2  # two irregular runs with these relative slip forces and mean v are one
-_GRAZING_JUMP = 5e-2  # a change of k with the slip force continuous to this: a grazing
+_SAME_STATISTICS = 5e-2  # two undecided runs with these relative slip intervals and stick fractions are one
+_GRAZING_JUMP = 5e-2  # a change of k with the period continuous to this: a grazing
 _KEPT_JUMPS = 512  # each lane's last jumps (ring buffer): the repeat of up to 127 slips per period is looked for
 _MAX_SLIPS = 127
 # A run's step budget per second run: stick-slip at 5.4 m/s takes about 2·10⁴ a second; a run
@@ -88,6 +94,14 @@ _UNITS = {"V": "m/s", "period": "s", "lyapunov": "1/s", "lyapunov_2": "1/s", "ly
 BOUNDARY_FIELDS: tuple[str, ...] = ("branch", "V_inside", "V_outside", "change", "becomes_kind", "becomes_slips")
 
 
+def attractor_label(kind: int, slips: int) -> str:
+    """An attractor's label: its kind, with k for a periodic one (``"periodic (k=2)"``;
+    ``"periodic (k=?)"``: a limit cycle by its exponents, its orbit not found)."""
+    if kind != PERIODIC:
+        return ATTRACTOR_KINDS[kind]
+    return f"periodic (k={slips})" if slips else "periodic (k=?)"
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class AttractorMap:
     """The attractors over V (definitions: :mod:`peeljax.attractor_map`).
@@ -96,7 +110,7 @@ class AttractorMap:
         V: the pull velocities of the grid [m/s], shape (m,).
         V_index, V, kind, …: per attractor (shape (n,), in order of V): the grid index and V,
             the label (an index into :data:`ATTRACTOR_KINDS`), k = slips per period (0 where not
-            periodic), the period [s] and |μ₁| of a periodic orbit (NaN otherwise), λ₁, λ₂ and
+            periodic, or a limit cycle known by its exponents alone), the period [s] and |μ₁| of a periodic orbit (NaN otherwise), λ₁, λ₂ and
             λ₁'s standard error [1/s] (NaN where not computed), the statistics of a run on it
             (largest slip force and smallest re-stick force G [N], mean time between slips [s],
             stick fraction, mean v [m/s]), how many runs ended on it (``hits``), its basin share
@@ -129,16 +143,30 @@ class AttractorMap:
 
     @property
     def labels(self) -> list[str]:
-        """Each attractor's label: its kind, with k for a periodic one (``"periodic (k=2)"``)."""
-        return [
-            f"periodic (k={k})" if kind == PERIODIC else ATTRACTOR_KINDS[kind]
-            for kind, k in zip(self.fields["kind"], self.fields["slips"])
-        ]
+        """Each attractor's label (:func:`attractor_label`)."""
+        return [attractor_label(kind, k) for kind, k in zip(self.fields["kind"], self.fields["slips"])]
 
     def at(self, V: float) -> list[int]:
         """The attractors at the grid's V nearest to ``V`` (indices into the per-attractor fields)."""
         j = int(np.argmin(np.abs(self.grid_V - float(V))))
         return [int(i) for i in np.flatnonzero(self.fields["V_index"] == j)]
+
+    def orbit(self, i: int, model: PeelingModel | None = None, **options):
+        """The periodic orbit of attractor ``i`` (:func:`peeljax.periodic_orbit` from its state,
+        with its k and period; ``model``: the map's, default the paper's), e.g. to continue it
+        over V with :func:`peeljax.continue_orbit`.
+
+        Raises:
+            ValueError: attractor ``i`` is not a periodic orbit found by Newton (k known).
+        """
+        from .orbits.api import periodic_orbit
+
+        if self.fields["kind"][i] != PERIODIC or not self.fields["slips"][i]:
+            raise ValueError(f"attractor {i} is {self.labels[i]!r}: only a periodic orbit with k known has an orbit")
+        return periodic_orbit(
+            model, V=float(self.fields["V"][i]), start=self.state[i], slips=int(self.fields["slips"][i]),
+            period=float(self.fields["period"][i]), **options,
+        )  # fmt: skip
 
     def summary(self) -> str:
         """A few lines: the attractors by label, the branches and the boundaries."""
@@ -329,19 +357,19 @@ def _prime_factors(k: int) -> list[int]:
     return factors + ([k] if k > 1 else [])
 
 
-def _exponents(model, V: float, state: np.ndarray, lyapunov_time: float):
-    from .lyapunov import lyapunov_exponents
+def _exponents(model, V: np.ndarray, states: np.ndarray, lyapunov_time: float) -> list[tuple[np.ndarray, np.ndarray]]:
+    """λ₁, λ₂ and their standard errors per lane, all lanes in one batch (:func:`peeljax.lyapunov_spectra`)."""
+    from .lyapunov import lyapunov_spectra
 
-    result = lyapunov_exponents(model, V, n=2, t_total=lyapunov_time, t_transient=0.5, y0=state)
-    lam = np.asarray(result.exponents, float)
-    se = np.asarray(result.standard_error, float)
-    return lam, se
+    results = lyapunov_spectra(model, V, states, n=2, t_total=lyapunov_time, t_transient=0.5)
+    return [(np.asarray(r.exponents, float), np.asarray(r.standard_error, float)) for r in results]
 
 
 def _label_irregular(lam, se, chaos_threshold: float) -> int:
-    """Chaotic, quasi-periodic or (neither can be said) irregular, from λ₁, λ₂ and their
-    standard errors: each exponent is 0 or not to within 3 SE + ``chaos_threshold``; a λ₁ known
-    only to worse than ``chaos_threshold`` decides nothing but chaos."""
+    """Chaotic, periodic (a limit cycle whose orbit was not found: k unknown), quasi-periodic or
+    (none can be said) irregular, from λ₁, λ₂ and their standard errors: each exponent is 0 or
+    not to within 3 SE + ``chaos_threshold``; a λ₁ known only to worse than ``chaos_threshold``
+    decides nothing but chaos and the limit cycle."""
     if not np.all(np.isfinite(lam)):
         return IRREGULAR
     if not np.all(np.isfinite(se)):
@@ -349,6 +377,10 @@ def _label_irregular(lam, se, chaos_threshold: float) -> int:
     margin = 3.0 * se + chaos_threshold
     if lam[0] > margin[0]:
         return CHAOTIC
+    if lam[1] < -margin[1]:
+        # A bounded attractor of a flow has a zero exponent (along the flow): λ₂ < 0 makes it
+        # λ₁, and an attractor with no other exponent ≥ 0 is a limit cycle (k not known).
+        return PERIODIC
     precise = se[0] <= chaos_threshold
     if precise and abs(lam[0]) <= margin[0] and abs(lam[1]) <= margin[1]:
         return QUASI_PERIODIC
@@ -373,14 +405,29 @@ class _Attractor:
     def same(self, other: "_Attractor") -> bool:
         if (self.kind, self.slips) != (other.kind, other.slips):
             return False
-        if self.kind == PERIODIC:
+        if self.kind == PERIODIC and self.slips:
             return abs(self.period - other.period) <= _SAME_PERIOD * self.period
         if self.kind in (STEADY, UNRESOLVED):
             return True
         return all(
             abs(self.lanes[key] - other.lanes[key]) <= _SAME_STATISTICS * max(abs(self.lanes[key]), 1e-12)
-            for key in ("G_slip_max", "v_mean")
+            for key in ("slip_interval", "stick_fraction")
         )
+
+    @property
+    def slip_interval(self) -> float:
+        """The mean time between slips [s]: T/k on a periodic orbit, the run's mean elsewhere. At
+        τ = 0 every slip starts at φ's maximum and every stick at its minimum: the forces at the
+        jumps are those of V, the same for every attractor; the time between slips is its own."""
+        if self.kind == PERIODIC and self.slips:
+            return self.period / self.slips
+        return float(self.lanes.get("slip_interval", math.nan))
+
+    def near(self, other: "_Attractor", tol: float) -> bool:
+        """Same label and k, and the slip intervals within ``tol`` (relative): one branch across V."""
+        if _family(self) != _family(other):
+            return False
+        return self.kind == STEADY or abs(self.slip_interval - other.slip_interval) <= tol * other.slip_interval
 
 
 def _lane_dict(lanes: dict, i: int) -> dict:
@@ -412,7 +459,8 @@ def _classify(model, V_grid, js, y_start, lanes, options) -> list[_Attractor]:
     kind, slips, period, multiplier = _labels(model, V, lanes, options)
     say(f"{np.sum(kind == PERIODIC)} periodic orbits refined, {np.sum(kind == STEADY)} steady, {np.sum(kind == IRREGULAR)} undecided")
     # Run again, longer, where a longer window could show the repeat: runs with few slips in
-    # theirs (a run with many shows any repeat of up to _MAX_SLIPS slips already).
+    # theirs (a run with many shows any repeat of up to _MAX_SLIPS slips already; run again
+    # too, 440 such runs of the 200-V map found no orbit more, at 230 s).
     few = np.asarray([times.size for times in lanes["kept_slips"]]) < 2 * _MAX_SLIPS + 1
     longer = np.flatnonzero((kind == IRREGULAR) & few & np.all(np.isfinite(lanes["slip_state"]), axis=1))
     if longer.size and options["extend"] > 1:
@@ -432,21 +480,23 @@ def _classify(model, V_grid, js, y_start, lanes, options) -> list[_Attractor]:
         found.append(_Attractor(int(js[i]), int(kind[i]), int(slips[i]), float(period[i]), float(multiplier[i]),
                                 _lane_dict(lanes, i), np.asarray(state, float)))  # fmt: skip
     if options["lyapunov"]:
-        undecided = sum(a.kind == IRREGULAR for a in found)
-        if undecided:
-            say(f"Lyapunov exponents of the {undecided} runs still undecided (one per V and attractor)")
-        done: list[_Attractor] = []
+        # One run per V and attractor (the twins take its exponents), all in one batch.
+        first: list[_Attractor] = []
+        twins: list[tuple[_Attractor, _Attractor]] = []
         for a in found:
             if a.kind != IRREGULAR or not np.all(np.isfinite(a.state)):
                 continue
-            twin = next((b for b in done if b.j == a.j and b.same(a)), None)
-            if twin is None:
-                lam, se = _exponents(model, float(V_grid[a.j]), a.state, options["lyapunov_time"])
+            twin = next((b for b in first if b.j == a.j and b.same(a)), None)
+            first.append(a) if twin is None else twins.append((a, twin))
+        if first:
+            say(f"Lyapunov exponents of the {len(first)} attractors still undecided, in one batch")
+            V_first = np.asarray([V_grid[a.j] for a in first])
+            exponents = _exponents(model, V_first, np.stack([a.state for a in first]), options["lyapunov_time"])
+            for a, (lam, se) in zip(first, exponents):
                 a.lyapunov = (float(lam[0]), float(lam[1]), float(se[0]))
                 a.kind = _label_irregular(lam, se, options["chaos_threshold"])
-                done.append(a)
-            else:
-                a.lyapunov, a.kind = twin.lyapunov, twin.kind
+        for a, twin in twins:
+            a.lyapunov, a.kind = twin.lyapunov, twin.kind
     return found
 
 
@@ -475,7 +525,7 @@ def _moved(model, state: np.ndarray, v_top_from: float, V_to: float, v_top_to: f
 
 def _link(attractors: dict[int, list[_Attractor]], m: int, branch_tol: float) -> int:
     """Branch ids: an attractor continues the nearest one of the previous V with its label and k
-    (slip force within branch_tol, relative); returns the number of branches."""
+    (slip interval within branch_tol, relative); returns the number of branches."""
     n_branches = 0
     for j in range(m):
         previous = attractors.get(j - 1, [])
@@ -485,8 +535,7 @@ def _link(attractors: dict[int, list[_Attractor]], m: int, branch_tol: float) ->
             for b in previous:
                 if (b.kind, b.slips) != (a.kind, a.slips) or id(b) in taken:
                     continue
-                ga, gb = a.lanes.get("G_slip_max", math.nan), b.lanes.get("G_slip_max", math.nan)
-                d = 0.0 if a.kind == STEADY else abs(ga - gb) / max(abs(gb), 1e-12)
+                d = 0.0 if a.kind == STEADY else abs(a.slip_interval - b.slip_interval) / max(b.slip_interval, 1e-12)
                 if d <= branch_tol and d < best_d:
                     best, best_d = b, d
             if best is None:
@@ -497,23 +546,21 @@ def _link(attractors: dict[int, list[_Attractor]], m: int, branch_tol: float) ->
     return n_branches
 
 
-def _change(branch_kind: int, branch_slips: int, branch_G: float, became) -> str:
+def _change(branch: _Attractor, became) -> str:
     if became == "stopped":
         return "not located (a run in the bracket stopped early)"
     if became is None:
         return "lost"
-    if branch_kind != STEADY and became.kind == STEADY:
+    if branch.kind != STEADY and became.kind == STEADY:
         return "stick-slip ends"
-    if branch_kind == STEADY:
+    if branch.kind == STEADY:
         return "steady peeling ends"
-    if branch_kind == PERIODIC and became.kind == PERIODIC:
-        G = became.lanes.get("G_slip_max", math.nan)
-        continuous = abs(G - branch_G) <= _GRAZING_JUMP * abs(branch_G)
-        if became.slips == 2 * branch_slips:
+    if branch.kind == PERIODIC and became.kind == PERIODIC:
+        if became.slips == 2 * branch.slips and abs(became.period - 2 * branch.period) <= _GRAZING_JUMP * 2 * branch.period:
             return "period doubling"
-        if continuous:
-            return f"grazing (k {branch_slips} -> {became.slips})"
-    return f"lost to {'periodic (k=%d)' % became.slips if became.kind == PERIODIC else ATTRACTOR_KINDS[became.kind]}"
+        if abs(became.period - branch.period) <= _GRAZING_JUMP * branch.period:
+            return f"grazing (k {branch.slips} -> {became.slips})"
+    return f"lost to {attractor_label(became.kind, became.slips)}"
 
 
 # ---------------------------------------------------------------------------- the map
@@ -530,7 +577,7 @@ def attractor_map(
     boundary_tol: float | None = 1e-4,
     branch_tol: float = 0.1,
     lyapunov: bool = True,
-    lyapunov_time: float = 20.0,
+    lyapunov_time: float = 10.0,
     chaos_threshold: float = 0.05,
     orbit_rtol: float = 1e-8,
     progress: bool = True,
@@ -669,8 +716,8 @@ def _boundaries(model, grid, v_top, attractors, tol, t_final, transient, sweep_k
         for a in attractors[j]:
             by_branch.setdefault(a.branch, []).append(a)
     for members in by_branch.values():
-        if members[0].kind == UNRESOLVED:
-            continue
+        if not (members[0].kind == STEADY or (members[0].kind == PERIODIC and members[0].slips)):
+            continue  # a bisection's runs get no exponents: only what a run alone tells apart is bisected
         first, last = members[0], members[-1]
         for a, outside in ((first, first.j - 1), (last, last.j + 1)):
             if 0 <= outside < grid.size:
@@ -703,10 +750,7 @@ def _boundaries(model, grid, v_top, attractors, tol, t_final, transient, sweep_k
                 e[5] = e[5] if e[5] is not None else "stopped"
                 frozen.add(id(e))
                 continue
-            still = _family(a) == _family(branch) and (
-                branch.kind == STEADY
-                or abs(a.lanes["G_slip_max"] - branch.lanes["G_slip_max"]) <= options["branch_tol"] * abs(branch.lanes["G_slip_max"])
-            )
+            still = a.near(branch, options["branch_tol"])
             if first_round and still:
                 e[2] = e[1]  # found at the outside end too: no boundary from this seed
                 e[5] = "kept"
@@ -723,7 +767,7 @@ def _boundaries(model, grid, v_top, attractors, tol, t_final, transient, sweep_k
         out["branch"].append(branch.branch)
         out["V_inside"].append(V_in)
         out["V_outside"].append(V_out)
-        out["change"].append(_change(branch.kind, branch.slips, branch.lanes.get("G_slip_max", math.nan), became))
+        out["change"].append(_change(branch, became))
         known = isinstance(became, _Attractor)
         out["becomes_kind"].append(became.kind if known else -1)
         out["becomes_slips"].append(became.slips if known else 0)

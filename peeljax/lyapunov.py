@@ -40,6 +40,11 @@ segments (median 4·10⁻⁴ %); where they differ by more than 10×, the estima
 Jumps at tangential folds (ġ → 0 at the jump: the slip ends just as G turns) are where the run's
 derivative is least accurate (:func:`peeljax.desingularized.tangential_fold`): at V = 4.9 and
 5.3 m/s the check stops the estimate in its first segment (growths 16.7× and 179× apart).
+
+:func:`lyapunov_spectra` runs many (V, start) lanes at once: each segment of every lane in one
+compiled call per chunk of lanes (dealt over the devices, one lane after another on each, as
+:func:`peeljax.periodic_orbits`), each lane stopping on its own (a stopped lane is not run again); :func:`lyapunov_exponents`
+is its one-lane case, the same numbers lane by lane (``tests/test_lyapunov.py``).
 """
 
 from __future__ import annotations
@@ -55,15 +60,17 @@ from jaxtyping import Array, ArrayLike, Float
 
 from ._validation import check_positive, check_y0
 from .constrained import ConstrainedDAE
+from ._devices import batch_mesh, deal, over_devices, put_lanes, to_host
 from .model import PeelingModel
 from .simulate import DEFAULT_MAX_JUMPS, simulate
 from .solution import StopReason
 
-__all__ = ["LyapunovExponents", "lyapunov_exponents"]
+__all__ = ["LyapunovExponents", "lyapunov_exponents", "lyapunov_spectra"]
 
 _BATCHES = 10  # batch means for the standard error
 _CHECK_STEP = 1e-6  # the nearby run's distance, relative to |x| (V = 1.1: the growths agree to 0.13 % at worst)
 _CHECK_FACTOR = 10.0  # the leading tangent's growth and the nearby run's may differ by this factor
+_CHUNK = 16  # lanes per compiled call of lyapunov_spectra (the last chunk padded)
 
 
 class LyapunovExponents(eqx.Module):
@@ -119,9 +126,8 @@ class LyapunovExponents(eqx.Module):
         return f"Lyapunov exponents at V = {self.V:g} m/s (τ = 0): {rows} ({self.message})"
 
 
-@eqx.filter_jit
 def _segment(model, V, y, Q, *, duration: float, rtol: float, atol: float, max_steps: int):
-    """One segment: the state after ``duration``, the tangents Q carried and orthonormalized
+    """One lane's segment: the state after ``duration``, the tangents Q carried and orthonormalized
     again (Q_k), the run's status, log diag R_k and the check's |log(growth ratio)|."""
     d = Q.shape[0]
 
@@ -147,16 +153,59 @@ def _segment(model, V, y, Q, *, duration: float, rtol: float, atol: float, max_s
     return y_end, Q_new * signs, status, jnp.log(jnp.abs(jnp.diagonal(R))), disagreement
 
 
-def _is_steady(model, V, y, settings) -> bool:
-    """No jump and no motion beyond the error control's tolerance over one segment from y."""
+def _plain_run(model, V, y, Q, *, duration: float, rtol: float, atol: float, max_steps: int, max_jumps: int):
+    """One lane's run without tangents (``Q`` unused): its last state, status, stop time and jumps."""
+    del Q
     run = simulate(
-        model, V=V, tau=0, t_final=settings["duration"], y0=y, ts=np.array([0.0, settings["duration"]]),
-        rtol=settings["rtol"], atol=settings["atol"], max_steps=settings["max_steps"],
+        model, V=V, tau=0, t_final=duration, y0=y, ts=np.array([0.0, duration]), rtol=rtol, atol=atol,
+        max_steps=max_steps, max_jumps=max_jumps,
     )  # fmt: skip
-    if int(run.status) != StopReason.COMPLETED or int(run.stats["jumps"]) > 0:
-        return False
-    x0, x1 = np.asarray(y)[:3], np.asarray(run.ys[-1])[:3]
-    return bool(np.all(np.abs(x1 - x0) <= 100 * (settings["rtol"] * np.abs(x0) + settings["atol"])))
+    return run.ys[-1], run.status, run.t_stop, run.stats["jumps"]
+
+
+@eqx.filter_jit
+def _on_lanes(lane, model, V, y, Q, mesh, **settings):
+    """``lane`` on every lane (V, y, Q): one after another on each device, the lanes dealt over
+    the devices (as :func:`peeljax.periodic_orbits`: a vmapped loop would run every lane until
+    the slowest is done)."""
+
+    def lanes(model, V, y, Q):
+        return jax.lax.map(lambda one: lane(model, *one, **settings), (V, y, Q))
+
+    return over_devices(lanes, mesh, (model,), (V, y, Q))
+
+
+class _Lanes:
+    """The lanes' placement: padded to whole chunks of ``chunk`` lanes (one program for any number
+    of lanes), each chunk dealt over the devices."""
+
+    def __init__(self, n: int, devices, chunk: int = _CHUNK):
+        self.n, self.devices = n, list(devices)
+        self.chunk = -(-max(chunk, len(self.devices)) // len(self.devices)) * len(self.devices)
+        self.padded = -(-n // self.chunk) * self.chunk
+        self.mesh = batch_mesh(self.devices)
+
+    def __call__(self, lane, model, V, y, Q, **settings):
+        """``lane`` over the n lanes (host arrays in, host arrays out, lane order kept)."""
+        fill = np.concatenate([np.arange(self.n), np.full(self.padded - self.n, self.n - 1)])
+        blocks = []
+        for first in range(0, self.padded, self.chunk):
+            dealt = deal(np.arange(self.chunk), len(self.devices))  # position in the chunk, device-major
+            order = fill[first : first + self.chunk][dealt]
+            arrays = [V[order], y[order], Q[order]]
+            arrays = put_lanes(arrays, self.devices) if self.mesh is not None else [jnp.asarray(a) for a in arrays]
+            out = _on_lanes(lane, model, *arrays, mesh=self.mesh, **settings)
+            back = np.empty(self.chunk, int)
+            back[dealt] = np.arange(self.chunk)
+            blocks.append((out, back))
+        outs = [jax.tree_util.tree_map(lambda a, back=back: a[back], to_host(out)) for out, back in blocks]
+        return jax.tree_util.tree_map(lambda *a: np.concatenate(a)[: self.n], *outs)
+
+
+def _is_moving(y, y_end, rtol: float, atol: float) -> np.ndarray:
+    """Per lane: x moved beyond the error control's tolerance over the run from y to y_end."""
+    x0, x1 = y[:, :3], y_end[:, :3]
+    return np.any(np.abs(x1 - x0) > 100 * (rtol * np.abs(x0) + atol), axis=1)
 
 
 def _linearized_exponents(model, V, y) -> np.ndarray:
@@ -210,12 +259,59 @@ def lyapunov_exponents(
         (``status``, ``stopped_at``; the exponents are those of the segments before it, NaN
         where none was counted, the message says where and why).
     """
-    model = PeelingModel() if model is None else model
     if np.ndim(V) != 0:
         raise ValueError(f"V must be one pull velocity (a number in (0, inf)), got an array of shape {np.shape(V)}")
     check_positive("V", V)
+    check_y0(y0)
+    return lyapunov_spectra(
+        model, [float(V)], None if y0 is None else np.asarray(y0, float)[None], n=n, t_total=t_total, segment=segment,
+        t_transient=t_transient, rtol=rtol, atol=atol, max_steps=max_steps, seed=seed, progress=progress,
+        devices=jax.devices()[:1], chunk=1,
+    )[0]  # fmt: skip
+
+
+def lyapunov_spectra(
+    model: PeelingModel | None = None,
+    V: ArrayLike = (1.1,),
+    y0: ArrayLike | None = None,
+    *,
+    n: int = 2,
+    t_total: float = 100.0,
+    segment: float = 0.5,
+    t_transient: float = 10.0,
+    rtol: float = 1e-8,
+    atol: float = 1e-10,
+    max_steps: int = 100_000,
+    seed: int = 0,
+    progress: bool = False,
+    devices=None,
+    chunk: int = _CHUNK,
+) -> list[LyapunovExponents]:
+    """:func:`lyapunov_exponents` at many (V, y0) at once: every segment of every lane in one
+    compiled call per ``chunk`` lanes, the lanes dealt over ``devices`` (default: every device
+    JAX sees; on a CPU one per core), each lane stopping on its own (the same tangents, checks
+    and results as :func:`lyapunov_exponents` lane by lane).
+
+    Args:
+        V: the lanes' pull velocities [m/s], shape (m,).
+        y0: (m, 4) initial states (default: the paper's initial data at each V).
+        chunk: lanes per compiled call (the last chunk padded; one program for any m).
+        n, t_total, segment, t_transient, rtol, atol, max_steps, seed, progress: as
+            :func:`lyapunov_exponents`, the same for every lane.
+
+    Returns:
+        One :class:`LyapunovExponents` per lane, in lane order.
+    """
+    model = PeelingModel() if model is None else model
+    V = np.atleast_1d(np.asarray(V, float))
+    if V.ndim != 1 or V.size == 0:
+        raise ValueError(f"V must be a 1-d array of pull velocities, got shape {V.shape}")
+    check_positive("V", V)
     if y0 is not None:
+        y0 = np.asarray(y0, float)
         check_y0(y0)
+        if y0.shape != (V.size, 4):
+            raise ValueError(f"y0 must be one state (alpha, omega, u, v) per V, shape ({V.size}, 4), got {y0.shape}")
     dimension = 3
     if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= dimension:
         raise ValueError(f"n must be an integer in [1, {dimension}] (x = (alpha, omega, u)), got {n!r}")
@@ -225,67 +321,99 @@ def lyapunov_exponents(
         raise ValueError(f"t_transient must be a number in [0, inf), got {t_transient!r}")
     if segment > t_total:
         raise ValueError(f"segment must lie in (0, t_total] = (0, {t_total:g}], got {segment:g}")
-    count = round(t_total / segment)
+    if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
+        raise ValueError(f"chunk must be an integer >= 1, got {chunk!r}")
+    m, count = V.size, round(t_total / segment)
+    devices = jax.devices() if devices is None else devices
 
-    def stopped(status: int, at: float) -> LyapunovExponents:  # the transient stopped
+    def lanes(which, lane, model, V, y, Q, **settings):  # the lanes ``which`` only (stopped ones are not run)
+        return _Lanes(which.size, devices, chunk)(lane, model, V[which], y[which], Q[which], **settings)
+
+    y = np.stack([np.asarray(model.initial_state(v)) for v in V]) if y0 is None else y0.copy()
+    Q0, _ = np.linalg.qr(np.random.default_rng(seed).normal(size=(dimension, n)))
+    Q = np.repeat(Q0[None], m, axis=0)
+    settings = {"rtol": float(rtol), "atol": float(atol)}
+    common = {"V": V, "segment": float(segment), "t_transient": float(t_transient)}
+
+    def stopped(i: int, status: int, at: float) -> LyapunovExponents:  # the transient stopped
         nan = jnp.full(n, jnp.nan)
         return LyapunovExponents(
-            exponents=nan, standard_error=nan, history=jnp.zeros((0, n)), t=jnp.zeros(0), V=float(V),
+            exponents=nan, standard_error=nan, history=jnp.zeros((0, n)), t=jnp.zeros(0), V=float(V[i]),
             segment=float(segment), t_transient=float(t_transient), status=status, stopped_at=at,
         )  # fmt: skip
 
-    def trouble(run_status, log_r, disagreement) -> tuple[int, str] | None:
-        """(status, why) where a segment cannot be counted, else None."""
-        if int(run_status) != StopReason.COMPLETED:
-            return int(run_status), ""
-        if not np.all(np.isfinite(np.asarray(log_r))):
-            return int(StopReason.NONFINITE), "the tangents overflowed"
-        if not float(disagreement) <= math.log(_CHECK_FACTOR):
-            return int(StopReason.COMPLETED), (
-                f"the leading tangent's growth over the segment and that of a run from a nearby state differ by a "
-                f"factor {math.exp(min(float(disagreement), 700.0)):.3g} (> {_CHECK_FACTOR:g}): the run's derivative is "
-                f"not the flow's there (a tangential fold or a grazing: peeljax.lyapunov's docstring)"
-            )
-        return None
-
-    start = model.initial_state(V) if y0 is None else jnp.asarray(y0, float)
-    if t_transient > 0:
-        transient = simulate(
-            model, V=V, tau=0, t_final=float(t_transient), y0=start, ts=np.array([0.0, float(t_transient)]),
-            rtol=rtol, atol=atol, max_steps=max_steps * math.ceil(t_transient / segment),
-            max_jumps=DEFAULT_MAX_JUMPS * math.ceil(t_transient / segment),
+    results: list[LyapunovExponents | None] = [None] * m
+    if t_transient > 0:  # every lane
+        per = math.ceil(t_transient / segment)
+        y_end, status, t_stop, _ = lanes(
+            np.arange(m), _plain_run, model, V, y, Q, duration=float(t_transient), max_steps=int(max_steps) * per,
+            max_jumps=DEFAULT_MAX_JUMPS * per, **settings,
         )  # fmt: skip
-        if int(transient.status) != StopReason.COMPLETED:
-            return stopped(int(transient.status), float(transient.t_stop) - t_transient)
-        start = transient.ys[-1]
-    y = jnp.asarray(start, float)
-    settings = {"duration": float(segment), "rtol": float(rtol), "atol": float(atol), "max_steps": int(max_steps)}
-    if _is_steady(model, V, y, settings):
-        exponents = _linearized_exponents(model, V, y)[:n]
-        return LyapunovExponents(
+        for i in np.flatnonzero(status != StopReason.COMPLETED):
+            results[i] = stopped(i, int(status[i]), float(t_stop[i]) - t_transient)
+        y = np.where((status == StopReason.COMPLETED)[:, None], y_end, y)
+    started = np.asarray([r is None for r in results])
+    steady = np.zeros(m, bool)
+    if started.any():
+        y_end, status, _, jumps = lanes(
+            np.flatnonzero(started), _plain_run, model, V, y, Q, duration=float(segment), max_steps=int(max_steps),
+            max_jumps=DEFAULT_MAX_JUMPS, **settings,
+        )  # fmt: skip
+        steady[started] = (status == StopReason.COMPLETED) & (jumps == 0) & ~_is_moving(y[started], y_end, rtol, atol)
+    for i in np.flatnonzero(steady):
+        exponents = _linearized_exponents(model, V[i], y[i])[:n]
+        results[i] = LyapunovExponents(
             exponents=jnp.asarray(exponents), standard_error=jnp.zeros(n), history=jnp.asarray(exponents)[None],
-            t=jnp.zeros(1), V=float(V), segment=float(segment), t_transient=float(t_transient),
+            t=jnp.zeros(1), V=float(V[i]), segment=float(segment), t_transient=float(t_transient),
             status=int(StopReason.COMPLETED), stopped_at=math.nan, steady=True,
         )  # fmt: skip
-    Q, _ = np.linalg.qr(np.random.default_rng(seed).normal(size=(dimension, n)))
-    Q = jnp.asarray(Q)
-    V_traced = jnp.asarray(float(V))  # (a Python float would be a static argument: one compilation per V)
+    running = np.asarray([r is None for r in results])
     align = max(count // 10, 1)  # segments that turn the tangents towards the leading directions, not counted
-    growth = np.zeros((count, n))
-    status, done, why = StopReason.COMPLETED, count, ""
+    growth = np.zeros((m, count, n))
+    done, status_of, why = np.full(m, count), np.full(m, int(StopReason.COMPLETED)), [""] * m
     for k in range(-align, count):
-        y_next, Q_next, *checked = _segment(model, V_traced, y, Q, **settings)
-        run_status, log_r, disagreement = jax.device_get(checked)  # one transfer to the host per segment
-        if (problem := trouble(run_status, log_r, disagreement)) is not None:
-            (status, why), done = problem, max(k, 0)
+        which = np.flatnonzero(running)
+        if not which.size:
             break
-        y, Q = y_next, Q_next
-        if k < 0:
-            continue
-        growth[k] = log_r / segment
-        if progress and (k + 1) % align == 0:
-            print(f"lyapunov_exponents: {k + 1}/{count} segments, λ = {growth[: k + 1].mean(axis=0)}", file=sys.stderr)
-    growth = growth[:done]
+        y_next, Q_next, run_status, log_r, disagreement = lanes(
+            which, _segment, model, V, y, Q, duration=float(segment), max_steps=int(max_steps), **settings
+        )  # fmt: skip
+        counted = np.ones(which.size, bool)
+        for lane, i in enumerate(which):
+            if (problem := _trouble(run_status[lane], log_r[lane], disagreement[lane])) is not None:
+                (status_of[i], why[i]), done[i] = problem, max(k, 0)
+                running[i], counted[lane] = False, False
+        y[which[counted]], Q[which[counted]] = y_next[counted], Q_next[counted]
+        if k >= 0:
+            growth[which[counted], k] = log_r[counted] / segment
+        if progress and k >= 0 and (k + 1) % align == 0:
+            print(
+                f"lyapunov_exponents: {k + 1}/{count} segments, {running.sum()} of {m} lanes running", file=sys.stderr
+            )
+    for i in range(m):
+        if results[i] is None:
+            results[i] = _estimate(growth[i, : done[i]], count, n, status_of[i], why[i], **common | {"V": V[i]})
+    return results
+
+
+def _trouble(run_status, log_r, disagreement) -> tuple[int, str] | None:
+    """(status, why) where a segment cannot be counted, else None."""
+    if int(run_status) != StopReason.COMPLETED:
+        return int(run_status), ""
+    if not np.all(np.isfinite(np.asarray(log_r))):
+        return int(StopReason.NONFINITE), "the tangents overflowed"
+    if not float(disagreement) <= math.log(_CHECK_FACTOR):
+        return int(StopReason.COMPLETED), (
+            f"the leading tangent's growth over the segment and that of a run from a nearby state differ by a "
+            f"factor {math.exp(min(float(disagreement), 700.0)):.3g} (> {_CHECK_FACTOR:g}): the run's derivative is "
+            f"not the flow's there (a tangential fold or a grazing: peeljax.lyapunov's docstring)"
+        )
+    return None
+
+
+def _estimate(growth, count, n, status, why, *, V, segment, t_transient) -> LyapunovExponents:
+    """The exponents, their batch-means standard errors and history from the segments' growths."""
+    done = growth.shape[0]
     steps = np.arange(1, done + 1)[:, None]
     history = np.cumsum(growth, axis=0) / steps if done else np.zeros((0, n))
     exponents = history[-1] if done else np.full(n, np.nan)
@@ -297,5 +425,6 @@ def lyapunov_exponents(
     return LyapunovExponents(
         exponents=jnp.asarray(exponents), standard_error=jnp.asarray(standard_error), history=jnp.asarray(history),
         t=jnp.asarray(segment * np.arange(1, done + 1)), V=float(V), segment=float(segment),
-        t_transient=float(t_transient), status=int(status), stopped_at=math.nan if done == count else segment * done, why=why,
+        t_transient=float(t_transient), status=int(status), stopped_at=math.nan if done == count else segment * done,
+        why=why,
     )  # fmt: skip

@@ -3,6 +3,8 @@ checked against the periodic orbit and the Lyapunov exponents' rule, files, and 
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -55,7 +57,9 @@ def test_each_lane_keeps_the_state_at_its_last_slip_on_the_section():
     [
         ((0.8, -0.1), (0.05, 0.05), CHAOTIC),
         ((0.01, -0.02), (0.01, 0.01), QUASI_PERIODIC),
-        ((0.0, -2.7), (0.01, 0.01), IRREGULAR),  # a periodic orbit not resolved as one
+        ((0.0, -2.7), (0.01, 0.01), PERIODIC),  # a limit cycle: λ₂ < 0 makes λ₁ the flow's zero
+        ((0.1, -2.7), (0.2, 0.2), PERIODIC),  # (λ₁ itself known to 0.2 only)
+        ((0.1, -0.3), (0.2, 0.2), IRREGULAR),  # λ₂ not negative beyond 3 SE: nothing decided
         ((np.nan, np.nan), (np.nan, np.nan), IRREGULAR),
         ((0.8, -0.1), (np.nan, np.nan), IRREGULAR),  # no standard error: nothing decided
     ],
@@ -101,6 +105,11 @@ def test_the_map_finds_the_paper_orbit_with_its_period_and_basins(tmp_path):
     np.testing.assert_array_equal(back.period, amap.period)
     assert "periodic (k=" in back.summary()
     assert back.to_xarray()["label"].size == amap.kind.size
+    again = back.orbit(i)  # the orbit again from the file, e.g. to continue it
+    np.testing.assert_allclose(float(again.period), amap.period[i], rtol=1e-7)
+    unknown = dataclasses.replace(back, fields=back.fields | {"slips": np.zeros_like(back.slips)})  # k=? everywhere
+    with pytest.raises(ValueError, match=r"'periodic \(k=\?\)': only a periodic orbit with k known"):
+        unknown.orbit(i)
 
 
 @pytest.mark.parametrize(

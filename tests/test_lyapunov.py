@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import peeljax as pj
+from peeljax.model import PAPER_ALPHA0
 
 
 @pytest.mark.parametrize(
@@ -23,7 +24,7 @@ import peeljax as pj
     ],
 )
 def test_bad_input_is_refused_before_compiling(options, match, monkeypatch):
-    monkeypatch.setattr(pj.lyapunov, "_segment", None)  # nothing may run
+    monkeypatch.setattr(pj.lyapunov, "_on_lanes", None)  # nothing may run
     with pytest.raises(ValueError, match=match):
         pj.lyapunov_exponents(**options)
 
@@ -94,5 +95,38 @@ def test_a_new_V_compiles_nothing_new(caplog):
     pj.lyapunov_exponents(V=1.1, t_total=1.0, t_transient=0.5)
     with jax.log_compiles(), caplog.at_level(logging.WARNING):
         pj.lyapunov_exponents(V=1.2, t_total=1.0, t_transient=0.5)
-    compiled = [r.getMessage() for r in caplog.records if "Compiling" in r.getMessage() and "_segment" in r.getMessage()]
-    assert not compiled, compiled
+    # (the check can fail: a static V compiles the lanes' program again, named in the log)
+    messages = [r.getMessage() for r in caplog.records if "Compiling" in r.getMessage()]
+    assert not [m for m in messages if "_on_lanes" in m], messages
+
+
+@pytest.mark.slow
+def test_lanes_in_one_batch_are_the_lanes_one_by_one():
+    """lyapunov_spectra runs every lane's segments in one program per chunk (padded, dealt over
+    the devices): each lane's exponents are those of its own lyapunov_exponents, a steady lane
+    its linearization's and a lane whose transient stops says so."""
+    model = pj.PeelingModel()
+    V = np.array([1.1, 2.0, 0.2])
+    y0 = np.stack([model.initial_state(1.1), model.initial_state(2.0), model.consistent_state(0.2, PAPER_ALPHA0, 0.2 / model.R, 0.2)])
+    options = {"t_total": 2.0, "t_transient": 1.0}
+    lanes = pj.lyapunov_spectra(V=V, y0=y0, chunk=2, **options)
+    assert len(lanes) == 3
+    for lane, v, y in zip(lanes, V, y0):
+        alone = pj.lyapunov_exponents(V=float(v), y0=y, **options)
+        assert lane.V == v and lane.steady == alone.steady and lane.status == alone.status
+        np.testing.assert_allclose(lane.exponents, alone.exponents, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(lane.standard_error, alone.standard_error, rtol=1e-9, atol=1e-12)
+    assert lanes[2].steady and not lanes[0].steady
+    stopped = pj.lyapunov_spectra(V=V[:2], max_steps=20, chunk=2, **options)
+    assert all(r.stopped_at < 0 and r.status != pj.StopReason.COMPLETED for r in stopped)
+    assert all("the transient stopped" in r.message for r in stopped)
+
+
+def test_lanes_bad_input_is_refused_before_compiling(monkeypatch):
+    monkeypatch.setattr(pj.lyapunov, "_on_lanes", None)  # nothing may run
+    with pytest.raises(ValueError, match=r"y0 must be one state .* per V, shape \(2, 4\)"):
+        pj.lyapunov_spectra(V=[1.0, 2.0], y0=np.ones((3, 4)))
+    with pytest.raises(ValueError, match="chunk must be an integer >= 1"):
+        pj.lyapunov_spectra(V=[1.0], chunk=0)
+    with pytest.raises(ValueError, match="V must"):
+        pj.lyapunov_spectra(V=[1.0, -1.0])

@@ -1,4 +1,4 @@
-"""Notebooks 01–06 run top to bottom (nbclient, the ``notebooks`` extra; skipped without it).
+"""Notebooks 01–07 run top to bottom (nbclient, the ``notebooks`` extra; skipped without it).
 
 CI sets ``PEELJAX_NOTEBOOK_T_FINAL=0.2`` so that every run is short (and the grids of 03 and the
 fit of 04 small); outputs are not stored. Measured on 2 shared CPU cores: 03 about 1 min, 04
@@ -25,6 +25,7 @@ NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks"
         "04_fitting_phi.ipynb",
         "05_stick_slip.ipynb",
         "06_orbits.ipynb",
+        "07_attractor_map.ipynb",
     ],
 )
 def test_notebook_runs(name, monkeypatch):

@@ -17,10 +17,12 @@ _COLOURS = ("0.35", "tab:blue", "tab:green", "tab:red", "tab:orange", "tab:purpl
 def plot_attractor_map(amap, *, title: str | None = None, path: str | Path | None = None) -> Figure:
     """The attractors of an :class:`peeljax.AttractorMap` against V, three panels.
 
-    (a) The smallest re-stick force G of each attractor (at τ = 0 every slip starts at φ's
-        maximum, so the force where the tape sticks again is what tells attractors apart;
-        steady peeling: none, drawn at the bottom edge), coloured by its label, one marker per attractor and V; the boundaries located
-        by bisection as vertical lines at their brackets' middles, named by their change.
+    (a) The mean time between slips of each attractor (T/k on a periodic orbit; at τ = 0 every
+        slip starts at φ's maximum and every stick at its minimum, so the forces at the jumps
+        are V's alone and the time between slips is what tells attractors apart; steady
+        peeling: none, drawn at the bottom edge), log axis, coloured by its label, one marker
+        per attractor and V; the boundaries located by bisection as vertical lines at their
+        brackets' middles, named by their change.
     (b) The period T of periodic attractors (log axis), with k (slips per period) beside
         each branch's first point; |μ₁| of the orbit as the marker's fill (1: white).
     (c) The basin shares among the random starts (stacked, with binomial standard errors as
@@ -36,13 +38,16 @@ def plot_attractor_map(amap, *, title: str | None = None, path: str | Path | Non
     fig = Figure(figsize=(9.0, 9.0), layout="constrained")
     ax_force, ax_period, ax_basin = fig.subplots(3, 1, sharex=True, height_ratios=(3, 2, 2))
     V, kind = np.asarray(amap.V), np.asarray(amap.kind)
-    G = np.asarray(amap.G_stick_min, float)
-    floor = np.nanmin(G) * 0.9 if np.any(np.isfinite(G)) else 0.0
+    orbit = (kind == PERIODIC) & (np.asarray(amap.slips) > 0)  # (k = 0: a limit cycle by its exponents alone)
+    interval = 1e3 * np.where(orbit, np.asarray(amap.period) / np.maximum(np.asarray(amap.slips), 1),
+                              np.asarray(amap.slip_interval, float))  # fmt: skip
+    interval[kind == STEADY] = np.nan
+    floor = np.nanmin(interval) * 0.8 if np.any(np.isfinite(interval)) else 1.0
     for code, name in enumerate(ATTRACTOR_KINDS):
         mask = kind == code
         if not mask.any():
             continue
-        y = np.full(mask.sum(), floor) if code == STEADY else G[mask]
+        y = np.full(mask.sum(), floor) if code == STEADY else interval[mask]
         ax_force.scatter(V[mask], y, s=9, color=_COLOURS[code], label=f"{name} ({mask.sum()})", marker="_" if code == STEADY else "o")
     b = amap.boundaries
     for i in range(np.size(b["branch"])):
@@ -51,10 +56,11 @@ def plot_attractor_map(amap, *, title: str | None = None, path: str | Path | Non
             ax.axvline(where, color="0.6", lw=0.6, ls=":")
         ax_force.annotate(str(b["change"][i]), (where, 1.0), xycoords=("data", "axes fraction"), rotation=90,
                           fontsize=6, va="top", ha="right", color="0.3")  # fmt: skip
-    ax_force.set_ylabel("re-stick force G [N]")
+    ax_force.set_yscale("log")
+    ax_force.set_ylabel("mean time between slips [ms]")
     ax_force.legend(fontsize=7, loc="lower right")
 
-    periodic = kind == PERIODIC
+    periodic = orbit
     if periodic.any():
         mu = np.clip(np.asarray(amap.multiplier, float)[periodic], 0.0, 1.0)
         ax_period.scatter(V[periodic], np.asarray(amap.period)[periodic], c=1.0 - mu, cmap="Blues", vmin=0, vmax=1,
