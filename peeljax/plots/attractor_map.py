@@ -22,9 +22,11 @@ def plot_attractor_map(amap, *, title: str | None = None, path: str | Path | Non
         are V's alone and the time between slips is what tells attractors apart; steady
         peeling: none, drawn at the bottom edge), log axis, coloured by its label, one marker
         per attractor and V; the boundaries located by bisection as vertical lines at their
-        brackets' middles, named by their change.
+        brackets' middles, named by their change where it is not a grazing or a loss to
+        another attractor (those: ``amap.summary()``).
     (b) The period T of periodic attractors (log axis), with k (slips per period) beside
-        each branch's first point; |μ₁| of the orbit as the marker's fill (1: white).
+        the first point of each branch of three V or more; |μ₁| of the orbit as the marker's
+        fill (1: white).
     (c) The basin shares among the random starts (stacked, with binomial standard errors as
         bars on each share).
 
@@ -54,6 +56,8 @@ def plot_attractor_map(amap, *, title: str | None = None, path: str | Path | Non
         where = 0.5 * (b["V_inside"][i] + b["V_outside"][i])
         for ax in (ax_force, ax_period, ax_basin):
             ax.axvline(where, color="0.6", lw=0.6, ls=":")
+        if str(b["change"][i]).startswith(("lost", "grazing")):
+            continue  # (many: named in amap.summary(), not on the figure)
         ax_force.annotate(str(b["change"][i]), (where, 1.0), xycoords=("data", "axes fraction"), rotation=90,
                           fontsize=6, va="top", ha="right", color="0.3")  # fmt: skip
     ax_force.set_yscale("log")
@@ -70,7 +74,10 @@ def plot_attractor_map(amap, *, title: str | None = None, path: str | Path | Non
         ax_period.yaxis.set_minor_formatter(ScalarFormatter())
         branch = np.asarray(amap.branch)[periodic]
         slips = np.asarray(amap.slips)[periodic]
+        members = np.bincount(branch - branch.min())
         for i in np.unique(branch, return_index=True)[1]:
+            if members[branch[i] - branch.min()] < 3:
+                continue  # k written at branches of three V or more
             ax_period.annotate(f"k={slips[i]}", (V[periodic][i], np.asarray(amap.period)[periodic][i]), fontsize=6,
                                xytext=(2, 2), textcoords="offset points")  # fmt: skip
     ax_period.set_ylabel("period T [s] (fill: 1 − |μ₁|)")
