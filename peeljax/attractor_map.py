@@ -110,8 +110,9 @@ class AttractorMap:
         V: the pull velocities of the grid [m/s], shape (m,).
         V_index, V, kind, …: per attractor (shape (n,), in order of V): the grid index and V,
             the label (an index into :data:`ATTRACTOR_KINDS`), k = slips per period (0 where not
-            periodic, or a limit cycle known by its exponents alone), the period [s] and |μ₁| of a periodic orbit (NaN otherwise), λ₁, λ₂ and
-            λ₁'s standard error [1/s] (NaN where not computed), the statistics of a run on it
+            periodic, or a limit cycle known by its exponents alone), the period [s] and |μ₁| of
+            a periodic orbit (NaN otherwise), λ₁, λ₂ and λ₁'s standard error [1/s] (NaN where
+            not computed), the statistics of a run on it
             (largest slip force and smallest re-stick force G [N], mean time between slips [s],
             stick fraction, mean v [m/s]), how many runs ended on it (``hits``), its basin share
             among the random starts with its binomial standard error, and its branch.
@@ -459,8 +460,8 @@ def _classify(model, V_grid, js, y_start, lanes, options) -> list[_Attractor]:
     kind, slips, period, multiplier = _labels(model, V, lanes, options)
     say(f"{np.sum(kind == PERIODIC)} periodic orbits refined, {np.sum(kind == STEADY)} steady, {np.sum(kind == IRREGULAR)} undecided")
     # Run again, longer, where a longer window could show the repeat: runs with few slips in
-    # theirs (a run with many shows any repeat of up to _MAX_SLIPS slips already; run again
-    # too, 440 such runs of the 200-V map found no orbit more, at 230 s).
+    # theirs (a run with many shows any repeat of up to _MAX_SLIPS slips already: running all
+    # 440 undecided runs of the 200-V map again took 230 s and found no orbit more).
     few = np.asarray([times.size for times in lanes["kept_slips"]]) < 2 * _MAX_SLIPS + 1
     longer = np.flatnonzero((kind == IRREGULAR) & few & np.all(np.isfinite(lanes["slip_state"]), axis=1))
     if longer.size and options["extend"] > 1:
@@ -487,7 +488,10 @@ def _classify(model, V_grid, js, y_start, lanes, options) -> list[_Attractor]:
             if a.kind != IRREGULAR or not np.all(np.isfinite(a.state)):
                 continue
             twin = next((b for b in first if b.j == a.j and b.same(a)), None)
-            first.append(a) if twin is None else twins.append((a, twin))
+            if twin is None:
+                first.append(a)
+            else:
+                twins.append((a, twin))
         if first:
             say(f"Lyapunov exponents of the {len(first)} attractors still undecided, in one batch")
             V_first = np.asarray([V_grid[a.j] for a in first])
