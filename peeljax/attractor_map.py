@@ -13,7 +13,13 @@ trajectory, all lanes of a round one compiled program over every device):
 3. **Labels.** *steady*: no jump in the window. *periodic (k slips per period)*: the repeat found
    (strictly, or to 3 % on the later part of the window) and the orbit found from the last slip
    by :func:`peeljax.periodic_orbits` (batched Newton on the return map; converged with
-   |μ₁| < 1), with its exact period and Floquet multipliers. Otherwise the largest two Lyapunov
+   |μ₁| < 1), with its exact period and Floquet multipliers. *Near an unstable orbit (k)*:
+   Newton converges from the run to an orbit with |μ₁| ≥ 1 whose period is the run's repeat
+   (to 3 %): the run has not yet left it. Not an attractor: kept as a row with this label (where
+   runs linger, and how often: ``hits``, its basin share), never a seed or a bisected branch. (From steady peeling at 2.2–4.8 m/s the runs
+   shadow a k = 1 orbit whose complex pair of multipliers lies just outside the unit circle,
+   |μ₁| ≈ 1.0004: the slip intervals spread by e in ~9 s and the run leaves after 20–40 s.)
+   Otherwise the largest two Lyapunov
    exponents through the jumps (:func:`peeljax.lyapunov_spectra`, all such runs in one batch,
    from their last slips): *chaotic* where λ₁ > 0 beyond three standard errors and
    ``chaos_threshold``; *periodic (k=?)* where λ₂ < 0 beyond them (a bounded attractor of a
@@ -37,7 +43,8 @@ trajectory, all lanes of a round one compiled program over every device):
    ends are direct runs, one on each side (the attractor found there / not found from its seed),
    and the change is named from what the seed reaches beyond it: *stick-slip ends* (it peels
    steadily), *period doubling* (2k slips, the period doubled to 5 %), *grazing* (another k,
-   the period continuous to 5 %), *steady peeling ends*, or *lost* (to another attractor).
+   the period continuous to 5 %), *loses stability* (the seed stays near the branch's orbit,
+   now with |μ₁| ≥ 1), *steady peeling ends*, or *lost* (to another attractor).
 
 A steady run at V where φ has no fold and a periodic orbit are exact; the other labels rest on
 finite runs: the tolerances above say how far. :func:`peeljax.plots.plot_attractor_map` draws
@@ -67,8 +74,10 @@ __all__ = ["ATTRACTOR_KINDS", "AttractorMap", "attractor_label", "attractor_map"
 
 DEFAULT_V = np.linspace(0.3, 5.4, 200)  # [m/s]: the stick-slip range of the paper's φ and its ends
 DEFAULT_V.setflags(write=False)
-ATTRACTOR_KINDS: tuple[str, ...] = ("steady", "periodic", "quasi-periodic", "chaotic", "irregular", "unresolved")
-STEADY, PERIODIC, QUASI_PERIODIC, CHAOTIC, IRREGULAR, UNRESOLVED = range(len(ATTRACTOR_KINDS))
+ATTRACTOR_KINDS: tuple[str, ...] = (
+    "steady", "periodic", "quasi-periodic", "chaotic", "irregular", "unresolved", "near an unstable orbit",
+)  # fmt: skip
+STEADY, PERIODIC, QUASI_PERIODIC, CHAOTIC, IRREGULAR, UNRESOLVED, UNSTABLE = range(len(ATTRACTOR_KINDS))
 
 _LOOSE_REPEAT = 3e-2  # the repeat looked for on the later part of a window that shows none strictly
 _SAME_PERIOD = 1e-5  # two refined orbits with these relative periods are one
@@ -96,10 +105,11 @@ BOUNDARY_FIELDS: tuple[str, ...] = ("branch", "V_inside", "V_outside", "change",
 
 def attractor_label(kind: int, slips: int) -> str:
     """An attractor's label: its kind, with k for a periodic one (``"periodic (k=2)"``;
-    ``"periodic (k=?)"``: a limit cycle by its exponents, its orbit not found)."""
-    if kind != PERIODIC:
+    ``"periodic (k=?)"``: a limit cycle by its exponents, its orbit not found) and for the
+    unstable orbit a run has not yet left (``"near an unstable orbit (k=1)"``)."""
+    if kind not in (PERIODIC, UNSTABLE):
         return ATTRACTOR_KINDS[kind]
-    return f"periodic (k={slips})" if slips else "periodic (k=?)"
+    return f"{ATTRACTOR_KINDS[kind]} (k={slips})" if slips else f"{ATTRACTOR_KINDS[kind]} (k=?)"
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -295,17 +305,19 @@ def _candidates(lanes: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def _refine(model, V, state, slips, period, orbit_rtol) -> tuple[np.ndarray, ...]:
-    """The periodic candidates' orbits, batched: (converged and stable, k, period, |μ₁|), k the
-    orbit's own (at most the candidate's)."""
+    """The periodic candidates' orbits, batched: (converged and stable, converged and unstable,
+    k, period, |μ₁|), k the orbit's own (at most the candidate's). An unstable orbit counts
+    where its period is the run's repeat (to the loose repeat's 3 %): the run shadows it."""
     slips = np.array(slips, np.int64)
     if V.size == 0:
-        return np.zeros(0, bool), slips, np.zeros(0), np.zeros(0)
+        return np.zeros(0, bool), np.zeros(0, bool), slips, np.zeros(0), np.zeros(0)
     orbits = _padded_orbits(model, V, state, slips, period, orbit_rtol)
     status = orbits["status"]
     mu = np.abs(orbits["multipliers"])
     mu1 = mu.max(axis=1) if mu.ndim == 2 else mu
     ok = (status == 0) & (mu1 < 1.0)
     T = np.asarray(orbits["period"], float)
+    unstable = (status == 0) & (mu1 >= 1.0) & (np.abs(T - period) <= _LOOSE_REPEAT * period)
     # An orbit of k slips may repeat after k/p of them (p a prime factor of k): Newton on P^k
     # finds it too. Each such orbit shoots again with k/p; kept where it closes in T·(k/p)/k.
     while True:
@@ -323,7 +335,7 @@ def _refine(model, V, state, slips, period, orbit_rtol) -> tuple[np.ndarray, ...
                 slips[i], T[i], mu1[i], changed = fewer[lane], T_short[lane], np.abs(short["multipliers"][lane]).max(), True
         if not changed:
             break
-    return ok, slips, T, mu1
+    return ok, unstable, slips, T, mu1
 
 
 def _padded_orbits(model, V, state, slips, period, orbit_rtol):
@@ -406,7 +418,7 @@ class _Attractor:
     def same(self, other: "_Attractor") -> bool:
         if (self.kind, self.slips) != (other.kind, other.slips):
             return False
-        if self.kind == PERIODIC and self.slips:
+        if self.kind in (PERIODIC, UNSTABLE) and self.slips:
             return abs(self.period - other.period) <= _SAME_PERIOD * self.period
         if self.kind in (STEADY, UNRESOLVED):
             return True
@@ -420,7 +432,7 @@ class _Attractor:
         """The mean time between slips [s]: T/k on a periodic orbit, the run's mean elsewhere. At
         τ = 0 every slip starts at φ's maximum and every stick at its minimum: the forces at the
         jumps are those of V, the same for every attractor; the time between slips is its own."""
-        if self.kind == PERIODIC and self.slips:
+        if self.kind in (PERIODIC, UNSTABLE) and self.slips:
             return self.period / self.slips
         return float(self.lanes.get("slip_interval", math.nan))
 
@@ -446,9 +458,13 @@ def _labels(model, V: np.ndarray, lanes: dict, options) -> tuple[np.ndarray, np.
     cand = np.flatnonzero(kind == PERIODIC)
     multiplier = np.full(kind.size, np.nan)
     if cand.size:
-        ok, k, T, mu1 = _refine(model, V[cand], lanes["slip_state"][cand], slips[cand], period[cand], options["orbit_rtol"])
-        slips[cand[ok]], period[cand[ok]], multiplier[cand[ok]] = k[ok], T[ok], mu1[ok]
-        kind[cand[~ok]], slips[cand[~ok]], period[cand[~ok]] = IRREGULAR, 0, np.nan
+        ok, unstable, k, T, mu1 = _refine(
+            model, V[cand], lanes["slip_state"][cand], slips[cand], period[cand], options["orbit_rtol"]
+        )
+        found = ok | unstable
+        slips[cand[found]], period[cand[found]], multiplier[cand[found]] = k[found], T[found], mu1[found]
+        kind[cand[unstable]] = UNSTABLE
+        kind[cand[~found]], slips[cand[~found]], period[cand[~found]] = IRREGULAR, 0, np.nan
     return kind, slips, period, multiplier
 
 
@@ -458,7 +474,8 @@ def _classify(model, V_grid, js, y_start, lanes, options) -> list[_Attractor]:
     V = V_grid[js]
     say = options["say"]
     kind, slips, period, multiplier = _labels(model, V, lanes, options)
-    say(f"{np.sum(kind == PERIODIC)} periodic orbits refined, {np.sum(kind == STEADY)} steady, {np.sum(kind == IRREGULAR)} undecided")
+    say(f"{np.sum(kind == PERIODIC)} periodic orbits refined, {np.sum(kind == STEADY)} steady, "
+        f"{np.sum(kind == UNSTABLE)} near an unstable orbit, {np.sum(kind == IRREGULAR)} undecided")
     # Run again, longer, where a longer window could show the repeat: runs with few slips in
     # theirs (a run with many shows any repeat of up to _MAX_SLIPS slips already: running all
     # 440 undecided runs of the 200-V map again took 230 s and found no orbit more).
@@ -559,6 +576,9 @@ def _change(branch: _Attractor, became) -> str:
         return "stick-slip ends"
     if branch.kind == STEADY:
         return "steady peeling ends"
+    if branch.kind == PERIODIC and became.kind == UNSTABLE and became.slips == branch.slips:
+        if abs(became.period - branch.period) <= _GRAZING_JUMP * branch.period:
+            return f"loses stability (|mu1| = {became.multiplier:.4f})"
     if branch.kind == PERIODIC and became.kind == PERIODIC:
         if became.slips == 2 * branch.slips and abs(became.period - 2 * branch.period) <= _GRAZING_JUMP * 2 * branch.period:
             return "period doubling"
@@ -653,7 +673,7 @@ def attractor_map(
         seeds_j, seeds_y = [], []
         for j in range(m):
             for a in [a for k in (j - 1, j + 1) for a in attractors.get(k, []) if id(a) in fresh]:
-                if a.kind in (STEADY, UNRESOLVED) or not np.all(np.isfinite(a.state)):
+                if a.kind in (STEADY, UNRESOLVED, UNSTABLE) or not np.all(np.isfinite(a.state)):
                     continue
                 if any((b.kind, b.slips) == (a.kind, a.slips) for b in attractors.get(j, [])):
                     continue
@@ -781,7 +801,7 @@ def _boundaries(model, grid, v_top, attractors, tol, t_final, transient, sweep_k
 
 def _family(a: _Attractor) -> tuple[int, int]:
     """What a bisection compares: steady, periodic with k, or stick-slip without an orbit."""
-    return (a.kind, a.slips) if a.kind in (STEADY, PERIODIC, UNRESOLVED) else (IRREGULAR, 0)
+    return (a.kind, a.slips) if a.kind in (STEADY, PERIODIC, UNRESOLVED, UNSTABLE) else (IRREGULAR, 0)
 
 
 def _classify_free(model, Vs, y0, lanes, options) -> list[_Attractor]:

@@ -15,7 +15,15 @@ from peeljax.attractor_map import (
     IRREGULAR,
     PERIODIC,
     QUASI_PERIODIC,
+    UNSTABLE,
+    _Attractor,
+    _change,
     _label_irregular,
+    _labels,
+    _merge,
+    _run,
+    _steady_states,
+    attractor_label,
     attractor_map,
 )
 from peeljax.branches import phi_folds
@@ -66,6 +74,32 @@ def test_each_lane_keeps_the_state_at_its_last_slip_on_the_section():
 )
 def test_the_exponents_rule(lam, se, kind):
     assert _label_irregular(np.asarray(lam), np.asarray(se), 0.05) == kind
+
+
+def test_a_run_near_an_unstable_orbit_is_no_attractor():
+    """A row with its own label (where runs linger), never a seed; a branch's seed that stays
+    near its orbit, now unstable, names the boundary."""
+    orbit = _Attractor(j=0, kind=PERIODIC, slips=1, period=3.9e-3, multiplier=0.98, lanes={}, state=np.zeros(4))
+    near = dataclasses.replace(orbit, kind=UNSTABLE, period=3.871e-3, multiplier=1.0004)
+    assert attractor_label(UNSTABLE, 1) == "near an unstable orbit (k=1)"
+    attractors: dict = {}
+    assert _merge(attractors, [near, dataclasses.replace(near), orbit], np.array([False, True, False])) == [near, orbit]
+    assert (near.hits, near.random_hits) == (2, 1)  # one row for both runs; the random start's share
+    assert _change(orbit, near) == "loses stability (|mu1| = 1.0004)"
+    assert _change(orbit, dataclasses.replace(near, slips=2)) == "lost to near an unstable orbit (k=2)"
+
+
+@pytest.mark.slow
+def test_the_run_from_steady_peeling_at_3_m_s_is_near_an_unstable_orbit():
+    """V = 3.0935: the run from steady peeling repeats one slip per 3.871 ms for its 4 s, and
+    Newton finds that orbit with |μ₁| just above 1 (it spreads by e in ~9 s and leaves after
+    20–40 s, measured): near an unstable orbit, not an attractor."""
+    model, V = pj.PeelingModel(), np.array([3.0935])
+    lanes = _run(model, V, _steady_states(model, V), 4.0, 2.0, {})
+    kind, slips, period, multiplier = _labels(model, V, lanes, {"orbit_rtol": 1e-8})
+    assert (kind[0], slips[0]) == (UNSTABLE, 1), (kind, slips)
+    np.testing.assert_allclose(period[0], 3.871e-3, rtol=1e-3)
+    assert 1.0 < multiplier[0] < 1.01
 
 
 @pytest.mark.parametrize(

@@ -11,7 +11,7 @@ from matplotlib.ticker import ScalarFormatter
 __all__ = ["plot_attractor_map"]
 
 # One colour per label (the order of peeljax.attractor_map.ATTRACTOR_KINDS).
-_COLOURS = ("0.35", "tab:blue", "tab:green", "tab:red", "tab:orange", "tab:purple")
+_COLOURS = ("0.35", "tab:blue", "tab:green", "tab:red", "tab:orange", "tab:purple", "tab:brown")
 
 
 def plot_attractor_map(amap, *, title: str | None = None, path: str | Path | None = None) -> Figure:
