@@ -62,17 +62,7 @@ def main(argv=None) -> int:
     t_brute = time.perf_counter() - t0
 
     labels = Counter(amap.labels)
-    missing, transient = [], 0
-    for s, start in enumerate(smap.starts):
-        for j in np.flatnonzero(smap.events[s] > 0):
-            k = int(smap.events[s][j])
-            here = (amap.V_index == j) & (amap.slips == k)
-            if np.any(here & (amap.kind == PERIODIC)):
-                continue
-            if np.any(here & (amap.kind == UNSTABLE)):
-                transient += 1  # the brute force's repeat is a run still near an unstable orbit
-            else:
-                missing.append(f"V = {V[j]:.4f}: periodic k = {k} (from {start})")
+    missing, transient, multiple = compare(amap, smap)
     b = amap.boundaries
     command = "python benchmarks/attractor_map.py" + ("" if args.n_V == 200 else f" --n-V {args.n_V}")
     lines = [
@@ -92,6 +82,9 @@ def main(argv=None) -> int:
         f"Periodic repeats of the brute-force map that are runs near an unstable orbit of the same k "
         f"(not attractors; on the attractor map with that label): {transient}",
         "",
+        f"Periodic repeats of the brute-force map that are an orbit of the attractor map counted over several "
+        f"of its periods (k and T both a multiple of the orbit's): {multiple}",
+        "",
         f"Periodic attractors of the brute-force map not on the attractor map: {len(missing)}",
         *(f"- {line}" for line in missing[:20]),
         "",
@@ -106,6 +99,28 @@ def main(argv=None) -> int:
     name = "attractor_map.md" if args.n_V >= 200 else "attractor_map_quick.md"
     (RESULTS / name).write_text(text)
     return 0
+
+
+def compare(amap, smap) -> tuple[list[str], int, int]:
+    """The brute-force map's periodic repeats (k, T) against the attractor map at the same V:
+    (those not on it, those it labels near an unstable orbit, those that are one of its orbits
+    repeated over several periods: k = m·k', T = m·T' to 1e-3)."""
+    missing, transient, multiple = [], 0, 0
+    for s, start in enumerate(smap.starts):
+        for j in np.flatnonzero(smap.events[s] > 0):
+            k, T = int(smap.events[s][j]), float(smap.period[s][j])
+            here = amap.V_index == j
+            if np.any(here & (amap.kind == PERIODIC) & (amap.slips == k)):
+                continue
+            if np.any(here & (amap.kind == UNSTABLE) & (amap.slips == k)):
+                transient += 1  # the brute force's repeat is a run still near an unstable orbit
+                continue
+            orbits = np.flatnonzero(here & (amap.kind == PERIODIC) & (amap.slips > 0))
+            if any(k % amap.slips[i] == 0 and abs(T - k // amap.slips[i] * amap.period[i]) <= 1e-3 * T for i in orbits):
+                multiple += 1
+            else:
+                missing.append(f"V = {amap.grid_V[j]:.4f}: periodic k = {k} (from {start})")
+    return missing, transient, multiple
 
 
 if __name__ == "__main__":

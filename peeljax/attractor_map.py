@@ -578,7 +578,7 @@ def _change(branch: _Attractor, became) -> str:
         return "steady peeling ends"
     if branch.kind == PERIODIC and became.kind == UNSTABLE and became.slips == branch.slips:
         if abs(became.period - branch.period) <= _GRAZING_JUMP * branch.period:
-            return f"loses stability (|mu1| = {became.multiplier:.4f})"
+            return f"loses stability (|mu1| = {became.multiplier:.6f})"
     if branch.kind == PERIODIC and became.kind == PERIODIC:
         if became.slips == 2 * branch.slips and abs(became.period - 2 * branch.period) <= _GRAZING_JUMP * 2 * branch.period:
             return "period doubling"

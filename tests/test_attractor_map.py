@@ -85,7 +85,7 @@ def test_a_run_near_an_unstable_orbit_is_no_attractor():
     attractors: dict = {}
     assert _merge(attractors, [near, dataclasses.replace(near), orbit], np.array([False, True, False])) == [near, orbit]
     assert (near.hits, near.random_hits) == (2, 1)  # one row for both runs; the random start's share
-    assert _change(orbit, near) == "loses stability (|mu1| = 1.0004)"
+    assert _change(orbit, near) == "loses stability (|mu1| = 1.000400)"
     assert _change(orbit, dataclasses.replace(near, slips=2)) == "lost to near an unstable orbit (k=2)"
 
 
