@@ -15,13 +15,13 @@ trajectory, all lanes of a round one compiled program over every device):
    by :func:`peeljax.periodic_orbits` (batched Newton on the return map; converged with
    |μ₁| < 1), with its exact period and Floquet multipliers. *Near an unstable orbit (k)*:
    Newton converges from the run to an orbit with |μ₁| ≥ 1 whose period is the run's repeat
-   (to 3 %): the run has not yet left it. Not an attractor: kept as a row with this label (where
-   runs linger, and how often: ``hits``, its basin share), never a seed or a bisected branch. (From steady peeling at 2.2–4.8 m/s the runs
-   shadow a k = 1 orbit whose complex pair of multipliers lies just outside the unit circle,
-   |μ₁| ≈ 1.0004: the slip intervals spread by e in ~9 s and the run leaves after 20–40 s.)
-   Otherwise the largest two Lyapunov
-   exponents through the jumps (:func:`peeljax.lyapunov_spectra`, all such runs in one batch,
-   from their last slips): *chaotic* where λ₁ > 0 beyond three standard errors and
+   (to 3 %): the run has not yet left it. Not an attractor: kept as a row with this label
+   (where runs linger, and how often: ``hits``, its basin share), never a seed or a bisected
+   branch. (From steady peeling at 2.3–4.8 m/s the runs shadow a k = 1 orbit whose complex
+   pair of multipliers lies just outside the unit circle, |μ₁| = 1.0001–1.0012: at 3.09 m/s
+   the slip intervals spread by e in ~9 s and the run leaves after 20–40 s.) Otherwise the
+   largest two Lyapunov exponents through the jumps (:func:`peeljax.lyapunov_spectra`, all
+   such runs in one batch, from their last slips): *chaotic* where λ₁ > 0 beyond three standard errors and
    ``chaos_threshold``; *periodic (k=?)* where λ₂ < 0 beyond them (a bounded attractor of a
    flow has a zero exponent along the flow; λ₂ < 0 makes it λ₁, and an attractor with no other
    exponent ≥ 0 is a limit cycle: its orbit not found, k not known); *quasi-periodic* where λ₁
