@@ -4,6 +4,7 @@ The modules follow the data flow; each imports only those above it:
 
     model.py, adhesion.py    the DAE: f(x, v), the constraint (sac), φ(v, V)
     structure.py             ∂f/∂x, ∂f/∂v, F̃, ∂φ/∂v by autodiff; J_t(τ); the local index
+    steady.py                steady peeling and its linear stability (where it ends)
     homogenized.py           ψ(y; τ) of eq. (hv): the ODE every integrator solves (``ODE``)
     integrators/             one contract (base.py), three integrators → ``Solution``
     simulate.py              one run, its options checked before anything compiles
@@ -132,6 +133,7 @@ from .structure import (  # noqa: E402
     schur_complement,
     truncated_schur_complement,
 )
+from .steady import steady_eigenvalues, steady_jacobian, steady_peeling_ends, steady_state  # noqa: E402
 from .sweeps import LeastTau, StickSlipMap, SweepResult, least_tau, stick_slip_map, sweep  # noqa: E402
 from .attractor_map import AttractorMap, attractor_map  # noqa: E402
 
@@ -207,6 +209,10 @@ __all__ = [
     "schur_complement",
     "simulate",
     "simulate_reference",
+    "steady_eigenvalues",
+    "steady_jacobian",
+    "steady_peeling_ends",
+    "steady_state",
     "stick_slip_map",
     "sweep",
     "trajectory_structure",

@@ -68,6 +68,7 @@ from .cycles import repeat_pattern
 from .model import PAPER_ALPHA0, PeelingModel
 from .saved import register_reader
 from .solution import StopReason
+from .steady import FOLD, HOPF, steady_peeling_ends
 from .sweeps.stick_slip_map import fold_table, map_lanes
 
 __all__ = ["ATTRACTOR_KINDS", "AttractorMap", "attractor_label", "attractor_map", "check_attractor_map_options"]
@@ -96,6 +97,7 @@ ATTRACTOR_FIELDS: tuple[str, ...] = (
     "G_slip_max", "G_stick_min", "slip_interval", "stick_fraction", "v_mean", "hits", "basin", "basin_se",
     "branch",
 )  # fmt: skip
+_STEADY_END = {FOLD: "fold of phi: dphi/dv(V, V) = 0", HOPF: "Hopf bifurcation"}
 _INT_FIELDS = ("V_index", "kind", "slips", "hits", "branch")
 _KIND = "attractor-map"  # the files' kind (peeljax.load)
 _UNITS = {"V": "m/s", "period": "s", "lyapunov": "1/s", "lyapunov_2": "1/s", "lyapunov_se": "1/s", "G_slip_max": "N",
@@ -739,17 +741,22 @@ def _boundaries(model, grid, v_top, attractors, tol, t_final, transient, sweep_k
     for j in sorted(attractors):
         for a in attractors[j]:
             by_branch.setdefault(a.branch, []).append(a)
+    exact = []  # [branch attractor, V_stable, V_unstable, kind]: steady ends from the linearisation
     for members in by_branch.values():
         if not (members[0].kind == STEADY or (members[0].kind == PERIODIC and members[0].slips)):
             continue  # a bisection's runs get no exponents: only what a run alone tells apart is bisected
         first, last = members[0], members[-1]
         for a, outside in ((first, first.j - 1), (last, last.j + 1)):
-            if 0 <= outside < grid.size:
-                ends.append([a, float(grid[a.j]), float(grid[outside]), a.state, float(v_top[a.j]), None])
-    if not ends:
-        return {k: np.zeros(0) for k in BOUNDARY_FIELDS} | {"change": np.zeros(0, str)}
+            if not 0 <= outside < grid.size:
+                continue
+            if a.kind == STEADY:
+                end = _steady_end(model, grid[min(a.j, outside)], grid[max(a.j, outside)], a.j < outside, tol)
+                if end is not None:
+                    exact.append([a, *end])
+                    continue
+            ends.append([a, float(grid[a.j]), float(grid[outside]), a.state, float(v_top[a.j]), None])
     first_round, frozen = True, set()
-    while True:
+    while ends:
         todo = [e for e in ends if id(e) not in frozen and (first_round or abs(e[2] - e[1]) > tol)]
         if not todo:
             break
@@ -785,6 +792,13 @@ def _boundaries(model, grid, v_top, attractors, tol, t_final, transient, sweep_k
                 e[2], e[5] = float(V), a
         first_round = False
     out = {k: [] for k in BOUNDARY_FIELDS}
+    for branch, V_in, V_out, kind in exact:
+        out["branch"].append(branch.branch)
+        out["V_inside"].append(V_in)
+        out["V_outside"].append(V_out)
+        out["change"].append(f"steady peeling ends ({_STEADY_END[kind]})")
+        out["becomes_kind"].append(-1)
+        out["becomes_slips"].append(0)
     for branch, V_in, V_out, _, _, became in ends:
         if became == "kept":  # the seed kept its attractor at the neighbour: no boundary
             continue
@@ -797,6 +811,17 @@ def _boundaries(model, grid, v_top, attractors, tol, t_final, transient, sweep_k
         out["becomes_slips"].append(became.slips if known else 0)
     return {k: np.asarray(v, str if k == "change" else (int if k in ("branch", "becomes_kind", "becomes_slips") else float))
             for k, v in out.items()}  # fmt: skip
+
+
+def _steady_end(model, V_lo: float, V_hi: float, stable_below: bool, tol: float) -> tuple[float, float, str] | None:
+    """The end of a steady branch between two grid values from the linearisation
+    (:func:`peeljax.steady.steady_peeling_ends`): (V_stable, V_unstable, kind), bracketed to
+    ``min(tol, 1e-8)``; None where the linearisation does not put it there (then it is bisected
+    by runs)."""
+    stable, V_stable, V_unstable, kinds = steady_peeling_ends(model, np.array([V_lo, V_hi]), xtol=min(tol, 1e-8))
+    if kinds and bool(stable[0]) == stable_below:
+        return float(V_stable[0]), float(V_unstable[0]), kinds[0]
+    return None
 
 
 def _family(a: _Attractor) -> tuple[int, int]:

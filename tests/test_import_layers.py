@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[1] / "peeljax"
 LAYERS = [
     ("utilities", {"_devices", "_arrays", "_atomic", "_compilation_cache", "_exported", "_cotangents", "_files", "_linalg", "_memory", "_npz", "_panels", "_validation"}),
     ("model", {"model", "adhesion"}),
-    ("structure", {"structure", "branches"}),
+    ("structure", {"structure", "branches", "steady"}),
     ("homogenized ODE and the DAE", {"homogenized", "constrained", "desingularized"}),
     ("the result type", {"solution", "run_file"}),
     ("integrators", {"integrators"}),
