@@ -44,9 +44,14 @@ trajectory, all lanes of a round one compiled program over every device):
    and the change is named from what the seed reaches beyond it: *stick-slip ends* (it peels
    steadily), *period doubling* (2k slips, the period doubled to 5 %), *grazing* (another k,
    the period continuous to 5 %), *loses stability* (the seed stays near the branch's orbit,
-   now with |μ₁| ≥ 1), *steady peeling ends*, or *lost* (to another attractor).
+   now with |μ₁| ≥ 1), *steady peeling ends*, or *lost* (to another attractor). A branch of
+   steady peeling ends where its linearisation says (:func:`peeljax.steady_peeling_ends`: at a
+   fold of φ, ∂φ/∂v(V, V) = 0, or a Hopf bifurcation), located to 1e-8 m/s without a run:
+   close to a fold runs cannot bracket it (the damping of steady peeling vanishes there and its
+   stiffness grows without bound); bisected by runs only where the linearisation does not put
+   the end between the two grid values.
 
-A steady run at V where φ has no fold and a periodic orbit are exact; the other labels rest on
+Steady peeling's stability, its ends and a periodic orbit are exact; the other labels rest on
 finite runs: the tolerances above say how far. :func:`peeljax.plots.plot_attractor_map` draws
 the result.
 """
@@ -455,19 +460,27 @@ def _steady_states(model, V: np.ndarray) -> np.ndarray:
 
 
 def _labels(model, V: np.ndarray, lanes: dict, options) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per lane: label, k, period and |μ₁| from the run and the orbits refined from it."""
+    """Per lane: label, k, period and |μ₁| from the run and the orbits refined from it. Lanes
+    where ``options["refine"]`` (if given) is False keep their periodic candidates unrefined
+    (|μ₁| NaN): :func:`_refine_candidates` settles them later."""
     kind, slips, period = _candidates(lanes)
-    cand = np.flatnonzero(kind == PERIODIC)
     multiplier = np.full(kind.size, np.nan)
-    if cand.size:
-        ok, unstable, k, T, mu1 = _refine(
-            model, V[cand], lanes["slip_state"][cand], slips[cand], period[cand], options["orbit_rtol"]
-        )
-        found = ok | unstable
-        slips[cand[found]], period[cand[found]], multiplier[cand[found]] = k[found], T[found], mu1[found]
-        kind[cand[unstable]] = UNSTABLE
-        kind[cand[~found]], slips[cand[~found]], period[cand[~found]] = IRREGULAR, 0, np.nan
+    refine = options.get("refine")
+    cand = np.flatnonzero((kind == PERIODIC) & (True if refine is None else refine))
+    _refine_candidates(model, V, lanes["slip_state"], kind, slips, period, multiplier, cand, options["orbit_rtol"])
     return kind, slips, period, multiplier
+
+
+def _refine_candidates(model, V, states, kind, slips, period, multiplier, cand, orbit_rtol) -> None:
+    """Refine the periodic candidates ``cand`` in place: periodic (stable orbit found), near an
+    unstable orbit, or irregular (none found)."""
+    if not cand.size:
+        return
+    ok, unstable, k, T, mu1 = _refine(model, V[cand], states[cand], slips[cand], period[cand], orbit_rtol)
+    found = ok | unstable
+    slips[cand[found]], period[cand[found]], multiplier[cand[found]] = k[found], T[found], mu1[found]
+    kind[cand[unstable]] = UNSTABLE
+    kind[cand[~found]], slips[cand[~found]], period[cand[~found]] = IRREGULAR, 0, np.nan
 
 
 def _classify(model, V_grid, js, y_start, lanes, options) -> list[_Attractor]:
@@ -773,8 +786,16 @@ def _boundaries(model, grid, v_top, attractors, tol, t_final, transient, sweep_k
         rounds.append(len(todo))
         lanes = _run(model, Vs, y0, t_final, transient, sweep_kwargs)
         # Which attractor a seed reaches: its label and k, no exponents (they only tell
-        # undecided runs apart, and a bisection needs none of that).
-        found = _classify_free(model, Vs, y0, lanes, options | {"lyapunov": False, "extend": 1.0})
+        # undecided runs apart, and a bisection needs none of that). Newton only where a
+        # candidate could be the branch's orbit (k a multiple of the branch's: the orbit may
+        # close after fewer slips); the others are not, and only the last one of each bracket
+        # is refined, once the bisection is done, to name the change.
+        refine = np.asarray([
+            e[0].kind != PERIODIC or int(k) % e[0].slips == 0 for e, k in zip(todo, _candidates(lanes)[1])
+        ])  # fmt: skip
+        found = _classify_free(model, Vs, y0, lanes, options | {"lyapunov": False, "extend": 1.0, "refine": refine})
+        for a, r in zip(found, refine):
+            a.lanes["unrefined"] = bool(a.kind == PERIODIC and not r)
         for e, a, V, top in zip(todo, found, Vs, tops):
             branch = e[0]
             if a.kind == UNRESOLVED:  # a run that stopped says nothing: the bracket stays where it is
@@ -791,6 +812,7 @@ def _boundaries(model, grid, v_top, attractors, tol, t_final, transient, sweep_k
             else:
                 e[2], e[5] = float(V), a
         first_round = False
+    _refine_became(model, [(e[5], e[2]) for e in ends if isinstance(e[5], _Attractor)], options["orbit_rtol"])
     out = {k: [] for k in BOUNDARY_FIELDS}
     for branch, V_in, V_out, kind in exact:
         out["branch"].append(branch.branch)
@@ -811,6 +833,24 @@ def _boundaries(model, grid, v_top, attractors, tol, t_final, transient, sweep_k
         out["becomes_slips"].append(became.slips if known else 0)
     return {k: np.asarray(v, str if k == "change" else (int if k in ("branch", "becomes_kind", "becomes_slips") else float))
             for k, v in out.items()}  # fmt: skip
+
+
+def _refine_became(model, became: list[tuple[_Attractor, float]], orbit_rtol: float) -> None:
+    """The bisection's unrefined periodic candidates beyond the brackets (each with its V),
+    refined in one batch."""
+    pending = [(a, V) for a, V in became if a.lanes.get("unrefined")]
+    if not pending:
+        return
+    V = np.asarray([V for _, V in pending])
+    states = np.stack([a.state for a, _ in pending])
+    kind = np.full(V.size, PERIODIC)
+    slips = np.asarray([a.slips for a, _ in pending], np.int64)
+    period = np.asarray([a.period for a, _ in pending])
+    multiplier = np.full(V.size, np.nan)
+    _refine_candidates(model, V, states, kind, slips, period, multiplier, np.arange(V.size), orbit_rtol)
+    for i, (a, _) in enumerate(pending):
+        a.kind, a.slips, a.period, a.multiplier = int(kind[i]), int(slips[i]), float(period[i]), float(multiplier[i])
+        a.lanes["unrefined"] = False
 
 
 def _steady_end(model, V_lo: float, V_hi: float, stable_below: bool, tol: float) -> tuple[float, float, str] | None:
