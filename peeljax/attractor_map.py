@@ -40,7 +40,9 @@ trajectory, all lanes of a round one compiled program over every device):
 6. **Boundaries** where a branch of steady peeling or of refined periodic orbits (what a run
    tells apart without exponents) ends between two V of the grid: bisection in V, every boundary
    of a round in the same batch, from the branch's last state, to ``boundary_tol``; the bracket's
-   ends are direct runs, one on each side (the attractor found there / not found from its seed),
+   ends are direct runs, one on each side (the attractor found there / not found from its seed;
+   Newton only for a run whose k could be the branch's, the last run beyond each bracket refined
+   once at the end),
    and the change is named from what the seed reaches beyond it: *stick-slip ends* (it peels
    steadily), *period doubling* (2k slips, the period doubled to 5 %), *grazing* (another k,
    the period continuous to 5 %), *loses stability* (the seed stays near the branch's orbit,
@@ -489,8 +491,11 @@ def _classify(model, V_grid, js, y_start, lanes, options) -> list[_Attractor]:
     V = V_grid[js]
     say = options["say"]
     kind, slips, period, multiplier = _labels(model, V, lanes, options)
-    say(f"{np.sum(kind == PERIODIC)} periodic orbits refined, {np.sum(kind == STEADY)} steady, "
-        f"{np.sum(kind == UNSTABLE)} near an unstable orbit, {np.sum(kind == IRREGULAR)} undecided")
+    refined = (kind == PERIODIC) & (True if options.get("refine") is None else options["refine"])
+    later = np.sum(kind == PERIODIC) - np.sum(refined)
+    say(f"{np.sum(refined)} periodic orbits refined, {np.sum(kind == STEADY)} steady, "
+        f"{np.sum(kind == UNSTABLE)} near an unstable orbit, {np.sum(kind == IRREGULAR)} undecided"
+        + (f", {later} other candidates (refined if last beyond a bracket)" if later else ""))  # fmt: skip
     # Run again, longer, where a longer window could show the repeat: runs with few slips in
     # theirs (a run with many shows any repeat of up to _MAX_SLIPS slips already: running all
     # 440 undecided runs of the 200-V map again took 230 s and found no orbit more).

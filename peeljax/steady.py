@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Complex, Float
 
+from ._validation import check_positive
 from .model import PeelingModel
 from .structure import jacobians
 
@@ -82,9 +83,12 @@ def steady_peeling_ends(
     """
     from scipy.optimize import brentq
 
+    if not isinstance(model, PeelingModel):
+        raise TypeError(f"model must be a PeelingModel, got {type(model).__name__}")
     grid = np.atleast_1d(np.asarray(V, float))
     if grid.ndim != 1 or grid.size == 0 or np.any(np.diff(grid) <= 0):
         raise ValueError("V must be an increasing 1-d grid of pull velocities")
+    check_positive("V", grid)
     if not xtol > 0:
         raise ValueError(f"xtol must be > 0, got {xtol!r}")
 

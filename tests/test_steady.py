@@ -99,6 +99,10 @@ def test_runs_from_perturbed_steady_peeling_confirm_the_ends(ends, end, side, ju
 def test_bad_grids_are_refused():
     with pytest.raises(ValueError, match="increasing"):
         pj.steady_peeling_ends(MODEL, [1.0, 0.5])
+    with pytest.raises(ValueError, match="V must be > 0"):
+        pj.steady_peeling_ends(MODEL, [-1.0, 0.5])
+    with pytest.raises(TypeError, match="model must be a PeelingModel"):
+        pj.steady_peeling_ends("paper", [0.3, 0.4])
     with pytest.raises(ValueError, match="xtol must be > 0"):
         pj.steady_peeling_ends(MODEL, [0.3, 0.4], xtol=0.0)
 
