@@ -104,6 +104,7 @@ ATTRACTOR_FIELDS: tuple[str, ...] = (
     "G_slip_max", "G_stick_min", "slip_interval", "stick_fraction", "v_mean", "hits", "basin", "basin_se",
     "branch",
 )  # fmt: skip
+_ORBIT_FIELDS = ("status", "multipliers", "period", "state", "approach", "iterations")
 _STEADY_END = {FOLD: "fold of phi: dphi/dv(V, V) = 0", HOPF: "Hopf bifurcation"}
 _INT_FIELDS = ("V_index", "kind", "slips", "hits", "branch")
 _KIND = "attractor-map"  # the files' kind (peeljax.load)
@@ -347,7 +348,7 @@ def _refine(model, V, state, slips, period, orbit_rtol) -> tuple[np.ndarray, ...
     return ok, unstable, slips, T, mu1
 
 
-def _padded_orbits(model, V, state, slips, period, orbit_rtol):
+def _padded_orbits(model, V, state, slips, period, orbit_rtol, max_iterations: int = 20):
     """:func:`peeljax.periodic_orbits` in chunks of ``_CHUNK`` lanes, the last one padded (one
     compiled program for any number of lanes), the padding dropped."""
     from .orbits.batch import periodic_orbits
@@ -363,8 +364,10 @@ def _padded_orbits(model, V, state, slips, period, orbit_rtol):
     blocks = []
     for i in range(0, n + pad, _CHUNK):
         V_i, state_i, slips_i, period_i = (a[i : i + _CHUNK] for a in lanes)
-        orbits = periodic_orbits(model, V=V_i, start=state_i, slips=slips_i, period=period_i, rtol=orbit_rtol)
-        blocks.append({name: np.asarray(getattr(orbits, name)) for name in ("status", "multipliers", "period", "state")})
+        orbits = periodic_orbits(
+            model, V=V_i, start=state_i, slips=slips_i, period=period_i, rtol=orbit_rtol, max_iterations=max_iterations
+        )
+        blocks.append({name: np.asarray(getattr(orbits, name)) for name in _ORBIT_FIELDS})
     return {name: np.concatenate([b[name] for b in blocks])[:n] for name in blocks[0]}
 
 
@@ -773,6 +776,12 @@ def _boundaries(model, grid, v_top, attractors, tol, t_final, transient, sweep_k
                     exact.append([a, *end])
                     continue
             ends.append([a, float(grid[a.j]), float(grid[outside]), a.state, float(v_top[a.j]), None])
+    if _NEWTON_BISECTION:
+        orbit_ends = [e for e in ends if e[0].kind == PERIODIC]
+        ends = [e for e in ends if e[0].kind != PERIODIC]
+        _bisect_orbits(model, orbit_ends, tol, t_final, transient, sweep_kwargs, options, say, rounds)
+    else:
+        orbit_ends = []
     first_round, frozen = True, set()
     while ends:
         todo = [e for e in ends if id(e) not in frozen and (first_round or abs(e[2] - e[1]) > tol)]
@@ -817,6 +826,7 @@ def _boundaries(model, grid, v_top, attractors, tol, t_final, transient, sweep_k
             else:
                 e[2], e[5] = float(V), a
         first_round = False
+    ends = ends + orbit_ends
     _refine_became(model, [(e[5], e[2]) for e in ends if isinstance(e[5], _Attractor)], options["orbit_rtol"])
     out = {k: [] for k in BOUNDARY_FIELDS}
     for branch, V_in, V_out, kind in exact:
@@ -838,6 +848,94 @@ def _boundaries(model, grid, v_top, attractors, tol, t_final, transient, sweep_k
         out["becomes_slips"].append(became.slips if known else 0)
     return {k: np.asarray(v, str if k == "change" else (int if k in ("branch", "becomes_kind", "becomes_slips") else float))
             for k, v in out.items()}  # fmt: skip
+
+
+_NEWTON_BISECTION = True
+
+
+def _bisect_orbits(model, ends, tol, t_final, transient, sweep_kwargs, options, say, rounds) -> None:
+    """Locate the ends of periodic branches by Newton on the branch's orbit, continued from the
+    inside towards the neighbouring grid value with step halving (no runs): a step lands where the
+    orbit of the branch's k converges, stable, its period continuous to ``branch_tol``; a failure
+    halves the step, and one from farther than ``_TRUSTED_STEP`` is tried again from the next
+    orbit. Then a run from the last orbit at each outside end names what it becomes; where that
+    run finds the branch's orbit after all (Newton lost it, the orbit goes on), the continuation
+    goes on from there."""
+    work = [{"end": e, "V": e[1], "state": e[3], "T": e[0].period, "step": e[2] - e[1], "fail": None} for e in ends]
+    for _ in range(1 + _RESTARTS):
+        _continue_orbits(model, [w for w in work if "became" not in w], tol, options, say, rounds)
+        named = [w for w in work if "became" not in w and w["fail"] is not None]
+        if not named:
+            break
+        Vs = np.asarray([w["fail"] for w in named])
+        v_in = np.asarray([w["V"] for w in named])
+        tops = _top_of_stick_branch(fold_table(model, Vs)["v_max"], Vs)
+        tops_in = _top_of_stick_branch(fold_table(model, v_in)["v_max"], v_in)
+        y0 = np.stack([_moved(model, w["state"], t_in, V, top) for w, t_in, V, top in zip(named, tops_in, Vs, tops)])
+        say(f"{len(named)} runs beyond the boundaries")
+        rounds.append(len(named))
+        lanes = _run(model, Vs, y0, t_final, transient, sweep_kwargs)
+        found = _classify_free(model, Vs, y0, lanes, options | {"lyapunov": False, "extend": 1.0})
+        for w, a in zip(named, found):
+            branch = w["end"][0]
+            same_k = a.kind == PERIODIC and a.slips == branch.slips
+            if same_k and abs(a.period - w["T"]) <= options["branch_tol"] * w["T"]:
+                # The branch's orbit, stable, where Newton lost it: on from the run's orbit.
+                w.update(V=w["fail"], state=a.state, T=a.period, fail=None, step=w["end"][2] - w["fail"])
+                continue
+            status, mu1, T = w["newton"]
+            if status == 0 and mu1 >= 1.0 and a.kind != UNRESOLVED:
+                a.kind, a.slips, a.period, a.multiplier = UNSTABLE, branch.slips, T, mu1
+            w["became"] = "stopped" if a.kind == UNRESOLVED else a
+    for w in work:
+        e = w["end"]
+        if w["fail"] is None:
+            e[1], e[5] = e[2], "kept"  # the orbit continued to the neighbouring grid value
+        else:
+            e[1], e[2], e[3], e[5] = w["V"], w["fail"], w["state"], w.get("became", "stopped")
+
+
+def _continue_orbits(model, work: list[dict], tol, options, say, rounds) -> None:
+    """:func:`_bisect_orbits`' rounds of Newton, every unfinished end in one batch per round."""
+    while True:
+        todo = [w for w in work if (w["fail"] is None and abs(w["V"] - w["end"][2]) > 1e-12)
+                or (w["fail"] is not None and abs(w["fail"] - w["V"]) > tol)]  # fmt: skip
+        if not todo:
+            return
+        Vs = np.asarray([_next_try(w) for w in todo])
+        say(f"{len(todo)} orbits continued towards the boundaries")
+        rounds.append(len(todo))
+        orbits = _padded_orbits(
+            model, Vs, np.stack([w["state"] for w in todo]), np.asarray([w["end"][0].slips for w in todo], np.int64),
+            np.asarray([w["T"] for w in todo]), options["orbit_rtol"], max_iterations=_BISECTION_ITERATIONS,
+        )  # fmt: skip
+        mu1 = np.abs(orbits["multipliers"]).max(axis=1)
+        T = np.asarray(orbits["period"], float)
+        for i, w in enumerate(todo):
+            if orbits["status"][i] == 0 and mu1[i] < 1.0 and abs(T[i] - w["T"]) <= options["branch_tol"] * w["T"]:
+                w.update(V=float(Vs[i]), state=orbits["state"][i], T=float(T[i]))
+                if w["fail"] is not None:
+                    left = w["fail"] - w["V"]
+                    if abs(left) <= 1e-12 or np.sign(left) != np.sign(w["step"]):
+                        w["fail"] = None  # the failure was the start's, not the orbit's: on to the grid value
+                    else:  # a failure from close by stands (bisect); one from far away is tried again
+                        w["step"] = 0.5 * left if w["trusted"] else left
+            else:
+                w.update(fail=float(Vs[i]), step=0.5 * w["step"], trusted=abs(w["step"]) <= _TRUSTED_STEP)
+                w["newton"] = (int(orbits["status"][i]), float(mu1[i]), float(T[i]))
+
+
+def _next_try(w: dict) -> float:
+    """The next V of a continued end: a step from its last orbit, never past the grid value."""
+    V_grid = w["end"][2]
+    if w["fail"] is None and abs(w["step"]) >= abs(V_grid - w["V"]) - 1e-12:
+        return V_grid
+    return w["V"] + w["step"]
+
+
+_BISECTION_ITERATIONS = 8
+_RESTARTS = 2  # continuations resumed where a run found the orbit Newton had lost
+_TRUSTED_STEP = 2e-3  # m/s: Newton from an orbit this close converges where the orbit goes on (measured)
 
 
 def _refine_became(model, became: list[tuple[_Attractor, float]], orbit_rtol: float) -> None:

@@ -4,6 +4,7 @@ checked against the periodic orbit and the Lyapunov exponents' rule, files, and 
 from __future__ import annotations
 
 import dataclasses
+import importlib
 
 import numpy as np
 import pytest
@@ -87,6 +88,55 @@ def test_a_run_near_an_unstable_orbit_is_no_attractor():
     assert (near.hits, near.random_hits) == (2, 1)  # one row for both runs; the random start's share
     assert _change(orbit, near) == "loses stability (|mu1| = 1.000400)"
     assert _change(orbit, dataclasses.replace(near, slips=2)) == "lost to near an unstable orbit (k=2)"
+
+
+@pytest.mark.parametrize("boundary", [0.95317, 0.99995])
+def test_a_branch_end_is_located_by_continuing_its_orbit(monkeypatch, boundary):
+    """A model of Newton that finds the orbit below ``boundary`` only from an orbit at most 2e-3
+    away (a start from farther fails, as a real Newton may): the continuation tries every far
+    failure again from closer, brackets the end to 1e-4 and names it from one run beyond."""
+    am = importlib.import_module("peeljax.attractor_map")
+
+    def orbits(model, V, state, slips, period, orbit_rtol, max_iterations=20):
+        ok = (V < boundary) & (np.abs(V - state[:, 0]) <= 2e-3)
+        n = V.size
+        return {"status": np.where(ok, 0, 1), "multipliers": np.tile([0.5, 0.1], (n, 1)),
+                "period": np.asarray(period, float), "state": np.column_stack([V, np.zeros((n, 3))]),
+                "approach": np.full(n, -1.0), "iterations": np.full(n, 3)}  # fmt: skip
+
+    beyond = _Attractor(j=0, kind=IRREGULAR, slips=0, period=np.nan, multiplier=np.nan, lanes={}, state=np.zeros(4))
+    monkeypatch.setattr(am, "_padded_orbits", orbits)
+    monkeypatch.setattr(am, "_run", lambda model, V, *args: {})
+    monkeypatch.setattr(am, "_classify_free", lambda model, Vs, *args: [dataclasses.replace(beyond) for _ in Vs])
+    branch = _Attractor(j=0, kind=PERIODIC, slips=3, period=0.2, multiplier=0.5, lanes={}, state=np.array([0.9, 0, 0, 0]))
+    end = [branch, 0.9, 1.0, branch.state, 0.5, None]
+    rounds: list = []
+    options = {"orbit_rtol": 1e-8, "branch_tol": 0.1}
+    am._bisect_orbits(pj.PeelingModel(), [end], 1e-4, 1.0, 0.5, {}, options, lambda text: None, rounds)
+    assert end[1] < boundary <= end[2] and end[2] - end[1] <= 1e-4, end[1:3]
+    assert end[5].kind == IRREGULAR and rounds[-1] == 1  # one run beyond the bracket names it
+    kept = [branch, 0.9, 0.95, branch.state, 0.5, None]  # the orbit goes on to the grid value
+    am._bisect_orbits(pj.PeelingModel(), [kept], 1e-4, 1.0, 0.5, {}, options, lambda text: None, [])
+    assert kept[5] == "kept" and kept[1] == kept[2] == 0.95
+
+
+@pytest.mark.slow
+def test_a_branch_that_loses_stability_ends_where_its_multiplier_crosses_1():
+    """The k = 12 orbit at 1.34 m/s, continued down in V: the map's bracket has |μ₁| < 1 inside
+    and ≥ 1 outside, by periodic_orbit from the orbit inside (runs there linger near the weakly
+    unstable orbit and put the end later, at a grazing)."""
+    amap = attractor_map(V=[1.28, 1.3408], random_starts=0, seed_rounds=0, lyapunov=False, progress=False)
+    b = amap.boundaries
+    ends = [i for i, change in enumerate(b["change"]) if change.startswith("loses stability")]
+    assert ends, b
+    i = ends[0]
+    row = [r for r in range(amap.kind.size) if amap.branch[r] == b["branch"][i]][0]
+    inside = pj.periodic_orbit(V=b["V_inside"][i], start=amap.state[row][:2], slips=int(amap.slips[row]))
+    for V, stable in ((b["V_inside"][i], True), (b["V_outside"][i], False)):
+        orbit = pj.periodic_orbit(V=V, start=np.asarray(inside.section), slips=int(amap.slips[row]))
+        assert int(orbit.status) == 0
+        assert (np.abs(np.asarray(orbit.multipliers)).max() < 1.0) == stable, (V, orbit.multipliers)
+    assert abs(b["V_outside"][i] - b["V_inside"][i]) <= 1e-4
 
 
 @pytest.mark.slow
