@@ -38,20 +38,21 @@ trajectory, all lanes of a round one compiled program over every device):
    until no round finds a new one. Attractors of neighbouring V are linked into branches (same
    label and k, the mean time between slips within ``branch_tol``).
 6. **Boundaries** where a branch of steady peeling or of refined periodic orbits (what a run
-   tells apart without exponents) ends between two V of the grid: bisection in V, every boundary
-   of a round in the same batch, from the branch's last state, to ``boundary_tol``; the bracket's
-   ends are direct runs, one on each side (the attractor found there / not found from its seed;
-   Newton only for a run whose k could be the branch's, the last run beyond each bracket refined
-   once at the end),
-   and the change is named from what the seed reaches beyond it: *stick-slip ends* (it peels
+   tells apart without exponents) ends between two V of the grid, to ``boundary_tol``. A
+   periodic branch: its orbit continued by Newton (:func:`peeljax.periodic_orbits`, every end
+   of a round in one batch) from the inside towards the neighbouring grid value, the step halved
+   after each failure (a failure from more than 2e-3 m/s away is tried again from the next
+   orbit); the bracket's inside end has the branch's orbit, stable, and Newton from there finds
+   none at the outside end. Then one run from the orbit at each outside end names the change:
+   *loses stability* (Newton converged there with |μ₁| ≥ 1), *stick-slip ends* (the run peels
    steadily), *period doubling* (2k slips, the period doubled to 5 %), *grazing* (another k,
-   the period continuous to 5 %), *loses stability* (the seed stays near the branch's orbit,
-   now with |μ₁| ≥ 1), *steady peeling ends*, or *lost* (to another attractor). A branch of
-   steady peeling ends where its linearisation says (:func:`peeljax.steady_peeling_ends`: at a
-   fold of φ, ∂φ/∂v(V, V) = 0, or a Hopf bifurcation), located to 1e-8 m/s without a run:
-   close to a fold runs cannot bracket it (the damping of steady peeling vanishes there and its
-   stiffness grows without bound); bisected by runs only where the linearisation does not put
-   the end between the two grid values.
+   the period continuous to 5 %) or *lost* (to another attractor); where that run finds the
+   branch's orbit after all, the continuation goes on from it. A branch of steady peeling ends
+   where its linearisation says (:func:`peeljax.steady_peeling_ends`: at a fold of φ,
+   ∂φ/∂v(V, V) = 0, or a Hopf bifurcation), to 1e-8 m/s, without a run: close to a fold runs
+   cannot bracket it (the damping of steady peeling vanishes there and its stiffness grows
+   without bound); bisected by runs only where the linearisation does not put the end between
+   the two grid values.
 
 Steady peeling's stability, its ends and a periodic orbit are exact; the other labels rest on
 finite runs: the tolerances above say how far. :func:`peeljax.plots.plot_attractor_map` draws
@@ -104,7 +105,7 @@ ATTRACTOR_FIELDS: tuple[str, ...] = (
     "G_slip_max", "G_stick_min", "slip_interval", "stick_fraction", "v_mean", "hits", "basin", "basin_se",
     "branch",
 )  # fmt: skip
-_ORBIT_FIELDS = ("status", "multipliers", "period", "state", "approach", "iterations")
+_ORBIT_FIELDS = ("status", "multipliers", "period", "state")
 _STEADY_END = {FOLD: "fold of phi: dphi/dv(V, V) = 0", HOPF: "Hopf bifurcation"}
 _INT_FIELDS = ("V_index", "kind", "slips", "hits", "branch")
 _KIND = "attractor-map"  # the files' kind (peeljax.load)
@@ -465,27 +466,19 @@ def _steady_states(model, V: np.ndarray) -> np.ndarray:
 
 
 def _labels(model, V: np.ndarray, lanes: dict, options) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per lane: label, k, period and |μ₁| from the run and the orbits refined from it. Lanes
-    where ``options["refine"]`` (if given) is False keep their periodic candidates unrefined
-    (|μ₁| NaN): :func:`_refine_candidates` settles them later."""
+    """Per lane: label, k, period and |μ₁| from the run and the orbits refined from it."""
     kind, slips, period = _candidates(lanes)
+    cand = np.flatnonzero(kind == PERIODIC)
     multiplier = np.full(kind.size, np.nan)
-    refine = options.get("refine")
-    cand = np.flatnonzero((kind == PERIODIC) & (True if refine is None else refine))
-    _refine_candidates(model, V, lanes["slip_state"], kind, slips, period, multiplier, cand, options["orbit_rtol"])
+    if cand.size:
+        ok, unstable, k, T, mu1 = _refine(
+            model, V[cand], lanes["slip_state"][cand], slips[cand], period[cand], options["orbit_rtol"]
+        )
+        found = ok | unstable
+        slips[cand[found]], period[cand[found]], multiplier[cand[found]] = k[found], T[found], mu1[found]
+        kind[cand[unstable]] = UNSTABLE
+        kind[cand[~found]], slips[cand[~found]], period[cand[~found]] = IRREGULAR, 0, np.nan
     return kind, slips, period, multiplier
-
-
-def _refine_candidates(model, V, states, kind, slips, period, multiplier, cand, orbit_rtol) -> None:
-    """Refine the periodic candidates ``cand`` in place: periodic (stable orbit found), near an
-    unstable orbit, or irregular (none found)."""
-    if not cand.size:
-        return
-    ok, unstable, k, T, mu1 = _refine(model, V[cand], states[cand], slips[cand], period[cand], orbit_rtol)
-    found = ok | unstable
-    slips[cand[found]], period[cand[found]], multiplier[cand[found]] = k[found], T[found], mu1[found]
-    kind[cand[unstable]] = UNSTABLE
-    kind[cand[~found]], slips[cand[~found]], period[cand[~found]] = IRREGULAR, 0, np.nan
 
 
 def _classify(model, V_grid, js, y_start, lanes, options) -> list[_Attractor]:
@@ -494,11 +487,8 @@ def _classify(model, V_grid, js, y_start, lanes, options) -> list[_Attractor]:
     V = V_grid[js]
     say = options["say"]
     kind, slips, period, multiplier = _labels(model, V, lanes, options)
-    refined = (kind == PERIODIC) & (True if options.get("refine") is None else options["refine"])
-    later = np.sum(kind == PERIODIC) - np.sum(refined)
-    say(f"{np.sum(refined)} periodic orbits refined, {np.sum(kind == STEADY)} steady, "
-        f"{np.sum(kind == UNSTABLE)} near an unstable orbit, {np.sum(kind == IRREGULAR)} undecided"
-        + (f", {later} other candidates (refined if last beyond a bracket)" if later else ""))  # fmt: skip
+    say(f"{np.sum(kind == PERIODIC)} periodic orbits refined, {np.sum(kind == STEADY)} steady, "
+        f"{np.sum(kind == UNSTABLE)} near an unstable orbit, {np.sum(kind == IRREGULAR)} undecided")
     # Run again, longer, where a longer window could show the repeat: runs with few slips in
     # theirs (a run with many shows any repeat of up to _MAX_SLIPS slips already: running all
     # 440 undecided runs of the 200-V map again took 230 s and found no orbit more).
@@ -756,7 +746,7 @@ def check_attractor_map_options(
 
 
 def _boundaries(model, grid, v_top, attractors, tol, t_final, transient, sweep_kwargs, options, say, rounds) -> dict:
-    """Bisect every branch end inside the grid, all in the same rounds (module docstring, 6)."""
+    """Locate every branch end inside the grid, all in the same rounds (module docstring, 6)."""
     ends = []  # [branch attractor (inside), V_inside, V_outside, seed state, v_top of the seed's V, became]
     by_branch: dict[int, list[_Attractor]] = {}
     for j in sorted(attractors):
@@ -776,58 +766,32 @@ def _boundaries(model, grid, v_top, attractors, tol, t_final, transient, sweep_k
                     exact.append([a, *end])
                     continue
             ends.append([a, float(grid[a.j]), float(grid[outside]), a.state, float(v_top[a.j]), None])
-    if _NEWTON_BISECTION:
-        orbit_ends = [e for e in ends if e[0].kind == PERIODIC]
-        ends = [e for e in ends if e[0].kind != PERIODIC]
-        _bisect_orbits(model, orbit_ends, tol, t_final, transient, sweep_kwargs, options, say, rounds)
-    else:
-        orbit_ends = []
+    orbit_ends = [e for e in ends if e[0].kind == PERIODIC]
+    _bisect_orbits(model, orbit_ends, tol, t_final, transient, sweep_kwargs, options, say, rounds)
+    # Steady ends the linearisation does not place (none on the paper's φ): bisected by runs from
+    # steady peeling, the first round at the outside end itself (the confirming run there).
+    ends = [e for e in ends if e[0].kind == STEADY]
     first_round, frozen = True, set()
     while ends:
         todo = [e for e in ends if id(e) not in frozen and (first_round or abs(e[2] - e[1]) > tol)]
         if not todo:
             break
-        # The first round runs each seed at the outside end itself (the confirming run there).
         Vs = np.asarray([e[2] if first_round else 0.5 * (e[1] + e[2]) for e in todo])
-        tops = _top_of_stick_branch(fold_table(model, Vs)["v_max"], Vs)
-        y0 = np.stack([
-            e[3] if e[0].kind == STEADY else _moved(model, e[3], e[4], V, top) for e, V, top in zip(todo, Vs, tops)
-        ])  # fmt: skip
-        steady = [i for i, e in enumerate(todo) if e[0].kind == STEADY]
-        if steady:
-            y0[steady] = _steady_states(model, Vs[steady])
-        say(f"{len(todo)} runs bisecting the boundaries")
+        say(f"{len(todo)} runs bisecting the ends of steady peeling")
         rounds.append(len(todo))
+        y0 = _steady_states(model, Vs)
         lanes = _run(model, Vs, y0, t_final, transient, sweep_kwargs)
-        # Which attractor a seed reaches: its label and k, no exponents (they only tell
-        # undecided runs apart, and a bisection needs none of that). Newton only where a
-        # candidate could be the branch's orbit (k a multiple of the branch's: the orbit may
-        # close after fewer slips); the others are not, and only the last one of each bracket
-        # is refined, once the bisection is done, to name the change.
-        refine = np.asarray([
-            e[0].kind != PERIODIC or int(k) % e[0].slips == 0 for e, k in zip(todo, _candidates(lanes)[1])
-        ])  # fmt: skip
-        found = _classify_free(model, Vs, y0, lanes, options | {"lyapunov": False, "extend": 1.0, "refine": refine})
-        for a, r in zip(found, refine):
-            a.lanes["unrefined"] = bool(a.kind == PERIODIC and not r)
-        for e, a, V, top in zip(todo, found, Vs, tops):
-            branch = e[0]
+        found = _classify_free(model, Vs, y0, lanes, options | {"lyapunov": False, "extend": 1.0})
+        for e, a, V in zip(todo, found, Vs):
             if a.kind == UNRESOLVED:  # a run that stopped says nothing: the bracket stays where it is
                 e[5] = e[5] if e[5] is not None else "stopped"
                 frozen.add(id(e))
-                continue
-            still = a.near(branch, options["branch_tol"])
-            if first_round and still:
-                e[2] = e[1]  # found at the outside end too: no boundary from this seed
-                e[5] = "kept"
-            elif still:
-                e[1], e[4] = float(V), float(top)
-                e[3] = a.state if np.all(np.isfinite(a.state)) else e[3]
+            elif a.near(e[0], options["branch_tol"]):
+                e[1], e[2], e[5] = (e[1], e[1], "kept") if first_round else (float(V), e[2], e[5])
             else:
                 e[2], e[5] = float(V), a
         first_round = False
     ends = ends + orbit_ends
-    _refine_became(model, [(e[5], e[2]) for e in ends if isinstance(e[5], _Attractor)], options["orbit_rtol"])
     out = {k: [] for k in BOUNDARY_FIELDS}
     for branch, V_in, V_out, kind in exact:
         out["branch"].append(branch.branch)
@@ -848,9 +812,6 @@ def _boundaries(model, grid, v_top, attractors, tol, t_final, transient, sweep_k
         out["becomes_slips"].append(became.slips if known else 0)
     return {k: np.asarray(v, str if k == "change" else (int if k in ("branch", "becomes_kind", "becomes_slips") else float))
             for k, v in out.items()}  # fmt: skip
-
-
-_NEWTON_BISECTION = True
 
 
 def _bisect_orbits(model, ends, tol, t_final, transient, sweep_kwargs, options, say, rounds) -> None:
@@ -891,7 +852,8 @@ def _bisect_orbits(model, ends, tol, t_final, transient, sweep_kwargs, options, 
         e = w["end"]
         if w["fail"] is None:
             e[1], e[5] = e[2], "kept"  # the orbit continued to the neighbouring grid value
-        else:
+        else:  # the change is named against the orbit at the bracket's inside end
+            e[0] = dataclasses.replace(e[0], period=w["T"])
             e[1], e[2], e[3], e[5] = w["V"], w["fail"], w["state"], w.get("became", "stopped")
 
 
@@ -936,24 +898,6 @@ def _next_try(w: dict) -> float:
 _BISECTION_ITERATIONS = 8
 _RESTARTS = 2  # continuations resumed where a run found the orbit Newton had lost
 _TRUSTED_STEP = 2e-3  # m/s: Newton from an orbit this close converges where the orbit goes on (measured)
-
-
-def _refine_became(model, became: list[tuple[_Attractor, float]], orbit_rtol: float) -> None:
-    """The bisection's unrefined periodic candidates beyond the brackets (each with its V),
-    refined in one batch."""
-    pending = [(a, V) for a, V in became if a.lanes.get("unrefined")]
-    if not pending:
-        return
-    V = np.asarray([V for _, V in pending])
-    states = np.stack([a.state for a, _ in pending])
-    kind = np.full(V.size, PERIODIC)
-    slips = np.asarray([a.slips for a, _ in pending], np.int64)
-    period = np.asarray([a.period for a, _ in pending])
-    multiplier = np.full(V.size, np.nan)
-    _refine_candidates(model, V, states, kind, slips, period, multiplier, np.arange(V.size), orbit_rtol)
-    for i, (a, _) in enumerate(pending):
-        a.kind, a.slips, a.period, a.multiplier = int(kind[i]), int(slips[i]), float(period[i]), float(multiplier[i])
-        a.lanes["unrefined"] = False
 
 
 def _steady_end(model, V_lo: float, V_hi: float, stable_below: bool, tol: float) -> tuple[float, float, str] | None:

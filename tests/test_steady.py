@@ -117,3 +117,19 @@ def test_the_attractor_map_puts_the_steady_ends_at_the_folds(ends):
     for i, end in zip(steady, (0, 1)):
         assert b["change"][i] == "steady peeling ends (fold of phi: dphi/dv(V, V) = 0)"
         np.testing.assert_allclose([b["V_inside"][i], b["V_outside"][i]], [V_stable[end], V_unstable[end]], atol=1e-8)
+
+
+@pytest.mark.slow
+def test_where_the_linearisation_places_no_end_runs_bracket_it(ends, monkeypatch):
+    """The fallback: runs from steady peeling bisect the end; their bracket holds the fold."""
+    import importlib
+
+    am = importlib.import_module("peeljax.attractor_map")
+    monkeypatch.setattr(am, "_steady_end", lambda *args: None)
+    _, V_stable, _, _ = ends
+    amap = pj.attractor_map(V=[0.37, 0.40], random_starts=0, seed_rounds=0, lyapunov=False, progress=False)
+    b = amap.boundaries
+    steady = [i for i, change in enumerate(b["change"]) if amap.kind[amap.branch == b["branch"][i]][0] == am.STEADY]
+    assert len(steady) == 1, b
+    i = steady[0]
+    assert b["V_inside"][i] <= V_stable[0] <= b["V_outside"][i], b

@@ -29,7 +29,7 @@ def add_command(subparsers) -> None:
             "Runs from rest, steady peeling and random states on the stick branch at every V (tau = 0, the DAE "
             "itself), then from the neighbours' attractors; labels each attractor steady, periodic (k slips per "
             "period, its orbit and Floquet multiplier), quasi-periodic or chaotic (Lyapunov exponents through the "
-            "jumps); locates the boundaries of every branch by bisection in V (docs/attractors.md)."
+            "jumps); locates where every branch ends to --boundary-tol (docs/attractors.md)."
         ),
     )
     problem = parser.add_argument_group("problem")

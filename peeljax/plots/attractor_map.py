@@ -21,9 +21,9 @@ def plot_attractor_map(amap, *, title: str | None = None, path: str | Path | Non
         slip starts at φ's maximum and every stick at its minimum, so the forces at the jumps
         are V's alone and the time between slips is what tells attractors apart; steady
         peeling: none, drawn at the bottom edge), log axis, coloured by its label, one marker
-        per attractor and V; the boundaries located by bisection as vertical lines at their
-        brackets' middles, named by their change where it is not a grazing or a loss to
-        another attractor (those: ``amap.summary()``).
+        per attractor and V; the located boundaries as vertical lines at their brackets'
+        middles, named by their change where it is not a grazing, a loss of stability or a
+        loss to another attractor (those: ``amap.summary()``).
     (b) The period T of periodic attractors (log axis), with k (slips per period) beside
         the first point of each branch of three V or more; |μ₁| of the orbit as the marker's
         fill (1: white).
@@ -56,7 +56,7 @@ def plot_attractor_map(amap, *, title: str | None = None, path: str | Path | Non
         where = 0.5 * (b["V_inside"][i] + b["V_outside"][i])
         for ax in (ax_force, ax_period, ax_basin):
             ax.axvline(where, color="0.6", lw=0.6, ls=":")
-        if str(b["change"][i]).startswith(("lost", "grazing")):
+        if str(b["change"][i]).startswith(("lost", "grazing", "loses stability")):
             continue  # (many: named in amap.summary(), not on the figure)
         ax_force.annotate(str(b["change"][i]), (where, 1.0), xycoords=("data", "axes fraction"), rotation=90,
                           fontsize=6, va="top", ha="right", color="0.3")  # fmt: skip
