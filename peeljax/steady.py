@@ -8,8 +8,8 @@ x' = f(x, v(x)) with the Jacobian
     J = ∂f/∂x + ∂f/∂v ⊗ F̃ / ∂φ/∂v            (3×3, from :func:`peeljax.structure.jacobians`).
 
 Steady peeling is stable where every eigenvalue of J has a negative real part. It loses
-stability either where ∂φ/∂v(V, V) passes through 0 (v = V reaches a fold of φ: an eigenvalue
-passes through infinity, the index of Lemma 2 grows without bound) or where a complex pair
+stability either where ∂φ/∂v(V, V) passes through 0 (v = V reaches a fold of φ, where the
+DAE's index-1 condition ∂φ/∂v ≠ 0 fails: an eigenvalue passes through infinity) or where a complex pair
 crosses the imaginary axis (a Hopf bifurcation). :func:`steady_peeling_ends` locates either to
 the root finder's tolerance; the attractor map uses it for the ends of its steady branches,
 where runs slow down (close to a fold a run from steady peeling takes ~2·10⁵ steps per
@@ -49,7 +49,8 @@ def steady_jacobian(model: PeelingModel, V: ArrayLike) -> Float[Array, "3 3"]:
 
 
 def steady_eigenvalues(model: PeelingModel, V: ArrayLike) -> Complex[Array, "3"]:
-    """The eigenvalues of :func:`steady_jacobian`, the largest real part first."""
+    """The eigenvalues of :func:`steady_jacobian`, the largest real part first. Within ~1e-5 m/s
+    of a fold the small ones are lost in rounding next to the one ~ −1/∂φ/∂v."""
     lam = jnp.linalg.eigvals(steady_jacobian(model, V))
     return lam[jnp.argsort(-jnp.real(lam))]
 
