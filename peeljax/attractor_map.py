@@ -829,9 +829,8 @@ def _bisect_orbits(model, ends, tol, t_final, transient, sweep_kwargs, options, 
         if not named:
             break
         Vs = np.asarray([w["fail"] for w in named])
-        v_in = np.asarray([w["V"] for w in named])
-        tops = _top_of_stick_branch(fold_table(model, Vs)["v_max"], Vs)
-        tops_in = _top_of_stick_branch(fold_table(model, v_in)["v_max"], v_in)
+        both = np.concatenate([Vs, [w["V"] for w in named]])  # the outside ends, then the inside ones
+        tops, tops_in = np.split(_top_of_stick_branch(fold_table(model, both)["v_max"], both), 2)
         y0 = np.stack([_moved(model, w["state"], t_in, V, top) for w, t_in, V, top in zip(named, tops_in, Vs, tops)])
         say(f"{len(named)} runs beyond the boundaries")
         rounds.append(len(named))
@@ -839,8 +838,7 @@ def _bisect_orbits(model, ends, tol, t_final, transient, sweep_kwargs, options, 
         found = _classify_free(model, Vs, y0, lanes, options | {"lyapunov": False, "extend": 1.0})
         for w, a in zip(named, found):
             branch = w["end"][0]
-            same_k = a.kind == PERIODIC and a.slips == branch.slips
-            if same_k and abs(a.period - w["T"]) <= options["branch_tol"] * w["T"]:
+            if a.kind == PERIODIC and a.slips == branch.slips and _continuous(a.period, w["T"], options):
                 # The branch's orbit, stable, where Newton lost it: on from the run's orbit.
                 w.update(V=w["fail"], state=a.state, T=a.period, fail=None, step=w["end"][2] - w["fail"])
                 continue
@@ -874,7 +872,7 @@ def _continue_orbits(model, work: list[dict], tol, options, say, rounds) -> None
         mu1 = np.abs(orbits["multipliers"]).max(axis=1)
         T = np.asarray(orbits["period"], float)
         for i, w in enumerate(todo):
-            if orbits["status"][i] == 0 and mu1[i] < 1.0 and abs(T[i] - w["T"]) <= options["branch_tol"] * w["T"]:
+            if orbits["status"][i] == 0 and mu1[i] < 1.0 and _continuous(T[i], w["T"], options):
                 w.update(V=float(Vs[i]), state=orbits["state"][i], T=float(T[i]))
                 if w["fail"] is not None:
                     left = w["fail"] - w["V"]
@@ -885,6 +883,11 @@ def _continue_orbits(model, work: list[dict], tol, options, say, rounds) -> None
             else:
                 w.update(fail=float(Vs[i]), step=0.5 * w["step"], trusted=abs(w["step"]) <= _TRUSTED_STEP)
                 w["newton"] = (int(orbits["status"][i]), float(mu1[i]), float(T[i]))
+
+
+def _continuous(T: float, T_branch: float, options) -> bool:
+    """A period that continues the branch's (to ``branch_tol``, relative)."""
+    return abs(T - T_branch) <= options["branch_tol"] * T_branch
 
 
 def _next_try(w: dict) -> float:

@@ -69,10 +69,10 @@ def test_steady_peeling_ends_at_the_two_folds_of_phi(ends):
     assert 0.3862 < low < 0.3863 and 4.8027 < high < 4.8028
 
 
-def test_the_damping_of_steady_peeling_vanishes_at_the_fold():
+def test_the_damping_of_steady_peeling_vanishes_at_the_fold(ends):
     """The slow complex pair (the spool's rotation, ≈ 27 rad/s) has Re λ ∝ −∂φ/∂v(V, V): near
     the fold a run from steady peeling hardly settles, and no finite run brackets the end."""
-    _, V_stable, _, _ = pj.steady_peeling_ends(MODEL, GRID)
+    _, V_stable, _, _ = ends
     for d in (1e-2, 1e-3, 1e-4):
         V = float(V_stable[0] - d)
         lam = np.asarray(pj.steady_eigenvalues(MODEL, V))
