@@ -189,8 +189,10 @@ def test_stop_early_run_has_finite_gradients(grad_fn):
     assert any(np.any(np.asarray(g) != 0) for g in leaves)
 
 
+@pytest.mark.slow
 def test_checkpointing_keeps_values_and_gradients():
-    """checkpoint_every changes neither the trajectory nor the gradient (beyond rounding)."""
+    """checkpoint_every changes neither the trajectory nor the gradient (beyond rounding) (slow:
+    two reverse-mode programs compile for ~50 s)."""
     solver = pj.AlphaMethod(max_subdivisions=0)  # a smaller program: this test only checks the chunking
     p = params0(0.1)
     sub = {k: p[k] for k in ("c1", "V")}

@@ -78,12 +78,11 @@ def _state_after_release(p, adjoint="forward", rtol=1e-10):
 
 
 def test_derivatives_through_the_release_match_central_differences():
-    """Forward = reverse, and both within 1e-5 of central differences of runs at rtol 1e-11
-    (2e-7 measured); before the release was differentiated at fixed v, the shift along the
-    pseudo-time climb of log v left Jacobians 2e-4 to 75 % off."""
+    """Forward mode within 1e-5 of central differences of runs at rtol 1e-11 (2e-7 measured);
+    before the release was differentiated at fixed v, the shift along the pseudo-time climb of
+    log v left Jacobians 2e-4 to 75 % off. Reverse mode: the next test (slow)."""
     p = jnp.array([C6, 0.0])
     forward = jax.jacfwd(_state_after_release)(p)
-    reverse = jax.jacrev(lambda q: _state_after_release(q, "reverse"))(p)
     steps = (0.01, 1e-4)
     central = np.stack(
         [
@@ -93,9 +92,16 @@ def test_derivatives_through_the_release_match_central_differences():
         ],
         axis=1,
     )
-    np.testing.assert_allclose(np.asarray(forward), np.asarray(reverse), rtol=1e-8, atol=1e-14)
     scale = np.max(np.abs(central), axis=0)
     assert np.all(np.abs(np.asarray(forward) - central) <= 1e-5 * scale)
+
+
+@pytest.mark.slow
+def test_reverse_mode_through_the_release_is_forward_mode():
+    p = jnp.array([C6, 0.0])
+    forward = jax.jacfwd(_state_after_release)(p)
+    reverse = jax.jacrev(lambda q: _state_after_release(q, "reverse"))(p)
+    np.testing.assert_allclose(np.asarray(forward), np.asarray(reverse), rtol=1e-8, atol=1e-14)
 
 
 @pytest.mark.slow
