@@ -231,7 +231,7 @@ def measure(names, repeats: int = 5) -> dict[str, float]:
     ratios = {name: statistics.median(top) / statistics.median(bottom) for name, (_, _, top, bottom) in pairs.items()}
     print("set-up (compilation or cache reads) [s]:", {name: round(seconds, 1) for name, seconds in setup.items()})
     if "compile" in names:
-        # ~8 s a round; one compilation alone read 5.1–6.7 for the same code on a quiet machine
+        # ~8 s a round; the ratio read 4.9–6.7 between runs of the same code on a quiet machine
         ratios["compile"] = compile_ratio(rounds=min(5, max(1, repeats // 2)))
     return ratios
 

@@ -211,9 +211,10 @@ def test_rows_after_those_in_use_are_not_evaluated_and_repeat_the_last(kind):
 
 @pytest.mark.slow
 def test_jump_rows_under_an_eager_jvp_are_merged_in_the_program():
-    """(Slow: its forward-mode program compiles for ~30 s.) Under ``jax.jvp`` outside ``jit`` some of a run's arrays are traced and others (the output
+    """Under ``jax.jvp`` outside ``jit`` some of a run's arrays are traced and others (the output
     times, the count of rows) are not: the jumps' rows are then merged at the static size,
-    ``len(ts) + 2·max_jumps``, as under ``jit`` — never on the host."""
+    ``len(ts) + 2·max_jumps``, as under ``jit`` — never on the host (slow: its forward-mode
+    program compiles for ~30 s)."""
     import jax
 
     ts = np.linspace(0.0, 0.2, 5)
