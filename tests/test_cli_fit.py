@@ -213,9 +213,11 @@ def test_a_record_too_short_to_determine_a_coefficient_says_so_and_what_length_w
     assert poorly_determined(SimpleNamespace(), [record]) is None
 
 
+@pytest.mark.slow
 def test_an_interrupted_fit_writes_its_best_iterate_so_far(simulated, monkeypatch, capsys):
     """Ctrl-C after a few iterations of ``fit --data``: exit 130, --out holds the best iterate so
-    far (a file --phi reads, its stop_reason saying so), and the line on stderr says what it holds."""
+    far (a file --phi reads, its stop_reason saying so), and the line on stderr says what it holds
+    (slow: beside the end-to-end fit above, whose program it shares; ~50 s alone in the fast tier)."""
     from peeljax.fit import trajectory
 
     folder, npz = simulated
