@@ -26,8 +26,8 @@ from .integrators.alpha import AlphaMethod
 from .integrators.base import AbstractIntegrator
 from .integrators.select import DEFAULT_MAX_JUMPS, integrator_for, refuse_with_dt, resolve_max_steps
 from .model import PeelingModel
-from .simulate import _check_memory, _packed_jit, _prepare, _run, is_dae
-from .solution import Solution
+from .simulate import FIRST_MAX_JUMPS, _check_memory, _packed_jit, _prepare, _run, grown_until_it_holds, is_dae
+from .solution import Solution, StopReason, is_traced
 
 __all__ = ["Simulator"]
 
@@ -153,7 +153,7 @@ class Simulator:
         solver: str | AlphaMethod | diffrax.AbstractSolver | None = None,
         fold: str | None = None,
         max_steps: int | None = None,
-        max_jumps: int = DEFAULT_MAX_JUMPS,
+        max_jumps: int | None = None,
         dtmin: float | None = None,
         truncation: int | None = None,
         adjoint: str = "reverse",
@@ -164,13 +164,17 @@ class Simulator:
         if dt is not None:
             refuse_with_dt(dt, ts=ts)
         max_steps = resolve_max_steps(max_steps, keeps_steps=ts is None)
-        integrator_of = functools.partial(
+        # max_jumps=None: simulate's record, grown on a call that fills it (fixed when traced)
+        self._grows = max_jumps is None
+        self._integrator_of = functools.partial(
             integrator_for, solver, rho=rho, dt=dt, t_final=t_final, rtol=rtol, atol=atol, dtmin=dtmin,
-            max_steps=max_steps, adjoint=adjoint, checkpoint_every=checkpoint_every, fold=fold, max_jumps=max_jumps,
+            max_steps=max_steps, adjoint=adjoint, checkpoint_every=checkpoint_every, fold=fold,
         )  # fmt: skip
+        integrator_of = functools.partial(self._integrator_of, max_jumps=FIRST_MAX_JUMPS if self._grows else max_jumps)
         integrator = integrator_of(dae=False)
         self.ts = None if ts is None else check_output_times(ts, t_final)
         _check_memory(integrator, self.ts, max_steps, memory_limit)
+        self._max_steps, self._memory_limit = max_steps, memory_limit
         ode, _ = _prepare(model, 1.0, 1.0, None, truncation, allow_dae=True)  # the model's checks
         self.model: PeelingModel = ode.model
         self.truncation = truncation
@@ -237,7 +241,14 @@ class Simulator:
             check_y0(y0)
             rest = list(rest)
             rest[program.i_y0] = np.asarray(y0, dtype=float)
-        return self._unpadded((program.executable or program.compile())(packed, rest))
+        solution = (program.executable or program.compile())(packed, rest)
+        if self._grows and int(solution.status) == StopReason.MAX_JUMPS:
+            ode, y0 = _prepare(self.model, v, t, y0, self.truncation, allow_dae=True)
+            solution = self._grown(solution, ode, y0, t == 0.0)
+        return self._unpadded(solution)
+
+    def _integrator(self, dae: bool, max_jumps: int) -> AbstractIntegrator:
+        return self._integrator_of(dae=dae, max_jumps=max_jumps)
 
     def _unpadded(self, solution: Solution) -> Solution:
         # as simulate returns a dense output: the output times and the jumps, not the rows left for more
@@ -252,4 +263,18 @@ class Simulator:
         if dae:
             self._refuse_dae()
         ode, y0 = _prepare(self.model, V, tau, y0, self.truncation, allow_dae=True)
-        return self._unpadded(_run(self.integrators[dae], ode, y0, self.t_final, self.ts))
+        if not self._grows:
+            return self._unpadded(_run(self.integrators[dae], ode, y0, self.t_final, self.ts))
+        if is_traced((V, tau, y0)):  # simulate's record, its size fixed before the run
+            return self._unpadded(_run(self._integrator(dae, DEFAULT_MAX_JUMPS), ode, y0, self.t_final, self.ts))
+        return self._unpadded(self._grown(_run(self.integrators[dae], ode, y0, self.t_final, self.ts), ode, y0, dae))
+
+    def _grown(self, solution: Solution, ode, y0, dae: bool) -> Solution:
+        """simulate's growth of a record that the run filled (:func:`~peeljax.simulate.grown_until_it_holds`)."""
+        if int(solution.status) != StopReason.MAX_JUMPS:
+            return solution
+        return grown_until_it_holds(
+            solution, FIRST_MAX_JUMPS, functools.partial(self._integrator, dae),
+            lambda integrator: _run(integrator, ode, y0, self.t_final, self.ts), self.ts, self._max_steps,
+            self._memory_limit, float(self.t_final),
+        )  # fmt: skip

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Literal
 
 import diffrax
@@ -33,7 +34,7 @@ from .integrators.base import AbstractIntegrator
 from .integrators.reference import integrate_reference
 from .integrators.select import DEFAULT_MAX_JUMPS, integrator_for, refuse_with_dt, resolve_max_steps
 from .model import PeelingModel
-from .solution import Solution, is_traced
+from .solution import Solution, StopReason, is_traced
 
 __all__ = ["check_run_memory", "simulate", "simulate_reference"]
 
@@ -43,6 +44,12 @@ __all__ = ["check_run_memory", "simulate", "simulate_reference"]
 # Times, states, the diagnostics, the compiled loop's buffers and the returned copy.
 ROW_BYTES = {"ts": 400, "steps": 100, "mesh": 150}
 _ROWS = {"ts": "output times", "steps": "rows of accepted steps (max_steps + 1)", "mesh": "mesh points"}
+
+# max_jumps=None called eagerly: the jump record's first size. Its room costs ~50 ns a slot
+# in every call whether a jump happens or not (filled, then handed back; with 10⁴ slots P1 took
+# 1.5× its time with fold="stop": benchmarks/guard.py); a run that fills it is run again with
+# room for the jumps its rate predicts, a power of two (each size one program, kept on disk).
+FIRST_MAX_JUMPS = 1024
 
 
 def check_run_memory(
@@ -185,7 +192,7 @@ def simulate(
     truncation: int | None = None,
     checkpoint_every: int | str | None = None,
     fold: str | None = None,
-    max_jumps: int = DEFAULT_MAX_JUMPS,
+    max_jumps: int | None = None,
     memory_limit: float | None = None,
 ) -> Solution:
     """Integrate the peeling problem with the α-method (or a diffrax solver), through the folds of φ.
@@ -251,7 +258,11 @@ def simulate(
             the only choice, with ``dt`` or a diffrax solver) or ``"follow"`` (τ > 0: jump at
             impasse points only, follow the homogenized ODE through singular passages).
         max_jumps: size of the jump record (static); one more jump stops the run with that
-            reason, keeping what it computed.
+            reason, keeping what it computed. None (default): as many as the run makes. Called
+            with host numbers, the record starts with 1024 slots (room costs time whether it
+            is used or not); a run that fills it runs again with room for the jumps its rate
+            predicts, while that fits in ``memory_limit``. Traced (under ``jit``, ``vmap``,
+            ``grad``) the size must be known before the run: 10⁴.
         memory_limit: bytes the run's output may take in host memory (default: half the RAM);
             a run whose output rows (``ts``, ``max_steps + 1`` accepted steps, or the mesh
             points) would take more is refused before anything compiles.
@@ -283,20 +294,54 @@ def simulate(
         refuse_with_dt(dt, ts=ts)
     check_tau(tau, allow_zero=True)
     max_steps = resolve_max_steps(max_steps, keeps_steps=ts is None)
-    integrator = integrator_for(
-        solver, rho=rho, dt=dt, t_final=t_final, rtol=rtol, atol=atol, dtmin=dtmin, max_steps=max_steps,
-        adjoint=adjoint, checkpoint_every=checkpoint_every, fold=fold, max_jumps=max_jumps, dae=is_dae(tau),
-        merge_jump_rows=False,  # merged below: on the host, the rows in use only
-    )  # fmt: skip
+    grows = max_jumps is None and not is_traced((model, V, tau, rho, y0, ts))
+
+    def integrator_with(max_jumps: int):
+        return integrator_for(
+            solver, rho=rho, dt=dt, t_final=t_final, rtol=rtol, atol=atol, dtmin=dtmin, max_steps=max_steps,
+            adjoint=adjoint, checkpoint_every=checkpoint_every, fold=fold, max_jumps=max_jumps, dae=is_dae(tau),
+            merge_jump_rows=False,  # merged below: on the host, the rows in use only
+        )  # fmt: skip
+
+    size = max_jumps if max_jumps is not None else FIRST_MAX_JUMPS if grows else DEFAULT_MAX_JUMPS
+    integrator = integrator_with(size)
     ts = None if ts is None else check_output_times(ts, t_final)
     _check_memory(integrator, ts, max_steps, memory_limit)
     ode, y0 = _prepare(model, V, tau, y0, truncation, allow_dae=True)
     solution = _run(integrator, ode, y0, float_array(t_final), ts)
+    if grows:
+        run = lambda integrator: _run(integrator, ode, y0, float_array(t_final), ts)  # noqa: E731
+        solution = grown_until_it_holds(solution, size, integrator_with, run, ts, max_steps, memory_limit, t_final)
     if solution.jump_sides is not None:  # on the host the rows in use; traced all (static shapes)
         solution = solution.jump_sides.merge(solution)
     elif ts is not None and not is_traced(solution):
         solution = solution.without_padding()  # the rows left for more steps
     return solution
+
+
+def grown_until_it_holds(solution: Solution, size: int, integrator_with, run, ts, max_steps, memory_limit, t_final):
+    """``solution`` of a run whose jump record had ``size`` slots, or, where they were filled,
+    the run again with room for the rest (:func:`_room_for_the_rest`) until its record holds
+    every jump or the next size would exceed ``memory_limit`` (the run then stops as before,
+    its reason naming max_jumps). ``integrator_with(size)``: the integrator; ``run``: its run."""
+    while int(solution.status) == StopReason.MAX_JUMPS:
+        size = _room_for_the_rest(solution, size, t_final)
+        integrator = integrator_with(size)
+        try:
+            _check_memory(integrator, ts, max_steps, memory_limit)
+        except ValueError:
+            break
+        solution = run(integrator)
+    return solution
+
+
+def _room_for_the_rest(solution: Solution, size: int, t_final: float) -> int:
+    """A jump record for the whole run, from one that ``size`` jumps filled at ``t_stop``: twice
+    the jumps at their rate so far to ``t_final`` (the first come late, after the start's
+    transient), as a power of two (≥ 4·size): a run again costs more than room left unused."""
+    t_stop = float(solution.t_stop)
+    expected = 2 * size * float(t_final) / t_stop if t_stop > 0 else 4 * size
+    return max(4 * size, 1 << math.ceil(math.log2(max(expected, 1.0))))
 
 
 def _check_memory(integrator, ts, max_steps, limit) -> None:

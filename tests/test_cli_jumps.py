@@ -14,6 +14,7 @@ import pytest
 from conftest import PNG_MAGIC, assert_refused, forbid, run_cli, run_cli_writing
 
 from peeljax import PeelingModel, Solution, StopReason, cycle_statistics
+from peeljax.simulate import FIRST_MAX_JUMPS
 from peeljax.solution import JumpRecord
 
 DAE = ["simulate", "--tau", "0", "--t-final", "0.5"]
@@ -40,7 +41,8 @@ def dae_run(tmp_path_factory):
 def test_dae_run_completes_with_jumps(dae_run):
     record = dae_run["record"]
     assert record["status"] == "completed" and record["tau"] == 0.0
-    assert record["fold"] == "jump" and record["max_jumps"] == 10_000
+    # max_jumps: the record's size, grown to the run from the first (no --max-jumps given)
+    assert record["fold"] == "jump" and record["max_jumps"] == FIRST_MAX_JUMPS
     assert record["jumps"] > 0 and record["jumps"] == record["stats"]["jumps"]
 
 
@@ -50,7 +52,7 @@ def test_npz_holds_the_jumps(dae_run):
     for key in JUMP_KEYS:
         assert arrays[key].shape == (record["jumps"],), key
     assert arrays["jump_up"].dtype == bool and arrays["jump_t"].dtype == np.float64
-    assert str(arrays["fold"]) == "jump" and int(arrays["max_jumps"]) == 10_000
+    assert str(arrays["fold"]) == "jump" and int(arrays["max_jumps"]) == FIRST_MAX_JUMPS
     assert float(arrays["transient"]) == pytest.approx(0.5 / 2)
     t = arrays["jump_t"]
     assert np.all(np.isfinite(arrays["jump_G"])) and np.all(np.diff(t) > 0)

@@ -4,6 +4,8 @@ tolerance), the order between jumps, bad input, gradients and sweep lanes."""
 
 from __future__ import annotations
 
+import importlib
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -12,6 +14,7 @@ from jump_reference import reference_jump_run
 
 import peeljax as pj
 from peeljax.alternatives.inertial import integrate_inertial
+from peeljax.integrators.select import DEFAULT_MAX_JUMPS
 from peeljax.solution import StopReason
 
 MODEL = pj.PeelingModel()
@@ -136,6 +139,32 @@ def test_max_jumps_stops_and_keeps_what_it_computed():
     valid = np.asarray(sol.valid)
     assert valid[0] and not valid[-1]
     assert np.all(np.isfinite(np.asarray(sol.ys)[valid])) and np.all(np.isnan(np.asarray(sol.ys)[~valid]))
+
+
+def test_the_jump_record_grows_to_the_run_unless_its_size_is_given(monkeypatch):
+    """max_jumps=None (the default): a run that fills the record's first size runs again with
+    room for its jumps (the same run as with that size given; a Simulator's call alike); under
+    memory_limit it stops as a given size does; traced, the size is fixed before the run (10⁴)."""
+    simulate_module = importlib.import_module("peeljax.simulate")
+    monkeypatch.setattr(simulate_module, "FIRST_MAX_JUMPS", 8)
+    ts = np.linspace(0, 1, 101)
+    grown = pj.simulate(V=1.1, tau=0, t_final=1.0, ts=ts)
+    assert grown.status_name == "completed" and int(grown.jumps.count) > 8
+    size = grown.jumps.max_jumps
+    assert size >= 32 and size & (size - 1) == 0 and size >= int(grown.jumps.count)
+    given = pj.simulate(V=1.1, tau=0, t_final=1.0, ts=ts, max_jumps=size)
+    np.testing.assert_array_equal(_jumps(grown)["jump_t"], _jumps(given)["jump_t"])
+    np.testing.assert_array_equal(np.asarray(grown.ys), np.asarray(given.ys))
+    monkeypatch.setattr(importlib.import_module("peeljax.bound"), "FIRST_MAX_JUMPS", 8)
+    bound = pj.Simulator(t_final=1.0, ts=ts)(1.1, 0.0)  # (its own programs: the rows merged in them)
+    np.testing.assert_array_equal(_jumps(bound)["jump_t"], _jumps(grown)["jump_t"])
+    np.testing.assert_array_equal(np.asarray(bound.ys), np.asarray(grown.ys))
+    # (101 + 2·8 rows) × 400 B + 8 slots × 48 B fit in 5·10⁴ B, a record of 32 or more does not
+    capped = pj.simulate(V=1.1, tau=0, t_final=1.0, ts=ts, memory_limit=5e4)
+    assert int(capped.status) == StopReason.MAX_JUMPS and int(capped.jumps.count) == 8
+    assert "max_jumps" in capped.reason
+    traced = jax.eval_shape(lambda V: pj.simulate(V=V, tau=0, t_final=1.0, ts=ts).jumps.t, 1.1)
+    assert traced.shape == (DEFAULT_MAX_JUMPS,)
 
 
 @pytest.mark.slow

@@ -336,8 +336,8 @@ def check_max_steps(max_steps: int | None, uniform_option: str | None = None) ->
         )
 
 
-def check_folds(fold: str | None, max_jumps: int | None, *, dt, dae: bool, default_max_jumps: int,
-                uniform_option: str | None = None) -> tuple[str, int]:  # fmt: skip
+def check_folds(fold: str | None, max_jumps: int | None, *, dt, dae: bool, default_max_jumps: int | None,
+                uniform_option: str | None = None) -> tuple[str, int | None]:  # fmt: skip
     """--fold against the integrator (the library's rule, :func:`peeljax.integrators.resolve_fold`:
     jump and follow need error control) and --max-jumps (:func:`check_max_jumps`): the fold mode
     and the record's size, their defaults when not given."""
@@ -346,7 +346,7 @@ def check_folds(fold: str | None, max_jumps: int | None, *, dt, dae: bool, defau
     return resolve_fold(fold, dt=dt, dae=dae), check_max_jumps(max_jumps, default_max_jumps, uniform_option)
 
 
-def add_max_jumps(group, *, default: int, per: str = "run") -> None:
+def add_max_jumps(group, *, default: int | str, per: str = "run") -> None:
     group.add_argument(
         "--max-jumps", dest="max_jumps", type=int, default=None, metavar="N",
         help=f"slots of each {per}'s jump record, an integer in [1, {MAX_JUMPS_LIMIT:.0e}]; "
@@ -355,7 +355,7 @@ def add_max_jumps(group, *, default: int, per: str = "run") -> None:
     )  # fmt: skip
 
 
-def check_max_jumps(max_jumps: int | None, default: int, uniform_option: str | None = None) -> int:
+def check_max_jumps(max_jumps: int | None, default: int | None, uniform_option: str | None = None) -> int | None:
     """--max-jumps in [1, 1e7] (the record is allocated in full); its default when not given."""
     if max_jumps is None:
         return default

@@ -14,7 +14,7 @@ from .._validation import TAU_MAX, check_choice, check_mesh, check_positive, che
 from ..integrators.dense import output_times
 from ..integrators.events import FOLD_MODES
 from ..integrators.select import DEFAULT_ATOL as _ALPHA_ATOL
-from ..integrators.select import DEFAULT_MAX_JUMPS, resolve_max_steps
+from ..integrators.select import resolve_max_steps
 from ..integrators.select import DEFAULT_RTOL as _ALPHA_RTOL
 from ..model import PeelingModel
 from ..simulate import check_run_memory, simulate, simulate_reference
@@ -85,7 +85,7 @@ def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
         "points only, follow singular passages); jump and follow need error control, any stepper (default: "
         "jump with error control, stop with --dt or --method diffrax)",
     )
-    options.add_max_jumps(folds, default=DEFAULT_MAX_JUMPS)
+    options.add_max_jumps(folds, default="as many as the run makes")
     options.add_statistics_window(folds, window=False, what="the cycle statistics (over [T, t_stop])")
 
 
@@ -133,7 +133,7 @@ class RunConfig:
     phi: str | None
     save_ts: tuple[float, ...] | None = None  # output times from --save-dt
     fold: str = "stop"  # what happens at a fold of φ (resolve_fold: jump under error control)
-    max_jumps: int = DEFAULT_MAX_JUMPS  # the jump record's size (error control)
+    max_jumps: int | None = None  # the jump record's size (error control); None: as many as the run makes
     transient: float = 0.0  # the cycle statistics' window starts here [s]
     phi_defaults: tuple[str, ...] | None = None  # coefficients --phi left at the paper's values
     max_steps: int | None = None  # error control's budget of step attempts; None: the library's
@@ -271,7 +271,7 @@ def _check_folds(args: argparse.Namespace, dt: float | None) -> tuple[str, int, 
         )
     fold, max_jumps = options.check_folds(
         "stop" if reference else args.fold, args.max_jumps, dt=None if reference else dt, dae=args.tau == 0,
-        default_max_jumps=DEFAULT_MAX_JUMPS, uniform_option=_without_error_control(args),
+        default_max_jumps=None, uniform_option=_without_error_control(args),
     )  # fmt: skip
     transient, _ = options.check_statistics_window(args.transient, None, args.t_final)
     return fold, max_jumps, transient
@@ -364,6 +364,7 @@ def _simulate_command(args: argparse.Namespace) -> int:
     with Elapsed(options.progress_on(args), f"simulating to t = {config.t_final:g} s"):
         solution, wall = run(config)
     summary = summarize(solution)
+    record_size = getattr(solution.jumps, "max_jumps", config.max_jumps)  # --max-jumps, or the size the run grew to
     record = {
         **summary,
         "status_code": int(np.asarray(solution.status)),  # the StopReason (as in the .npz)
@@ -374,7 +375,7 @@ def _simulate_command(args: argparse.Namespace) -> int:
         "geometry": config.model.geometry, "rho": _rho_used(solution, config), "rtol": config.rtol,
         "atol": config.atol, "y0": None if config.y0 is None else list(config.y0), "phi": config.phi,
         "phi_paper_defaults": None if config.phi_defaults is None else list(config.phi_defaults),
-        "fold": config.fold, "max_jumps": config.max_jumps if config.adaptive else None,
+        "fold": config.fold, "max_jumps": record_size if config.adaptive else None,
         "max_steps": config.max_steps,  # --max-steps; null: the library's budget
         "transient": config.transient, "stats": {key: summary[key] for key in solution.stats if key in summary},
         "wall_time_s": wall, "out": args.out, "plot": args.plot,
