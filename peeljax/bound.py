@@ -271,7 +271,7 @@ class Simulator:
 
     def _grown(self, solution: Solution, ode, y0, dae: bool) -> Solution:
         """simulate's growth of a record that the run filled (:func:`~peeljax.simulate.grown_until_it_holds`)."""
-        if int(solution.status) != StopReason.MAX_JUMPS:
+        if is_traced(solution.status) or int(solution.status) != StopReason.MAX_JUMPS:
             return solution
         return grown_until_it_holds(
             solution, FIRST_MAX_JUMPS, functools.partial(self._integrator, dae),

@@ -47,8 +47,8 @@ _ROWS = {"ts": "output times", "steps": "rows of accepted steps (max_steps + 1)"
 
 # max_jumps=None called eagerly: the jump record's first size. Its room costs ~50 ns a slot
 # in every call whether a jump happens or not (filled, then handed back; with 10⁴ slots P1 took
-# 1.5× its time with fold="stop": benchmarks/guard.py); a run that fills it is run again with
-# room for the jumps its rate predicts, a power of two (each size one program, kept on disk).
+# 1.8-2.0x its time with fold="stop", docs/performance.md); a run that fills it is run again
+# with room for the jumps its rate predicts, a power of two (each size one program, cached).
 FIRST_MAX_JUMPS = 1024
 
 
@@ -262,7 +262,8 @@ def simulate(
             with host numbers, the record starts with 1024 slots (room costs time whether it
             is used or not); a run that fills it runs again with room for the jumps its rate
             predicts, while that fits in ``memory_limit``. Traced (under ``jit``, ``vmap``,
-            ``grad``) the size must be known before the run: 10⁴.
+            ``grad`` of an input) the size must be known before the run: 10⁴; inside a ``jit``
+            that closes over every input, 1024 without growth.
         memory_limit: bytes the run's output may take in host memory (default: half the RAM);
             a run whose output rows (``ts``, ``max_steps + 1`` accepted steps, or the mesh
             points) would take more is refused before anything compiles.
@@ -324,7 +325,8 @@ def grown_until_it_holds(solution: Solution, size: int, integrator_with, run, ts
     the run again with room for the rest (:func:`_room_for_the_rest`) until its record holds
     every jump or the next size would exceed ``memory_limit`` (the run then stops as before,
     its reason naming max_jumps). ``integrator_with(size)``: the integrator; ``run``: its run."""
-    while int(solution.status) == StopReason.MAX_JUMPS:
+    # (a run inside jit whose inputs are all constants is traced nonetheless: it cannot grow)
+    while not is_traced(solution.status) and int(solution.status) == StopReason.MAX_JUMPS:
         size = _room_for_the_rest(solution, size, t_final)
         integrator = integrator_with(size)
         try:
