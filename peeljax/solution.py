@@ -287,7 +287,7 @@ class JumpSides(eqx.Module):
     """Both sides of each jump of a dense output, kept apart from the rows at the output times
     between the compiled run and the host, which merges them (:meth:`merge`).
 
-    Merged in the compiled run, the rows kept for ``max_jumps`` jumps (2·10⁴ by default) took
+    Merged in the compiled run, the rows kept for ``max_jumps`` jumps (2·10⁴ for 10⁴ jumps) took
     longer to merge, evaluate and copy than a 3 s run without any jump took to compute; the loop
     writes them finished (physical state, J_t, local index) into one array, and the host merges
     the rows in use only. :func:`peeljax.simulate` merges on the host; under ``jit``/``vmap``

@@ -83,6 +83,8 @@ def resolve_max_steps(max_steps: int | None, keeps_steps: bool) -> int:
         return DEFAULT_MAX_STEPS if keeps_steps else DEFAULT_MAX_STEPS_DENSE
     check_max_steps(max_steps)
     return max_steps
+# The jump record's size where it cannot grow (traced: under jit, vmap, grad); eagerly
+# simulate starts smaller and grows (peeljax.simulate.FIRST_MAX_JUMPS).
 DEFAULT_MAX_JUMPS = 10_000
 # The default stepper of the DAE (τ = 0) and of the homogenized ODE (τ > 0), chosen by
 # measurement (docs/theory.md, "Choosing the stepper"); ρ ≠ 0 (an α-method setting) keeps the α-method.
