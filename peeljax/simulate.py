@@ -47,7 +47,7 @@ _ROWS = {"ts": "output times", "steps": "rows of accepted steps (max_steps + 1)"
 
 # max_jumps=None called eagerly: the jump record's first size. Its room costs ~50 ns a slot
 # in every call whether a jump happens or not (filled, then handed back; with 10⁴ slots P1 took
-# 1.8-2.0x its time with fold="stop", docs/performance.md); a run that fills it is run again
+# 1.36-1.58x its time with fold="stop", docs/performance.md); a run that fills it is run again
 # with room for the jumps its rate predicts, a power of two (each size one program, cached).
 FIRST_MAX_JUMPS = 1024
 
