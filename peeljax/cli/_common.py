@@ -18,12 +18,12 @@ import numpy as np
 
 from .._files import json_safe
 from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw, read_json
-from ..integrators import STEPPER_NAMES
+from ..integrators import SOLVER_NAMES
 from ..solution import StopReason
 
 PROG = "peeljax"
 
-STEPPERS = tuple(STEPPER_NAMES)  # the steppers that the error-controlled loop takes
+STEPPERS = tuple(SOLVER_NAMES)  # the steppers that the error-controlled loop takes ("auto": Tsit5 ↔ α-method)
 
 # A negative number in any spelling float() reads (-1e-6, -inf, -nan, -.5): argparse's own
 # pattern (-1, -0.5) takes "-1e-6" for an option and answers "expected one argument", so the

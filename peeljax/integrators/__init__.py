@@ -7,6 +7,8 @@
   :mod:`.controller` (PI control), :mod:`.dense` (interpolants) and :mod:`.events` (folds, jumps);
 - :mod:`.steppers`: what one step is, for any method of that loop: the α-method
   (:class:`AlphaStepper`) or a diffrax Runge–Kutta solver (:class:`RungeKutta`);
+- :mod:`.switching`: Tsit5 ↔ the α-method where the homogenized ODE turns stiff
+  (:class:`SwitchingStepper`, ``solver="auto"``);
 - :mod:`.reference`: any diffrax solver (:class:`DiffraxIntegrator`), the reference;
 - :mod:`.observers`: what an adaptive run records of each step (output, a sweep's statistics);
 - :mod:`.select`: the user's options → an integrator (:func:`integrator_for`);
@@ -31,12 +33,15 @@ from .diffrax_solver import AlphaSolver
 from .log_variables import LogTransformedODE
 from .observers import AcceptedStep, DenseOutput, EveryNthPoint, Observer, Observers, StepPoints
 from .reference import DiffraxIntegrator, integrate_reference
-from .select import integrator_for
+from .select import SOLVER_NAMES, integrator_for
 from .steppers import STEPPER_NAMES, AbstractStepper, AlphaStepper, RungeKutta, stepper_named
+from .switching import SwitchingStepper
 from .uniform_mesh import UniformMesh, integrate_alpha
 
 __all__ = [
+    "SOLVER_NAMES",
     "STEPPER_NAMES",
+    "SwitchingStepper",
     "AbstractIntegrator",
     "AbstractStepper",
     "AlphaStepper",

@@ -60,7 +60,7 @@ from .controller import PIController
 from .dense import PhysicalTimeInterpolant
 from .events import FoldEvents, FoldHit, find_fold, fold_event, fold_fraction
 from .observers import AcceptedStep, DenseOutput, Observer, StepPoints, _GridWithJumps, _Output, observer_keeps_jumps
-from .steppers import AbstractStepper, AlphaStepper, RungeKutta, StepperState, alpha_attempt, as_stepper, error_constant, physical
+from .steppers import AbstractStepper, AlphaStepper, StepperState, alpha_attempt, as_stepper, error_constant, physical
 
 __all__ = [
     "ErrorControl",
@@ -253,10 +253,7 @@ def adaptive_loop(
     the folds of φ (:mod:`peeljax.integrators.events`; the ODE must then be a
     :class:`~peeljax.homogenized.FoldingODE`); None: the paper's stops (an impasse).
     """
-    stepper = as_stepper(stepper)
-    if isinstance(stepper, RungeKutta):
-        stepper = stepper.with_tolerances(controller.rtol, controller.atol).with_loop_kind(kind)
-    order = stepper.order
+    stepper = as_stepper(stepper).for_loop(controller, kind)
     t0 = jnp.asarray(t0, float)
     t_final = jnp.asarray(t_final, float)
     span = t_final - t0
@@ -363,7 +360,7 @@ def adaptive_loop(
         norm = jnp.where(solved, norm, jnp.inf)
         accept = solved & (norm <= 1.0)
         t_new = jnp.where(last, t_final, c.t + h)  # exactly t_final at the end
-        factor = controller.factor(norm, c.prev_norm, accept, solved | attempt.retry, order)
+        factor = controller.factor(norm, c.prev_norm, accept, solved | attempt.retry, stepper.error_order(state))
         factor = jnp.where(attempt.retry, 1.0, factor)
         h_next = jax.lax.stop_gradient(jnp.minimum(h * factor, span))
         if timed:

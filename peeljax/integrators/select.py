@@ -50,7 +50,8 @@ from .controller import PIController
 from .events import FoldEvents, check_fold, check_max_jumps
 from .reference import DiffraxIntegrator
 from ..desingularized import DEFAULT_TIME_SCALE
-from .steppers import STEPPER_NAMES, RungeKutta, stepper_named
+from .steppers import STEPPER_NAMES, AbstractStepper, RungeKutta, stepper_named
+from .switching import SwitchingStepper
 
 __all__ = [
     "DEFAULT_ATOL",
@@ -60,6 +61,7 @@ __all__ = [
     "DEFAULT_MAX_STEPS",
     "DEFAULT_MAX_STEPS_DENSE",
     "DEFAULT_RTOL",
+    "SOLVER_NAMES",
     "STEPPER_NAMES",
     "check_error_control",
     "checked_solver",
@@ -90,6 +92,9 @@ DEFAULT_MAX_JUMPS = 10_000
 # measurement (docs/theory.md, "Choosing the stepper"); ρ ≠ 0 (an α-method setting) keeps the α-method.
 DEFAULT_DAE_STEPPER = "tsit5"
 DEFAULT_ODE_STEPPER = "alpha"
+# "auto": Tsit5 ↔ the α-method where the homogenized ODE turns stiff (τ > 0, :mod:`.switching`);
+# at τ = 0 the DAE's default stepper.
+SOLVER_NAMES: tuple[str, ...] = ("auto", *STEPPER_NAMES)
 
 
 @functools.lru_cache(maxsize=64)
@@ -106,25 +111,27 @@ def checked_solver(solver, rho: ArrayLike = 0.0):
         # Modules are immutable: one per ρ serves every call, instead of one built per call.
         return _default_solver(float(rho)) if type(rho) in (float, int) else AlphaMethod(rho=rho)
     if isinstance(solver, str):
-        if solver not in STEPPER_NAMES:
-            raise ValueError(f"solver must be one of {list(STEPPER_NAMES)} or a solver object, got {solver!r}")
+        if solver not in SOLVER_NAMES:
+            raise ValueError(f"solver must be one of {list(SOLVER_NAMES)} or a solver object, got {solver!r}")
         return _named(solver)
     if isinstance(solver, AlphaMethod):
         check_rho(solver.rho)
         return solver
-    if isinstance(solver, RungeKutta):
+    if isinstance(solver, AbstractStepper):
         return solver
     if isinstance(solver, diffrax.AbstractRungeKutta):
         return RungeKutta(solver)
     if isinstance(solver, diffrax.AbstractSolver):
         return solver
     raise TypeError(
-        f"solver must be one of {list(STEPPER_NAMES)}, an AlphaMethod or a diffrax solver, got {type(solver).__name__}"
+        f"solver must be one of {list(SOLVER_NAMES)}, an AlphaMethod or a diffrax solver, got {type(solver).__name__}"
     )
 
 
 @functools.lru_cache(maxsize=16)
 def _named(name: str):
+    if name == "auto":
+        return SwitchingStepper()
     stepper = stepper_named(name)
     return stepper.method if name == "alpha" else stepper
 
@@ -246,6 +253,8 @@ def integrator_for(
     """
     check_adjoint(adjoint)
     check_max_jumps(max_jumps)
+    if isinstance(solver, str) and solver == "auto" and dae:
+        solver = None  # τ = 0: the DAE's default stepper
     max_steps = resolve_max_steps(max_steps, keeps_steps=True)
     fold = resolve_fold(fold, dt=dt, solver=solver, dae=dae)
     method = checked_solver(solver, rho)

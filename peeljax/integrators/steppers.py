@@ -142,6 +142,14 @@ class AbstractStepper(eqx.Module):
     def restart(self, ode, t, y, state: StepperState) -> StepperState:
         """The state to go on from at (t, y) after a jump (carried coordinates)."""
 
+    def error_order(self, state: StepperState) -> int | Array:
+        """q of the next attempt's error estimate from ``state`` (a switching stepper's depends on it)."""
+        return self.order
+
+    def for_loop(self, controller, kind: str) -> "AbstractStepper":
+        """The stepper as the loop runs it, with the controller's tolerances and the loop's kind."""
+        return self
+
     def statistics(self, state: StepperState) -> dict[str, Array]:
         """Method-specific counts for ``Solution.stats``."""
         return {}
@@ -343,6 +351,9 @@ class RungeKutta(AbstractStepper):
         return eqx.tree_at(
             lambda r: r.solver.scan_kind, self, "lax" if kind == "lax" else "bounded", is_leaf=lambda x: x is None
         )
+
+    def for_loop(self, controller, kind: str) -> "RungeKutta":
+        return self.with_tolerances(controller.rtol, controller.atol).with_loop_kind(kind)
 
     def _ends(self, ode, y):
         """(ψ, J, F̃·f) at a step's end where the ODE's tests read J_t; placeholders otherwise."""

@@ -1,0 +1,294 @@
+"""τ > 0: the switching stepper (``solver="auto"``) against the α-method, Tsit5 and CasADi, at equal error.
+
+Problems (``benchmarks/compare_problems.py``):
+
+* P1, one trajectory: V = 1.1, τ = 0.01 (and 0.1), t ∈ [0, 3] s, v at the 301 times ``GRID``;
+  error = max |v − v_ref| (v_ref: diffrax Kvaerno5 at rtol 1e-11), target 1e-3 (compare.py's P1);
+* P3 slice, 64 lanes: V ∈ {1.1, 2, 4, 8} × 16 τ log-spaced in [0.005, 0.5] s, v saved at ``GRID``
+  (``save_dt = 0.01``); error = max over the 32 checked lanes (8 τ per V) of
+  max |v − v_ref|/max |v_ref|, target 1e-3 (compare.py's P3);
+* long runs: the step attempts of a 10⁹ s run at V = 1.1, τ = 0.01 and a 10⁵ s run at
+  V = 4, τ = 0.1 (deterministic; where an explicit stepper's steps stay ~τ).
+
+Candidates: ``peeljax.simulate``/``peeljax.sweep`` with only ``rtol`` set besides the stepper
+(every other option the default, ``fold`` included), each at the loosest rung of one ladder
+(1, 2, 5 per decade, 5e-2 … 1e-7) that meets the target; the peer, CasADi cvodes on
+(α, ω, u, log v) with atol = 1e-2·rtol (``peers.casadi_peer``, integrator built outside the
+timing), on the same ladder. A P3 peeljax sweep runs on every JAX device (2 here); CasADi loops
+the lanes on one core: per core, peeljax's wall time × its devices / CasADi's.
+
+Timing: a first (compiling) call of every row, then ``--repeats`` round-robin rounds (each round
+runs every row once, starting at another row), medians; wall and CPU seconds (this process, all
+threads). The load average is printed at the start and after each round: the machine is shared.
+
+    python benchmarks/switching.py                 # ~10 min on 2 shared cores
+    python benchmarks/switching.py --only P1 long  # P1 and the long runs (~3 min)
+
+Writes ``benchmarks/results/switching.md``. Speed is reported, never asserted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))  # benchmarks/: machine, compare_problems, peers
+from compare_problems import (  # noqa: E402
+    GRID,
+    P3_SAVE_DT,
+    P3_VELOCITIES,
+    REF_ATOL,
+    REF_RTOL,
+    T_FINAL,
+    V,
+    p3_grid,
+    p3_subsample,
+    reference,
+    relative_errors,
+)
+from machine import cpu_model, write_result  # noqa: E402
+
+TARGET = 1e-3
+N_TAU, PER_V = 16, 8  # the 64-lane slice, 32 checked lanes
+LADDER = tuple(float(f"{m}e{e}") for e in range(-2, -8, -1) for m in (5, 2, 1))
+
+# name → (what the table says, simulate/sweep options, atol as a multiple of rtol; None: the default atol)
+CANDIDATES = {
+    "auto": ("switching Tsit5 ↔ α-method (solver='auto')", {"solver": "auto"}, None),
+    "alpha": ("α-method ρ = 0 (solver='alpha', today's default)", {"solver": "alpha"}, None),
+    "tsit5": ("Tsit5 (solver='tsit5')", {"solver": "tsit5"}, None),
+}
+TAUS_P1 = (0.01, 0.1)
+LONG_RUNS = ((1.1, 0.01, 1e9), (4.0, 0.1, 1e5))
+
+
+def options(key, rtol):
+    _, kwargs, atol_factor = CANDIDATES[key]
+    out = dict(kwargs, rtol=rtol)
+    if atol_factor is not None:
+        out["atol"] = atol_factor * rtol
+    return out
+
+
+def load() -> float:
+    return os.getloadavg()[0]
+
+
+def calibrate(run, error_of):
+    """(rtol, error, result) at the loosest rung meeting TARGET, and every rung tried."""
+    tried = []
+    for rtol in LADDER:
+        result = run(rtol)
+        error = error_of(result)
+        tried.append((rtol, error))
+        if error <= TARGET:
+            return (rtol, error, result), tried
+    return None, tried
+
+
+def round_robin(rows, repeats, loads):
+    """{name: (wall times, CPU times)} of ``repeats`` rounds over ``rows`` (name → call)."""
+    names = list(rows)
+    times = {name: ([], []) for name in names}
+    for r in range(repeats):
+        for name in names[r % len(names) :] + names[: r % len(names)]:
+            wall, cpu = time.perf_counter(), time.process_time()
+            rows[name]()
+            times[name][0].append(time.perf_counter() - wall)
+            times[name][1].append(time.process_time() - cpu)
+        loads.append(load())
+    return times
+
+
+def p1(keys, repeats, tau):
+    import jax
+
+    import peeljax as pj
+    from peers.casadi_peer import CasadiPeer
+
+    v_ref = reference(tau)
+
+    def simulate(key, rtol):
+        sol = pj.simulate(V=V, tau=tau, t_final=T_FINAL, ts=GRID, **options(key, rtol))
+        return np.asarray(jax.block_until_ready(sol.ys))[:, 3], sol
+
+    def error(result):
+        v = result[0]
+        return float(np.max(np.abs(v - v_ref))) if np.all(np.isfinite(v)) else np.inf
+
+    casadi = CasadiPeer(tau, LADDER, log_v=True)
+    casadi.prepare()
+    chosen, ladders = {}, {}
+    for key in keys:
+        started = time.perf_counter()
+        found, ladders[key] = calibrate(lambda r, key=key: simulate(key, r), error)
+        if found is None:
+            print(f"  [P1 {key}: no rung met the target]", file=sys.stderr)
+            continue
+        rtol, err, (_, sol) = found
+        stats = sol.stats
+        chosen[key] = {"rtol": rtol, "error": err, "attempts": int(stats["accepted_steps"]) + int(stats["rejected_steps"]),
+                       "first_s": time.perf_counter() - started}  # fmt: skip
+        print(f"  [P1 {key}: rtol {rtol:g}, error {err:.2g}, {chosen[key]['attempts']} attempts]", file=sys.stderr)
+
+    def casadi_run(r):
+        casadi.setup(r)
+        return (casadi.run(r),)
+
+    found, ladders["casadi"] = calibrate(casadi_run, error)
+    rtol_c, err_c, _ = found
+    chosen["casadi"] = {"rtol": rtol_c, "error": err_c, "attempts": None}
+    rows = {key: (lambda key=key: simulate(key, chosen[key]["rtol"])) for key in chosen if key != "casadi"}
+    rows["casadi"] = lambda: casadi.run(rtol_c)
+    loads = [load()]
+    times = round_robin(rows, repeats, loads)
+    return chosen, ladders, times, loads
+
+
+def p3(keys, repeats):
+    import jax
+
+    import peeljax as pj
+    from peers.casadi_peer import CasadiBatch
+    from peers.diffrax_peer import diffrax_vmap
+
+    Vs, taus = p3_grid(N_TAU)
+    sub = p3_subsample(N_TAU, PER_V)
+    v_ref, status = diffrax_vmap()(Vs[sub], taus[sub], REF_RTOL, REF_ATOL)
+    assert np.all(status == 0), "the P3 reference stopped"
+    devices = len(jax.devices())
+
+    def sweep(key, rtol):
+        result = pj.sweep(None, Vs, taus, None, T_FINAL, save_dt=P3_SAVE_DT, grid="pairs", progress=False, chunk=Vs.size,
+                          **options(key, rtol))  # fmt: skip
+        return np.asarray(result.ys)[:, :, 3], result
+
+    def error(result):
+        return float(np.max(relative_errors(result[0][sub], v_ref)))
+
+    casadi = CasadiBatch()
+
+    def casadi_all(rtol):
+        return np.stack([casadi(float(Vp), float(tau), rtol) for Vp, tau in zip(Vs, taus)])
+
+    def casadi_run(rtol):
+        casadi.setup(rtol)
+        return (casadi_all(rtol),)
+
+    chosen, ladders = {}, {}
+    for key in keys:
+        started = time.perf_counter()
+        found, ladders[key] = calibrate(lambda r, key=key: sweep(key, r), error)
+        if found is None:
+            print(f"  [P3 {key}: no rung met the target]", file=sys.stderr)
+            continue
+        rtol, err, (_, result) = found
+        attempts = np.asarray(result.accepted_steps) + np.asarray(result.rejected_steps)
+        chosen[key] = {"rtol": rtol, "error": err, "attempts": float(np.mean(attempts)),
+                       "first_s": time.perf_counter() - started}  # fmt: skip
+        print(f"  [P3 {key}: rtol {rtol:g}, error {err:.2g}, {chosen[key]['attempts']:.0f} attempts/lane]", file=sys.stderr)
+    found, ladders["casadi"] = calibrate(casadi_run, error)
+    rtol_c, err_c, _ = found
+    chosen["casadi"] = {"rtol": rtol_c, "error": err_c, "attempts": None}
+    rows = {key: (lambda key=key: sweep(key, chosen[key]["rtol"])) for key in chosen if key != "casadi"}
+    rows["casadi"] = lambda: casadi_all(rtol_c)
+    loads = [load()]
+    times = round_robin(rows, repeats, loads)
+    return chosen, ladders, times, loads, devices
+
+
+def long_runs(keys):
+    """Step attempts (accepted + rejected) of each long run and candidate, and how it ended."""
+    import peeljax as pj
+
+    lines = ["### Long runs: step attempts (rtol 1e-6, the defaults)", "", "| V, τ, t_final | " + " | ".join(
+        CANDIDATES[k][0] for k in keys) + " | auto ÷ α-method |", "|---|" + "---:|" * (len(keys) + 1)]  # fmt: skip
+    for V_long, tau, t_final in LONG_RUNS:
+        attempts = {}
+        for key in keys:
+            sol = pj.simulate(V=V_long, tau=tau, t_final=t_final, ts=np.linspace(0.0, t_final, 11), **options(key, 1e-6))
+            attempts[key] = (int(sol.stats["accepted_steps"]) + int(sol.stats["rejected_steps"]), sol.status_name)
+        cells = [f"{n} ({status})" if status != "completed" else f"{n}" for n, status in attempts.values()]
+        ratio = f"{attempts['auto'][0] / attempts['alpha'][0]:.2f}" if {"auto", "alpha"} <= set(keys) else "–"
+        lines.append(f"| {V_long}, {tau}, {t_final:g} s | " + " | ".join(cells) + f" | {ratio} |")
+    return lines + [""]
+
+
+def table(title, chosen, times, per_core_devices, attempts_label):
+    base_wall = np.median(times["casadi"][0])
+    base_cpu = np.median(times["casadi"][1])
+    cores = "" if per_core_devices is None else f" × {per_core_devices} devices"
+    lines = [
+        f"### {title}",
+        "",
+        f"| candidate | rtol | error | {attempts_label} | wall ms | CPU ms | wall{cores} ÷ CasADi's | CPU ÷ CasADi's |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for key, row in chosen.items():
+        wall, cpu = np.median(times[key][0]), np.median(times[key][1])
+        label = "CasADi cvodes (log v), atol = 1e-2·rtol" + (", looped on one core" if per_core_devices else "")
+        name = label if key == "casadi" else CANDIDATES[key][0]
+        k = 1 if key == "casadi" or per_core_devices is None else per_core_devices
+        att = "–" if row["attempts"] is None else f"{row['attempts']:.0f}"
+        lines.append(
+            f"| {name} | {row['rtol']:g} | {row['error']:.2g} | {att} | {1e3 * wall:.2f} | {1e3 * cpu:.2f} | "
+            f"{k * wall / base_wall:.2f} | {cpu / base_cpu:.2f} |"
+        )
+    return lines
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--only", nargs="+", choices=("P1", "P3", "long"), default=("P1", "P3", "long"))
+    parser.add_argument("--candidates", nargs="+", choices=tuple(CANDIDATES), default=tuple(CANDIDATES))
+    parser.add_argument("--repeats", type=int, default=9)
+    args = parser.parse_args()
+    import jax
+
+    import peeljax as pj
+
+    started = time.perf_counter()
+    start_load = load()
+    lines = [
+        "# τ > 0: the switching stepper at equal error, against CasADi",
+        "",
+        f"- machine: {cpu_model()}, {os.cpu_count()} cores shared with other jobs, {len(jax.devices())} JAX devices; "
+        f"load average {start_load:.1f} at the start",
+        f"- python {platform.python_version()}, jax {jax.__version__}, peeljax {getattr(pj, '__version__', '?')}",
+        f"- error targets {TARGET:g}; ladder {', '.join(f'{r:g}' for r in LADDER)} (loosest rung meeting the target); "
+        f"medians of {args.repeats} round-robin rounds after a first call",
+        "",
+    ]
+    for tau in TAUS_P1 if "P1" in args.only else ():
+        chosen, ladders, times, loads = p1(args.candidates, args.repeats, tau)
+        lines += table(f"P1: V = {V}, τ = {tau} s, max |v − v_ref| ≤ {TARGET:g}", chosen, times, None, "attempts")
+        lines += ["", "Load average after each round: " + ", ".join(f"{x:.1f}" for x in loads), ""]
+        lines += ["Ladders (rtol: error): " + "; ".join(
+            f"{k}: " + ", ".join(f"{r:g}: {e:.2g}" for r, e in v) for k, v in ladders.items()), ""]  # fmt: skip
+    if "P3" in args.only:
+        chosen, ladders, times, loads, devices = p3(args.candidates, args.repeats)
+        lines += table(
+            f"P3 slice: {N_TAU * len(P3_VELOCITIES)} lanes, relative error ≤ {TARGET:g} on {PER_V * len(P3_VELOCITIES)}",
+            chosen, times, devices, "attempts per lane",
+        )  # fmt: skip
+        lines += ["", "Load average after each round: " + ", ".join(f"{x:.1f}" for x in loads), ""]
+        lines += ["Ladders (rtol: error): " + "; ".join(
+            f"{k}: " + ", ".join(f"{r:g}: {e:.2g}" for r, e in v) for k, v in ladders.items()), ""]  # fmt: skip
+    if "long" in args.only:
+        lines += long_runs(args.candidates)
+    lines.append(f"Total {time.perf_counter() - started:.0f} s; load average {load():.1f} at the end.")
+    text = "\n".join(lines) + "\n"
+    print(text)
+    if set(args.only) == {"P1", "P3", "long"} and set(args.candidates) == set(CANDIDATES):
+        print(write_result(HERE / "results" / "switching.md", text))
+
+
+if __name__ == "__main__":
+    main()
