@@ -100,7 +100,7 @@ def test_sweep_without_dt_runs_error_control(swept_adaptive):
     assert "give --transient 0.1 --window 0.3" in swept_adaptive["stderr"]
     record = json.loads(swept_adaptive["stdout"])
     assert record["n"] == 4 and record["computed_chunks"] == [0]
-    assert record["method"] == "alpha-adaptive" and record["dt"] is None
+    assert record["method"] == "switching-tsit5-alpha" and record["dt"] is None
     assert record["rtol"] == 1e-6 and record["atol"] == 1e-9
     assert record["save_dt"] == 0.05 and record["save_every"] is None
     trajectories = record["trajectories"]
@@ -114,7 +114,7 @@ def test_sweep_without_dt_runs_error_control(swept_adaptive):
         arrays = {key: data[key] for key in data.files}
     assert NPZ_KEYS <= set(arrays)
     settings = json.loads(str(arrays["meta_json"]))["settings"]
-    assert settings["method"] == "alpha-adaptive" and settings["rtol"] == 1e-6 and settings["atol"] == 1e-9
+    assert settings["method"] == "switching-tsit5-alpha" and settings["rtol"] == 1e-6 and settings["atol"] == 1e-9
     assert settings["save_dt"] == 0.05 and "dt" not in settings
     np.testing.assert_allclose(arrays["ts"], np.linspace(0.0, 0.4, 9))
     assert arrays["ys"].shape == (4, 9, 4)
@@ -124,7 +124,7 @@ def test_sweep_without_dt_runs_error_control(swept_adaptive):
 def test_sweep_error_control_table_names_tolerances(swept_adaptive):
     code, out, err = run_cli([*SWEEP_ADAPTIVE, "--out", str(swept_adaptive["npz"])])  # loaded, not recomputed
     assert code == 0, err
-    assert "alpha-method, error control rtol = 1e-06, atol = 1e-09" in out
+    assert "switching-tsit5-alpha, error control rtol = 1e-06, atol = 1e-09" in out
     assert "rejected" in out.splitlines()[2]  # the table's header
     # other tolerances are other settings: refused for this --out, before anything runs
     code, _out, err = run_cli([*SWEEP_ADAPTIVE, "--out", str(swept_adaptive["npz"]), "--rtol", "1e-4"])
@@ -155,7 +155,7 @@ def test_tau_star_without_dt_runs_error_control():
     assert code == 0, err
     assert "error control rtol = 1e-06, atol = 1e-09" in err
     record = json.loads(out)
-    assert record["method"] == "alpha-adaptive" and record["dt"] is None
+    assert record["method"] == "switching-tsit5-alpha" and record["dt"] is None
     assert record["rtol"] == 1e-6 and record["atol"] == 1e-9 and record["tau_rtol"] == 0.2
     assert record["found"] == [True]
     assert 1e-3 < record["tau_star"][0] <= 1e-2

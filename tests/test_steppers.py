@@ -44,7 +44,8 @@ def test_every_stepper_jumps_as_the_reference(reference, solver):
 def test_tau_zero_defaults_to_tsit5_and_rho_keeps_the_alpha_method():
     assert integrator_for(dae=True, t_final=1.0).settings()["method"] == "diffrax-Tsit5"
     assert integrator_for(dae=True, t_final=1.0, rho=0.5).settings()["method"] == "alpha-adaptive"
-    assert integrator_for(t_final=1.0).settings()["method"] == "alpha-adaptive"
+    assert integrator_for(t_final=1.0).settings()["method"] == "switching-tsit5-alpha"
+    assert integrator_for(t_final=1.0, rho=0.5).settings()["method"] == "alpha-adaptive"
     # the DAE runs in pseudo-time with log v carried (DesingularizedDAE); the α-method carries
     # the DAE's v itself (solved, never integrated); the homogenized ODE log v
     dae = integrator_for(dae=True, t_final=1.0)
@@ -99,7 +100,7 @@ def test_tsit5_gradients_match_central_differences():
 
 
 def test_bad_solvers_are_refused_before_compiling(no_compilation):
-    with pytest.raises(ValueError, match=r"solver must be one of \['alpha', 'tsit5'"):
+    with pytest.raises(ValueError, match=r"solver must be one of \['auto', 'alpha', 'tsit5'"):
         pj.simulate(V=1.1, tau=0, solver="rk4")
     with pytest.raises(ValueError, match="uniform mesh"):
         pj.simulate(V=1.1, tau=0, solver="tsit5", dt=0.01)

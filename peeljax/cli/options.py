@@ -33,7 +33,7 @@ import sys
 import numpy as np
 
 from .._validation import MAX_STEPS_LIMIT, TAU_MAX, check_choice, check_mesh, check_positive, check_rho, check_tolerance
-from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_MAX_STEPS_DENSE, DEFAULT_RTOL
+from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_MAX_STEPS_DENSE, DEFAULT_RTOL, integrator_for
 from ..model import GEOMETRIES, PeelingModel
 from ..sweeps.api import sweep
 from ..sweeps.engine import STARTS
@@ -390,8 +390,8 @@ def add_engine(parser: argparse.ArgumentParser):
     add_tolerances(solver, rtol_default=f"{DEFAULT_RTOL:g}", atol_default=f"{DEFAULT_ATOL:g}")
     solver.add_argument("--rho", type=float, default=None, help="alpha-method's rho in [0, 1) (default 0)")
     solver.add_argument(
-        "--method", default="default", metavar="NAME",
-        help=f"the stepper of error control: default (the library's choice) or one of {', '.join(STEPPERS)}; "
+        "--method", "--solver", default="default", metavar="NAME",
+        help=f"the stepper of error control: default (the library's choice: auto) or one of {', '.join(STEPPERS)}; "
         "--dt and --rho with default or alpha only (default: default)",
     )  # fmt: skip
     add_max_steps(solver, default=f"{DEFAULT_MAX_STEPS_DENSE:.0e}; stick-slip takes about 50-100 a jump")
@@ -473,7 +473,7 @@ def engine_record(kwargs: dict, ran: str | None = None) -> dict:
     """The integrator's settings for the JSON output: method (the stepper that ran, from the
     result's settings, when given), dt (null with error control), rtol, atol, rho (null when the
     stepper is not the α-method)."""
-    default = "alpha" if kwargs["dt"] is not None else "alpha-adaptive"
+    default = "alpha" if kwargs["dt"] is not None else integrator_for(t_final=1.0).settings()["method"]  # τ > 0's
     return {
         "method": default if ran is None else ran,
         "dt": kwargs["dt"],

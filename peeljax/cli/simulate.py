@@ -52,8 +52,8 @@ def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
     options.add_geometry_and_phi(physics)
     solver = parser.add_argument_group("integrator")
     solver.add_argument(
-        "--method", default="default", metavar="NAME",
-        help=f"the stepper of error control: default (the library's choice), {', '.join(STEPPERS)}; or diffrax "
+        "--method", "--solver", default="default", metavar="NAME",
+        help=f"the stepper of error control: default (the library's choice: auto), {', '.join(STEPPERS)}; or diffrax "
         "(the Kvaerno5 reference on its output grid) (default: default)",
     )  # fmt: skip
     solver.add_argument(

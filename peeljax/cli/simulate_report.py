@@ -16,7 +16,10 @@ from ._common import PROG, max_steps_remedy, option_names, stats_text
 __all__ = ["announce", "cycles", "method_title", "plot_title", "remedy_notes", "regime_note", "summary_lines"]
 
 # The stepper that ran (the Solution's ``method``), in words; other names are shown as they are.
-_METHOD_TITLES = {"alpha": "alpha-method", "alpha-adaptive": "alpha-method", "diffrax": "diffrax Kvaerno5 reference"}
+_METHOD_TITLES = {
+    "alpha": "alpha-method", "alpha-adaptive": "alpha-method", "diffrax": "diffrax Kvaerno5 reference",
+    "switching-tsit5-alpha": "Tsit5 <-> alpha-method",
+}  # fmt: skip
 
 
 def method_title(method: str, option: str | None = None) -> str:

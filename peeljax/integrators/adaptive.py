@@ -360,7 +360,7 @@ def adaptive_loop(
         norm = jnp.where(solved, norm, jnp.inf)
         accept = solved & (norm <= 1.0)
         t_new = jnp.where(last, t_final, c.t + h)  # exactly t_final at the end
-        factor = controller.factor(norm, c.prev_norm, accept, solved | attempt.retry, stepper.error_order(state))
+        factor = stepper.step_factor(controller, state, norm, c.prev_norm, accept, solved | attempt.retry)
         factor = jnp.where(attempt.retry, 1.0, factor)
         h_next = jax.lax.stop_gradient(jnp.minimum(h * factor, span))
         if timed:

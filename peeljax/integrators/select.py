@@ -91,7 +91,7 @@ DEFAULT_MAX_JUMPS = 10_000
 # The default stepper of the DAE (τ = 0) and of the homogenized ODE (τ > 0), chosen by
 # measurement (docs/theory.md, "Choosing the stepper"); ρ ≠ 0 (an α-method setting) keeps the α-method.
 DEFAULT_DAE_STEPPER = "tsit5"
-DEFAULT_ODE_STEPPER = "alpha"
+DEFAULT_ODE_STEPPER = "auto"
 # "auto": Tsit5 ↔ the α-method where the homogenized ODE turns stiff (τ > 0, :mod:`.switching`);
 # at τ = 0 the DAE's default stepper.
 SOLVER_NAMES: tuple[str, ...] = ("auto", *STEPPER_NAMES)
@@ -169,7 +169,8 @@ def _controller(rtol: float, atol: float) -> PIController:
 @functools.lru_cache(maxsize=64)
 def _error_control(rho, rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps, dae, merge) -> ErrorControl:
     # The default method's integrator, built once per setting rather than on every call.
-    integrator = ErrorControl(_default_solver(rho), _controller(rtol, atol), dtmin, max_steps, adjoint)
+    method = _named(DEFAULT_ODE_STEPPER) if rho == 0.0 and not dae else _default_solver(rho)
+    integrator = ErrorControl(method, _controller(rtol, atol), dtmin, max_steps, adjoint)
     return _with_events(integrator, fold, max_jumps, dae, merge=merge)
 
 

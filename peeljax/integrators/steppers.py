@@ -142,9 +142,10 @@ class AbstractStepper(eqx.Module):
     def restart(self, ode, t, y, state: StepperState) -> StepperState:
         """The state to go on from at (t, y) after a jump (carried coordinates)."""
 
-    def error_order(self, state: StepperState) -> int | Array:
-        """q of the next attempt's error estimate from ``state`` (a switching stepper's depends on it)."""
-        return self.order
+    def step_factor(self, controller, state: StepperState, norm, prev_norm, accept, solved) -> Array:
+        """h_next/h after an attempt from ``state`` (:meth:`PIController.factor` with this
+        stepper's error order; a switching stepper's order depends on ``state``)."""
+        return controller.factor(norm, prev_norm, accept, solved, self.order)
 
     def for_loop(self, controller, kind: str) -> "AbstractStepper":
         """The stepper as the loop runs it, with the controller's tolerances and the loop's kind."""

@@ -121,7 +121,6 @@ class SwitchingStepper(AbstractStepper):
     to_stiff: int = eqx.field(static=True, default=15)
     calm_steps: int = eqx.field(static=True, default=6)
     to_nonstiff: int = eqx.field(static=True, default=3)
-    implicit_error_scale: float = eqx.field(static=True, default=1.0)
 
     def __check_init__(self):
         if not isinstance(self.explicit.solver, diffrax.Tsit5):
@@ -141,8 +140,12 @@ class SwitchingStepper(AbstractStepper):
     def order(self) -> int:
         return self.explicit.order  # the initial step's rule (after a start or a jump): Tsit5's
 
-    def error_order(self, state: StepperState) -> Array:
-        return jnp.where(state.inner.stiff, self.implicit.order, self.explicit.order)
+    def step_factor(self, controller, state, norm, prev_norm, accept, solved):
+        # each with its order a constant: the same factor, to the last bit, as the stepper alone
+        # (a traced order changed the steps at round-off, and with them a sweep's lanes under vmap)
+        implicit = controller.factor(norm, prev_norm, accept, solved, self.implicit.order)
+        explicit = controller.factor(norm, prev_norm, accept, solved, self.explicit.order)
+        return jnp.where(state.inner.stiff, implicit, explicit)
 
     @property
     def carried_log(self) -> tuple[int, ...]:
@@ -205,7 +208,6 @@ class SwitchingStepper(AbstractStepper):
 
         def implicit():
             sub = self.implicit.attempt(ode, t, h, self._implicit_state(state), weights)
-            sub = eqx.tree_at(lambda a: a.error, sub, sub.error * self.implicit_error_scale)
             dy, dpsi = jax.lax.stop_gradient(sub.candidate.inner.parts)
             # ∂ψ/∂y = ∂ψ/∂z·(∂y/∂z)⁻¹ (∂y/∂z = I where Newton's unknown is the state itself); the
             # unrolled solve: a LAPACK call in this branch cost 7 µs a step of the other (measured)

@@ -33,7 +33,10 @@ _SHORT_REASONS = {
     StopReason.MAX_JUMPS: "reached max_jumps",
     StopReason.FOLD: "reached a fold of φ (fold='stop')",
 }
-_METHOD_LABELS = {"alpha": "α-method", "alpha-adaptive": "α-method, error control", "diffrax": "diffrax reference"}
+_METHOD_LABELS = {
+    "alpha": "α-method", "alpha-adaptive": "α-method, error control", "diffrax": "diffrax reference",
+    "switching-tsit5-alpha": "Tsit5 ↔ α-method, error control",
+}  # fmt: skip
 _PANELS = (
     ("v", "peeling velocity v [m/s]"),
     ("alpha", "peel-front angle α [rad]"),
