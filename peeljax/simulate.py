@@ -195,7 +195,7 @@ def simulate(
     max_jumps: int | None = None,
     memory_limit: float | None = None,
 ) -> Solution:
-    """Integrate the peeling problem with the α-method (or a diffrax solver), through the folds of φ.
+    """Integrate the peeling problem with error control or the paper's α-method mesh, through the folds of φ.
 
     ``tau > 0``: the homogenized ODE (eq. ``hv``); ``tau = 0``: the DAE itself, x' = f(x, v)
     with v solved from the constraint on its stable branch (:class:`~peeljax.ConstrainedDAE`).
@@ -203,12 +203,16 @@ def simulate(
     tape slips at φ's maximum and re-sticks at its minimum — and the run goes on
     (``fold="jump"``, the default under error control; every jump is in ``result.jumps``).
 
-    Two modes share the α-method's step (:mod:`peeljax.integrators.alpha`):
+    Two modes:
 
-    * ``dt=None`` (default): error control (:func:`~peeljax.integrators.adaptive.integrate_alpha_adaptive`),
-      a step size chosen by a PI controller so that each step's local error estimate is
-      within ``rtol``/``atol``; output at ``ts`` by cubic Hermite interpolation.
-    * ``dt`` a number: the uniform mesh of the paper (:func:`peeljax.integrate_alpha`).
+    * ``dt=None`` (default): error control (:mod:`peeljax.integrators.adaptive`), a step size
+      chosen by a PI controller so that each step's local error estimate is within
+      ``rtol``/``atol``; output at ``ts`` by the step's interpolant. The stepper: ``solver``,
+      or by default (measured, docs/theory.md "Choosing the stepper") Tsit5 in pseudo-time at
+      τ = 0 and at τ > 0 ``"auto"``: Tsit5, switching to the α-method where the homogenized
+      ODE turns stiff (:class:`~peeljax.integrators.SwitchingStepper`; ``stats`` count each
+      one's steps and the switches). A ρ ≠ 0 asks for the α-method.
+    * ``dt`` a number: the uniform mesh of the paper, the α-method (:func:`peeljax.integrate_alpha`).
 
     ``solver`` may also be any ``diffrax.AbstractSolver`` (e.g. ``diffrax.Kvaerno5()``): the
     same problem, tolerances, stops and output then run through diffrax with its PID controller
@@ -226,8 +230,9 @@ def simulate(
         rho: the α-method's ρ ∈ [0, 1) (ignored when ``solver`` is given).
         y0: initial (α, ω, u, v) with v > 0 (default: the paper's consistent data,
             :meth:`PeelingModel.initial_state`).
-        solver: an :class:`AlphaMethod` to set Newton tolerances and safeguards, or a
-            ``diffrax.AbstractSolver`` (error control: ``dt=None``).
+        solver: a name (``"auto"``, ``"alpha"``, ``"tsit5"``, ``"dopri5"``, ``"dopri8"``,
+            ``"kvaerno3/4/5"``), an :class:`AlphaMethod` to set Newton tolerances and
+            safeguards, a stepper, or a ``diffrax.AbstractSolver`` (error control: ``dt=None``).
         truncation: ``None`` for the exact J_t, m ≥ 1 for the m-term eq. ``hvex``, 0 for the
             τ → 0 index-1 ODE.
         rtol, atol: error control only (default 1e-6 and 1e-9): relative tolerance in

@@ -70,7 +70,9 @@ class PeeljaxAdaptive(Peer):
         self.run(rtol)  # compiles once (rtol is traced: later settings find the program compiled)
 
     def run(self, rtol):
-        sol = self._pj.simulate(V=V, tau=self.tau, t_final=T_FINAL, rtol=rtol, atol=ADAPTIVE_ALPHA_ATOL * rtol, ts=GRID)
+        sol = self._pj.simulate(
+            V=V, tau=self.tau, t_final=T_FINAL, rtol=rtol, atol=ADAPTIVE_ALPHA_ATOL * rtol, ts=GRID, solver="alpha"
+        )  # (named: the default for τ > 0 switches to Tsit5 where it can, benchmarks/switching.py)
         v = np.asarray(self._jax.block_until_ready(sol.ys))[:, 3]  # NaN after a stop
         self.stats[rtol] = sol.stats
         return v
@@ -102,7 +104,7 @@ def peeljax_batch_adaptive(Vs, taus, rtol, rho=0.0, atol_factor=ADAPTIVE_ALPHA_A
 
     result = peeljax.sweep(
         None, Vs, taus, None, T_FINAL, rtol=rtol, atol=atol_factor * rtol, save_dt=P3_SAVE_DT,
-        grid="pairs", progress=False, rho=rho,
+        grid="pairs", progress=False, rho=rho, solver="alpha",
     )  # fmt: skip
     return result.ys[:, :, 3], result.status, result.accepted_steps, result.rejected_steps
 
@@ -148,6 +150,7 @@ def adaptive_alpha_loss(v_data):
     def loss(c, rtol):
         sol = peeljax.simulate(
             model_of(c), V=V, tau=P4_TAU, t_final=P4_T_FINAL, rtol=rtol, atol=ADAPTIVE_ALPHA_ATOL * rtol, ts=P4_TIMES,
+            solver="alpha",
         )  # fmt: skip
         # Under jit the rows are the output times' and room for the jumps' sides, in time order:
         # P4 (τ = 0.1) has no jump, so its output times' rows come first (a jump would make L NaN).

@@ -9,7 +9,7 @@
 ``solver``                                   ``dt``      integrator
 ===========================================  ==========  ==============================================
 None, ``"alpha"`` or an :class:`AlphaMethod`  a number    :class:`UniformMesh` (the paper's mesh)
-None or a name of ``STEPPER_NAMES``          None        :class:`ErrorControl` with that stepper
+None or a name of ``SOLVER_NAMES``           None        :class:`ErrorControl` with that stepper
 an :class:`AlphaMethod`                      None        :class:`ErrorControl` (the α-method)
 a diffrax Runge–Kutta solver (``Tsit5()``)   None        :class:`ErrorControl` (:class:`RungeKutta`)
 another ``diffrax.AbstractSolver``           None        :class:`DiffraxIntegrator` (diffrax's own loop)
@@ -22,6 +22,10 @@ behaviour; the default, and the only choice, on the uniform mesh and with a diff
 that is not a Runge–Kutta method, whose steps diffrax's own loop takes) or ``"follow"``
 (τ > 0 only). ``dae=True`` (τ = 0: the DAE itself, :class:`~peeljax.ConstrainedDAE`) needs
 error control; the stepper then carries v as it is (v = 0 on a fully stuck tape).
+
+The default stepper (``solver=None``, ρ = 0) is measured per problem (docs/theory.md,
+"Choosing the stepper"): τ = 0 Tsit5 in pseudo-time; τ > 0 ``"auto"``, Tsit5 switching to the
+α-method where the homogenized ODE turns stiff (:mod:`.switching`). A ρ ≠ 0 is the α-method's.
 """
 
 from __future__ import annotations

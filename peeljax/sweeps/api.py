@@ -274,11 +274,12 @@ def sweep(
     max_jumps: int | None = None,
     start: str | ArrayLike = "paper",
 ) -> SweepResult:
-    """Integrate eq. ``hv`` with (``av``)–(``str``) by the α-method for many (V, τ, …) at once.
+    """Integrate eq. ``hv`` with (``av``)–(``str``) (or the DAE at τ = 0) for many (V, τ, …) at once.
 
     Each trajectory is the run :func:`peeljax.simulate` makes with the same settings: with
-    ``dt=None`` (default) the error-controlled α-method, each trajectory with its own step
-    sizes; with a number ``dt`` the uniform mesh, the same for every trajectory.
+    ``dt=None`` (default) error control with :func:`peeljax.simulate`'s default stepper (τ > 0:
+    Tsit5, switching to the α-method where the ODE turns stiff), each trajectory with its own
+    step sizes; with a number ``dt`` the α-method's uniform mesh, the same for every trajectory.
 
     Args:
         model: the base model (default: the paper's); ``params`` overrides its parameters.

@@ -96,13 +96,13 @@ def least_tau(
 
     Args:
         V: pull velocities [m/s] (> 0), searched in parallel.
-        dt, t_final: as in :func:`peeljax.simulate`: ``dt=None`` (default) runs the
-            error-controlled α-method, where a run stops at an impasse point or when its step
+        dt, t_final: as in :func:`peeljax.simulate`: ``dt=None`` (default) runs error
+            control (its default stepper), where a run stops at an impasse point or when its step
             size collapses below ``dtmin``; a number runs the uniform mesh, where it stops at an
             impasse point or when Newton fails at the finest subdivision.
         rtol, atol, dtmin, max_steps: error control's, as in :func:`peeljax.simulate`.
-        solver: an :class:`AlphaMethod` (default ``AlphaMethod(rho=rho)``) or any
-            ``diffrax.AbstractSolver`` (error control), as in :func:`peeljax.sweep`.
+        solver: as in :func:`peeljax.sweep` (default: ``simulate``'s default stepper; the
+            uniform mesh, ``dt`` given, is ``AlphaMethod(rho=rho)``).
         tau_range: (lo, hi), 0 < lo < hi: where to search.
         tau_rtol: relative resolution: τ·(1 − tau_rtol) is tested and stops, 0 < tau_rtol < 1.
         n_points: τ values per V and round (the scan's and every refinement's).
