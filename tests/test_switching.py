@@ -5,12 +5,15 @@ run that switched, and (slow) derivatives through a switch against central diffe
 
 from __future__ import annotations
 
+import json
+
 import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import run_cli
 
 import peeljax as pj
 from peeljax.integrators import SwitchingStepper, integrator_for
@@ -63,6 +66,18 @@ def test_auto_is_the_switching_stepper_at_tau_above_zero_and_the_dae_default_at_
         integrator_for("automatic", t_final=1.0)
     with pytest.raises(ValueError, match="to_stiff"):
         SwitchingStepper(to_stiff=0)
+    with pytest.raises(ValueError, match="tau > 0"):
+        integrator_for(SwitchingStepper(), dae=True, t_final=1.0)
+
+
+def test_the_command_line_names_the_switching_stepper():
+    code, out, err = run_cli(["simulate", "--tau", "0.1", "--t-final", "0.2", "--solver", "auto", "--json"])
+    assert code == 0, err
+    record = json.loads(out)
+    assert record["method"] == "switching-tsit5-alpha" and record["method_option"] == "auto"
+    code, out, err = run_cli(["simulate", "--tau", "0.1", "--t-final", "0.2", "--json"])
+    assert code == 0, err
+    assert json.loads(out)["method"] == "switching-tsit5-alpha"
 
 
 def _attempts(sol) -> int:

@@ -267,7 +267,7 @@ def integrator_for(
         refuse_with_dt(dt, rtol=rtol, atol=atol, dtmin=dtmin)
         if not isinstance(method, AlphaMethod):
             raise ValueError(
-                f"dt (a uniform mesh) is the α-method's; a diffrax solver ({type(method).__name__}) runs with "
+                f"dt (a uniform mesh) is the α-method's; {type(method).__name__} runs with "
                 "error control: give rtol/atol instead of dt"
             )
         n_steps = check_mesh(dt, t_final)
@@ -280,6 +280,11 @@ def integrator_for(
     dtmin = None if dtmin is None else float(dtmin)
     if _own_loop(method):
         return DiffraxIntegrator(method, rtol, atol, dtmin, None, max_steps, adjoint)
+    if dae and isinstance(method, SwitchingStepper):
+        raise ValueError(
+            "solver: the switching stepper is the homogenized ODE's (tau > 0); with tau=0 give solver='auto' "
+            "(the DAE's default stepper) or a stepper's name"
+        )
     if solver is None and dae and type(rho) in (float, int) and float(rho) == 0.0:
         return _error_control_dae(rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps, merge_jump_rows)
     if solver is None and type(rho) in (float, int):

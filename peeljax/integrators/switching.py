@@ -11,13 +11,14 @@ it is stiff, as DifferentialEquations.jl's ``AutoTsit5(Rosenbrock23())`` does:
   ϱ·h = ‖k₇ − k₆‖ / ‖g₇ − g₆‖, with k the stage increments h·f(g) of its two last stages
   (both at t + h: g₇ = y₁, g₆ its sixth stage's argument). Stiff where ϱ·h exceeds
   ``stiff_fraction`` of Tsit5's stability bound on the negative real axis (3.507, measured in
-  ``tests/test_switching.py``) on ``to_stiff`` accepted steps in a row: the step size is then
-  held by stability, not by accuracy.
+  ``tests/test_switching.py``) on ``to_stiff`` accepted steps, ``calm_steps`` calm ones in a row
+  resetting the count (Hairer's rule in DOPRI5): the step size is then held by stability, not
+  by accuracy.
 * **non-stiffness on an α-method step**: the spectral radius of the Newton matrix's Jacobian
   ∂ψ/∂y (kept across steps, so free), bounded from above by Gelfand's formula
   ‖M^(2^k)‖^(1/2^k) in the error weights' scaling; back to Tsit5 where ϱ·h is below the same
-  fraction of the bound on ``to_nonstiff`` accepted steps in a row: Tsit5 is stable at the
-  α-method's present step.
+  fraction of the bound, halved, on ``to_nonstiff`` accepted steps in a row: Tsit5 would be
+  stable at twice the α-method's present step.
 
 A switch happens at the end of an accepted step: the new stepper restarts there as after a
 jump (:meth:`AbstractStepper.restart`), and the step-size controller goes on with the new
@@ -95,7 +96,6 @@ class _SwitchingInner(eqx.Module):
     switches: Array
     first_switch_at: Array
     last_switch_at: Array
-    stiffness: Array  # ϱ·h / the stability bound, of the last attempt
 
 
 class SwitchingStepper(AbstractStepper):
@@ -177,7 +177,6 @@ class SwitchingStepper(AbstractStepper):
         inner = _SwitchingInner(
             stiff=jnp.asarray(False), explicit=state.inner, implicit=implicit, count=zero, calm=zero,
             steps=jnp.zeros(2, jnp.int32), switches=zero, first_switch_at=nan, last_switch_at=nan,
-            stiffness=jnp.zeros(()),
         )  # fmt: skip
         return ode, eqx.tree_at(lambda s: s.inner, state, inner)
 
@@ -228,9 +227,9 @@ class SwitchingStepper(AbstractStepper):
                 count = jnp.where(held, inner.count + 1, 0)
             count = count.astype(jnp.int32)
             steps = inner.steps.at[0 if which == "explicit" else 1].add(1)
-            counted = eqx.tree_at(lambda i: (i.count, i.calm, i.steps, i.stiffness), inner, (count, calm, steps, ratio))
+            counted = eqx.tree_at(lambda i: (i.count, i.calm, i.steps), inner, (count, calm, steps))
             candidate = self._merged(sub.candidate, counted, which)
-            retained = self._merged(sub.retained, eqx.tree_at(lambda i: i.stiffness, inner, ratio), which)
+            retained = self._merged(sub.retained, inner, which)
             needed = self.to_stiff if which == "explicit" else self.to_nonstiff
             interpolant = _SwitchedInterpolant(jnp.asarray(which == "implicit"), hermite, solver)
             attempt = Attempt(candidate, retained, sub.error, sub.solved, sub.retry, sub.iterations, interpolant)
