@@ -45,9 +45,10 @@ TABLES = {
     "vmap": ("stick_slip", [], "P6 and the V-map (200 V)"),
     "gradient": ("gradient_cost", [], "the gradient's cost, uniform mesh"),
     "jumps": ("jump_gradient_cost", [], "the gradient's cost through the jumps"),
+    "switching": ("switching", [], "τ > 0: the default stepper (Tsit5 ↔ α-method) against CasADi"),
 }
 # ``all``: every table once (``vmap`` holds ``p6``, ``compare`` holds p1–p5)
-ALL = ("compare", "vmap", "gradient", "jumps")
+ALL = ("compare", "vmap", "gradient", "jumps", "switching")
 
 
 def script_command(table: str, extra=()) -> list[str]:

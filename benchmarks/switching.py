@@ -107,6 +107,29 @@ def round_robin(rows, repeats, loads):
     return times
 
 
+def measure(problem, keys, run, error, attempts, casadi_run, casadi_call, repeats):
+    """Each candidate and CasADi calibrated on the ladder, then timed round-robin at the rtol
+    found: (chosen rows, ladders, times, load averages). ``run(key, rtol)`` → (v, result)."""
+    chosen, ladders = {}, {}
+    for key in keys:
+        started = time.perf_counter()
+        found, ladders[key] = calibrate(lambda r, key=key: run(key, r), error)
+        if found is None:
+            print(f"  [{problem} {key}: no rung met the target]", file=sys.stderr)
+            continue
+        rtol, err, (_, result) = found
+        chosen[key] = {"rtol": rtol, "error": err, "attempts": attempts(result), "first_s": time.perf_counter() - started}
+        print(f"  [{problem} {key}: rtol {rtol:g}, error {err:.2g}, {chosen[key]['attempts']:.0f} attempts]", file=sys.stderr)
+    found, ladders["casadi"] = calibrate(casadi_run, error)
+    rtol_c, err_c, _ = found
+    chosen["casadi"] = {"rtol": rtol_c, "error": err_c, "attempts": None}
+    rows = {key: (lambda key=key: run(key, chosen[key]["rtol"])) for key in chosen if key != "casadi"}
+    rows["casadi"] = lambda: casadi_call(rtol_c)
+    loads = [load()]
+    times = round_robin(rows, repeats, loads)
+    return chosen, ladders, times, loads
+
+
 def p1(keys, repeats, tau):
     import jax
 
@@ -125,31 +148,15 @@ def p1(keys, repeats, tau):
 
     casadi = CasadiPeer(tau, LADDER, log_v=True)
     casadi.prepare()
-    chosen, ladders = {}, {}
-    for key in keys:
-        started = time.perf_counter()
-        found, ladders[key] = calibrate(lambda r, key=key: simulate(key, r), error)
-        if found is None:
-            print(f"  [P1 {key}: no rung met the target]", file=sys.stderr)
-            continue
-        rtol, err, (_, sol) = found
-        stats = sol.stats
-        chosen[key] = {"rtol": rtol, "error": err, "attempts": int(stats["accepted_steps"]) + int(stats["rejected_steps"]),
-                       "first_s": time.perf_counter() - started}  # fmt: skip
-        print(f"  [P1 {key}: rtol {rtol:g}, error {err:.2g}, {chosen[key]['attempts']} attempts]", file=sys.stderr)
 
     def casadi_run(r):
         casadi.setup(r)
         return (casadi.run(r),)
 
-    found, ladders["casadi"] = calibrate(casadi_run, error)
-    rtol_c, err_c, _ = found
-    chosen["casadi"] = {"rtol": rtol_c, "error": err_c, "attempts": None}
-    rows = {key: (lambda key=key: simulate(key, chosen[key]["rtol"])) for key in chosen if key != "casadi"}
-    rows["casadi"] = lambda: casadi.run(rtol_c)
-    loads = [load()]
-    times = round_robin(rows, repeats, loads)
-    return chosen, ladders, times, loads
+    def attempts(sol):
+        return int(sol.stats["accepted_steps"]) + int(sol.stats["rejected_steps"])
+
+    return measure("P1", keys, simulate, error, attempts, casadi_run, casadi.run, repeats)
 
 
 def p3(keys, repeats):
@@ -182,25 +189,10 @@ def p3(keys, repeats):
         casadi.setup(rtol)
         return (casadi_all(rtol),)
 
-    chosen, ladders = {}, {}
-    for key in keys:
-        started = time.perf_counter()
-        found, ladders[key] = calibrate(lambda r, key=key: sweep(key, r), error)
-        if found is None:
-            print(f"  [P3 {key}: no rung met the target]", file=sys.stderr)
-            continue
-        rtol, err, (_, result) = found
-        attempts = np.asarray(result.accepted_steps) + np.asarray(result.rejected_steps)
-        chosen[key] = {"rtol": rtol, "error": err, "attempts": float(np.mean(attempts)),
-                       "first_s": time.perf_counter() - started}  # fmt: skip
-        print(f"  [P3 {key}: rtol {rtol:g}, error {err:.2g}, {chosen[key]['attempts']:.0f} attempts/lane]", file=sys.stderr)
-    found, ladders["casadi"] = calibrate(casadi_run, error)
-    rtol_c, err_c, _ = found
-    chosen["casadi"] = {"rtol": rtol_c, "error": err_c, "attempts": None}
-    rows = {key: (lambda key=key: sweep(key, chosen[key]["rtol"])) for key in chosen if key != "casadi"}
-    rows["casadi"] = lambda: casadi_all(rtol_c)
-    loads = [load()]
-    times = round_robin(rows, repeats, loads)
+    def attempts(result):
+        return float(np.mean(np.asarray(result.accepted_steps) + np.asarray(result.rejected_steps)))
+
+    chosen, ladders, times, loads = measure("P3", keys, sweep, error, attempts, casadi_run, casadi_all, repeats)
     return chosen, ladders, times, loads, devices
 
 
