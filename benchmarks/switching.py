@@ -62,7 +62,7 @@ LADDER = tuple(float(f"{m}e{e}") for e in range(-2, -8, -1) for m in (5, 2, 1))
 # name → (what the table says, simulate/sweep options, atol as a multiple of rtol; None: the default atol)
 CANDIDATES = {
     "auto": ("switching Tsit5 ↔ α-method (solver='auto')", {"solver": "auto"}, None),
-    "alpha": ("α-method ρ = 0 (solver='alpha', today's default)", {"solver": "alpha"}, None),
+    "alpha": ("α-method ρ = 0 (solver='alpha', the default before)", {"solver": "alpha"}, None),
     "tsit5": ("Tsit5 (solver='tsit5')", {"solver": "tsit5"}, None),
 }
 TAUS_P1 = (0.01, 0.1)
