@@ -236,12 +236,12 @@ def table(title, chosen, times, per_core_devices, attempts_label):
     return lines
 
 
-def main():
+def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--only", nargs="+", choices=("P1", "P3", "long"), default=("P1", "P3", "long"))
     parser.add_argument("--candidates", nargs="+", choices=tuple(CANDIDATES), default=tuple(CANDIDATES))
     parser.add_argument("--repeats", type=int, default=9)
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     import jax
 
     import peeljax as pj
