@@ -288,9 +288,9 @@ def simulate(
     Gradients through a run with jumps follow the jumps: each jump time by the implicit
     function theorem on its fold event, the state after it through the constraint (see
     :mod:`peeljax.integrators.events`; the step sizes and the number of jumps are held fixed).
-    ``jax.grad`` with respect to one φ coefficient costs 1.1× the run at τ = 0 and 2× at
+    ``jax.grad`` with respect to one φ coefficient costs 1.1× the run at τ = 0 and 1.9× at
     τ = 1e-3 through 210 and 158 jumps (``benchmarks/results/jump_gradient_cost*.md``); the
-    checkpointed loop 4.3× and 15.6×.
+    checkpointed loop 4.3× and 17.4×.
 
     V, tau, rho, y0, the model's parameters and the adhesion coefficients are traced: ``jit``,
     ``vmap`` and ``grad`` work over them without recompiling. ``dt`` and ``t_final`` set the
