@@ -183,10 +183,7 @@ class SwitchingStepper(AbstractStepper):
     def _switched(self, ode, t, state: StepperState, to_stiff: bool) -> StepperState:
         """The state restarted in the other stepper at (t, state.y), counted as a switch."""
         inner = state.inner
-        if to_stiff:
-            new = self._merged(self.implicit.restart(ode, t, state.y, self._implicit_state(state)), inner, "implicit")
-        else:
-            new = self._merged(self.explicit.restart(ode, t, state.y, self._explicit_state(state)), inner, "explicit")
+        new = self._restarted_in(ode, t, state.y, state, to_stiff)
         return eqx.tree_at(
             lambda s: (s.inner.stiff, s.inner.count, s.inner.calm, s.inner.switches, s.inner.first_switch_at, s.inner.last_switch_at),
             new,
@@ -260,16 +257,18 @@ class SwitchingStepper(AbstractStepper):
         solver = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
         return hermite, solver
 
+    def _restarted_in(self, ode, t, y, state: StepperState, implicit: bool) -> StepperState:
+        """The state restarted at (t, y) by the α-method (``implicit``) or by Tsit5."""
+        if implicit:
+            return self._merged(self.implicit.restart(ode, t, y, self._implicit_state(state)), state.inner, "implicit")
+        return self._merged(self.explicit.restart(ode, t, y, self._explicit_state(state)), state.inner, "explicit")
+
     def restart(self, ode, t, y, state):
-        inner = state.inner
-
-        def restart_implicit():
-            return self._merged(self.implicit.restart(ode, t, y, self._implicit_state(state)), inner, "implicit")
-
-        def restart_explicit():
-            return self._merged(self.explicit.restart(ode, t, y, self._explicit_state(state)), inner, "explicit")
-
-        return jax.lax.cond(inner.stiff, restart_implicit, restart_explicit)
+        return jax.lax.cond(
+            state.inner.stiff,
+            lambda: self._restarted_in(ode, t, y, state, True),
+            lambda: self._restarted_in(ode, t, y, state, False),
+        )
 
     def statistics(self, state):
         inner = state.inner
