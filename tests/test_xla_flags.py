@@ -1,4 +1,4 @@
-"""peeljax's XLA:CPU flag (small while loops compiled as one call): set, merged, or left alone."""
+"""peeljax's XLA:CPU flags (small while loops compiled as one call; no MLIR fusion emitters): set, merged, or left alone."""
 
 from __future__ import annotations
 
@@ -41,3 +41,26 @@ def test_import_sets_the_flag_in_a_fresh_process():
     code = "import os, peeljax; print(os.environ['XLA_FLAGS'])"
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
     assert OPTION in out
+    import importlib.metadata
+
+    knows_the_option = tuple(int(x) for x in importlib.metadata.version("jaxlib").split(".")[:2]) >= (0, 6)
+    assert ("--xla_cpu_use_fusion_emitters=false" in out) == knows_the_option
+
+
+@pytest.mark.parametrize(
+    "jaxlib, before, expected",
+    [
+        ("0.10.2", "", "--xla_cpu_use_fusion_emitters=false"),
+        ("0.6.0", "--xla_dump_to=/x", "--xla_dump_to=/x --xla_cpu_use_fusion_emitters=false"),
+        ("0.5.3", "", ""),  # the option does not exist there: XLA would abort on it
+        ("0.10.2", "--xla_cpu_use_fusion_emitters=true", "--xla_cpu_use_fusion_emitters=true"),
+    ],
+)
+def test_fusion_emitters_flag_only_where_jaxlib_knows_it(monkeypatch, jaxlib, before, expected):
+    import importlib.metadata
+
+    monkeypatch.delenv("PEELJAX_KEEP_XLA_FLAGS", raising=False)
+    monkeypatch.setenv("XLA_FLAGS", before)
+    monkeypatch.setattr(importlib.metadata, "version", lambda name: jaxlib)
+    peeljax._fusion_emitters_flag()
+    assert os.environ["XLA_FLAGS"] == expected
