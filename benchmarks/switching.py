@@ -64,14 +64,24 @@ CANDIDATES = {
     "auto": ("switching Tsit5 ↔ α-method (solver='auto')", {"solver": "auto"}, None),
     "alpha": ("α-method ρ = 0 (solver='alpha', the default before)", {"solver": "alpha"}, None),
     "tsit5": ("Tsit5 (solver='tsit5')", {"solver": "tsit5"}, None),
+    "auto_rho": ("switching, its α-method at ρ = 0.5", {"solver": "auto ρ = 0.5"}, None),
 }
+
+
+def _solver(name):
+    """A candidate's solver: a name, or the switching stepper whose α-method has ρ = 0.5."""
+    if name != "auto ρ = 0.5":
+        return name
+    from peeljax.integrators import AlphaMethod, AlphaStepper, SwitchingStepper
+
+    return SwitchingStepper(implicit=AlphaStepper(AlphaMethod(rho=0.5)))
 TAUS_P1 = (0.01, 0.1)
 LONG_RUNS = ((1.1, 0.01, 1e9), (4.0, 0.1, 1e5))
 
 
 def options(key, rtol):
     _, kwargs, atol_factor = CANDIDATES[key]
-    out = dict(kwargs, rtol=rtol)
+    out = dict(kwargs, rtol=rtol, solver=_solver(kwargs["solver"]))
     if atol_factor is not None:
         out["atol"] = atol_factor * rtol
     return out
