@@ -73,7 +73,8 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from machine import command, cpu_model, made_by
+from machine import command, cpu_model, made_by, write_json
+from machine import load_average as load
 from peers.jump_peers import (
     ATOL_RATIO,
     T_FINAL,
@@ -112,10 +113,6 @@ LOADS = []  # the load average after each timed round
 
 def log(message):
     print(f"  [{message}]", file=sys.stderr, flush=True)
-
-
-def load():
-    return os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
 
 
 def jump_error(jumps, reference):
@@ -670,12 +667,6 @@ def limits(data) -> list[str]:
     return ["## What limits each figure", "", *(text for keep, text in bullets if keep)]
 
 
-def _jsonable(value):
-    if hasattr(value, "tolist"):
-        return value.tolist()
-    raise TypeError(f"{type(value).__name__} is not JSON serializable")
-
-
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=3, help="timed round-robin runs per setting (default 3)")
@@ -709,7 +700,7 @@ def main(argv=None):
     else:
         data = measure(args)
         out.parent.mkdir(parents=True, exist_ok=True)
-        out.with_suffix(".json").write_text(json.dumps(data, default=_jsonable, ensure_ascii=False, indent=1) + "\n")
+        write_json(out.with_suffix(".json"), data)
     text = report(data)
     out.write_text(text)
     print(text)
