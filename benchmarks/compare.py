@@ -80,41 +80,18 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 from compare_problems import (
-    GRID,
-    P3_ADAPTIVE_RTOLS,
-    P3_RTOL_LADDER,
-    P3_SAVE_DT,
-    P3_TAU_RANGE,
-    P3_TUNED_ATOL,
-    P3_TUNED_RHO,
-    P3_VELOCITIES,
-    P4_T_FINAL,
-    REF_ATOL,
-    REF_RTOL,
-    T_FINAL,
-    calibrate,
-    central_differences,
-    one_line,
-    p3_grid,
-    p3_subsample,
-    p4_coefficients,
-    reference,
-    relative_errors,
-    scaled_error,
-)
+    GRID, P3_ADAPTIVE_RTOLS, P3_RTOL_LADDER, P3_SAVE_DT, P3_TAU_RANGE, P3_TUNED_ATOL, P3_TUNED_RHO, P3_VELOCITIES,
+    P4_T_FINAL, REF_ATOL, REF_RTOL, T_FINAL, calibrate, central_differences, one_line, p3_grid, p3_subsample,
+    p4_coefficients, reference, relative_errors, scaled_error
+)  # fmt: skip
 from machine import command, cpu_model, load_average, write_json
 from peers import NotRun, Peer
 from peers.casadi_peer import CasadiBatch, CasadiLoss, CasadiPeer, dae_casadi_idas, p4_data
 from peers.diffrax_peer import DiffraxPeer, dae_diffrax_index1, diffrax_loss_of, diffrax_vmap
 from peers.numba_peer import NumbaAlpha
 from peers.peeljax_peer import (
-    PeeljaxAdaptive,
-    PeeljaxAlpha,
-    adaptive_alpha_loss,
-    alpha_loss_of,
-    peeljax_batch,
-    peeljax_batch_adaptive,
-)
+    PeeljaxAdaptive, PeeljaxAlpha, adaptive_alpha_loss, alpha_loss_of, peeljax_batch, peeljax_batch_adaptive
+)  # fmt: skip
 from peers.petsc_peer import PETSC_DT0, PetscAlphaPeer, petsc_tsalpha
 from peers.scipy_peer import ScipyPeer, dae_index1_ode, radau_y
 from peers.sundials_peer import CvodeBatch, CvodePeer, dae_ida

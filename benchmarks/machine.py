@@ -51,12 +51,8 @@ def load_average() -> float:
 
 def write_json(path, data) -> None:
     """``data`` as indented JSON, numpy and JAX arrays and scalars as lists and Python numbers."""
-    def default(value):
-        if hasattr(value, "tolist"):
-            return value.tolist()
-        raise TypeError(f"{type(value).__name__} is not JSON serializable")
-
-    Path(path).write_text(json.dumps(data, default=default, ensure_ascii=False, indent=1) + "\n", encoding="utf-8")
+    text = json.dumps(data, default=lambda value: value.tolist(), ensure_ascii=False, indent=1)
+    Path(path).write_text(text + "\n", encoding="utf-8")
 
 
 def write_result(path, text: str, cmd: str | None = None) -> Path:

@@ -50,13 +50,9 @@ first sweep of 200 lanes at V = 8 (no fold: cheap lanes, the same compiled progr
     python benchmarks/stick_slip.py --report-only benchmarks/results/stick_slip.json   # the report alone
     python benchmarks/stick_slip.py --quick --only while_loop "LSODA events"   # a check (< 2 min)
 
-``--only SUBSTRING …`` keeps the peers whose key or name contains one of the substrings
-(case-insensitive; the inertial model only when one matches "inertial"; the V-map only when
-both peeljax's default row and scipy LSODA events are kept). ``--quick``: the 1e-5 s target
-only, 2 repeats, no V-map and no inertial model. Ratios need peeljax's default row.
-
-Writes ``results/stick_slip.md`` and ``results/stick_slip.json`` (``results/stick_slip_quick.*`` with
-``--quick`` or ``--only``).
+``--only``: the inertial model only when a substring matches "inertial", the V-map only when
+peeljax's default row and scipy LSODA events are kept (ratios need peeljax's default row).
+Writes ``results/stick_slip.md`` and ``.json`` (``stick_slip_quick.*`` with ``--quick`` or ``--only``).
 """
 
 from __future__ import annotations
@@ -76,18 +72,9 @@ sys.path.insert(0, str(HERE))
 from machine import command, cpu_model, made_by, write_json
 from machine import load_average as load
 from peers.jump_peers import (
-    ATOL_RATIO,
-    T_FINAL,
-    CasadiEvents,
-    DiffraxEvents,
-    DiffraxWhileLoop,
-    InertialModel,
-    PeeljaxDAE,
-    ScipyEvents,
-    V,
-    jump_reference,
-    scipy_events_run,
-)
+    ATOL_RATIO, T_FINAL, CasadiEvents, DiffraxEvents, DiffraxWhileLoop, InertialModel, PeeljaxDAE, ScipyEvents, V,
+    jump_reference, scipy_events_run
+)  # fmt: skip
 
 TARGETS = (1e-6, 1e-5)
 REF_RTOL, REF_ATOL = 1e-12, 1e-14
@@ -673,9 +660,7 @@ def main(argv=None):
     parser.add_argument("--masses", type=float, nargs="+", default=(1e-5, 1e-6, 1e-8), help="inertial model masses")
     parser.add_argument("--cap", type=float, default=30.0, help="stop a ladder after a run slower than this (s)")
     parser.add_argument("--skip-vmap", action="store_true", help="the one-trajectory tables only")
-    parser.add_argument(
-        "--check-reference", action="store_true", help="also the Radau reference at rtol 1e-12 (~1 min)"
-    )
+    parser.add_argument("--check-reference", action="store_true", help="also the Radau reference at rtol 1e-12 (~1 min)")
     parser.add_argument(
         "--only", nargs="+", metavar="SUBSTRING", default=None,
         help="keep the peers whose key or name contains one of these (case-insensitive): while_loop 'LSODA events'",

@@ -41,18 +41,9 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))  # benchmarks/: machine, compare_problems, peers
 from compare_problems import (  # noqa: E402
-    GRID,
-    P3_SAVE_DT,
-    P3_VELOCITIES,
-    REF_ATOL,
-    REF_RTOL,
-    T_FINAL,
-    V,
-    p3_grid,
-    p3_subsample,
-    reference,
-    relative_errors,
-)
+    GRID, P3_SAVE_DT, P3_VELOCITIES, REF_ATOL, REF_RTOL, T_FINAL, V, p3_grid, p3_subsample, reference,
+    relative_errors
+)  # fmt: skip
 from machine import cpu_model, write_result  # noqa: E402
 from machine import load_average as load  # noqa: E402
 

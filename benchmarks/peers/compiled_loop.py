@@ -12,7 +12,7 @@ iterations, 4 subdivision levels):
   (hand-derived derivatives, checked against ``jax.jacfwd`` by :func:`check_jacobian`);
   convergence when max_i |δz_i|/w_i ≤ 1, w = (atol + rtol·|z_{0..2}|, rtol) at the new iterate;
   start guess z_n; Gaussian elimination with the same pairwise partial pivoting as
-  ``peeljax._linalg.solve_small``;
+  peeljax's small dense solve;
 * a_{n+1} = (ψ_{n+1} − ψ_n)/(γh) + (1 − 1/γ)·a_n, a_0 = ψ'(y_0)·ψ(y_0);
 * a failed Newton solve is retried on 2, 4, …, 16 substeps (counted), and the statuses
   (NEWTON_FAILED / NONFINITE / IMPASSE) are those of ``peeljax.StopReason``.
@@ -44,28 +44,13 @@ from numba import njit
 # StopReason codes (peeljax.solution.StopReason)
 NEWTON_FAILED, IMPASSE, NONFINITE = 1, 2, 3
 
-# Layout of the parameter vector
-_P_NAMES = ("R", "I", "K", "V", "tau", "c1", "p1", "c2", "p2", "c3", "c4", "C6", "p9")
+# Layout of the parameter vector: R, I, K = k/l, V, tau, c1, p1, c2, p2, c3, c4, C6, p9
 
 
 def parameters(V=1.1, tau=0.01, R=0.1, I=1e-2, k=1000.0, l=1.0, adhesion=None):
     """The parameter vector of the compiled loop (paper geometry, the paper's φ family)."""
-    c = {
-        "c1": 400.0,
-        "p1": 0.35,
-        "c2": 110.0,
-        "p2": 0.15,
-        "c3": 130.0,
-        "c4": 11.0,
-        "c5": 2.0,
-        "p5": 1.5,
-        "c6": 415.0,
-        "c7": 45.0,
-        "p7": 0.4,
-        "c8": 0.35,
-        "p8": 2.15,
-        "p9": 0.5,
-    }
+    c = {"c1": 400.0, "p1": 0.35, "c2": 110.0, "p2": 0.15, "c3": 130.0, "c4": 11.0, "c5": 2.0, "p5": 1.5,
+         "c6": 415.0, "c7": 45.0, "p7": 0.4, "c8": 0.35, "p8": 2.15, "p9": 0.5}  # fmt: skip
     if adhesion is not None:
         c.update(adhesion)
     C6 = c["c6"] - c["c7"] * V ** c["p7"] - c["c8"] * V ** c["p8"]  # the V-dependent factor of v^p9
@@ -308,19 +293,8 @@ def _substep(
 
 
 @njit(cache=True, error_model="numpy")
-def integrate(
-    y0,
-    p,
-    h,
-    n_steps,
-    rho=0.0,
-    rtol=1e-10,
-    atol=1e-12,
-    max_it=25,
-    max_subdivisions=4,
-    log_discretization=False,
-    max_log_change=math.inf,
-):
+def integrate(y0, p, h, n_steps, rho=0.0, rtol=1e-10, atol=1e-12, max_it=25, max_subdivisions=4,
+              log_discretization=False, max_log_change=math.inf):  # fmt: skip
     """The α-method on n_steps uniform steps of size h from y0.
 
     ``log_discretization`` and ``max_log_change`` as in ``peeljax.AlphaMethod`` (False and inf
@@ -333,17 +307,9 @@ def integrate(
     beta = 1.0 / (rho + 1.0) ** 2
     coef = np.array([gamma, beta / gamma])
     tol = np.array([rtol, atol])
-    ws = (
-        np.empty(4),
-        np.empty(4),
-        np.empty(4),
-        np.empty(4),
-        np.empty((4, 4)),
-        np.empty((4, 4)),
-        np.empty(4),
-        np.empty(4),
-        np.empty((4, 5)),
-    )
+    # known, z, yz, ps, jac, mat, r, delta, work
+    ws = (np.empty(4), np.empty(4), np.empty(4), np.empty(4), np.empty((4, 4)), np.empty((4, 4)), np.empty(4),
+          np.empty(4), np.empty((4, 5)))  # fmt: skip
     ys = np.full((n_steps + 1, 4), np.nan)
     iters = np.zeros(n_steps, np.int64)
     levels = np.zeros(n_steps, np.int64)
@@ -394,24 +360,9 @@ def integrate(
             k = 0
             while k < n_sub and st == 0:
                 st, it, nJ2, nd2 = _substep(
-                    cy,
-                    cpsi,
-                    ca,
-                    cJ,
-                    cd,
-                    hs,
-                    p,
-                    coef,
-                    tol,
-                    max_it,
-                    logd,
-                    max_log_change,
-                    level >= max_subdivisions,
-                    ny,
-                    npsi,
-                    na,
-                    ws,
-                )
+                    cy, cpsi, ca, cJ, cd, hs, p, coef, tol, max_it, logd, max_log_change, level >= max_subdivisions,
+                    ny, npsi, na, ws,
+                )  # fmt: skip
                 total += it
                 if st == 0:
                     cy[:] = ny
@@ -524,12 +475,9 @@ def main(argv=None):
     print("AlphaMethod() defaults:", options_of(peeljax.AlphaMethod()))
     for h in (1 / 82, 1 / 820, 1 / 8200):
         print(f"h = 1/{round(1 / h)}:", compare_with_peeljax(h=h))
-    try:  # the scheme on y as printed in the paper, Newton on log v, no log-change subdivision
-        paper = peeljax.AlphaMethod(log_discretization=False, max_log_change=math.inf)
-    except TypeError:
-        paper = None
-    if paper is not None:
-        print("log_discretization=False, max_log_change=inf, h = 1/820:", compare_with_peeljax(solver=paper))
+    # the scheme on y as printed in the paper, Newton on log v, no log-change subdivision
+    paper = peeljax.AlphaMethod(log_discretization=False, max_log_change=math.inf)
+    print("log_discretization=False, max_log_change=inf, h = 1/820:", compare_with_peeljax(solver=paper))
 
 
 if __name__ == "__main__":
