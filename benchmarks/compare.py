@@ -30,31 +30,13 @@ Problems (paper geometry and initial data):
 * (P5) the direct DAE at V = 1.1, 2, 4: where SUNDIALS IDA, CasADi idas (v algebraic), scipy
   Radau and diffrax Kvaerno5 on the index-1 ODE (eq. ``hv`` at τ = 0) stop, per tolerance.
 
-Peers (each one's answer is checked against the reference before it is timed; in P1/P2 a run
-that reports success but misses the reference by more than 10 % of max|v|, or an adaptive run
-off by more than max(1e3·rtol, 1e-4)·max|v|, is reported as a wrong answer and not timed):
-
-* ``peeljax``: the α-method (``peeljax.simulate``), h = 3/N, N ∈ {300, 600, …};
-* ``peeljax adaptive α``: the error-controlled α-method (``peeljax.simulate(dt=None, rtol=…,
-  atol=1e-3·rtol, ts=GRID)``: PI controller on the estimate C·h²·(a_{n+1} − a_n), Hermite
-  dense output), rtol ∈ {1e-2, …, 1e-8};
-* ``numba α``: the same algorithm as a compiled loop (``compiled_loop.py``), the practical limit;
-* ``diffrax Kvaerno5``, ``diffrax Kvaerno3``: ``peeljax.simulate_reference`` with that solver;
-* ``scipy Radau``, ``scipy BDF``: ``solve_ivp`` with ψ and its exact Jacobian compiled by
-  numba (``compiled_loop.evaluate``);
-* ``CVODE``: SUNDIALS CVODE (BDF, dense) through scikit-sundae, same compiled ψ and Jacobian;
-* ``CasADi cvodes``: CasADi's CVODES integrator on ψ built from CasADi symbols, with its own
-  automatic Jacobian;
-* the SUNDIALS, scipy BDF and CasADi peers also run on z = (α, ω, u, log v) ("(log v)"), the
-  coordinates peeljax discretises: on y they stumble over the non-Lipschitz start v0 = 1e-10·V;
-* ``petsc4py TSALPHA``: PETSc's generalized-α for first-order systems (ρ∞ = peeljax's ρ) with
-  its own error control (TSAdapt basic), on log v, v at ``GRID`` by TSInterpolate; run by
-  ``petsc_tsalpha.py --serve`` in a long-lived subprocess of the interpreter that has petsc4py
-  (its time includes ψ and a finite-difference Jacobian in Python, and one JSON round trip).
-
-All peers integrate the homogenized ODE (eq. ``hv``) in the physical state (α, ω, u, v)
-unless marked "(log v)"; peeljax and the numba loop discretise (α, ω, u, log v)
-(``AlphaMethod.log_discretization``).
+Peers (one module each in ``peers/``, on ``peers.Peer``; ``benchmarks/README.md`` lists them): each
+one's answer is checked against the reference before it is timed; in P1/P2 a run that reports
+success but misses the reference by more than 10 % of max|v|, or an adaptive run off by more than
+max(1e3·rtol, 1e-4)·max|v|, is reported as a wrong answer and not timed. All peers integrate the
+homogenized ODE (eq. ``hv``) in the physical state (α, ω, u, v) unless marked "(log v)" (on y
+they stumble over the non-Lipschitz start v0 = 1e-10·V); peeljax and the numba loop discretise
+(α, ω, u, log v) (``AlphaMethod.log_discretization``).
 
     python benchmarks/compare.py                  # full: ~5.5 min on a 2-core Intel Xeon (9-14 min on a 2-core
                                                   # AMD EPYC); P3 on 1024 trajectories
@@ -79,11 +61,6 @@ error-controlled gradient, whose compilation alone takes minutes and whose deriv
 (``--xla_backend_optimization_level=0``: a third less compile time, slower runs), so its times mean
 nothing. In every mode the JAX compilations inside each P1 peer's timed calls are counted
 (``compiles_in_run``, 0 when its ``setup`` built everything; the test asserts it).
-
-Modules: this file measures (P1–P5) and writes the JSON; ``compare_problems.py`` holds the
-problems (constants, grids, references, calibration helpers); ``peers/`` one module per peer
-family (peeljax, numba, diffrax, scipy, SUNDIALS, CasADi, PETSc), each built on ``peers.Peer``;
-``compare_report.py`` writes the markdown and the plot from the JSON.
 """
 
 from __future__ import annotations
@@ -91,7 +68,6 @@ from __future__ import annotations
 import argparse
 import functools
 import importlib
-import json
 import os
 import platform
 import re
@@ -104,41 +80,18 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 from compare_problems import (
-    GRID,
-    P3_ADAPTIVE_RTOLS,
-    P3_RTOL_LADDER,
-    P3_SAVE_DT,
-    P3_TAU_RANGE,
-    P3_TUNED_ATOL,
-    P3_TUNED_RHO,
-    P3_VELOCITIES,
-    P4_T_FINAL,
-    REF_ATOL,
-    REF_RTOL,
-    T_FINAL,
-    calibrate,
-    central_differences,
-    one_line,
-    p3_grid,
-    p3_subsample,
-    p4_coefficients,
-    reference,
-    relative_errors,
-    scaled_error,
-)
-from machine import command, cpu_model
+    GRID, P3_ADAPTIVE_RTOLS, P3_RTOL_LADDER, P3_SAVE_DT, P3_TAU_RANGE, P3_TUNED_ATOL, P3_TUNED_RHO, P3_VELOCITIES,
+    P4_T_FINAL, REF_ATOL, REF_RTOL, T_FINAL, calibrate, central_differences, one_line, p3_grid, p3_subsample,
+    p4_coefficients, reference, relative_errors, scaled_error
+)  # fmt: skip
+from machine import command, cpu_model, load_average, write_json
 from peers import NotRun, Peer
 from peers.casadi_peer import CasadiBatch, CasadiLoss, CasadiPeer, dae_casadi_idas, p4_data
 from peers.diffrax_peer import DiffraxPeer, dae_diffrax_index1, diffrax_loss_of, diffrax_vmap
 from peers.numba_peer import NumbaAlpha
 from peers.peeljax_peer import (
-    PeeljaxAdaptive,
-    PeeljaxAlpha,
-    adaptive_alpha_loss,
-    alpha_loss_of,
-    peeljax_batch,
-    peeljax_batch_adaptive,
-)
+    PeeljaxAdaptive, PeeljaxAlpha, adaptive_alpha_loss, alpha_loss_of, peeljax_batch, peeljax_batch_adaptive
+)  # fmt: skip
 from peers.petsc_peer import PETSC_DT0, PetscAlphaPeer, petsc_tsalpha
 from peers.scipy_peer import ScipyPeer, dae_index1_ode, radau_y
 from peers.sundials_peer import CvodeBatch, CvodePeer, dae_ida
@@ -586,7 +539,7 @@ def measure(args):
     repeats = args.repeats or (1 if args.smoke else 3 if args.quick else 5)
     suffix = "_quick" if args.quick else "_smoke" if args.smoke else ""
     started = time.perf_counter()
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    load = load_average()
     data = {
         "command": command(),  # first: the JSON's header, and the report's
         "mode": "quick" if args.quick else "smoke" if args.smoke else "full",
@@ -614,13 +567,6 @@ def measure(args):
     return data
 
 
-def _jsonable(value):
-    """numpy and JAX arrays and scalars as lists and Python numbers (``json.dumps``'s ``default``)."""
-    if hasattr(value, "tolist"):
-        return value.tolist()
-    raise TypeError(f"{type(value).__name__} is not JSON serializable")
-
-
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="fewer τ, settings, repeats; P3 on 16 trajectories")
@@ -646,7 +592,7 @@ def main(argv=None):
     md_path.parent.mkdir(parents=True, exist_ok=True)
     json_path = md_path.with_suffix(".json")
     data = measure(args)
-    json_path.write_text(json.dumps(data, default=_jsonable, ensure_ascii=False, indent=1) + "\n", encoding="utf-8")
+    write_json(json_path, data)
     print(f"(numbers written to {json_path})")
     compare_report.write_report(compare_report.load(json_path), md_path, echo=True)
     return 0

@@ -25,21 +25,9 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 from compare_problems import (
-    ADAPTIVE_ALPHA_ATOL,
-    P4_DEN,
-    P4_FD_STEP,
-    P4_PERTURBATION,
-    P4_T_FINAL,
-    P4_TAU,
-    P4_TIMES,
-    REF_ATOL,
-    REF_RTOL,
-    T_FINAL,
-    TARGET,
-    V,
-    cheapest_at,
-    scaled_error,
-)
+    ADAPTIVE_ALPHA_ATOL, P4_DEN, P4_FD_STEP, P4_PERTURBATION, P4_T_FINAL, P4_TAU, P4_TIMES, REF_ATOL, REF_RTOL,
+    T_FINAL, TARGET, V, cheapest_at, scaled_error
+)  # fmt: skip
 from machine import made_by
 
 DEFAULT_COMMAND = "python benchmarks/compare.py"  # for a JSON written before it kept its command

@@ -171,16 +171,7 @@ def main() -> None:
         print_table(run_table(V=args.V, seed=1 if args.seed == 0 else args.seed, method=args.method))
         return
     started = time.perf_counter()
-    out = run(
-        t_final=args.t_final,
-        tau=args.tau,
-        steps=args.steps,
-        free=args.free,
-        optimizer=args.optimizer,
-        seed=args.seed,
-        rtol=args.rtol,
-        dt=args.dt,
-    )
+    out = run(**{key: getattr(args, key) for key in ("t_final", "tau", "steps", "free", "optimizer", "seed", "rtol", "dt")})
     wall = time.perf_counter() - started
     result, start, floor = out["result"], out["start"], out["noise_floor"]
     engine = f"uniform mesh dt = {args.dt:g}" if args.dt is not None else f"error control rtol = {args.rtol:g}"

@@ -17,8 +17,7 @@ device's peak bytes in use. The device is named in the table.
     python benchmarks/gpu_sweeps.py --smoke               # CPU-sized (V-map 64 and 256 lanes, P3 16)
     /usr/bin/time -v python benchmarks/gpu_sweeps.py --sizes 100000 --no-p3   # the 10⁵-lane map on a CPU
 
-``--out`` writes the table elsewhere (default ``benchmarks/results/gpu_sweeps.md``, or
-``gpu_sweeps_smoke.md`` with ``--smoke``).
+``--out``: the table's file (default ``results/gpu_sweeps.md``, ``gpu_sweeps_smoke.md`` with ``--smoke``).
 """
 
 from __future__ import annotations
@@ -38,7 +37,7 @@ import peeljax as pj
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from compare_problems import P3_SAVE_DT, p3_grid  # noqa: E402
-from machine import cpu_model, write_result  # noqa: E402
+from machine import cpu_model, load_average, write_result  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -83,20 +82,7 @@ def v_map(n: int, t_final: float, chunk: int, max_jumps: int) -> dict:
     began = time.perf_counter()
     smap = pj.stick_slip_map(V=V, **options)
     run = time.perf_counter() - began
-    return {
-        "case": f"V-map, {n} lanes",
-        "lanes": n,
-        "chunk": min(chunk, n),
-        "first_s": first,
-        "run_s": run,
-        "lanes_per_s": n / run,
-        "completed": int(smap.completed.sum()),
-        "stick_slip": int(smap.stick_slip.sum()),
-        "bytes_per_lane": nbytes(smap) / n,
-        "sweep_bytes_per_lane": nbytes(lanes) / lanes.V.size,
-        "rss_mib": peak_rss_mib(),
-        "device_mib": device_peak_mib(),
-    }
+    return row(f"V-map, {n} lanes", n, chunk, first, run, smap, int(smap.stick_slip.sum()), nbytes(lanes) / lanes.V.size)
 
 
 def p3(n_tau: int, chunk: int, t_final: float = 3.0) -> dict:
@@ -108,17 +94,23 @@ def p3(n_tau: int, chunk: int, t_final: float = 3.0) -> dict:
     began = time.perf_counter()
     result = pj.sweep(**options)
     run = time.perf_counter() - began
+    stick_slip = int((result.events > 0).sum())
+    return row(f"P3, {V.size} lanes", V.size, chunk, first, run, result, stick_slip, nbytes(result) / V.size)
+
+
+def row(case, n, chunk, first, run, result, stick_slip, sweep_bytes_per_lane) -> dict:
+    """A row of the table: ``result`` the map or the sweep (its completed lanes and host bytes a lane)."""
     return {
-        "case": f"P3, {V.size} lanes",
-        "lanes": V.size,
-        "chunk": min(chunk, V.size),
+        "case": case,
+        "lanes": n,
+        "chunk": min(chunk, n),
         "first_s": first,
         "run_s": run,
-        "lanes_per_s": V.size / run,
+        "lanes_per_s": n / run,
         "completed": int(result.completed.sum()),
-        "stick_slip": int((result.events > 0).sum()),
-        "bytes_per_lane": nbytes(result) / V.size,
-        "sweep_bytes_per_lane": nbytes(result) / V.size,
+        "stick_slip": stick_slip,
+        "bytes_per_lane": nbytes(result) / n,
+        "sweep_bytes_per_lane": sweep_bytes_per_lane,
         "rss_mib": peak_rss_mib(),
         "device_mib": device_peak_mib(),
     }
@@ -163,7 +155,7 @@ def main(argv=None) -> None:
     if not args.no_p3:
         rows.append(p3(n_tau, 1024 if gpu else 256, p3_t_final))
         print(rows[-1], flush=True)
-    load = os.getloadavg()[0]
+    load = load_average()
     text = "\n".join([
         "# Sweeps on one device: the V-map at many lanes, P3 at 1024",
         "",

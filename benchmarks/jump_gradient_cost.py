@@ -35,7 +35,7 @@ import numpy as np
 import peeljax as pj
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import write_result  # noqa: E402
+from machine import load_average, write_result  # noqa: E402
 
 
 def objective(c1, *, rtol, adjoint, tau=0.0, t_final=3.0):
@@ -102,7 +102,7 @@ def main(argv=None):
         *(f"{name:34} {first:>15.2f} {median:>11.4f} {median / base:>10.2f}" for name, first, median in rows),
     ]
     print("\n".join(table))
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    load = load_average()
     text = "\n".join([
         "# Gradient cost through jumps (issues 27 and 42: target <= 5x the forward run; compile <= 5 s forward, <= 20 s gradient)",
         "",

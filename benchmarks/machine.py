@@ -7,6 +7,8 @@ it), so a table can always be traced to, and remade by, one command.
 
 from __future__ import annotations
 
+import json
+import os
 import platform
 import shlex
 import sys
@@ -40,6 +42,17 @@ def command(argv=None) -> str:
 def made_by(cmd: str | None = None) -> str:
     """The header line of a result file: ``Made by `COMMAND`.`` (default: this process's command)."""
     return f"Made by `{cmd or command()}`."
+
+
+def load_average() -> float:
+    """The 1-minute load average (nan where the OS has none)."""
+    return os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+
+
+def write_json(path, data) -> None:
+    """``data`` as indented JSON, numpy and JAX arrays and scalars as lists and Python numbers."""
+    text = json.dumps(data, default=lambda value: value.tolist(), ensure_ascii=False, indent=1)
+    Path(path).write_text(text + "\n", encoding="utf-8")
 
 
 def write_result(path, text: str, cmd: str | None = None) -> Path:

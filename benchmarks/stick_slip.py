@@ -50,13 +50,9 @@ first sweep of 200 lanes at V = 8 (no fold: cheap lanes, the same compiled progr
     python benchmarks/stick_slip.py --report-only benchmarks/results/stick_slip.json   # the report alone
     python benchmarks/stick_slip.py --quick --only while_loop "LSODA events"   # a check (< 2 min)
 
-``--only SUBSTRING …`` keeps the peers whose key or name contains one of the substrings
-(case-insensitive; the inertial model only when one matches "inertial"; the V-map only when
-both peeljax's default row and scipy LSODA events are kept). ``--quick``: the 1e-5 s target
-only, 2 repeats, no V-map and no inertial model. Ratios need peeljax's default row.
-
-Writes ``results/stick_slip.md`` and ``results/stick_slip.json`` (``results/stick_slip_quick.*`` with
-``--quick`` or ``--only``).
+``--only``: the inertial model only when a substring matches "inertial", the V-map only when
+peeljax's default row and scipy LSODA events are kept (ratios need peeljax's default row).
+Writes ``results/stick_slip.md`` and ``.json`` (``stick_slip_quick.*`` with ``--quick`` or ``--only``).
 """
 
 from __future__ import annotations
@@ -73,20 +69,12 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from machine import command, cpu_model, made_by
+from machine import command, cpu_model, made_by, write_json
+from machine import load_average as load
 from peers.jump_peers import (
-    ATOL_RATIO,
-    T_FINAL,
-    CasadiEvents,
-    DiffraxEvents,
-    DiffraxWhileLoop,
-    InertialModel,
-    PeeljaxDAE,
-    ScipyEvents,
-    V,
-    jump_reference,
-    scipy_events_run,
-)
+    ATOL_RATIO, T_FINAL, CasadiEvents, DiffraxEvents, DiffraxWhileLoop, InertialModel, PeeljaxDAE, ScipyEvents, V,
+    jump_reference, scipy_events_run
+)  # fmt: skip
 
 TARGETS = (1e-6, 1e-5)
 REF_RTOL, REF_ATOL = 1e-12, 1e-14
@@ -112,10 +100,6 @@ LOADS = []  # the load average after each timed round
 
 def log(message):
     print(f"  [{message}]", file=sys.stderr, flush=True)
-
-
-def load():
-    return os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
 
 
 def jump_error(jumps, reference):
@@ -670,21 +654,13 @@ def limits(data) -> list[str]:
     return ["## What limits each figure", "", *(text for keep, text in bullets if keep)]
 
 
-def _jsonable(value):
-    if hasattr(value, "tolist"):
-        return value.tolist()
-    raise TypeError(f"{type(value).__name__} is not JSON serializable")
-
-
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=3, help="timed round-robin runs per setting (default 3)")
     parser.add_argument("--masses", type=float, nargs="+", default=(1e-5, 1e-6, 1e-8), help="inertial model masses")
     parser.add_argument("--cap", type=float, default=30.0, help="stop a ladder after a run slower than this (s)")
     parser.add_argument("--skip-vmap", action="store_true", help="the one-trajectory tables only")
-    parser.add_argument(
-        "--check-reference", action="store_true", help="also the Radau reference at rtol 1e-12 (~1 min)"
-    )
+    parser.add_argument("--check-reference", action="store_true", help="also the Radau reference at rtol 1e-12 (~1 min)")
     parser.add_argument(
         "--only", nargs="+", metavar="SUBSTRING", default=None,
         help="keep the peers whose key or name contains one of these (case-insensitive): while_loop 'LSODA events'",
@@ -709,7 +685,7 @@ def main(argv=None):
     else:
         data = measure(args)
         out.parent.mkdir(parents=True, exist_ok=True)
-        out.with_suffix(".json").write_text(json.dumps(data, default=_jsonable, ensure_ascii=False, indent=1) + "\n")
+        write_json(out.with_suffix(".json"), data)
     text = report(data)
     out.write_text(text)
     print(text)

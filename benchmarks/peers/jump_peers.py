@@ -302,7 +302,7 @@ class DiffraxWhileLoop(Peer):
     """The loop diffrax's maintainers recommend for restarting after events (diffrax issue #492).
 
     One compiled function: a ``jax.lax.while_loop`` whose body runs ``diffrax.diffeqsolve``
-    (``solver``, default ``diffrax.Tsit5()``, with ``diffrax.PIDController(rtol, atol)``) from
+    (``diffrax.Tsit5()`` with ``diffrax.PIDController(rtol, atol)``) from
     the current time to ``T_FINAL`` with a ``diffrax.Event`` on ``ConstrainedDAE.fold_event``
     (located by ``optimistix.Newton`` on the step's dense output, as :class:`DiffraxEvents`),
     applies ``ConstrainedDAE.jump`` at the event's state (``sol.ys[-1]`` with
@@ -312,11 +312,11 @@ class DiffraxWhileLoop(Peer):
     field is ``ConstrainedDAE.evaluate(y).psi`` on y = (α, ω, u, v) (v solved from the constraint).
     """
 
-    def __init__(self, settings, solver=None, V=V, max_steps=1_000_000, slots=512, t_final=T_FINAL):
+    name = "diffrax Tsit5 + Event, one lax.while_loop"
+
+    def __init__(self, settings, V=V, max_steps=1_000_000, slots=512, t_final=T_FINAL):
         super().__init__(0.0, settings)
-        self.solver, self.V, self.max_steps, self.slots, self.t_final = solver, V, max_steps, slots, t_final
-        solver_name = "Tsit5" if solver is None else type(solver).__name__
-        self.name = f"diffrax {solver_name} + Event, one lax.while_loop"
+        self.V, self.max_steps, self.slots, self.t_final = V, max_steps, slots, t_final
         self._last = None
 
     def prepare(self):
@@ -327,8 +327,7 @@ class DiffraxWhileLoop(Peer):
 
         import peeljax
 
-        solver = diffrax.Tsit5() if self.solver is None else self.solver
-        max_steps, slots = self.max_steps, self.slots
+        solver, max_steps, slots = diffrax.Tsit5(), self.max_steps, self.slots
         model = peeljax.PeelingModel()
         ode = peeljax.ConstrainedDAE(model, self.V).with_folds()
         y0 = jnp.asarray(model.initial_state(self.V))
@@ -440,13 +439,12 @@ class CasadiEvents(Peer):
         return read_jump_register(np.asarray(self._integrator(rtol)(x0=self._x0)["xf"]), self.REGISTER)
 
 
-def casadi_event_model(ca, ref, V, bounds, register, bisections, dphi_dw=None):
+def casadi_event_model(ca, ref, V, bounds, register, bisections):
     """The DAE with jumps as CasADi symbols, for CVODES with CasADi's events (:class:`CasadiEvents`).
 
     State X = (α, ω, u, b, n, s1 … s_register): b the branch (0 stick, 1 slip), n the jump
-    count, s the last jump times. V and ``bounds`` = (log v̂, log v̌, φ(v̂, V), φ(v̌, V)) are
-    numbers or CasADi symbols (parameters). v(x) on branch b: ``bisections`` bisections in
-    log v and two Newton steps (with ``dphi_dw(w)``, default CasADi's own derivative of φ in
+    count, s the last jump times; ``bounds`` = (log v̂, log v̌, φ(v̂, V), φ(v̌, V)). v(x) on branch b:
+    ``bisections`` bisections in log v and two Newton steps (CasADi's own derivative of φ in
     w = log v), clamped at the branch's ends.
     Returns (X, ode, zero, post, t, index): the zero function fires on + → − crossings; post is
     the state after a jump at time t (branch flipped, count + 1, t pushed into the register).
@@ -473,13 +471,11 @@ def casadi_event_model(ca, ref, V, bounds, register, bisections, dphi_dw=None):
         mid = 0.5 * (a + b)
         below = phi(mid) < G
         a, b = ca.if_else(below, mid, a), ca.if_else(below, b, mid)
-    if dphi_dw is None:
-        ws = ca.SX.sym("w")
-        slope = ca.jacobian(phi(ws), ws)  # may hold V as a free symbol: substituted, not a Function
-        dphi_dw = lambda w: ca.substitute(slope, ws, w)
+    ws = ca.SX.sym("w")
+    slope = ca.jacobian(phi(ws), ws)
     w = 0.5 * (a + b)
     for _ in range(2):
-        w = w - (phi(w) - G) / dphi_dw(w)
+        w = w - (phi(w) - G) / ca.substitute(slope, ws, w)
     phi_lo = ca.if_else(slip, phi_min, phi(math.log(1e-100)))
     phi_hi = ca.if_else(slip, ca.inf, phi_max)
     v = ca.exp(ca.if_else(G >= phi_hi, hi, ca.if_else(G <= phi_lo, lo, w)))

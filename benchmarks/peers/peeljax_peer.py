@@ -13,16 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 from compare_problems import (
-    ADAPTIVE_ALPHA_ATOL,
-    COEFFICIENT_NAMES,
-    GRID,
-    P3_SAVE_DT,
-    P4_T_FINAL,
-    P4_TAU,
-    P4_TIMES,
-    T_FINAL,
-    V,
-)
+    ADAPTIVE_ALPHA_ATOL, COEFFICIENT_NAMES, GRID, P3_SAVE_DT, P4_T_FINAL, P4_TAU, P4_TIMES, T_FINAL, V
+)  # fmt: skip
 
 from peers import Peer
 
