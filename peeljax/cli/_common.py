@@ -372,7 +372,8 @@ _PARAMETERS = {
     "max_jumps": "--max-jumps", "max_steps": "--max-steps", "t_final": "--t-final", "save_dt": "--save-dt",
     "save_every": "--save-every", "n_tau": "--n-tau", "n_points": "--n-points", "n_starts": "--n-starts",
     "max_iterations": "--max-iterations", "learning_rate": "--learning-rate", "tau_rtol": "--tau-rtol",
-    "tau_range": "--tau-range",
+    "tau_range": "--tau-range", "random_starts": "--random-starts", "seed_rounds": "--seed-rounds",
+    "boundary_tol": "--boundary-tol", "lyapunov_time": "--lyapunov-time",
 }  # fmt: skip
 _UNDERSCORED = re.compile(r"(?<![\w-])(" + "|".join(_PARAMETERS) + r")\b")
 _ANOTHER_OUT = re.compile(r"\banother out\b")
