@@ -200,7 +200,7 @@ def test_the_map_finds_the_paper_orbit_with_its_period_and_basins(tmp_path):
     ("argv", "message"),
     [
         (["map", "--V", "1.1", "0.5"], "--V must be increasing"),
-        (["map", "--random-starts", "-1"], "random_starts must be an integer >= 0"),
+        (["map", "--random-starts", "-1"], "--random-starts must be an integer >= 0"),
         (["map", "--out", "map.csv"], "writes FILE.npz"),
     ],
 )

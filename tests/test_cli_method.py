@@ -47,11 +47,11 @@ SIMULATE_REFUSALS = [
     (["--method", "tsit5", "--dt", "0.01"], ["--dt", "--method tsit5", "--method alpha"]),
     (["--method", "dopri5", "--rho", "0.5"], ["--rho", "--method dopri5", "default or alpha"]),
     (["--method", "kvaerno5", "--rho", "2"], ["--rho", "--method kvaerno5"]),
-    (["--max-steps", "0"], ["--max-steps", "[1, inf)"]),
-    (["--max-steps=-3"], ["--max-steps", "[1, inf)"]),
-    (["--max-steps", "10", "--dt", "0.01"], ["--max-steps", "[1, inf)", "--dt"]),
-    (["--method", "alpha", "--max-steps", "10", "--dt", "0.01"], ["--max-steps", "[1, inf)", "--dt"]),
-    (["--max-steps", "3000000000"], ["--max-steps", "[1, inf)", "2147483647"]),
+    (["--max-steps", "0"], ["--max-steps", "[1, 2147483647]"]),
+    (["--max-steps=-3"], ["--max-steps", "[1, 2147483647]"]),
+    (["--max-steps", "10", "--dt", "0.01"], ["--max-steps", "[1, 2147483647]", "--dt"]),
+    (["--method", "alpha", "--max-steps", "10", "--dt", "0.01"], ["--max-steps", "[1, 2147483647]", "--dt"]),
+    (["--max-steps", "3000000000"], ["--max-steps", "[1, 2147483647]"]),
     (["--max-steps", "2000000000"], ["--max-steps", "memory", "--save-dt"]),  # the accepted steps' rows
     (["--tau", "0", "--method", "diffrax"], ["--tau 0", "--method diffrax", "kvaerno5"]),
     (["--fold", "jump", "--method", "diffrax"], ["--fold jump", "--method diffrax", "--fold stop"]),
@@ -70,8 +70,8 @@ SWEEP_REFUSALS = [
     (["--method", "diffrax"], ["--method", "kvaerno5"]),  # the reference is simulate's, not a sweep's stepper
     (["--method", "tsit5", "--dt", "0.01"], ["--dt", "--method tsit5"]),
     (["--method", "kvaerno3", "--rho", "0.2"], ["--rho", "--method kvaerno3"]),
-    (["--max-steps", "0"], ["--max-steps", "[1, inf)"]),
-    (["--max-steps", "50", "--dt", "0.01"], ["--max-steps", "[1, inf)", "--dt"]),
+    (["--max-steps", "0"], ["--max-steps", "[1, 2147483647]"]),
+    (["--max-steps", "50", "--dt", "0.01"], ["--max-steps", "[1, 2147483647]", "--dt"]),
     (["--max-steps", "3000000000"], ["--max-steps", "2147483647"]),
     (["--stick-slip-map", "--method", "dopri5", "--rho", "0.5"], ["--rho", "--method dopri5"]),
 ]
@@ -86,9 +86,9 @@ def test_sweep_refusals_name_the_option(options, words, nothing_runs):
 def test_fit_max_steps_refusals(tmp_path, nothing_runs):
     table = tmp_path / "table.csv"
     table.write_text("V,F_mean\n1.1,5\n2,6\n3,7\n4,8\n")
-    _refused(["fit", "--table", str(table), "--free", "c1", "--max-steps", "0"], "--max-steps", "[1, inf)")
+    _refused(["fit", "--table", str(table), "--free", "c1", "--max-steps", "0"], "--max-steps", "[1, 2147483647]")
     data = ["fit", "--data", str(tmp_path / "run.npz"), "--out", str(tmp_path / "fit.json")]
-    _refused([*data, "--max-steps", "0"], "--max-steps", "[1, inf)")  # --data takes it too (error control)
+    _refused([*data, "--max-steps", "0"], "--max-steps", "[1, 2147483647]")  # --data takes it too (error control)
 
 
 # ---------------------------------------------------------------------------- options reach the API

@@ -372,11 +372,12 @@ _PARAMETERS = {
     "max_jumps": "--max-jumps", "max_steps": "--max-steps", "t_final": "--t-final", "save_dt": "--save-dt",
     "save_every": "--save-every", "n_tau": "--n-tau", "n_points": "--n-points", "n_starts": "--n-starts",
     "max_iterations": "--max-iterations", "learning_rate": "--learning-rate", "tau_rtol": "--tau-rtol",
-    "tau_range": "--tau-range",
+    "tau_range": "--tau-range", "random_starts": "--random-starts", "seed_rounds": "--seed-rounds",
+    "boundary_tol": "--boundary-tol", "lyapunov_time": "--lyapunov-time",
 }  # fmt: skip
 _UNDERSCORED = re.compile(r"(?<![\w-])(" + "|".join(_PARAMETERS) + r")\b")
 _ANOTHER_OUT = re.compile(r"\banother out\b")
-_FOLD_MODE = re.compile(r"\bfold='(jump|stop|follow)'")
+_CHOSEN = re.compile(r"(?<![\w-])(fold|method|by|intervals)='(\w+)'")
 # A parameter given its value ("dt=0.01", "tau=0"), the integrator a run's options make
 # ("a diffrax solver (Kvaerno5)": the command line's --method diffrax) and its remedy.
 _GIVEN = re.compile(r"(?<![\w-])(dt|tau)=([^\s,;()']+)")
@@ -394,12 +395,12 @@ _LEADING = re.compile(r"^(V|tau|dt|rtol|atol|rho|y0|geometry|transient|window|fo
 
 def option_names(message: str) -> str:
     """A library message in the command line's words: ``max_jumps`` → ``--max-jumps``,
-    ``fold='stop'`` → ``--fold stop``, ``dt=0.01`` → ``--dt 0.01``, a remedy in the API's words
+    ``fold='stop'`` → ``--fold stop`` (``method=``, ``by=``, ``intervals=`` too), ``dt=0.01`` → ``--dt 0.01``, a remedy in the API's words
     in the options', and a message that opens with a parameter's name (``tau must be ...``)
     opens with its option."""
     message = _UNDERSCORED.sub(lambda m: _PARAMETERS[m.group(1)], message)
     message = _ANOTHER_OUT.sub("another --out", message)  # the library's "choose another out"
-    message = _FOLD_MODE.sub(r"--fold \1", message)  # fold='stop' -> --fold stop
+    message = _CHOSEN.sub(r"--\1 \2", message)  # fold='stop' -> --fold stop, method='orbit' -> --method orbit
     message = _GIVEN.sub(r"--\1 \2", message)  # dt=0.01 -> --dt 0.01
     message = _DIFFRAX_SOLVER.sub("--method diffrax", message).replace("drop dt/solver", "drop --dt/--method")
     for said, option in _PHRASES:

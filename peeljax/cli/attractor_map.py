@@ -17,7 +17,8 @@ __all__ = ["add_command", "validate_attractor_map"]
 
 _DEFAULTS = {
     name: library_default(attractor_map, name)
-    for name in ("random_starts", "seed", "t_final", "seed_rounds", "boundary_tol", "lyapunov_time")
+    for name in ("random_starts", "seed", "t_final", "seed_rounds", "boundary_tol", "lyapunov_time", "transient",
+                 "extend", "branch_tol", "chaos_threshold", "orbit_rtol")
 }
 
 
@@ -62,8 +63,6 @@ def add_command(subparsers) -> None:
 def validate_attractor_map(args: argparse.Namespace) -> dict:
     """Every option checked, nothing compiled; the keyword arguments of :func:`peeljax.attractor_map`."""
     V = DEFAULT_V if args.V is None else np.asarray(options.check_positive_values("--V", args.V))
-    if np.any(np.diff(V) <= 0):
-        raise ValueError("--V must be increasing")
     options.check_outputs(args)
     model, args.phi_defaults = options.model_from(args)
     kwargs = {
@@ -71,9 +70,10 @@ def validate_attractor_map(args: argparse.Namespace) -> dict:
         "seed_rounds": args.seed_rounds, "boundary_tol": None if args.boundary_tol == 0 else args.boundary_tol,
         "lyapunov_time": args.lyapunov_time, "progress": options.progress_on(args) and not args.json,
     }  # fmt: skip
-    check_attractor_map_options(
-        model, V, args.random_starts, args.seed, kwargs["t_final"], None, args.seed_rounds, 4.0, kwargs["boundary_tol"],
-        0.1, args.lyapunov_time, 0.0, 1e-8, {},
+    check_attractor_map_options(  # the library's checks; what the command line leaves out, the library's defaults
+        model, V, args.random_starts, args.seed, kwargs["t_final"], _DEFAULTS["transient"], args.seed_rounds,
+        _DEFAULTS["extend"], kwargs["boundary_tol"], _DEFAULTS["branch_tol"], args.lyapunov_time,
+        _DEFAULTS["chaos_threshold"], _DEFAULTS["orbit_rtol"], {},
     )  # fmt: skip
     return kwargs
 

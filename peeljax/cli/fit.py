@@ -114,7 +114,7 @@ def add_command(subparsers) -> None:
     fit.add_argument("--phi", metavar="START.json", help="start coefficients as JSON (default: the paper's law)")
     fit.add_argument(
         "--free", nargs="+", metavar="NAME", default=None,
-        help=(f"coefficients to fit, of c1, p1, ..., p9 (default all 14; --table: {' '.join(_TABLE_DEFAULTS['free'])}; "
+        help=(f"coefficients to fit, of c1, p1, ..., p9 (default all {len(COEFFICIENT_NAMES)}; --table: {' '.join(_TABLE_DEFAULTS['free'])}; "
               f"force records: {' '.join(_RECORDS_DEFAULTS['free'])})"),
     )  # fmt: skip
     fit.add_argument(

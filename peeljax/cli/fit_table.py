@@ -20,7 +20,7 @@ from ..fit import DataFileError, Observation
 from ..fit.parameters import check_free
 from ..fit.records import check_fit_samples
 from ..fit.records_fit import fit_records
-from ..fit.table import INTERVALS, fit_stick_slip
+from ..fit.table import INTERVALS, METHODS, fit_stick_slip
 from ..fit.trajectory import fit_adhesion
 from . import _interrupt, options
 from ._common import PROG, check_input_file, checked, load_phi, plotter, report, write_files
@@ -143,7 +143,7 @@ def _validate_table(args: argparse.Namespace, table=None, source: str | None = N
             f"--free: {n_measured} measured values in {source} cannot determine {len(free)} coefficient(s) "
             "with an error estimate; fit fewer"
         )
-    method = _choice("--method", args.method, ("orbit", "window"), "orbit" if tau == 0 else "window")
+    method = _choice("--method", args.method, METHODS, "orbit" if tau == 0 else "window")
     if method == "orbit" and tau != 0:
         raise ValueError(f"--method orbit needs --tau 0 (orbits of the DAE with jumps); --tau {tau:g} needs --method window")
     intervals = _choice("--intervals", args.intervals, INTERVALS, _TABLE_DEFAULTS["intervals"])

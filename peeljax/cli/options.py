@@ -33,7 +33,8 @@ import sys
 import numpy as np
 
 from .._validation import MAX_STEPS_LIMIT, TAU_MAX, check_choice, check_mesh, check_positive, check_rho, check_tolerance
-from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_MAX_STEPS_DENSE, DEFAULT_RTOL, integrator_for
+from .._validation import check_max_steps as library_check_max_steps
+from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_MAX_STEPS_DENSE, DEFAULT_RTOL, integrator_for, resolve_fold
 from ..model import GEOMETRIES, PeelingModel
 from ..sweeps.api import sweep
 from ..sweeps.engine import STARTS
@@ -59,7 +60,6 @@ __all__ = [
     "add_t_final",
     "add_tolerances",
     "add_V",
-    "check_folds",
     "check_max_jumps",
     "check_max_steps",
     "check_method",
@@ -318,32 +318,16 @@ def add_max_steps(group, *, default: str | None = None) -> None:
 
 
 def check_max_steps(max_steps: int | None, uniform_option: str | None = None) -> None:
-    """--max-steps: None (the library's budget) or an integer in [1, 2**31 - 1]; refused with the
-    uniform mesh (``uniform_option``, e.g. "--dt"), which takes no budget."""
+    """--max-steps: None (the library's budget) or the library's range (a 32-bit count); refused
+    with the uniform mesh (``uniform_option``, e.g. "--dt"), which takes no budget."""
     if max_steps is None:
         return
-    if max_steps < 1:
-        raise ValueError(f"--max-steps must be a positive integer (allowed range: [1, inf)), got {max_steps}")
-    if max_steps > MAX_STEPS_LIMIT:
-        raise ValueError(
-            f"--max-steps {max_steps} exceeds the loop's count of step attempts (a 32-bit integer): "
-            f"give at most {MAX_STEPS_LIMIT} (allowed range: [1, inf))"
-        )
+    library_check_max_steps(max_steps)
     if uniform_option is not None:
         raise ValueError(
-            f"--max-steps (allowed range: [1, inf)) is error control's budget of step attempts; {uniform_option} "
-            "asks for a uniform mesh, which takes no budget: give one or the other"
+            f"--max-steps (allowed range: [1, {MAX_STEPS_LIMIT}]) is error control's budget of step attempts; "
+            f"{uniform_option} asks for a uniform mesh, which takes no budget: give one or the other"
         )
-
-
-def check_folds(fold: str | None, max_jumps: int | None, *, dt, dae: bool, default_max_jumps: int | None,
-                uniform_option: str | None = None) -> tuple[str, int | None]:  # fmt: skip
-    """--fold against the integrator (the library's rule, :func:`peeljax.integrators.resolve_fold`:
-    jump and follow need error control) and --max-jumps (:func:`check_max_jumps`): the fold mode
-    and the record's size, their defaults when not given."""
-    from ..integrators.select import resolve_fold
-
-    return resolve_fold(fold, dt=dt, dae=dae), check_max_jumps(max_jumps, default_max_jumps, uniform_option)
 
 
 def add_max_jumps(group, *, default: int | str, per: str = "run") -> None:
@@ -525,8 +509,8 @@ def check_sweep_folds(args: argparse.Namespace, tau: list[float], dt: float | No
     given (None: the library's defaults, as an --out written before knows them).
     """
     uniform = None if dt is None else "--dt"
-    check_folds(args.fold, args.max_jumps, dt=dt, dae=tau == [0.0], default_max_jumps=DEFAULT_SWEEP_MAX_JUMPS,
-                        uniform_option=uniform)  # fmt: skip
+    resolve_fold(args.fold, dt=dt, dae=tau == [0.0])
+    check_max_jumps(args.max_jumps, DEFAULT_SWEEP_MAX_JUMPS, uniform)
     check_max_steps(args.max_steps, uniform)
     if args.start is not None:
         check_choice("--start", args.start, STARTS)

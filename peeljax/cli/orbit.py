@@ -14,9 +14,9 @@ import sys
 import time
 from dataclasses import dataclass
 
-from .._validation import check_positive, check_tolerance
+from .._validation import check_positive
 from ..model import PeelingModel
-from ..orbits.api import ATOL_PER_RTOL, DEFAULT_ORBIT_RTOL, DEFAULT_TRANSIENT_RUN, periodic_orbit
+from ..orbits.api import ATOL_PER_RTOL, DEFAULT_TRANSIENT_RUN, orbit_shooting, periodic_orbit
 from ..orbits.diagram import orbit_diagram
 from . import _interrupt, options
 from ._common import PROG, Elapsed, checked, fail, library_default, plotter, report, write_failed, write_files
@@ -38,6 +38,7 @@ _STATISTICS_WORDS = (
 
 # Newton's iteration cap and a diagram's seed runs: the library's defaults
 _MAX_ITERATIONS = library_default(periodic_orbit, "max_iterations")
+_V, _RTOL = library_default(periodic_orbit, "V"), library_default(periodic_orbit, "rtol")
 _SEEDS = library_default(orbit_diagram, "seeds")
 
 
@@ -75,8 +76,8 @@ def add_command(subparsers) -> None:
     )
     problem = parser.add_argument_group("problem")
     problem.add_argument(
-        "--V", type=_one_V, default=1.1, metavar="V|START:STOP[:SEEDS]",
-        help="pull velocity [m/s], > 0 (default 1.1); or a range START:STOP: the bifurcation diagram over it — "
+        "--V", type=_one_V, default=_V, metavar="V|START:STOP[:SEEDS]",
+        help=f"pull velocity [m/s], > 0 (default {_V:g}); or a range START:STOP: the bifurcation diagram over it — "
         f"seed runs at SEEDS equally spaced V (default {seeds}) from the tape at rest and from steady "
         "peeling, each repeat's orbit continued over V, every bifurcation located and the branch beyond it traced",
     )  # fmt: skip
@@ -97,7 +98,7 @@ def add_command(subparsers) -> None:
         help=f"Newton's iteration cap, an integer in [1, {MAX_ITERATIONS_LIMIT}] (default {max_iterations})",
     )  # fmt: skip
     options.add_tolerances(
-        shooting, rtol_default=f"{DEFAULT_ORBIT_RTOL:g}", atol_default=f"{ATOL_PER_RTOL:g}*rtol",
+        shooting, rtol_default=f"{_RTOL:g}", atol_default=f"{ATOL_PER_RTOL:g}*rtol",
         note="each period's run",
     )  # fmt: skip
     output = parser.add_argument_group("output")
@@ -167,10 +168,9 @@ def validate_orbit(args: argparse.Namespace) -> OrbitConfig:
         raise ValueError(
             f"--max-iterations must be an integer in [1, {MAX_ITERATIONS_LIMIT}] (allowed range), got {args.max_iterations}"
         )
-    rtol = DEFAULT_ORBIT_RTOL if args.rtol is None else args.rtol
-    check_tolerance("--rtol", rtol, 1.0)
-    atol = ATOL_PER_RTOL * rtol if args.atol is None else args.atol
-    check_tolerance("--atol", atol)
+    rtol = _RTOL if args.rtol is None else args.rtol
+    controller = orbit_shooting(rtol=rtol, atol=args.atol).integrator.controller  # the library's checks and atol
+    rtol, atol = float(controller.rtol), float(controller.atol)
     model, phi_defaults = options.model_from(args)
     options.check_outputs(args)
     return OrbitConfig(

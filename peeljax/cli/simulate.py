@@ -10,11 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validation import TAU_MAX, check_choice, check_mesh, check_positive, check_rho, check_tau, check_y0
+from .._validation import TAU_MAX, check_mesh, check_positive, check_rho, check_tau, check_y0
 from ..integrators.dense import output_times
-from ..integrators.events import FOLD_MODES
 from ..integrators.select import DEFAULT_ATOL as _ALPHA_ATOL
-from ..integrators.select import resolve_max_steps
+from ..integrators.select import resolve_fold, resolve_max_steps
 from ..integrators.select import DEFAULT_RTOL as _ALPHA_RTOL
 from ..model import PeelingModel
 from ..simulate import check_run_memory, simulate, simulate_reference
@@ -259,22 +258,19 @@ def _check_tau(args: argparse.Namespace) -> None:
 
 
 def _check_folds(args: argparse.Namespace, dt: float | None) -> tuple[str, int, float]:
-    """--fold and --max-jumps (:func:`.options.check_folds`; the diffrax reference runs diffeqsolve's
-    own loop, which has no fold events: it can only stop) and --transient; returns the fold mode
-    (its default when not given), max_jumps and the transient."""
+    """--fold (the library's :func:`~peeljax.integrators.select.resolve_fold`; the diffrax reference
+    runs diffeqsolve's own loop, which has no fold events: it can only stop), --max-jumps and
+    --transient; returns the fold mode (its default when not given), max_jumps and the transient."""
     reference = args.method == "diffrax"
+    fold = resolve_fold(args.fold, dt=None if reference else dt, dae=args.tau == 0)
     if reference and args.fold not in (None, "stop"):
-        check_choice("--fold", args.fold, FOLD_MODES)
         raise ValueError(
             f"--fold {args.fold} needs error control (any stepper), which cuts a step at a fold; with --method "
             f"diffrax a run can only stop there: give --fold stop, or {_remedy('--method diffrax')}"
         )
-    fold, max_jumps = options.check_folds(
-        "stop" if reference else args.fold, args.max_jumps, dt=None if reference else dt, dae=args.tau == 0,
-        default_max_jumps=None, uniform_option=_without_error_control(args),
-    )  # fmt: skip
+    max_jumps = options.check_max_jumps(args.max_jumps, None, _without_error_control(args))
     transient, _ = options.check_statistics_window(args.transient, None, args.t_final)
-    return fold, max_jumps, transient
+    return "stop" if reference else fold, max_jumps, transient
 
 
 # ---------------------------------------------------------------------------- running and reporting
