@@ -41,11 +41,18 @@ and a cache the user configured for JAX is left alone (:mod:`peeljax._compilatio
 import os as _os
 
 
-def _small_while_loop_flag() -> None:
-    if _os.environ.get("PEELJAX_KEEP_XLA_FLAGS"):
-        return
+def _flags_to_extend(option: str) -> str | None:
+    """``XLA_FLAGS`` as they stand, or None where peeljax leaves them alone: the user asked so
+    (``PEELJAX_KEEP_XLA_FLAGS``) or set ``option`` already."""
     flags = _os.environ.get("XLA_FLAGS", "")
-    if "xla_cpu_small_while_loop_byte_threshold" in flags:
+    if _os.environ.get("PEELJAX_KEEP_XLA_FLAGS") or option in flags:
+        return None
+    return flags
+
+
+def _small_while_loop_flag() -> None:
+    flags = _flags_to_extend("xla_cpu_small_while_loop_byte_threshold")
+    if flags is None:
         return
     option = "xla_cpu_small_while_loop_byte_threshold=1000000000"
     words = flags.split()
@@ -59,10 +66,8 @@ def _small_while_loop_flag() -> None:
 
 
 def _fusion_emitters_flag() -> None:
-    if _os.environ.get("PEELJAX_KEEP_XLA_FLAGS"):
-        return
-    flags = _os.environ.get("XLA_FLAGS", "")
-    if "xla_cpu_use_fusion_emitters" in flags:
+    flags = _flags_to_extend("xla_cpu_use_fusion_emitters")
+    if flags is None:
         return
     try:  # an option older jaxlibs do not know would abort the backend's start
         from importlib.metadata import version
@@ -75,10 +80,8 @@ def _fusion_emitters_flag() -> None:
 
 
 def _host_device_flag() -> None:
-    if _os.environ.get("PEELJAX_KEEP_XLA_FLAGS"):
-        return
-    flags = _os.environ.get("XLA_FLAGS", "")
-    if "xla_force_host_platform_device_count" in flags:
+    flags = _flags_to_extend("xla_force_host_platform_device_count")
+    if flags is None:
         return
     try:
         cores = len(_os.sched_getaffinity(0))
