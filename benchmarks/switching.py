@@ -23,6 +23,7 @@ threads). The load average is printed at the start and after each round: the mac
 
     python benchmarks/switching.py                 # ~10 min on 2 shared cores
     python benchmarks/switching.py --only P1 long  # P1 and the long runs (~3 min)
+    python benchmarks/switching.py --only P3 --lane-batch 32   # P3's lanes under vmap, 32 at once
 
 Writes ``benchmarks/results/switching.md``. Speed is reported, never asserted.
 """
@@ -156,7 +157,7 @@ def p1(keys, repeats, tau):
     return measure("P1", keys, simulate, error, attempts, casadi_run, casadi.run, repeats)
 
 
-def p3(keys, repeats):
+def p3(keys, repeats, lane_batch=None):
     import jax
 
     import peeljax as pj
@@ -171,7 +172,7 @@ def p3(keys, repeats):
 
     def sweep(key, rtol):
         result = pj.sweep(None, Vs, taus, None, T_FINAL, save_dt=P3_SAVE_DT, grid="pairs", progress=False, chunk=Vs.size,
-                          **options(key, rtol))  # fmt: skip
+                          lane_batch=lane_batch, **options(key, rtol))  # fmt: skip
         return np.asarray(result.ys)[:, :, 3], result
 
     def error(result):
@@ -238,6 +239,8 @@ def main(argv=None):
     parser.add_argument("--only", nargs="+", choices=("P1", "P3", "long"), default=("P1", "P3", "long"))
     parser.add_argument("--candidates", nargs="+", choices=tuple(CANDIDATES), default=tuple(CANDIDATES))
     parser.add_argument("--repeats", type=int, default=9)
+    parser.add_argument("--lane-batch", type=int, default=None, help="P3's lanes under vmap, this many at once (a "
+                        "lane's lax.cond becomes a select: both steppers' steps); writes results/switching_lane_batch.md")
     args = parser.parse_args(argv)
     import jax
 
@@ -262,9 +265,10 @@ def main(argv=None):
         lines += ["Ladders (rtol: error): " + "; ".join(
             f"{k}: " + ", ".join(f"{r:g}: {e:.2g}" for r, e in v) for k, v in ladders.items()), ""]  # fmt: skip
     if "P3" in args.only:
-        chosen, ladders, times, loads, devices = p3(args.candidates, args.repeats)
+        chosen, ladders, times, loads, devices = p3(args.candidates, args.repeats, args.lane_batch)
+        batch = "" if args.lane_batch is None else f", lane_batch = {args.lane_batch} (under vmap)"
         lines += table(
-            f"P3 slice: {N_TAU * len(P3_VELOCITIES)} lanes, relative error ≤ {TARGET:g} on {PER_V * len(P3_VELOCITIES)}",
+            f"P3 slice: {N_TAU * len(P3_VELOCITIES)} lanes, relative error ≤ {TARGET:g} on {PER_V * len(P3_VELOCITIES)}{batch}",
             chosen, times, devices, "attempts per lane",
         )  # fmt: skip
         lines += ["", "Load average after each round: " + ", ".join(f"{x:.1f}" for x in loads), ""]
@@ -275,8 +279,11 @@ def main(argv=None):
     lines.append(f"Total {time.perf_counter() - started:.0f} s; load average {load():.1f} at the end.")
     text = "\n".join(lines) + "\n"
     print(text)
-    if set(args.only) == {"P1", "P3", "long"} and set(args.candidates) == set(CANDIDATES):
+    every = set(args.candidates) == set(CANDIDATES)
+    if set(args.only) == {"P1", "P3", "long"} and every and args.lane_batch is None:
         print(write_result(HERE / "results" / "switching.md", text))
+    elif set(args.only) == {"P3"} and every and args.lane_batch is not None:
+        print(write_result(HERE / "results" / "switching_lane_batch.md", text))
 
 
 if __name__ == "__main__":
