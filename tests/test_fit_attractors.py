@@ -328,3 +328,18 @@ def test_a_transient_record_fits_point_by_point_with_an_interval_that_covers_its
         noisy = Observation(V=1.1, t=t, v=None, F=F * (1 + 0.005 * rng.standard_normal(F.size)))
         covered += fit_records([noisy], free=("c1",), tau=0.01).covers({"c1": 420.0})["c1"]
     assert covered >= 4
+
+
+def test_rows_with_a_singular_derivative_are_named_and_left_out_of_the_step():
+    """An orbit row whose statistics move 50x faster than the coefficients (near a grazing) is
+    named with its elasticity; a row of ordinary slopes, and statistics the row lacks, are not."""
+    from peeljax.fit.table_rows import MAX_ELASTICITY, singular_rows
+
+    values = np.array([[200.0, 250.0, 180.0, 0.02, 0.002], [200.0, 250.0, 180.0, 0.02, 0.002]])
+    jac = np.zeros((2, 5, 2))
+    jac[0, :, 0] = 5.0 * values[0]  # elasticity 5: an ordinary orbit
+    jac[1, 3, 1] = 2 * MAX_ELASTICITY * values[1, 3]  # its period 100x as steep
+    available = np.ones((2, 5), bool)
+    assert singular_rows(values, jac, available, [0, 1]) == {1: pytest.approx(2 * MAX_ELASTICITY)}
+    available[1, 3] = False  # a statistic the row does not produce has no slope to judge
+    assert singular_rows(values, jac, available, [0, 1]) == {}

@@ -22,6 +22,8 @@ def table_csv(tmp_path):
 @pytest.fixture
 def no_fit(monkeypatch):
     """Fail the test if the table fit (or its compiled programs) is reached."""
+    import peeljax.cli.fit  # noqa: F401 - imported first: it reads fit_stick_slip's defaults
+
     reason = "compiled before the input was checked"
     forbid(monkeypatch, "peeljax.fit.table", "fit_stick_slip", "_solve", reason=reason)
     forbid(monkeypatch, "peeljax.fit.plots", "model_statistics", reason=reason)

@@ -422,10 +422,20 @@ class TableFitResult(FitResult):
 
 
 def _row_text(row: dict) -> str:
+    if row["kind"] == "orbit" and row.get("slips") is None:
+        return f"V = {row['V']:g}: {row['how']}" + _singular_text(row)
     if row["kind"] == "orbit":
         stable = "stable" if row.get("stable") else "UNSTABLE"
-        return f"V = {row['V']:g}: orbit, {row['slips']} slips per period, {stable}"
-    return f"V = {row['V']:g}: {row['kind']}"
+        text = f"V = {row['V']:g}: orbit, {row['slips']} slips per period, {stable}"
+        text += _singular_text(row)
+        return text
+    return f"V = {row['V']:g}: {row['kind']}" + _singular_text(row)
+
+
+def _singular_text(row: dict) -> str:
+    if "singular_elasticity" not in row:  # peeljax.fit.table_rows.singular_rows
+        return ""
+    return f" (a derivative too steep to use: elasticity {row['singular_elasticity']:.3g})"
 
 
 def fit_stick_slip(
@@ -525,7 +535,9 @@ def fit_stick_slip(
         (:class:`~peeljax.fit.uncertainty.Uncertainty`, χ²/dof and the singular directions
         included), ``intervals()`` (the profile-likelihood set where computed, else the
         linearized interval), ``profiles``, ``rows`` (per row: its kind — steady, orbit,
-        window —, k and stability of its orbit, how it was found), ``crossings`` (every
+        window —, k and stability of its orbit, how it was found, and ``singular_elasticity``
+        where its derivative is too steep to be used — an orbit near a grazing —, the row
+        judging the steps by its χ² alone, :func:`~peeljax.fit.table_rows.singular_rows`), ``crossings`` (every
         bifurcation a step crossed or was refused across), ``stop_reason``, ``converged``,
         ``chi2``/``dof``, ``outliers`` (entries beyond 5 σ), ``optima``/``equivalent_optima``,
         ``residuals`` (the measured entries of (model − data)/σ, row by row), ``v_range`` (the v
@@ -672,15 +684,17 @@ def _fit_on_attractors(table, model, start, data, sigma, measured, names, window
     with ``points``, a :class:`~peeljax.fit.points.PointRows`, records fitted point by point
     beside them): :func:`fit_rows`."""
     start_model = eqx.tree_at(lambda m: m.adhesion, model, start)
-    kinds, starts, why = row_kinds(start_model, table.V)
+    program = OrbitRows(orbit_shooting(rtol=orbit_rtol), model, start, tuple(names))
+    kinds, starts, why = row_kinds(start_model, table.V, program=program)
     window_rows = [i for i, k in enumerate(kinds) if k == "window"]
     window_fit = None
     if window_rows:
         window_fit = build_table_fit(start, model, table.V[window_rows], data[window_rows], sigma[window_rows],
                                      measured[window_rows], **window_options)  # fmt: skip
-    program = OrbitRows(orbit_shooting(rtol=orbit_rtol), model, start, tuple(names)) if "orbit" in kinds else None
+    program = program if "orbit" in kinds else None
     rows = TableRows(data, sigma, measured, table.V, kinds, starts, model=model, start=start, names=names,
-                     program=program, window_fit=window_fit, cycle_scatter=cycle_scatter)  # fmt: skip
+                     program=program, window_fit=window_fit, cycle_scatter=cycle_scatter,
+                     window_options=window_options)  # fmt: skip
     if instruments:
         rows.set_instruments(instruments)
     if points is not None:
@@ -782,8 +796,12 @@ def _row_report(rows: TableRows, point, why) -> list[dict]:
                 multipliers=[float(m) for m in orbit["multipliers"]], period=float(orbit["period"]),
                 approach=float(orbit["approach"]), crossing=float(orbit["crossing"]), how=orbit["attractor"].how,
             )  # fmt: skip
+        elif kind == "orbit" and point is not None and i in point.windowed:
+            entry.update(slips=None, stable=False, how="no periodic attractor at the optimum: its window statistics")
         elif kind == "orbit":
             entry.update(slips=None, stable=False, how="no periodic attractor at the optimum")
+        if point is not None and i in point.singular:
+            entry["singular_elasticity"] = float(point.singular[i])
         report.append(entry)
     return report
 
@@ -832,7 +850,8 @@ def attractor_statistics(law: AdhesionLaw, V, *, model: PeelingModel | None = No
     V = np.asarray(V, float).reshape(-1)
     shape = (V.size, len(STATISTICS))
     data, sigma, measured = np.zeros(shape), np.ones(shape), np.ones(shape, bool)
-    kinds, starts, why = row_kinds(model, V)
+    program = OrbitRows(orbit_shooting(rtol=orbit_rtol or DEFAULT_ORBIT_RTOL), model, law, tuple(names))
+    kinds, starts, why = row_kinds(model, V, program=program)
     window = [i for i, k in enumerate(kinds) if k == "window"]
     window_fit = None
     if window:
@@ -841,9 +860,7 @@ def attractor_statistics(law: AdhesionLaw, V, *, model: PeelingModel | None = No
                    "max_steps": 400_000, "taper": 0.25, **(window_fit_options or {})}  # fmt: skip
         window_fit = build_table_fit(law, model, V[window], data[window], sigma[window], measured[window],
                                      names=tuple(names), tau=0.0, **options)  # fmt: skip
-    program = None
-    if "orbit" in kinds:
-        program = OrbitRows(orbit_shooting(rtol=orbit_rtol or DEFAULT_ORBIT_RTOL), model, law, tuple(names))
+    program = program if "orbit" in kinds else None
     rows = TableRows(data, sigma, measured, V, kinds, starts, model=model, start=law, names=names, program=program,
                      window_fit=window_fit)  # fmt: skip
     return rows.start(), rows, why

@@ -38,12 +38,15 @@ from .attractors import Attractor, OrbitRows, classify, find_attractor, shoot_ro
 from .stick_slip_table import STATISTICS
 from .parameters import law_from
 
-__all__ = ["KINDS", "MISSING_RESIDUAL", "Point", "TableRows", "row_kinds"]
+__all__ = ["KINDS", "MAX_ELASTICITY", "MISSING_RESIDUAL", "Point", "TableRows", "row_kinds", "singular_rows"]
 
 KINDS = ("steady", "orbit", "window")
 SAME_POINT = 1e-7  # scaled section coordinates: P^d(s*) = s* (Newton's tolerance is 1e-10)
 SAME_ORBIT = 1e-5  # relative: two shootings at one θ found one orbit (its statistics to ~1e-7)
 MISSING_RESIDUAL = 10.0  # a statistic the model does not produce at θ (as in the window fit)
+# |∂ log statistic / ∂ log c| beyond which an orbit row's derivative is singular (measured on the
+# paper's φ at 0.5–4 m/s: 4–10 on rows away from a bifurcation, 141–1.6e6 near a grazing)
+MAX_ELASTICITY = 50.0
 V_REST = 1e-4  # m/s: the bottom of the reported v range where the tape comes to rest
 
 
@@ -60,6 +63,10 @@ class Point:
             → dict of that row's values).
         changes: rows whose attractor changed against the point this one was evaluated from
             ({"row", "V", "from", "to", "why"}).
+        singular: rows whose derivative is singular (:func:`singular_rows`), with their
+            largest elasticity: their rows of ``J`` are zero.
+        windowed: orbit rows without a periodic attractor at z (lost to a torus or chaos, or
+            not found again): their window statistics, as a window row's.
     """
 
     z: np.ndarray
@@ -72,9 +79,12 @@ class Point:
     orbits: dict
     changes: list = dataclasses.field(default_factory=list)
     branch: tuple = ()  # per row, how many attractor changes led here from the start (which branch)
+    singular: dict = dataclasses.field(default_factory=dict)  # row → its elasticity, derivative not used
+    windowed: tuple = ()  # orbit rows without a periodic attractor at z: their window statistics
 
 
 _STARTS: dict = {}  # (model's leaves, V) → row_kinds' answer, the orbits reduced to their least k
+_CHECKED: set = set()  # the keys of _STARTS whose orbit rows were shot and found attractors
 
 
 def _key(model: PeelingModel, V) -> tuple:
@@ -82,14 +92,40 @@ def _key(model: PeelingModel, V) -> tuple:
     return (model.geometry, tuple(float(x) for x in leaves), tuple(float(v) for v in np.asarray(V, float)))
 
 
-def row_kinds(model: PeelingModel, V, *, find=find_attractor) -> tuple[list[str], list, list[str]]:
+def row_kinds(model: PeelingModel, V, *, find=find_attractor, program: OrbitRows | None = None
+              ) -> tuple[list[str], list, list[str]]:  # fmt: skip
     """Each row's kind at the model (module docstring), its start (an
     :class:`~peeljax.fit.attractors.Attractor` for an orbit row) and, for a window row, why no
     orbit was found. Remembered per model and V (the runs are deterministic): fits that start
-    from one φ find their rows' attractors once."""
-    cached = _STARTS.get(_key(model, V))
-    if cached is not None:
+    from one φ find their rows' attractors once.
+
+    ``program`` (an :class:`~peeljax.fit.attractors.OrbitRows` whose φ at θ = 0 is the model's):
+    the orbits of the runs' repeats are shot, all in one call, and a row whose orbit is not an
+    attractor becomes a window row — a near repeat of a quasi-periodic run is close to an orbit
+    that has lost its stability (measured: c1 × 1.07, c3 × 0.93, c6 × 1.07 at 0.5 m/s, where
+    the tape stops after every slip: a 2-slip orbit with multipliers 1.036 e^{±iψ})."""
+    key = _key(model, V)
+    cached = _STARTS.get(key)
+    if cached is not None and (program is None or key in _CHECKED):
         return tuple(list(x) for x in cached)
+    if cached is None:
+        cached = _found_kinds(model, V, find)
+    kinds, starts, why = (list(x) for x in cached)
+    if program is not None:
+        orbit = [i for i, kind in enumerate(kinds) if kind == "orbit"]
+        if orbit:
+            shot = shoot_rows(program, np.zeros(len(program.names)), np.asarray(V, float)[orbit], [starts[i] for i in orbit])
+            for j, i in enumerate(orbit):
+                reason = classify(shot, j, None, 0, None)
+                if reason:
+                    kinds[i], starts[i] = "window", None
+                    why[i] = f"{why[i]}, but {reason}: no periodic attractor"
+        _CHECKED.add(key)
+    _STARTS[key] = (kinds, starts, why)
+    return list(kinds), list(starts), list(why)
+
+
+def _found_kinds(model: PeelingModel, V, find) -> tuple[list[str], list, list[str]]:
     steady = steady_rows(model, V)
     kinds, starts, why = [], [], []
     for Vi, is_steady in zip(np.asarray(V, float), steady):
@@ -101,7 +137,6 @@ def row_kinds(model: PeelingModel, V, *, find=find_attractor) -> tuple[list[str]
             kinds.append("orbit"), starts.append(found), why.append(found.how)
         else:
             kinds.append("window"), starts.append(None), why.append(found)
-    _STARTS[_key(model, V)] = (kinds, starts, why)
     return kinds, starts, why
 
 
@@ -139,6 +174,8 @@ class TableRows:
         program: the compiled orbit rows (:class:`~peeljax.fit.attractors.OrbitRows`).
         window_fit: a :class:`~peeljax.fit.table.TableFit` over the window rows (None if none).
         cycle_scatter: add the window rows' cycle-to-cycle scatter to σ.
+        window_options: :func:`~peeljax.fit.table.build_table_fit`'s options: an orbit row
+            without a periodic attractor at θ gets its window statistics (None: it is missing).
 
     Rows measured from force records get their instrument (:meth:`set_instruments`): the bias
     its sampling and noise add to the orbit's statistics (:mod:`peeljax.fit.instrument`,
@@ -146,12 +183,13 @@ class TableRows:
     """
 
     def __init__(self, data, sigma, measured, V, kinds, starts, *, model: PeelingModel, start: AdhesionLaw, names,
-                 program: OrbitRows | None, window_fit=None, cycle_scatter=True):  # fmt: skip
+                 program: OrbitRows | None, window_fit=None, cycle_scatter=True, window_options=None):  # fmt: skip
         self.data, self.sigma, self.measured = (np.asarray(a) for a in (data, sigma, measured))
         self.V = np.asarray(V, float)
         self.kinds, self.starts = list(kinds), list(starts)
         self.model, self.start_law, self.names = model, start, tuple(names)
         self.program, self.window_fit, self.cycle_scatter = program, window_fit, cycle_scatter
+        self.window_options = window_options
         self.rows = {kind: [i for i, k in enumerate(self.kinds) if k == kind] for kind in KINDS}
         self.evaluations = 0
         self.bias = np.zeros_like(self.data, dtype=float)  # what each row's instrument adds (set_instruments)
@@ -184,7 +222,8 @@ class TableRows:
     def forget(self, point: Point, rows: list[int]) -> Point:
         """``point`` with the attractors of ``rows`` forgotten (found again from rest when it is
         stepped from)."""
-        return dataclasses.replace(point, attractors=[None if i in rows else a for i, a in enumerate(point.attractors)])
+        return dataclasses.replace(point, attractors=[None if i in rows else a for i, a in enumerate(point.attractors)],
+                                   windowed=tuple(i for i in point.windowed if i not in rows))  # fmt: skip
 
     # -- the model at θ ---------------------------------------------------------------------
     def law(self, z) -> AdhesionLaw:
@@ -228,7 +267,9 @@ class TableRows:
             d_theta = z - (base.z if base is not None else np.zeros(p))
             why = {} if base is None else self._not_followed(z, rows, live, follow, found, base, d_theta)
             for j, i in enumerate(rows):
-                if j not in live:  # lost at the point stepped from: look for it again from rest
+                if j not in live and base is not None and i in base.windowed:
+                    found_i = None  # not periodic at the point stepped from: looked for again from rest at each optimum
+                elif j not in live:  # lost at the point stepped from: look for it again from rest
                     found_i = self._refind(z, i, None, "its attractor was lost at the point stepped from")
                     if found_i is not None:
                         changes.append({"row": i, "V": float(self.V[i]), "from": None,
@@ -252,16 +293,20 @@ class TableRows:
                 orbits[i] = found_i
                 values[i], jac[i], available[i] = found_i["statistics"] + self.bias[i], found_i["jacobian"], True
                 v_range[i, 1] = found_i["v_slip"]
-        # window rows
-        window = self.rows["window"]
-        if window:
+        # window rows, and orbit rows whose attractor at z is not a periodic orbit
+        lost = [i for i in rows if i not in orbits] if self.window_options is not None else []
+        for window, fit in ((self.rows["window"], self.window_fit), (lost, self._lost_fit(lost))):
+            if not window:
+                continue
             w_values, w_jac, w_available, w_range, scatter = (
-                np.asarray(a) for a in _window(_WindowStatistics(self.window_fit), jnp.asarray(z, float))
+                np.asarray(a) for a in _window(_WindowStatistics(fit), jnp.asarray(z, float))
             )
             values[window], jac[window], available[window] = w_values, w_jac, w_available
             v_range[window] = np.maximum(w_range, V_REST)
             if self.cycle_scatter:
                 sigma[window] = np.sqrt(sigma[window] ** 2 + scatter**2)
+        singular = singular_rows(values, jac, available, range(n))
+        jac[list(singular)] = 0.0
         sigma = np.sqrt(sigma**2 + self.bias_error**2)  # the instruments' Monte Carlo error (records)
         r_all = np.where(available, (values - self.data) / sigma, MISSING_RESIDUAL)
         J_all = np.where(available[..., None], jac / sigma[..., None], 0.0)
@@ -270,7 +315,19 @@ class TableRows:
         for change in changes:
             branch[change["row"]] += 1
         return Point(z=z, r=r_all[keep], J=J_all[keep], v_range=v_range, values=values, available=available,
-                     attractors=attractors, orbits=orbits, changes=changes, branch=tuple(branch))  # fmt: skip
+                     attractors=attractors, orbits=orbits, changes=changes, branch=tuple(branch),
+                     singular=singular, windowed=tuple(lost))  # fmt: skip
+
+    def _lost_fit(self, lost: list[int]):
+        """The window statistics' program of the orbit rows ``lost`` (every statistic; one
+        program per number of such rows), or None where there are none."""
+        if not lost:
+            return None
+        from .table import build_table_fit  # the window runs' program (table.py builds on this module)
+
+        shape = (len(lost), len(STATISTICS))
+        return build_table_fit(self.start_law, self.model, self.V[lost], np.zeros(shape), np.ones(shape),
+                               np.ones(shape, bool), **self.window_options)  # fmt: skip
 
     # -- orbits -----------------------------------------------------------------------------
     def _not_followed(self, z, rows, live, follow, found, base: Point, d_theta) -> dict[int, str]:
@@ -362,6 +419,29 @@ class TableRows:
                     np.abs(found["statistics"] / followed["statistics"] - 1)) > SAME_ORBIT:  # fmt: skip
                 differ.append(i)
         return differ
+
+
+def singular_rows(values, jac, available, rows) -> dict[int, float]:
+    """The ``rows`` whose derivative is singular, with their largest elasticity
+    |∂ log s / ∂ log c| (> :data:`MAX_ELASTICITY`).
+
+    Near a grazing (a slip that barely reaches φ's fold) an orbit's statistics have derivatives
+    that grow like the inverse square root of the distance to it: right only within that
+    distance, beyond which the attractor is another orbit whose per-slip averages are close
+    (a grazing changes the slips per period, not the averages). Such a row's derivative
+    would pin the fit to a step of 1e-8 (measured: 8 rows at 0.5–4 m/s, elasticities 1.6e6
+    and 2.2e3 at 3.5 and 4 m/s; Levenberg–Marquardt stopped at its start, every coefficient
+    6–8 % off). The row stays in χ², which judges every step, but not in the step's direction
+    nor in the linearized intervals (its Jacobian rows are zero). A window row's statistics can
+    be as steep where a slip nearly touches the fold or the window's edge (measured: a
+    covariance of 1e-33 at 4 m/s on the same table): every row is judged alike."""
+    out = {}
+    for i in rows:
+        scale = np.where(available[i], np.abs(values[i]), np.inf)[:, None]
+        elasticity = float(np.max(np.abs(jac[i]) / np.maximum(scale, 1e-300), initial=0.0))
+        if elasticity > MAX_ELASTICITY:
+            out[i] = elasticity
+    return out
 
 
 def _as_batch(row: dict) -> dict:
