@@ -7,7 +7,10 @@ Problems:
 * ``two`` — φ with c1 × 1.05 and c6 × 1.05 (the pair whose terms c1·v^0.35 and c6·v^0.5
   compensate), a table at V = 1.0, 1.5, 2.2, 3.0 m/s, ``free=("c1", "c6")``;
 * ``three`` — φ with c1 × 1.12, c3 × 1.06, c6 × 1.10 at V = 0.8, 1.0, 1.2, 1.5, 1.8, 2.2, 2.6,
-  3.0 m/s, ``free=("c1", "c3", "c6")``.
+  3.0 m/s, ``free=("c1", "c3", "c6")``;
+* ``wide`` — the whole stick-slip range: φ with c1 × 1.07, c3 × 0.93, c6 × 1.07 at V = 0.5, 1.0,
+  …, 4.0 m/s, ``free=("c1", "c3", "c6")``; at 0.5 m/s φ_min falls below φ(0⁺): the tape stops
+  after every slip and the attractor is not periodic (a window row).
 
 The table holds the model's statistics at the truth as :func:`peeljax.fit.fit_stick_slip`
 predicts them by default (each row on the attractor reached from rest: the periodic orbit's
@@ -20,7 +23,7 @@ reported confidence set (the profile's where computed) and the linearized interv
 truth, χ²/dof, convergence, bifurcations crossed, whether profiles were computed, time. One
 JSON line per draw goes to ``--out`` (appended: ``--resume`` goes on from the draws there).
 
-    python benchmarks/fit_coverage.py [--problem two|three] [--draws 200] [--seed 0]
+    python benchmarks/fit_coverage.py [--problem two|three|wide] [--draws 200] [--seed 0]
                                       [--intervals auto|linear|profile] [--out FILE] [--resume]
 """
 
@@ -42,6 +45,7 @@ from peeljax.fit.table import attractor_statistics
 PROBLEMS = {
     "two": ({"c1": 1.05, "c6": 1.05}, (1.0, 1.5, 2.2, 3.0)),
     "three": ({"c1": 1.12, "c3": 1.06, "c6": 1.10}, (0.8, 1.0, 1.2, 1.5, 1.8, 2.2, 2.6, 3.0)),
+    "wide": ({"c1": 1.07, "c3": 0.93, "c6": 1.07}, (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0)),
 }
 
 
@@ -84,7 +88,7 @@ def summarize(records: list[dict], names, level: float) -> str:
     return "\n".join(lines)
 
 
-def main() -> None:
+def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--problem", choices=tuple(PROBLEMS), default="two")
     parser.add_argument("--draws", type=int, default=200)
@@ -93,7 +97,7 @@ def main() -> None:
     parser.add_argument("--intervals", choices=("auto", "linear", "profile"), default="auto")
     parser.add_argument("--out", default=None, help="JSON lines, one per draw (default: none)")
     parser.add_argument("--resume", action="store_true", help="go on after the draws already in --out")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     truth, names, V = truth_of(args.problem)
     true = {n: float(getattr(truth, n)) for n in names}
     began = time.perf_counter()

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .table_rows import MISSING_RESIDUAL
+from .window_rows import MISSING_RESIDUAL
 
 __all__ = ["CONVERGED", "FLOOR", "STOP_REASONS", "LevenbergMarquardt", "missing_entries"]
 
@@ -30,7 +30,8 @@ STOP_REASONS = {
     "gauss-newton": "converged: the Gauss-Newton step would lower chi2 by less than fit_atol "
     "(the optimum within sqrt(fit_atol) standard errors)",
     "floor": f"converged to the rough floor of chi2: a step of at most {FLOOR**0.5:g} standard errors "
-    "(|J step|^2 <= 0.25) does not lower chi2 (the window statistics jump where a slip crosses the window's edge)",
+    "(|J step|^2 <= 0.25) does not lower chi2 (the window statistics jump where a slip crosses the window's edge; "
+    "a row whose derivative is too steep to use moves on its own)",
     "bifurcation": f"converged at a bifurcation: a step of at most {FLOOR**0.5:g} standard errors crosses to another "
     "attractor of a row, where chi2 is higher (the optimum lies on the edge of its branch; see the profile intervals)",
     "loss": "converged: the last step and the Gauss-Newton step lower chi2 by less than fit_rtol (relative)",

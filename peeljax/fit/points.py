@@ -34,7 +34,8 @@ from ..adhesion import AdhesionLaw
 from ..homogenized import HomogenizedODE
 from ..integrators.select import integrator_for
 from ..model import PeelingModel
-from .table_rows import MISSING_RESIDUAL, Point
+from .table_rows import Point
+from .window_rows import MISSING_RESIDUAL
 from .parameters import law_from
 from .trajectory import Observation
 

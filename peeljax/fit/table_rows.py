@@ -37,13 +37,13 @@ from ..orbits.section import state_after_slip
 from .attractors import Attractor, OrbitRows, classify, find_attractor, shoot_rows, steady_force, steady_rows
 from .stick_slip_table import STATISTICS
 from .parameters import law_from
+from .window_rows import MISSING_RESIDUAL, build_table_fit
 
-__all__ = ["KINDS", "MAX_ELASTICITY", "MISSING_RESIDUAL", "Point", "TableRows", "row_kinds", "singular_rows"]
+__all__ = ["KINDS", "MAX_ELASTICITY", "Point", "TableRows", "row_kinds", "singular_rows"]
 
 KINDS = ("steady", "orbit", "window")
 SAME_POINT = 1e-7  # scaled section coordinates: P^d(s*) = s* (Newton's tolerance is 1e-10)
 SAME_ORBIT = 1e-5  # relative: two shootings at one θ found one orbit (its statistics to ~1e-7)
-MISSING_RESIDUAL = 10.0  # a statistic the model does not produce at θ (as in the window fit)
 # |∂ log statistic / ∂ log c| beyond which an orbit row's derivative is singular (measured on the
 # paper's φ at 0.5–4 m/s: 4–10 on rows away from a bifurcation, 141–1.6e6 near a grazing)
 MAX_ELASTICITY = 50.0
@@ -323,8 +323,6 @@ class TableRows:
         program per number of such rows), or None where there are none."""
         if not lost:
             return None
-        from .table import build_table_fit  # the window runs' program (table.py builds on this module)
-
         shape = (len(lost), len(STATISTICS))
         return build_table_fit(self.start_law, self.model, self.V[lost], np.zeros(shape), np.ones(shape),
                                np.ones(shape, bool), **self.window_options)  # fmt: skip
