@@ -747,7 +747,7 @@ def attractor_statistics(law: AdhesionLaw, V, *, model: PeelingModel | None = No
     attractor as :func:`~peeljax.fit.fit_stick_slip` (``method="orbit"``) predicts it: the
     :class:`Point` at θ = 0 (``values``, ``available``, ``v_range``), the :class:`TableRows` and
     why each row has its kind. ``names``: the coefficients of the compiled orbit program (share
-    it with a fit of the same ``free``); ``window_fit_options``: :func:`peeljax.fit.table.build_table_fit`'s
+    it with a fit of the same ``free``); ``window_fit_options``: :func:`peeljax.fit.window_rows.build_table_fit`'s
     for rows without a periodic attractor."""
     model = PeelingModel() if model is None else model
     model = eqx.tree_at(lambda m: m.adhesion, model, law)

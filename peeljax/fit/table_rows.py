@@ -13,7 +13,8 @@ predicts there depends on the attractor at V_i (:func:`row_kinds`, decided at th
 * **window** — stick-slip without a periodic attractor found (irregular, or a repeat longer
   than the runs could confirm): the run's statistics over ``[transient, transient + window]``
   (:func:`peeljax.fit.statistics.jump_statistics`, tapered, with the cycle-to-cycle scatter
-  added to σ), as before there were orbits.
+  added to σ), as before there were orbits. An orbit row whose attractor is not periodic at a
+  trial θ takes the same (:attr:`Point.windowed`).
 
 :class:`TableRows` evaluates all of them at a point θ (log coefficients, c = c_start·exp(θ)):
 the residuals r = (model − data)/σ of the measured entries (row-major), their Jacobian, the v
@@ -44,8 +45,8 @@ __all__ = ["KINDS", "MAX_ELASTICITY", "Point", "TableRows", "row_kinds", "singul
 KINDS = ("steady", "orbit", "window")
 SAME_POINT = 1e-7  # scaled section coordinates: P^d(s*) = s* (Newton's tolerance is 1e-10)
 SAME_ORBIT = 1e-5  # relative: two shootings at one θ found one orbit (its statistics to ~1e-7)
-# |∂ log statistic / ∂ log c| beyond which an orbit row's derivative is singular (measured on the
-# paper's φ at 0.5–4 m/s: 4–10 on rows away from a bifurcation, 141–1.6e6 near a grazing)
+# |∂ log statistic / ∂ log c| beyond which a row's derivative is singular (measured on tables at
+# 0.5–4 m/s: 4–10 on rows away from a bifurcation, 141–1.6e6 near a grazing)
 MAX_ELASTICITY = 50.0
 V_REST = 1e-4  # m/s: the bottom of the reported v range where the tape comes to rest
 
@@ -144,7 +145,7 @@ class _WindowStatistics(eqx.Module):
     """The window rows' statistics, availability, v range and scatter, with the statistics'
     forward-mode Jacobian (one tangent per free coefficient)."""
 
-    fit: object  # peeljax.fit.table.TableFit over the window rows
+    fit: object  # peeljax.fit.window_rows.TableFit over the window rows
 
     def __call__(self, theta):
         names = self.fit.names
@@ -172,9 +173,9 @@ class TableRows:
         V: the rows' pull velocities (n,); kinds, starts: :func:`row_kinds`.
         model: spool and tape; start: φ at θ = 0; names: the free coefficients.
         program: the compiled orbit rows (:class:`~peeljax.fit.attractors.OrbitRows`).
-        window_fit: a :class:`~peeljax.fit.table.TableFit` over the window rows (None if none).
+        window_fit: a :class:`~peeljax.fit.window_rows.TableFit` over the window rows (None if none).
         cycle_scatter: add the window rows' cycle-to-cycle scatter to σ.
-        window_options: :func:`~peeljax.fit.table.build_table_fit`'s options: an orbit row
+        window_options: :func:`~peeljax.fit.window_rows.build_table_fit`'s options: an orbit row
             without a periodic attractor at θ gets its window statistics (None: it is missing).
 
     Rows measured from force records get their instrument (:meth:`set_instruments`): the bias
