@@ -716,10 +716,10 @@ def _row_report(rows: TableRows, point, why) -> list[dict]:
     return report
 
 
-# Measured (benchmarks/fit_coverage.py --problem wide, 16 draws): where rows are judged by χ²
-# alone or by window statistics at the optimum, the profile intervals covered the truth in 8–9
-# of 16 draws (0.2–0.5 of the linearized width), the linearized ones in 14–16 (errors/SE
-# spread 0.93–1.11); "auto" keeps the linearized interval there.
+# Measured (benchmarks/fit_coverage.py --problem wide, 21 draws): where rows are judged by χ²
+# alone or by window statistics at the optimum, the profile intervals covered the truth in
+# 10–11 of 21 draws (often 0.2–0.5 of the linearized width, some not holding the optimum), the
+# linearized ones in 19–20 (errors/SE spread 0.93–1.11); "auto" keeps the linearized ones there.
 ROUGH_PROFILES = "profile intervals are not computed where chi2 is rough at the optimum"
 
 
