@@ -4,6 +4,7 @@ compiled orbit (fast), and one small fit through the orbits (slow)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 from pathlib import Path
@@ -115,6 +116,12 @@ def test_auto_profiles_only_the_coefficients_whose_interval_holds_a_bifurcation(
     auto = _profiles_if_needed(rows, best, uncertainty, "auto", 0.95, options)
     assert sorted(auto) == ["c1"] and auto["c1"].jumps
     assert sorted(_profiles_if_needed(rows, best, uncertainty, "profile", 0.95, options)) == ["c1", "c2"]
+    # a row judged by χ² alone (or by window statistics) at the optimum: χ² is rough, "auto"
+    # keeps the linearized intervals, "profile" still computes them
+    for rough in ({"singular": {0: 1e4}}, {"windowed": (0,)}):
+        best.state = dataclasses.replace(start, **rough)
+        assert _profiles_if_needed(rows, best, uncertainty, "auto", 0.95, options) == {}
+        assert sorted(_profiles_if_needed(rows, best, uncertainty, "profile", 0.95, options)) == ["c1", "c2"]
 
 
 # ---------------------------------------------------------------------------- records
