@@ -186,6 +186,7 @@ def _validate_records(args: argparse.Namespace, observations: list[Observation],
     """The options of force records fitted by statistics and/or point by point
     (:func:`peeljax.fit.fit_records`), all checked before anything is compiled."""
     from ..fit.records_fit import BY, how_fitted
+    from ..model import PeelingModel
 
     _refuse(args, _DATA_ONLY[1:], "force records (t, F): fitted by their statistics or point by point")
     _refuse(args, ("window", "n_starts", "starts_deprecated", "method"),
@@ -197,8 +198,9 @@ def _validate_records(args: argparse.Namespace, observations: list[Observation],
         if not (math.isfinite(transient) and 0 <= transient < t_end):
             raise ValueError(f"--transient must lie in [0, {t_end:g}) [s] for these records (their statistics are "
                              f"taken after it), got {transient:g}")  # fmt: skip
-    try:
-        decided = how_fitted(observations, by, transient)
+    start = load_phi(args.phi)
+    try:  # a record of too few slips to tell is judged by the start's own run, as fit_records does
+        decided = how_fitted(observations, by, transient, PeelingModel(adhesion=start))
     except ValueError as error:
         raise ValueError(f"--by {by}: {error}") from None
     points = [o for o, (kind, _) in zip(observations, decided) if kind == "points"]
@@ -218,7 +220,6 @@ def _validate_records(args: argparse.Namespace, observations: list[Observation],
     free = _free(args, _RECORDS_DEFAULTS)
     rtol, atol = options.check_tolerances(args.rtol, args.atol, (_RECORDS_DEFAULTS["rtol"], _RECORDS_DEFAULTS["atol"]))
     intervals = _choice("--intervals", args.intervals, INTERVALS, _RECORDS_DEFAULTS["intervals"])
-    start = load_phi(args.phi)
     options.check_outputs(args)
     return {"records": observations, "decided": decided, "by": by, "transient": transient, "tau": float(tau),
             "statistics": statistics,
