@@ -50,6 +50,7 @@ SETTLED = 4.0  # standard errors: a record whose statistics drift more between i
 LONG = 50  # slips: a record without a repeat has to hold this many for the halves' test
 MODEL_RATE = 1e4  # [Hz]: the model's noise-free record that judges a record of too few slips …
 MODEL_SAMPLES = 200_000  # … over its window, at most this many samples
+LIVE = 5.0  # slip thresholds: F of a record still stick-slipping swings by more over its window's last quarter
 
 
 def _holds(o: Observation, quantity: str) -> bool:
@@ -68,8 +69,10 @@ def how_fitted(observations: Sequence[Observation], by: str = "auto", transient:
     the statistics' start [s] (default: each record's midpoint). Under ``"auto"`` a record with
     some slips but fewer than ``MIN_SLIPS`` — a record whose noise hides its small slips shows
     few: 9 of about 265 at V = 2.4 m/s, 2 kHz, 0.5 % noise — is judged by ``model`` where one
-    is given: it stick-slips if the model's noise-free run from rest at its V shows at least
-    ``MIN_SLIPS`` over the same window (:func:`_model_record`)."""
+    is given: it stick-slips if F still swings by ``LIVE`` times its slip threshold over the last
+    quarter of its window (a transient settling to steady peeling does not: 0.9 times, against
+    17 times at 2.4 m/s) and the model's noise-free run from rest at its V shows at least
+    ``MIN_SLIPS`` slips over the same window (:func:`_model_record`)."""
     if by not in BY:
         raise ValueError(f"by must be one of {', '.join(BY)}, got {by!r}")
     out = []
@@ -84,9 +87,10 @@ def how_fitted(observations: Sequence[Observation], by: str = "auto", transient:
         t, F = o.series("F")
         start = _transient(t, transient)
         try:
-            slips = record_statistics(t, F, transient=start, smooth=SMOOTH, noise_factor=NOISE_FACTOR)["slips"]
+            found = record_statistics(t, F, transient=start, smooth=SMOOTH, noise_factor=NOISE_FACTOR)
+            slips, live = found["slips"], _still_slipping(t, F, start, found["min_drop"])
         except ValueError:  # too few samples after the transient to take statistics of
-            slips = 0
+            slips, live = 0, False
         if by == "points":
             out.append(("points", "asked for (--by points)"))
         elif by == "statistics":
@@ -96,7 +100,7 @@ def how_fitted(observations: Sequence[Observation], by: str = "auto", transient:
             out.append(("statistics", "asked for (--by statistics)"))
         elif slips >= MIN_SLIPS:
             out.append(("statistics", f"it stick-slips: {slips} slips after t = {start:g} s"))
-        elif slips > 0 and model is not None and (seen := _model_slips(model, o.V, t, start)) >= MIN_SLIPS:
+        elif slips > 0 and live and model is not None and (seen := _model_slips(model, o.V, t, start)) >= MIN_SLIPS:
             out.append(("statistics", f"it stick-slips: {slips} slips found after t = {start:g} s (its noise hides "
                                       f"the small ones), {seen} in the model's run from rest over the same window"))  # fmt: skip
         else:
@@ -149,6 +153,13 @@ def _drift(record, transient: float) -> tuple[bool | None, str]:
     if t_slip.size < LONG:
         return None, f"{t_slip.size} slips, too few to tell a settled record (at least {LONG})"
     return True, f"its {t_slip.size} slips' statistics agree between the halves of its window"
+
+
+def _still_slipping(t, F, start: float, min_drop: float) -> bool:
+    """F swings by at least ``LIVE`` × ``min_drop`` over the last quarter of [start, end]."""
+    t, F = np.asarray(t, float), np.asarray(F, float)
+    last = t >= start + 0.75 * (float(np.max(t)) - start)
+    return bool(np.count_nonzero(last) > 1 and np.ptp(F[last]) >= LIVE * min_drop)
 
 
 def _model_slips(model: PeelingModel, V: float, t, transient: float) -> int:
