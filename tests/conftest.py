@@ -71,7 +71,7 @@ def _deselect_slow(config, items):
 # (LONG_TEST_SECONDS or more, setup included) run first, the longest in all first; a file's tests
 # stay together and in their order (its module fixtures compile once per worker: taking a file's
 # long tests out alone set those fixtures up again, +1 min of the fast tier measured).
-# The record: `python benchmarks/ci_time.py --long-tests tests/durations.json …` updates it.
+# The record: `python tests/ci_time.py --long-tests tests/durations.json …` updates it.
 DURATIONS_FILE = Path(__file__).with_name("durations.json")
 LONG_TEST_SECONDS = 20.0
 

@@ -1,9 +1,9 @@
 """Where the test suite's time goes: per test file and per test, wall and CPU seconds and JAX's compile share.
 
-    python benchmarks/ci_time.py                          # the whole suite as CI runs it (-n auto)
-    python benchmarks/ci_time.py tests/test_fit.py -n 0   # a subset: any pytest arguments
-    python benchmarks/ci_time.py --report times.json      # print a saved record again
-    python benchmarks/ci_time.py --long-tests tests/durations.json --slow   # and update the long tests' record
+    python tests/ci_time.py                          # the whole suite as CI runs it (-n auto)
+    python tests/ci_time.py tests/test_fit.py -n 0   # a subset: any pytest arguments
+    python tests/ci_time.py --report times.json      # print a saved record again
+    python tests/ci_time.py --long-tests tests/durations.json --slow   # and update the long tests' record
 
 It runs ``python -m pytest`` with this file as a plugin (``-p ci_time``), which records for every
 test (setup, call and teardown, where a module-scoped fixture's compilation lands in its first
@@ -306,7 +306,7 @@ def update_durations(record: dict, path: Path, least: float = 20.0) -> int:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         description="Run pytest and print where the time goes (other arguments go to pytest).",
-        usage="python benchmarks/ci_time.py [--json PATH] [--top N] [--report PATH] [--long-tests PATH] [PYTEST ARGS ...]",
+        usage="python tests/ci_time.py [--json PATH] [--top N] [--report PATH] [--long-tests PATH] [PYTEST ARGS ...]",
     )
     parser.add_argument("--json", type=Path, default=DEFAULT_JSON, help=f"the record (default {DEFAULT_JSON})")
     parser.add_argument("--top", type=int, default=40, help="how many of the slowest tests to list (default 40)")
