@@ -58,16 +58,26 @@ def test_tangents_or_the_checkpointed_pullback_by_the_number_perturbed(limit, ki
     assert kinds == ["lax"]
 
 
+# The runs below: 0.05 s at τ = 0.01, which reach no fold (a run stopped at one would end in NaN
+# with NaN derivatives, which the finiteness checks refuse). The default stepper ("auto": Tsit5,
+# switching to the α-method where the ODE turns stiff) takes Tsit5 throughout them, so Tsit5 with
+# fold="stop" is the same run (the same derivatives, measured) in programs without the switch and
+# the jump machinery, which compile ~4× faster (the forward-mode program 15 s against 62 s for
+# "auto" with "stop", under load). The dispatch (tangents or the checkpointed loop,
+# ``peeljax/simulate.py``) is the same for every stepper and fold policy; "auto"'s checkpointed
+# pullback through 14 jumps: ``tests/test_gradient_matrix.py::test_reverse_mode_is_forward_mode``.
+RUN = {"V": 1.1, "tau": 0.01, "t_final": 0.05, "ts": jnp.array([0.0, 0.05]), "solver": "tsit5", "fold": "stop"}
+
+
 def _run(c1, adjoint, **law):
     model = pj.PeelingModel(adhesion=eqx.tree_at(lambda a: a.c1, pj.AdhesionLaw(**law), c1))
-    sol = pj.simulate(model, V=1.1, tau=0.01, t_final=0.05, ts=jnp.array([0.0, 0.05]), adjoint=adjoint)
-    return sol.ys[-1]
+    return pj.simulate(model, adjoint=adjoint, **RUN).ys[-1]
 
 
 @pytest.mark.slow
 def test_grad_of_a_run_is_its_forward_mode():
     """One φ coefficient perturbed: reverse mode is the forward-mode derivative of the same
-    program (tangents), to round-off (slow: 90–110 s in the fast tier, compiling both
+    program (tangents), to round-off (slow: 40 s on 2 busy cores, compiling both
     derivative programs; the fast tier checks the dispatch on a toy run above)."""
     c1 = jnp.asarray(400.0)
     reverse = jax.jacrev(lambda c: _run(c, "reverse"))(c1)
@@ -79,13 +89,11 @@ def test_grad_of_a_run_is_its_forward_mode():
 @pytest.mark.slow
 def test_many_perturbed_numbers_take_the_checkpointed_loop_and_agree():
     """All 14 of φ's coefficients perturbed (more than the limit): the checkpointed loop's pullback,
-    the same derivative as forward mode of the plain loop (slow: 80 s, mostly compiling the
-    checkpointed program; the fast tier checks the dispatch on a toy run above)."""
+    the same derivative as forward mode of the plain loop (slow: 50 s on 2 busy cores, mostly
+    compiling the checkpointed program; the fast tier checks the dispatch on a toy run above)."""
 
     def end(law, adjoint):
-        sol = pj.simulate(pj.PeelingModel(adhesion=law), V=1.1, tau=0.01, t_final=0.05, ts=jnp.array([0.0, 0.05]),
-                          adjoint=adjoint)  # fmt: skip
-        return sol.ys[-1, 3]
+        return pj.simulate(pj.PeelingModel(adhesion=law), adjoint=adjoint, **RUN).ys[-1, 3]
 
     law = pj.AdhesionLaw()
     reverse = eqx.filter_grad(lambda l: end(l, "reverse"))(law)

@@ -89,12 +89,17 @@ def test_derivatives_through_the_folds():
     1e-5); from the paper's start the first slip is tangential and differentiated from its
     reference state, 1e-3·rtol deep (1.1e-5 measured, 2e-4 with a depth of 1e-8, 7e-4 with 1e-12;
     asserted to 1e-4). Both starts in one test: y0 and t_final are traced, so the second start
-    reuses the first's compiled programs."""
+    reuses the first's compiled programs; the differences' values are the forward-mode program's
+    primal outputs (no program of their own)."""
     c1, rtol, eps = 400.0, 1e-8, 0.01
     for start, tolerance in (("steady", 1e-5), ("paper", 1e-4)):
-        forward = jax.jvp(lambda c: _jump_times(start, c, "forward", rtol), (c1,), (1.0,))[1]
+
+        def value_and_tangent(c):
+            return jax.jvp(lambda c: _jump_times(start, c, "forward", rtol), (c,), (1.0,))
+
+        forward = value_and_tangent(c1)[1]
         reverse = jax.jacrev(lambda c: _jump_times(start, c, "reverse", rtol))(c1)
-        up, down = (_jump_times(start, c1 + d, "forward", rtol) for d in (eps, -eps))
+        up, down = (value_and_tangent(c1 + d)[0] for d in (eps, -eps))
         central = (up - down) / (2 * eps)
         np.testing.assert_allclose(np.asarray(forward), np.asarray(reverse), rtol=1e-7, atol=1e-15, err_msg=start)
         scale = np.max(np.abs(np.asarray(central[:8])))

@@ -140,8 +140,12 @@ def test_gradient_matrix(tau, solver):
 def test_gradient_matrix_other_fold_policies(fold):
     """τ = 1e-3, up to 0.15 s: before the first slip both policies are the run itself. At the slip
     (0.173 s) ``stop`` ends the run (rows past it: NaN, NaN derivatives) and ``follow`` follows a
-    singular passage, after which no derivative exists (``tests/test_undefined_derivatives.py``)."""
-    _cell(1e-3, fold=fold, t_final=0.15)
+    singular passage, after which no derivative exists (``tests/test_undefined_derivatives.py``).
+    Tsit5: before the slip the default stepper ("auto", Tsit5 switching to the α-method where the
+    ODE turns stiff) takes Tsit5 throughout (the same worst differences to the last digit,
+    measured), and without the switch the programs compile faster (``follow``: 211 s against
+    415 s on 2 busy cores)."""
+    _cell(1e-3, solver="tsit5", fold=fold, t_final=0.15)
 
 
 @pytest.mark.slow

@@ -137,8 +137,10 @@ def derivative_setup(orbit):
     model, s_star = orbit.model, jnp.asarray(orbit.section)
 
     def quantities(c1, V_, start=s_star, t_max=0.7):
-        m = eqx.tree_at(lambda m: m.adhesion.c1, model, c1)
-        o = compiled_orbit(shooting, m, V_, start, 8, t_max)
+        # every argument an array: compiled_orbit's one jitted program (a Python float would be a
+        # static argument of its filter_jit fallback, compiled anew for every difference's value)
+        m = eqx.tree_at(lambda m: m.adhesion.c1, model, jnp.asarray(c1, float))
+        o = compiled_orbit(shooting, m, jnp.asarray(V_, float), start, jnp.asarray(8, jnp.int32), jnp.asarray(t_max, float))
         st = o.statistics
         return jnp.stack([o.period] + [st[k] for k in STATS])
 

@@ -114,29 +114,45 @@ def test_a_run_that_switched_is_as_accurate_as_its_tolerance():
 
 
 def _end_state(p, rtol, adjoint="reverse"):
+    """y(4 s) (log v) and the run's switches and whether it completed. No fold is reached in
+    the 4 s: ``fold="stop"`` ends nothing (the run's completing says so) and compiles no jump
+    machinery, which more than doubles a program's compilation."""
     c1, V, tau = p
     model = eqx.tree_at(lambda m: m.adhesion.c1, pj.PeelingModel(), c1)
     sol = pj.simulate(
         model, V=V, tau=tau, t_final=4.0, ts=jnp.array([0.0, 4.0]), rtol=rtol, atol=rtol * 1e-3, solver="auto",
-        adjoint=adjoint,
+        adjoint=adjoint, fold="stop",
     )  # fmt: skip
-    return jnp.concatenate([sol.ys[-1, :3], jnp.log(sol.ys[-1, 3:])]), sol
+    return jnp.concatenate([sol.ys[-1, :3], jnp.log(sol.ys[-1, 3:])]), (sol.stats["stepper_switches"], sol.completed)
+
+
+def _forward(p, rtol):
+    """y(4 s), its Jacobian by forward mode (the plain loop), and the run's switches and whether
+    it completed. The tolerance is one of the packed numbers, not a constant of the program: one
+    compiled program gives the derivative at 1e-9 and the differences' values at 1e-10."""
+    run = lambda q: _end_state(q, rtol, "forward")  # noqa: E731
+    tangent = lambda e: jax.jvp(run, (p,), (e,), has_aux=True)  # noqa: E731
+    value, jacobian, (switches, completed) = jax.vmap(tangent, out_axes=(None, 1, None))(jnp.eye(3))
+    return np.asarray(value), np.asarray(jacobian), int(switches) if bool(completed) else 0
 
 
 @pytest.mark.slow
 def test_derivatives_through_a_switch_match_central_differences():
-    """V = 2, τ = 0.05 to 4 s switches to the α-method at ~2.7 s (rtol 1e-9 and 1e-10 alike):
-    forward and reverse mode of y(4 s) w.r.t. (c1, V, τ) against central differences."""
+    """V = 2, τ = 0.05 to 4 s switches to the α-method at ~2.8 s (rtol 1e-9 and 1e-10 alike):
+    forward and reverse mode of y(4 s) w.r.t. (c1, V, τ) against central differences, every
+    run completed and switched. The forward-mode program gives the differences' values too (no
+    program for the run alone)."""
     p0 = np.array([400.0, 2.0, 0.05])
-    _, sol = _end_state(p0, 1e-9)
-    assert int(sol.stats["stepper_switches"]) >= 1, sol.stats
-    forward = np.asarray(jax.jacfwd(lambda p: _end_state(p, 1e-9, "forward")[0])(jnp.asarray(p0)))
+    _, forward, switches = _forward(jnp.asarray(p0), 1e-9)
+    assert switches >= 1  # (0 also where the run did not complete)
     reverse = np.asarray(jax.jacrev(lambda p: _end_state(p, 1e-9)[0])(jnp.asarray(p0)))
     assert np.all(np.isfinite(reverse))
     np.testing.assert_allclose(reverse, forward, rtol=1e-8, atol=1e-12 * np.max(np.abs(forward)))
     for k, relative_step in enumerate((1e-4, 1e-4, 1e-3)):
         e = np.zeros(3)
         e[k] = relative_step * p0[k]
-        difference = (np.asarray(_end_state(p0 + e, 1e-10)[0]) - np.asarray(_end_state(p0 - e, 1e-10)[0])) / (2 * e[k])
+        (up, _, up_switches), (down, _, down_switches) = (_forward(jnp.asarray(p0 + s * e), 1e-10) for s in (1, -1))
+        assert up_switches >= 1 and down_switches >= 1
+        difference = (up - down) / (2 * e[k])
         scale = np.maximum(np.abs(difference), 1e-3 * np.max(np.abs(difference)))
         assert np.all(np.abs(forward[:, k] - difference) / scale < 1e-4), (k, forward[:, k], difference)

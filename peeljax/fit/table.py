@@ -663,8 +663,9 @@ def _beyond_the_edge(rows, run, options, crossings: list, counter: list, latest:
     Jacobian is evaluated with every orbit found afresh; where its χ² is lower (by ``LOWER``),
     Levenberg–Marquardt goes on from it, and its optimum is taken where lower still (at most
     ``RESTARTS`` times). Measured on the whole-range table without noise (χ² 0 at the truth):
-    the fit stopped at χ² 1.25, 0.87 SE from the truth; now at 0.14, 0.30 SE
-    (``tests/test_fit_table.py``, benchmarks/results/fit_coverage_wide.md)."""
+    the fit stopped at χ² 1.25, 0.87 SE from the truth; now at χ² 0.14 and 0.30 SE, or, where
+    the last digits of the run lead the row at 3.5 m/s to a coexisting attractor, at 6.93 and
+    1.00 SE (``tests/test_fit_table.py``, benchmarks/results/fit_coverage_wide.md)."""
     table = getattr(rows, "table", rows)  # a Joint: its table's rows
     if not isinstance(table, TableRows) or not table.rows["orbit"]:
         return run
