@@ -230,15 +230,19 @@ def test_max_steps_is_its_own_reason():
 
 
 # ---------------------------------------------------------------- gradients
-def _loss(params, adjoint, t_final=0.5, rtol=1e-10, fold=None):
-    """mean v² over 26 output times, as a function of (V, τ, c1 of φ)."""
+def _loss_and_completed(params, adjoint, t_final=0.5, rtol=1e-10, fold=None, solver=None):
+    """mean v² over 26 output times, as a function of (V, τ, c1 of φ), and whether the run completed."""
     V, tau, c1 = params
     model = pj.PeelingModel(adhesion=pj.AdhesionLaw(c1=c1))
     ts = np.linspace(0.0, t_final, 26)
     sol = pj.simulate(
-        model, V=V, tau=tau, t_final=t_final, rtol=rtol, atol=1e-13, ts=ts, adjoint=adjoint, fold=fold
+        model, V=V, tau=tau, t_final=t_final, rtol=rtol, atol=1e-13, ts=ts, adjoint=adjoint, fold=fold, solver=solver
     )
-    return jnp.mean(jnp.where(sol.valid, sol.v, 0.0) ** 2)
+    return jnp.mean(jnp.where(sol.valid, sol.v, 0.0) ** 2), sol.completed
+
+
+def _loss(params, adjoint, t_final=0.5, rtol=1e-10, fold=None):
+    return _loss_and_completed(params, adjoint, t_final, rtol, fold)[0]
 
 
 def _alpha_loss(params, adjoint):
@@ -247,13 +251,7 @@ def _alpha_loss(params, adjoint):
     ``fold="stop"`` ends nothing: it leaves out the jump machinery, which would more than
     double the programs' compilation (measured for the run alone: 6 s of CPU, against 15 s with
     jumps and 26 s with ``"auto"`` and jumps)."""
-    V, tau, c1 = params
-    model = pj.PeelingModel(adhesion=pj.AdhesionLaw(c1=c1))
-    ts = np.linspace(0.0, 0.25, 26)
-    sol = pj.simulate(
-        model, V=V, tau=tau, t_final=0.25, rtol=1e-10, atol=1e-13, ts=ts, adjoint=adjoint, solver="alpha", fold="stop"
-    )
-    return jnp.mean(jnp.where(sol.valid, sol.v, 0.0) ** 2), sol.completed
+    return _loss_and_completed(params, adjoint, t_final=0.25, fold="stop", solver="alpha")
 
 
 @pytest.mark.slow
