@@ -272,13 +272,21 @@ class ExportedProgram:
         leaves, treedef = jax.tree_util.tree_flatten(args)
         if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves):
             return self.fallback(static, *args)
+        program = self.program(static, treedef, leaves)
+        if program is None:
+            return self.fallback(static, *args)
+        return program(*leaves)
+
+    def program(self, static, treedef, leaves: list):
+        """The exported program under ``jax.jit``, called with the flat ``leaves`` of concrete
+        arguments (``jax.tree_util.tree_flatten(args)``), or None where ``fallback`` runs
+        instead. One ``jax.jit`` per signature: a caller compiling it ahead of time
+        (``.lower(*leaves).compile()``) shares the compilation with ``__call__``."""
         signature = (static, treedef, tuple((np.shape(leaf), _dtype(leaf)) for leaf in leaves))
         program = self._programs.get(signature, False)
         if program is False:
             program = self._programs[signature] = self._load_or_export(static, treedef, leaves)
-        if program is None:
-            return self.fallback(static, *args)
-        return program(*leaves)
+        return program
 
     def _load_or_export(self, static, treedef, leaves):
         folder = programs_folder()

@@ -26,7 +26,7 @@ from .integrators.alpha import AlphaMethod
 from .integrators.base import AbstractIntegrator
 from .integrators.select import DEFAULT_MAX_JUMPS, integrator_for, refuse_with_dt, resolve_max_steps
 from .model import PeelingModel
-from .simulate import FIRST_MAX_JUMPS, _check_memory, _packed_jit, _prepare, _run, grown_until_it_holds, is_dae
+from .simulate import FIRST_MAX_JUMPS, _check_memory, _finished, _kept_run, _packed_jit, _prepare, _run, grown_until_it_holds, is_dae
 from .solution import Solution, StopReason, is_traced
 
 __all__ = ["Simulator"]
@@ -61,8 +61,9 @@ class _Program:
     sorts them on every call: the float64 scalars (the model's, φ's, the integrator's, V, τ,
     t_final) one host vector, ``template``, in which a call writes V and τ (and y0 into
     ``rest``); the other arrays (``ts``) copied to the device once. The executable is
-    ``simulate``'s own program (``simulate._packed_jit``), compiled ahead of time on first use:
-    the same computation as ``simulate``'s, and one compilation for both in a process.
+    ``simulate``'s own program (``simulate._kept_run``, or ``simulate._packed_jit`` where
+    programs are not kept on disk), compiled ahead of time on first use: the same computation
+    as ``simulate``'s, and one compilation for both in a process.
     ``fast`` is False when a leaf is not an array (a diffrax solver's settings, a φ given as
     a Python function): ``simulate`` then takes ``eqx.filter_jit``, and so does the call.
     """
@@ -85,8 +86,14 @@ class _Program:
 
     def compile(self):
         if self.executable is None:
-            lowered = _packed_jit.lower(self.template, self.rest, treedef=self.treedef, scalars=self.scalars)
-            self.executable = lowered.compile()
+            leaves, structure = jax.tree_util.tree_flatten((self.template, self.rest))
+            kept = _kept_run.program((self.treedef, self.scalars), structure, leaves)
+            if kept is None:  # simulate runs _packed_jit itself
+                lowered = _packed_jit.lower(self.template, self.rest, treedef=self.treedef, scalars=self.scalars)
+                self.executable = lowered.compile()
+            else:  # simulate's program read back from disk (peeljax._exported): its compilation
+                compiled = kept.lower(*leaves).compile()
+                self.executable = lambda packed, rest: compiled(packed, *rest)
         return self.executable
 
 
@@ -169,6 +176,7 @@ class Simulator:
         self._integrator_of = functools.partial(
             integrator_for, solver, rho=rho, dt=dt, t_final=t_final, rtol=rtol, atol=atol, dtmin=dtmin,
             max_steps=max_steps, adjoint=adjoint, checkpoint_every=checkpoint_every, fold=fold,
+            merge_jump_rows=False,  # simulate's program: the jumps' rows merged on the host
         )  # fmt: skip
         integrator_of = functools.partial(self._integrator_of, max_jumps=FIRST_MAX_JUMPS if self._grows else max_jumps)
         integrator = integrator_of(dae=False)
@@ -251,10 +259,7 @@ class Simulator:
         return self._integrator_of(dae=dae, max_jumps=max_jumps)
 
     def _unpadded(self, solution: Solution) -> Solution:
-        # as simulate returns a dense output: the output times and the jumps, not the rows left for more
-        if self.ts is not None and not isinstance(solution.ts, jax.core.Tracer) and np.ndim(solution.status) == 0:
-            return solution.without_padding()
-        return solution
+        return _finished(solution, self.ts)
 
     def _general(self, V, tau, y0) -> Solution:
         """simulate's route (a traced V, τ or y0; a batch of y0; a diffrax solver): its checks, ODE, ``_run``."""

@@ -318,10 +318,16 @@ def simulate(
     if grows:
         run = lambda integrator: _run(integrator, ode, y0, float_array(t_final), ts)  # noqa: E731
         solution = grown_until_it_holds(solution, size, integrator_with, run, ts, max_steps, memory_limit, t_final)
-    if solution.jump_sides is not None:  # on the host the rows in use; traced all (static shapes)
-        solution = solution.jump_sides.merge(solution)
-    elif ts is not None and not is_traced(solution):
-        solution = solution.without_padding()  # the rows left for more steps
+    return _finished(solution, ts)
+
+
+def _finished(solution: Solution, ts) -> Solution:
+    """The run as ``simulate`` returns it: the jumps' rows merged among the output times (on
+    the host the rows in use; traced all, static shapes), the rows left for more steps dropped."""
+    if solution.jump_sides is not None:
+        return solution.jump_sides.merge(solution)
+    if ts is not None and not is_traced(solution):
+        return solution.without_padding()
     return solution
 
 

@@ -3,7 +3,8 @@
 A ``Simulator`` checks ``simulate``'s options once and then runs ``simulate``'s compiled
 program for each (V, τ): its solutions must be ``simulate``'s, bit for bit; its refusals
 ``simulate``'s, word for word, before anything compiles; and a second call with another V
-and τ must compile nothing. Compilations are counted by JAX's monitoring events.
+and τ, or a ``simulate`` call with the same options, must compile nothing. Compilations (and
+programs read back from the persistent cache) are counted by JAX's monitoring events.
 """
 
 from __future__ import annotations
@@ -30,12 +31,19 @@ def _count_compiles(event: str, duration: float, **kwargs) -> None:
         _COMPILES[0] += 1
 
 
+def _count_cache_reads(event: str, **kwargs) -> None:
+    if event == "/jax/compilation_cache/cache_hits":
+        _COMPILES[0] += 1
+
+
 monitoring.register_event_duration_secs_listener(_count_compiles)
+monitoring.register_event_listener(_count_cache_reads)
 
 
 @contextlib.contextmanager
 def compilations():
-    """A one-item list holding the number of XLA compilations while the block ran."""
+    """A one-item list holding the number of programs XLA compiled, or read back from the
+    persistent cache, while the block ran."""
     count, start = [0], _COMPILES[0]
     try:
         yield count
@@ -68,7 +76,11 @@ def sim() -> pj.Simulator:
 # ---------------------------------------------------------------------------- the same solutions
 @pytest.mark.slow
 def test_error_control_matches_simulate_and_compiles_once(sim):
-    assert_same_solution(sim(1.1, 0.05), pj.simulate(V=1.1, tau=0.05, **OPTIONS))
+    bound = sim(1.1, 0.05)
+    with compilations() as count:
+        simulated = pj.simulate(V=1.1, tau=0.05, **OPTIONS)
+    assert count[0] == 0  # simulate's own program: one compilation for both in a process
+    assert_same_solution(bound, simulated)
     with compilations() as count:
         solutions = [sim(2.0, 0.02), sim(np.float64(4.0), np.asarray(0.1)), sim(1, 1)]
     assert count[0] == 0  # other V and τ, other kinds of numbers: no recompilation
@@ -80,7 +92,10 @@ def test_error_control_matches_simulate_and_compiles_once(sim):
 @pytest.mark.slow
 def test_dae_with_jumps_matches_simulate(sim):
     bound = sim(1.1, 0.0)
-    assert_same_solution(bound, pj.simulate(V=1.1, tau=0, **OPTIONS))
+    with compilations() as count:
+        simulated = pj.simulate(V=1.1, tau=0, **OPTIONS)
+    assert count[0] == 0  # the jumps' rows merged on the host by both: one program
+    assert_same_solution(bound, simulated)
     assert int(bound.status) == 0 and int(bound.stats["jumps"]) >= 10
     with compilations() as count:
         other = sim(1.3, 0)
