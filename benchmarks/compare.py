@@ -1,75 +1,34 @@
 """peeljax against the solvers people would use instead, on this very problem (issue 6).
 
-Problems (paper geometry and initial data):
+Problems (paper geometry and initial data; the constants are in ``compare_problems.py``, the
+full description in ``benchmarks/README.md``): (P1) one trajectory at V = 1.1, τ = 0.01 and 0.1:
+each method's cheapest setting with error in v ≤ ``TARGET``, timed against peeljax's; (P2) the
+work-precision of every setting (``results/work_precision.png``); (P3) a batch of 1024 (V, τ)
+trajectories, ``peeljax.sweep`` against diffrax under ``jax.vmap`` and looped peers; (P4) the
+gradient of a trajectory loss with respect to φ's 14 coefficients; (P5) where direct DAE solvers stop.
 
-* (P1) one trajectory at V = 1.1, τ = 0.01 and τ = 0.1, t ∈ [0, 3 s]: for each method, the
-  cheapest setting whose error in v is at most ``TARGET`` (1e-3), its median time, and that time
-  divided by peeljax's (uniform mesh) and by peeljax's adaptive α-method's at the same target;
-* (P2) work-precision: wall time against the error in v (max over the 301 times
-  0, 0.01, …, 3 s) relative to a tight reference (diffrax Kvaerno5, rtol 1e-11), over a range
-  of tolerances (adaptive peers) or steps (α-methods); ``results/work_precision.png``;
-* (P3) a batch of 1024 trajectories (V ∈ {1.1, 2, 4, 8} × 256 τ log-spaced in [0.005, 0.5] s,
-  t ∈ [0, 3 s]): ``peeljax.sweep`` with error control (the α-method with a step size per
-  trajectory, rtol ∈ {1e-3, 3e-4, …, 1e-7}, atol = 1e-3·rtol, v saved at ``GRID`` by
-  ``save_dt = 0.01``; lanes sharded over every JAX device, one at a time per device on a CPU),
-  the row every ratio is taken against, and ``peeljax.sweep`` on a uniform mesh (``dt``, the
-  same N for every trajectory: the before) against diffrax Kvaerno5 under ``jax.vmap`` and
-  against looping CVODE, CasADi cvodes (both on log v) and scipy Radau (on a few trajectories,
-  extrapolated), each at the cheapest setting tried whose relative error in v
-  (max|v − v_ref| / max|v_ref|) is ≤ ``TARGET`` on 32 trajectories spread over the grid (the
-  tight reference for all 1024 would be too slow); PETSc TSALPHA (fixed steps, the uniform
-  mesh's N) through petsc4py if another
-  interpreter has it (``PETSC_PYTHON``, default ``/usr/bin/python3``; ``petsc_tsalpha.py``);
-* (P4) the gradient of L = mean over t_i = i/82 s, t ∈ [0, 1 s], of (v(t_i) − v_data(t_i))²
-  (V = 1.1, τ = 0.1) with respect to φ's 14 coefficients: peeljax reverse mode (``jax.grad``
-  through ``integrate_alpha``; the adaptive α-method: ``jax.grad`` through ``simulate(…, rtol=…, ts=…)``,
-  its checkpointed while loop) against CasADi cvodes forward sensitivities, central finite
-  differences (28 forward runs, of peeljax and of CasADi) and diffrax's
-  ``RecursiveCheckpointAdjoint`` on Kvaerno5 (full mode only), every gradient checked against
-  CasADi's at rtol 1e-11;
-* (P5) the direct DAE at V = 1.1, 2, 4: where SUNDIALS IDA, CasADi idas (v algebraic), scipy
-  Radau and diffrax Kvaerno5 on the index-1 ODE (eq. ``hv`` at τ = 0) stop, per tolerance.
+Peers: one module each in ``peers/`` on ``peers.Peer``. Each answer is checked against the
+reference before it is timed; a wrong answer is reported, not timed. Peers marked "(log v)"
+integrate (α, ω, u, log v), the others (α, ω, u, v).
 
-Peers (one module each in ``peers/``, on ``peers.Peer``; ``benchmarks/README.md`` lists them): each
-one's answer is checked against the reference before it is timed; in P1/P2 a run that reports
-success but misses the reference by more than 10 % of max|v|, or an adaptive run off by more than
-max(1e3·rtol, 1e-4)·max|v|, is reported as a wrong answer and not timed. All peers integrate the
-homogenized ODE (eq. ``hv``) in the physical state (α, ω, u, v) unless marked "(log v)" (on y
-they stumble over the non-Lipschitz start v0 = 1e-10·V); peeljax and the numba loop discretise
-(α, ω, u, log v) (``AlphaMethod.log_discretization``).
-
-    python benchmarks/compare.py                  # full: ~5.5 min on a 2-core Intel Xeon (9-14 min on a 2-core
-                                                  # AMD EPYC); P3 on 1024 trajectories
+    python benchmarks/compare.py                  # full: ~6 min on 2 shared cores; P3 on 1024 trajectories
     python benchmarks/compare.py --quick          # ~2.5 min: τ = 0.01 only, P3 on 16 trajectories, fewer settings
     python benchmarks/compare.py --smoke          # the test: one setting per peer, its times mean nothing
     python benchmarks/compare.py --only P3 P4     # some problems only (P1 includes P2)
     python benchmarks/compare.py --report-only benchmarks/results/latest.json   # the report alone, from the JSON
 
-Writes the numbers to ``benchmarks/results/latest.json`` (``latest_quick.json`` with ``--quick``,
-``latest_smoke.json`` with ``--smoke``; with ``--out X.md``: ``X.json``), then the report made from
-that JSON by ``compare_report.py``: ``latest[_quick|_smoke].md`` and the plot beside it.
-``--report-only FILE.json`` remakes the report from a JSON file without measuring anything.
-Times are medians of repeated runs after a warm-up run, measured round-robin so that load on
-the shared machine hits every peer alike; compile times are listed apart. Much of --quick and
---smoke is compilation (peeljax's gradient alone compiles for ~1–1.5 min here). Nothing here is
-asserted by a test except that the script runs (``tests/test_compare_script.py``).
-
-``--smoke`` checks that every peer runs and is reported, as cheaply as that can be shown: one
-setting per peer family (diffrax: Kvaerno5 only; P3 on 4 trajectories, one per V; P4 without the
-error-controlled gradient, whose compilation alone takes minutes and whose derivatives
-``tests/test_adaptive.py`` checks), and XLA compiling without LLVM optimization
-(``--xla_backend_optimization_level=0``: a third less compile time, slower runs), so its times mean
-nothing. In every mode the JAX compilations inside each P1 peer's timed calls are counted
-(``compiles_in_run``, 0 when its ``setup`` built everything; the test asserts it).
+Writes the numbers to ``results/latest.json`` (``latest_quick.json``, ``latest_smoke.json``; with
+``--out X.md``: ``X.json``), then ``compare_report.py``'s report from that JSON: ``latest[…].md``
+and the plot beside it. Times are medians of round-robin runs after a warm-up run; set-up times
+are listed apart, and the JAX compilations inside each P1 peer's timed calls are counted
+(``compiles_in_run``, 0 when its ``setup`` built everything; ``tests/test_compare_script.py`` asserts it).
 """
 
 from __future__ import annotations
 
 import argparse
 import functools
-import importlib
 import os
-import platform
 import re
 import sys
 import time
@@ -84,7 +43,7 @@ from compare_problems import (
     P4_T_FINAL, REF_ATOL, REF_RTOL, T_FINAL, calibrate, central_differences, one_line, p3_grid, p3_subsample,
     p4_coefficients, reference, relative_errors, scaled_error
 )  # fmt: skip
-from machine import command, cpu_model, load_average, write_json
+from machine import command, cpu_model, load_average, round_robin, versions, write_json
 from peers import NotRun, Peer
 from peers.casadi_peer import CasadiBatch, CasadiLoss, CasadiPeer, dae_casadi_idas, p4_data
 from peers.diffrax_peer import DiffraxPeer, dae_diffrax_index1, diffrax_loss_of, diffrax_vmap
@@ -266,38 +225,32 @@ def measure_batch(n_tau, per_v, settings, repeats, radau_count):
     radius = float(peeljax.AlphaMethod().rho)
     petsc = petsc_tsalpha(list(zip(Vs[radau_sub], taus[radau_sub])), n_alpha, radius)
 
+    calls = {
+        "adaptive": lambda: peeljax_batch_adaptive(Vs, taus, r_adaptive),
+        "tuned": lambda: tuned(Vs, taus, r_tuned),
+        "uniform": lambda: peeljax_batch(Vs, taus, n_alpha),
+        "diffrax": lambda: run_diffrax(Vs, taus, r_diffrax),
+        "cvode": lambda: _loop(cvode, Vs, taus, r_cvode),
+        "casadi": lambda: _loop(casadi, Vs, taus, r_casadi),
+        "radau": lambda: _loop(radau_y, Vs[radau_sub], taus[radau_sub], r_radau),
+    }
     # First (compiling) calls on the whole batch, then `repeats` round-robin rounds.
-    first = {}
-    start = time.perf_counter()
-    v_adaptive, status_adaptive, accepted, rejected = peeljax_batch_adaptive(Vs, taus, r_adaptive)
-    first["adaptive"] = time.perf_counter() - start
-    start = time.perf_counter()
-    v_tuned, status_tuned, accepted_tuned, _ = tuned(Vs, taus, r_tuned)
-    first["tuned"] = time.perf_counter() - start
-    start = time.perf_counter()
-    v_alpha, status_alpha = peeljax_batch(Vs, taus, n_alpha)
-    first["uniform"] = time.perf_counter() - start
-    start = time.perf_counter()
-    v_dfx, status_dfx = run_diffrax(Vs, taus, r_diffrax)
-    first["diffrax"] = time.perf_counter() - start
+    first, outputs = {}, {}
+    for key in ("adaptive", "tuned", "uniform", "diffrax"):
+        start = time.perf_counter()
+        outputs[key] = calls[key]()
+        first[key] = time.perf_counter() - start
+    v_adaptive, status_adaptive, accepted, rejected = outputs["adaptive"]
+    v_tuned, status_tuned, accepted_tuned, _ = outputs["tuned"]
+    v_alpha, status_alpha = outputs["uniform"]
+    v_dfx, status_dfx = outputs["diffrax"]
     casadi.setup(r_casadi)
     cvode.setup(r_cvode)
-    times = {k: [] for k in ("adaptive", "tuned", "uniform", "diffrax", "cvode", "casadi", "radau")}
-    outputs = {}
-    for _ in range(repeats):
-        for key, call in (
-            ("adaptive", lambda: peeljax_batch_adaptive(Vs, taus, r_adaptive)),
-            ("tuned", lambda: tuned(Vs, taus, r_tuned)),
-            ("uniform", lambda: peeljax_batch(Vs, taus, n_alpha)),
-            ("diffrax", lambda: run_diffrax(Vs, taus, r_diffrax)),
-            ("cvode", lambda: _loop(cvode, Vs, taus, r_cvode)),
-            ("casadi", lambda: _loop(casadi, Vs, taus, r_casadi)),
-            ("radau", lambda: _loop(radau_y, Vs[radau_sub], taus[radau_sub], r_radau)),
-        ):
-            start = time.perf_counter()
-            outputs[key] = call()
-            times[key].append(time.perf_counter() - start)
+
+    def progress(times):
         print(f"  [P3 round: { {k: round(t[-1], 2) for k, t in times.items()} }]", file=sys.stderr, flush=True)
+
+    times = round_robin(calls, repeats, progress, outputs)
     completed = {
         "adaptive": np.asarray(status_adaptive) == 0,
         "tuned": np.asarray(status_tuned) == 0,
@@ -395,21 +348,21 @@ def measure_gradient(settings, repeats):
         return setup, lambda: (L, central_differences(value, c), 0)
 
     methods.append(("central differences of peeljax", f"N = {n_base}", prepare_fd, "fd"))
-    for rtol in settings["rtols_casadi"]:
-        def prepare_casadi(rtol=rtol):
-            start = time.perf_counter()
-            loss = CasadiLoss(rtol, v_data)
-            return time.perf_counter() - start, lambda: (*loss.value_and_grad(c), 0)
-
-        methods.append(("CasADi cvodes (log v), forward sensitivities", f"rtol = {rtol:g}", prepare_casadi, "casadi"))
-    for rtol in settings["rtols_casadi_fd"]:
-        def prepare_casadi_fd(rtol=rtol):
-            start = time.perf_counter()
-            loss = CasadiLoss(rtol, v_data)
-            setup, L = time.perf_counter() - start, loss.value(c)
+    def prepare_casadi(rtol, differences):
+        start = time.perf_counter()
+        loss = CasadiLoss(rtol, v_data)
+        setup = time.perf_counter() - start
+        if differences:
+            L = loss.value(c)
             return setup, lambda: (L, central_differences(loss.value, c), 0)
+        return setup, lambda: (*loss.value_and_grad(c), 0)
 
-        methods.append(("central differences of CasADi cvodes (log v)", f"rtol = {rtol:g}", prepare_casadi_fd, "fd"))
+    for rtol in settings["rtols_casadi"]:
+        methods.append(("CasADi cvodes (log v), forward sensitivities", f"rtol = {rtol:g}",
+                        functools.partial(prepare_casadi, rtol, False), "casadi"))  # fmt: skip
+    for rtol in settings["rtols_casadi_fd"]:
+        methods.append(("central differences of CasADi cvodes (log v)", f"rtol = {rtol:g}",
+                        functools.partial(prepare_casadi, rtol, True), "fd"))  # fmt: skip
     diffrax_exe = {}
     for rtol in settings["rtols_diffrax"]:
         def prepare_diffrax(rtol=rtol):
@@ -444,15 +397,9 @@ def measure_gradient(settings, repeats):
         rows.append(row)
         calls.append(call)
         print(f"  [P4 {name} {setting}: {row['status']} {row.get('error', '')}]", file=sys.stderr, flush=True)
-    for _ in range(repeats):
-        for row, call in zip(rows, calls):
-            if row["status"] == "ok":
-                start = time.perf_counter()
-                call()
-                row["times"].append(time.perf_counter() - start)
-    for row in rows:
-        if row["times"]:
-            row["median"] = float(np.median(row["times"]))
+    timed = round_robin({i: call for i, call in enumerate(calls) if rows[i]["status"] == "ok"}, repeats)
+    for i, samples in timed.items():
+        rows[i]["times"], rows[i]["median"] = samples, float(np.median(samples))
     return {"c": c, "L_ref": L_ref, "repeats": repeats, "diffrax_run": bool(settings["rtols_diffrax"]), "rows": rows,
             "elapsed_s": time.perf_counter() - started}  # fmt: skip
 
@@ -481,16 +428,6 @@ def measure_direct_dae(velocities, rtols):
 
 
 # --------------------------------------------------------------------------- the run
-def versions():
-    out = [f"python {platform.python_version()}"]
-    for module in ("jax", "jaxlib", "diffrax", "equinox", "numpy", "scipy", "numba", "sksundae", "casadi"):
-        try:
-            out.append(f"{module} {importlib.import_module(module).__version__}")
-        except Exception:  # noqa: BLE001
-            out.append(f"{module} missing")
-    return ", ".join(out)
-
-
 def mode_settings(quick, smoke):
     """The settings of each problem in full, ``--quick`` or ``--smoke`` mode."""
     adaptive_rtols = (1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8)  # ~1-15 ms a run: the whole ladder in every mode
@@ -546,7 +483,7 @@ def measure(args):
         "only": list(args.only),
         "plot": f"work_precision{suffix}.png",
         "machine": {"cpu": cpu_model(), "cores": os.cpu_count(), "load": load},
-        "versions": versions(),
+        "versions": versions("jax", "jaxlib", "diffrax", "equinox", "numpy", "scipy", "numba", "sksundae", "casadi"),
         "repeats": repeats,
         "p1": [],
         "p3": None,

@@ -30,8 +30,6 @@ from compare_problems import (
 )  # fmt: skip
 from machine import made_by
 
-DEFAULT_COMMAND = "python benchmarks/compare.py"  # for a JSON written before it kept its command
-
 
 def render(data) -> list[str]:
     """The lines of the markdown report of one ``compare.py`` run (its JSON results, as loaded)."""
@@ -40,7 +38,7 @@ def render(data) -> list[str]:
     def emit(line=""):
         out.append(line)
 
-    emit(made_by(data.get("command", DEFAULT_COMMAND)))
+    emit(made_by(data["command"]))
     emit()
     header(emit, data)
     for entry in data.get("p1") or ():
@@ -100,13 +98,11 @@ def one_trajectory_section(emit, entry):
          "the JAX and numba peers' compilation (their first call: a program compiled at an earlier "
          "setting, or for the reference, is reused, and the column then holds one run), CasADi's integrator "
          "and CVODE's solver object; scipy's `solve_ivp` has no object to build.")  # fmt: skip
-    counted = [r for peer in peers for r in peer["rows"] if "compiles_in_run" in r]
-    if counted:  # JSON files from before the count have none
-        compiling = [f"{peer['name']} at {r['setting']:g} ({r['compiles_in_run']})" for peer in peers
-                     for r in peer["rows"] if r.get("compiles_in_run")]  # fmt: skip
-        emit()
-        emit("JAX compilations inside the timed calls (the checking run and the timed runs, after `setup`): "
-             + ("none." if not compiling else "**" + ", ".join(compiling) + "**: their times include compilation."))
+    compiling = [f"{peer['name']} at {r['setting']:g} ({r['compiles_in_run']})" for peer in peers
+                 for r in peer["rows"] if r.get("compiles_in_run")]  # fmt: skip
+    emit()
+    emit("JAX compilations inside the timed calls (the checking run and the timed runs, after `setup`): "
+         + ("none." if not compiling else "**" + ", ".join(compiling) + "**: their times include compilation."))
     emit()
     emit("### (P2) work-precision: every setting")
     emit()
@@ -141,7 +137,7 @@ def one_trajectory_section(emit, entry):
 
 
 def setup_text(row):
-    """A row's set-up seconds (``Peer.setup``) as the tables write them; "–" for JSON from before it existed."""
+    """A row's set-up seconds (``Peer.setup``) as the tables write them; "–" where it has none (a failed row)."""
     seconds = row.get("setup_s")
     return "–" if seconds is None else f"{seconds:.4f}" if seconds < 0.1 else f"{seconds:.2f}"
 
@@ -153,7 +149,7 @@ def describe(kind, stats):
     return f"{stats['steps']}/{stats['rejected']}, {stats['snes_iterations']} ({stats['snes_failures']} failed)"
 
 
-def work_precision_plot(p1, path, cmd=DEFAULT_COMMAND):
+def work_precision_plot(p1, path, cmd):
     """Wall time against error of every ok (peer, setting), one panel per τ."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -223,18 +219,13 @@ def batch_section(emit, d):
         return "in the check" if B == sub_size else f"{m[key]['first_s'] - median[key]:.1f}"
 
     def setup(key):  # the solver object or integrator, built once outside the timing
-        seconds = m[key].get("setup_s")
-        return "–" if seconds is None else f"{seconds:.4f}"
+        return f"{m[key]['setup_s']:.4f}"
 
     rows = [
         ("peeljax.sweep, error control (α-method, a step size per trajectory)",
          f"rtol = {r_adaptive:g}, atol = {ADAPTIVE_ALPHA_ATOL:g}·rtol", "adaptive", compiled("adaptive"), ""),
-    ]  # fmt: skip
-    if "tuned" in m:  # JSON from before the tuned row had none
-        rows.append((f"peeljax.sweep, error control, ρ = {d['tuned']['rho']:g} (tuned)",
-                     f"rtol = {m['tuned']['setting']:g}, atol = {d['tuned']['atol_factor']:g}·rtol", "tuned",
-                     "in the check" if B == sub_size else f"{m['tuned']['first_s'] - median['tuned']:.1f}", ""))  # fmt: skip
-    rows += [
+        (f"peeljax.sweep, error control, ρ = {d['tuned']['rho']:g} (tuned)",
+         f"rtol = {m['tuned']['setting']:g}, atol = {d['tuned']['atol_factor']:g}·rtol", "tuned", compiled("tuned"), ""),
         ("peeljax.sweep, uniform mesh", f"N = {n_alpha} (dt = 1/{n_alpha / T_FINAL:g})", "uniform",
          compiled("uniform"), ""),
         ("diffrax Kvaerno5 under jax.vmap", f"rtol = {m['diffrax']['setting']:g}", "diffrax", compiled("diffrax"), ""),
@@ -315,16 +306,15 @@ def batch_section(emit, d):
          f"{casadi_shared / per_batch['uniform']:.2f}× CasADi on the same cores. Best looped peer: {best} "
          f"({looped[best]:.2f} s per batch). P3 time: {d['elapsed_s']:.0f} s.")  # fmt: skip
     emit()
-    if "tuned" in m:
-        tuned = per_batch["tuned"]
-        accepted_tuned = np.asarray(d["accepted_tuned"])
-        emit(f"Tuned (ρ = {d['tuned']['rho']:g}, atol = {d['tuned']['atol_factor']:g}·rtol, the peers' atol rule; "
-             f"`benchmarks/studies/results/lane_levers.md` measured each lever): {tuned:.2f} s per batch at rtol = "
-             f"{m['tuned']['setting']:g}, {np.mean(accepted_tuned):.0f} accepted steps per trajectory (default: "
-             f"{np.mean(accepted):.0f}); {base / tuned:.2f}× the default sweep's speed, {per_batch['diffrax'] / tuned:.2f}× "
-             f"diffrax's, against CasADi's loop split over the same cores {casadi_shared / tuned:.2f}× "
-             f"({'met' if casadi_shared / tuned > 1 else 'missed'}).")  # fmt: skip
-        emit()
+    tuned = per_batch["tuned"]
+    accepted_tuned = np.asarray(d["accepted_tuned"])
+    emit(f"Tuned (ρ = {d['tuned']['rho']:g}, atol = {d['tuned']['atol_factor']:g}·rtol, the peers' atol rule; "
+         f"`benchmarks/studies/results/lane_levers.md` measured each lever): {tuned:.2f} s per batch at rtol = "
+         f"{m['tuned']['setting']:g}, {np.mean(accepted_tuned):.0f} accepted steps per trajectory (default: "
+         f"{np.mean(accepted):.0f}); {base / tuned:.2f}× the default sweep's speed, {per_batch['diffrax'] / tuned:.2f}× "
+         f"diffrax's, against CasADi's loop split over the same cores {casadi_shared / tuned:.2f}× "
+         f"({'met' if casadi_shared / tuned > 1 else 'missed'}).")  # fmt: skip
+    emit()
 
 
 # --------------------------------------------------------------------------- (P4) the gradient of a trajectory loss
@@ -446,7 +436,7 @@ def write_report(data, md_path, echo=False):
     """``md_path`` and, when P1 ran, the work-precision plot beside it (its name is in ``data["plot"]``)."""
     md_path = Path(md_path)
     if data.get("p1"):
-        work_precision_plot(data["p1"], md_path.parent / data["plot"], data.get("command", DEFAULT_COMMAND))
+        work_precision_plot(data["p1"], md_path.parent / data["plot"], data["command"])
     lines = render(data)
     if echo:
         print("\n".join(lines), flush=True)

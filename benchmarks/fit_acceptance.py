@@ -1,31 +1,21 @@
 """Fit acceptance: the trajectory fit (issue 4 §2) and, with ``--table``, the stick-slip table fit
 (issue 28's target).
 
-``--table``: a stick-slip table at 8 V in the stick-slip range (0.8 … 3 m/s, all five
-statistics over [0.5, 1.5] s, 1 % noise and its σ, seed 1, made at the fit's tolerances) from
-φ with c1 × 1.12, c3 × 1.06, c6 × 1.10, fitted from the paper's φ by :func:`peeljax.fit.fit_stick_slip`
-with its defaults (a coarse batch, then Levenberg–Marquardt). Criteria: every coefficient within
-2 % of the truth and within 3 standard errors, ≤ 60 s from the call to the result, compilation
-included (the table is made before, its own compilation not counted). Prints a table.
-``tests/test_fit_table.py`` proves the claim on a smaller problem.
+Trajectory fit (default): all 14 coefficients or a chosen subset, from the paper's φ perturbed by
+±(10–20) %, to v, F and α with 1 % noise at V = 1.1, 2, 4 m/s, τ = 0.01 s, t ∈ [0, T]. Passes if φ is
+within 2 % of the paper's over the visited v range and the loss falls ≥ 100× (``tests/test_fit.py``
+asserts it); the noise floor (the loss of the true φ) is printed beside it.
 
-Trajectory fit (default): all 14 coefficients, or a chosen subset.
-
-Data: the paper's φ at V = 1.1, 2 and 4 m/s, τ = 0.01 s (the runs complete at h = 1/82 s),
-t ∈ [0, T] (default T = 1 s: the rise from v0 = 1e-10·V, the overshoot above V and the return),
-v(t), F(t) and α(t) with 1 % multiplicative noise. Start: the coefficients perturbed by
-±(10–20) %. Criteria: φ(v, V) within 2 % of the paper's over the visited v range at the three V,
-and a loss reduction ≥ 100×. Also printed: the loss of the true φ on the same noisy data (the
-noise floor no fit can go far below) and L(start)/L(true φ), the most any fit can reduce the
-loss by. ``tests/test_fit.py`` runs this fit (T = 1 s, seed 0) and asserts the criteria.
+``--table``: ``fit_stick_slip`` on a stick-slip table at 8 V in 0.8 … 3 m/s made from φ with c1 × 1.12,
+c3 × 1.06, c6 × 1.10. Passes if every coefficient is within 2 % of the truth and 3 standard errors, in
+≤ 60 s compilation included (``tests/test_fit_table.py`` checks it on a smaller problem). ``--wide``:
+the same across 0.5–4 m/s (``WIDE_TRUTH``, ``WIDE_STOPS``: the tape stops after every slip at 0.5 m/s).
 
     python benchmarks/fit_acceptance.py [--free c1 c3 ...] [--t-final 1.0] [--tau 0.01] [--steps 500]
     python benchmarks/fit_acceptance.py --table [--V 0.8 1.0 ...] [--seed 1]
     python benchmarks/fit_acceptance.py --wide grazing|stops [--seed 1]
 
-``--wide``: the table across the whole stick-slip range, 8 V in 0.5–4 m/s, three coefficients
-6–8 % off (``WIDE_TRUTH``: long orbits near grazings at 3.5–4 m/s; ``WIDE_STOPS``: besides, the
-tape stops after every slip at 0.5 m/s, where the attractor is not periodic), ≤ 60 s required.
+Prints a table; writes nothing.
 """
 
 from __future__ import annotations

@@ -2,26 +2,12 @@
 stick-slip table, the fraction of draws whose 95 % confidence set of each coefficient covers
 the truth (target 92–98 % over ≥ 200 draws for two coefficients, ≥ 100 for three).
 
-Problems:
-
-* ``two`` — φ with c1 × 1.05 and c6 × 1.05 (the pair whose terms c1·v^0.35 and c6·v^0.5
-  compensate), a table at V = 1.0, 1.5, 2.2, 3.0 m/s, ``free=("c1", "c6")``;
-* ``three`` — φ with c1 × 1.12, c3 × 1.06, c6 × 1.10 at V = 0.8, 1.0, 1.2, 1.5, 1.8, 2.2, 2.6,
-  3.0 m/s, ``free=("c1", "c3", "c6")``;
-* ``wide`` — the whole stick-slip range: φ with c1 × 1.07, c3 × 0.93, c6 × 1.07 at V = 0.5, 1.0,
-  …, 4.0 m/s, ``free=("c1", "c3", "c6")``; at 0.5 m/s φ_min falls below φ(0⁺): the tape stops
-  after every slip and the attractor is not periodic (a window row).
-
-The table holds the model's statistics at the truth as :func:`peeljax.fit.fit_stick_slip`
-predicts them by default (each row on the attractor reached from rest: the periodic orbit's
-statistics over one period; :func:`peeljax.fit.table.attractor_statistics`), all five at
-every V; each draw multiplies every entry by 1 + 0.01·N(0, 1) and gives σ = 1 % of the exact
-value (``synthetic_table``'s recipe), and is fitted from the paper's φ with the defaults
-(``intervals="auto"``: profile-likelihood intervals where a bifurcation lies within the
-linearized ones). Every draw reuses the compiled programs. Counted per draw: whether the
-reported confidence set (the profile's where computed) and the linearized interval cover the
-truth, χ²/dof, convergence, bifurcations crossed, whether profiles were computed, time. One
-JSON line per draw goes to ``--out`` (appended: ``--resume`` goes on from the draws there).
+Problems (``PROBLEMS``): ``two`` (c1, c6 × 1.05 at 4 V), ``three`` (c1, c3, c6 at 8 V in 0.8–3 m/s)
+and ``wide`` (c1, c3, c6 at 0.5 … 4 m/s; at 0.5 m/s the tape stops after every slip). Each draw
+perturbs the exact table by 1 % noise (``synthetic_table``'s recipe) and fits it from the paper's φ
+with ``fit_stick_slip``'s defaults, reusing the compiled programs. One JSON line per draw goes to
+``--out`` (appended: ``--resume`` goes on from the draws there): coverage of the reported and of the
+linearized interval, χ²/dof, convergence, bifurcations crossed, profiles computed, time.
 
     python benchmarks/fit_coverage.py [--problem two|three|wide] [--draws 200] [--seed 0]
                                       [--intervals auto|linear|profile] [--out FILE] [--resume]

@@ -1,33 +1,19 @@
 """The speed guard: ratios that do not depend on the machine, each against a limit committed beside it.
 
-A speed lost without noticing is a bug. Each check times two calls of peeljax (or peeljax and a
-peer) alternately in this one process, after their compilation, one check after the other, and
-divides the medians:
-
-* ``gradient_through_jumps``: ``jax.grad`` of the sum of the first 30 jump times w.r.t. c1
-  (V = 1.1, τ = 0, 3 s, 210 jumps, ``ts=[0, 3]``, ``max_jumps=512``) ÷ the same run forward
-  (one perturbed number: reverse mode by a tangent of the plain loop);
-* ``gradient_checkpointed``: the same with ``adjoint="checkpointed"`` (the checkpointed loop's
-  pullback, what ``jax.grad`` takes for many parameters) ÷ the same run forward (with ``--ci``
-  or ``--only``: its tracing does not fit in the minute before a stop);
-* ``p1_jump_rows``: P1, ``simulate(V=1.1, tau=0.01, t_final=3, rtol=1e-5, atol=1e-7, ts=301
-  points)`` with the default ``fold`` ÷ with ``fold="stop"`` (no jump happens: the room kept
-  for jumps should cost nothing);
-* ``p6_vs_diffrax``: P6, ``simulate(V=1.1, tau=0, t_final=3, rtol=1e-6, ts=[0, 3])`` ÷ the
-  compiled diffrax peer (``diffeqsolve`` + ``Event``, Tsit5, restarted in one
-  ``lax.while_loop``: ``peers/jump_peers.py``) at the same rtol;
-* ``orbit_vs_run``: ``periodic_orbit(V=1.1)`` ÷ the 3 s run of P6;
-* ``fit_step``: one step of ``fit_adhesion`` (c1 free, one observation of v at V = 1.1, τ =
-  0.01, 0.5 s; the value and gradient and the optimizer's update) ÷ the forward run it fits;
-* ``compile``: the first call's compilation of P6's program ÷ that of diffrax's ``diffeqsolve``
-  (Tsit5, PID controller, the homogenized ODE, 301 output times): each program made new (a
-  salt in the program), so neither comes from JAX's persistent compilation cache; the median of
-  ``repeats // 2`` rounds (1 to 5).
+A speed lost without noticing is a bug. Each check (``CHECKS``; the function of each says what it
+times) calls two things alternately in this one process after their compilation and divides the
+medians: the gradient through 210 jumps at τ = 0 ÷ the forward run (by a tangent, and with
+``adjoint="checkpointed"``: ``--ci`` or ``--only`` alone), P1 with the default ``fold`` ÷ with
+``fold="stop"`` (no jump happens: the room kept for jumps should cost nothing), P1 through a
+``Simulator`` ÷ through ``simulate`` (one compiled program), P6 ÷ the compiled diffrax peer
+(``peers/jump_peers.py``), ``periodic_orbit(V=1.1)`` ÷ P6's 3 s run, one step of
+``fit_adhesion`` ÷ the forward run it fits, and the compilation of P6's program ÷ that of
+diffrax's ``diffeqsolve`` (each made new, so that neither comes from a cache).
 
 Limits are in ``guard_limits.json`` (``measured``: what a quiet 2-core machine measured when
 they were set; ``limit``: a small margin over it). Exit status 1 names every ratio over its
-limit after a confirmation (a ratio over its limit is measured again, alone, with three times
-the rounds; ``--no-confirm`` fails at once). ``--ci`` (the test suite's fast tier) doubles each limit's margin over the ratio
+limit after a confirmation (measured again, alone, with three times the rounds; ``--no-confirm``
+fails at once). ``--ci`` (the test suite's fast tier) doubles each limit's margin over the ratio
 measured, so that a noisy machine never fails a run but a regression such as the 5.6× slower
 gradient through jumps (3.3 → 21) does.
 
@@ -36,7 +22,7 @@ gradient through jumps (3.3 → 21) does.
     python benchmarks/guard.py --only gradient_through_jumps p1_jump_rows
     python benchmarks/guard.py --record        # write this run's ratios as "measured" (limits unchanged)
 
-The first run on a machine compiles every program (~2 min on 2 cores); later runs read them
+The first run on a machine compiles every program (~3 min on 2 cores); later runs read them
 from JAX's persistent compilation cache (the library's, in the user's cache folder).
 """
 
@@ -91,6 +77,17 @@ def p1_jump_rows():
         return lambda: pj.simulate(V=V, tau=0.01, t_final=3.0, rtol=1e-5, atol=1e-7, ts=ts, **fold)
 
     return p1(), p1(fold="stop")
+
+
+def simulator_call():
+    """(a Simulator's call, the simulate call it equals): P1, one compiled program for both."""
+    import numpy as np
+
+    import peeljax as pj
+
+    options = {"t_final": 3.0, "rtol": 1e-5, "atol": 1e-7, "ts": np.linspace(0.0, 3.0, 301)}
+    sim = pj.Simulator(**options)
+    return (lambda: sim(V, 0.01)), (lambda: pj.simulate(V=V, tau=0.01, **options))
 
 
 def _p6():
@@ -191,6 +188,7 @@ CHECKS = {
     "gradient_through_jumps": gradient_through_jumps,
     "gradient_checkpointed": lambda: gradient_through_jumps("checkpointed"),
     "p1_jump_rows": p1_jump_rows,
+    "simulator_call": simulator_call,
     "p6_vs_diffrax": p6_vs_diffrax,
     "orbit_vs_run": orbit_vs_run,
     "fit_step": fit_step,

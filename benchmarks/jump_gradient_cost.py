@@ -24,7 +24,6 @@ import os
 import platform
 import statistics
 import sys
-import time
 from pathlib import Path
 
 import equinox as eqx
@@ -35,7 +34,7 @@ import numpy as np
 import peeljax as pj
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import load_average, write_result  # noqa: E402
+from machine import load_average, round_robin, write_result  # noqa: E402
 
 
 def objective(c1, *, rtol, adjoint, tau=0.0, t_final=3.0):
@@ -53,17 +52,10 @@ def objective(c1, *, rtol, adjoint, tau=0.0, t_final=3.0):
 
 def timed_round_robin(calls, repeats):
     """(first call, median of ``repeats`` later calls) per call, the later calls taken in turn."""
-    first, times = {}, {name: [] for name in calls}
-    for name, fn in calls.items():
-        began = time.perf_counter()
-        jax.block_until_ready(fn())
-        first[name] = time.perf_counter() - began
-    for _ in range(repeats):
-        for name, fn in calls.items():
-            began = time.perf_counter()
-            jax.block_until_ready(fn())
-            times[name].append(time.perf_counter() - began)
-    return [(name, first[name], statistics.median(times[name])) for name in calls]
+    calls = {name: lambda fn=fn: jax.block_until_ready(fn()) for name, fn in calls.items()}
+    first = round_robin(calls, 1)
+    times = round_robin(calls, repeats)
+    return [(name, first[name][0], statistics.median(times[name])) for name in calls]
 
 
 def main(argv=None):

@@ -7,11 +7,13 @@ it), so a table can always be traced to, and remade by, one command.
 
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import platform
 import shlex
 import sys
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]  # the repository
@@ -61,3 +63,36 @@ def write_result(path, text: str, cmd: str | None = None) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(f"{made_by(cmd)}\n\n{text}", encoding="utf-8")
     return path
+
+
+def versions(*modules) -> str:
+    """"python X, jax Y, …": Python's version and each module's (``missing`` where it is not installed)."""
+    out = [f"python {platform.python_version()}"]
+    for module in modules:
+        try:
+            out.append(f"{module} {importlib.import_module(module).__version__}")
+        except Exception:  # noqa: BLE001
+            out.append(f"{module} missing")
+    return ", ".join(out)
+
+
+def round_robin(calls, repeats, after_round=None, outputs=None, rotate=False, cpu=None) -> dict:
+    """``repeats`` rounds, each calling every one of ``calls`` ({key: callable}) once, so that load on a
+    shared machine hits all alike: {key: [seconds]}; ``after_round(times)`` runs after each round,
+    ``outputs`` (a dict) keeps each call's last answer, ``rotate`` starts round r at the r-th call, and
+    ``cpu`` (a dict) gets {key: [CPU seconds of this process, all threads]}."""
+    keys = list(calls)
+    times = {key: [] for key in keys}
+    for r in range(repeats):
+        first = r % len(keys) if rotate else 0
+        for key in keys[first:] + keys[:first]:
+            started, cpu_started = time.perf_counter(), time.process_time()
+            answer = calls[key]()
+            times[key].append(time.perf_counter() - started)
+            if cpu is not None:
+                cpu.setdefault(key, []).append(time.process_time() - cpu_started)
+            if outputs is not None:
+                outputs[key] = answer
+        if after_round is not None:
+            after_round(times)
+    return times

@@ -4,23 +4,10 @@
     python benchmarks/run.py p6 --quick      # a table; what follows its name goes to its script
     python -m benchmarks.run all             # every table, one script after the other
 
-Each table is one call of an existing script's ``main`` in this process; each script still runs
-alone, by the command printed before it starts, which is also the command named by the first line
-of the result file it writes (``results/``):
-
-* ``compare``: P1–P5, all of ``compare.py`` -> ``results/latest.md``, ``latest.json``, ``work_precision.png``;
-* ``p1``, ``p3``, ``p4``, ``p5``: one problem of it (``compare.py --only P1``; P1 includes the
-  work-precision P2; P3 is the batch of 1024 (V, τ) trajectories, P4 the gradient of a trajectory
-  loss, P5 where direct DAE solvers stop). ``--only`` writes ``latest.md`` with those problems
-  alone: pass ``--out FILE.md`` to keep the full table;
-* ``p6``: stick-slip through the folds, every jump time (``stick_slip.py --skip-vmap``) -> ``results/stick_slip.md``;
-* ``vmap``: P6 and the V-map, 200 V by ``peeljax.sweep`` (``stick_slip.py``; the V-map's scipy
-  setting comes from P6's check at V = 1.1, so it runs both) -> ``results/stick_slip.md``;
-* ``gradient``: the gradient's cost on the uniform mesh, τ > 0 (``gradient_cost.py``) -> ``results/gradient_cost.md``;
-* ``jumps``: the gradient's cost through the jumps, τ = 0 (``jump_gradient_cost.py``) -> ``results/jump_gradient_cost.md``;
-* ``all``: ``compare``, ``vmap``, ``gradient``, ``jumps`` one after the other.
-
-The studies that informed one decision each are in ``studies/`` (index: ``studies/README.md``).
+Each table is one call of an existing script's ``main`` in this process, under the command its result
+file (``results/``) names on its first line; ``TABLES`` lists them, ``benchmarks/README.md`` what each
+writes. ``--only`` (``p1`` … ``p5``) writes ``latest.md`` with those problems alone: pass ``--out
+FILE.md`` to keep the full table. The studies that informed one decision each are in ``studies/``.
 """
 
 from __future__ import annotations

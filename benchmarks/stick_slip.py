@@ -7,42 +7,21 @@ target when **every** jump time is within the target of the reference's (same ju
 last stretch before each fold re-integrated in arclength) at rtol 1e-12, atol 1e-14;
 ``--check-reference`` also runs it with Radau at rtol 1e-12 (~1 min) and reports the agreement.
 
-Peers (``peers/jump_peers.py``), each with its one-time set-up (compilation) outside the timed
-call and reported apart (its first call minus its median warm call at the same setting);
-every one at atol = 1e-3·rtol:
+Peers (``peers/jump_peers.py``, whose docstring describes each), every one at atol = 1e-3·rtol,
+with its one-time set-up (compilation) outside the timed call and reported apart: peeljax
+``simulate(V, tau=0, rtol=…)`` (its default method is the baseline of every ratio, besides four
+other steppers), scipy ``solve_ivp`` events, diffrax ``Event`` (restarted on the host, and inside
+one ``jax.lax.while_loop``: the peer the targets are set against), CasADi cvodes with events and
+the inertial model m·v̇ = G − φ at several m.
 
-* peeljax ``simulate(V, tau=0, rtol=…)``: the fold located on the step's dense output inside
-  the compiled loop, the jump there, the run goes on (output at [0, 3] only); with its default
-  method (Tsit5 on the DAE in pseudo-time, :class:`peeljax.DesingularizedDAE`: the baseline of
-  every ratio), with ``solver=`` Dopri5 and Dopri8 (the same formulation), with Tsit5 on the
-  DAE in time (v solved from the constraint at every evaluation: the previous default) and with
-  the paper's α-method (in time);
-* scipy ``solve_ivp`` LSODA and Radau with a terminal event at the fold, restarted after each
-  jump (the usual Python way: right-hand side and branch root in plain Python), and LSODA with
-  the reference's arclength refinement (``reference_jump_run`` at that rtol);
-* diffrax ``diffeqsolve`` with ``diffrax.Event`` (Newton on the dense output) on
-  ``peeljax.ConstrainedDAE``'s vector field, Tsit5 and Kvaerno5, compiled once, restarted on the
-  host after each jump;
-* the same ``diffeqsolve`` + ``Event`` (Tsit5) restarted inside one ``jax.lax.while_loop``, the
-  loop diffrax's maintainers recommend for restarting after events (diffrax issue #492): the
-  whole run one compiled call (``jump_peers.DiffraxWhileLoop``), the peer the targets are set against;
-* the inertial model m·v̇ = G − φ (``integrate_inertial``, diffrax Kvaerno5) at several m,
-  its jumps being v crossing √(v̂·v̌);
-* CasADi cvodes with CasADi 3.8's own (experimental) zero-crossing events and a transition
-  function that flips the branch: all jumps in one call (``jump_peers.CasadiEvents``).
+Protocol: (1) each peer runs its ladder of rtol from loose to tight once (the check), stopping at
+the first rung that meets the tightest target (or a run over ``--cap`` seconds); (2) per target,
+the loosest rung that meets it is that peer's setting; (3) every chosen (peer, setting) is timed
+``--repeats`` times round-robin, medians; ratios are against peeljax's from the same rounds.
 
-Protocol: (1) each peer runs its ladder of rtol from loose to tight once (the check: error
-against the reference), stopping at the first rung that meets the tightest target (or a run
-over ``--cap`` seconds); (2) per target, the loosest rung that meets it is that peer's
-setting; (3) every chosen (peer, setting) is timed ``--repeats`` times round-robin and the
-median taken; ratios are against peeljax's median at the same target, from the same rounds.
-
-The V-map: 200 V in [0.2, 8] m/s, τ = 0, 3 s each, ``peeljax.sweep(V=…, tau=0, grid="pairs",
-max_jumps=8192, max_steps=400_000)`` at its default tolerances (rtol 1e-6, atol 1e-9) against a loop of the scipy
-LSODA events run at the loosest rtol whose jump-time error at V = 1.1 is at most peeljax's at
-rtol 1e-6 (equal accuracy, measured at V = 1.1 in step (1)); the loop is timed on 10 of the
-200 V (evenly spaced) and extrapolated ×20. The sweep's compilation is timed apart, by a
-first sweep of 200 lanes at V = 8 (no fold: cheap lanes, the same compiled program).
+The V-map: 200 V in [0.2, 8] m/s by ``peeljax.sweep`` at its default tolerances against a loop of
+scipy LSODA events at equal accuracy (measured at V = 1.1 in step (1)), timed on 10 of the 200 V
+and extrapolated ×20; the sweep's compilation is timed apart.
 
     python benchmarks/stick_slip.py                     # ~7.5 min on 2 shared cores (load 2-5)
     python benchmarks/stick_slip.py --check-reference   # + the Radau reference (~45 s more)
@@ -69,7 +48,7 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from machine import command, cpu_model, made_by, write_json
+from machine import command, cpu_model, made_by, round_robin, versions, write_json
 from machine import load_average as load
 from peers.jump_peers import (
     ATOL_RATIO, T_FINAL, CasadiEvents, DiffraxEvents, DiffraxWhileLoop, InertialModel, PeeljaxDAE, ScipyEvents, V,
@@ -159,17 +138,14 @@ def best(entry):
     return min(ok, key=lambda r: r["error"]) if ok else None
 
 
-def time_round_robin(calls, repeats):
-    """``calls``: {key: callable}; ``repeats`` rounds over all of them; {key: [seconds]}."""
-    times = {key: [] for key in calls}
-    for round_ in range(repeats):
-        for key, call in calls.items():
-            started = time.perf_counter()
-            call()
-            times[key].append(time.perf_counter() - started)
+def time_round_robin(calls, repeats, outputs=None):
+    """``machine.round_robin``, the load average kept in ``LOADS`` after each round."""
+
+    def after_round(times):
         LOADS.append(load())
-        log(f"round {round_ + 1}/{repeats} done (load {LOADS[-1]:.1f})")
-    return times
+        log(f"round {len(next(iter(times.values())))}/{repeats} done (load {LOADS[-1]:.1f})")
+
+    return round_robin(calls, repeats, after_round, outputs)
 
 
 # --------------------------------------------------------------------------- the V-map
@@ -192,14 +168,8 @@ def measure_vmap(scipy_rtol, repeats):
     compile_s = time.perf_counter() - started
     log(f"V-map: sweep compiled (+ 200 cheap lanes) in {compile_s:.1f} s")
     out = {}
-
-    def sweep_call():
-        out["sweep"] = vmap_sweep(VMAP_V)
-
-    def scipy_call():
-        out["scipy"] = vmap_scipy(scipy_rtol)
-
-    times = time_round_robin({"sweep": sweep_call, "scipy": scipy_call}, repeats)
+    calls = {"sweep": lambda: vmap_sweep(VMAP_V), "scipy": lambda: vmap_scipy(scipy_rtol)}
+    times = time_round_robin(calls, repeats, out)
     result = out["sweep"]
     counts = result.jumps["jump_count"]
     rows = []
@@ -248,16 +218,10 @@ def selected(only, key, name) -> bool:
 
 
 def measure(args):
-    import diffrax
-    import jax
-
-    import peeljax
-
     data = {
         "command": command(),
         "machine": {"cpu": cpu_model(), "cores": os.cpu_count(), "load_start": load()},
-        "versions": f"jax {jax.__version__}, diffrax {diffrax.__version__}, scipy {__import__('scipy').__version__}, "
-        f"numpy {np.__version__}, peeljax {getattr(peeljax, '__version__', '?')}",
+        "versions": versions("jax", "diffrax", "scipy", "numpy", "peeljax"),
         "repeats": args.repeats,
         "targets": tuple(args.targets),
     }
@@ -376,11 +340,8 @@ def report(data) -> str:
         f"{ATOL_RATIO:g}·rtol; setting = the loosest rtol of its ladder that meets the target.",
         "",
     ]  # fmt: skip
-    base = {}
     for target in data["targets"]:
-        base[target] = loosest(checks["peeljax"], target) if "peeljax" in checks else None
-    for target in data["targets"]:
-        ref_rung = base[target]
+        ref_rung = loosest(checks["peeljax"], target) if "peeljax" in checks else None
         ref_s = ref_rung.get("median_s") if ref_rung else None
         lines += [
             f"## Every jump time within {target:g} s",
@@ -555,7 +516,7 @@ def limits(data) -> list[str]:
         if ours and "error_first20" in ours
         else ""
     )
-    loads = data["machine"].get("loads") or [data["machine"]["load_start"], data["machine"]["load_end"]]
+    loads = data["machine"]["loads"]
     has = lambda *keys: any(key in checks for key in keys)  # noqa: E731
     loop = loosest(checks["while_loop"], min(data["targets"])) if "while_loop" in checks else None
     loop_stats = (loop or {}).get("stats") or {}
@@ -661,18 +622,9 @@ def main(argv=None):
     parser.add_argument("--cap", type=float, default=30.0, help="stop a ladder after a run slower than this (s)")
     parser.add_argument("--skip-vmap", action="store_true", help="the one-trajectory tables only")
     parser.add_argument("--check-reference", action="store_true", help="also the Radau reference at rtol 1e-12 (~1 min)")
-    parser.add_argument(
-        "--only", nargs="+", metavar="SUBSTRING", default=None,
-        help="keep the peers whose key or name contains one of these (case-insensitive): while_loop 'LSODA events'",
-    )  # fmt: skip
-    parser.add_argument(
-        "--quick", action="store_true",
-        help="a check in under 2 minutes: the 1e-5 s target only, 2 repeats, no V-map, no inertial model",
-    )  # fmt: skip
-    parser.add_argument(
-        "--out", default=None,
-        help="markdown output (default results/stick_slip.md; results/stick_slip_quick.md with --quick or --only)",
-    )  # fmt: skip
+    parser.add_argument("--only", nargs="+", metavar="SUBSTRING", help="the peers whose key or name holds one of these")
+    parser.add_argument("--quick", action="store_true", help="the 1e-5 s target, 2 repeats, no V-map nor inertial model")
+    parser.add_argument("--out", help="markdown output (default results/stick_slip[_quick].md; _quick: --quick or --only)")
     parser.add_argument("--report-only", metavar="FILE.json", default=None, help="the report from a JSON, no runs")
     args = parser.parse_args(argv)
     args.targets = TARGETS

@@ -1,25 +1,8 @@
 """τ > 0: the switching stepper (``solver="auto"``) against the α-method, Tsit5 and CasADi, at equal error.
 
-Problems (``benchmarks/compare_problems.py``):
-
-* P1, one trajectory: V = 1.1, τ = 0.01 (and 0.1), t ∈ [0, 3] s, v at the 301 times ``GRID``;
-  error = max |v − v_ref| (v_ref: diffrax Kvaerno5 at rtol 1e-11), target 1e-3 (compare.py's P1);
-* P3 slice, 64 lanes: V ∈ {1.1, 2, 4, 8} × 16 τ log-spaced in [0.005, 0.5] s, v saved at ``GRID``
-  (``save_dt = 0.01``); error = max over the 32 checked lanes (8 τ per V) of
-  max |v − v_ref|/max |v_ref|, target 1e-3 (compare.py's P3);
-* long runs: the step attempts of a 10⁹ s run at V = 1.1, τ = 0.01 and a 10⁵ s run at
-  V = 4, τ = 0.1 (deterministic; where an explicit stepper's steps stay ~τ).
-
-Candidates: ``peeljax.simulate``/``peeljax.sweep`` with only ``rtol`` set besides the stepper
-(every other option the default, ``fold`` included), each at the loosest rung of one ladder
-(1, 2, 5 per decade, 5e-2 … 1e-7) that meets the target; the peer, CasADi cvodes on
-(α, ω, u, log v) with atol = 1e-2·rtol (``peers.casadi_peer``, integrator built outside the
-timing), on the same ladder. A P3 peeljax sweep runs on every JAX device (2 here); CasADi loops
-the lanes on one core: per core, peeljax's wall time × its devices / CasADi's.
-
-Timing: a first (compiling) call of every row, then ``--repeats`` round-robin rounds (each round
-runs every row once, starting at another row), medians; wall and CPU seconds (this process, all
-threads). The load average is printed at the start and after each round: the machine is shared.
+P1 (one trajectory, τ = 0.01 and 0.1) and a 64-lane P3 slice (``compare_problems.py``), each
+candidate and CasADi cvodes (log v) at the loosest rtol of ``LADDER`` that meets ``TARGET``, timed
+in round-robin rounds (wall and CPU medians); then the step attempts of two long runs.
 
     python benchmarks/switching.py                 # ~10 min on 2 shared cores
     python benchmarks/switching.py --only P1 long  # P1 and the long runs (~3 min)
@@ -33,7 +16,6 @@ from __future__ import annotations
 import argparse
 import functools
 import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -46,7 +28,7 @@ from compare_problems import (  # noqa: E402
     GRID, P3_SAVE_DT, P3_VELOCITIES, REF_ATOL, REF_RTOL, T_FINAL, V, p3_grid, p3_subsample, reference,
     relative_errors
 )  # fmt: skip
-from machine import cpu_model, write_result  # noqa: E402
+from machine import cpu_model, round_robin, versions, write_result  # noqa: E402
 from machine import load_average as load  # noqa: E402
 
 TARGET = 1e-3
@@ -94,20 +76,6 @@ def calibrate(run, error_of):
     return None, tried
 
 
-def round_robin(rows, repeats, loads):
-    """{name: (wall times, CPU times)} of ``repeats`` rounds over ``rows`` (name → call)."""
-    names = list(rows)
-    times = {name: ([], []) for name in names}
-    for r in range(repeats):
-        for name in names[r % len(names) :] + names[: r % len(names)]:
-            wall, cpu = time.perf_counter(), time.process_time()
-            rows[name]()
-            times[name][0].append(time.perf_counter() - wall)
-            times[name][1].append(time.process_time() - cpu)
-        loads.append(load())
-    return times
-
-
 def measure(problem, keys, run, error, attempts, casadi_run, casadi_call, repeats):
     """Each candidate and CasADi calibrated on the ladder, then timed round-robin at the rtol
     found: (chosen rows, ladders, times, load averages). ``run(key, rtol)`` → (v, result)."""
@@ -126,9 +94,9 @@ def measure(problem, keys, run, error, attempts, casadi_run, casadi_call, repeat
     chosen["casadi"] = {"rtol": rtol_c, "error": err_c, "attempts": None}
     rows = {key: (lambda key=key: run(key, chosen[key]["rtol"])) for key in chosen if key != "casadi"}
     rows["casadi"] = lambda: casadi_call(rtol_c)
-    loads = [load()]
-    times = round_robin(rows, repeats, loads)
-    return chosen, ladders, times, loads
+    loads, cpu = [load()], {}
+    wall = round_robin(rows, repeats, lambda _: loads.append(load()), rotate=True, cpu=cpu)
+    return chosen, ladders, {key: (wall[key], cpu[key]) for key in rows}, loads
 
 
 def p1(keys, repeats, tau):
@@ -193,8 +161,7 @@ def p3(keys, repeats, lane_batch=None):
     def attempts(result):
         return float(np.mean(np.asarray(result.accepted_steps) + np.asarray(result.rejected_steps)))
 
-    chosen, ladders, times, loads = measure("P3", keys, sweep, error, attempts, casadi_run, casadi_all, repeats)
-    return chosen, ladders, times, loads, devices
+    return (*measure("P3", keys, sweep, error, attempts, casadi_run, casadi_all, repeats), devices)
 
 
 def long_runs(keys):
@@ -214,7 +181,8 @@ def long_runs(keys):
     return lines + [""]
 
 
-def table(title, chosen, times, per_core_devices, attempts_label):
+def table(title, attempts_label, chosen, ladders, times, loads, per_core_devices=None):
+    """The rows of ``measure``'s results, then the load averages and the ladders tried."""
     base_wall = np.median(times["casadi"][0])
     base_cpu = np.median(times["casadi"][1])
     cores = "" if per_core_devices is None else f" × {per_core_devices} devices"
@@ -234,7 +202,9 @@ def table(title, chosen, times, per_core_devices, attempts_label):
             f"| {name} | {row['rtol']:g} | {row['error']:.2g} | {att} | {1e3 * wall:.2f} | {1e3 * cpu:.2f} | "
             f"{k * wall / base_wall:.2f} | {cpu / base_cpu:.2f} |"
         )
-    return lines
+    ladder_text = "; ".join(f"{k}: " + ", ".join(f"{r:g}: {e:.2g}" for r, e in v) for k, v in ladders.items())
+    return lines + ["", "Load average after each round: " + ", ".join(f"{x:.1f}" for x in loads), "",
+                    "Ladders (rtol: error): " + ladder_text, ""]  # fmt: skip
 
 
 def main(argv=None):
@@ -247,8 +217,6 @@ def main(argv=None):
     args = parser.parse_args(argv)
     import jax
 
-    import peeljax as pj
-
     started = time.perf_counter()
     start_load = load()
     lines = [
@@ -256,27 +224,18 @@ def main(argv=None):
         "",
         f"- machine: {cpu_model()}, {os.cpu_count()} cores shared with other jobs, {len(jax.devices())} JAX devices; "
         f"load average {start_load:.1f} at the start",
-        f"- python {platform.python_version()}, jax {jax.__version__}, peeljax {getattr(pj, '__version__', '?')}",
+        f"- {versions('jax', 'peeljax')}",
         f"- error targets {TARGET:g}; ladder {', '.join(f'{r:g}' for r in LADDER)} (loosest rung meeting the target); "
         f"medians of {args.repeats} round-robin rounds after a first call",
         "",
     ]
     for tau in TAUS_P1 if "P1" in args.only else ():
-        chosen, ladders, times, loads = p1(args.candidates, args.repeats, tau)
-        lines += table(f"P1: V = {V}, τ = {tau} s, max |v − v_ref| ≤ {TARGET:g}", chosen, times, None, "attempts")
-        lines += ["", "Load average after each round: " + ", ".join(f"{x:.1f}" for x in loads), ""]
-        lines += ["Ladders (rtol: error): " + "; ".join(
-            f"{k}: " + ", ".join(f"{r:g}: {e:.2g}" for r, e in v) for k, v in ladders.items()), ""]  # fmt: skip
+        title = f"P1: V = {V}, τ = {tau} s, max |v − v_ref| ≤ {TARGET:g}"
+        lines += table(title, "attempts", *p1(args.candidates, args.repeats, tau))
     if "P3" in args.only:
-        chosen, ladders, times, loads, devices = p3(args.candidates, args.repeats, args.lane_batch)
         batch = "" if args.lane_batch is None else f", lane_batch = {args.lane_batch} (under vmap)"
-        lines += table(
-            f"P3 slice: {N_TAU * len(P3_VELOCITIES)} lanes, relative error ≤ {TARGET:g} on {PER_V * len(P3_VELOCITIES)}{batch}",
-            chosen, times, devices, "attempts per lane",
-        )  # fmt: skip
-        lines += ["", "Load average after each round: " + ", ".join(f"{x:.1f}" for x in loads), ""]
-        lines += ["Ladders (rtol: error): " + "; ".join(
-            f"{k}: " + ", ".join(f"{r:g}: {e:.2g}" for r, e in v) for k, v in ladders.items()), ""]  # fmt: skip
+        title = f"P3 slice: {N_TAU * len(P3_VELOCITIES)} lanes, relative error ≤ {TARGET:g} on {PER_V * len(P3_VELOCITIES)}{batch}"
+        lines += table(title, "attempts per lane", *p3(args.candidates, args.repeats, args.lane_batch))
     if "long" in args.only:
         lines += long_runs(args.candidates)
     lines.append(f"Total {time.perf_counter() - started:.0f} s; load average {load():.1f} at the end.")

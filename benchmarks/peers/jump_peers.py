@@ -4,24 +4,12 @@ Each peer's ``run(rtol)`` returns the jump times over [0, ``T_FINAL``] at V = ``
 stick → slip and slip → stick jumps of v at fixed x, in order); ``prepare()`` builds or
 compiles what the runs need, outside the timed region. Every peer uses atol = ``ATOL_RATIO``·rtol.
 
-* :class:`PeeljaxDAE`: ``peeljax.simulate(tau=0, rtol=…, solver=…)``, the fold located inside the compiled
-  loop (the default: Tsit5 on the DAE in pseudo-time; ``solver="alpha"``, ``"dopri5"`` etc.;
-  ``in_time=True``: a Runge–Kutta solver on the DAE in time, v solved at every evaluation);
-* :class:`ScipyEvents`: ``solve_ivp`` (LSODA, Radau, …) on ẋ = f(x, v(x)) with v the root on
-  the current branch (plain Python), a terminal event at the fold, restarted after each jump;
-  with ``refine=True`` the scipy reference's algorithm (``tests/jump_reference.py``: the last
-  stretch before each fold integrated again in arclength) at that rtol;
-* :class:`DiffraxEvents`: ``diffrax.diffeqsolve`` with a ``diffrax.Event`` (G(x) reaching the
-  fold, located by Newton on the dense output) on ``peeljax.ConstrainedDAE``'s vector field,
-  compiled once; the host restarts it after each jump;
-* :class:`DiffraxWhileLoop`: the same ``diffeqsolve`` + ``Event`` restarted inside one
-  ``jax.lax.while_loop`` (diffrax issue #492's recommendation): the whole run one compiled call;
-* :class:`CasadiEvents`: CasADi's cvodes with CasADi's own (experimental, 3.8) zero-crossing
-  events: a ``zero`` function and a ``transition`` Function that flips the branch, CasADi
-  locating each event and re-initializing CVODES after it, all 210 jumps in one call;
-* :class:`InertialModel`: ``peeljax.alternatives.inertial.integrate_inertial`` (diffrax
-  Kvaerno5) at a tape mass m; its "jumps" are the times where v crosses √(v̂·v̌), the
-  geometric mean of φ's folds (the split ``peeljax.branches.branch_of`` uses).
+The peers (each class's docstring says how it runs): :class:`PeeljaxDAE` (``peeljax.simulate``, the
+fold located inside the compiled loop), :class:`ScipyEvents` (``solve_ivp`` with a terminal event,
+restarted after each jump; ``refine=True``: ``tests/jump_reference.py``'s algorithm), :class:`DiffraxEvents`
+and :class:`DiffraxWhileLoop` (``diffrax.Event`` on ``peeljax.ConstrainedDAE``, restarted on the host
+or inside one ``jax.lax.while_loop``), :class:`CasadiEvents` (cvodes with CasADi's experimental
+events) and :class:`InertialModel` (m·v̇ = G − φ; its jumps: v crossing √(v̂·v̌)).
 """
 
 from __future__ import annotations
@@ -54,12 +42,16 @@ def jump_reference():
 SOLVERS = {"alpha": "AlphaMethod", "tsit5": "Tsit5", "dopri5": "Dopri5", "dopri8": "Dopri8", "kvaerno5": "Kvaerno5"}
 
 
+def check_solver(name):
+    if name is not None and name not in SOLVERS:
+        raise ValueError(f"unknown solver {name!r}: one of {', '.join(SOLVERS)}")
+
+
 def solver_named(name):
     """``peeljax.AlphaMethod()`` for "alpha", else the diffrax solver of that name (:data:`SOLVERS`); None → None."""
+    check_solver(name)
     if name is None:
         return None
-    if name not in SOLVERS:
-        raise ValueError(f"unknown solver {name!r}: one of {', '.join(SOLVERS)}")
     if name == "alpha":
         import peeljax
 
@@ -72,16 +64,14 @@ def solver_named(name):
 class PeeljaxDAE(Peer):
     """``peeljax.simulate(V, tau=0, rtol, atol, solver=…)``: output at [0, t_final] only (``ts``), so no step buffer.
 
-    ``solver``: None (peeljax's default, the α-method) or a name of :data:`SOLVERS` ("alpha",
-    "tsit5", "dopri5", "dopri8", "kvaerno5"), passed to ``simulate`` as ``peeljax.AlphaMethod()``
-    or the diffrax solver.
+    ``solver``: None (peeljax's default) or a name of :data:`SOLVERS` (:func:`solver_named`); ``in_time``:
+    that Runge–Kutta solver on the DAE in time (v solved at every evaluation), not in pseudo-time.
     """
 
     def __init__(self, settings, V=V, max_steps=1_000_000, solver=None, in_time=False):
         super().__init__(0.0, settings)
         self.V, self.max_steps, self.solver, self.in_time = V, max_steps, solver, in_time
-        if solver is not None and solver not in SOLVERS:
-            raise ValueError(f"unknown solver {solver!r}: one of {', '.join(SOLVERS)}")
+        check_solver(solver)
         if in_time and solver in (None, "alpha"):
             raise ValueError("in_time applies to a Runge-Kutta solver (the α-method runs in time)")
         what = "" if solver is None else f", {solver}{' in time' if in_time else ''}"
@@ -231,15 +221,28 @@ class ScipyEvents(Peer):
 
 
 # --------------------------------------------------------------------------- diffrax
+def fold_segment(ode, term, solver, t0, t1, y0, controller, max_steps):
+    """One ``diffeqsolve`` from t0 towards t1 stopped by a ``diffrax.Event`` on ``ode.fold_event`` (located by
+    ``optimistix.Newton`` on the step's dense output): (t, y after ``ode.jump`` where it hit, hit, solution)."""
+    import diffrax
+    import jax.numpy as jnp
+    import optimistix as optx
+
+    event = diffrax.Event(lambda t, y, args, **kwargs: ode.fold_event(y), root_finder=optx.Newton(rtol=1e-13, atol=1e-13))
+    sol = diffrax.diffeqsolve(term, solver, t0, t1, None, y0, saveat=diffrax.SaveAt(t1=True), stepsize_controller=controller,
+                              event=event, max_steps=max_steps, throw=False)  # fmt: skip
+    t_end, y_end, hit = sol.ts[-1], sol.ys[-1], sol.event_mask
+    return t_end, jnp.where(hit, ode.jump(y_end).y, y_end), hit, sol
+
+
 class DiffraxEvents(Peer):
     """``diffeqsolve`` with ``diffrax.Event`` on ``peeljax.ConstrainedDAE``, restarted on the host after each jump.
 
     The state is y = (α, ω, u, v) with ψ_v = 0 (``ConstrainedDAE``): v is solved from the
     constraint on the branch y's v lies on at every evaluation; the event is
     ``ConstrainedDAE.fold_event`` (G(x) − φ(v̂, V) on the stick branch, φ(v̌, V) − G(x) on the
-    slip branch), located by ``optimistix.Newton`` on the step's dense output. The compiled
-    segment also returns the state after the jump (``ConstrainedDAE.jump``: v⁺ on the other
-    branch at fixed x), so each restart is one call; the loop over segments is Python.
+    slip branch). The compiled segment (:func:`fold_segment`) also returns the state after the
+    jump (v⁺ on the other branch at fixed x), so each restart is one call; the loop is Python.
     """
 
     def __init__(self, settings, solver_name="Tsit5", V=V, max_steps=1_000_000):
@@ -252,7 +255,6 @@ class DiffraxEvents(Peer):
         import diffrax
         import equinox as eqx
         import jax.numpy as jnp
-        import optimistix as optx
 
         import peeljax
 
@@ -263,16 +265,8 @@ class DiffraxEvents(Peer):
 
         @eqx.filter_jit
         def segment(ode, t0, y0, rtol, atol):
-            event = diffrax.Event(
-                lambda t, y, args, **kwargs: ode.fold_event(y), root_finder=optx.Newton(rtol=1e-13, atol=1e-13)
-            )
-            sol = diffrax.diffeqsolve(
-                diffrax.ODETerm(lambda t, y, args: ode(y)), solver, t0, T_FINAL, None, y0,
-                saveat=diffrax.SaveAt(t1=True), stepsize_controller=diffrax.PIDController(rtol=rtol, atol=atol),
-                event=event, max_steps=max_steps, throw=False,
-            )  # fmt: skip
-            t1, y1, hit = sol.ts[-1], sol.ys[-1], sol.event_mask
-            after = jnp.where(hit, ode.jump(y1).y, y1)
+            term, controller = diffrax.ODETerm(lambda t, y, args: ode(y)), diffrax.PIDController(rtol=rtol, atol=atol)
+            t1, after, hit, sol = fold_segment(ode, term, solver, t0, T_FINAL, y0, controller, max_steps)
             ok = sol.result == diffrax.RESULTS.successful
             return t1, after, hit, ok, sol.stats["num_accepted_steps"], sol.stats["num_rejected_steps"]
 
@@ -301,13 +295,10 @@ class DiffraxEvents(Peer):
 class DiffraxWhileLoop(Peer):
     """The loop diffrax's maintainers recommend for restarting after events (diffrax issue #492).
 
-    One compiled function: a ``jax.lax.while_loop`` whose body runs ``diffrax.diffeqsolve``
-    (``diffrax.Tsit5()`` with ``diffrax.PIDController(rtol, atol)``) from
-    the current time to ``T_FINAL`` with a ``diffrax.Event`` on ``ConstrainedDAE.fold_event``
-    (located by ``optimistix.Newton`` on the step's dense output, as :class:`DiffraxEvents`),
-    applies ``ConstrainedDAE.jump`` at the event's state (``sol.ys[-1]`` with
-    ``SaveAt(t1=True)``), writes the event time into a buffer of ``slots`` jump times and
-    restarts from there, until ``t_final`` (default ``T_FINAL``; or a failed segment, or a full buffer). rtol and
+    One compiled function: a ``jax.lax.while_loop`` whose body runs :func:`fold_segment` (``diffrax.Tsit5()``
+    with ``diffrax.PIDController(rtol, atol)``, as :class:`DiffraxEvents`) from the current time, writes the
+    event time into a buffer of ``slots`` jump times and restarts from the state after the jump, until
+    ``t_final`` (default ``T_FINAL``; or a failed segment, or a full buffer). rtol and
     atol are traced: the program is compiled once, ahead of time, in ``prepare``. The vector
     field is ``ConstrainedDAE.evaluate(y).psi`` on y = (α, ω, u, v) (v solved from the constraint).
     """
@@ -323,7 +314,6 @@ class DiffraxWhileLoop(Peer):
         import diffrax
         import jax
         import jax.numpy as jnp
-        import optimistix as optx
 
         import peeljax
 
@@ -333,9 +323,6 @@ class DiffraxWhileLoop(Peer):
         y0 = jnp.asarray(model.initial_state(self.V))
         t_final = jnp.asarray(self.t_final)
         term = diffrax.ODETerm(lambda t, y, args: ode.evaluate(y).psi)
-        event = diffrax.Event(
-            lambda t, y, args, **kwargs: ode.fold_event(y), root_finder=optx.Newton(rtol=1e-13, atol=1e-13)
-        )
 
         def run_all(rtol, atol):
             controller = diffrax.PIDController(rtol=rtol, atol=atol)
@@ -346,14 +333,9 @@ class DiffraxWhileLoop(Peer):
 
             def body(carry):
                 t, y, n, buffer, accepted, rejected, _ = carry
-                sol = diffrax.diffeqsolve(
-                    term, solver, t, t_final, None, y, saveat=diffrax.SaveAt(t1=True),
-                    stepsize_controller=controller, event=event, max_steps=max_steps, throw=False,
-                )  # fmt: skip
-                t1, y1, hit = sol.ts[-1], sol.ys[-1], sol.event_mask
+                t1, y, hit, sol = fold_segment(ode, term, solver, t, t_final, y, controller, max_steps)
                 ok = hit | (sol.result == diffrax.RESULTS.successful)
                 buffer = jnp.where(hit, buffer.at[jnp.minimum(n, slots - 1)].set(t1), buffer)
-                y = jnp.where(hit, ode.jump(y1).y, y1)
                 return (
                     t1, y, n + hit.astype(n.dtype), buffer,
                     accepted + sol.stats["num_accepted_steps"], rejected + sol.stats["num_rejected_steps"], ok,
@@ -388,15 +370,12 @@ class DiffraxWhileLoop(Peer):
 class CasadiEvents(Peer):
     """CasADi cvodes with CasADi 3.8's experimental events (``dae["zero"]`` and the ``transition`` option).
 
-    State X = (α, ω, u, b, n, s1 … s4): b the branch (0 stick, 1 slip), n the jump count and
-    s1 … s4 the last four jump times (the transition shifts them: CasADi reports no event
-    times, so they are read back from the states at 3000 output times, ≤ 4 jumps apart).
-    v(x) on branch b is an SX expression: ``BISECTIONS`` bisections in log v on the branch,
-    two Newton steps (which carry the implicit function theorem's derivative into CVODES's
-    Jacobian), clamped at the branch's ends. Zero function: φ(v̂, V) − G on the stick branch,
-    G − φ(v̌, V) on the slip branch; CasADi only reports zeros crossed from + to − (measured:
-    with the opposite signs no event fires). ``event_tol`` 1e-14 and ``max_event_iter`` 100:
-    the defaults leave every stick → slip jump ~4e-5 s early.
+    The model is :func:`casadi_event_model`'s, with a register of the last four jump times: CasADi
+    reports no event times, so they are read back from the states at 3000 output times (≤ 4 jumps
+    apart). The two Newton steps of v(x) carry the implicit function theorem's derivative into
+    CVODES's Jacobian. CasADi only reports zeros crossed from + to − (measured: with the opposite
+    signs no event fires). ``event_tol`` 1e-14 and ``max_event_iter`` 100: the defaults leave every
+    stick → slip jump ~4e-5 s early.
     """
 
     REGISTER, OUTPUTS, BISECTIONS = 4, 3000, 56

@@ -1,13 +1,9 @@
 """PETSc TSALPHA (generalized-α for first-order systems, through petsc4py) on eq. ``hv``: a peer of ``compare.py``.
 
 Run by ``compare.py`` in a subprocess with another interpreter (``PETSC_PYTHON``, default
-``/usr/bin/python3``), because petsc4py is not installable into the project's venv. It needs
-only numpy and petsc4py (no jax, no peeljax): ψ is written out below for the paper geometry and
-the paper's φ family, in z = (α, ω, u, log v) like the other "(log v)" peers, and the Newton
-matrix shift·𝐈 − ∂ψ/∂z is built by central differences of ψ (4×4). Debian's
-``python3-petsc4py`` puts petsc4py under ``/usr/lib/petscdir/<build>/lib/python3/dist-packages``
-and finds it through ``PETSC_DIR`` or the ``/usr/lib/petsc`` alternative (set only with PETSc's
--dev package); without either, :func:`import_petsc4py` looks there itself.
+``/usr/bin/python3``): petsc4py is not installable into the project's venv. It needs only numpy and
+petsc4py: ψ is written out below in z = (α, ω, u, log v) like the other "(log v)" peers, its Newton
+matrix by central differences; :func:`import_petsc4py` finds Debian's ``python3-petsc4py``.
 
     python3 petsc_tsalpha.py --check              # exit 0 if numpy and petsc4py import
     python3 petsc_tsalpha.py jobs.json out.json   # fixed steps: run the jobs, write the results
@@ -18,11 +14,9 @@ out.json: {"petsc": version, "runs": [{"v": [v every k steps, NaN after a stop],
 "status": "ok" | "stopped near t = …" | "failed: …"}, ...]}.
 
 --serve: first prints {"petsc": version}; then for each line {"V", "tau", "rtol", "atol",
-"grid": [t_0 = 0, …, t_final], "radius", "dt0"} runs TSALPHA with its own error control
-(``-ts_adapt_type basic``: TSALPHA's local error estimate from backward differences of the
-last three solutions, order 2; the usual safety 0.9 and clip [0.1, 10]) and prints
-{"v": v at the grid times (TSInterpolate between steps), "seconds", "status", "steps",
-"rejected", "snes_iterations", "snes_failures"}. An empty line ends it.
+"grid": [t_0 = 0, …, t_final], "radius", "dt0"} runs TSALPHA with ``-ts_adapt_type basic`` and prints
+{"v": v at the grid times, "seconds", "status", "steps", "rejected", "snes_iterations",
+"snes_failures"}. An empty line ends it.
 """
 
 from __future__ import annotations
