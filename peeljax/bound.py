@@ -128,11 +128,8 @@ class Simulator:
     ``simulate``'s. So does a run with a leaf that is not an array (a diffrax solver; then
     only the option checks are saved).
 
-    Per-call cost (``benchmarks/studies/adaptive_drivers.py --overhead-only`` (retired: ``benchmarks/studies/README.md``): a 15-step run,
-    medians of 1000 calls on 2 shared cores; ``benchmarks/studies/results/adaptive_drivers_overhead.md``):
-    ``simulate`` 0.56 ms, its compiled run called by ``jax.jit`` with device-resident arguments
-    0.36 ms, a ``Simulator`` call 0.31 ms, 0.01–0.03 ms more than the bare executable it runs
-    (0.28 ms, its arguments already on the device; the Python side of a call takes ~1 µs).
+    Per call, the checks of ``simulate`` are saved: P1 (``benchmarks/guard.py``'s
+    ``simulator_call``) through a ``Simulator`` takes 0.73× its time through ``simulate``.
 
     Example::
 

@@ -53,7 +53,9 @@ def reverse_by_tangents(solve: Solve, inputs: Any, limit: int) -> Any:
     Returns:
         ``solve``'s output. Its reverse-mode derivative with respect to the k perturbed
         scalars of ``inputs``: k ≤ ``limit``, the cotangent contracted with the k tangents of
-        the plain loop (``jax.vmap`` of ``jax.jvp``); otherwise the checkpointed loop's pullback.
+        the plain loop (``jax.vmap`` of ``jax.jvp``; for k = 1 ``jax.jvp`` alone, which traces
+        in about 0.6–0.7 of the time: 10.8 against 17.5 s for a run through jumps at τ = 0.01);
+        otherwise the checkpointed loop's pullback.
         Forward mode (``jax.jvp``) is refused, as for any ``custom_vjp``: call the plain loop.
     """
     return _reverse(inputs, solve, limit)
@@ -93,7 +95,11 @@ def _reverse_fwd(perturbed, inputs, solve, limit):
     def tangent(direction):
         return jax.jvp(arrays("lax"), (flat,), (direction,), has_aux=True)
 
-    floats, tangents, rest = jax.vmap(tangent, out_axes=(None, 0, None))(jnp.eye(flat.size, dtype=flat.dtype))
+    if flat.size == 1:  # one tangent: the loop under jax.jvp alone, not batched (traced faster)
+        floats, tangent_1, rest = tangent(jnp.ones(1, flat.dtype))
+        tangents = jax.tree.map(lambda t: t[None], tangent_1)
+    else:
+        floats, tangents, rest = jax.vmap(tangent, out_axes=(None, 0, None))(jnp.eye(flat.size, dtype=flat.dtype))
     return eqx.combine(floats, rest, static[0]), ("tangents", tangents, None)
 
 
