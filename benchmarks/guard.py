@@ -39,6 +39,9 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 LIMITS = HERE / "guard_limits.json"
+# The peeljax beside this file is the one measured, whatever else is installed (a guard run from a
+# second checkout measured the installed one's code: simulator_call 1.36 on fixed code).
+sys.path.insert(0, str(HERE.parent))
 V = 1.1
 
 
@@ -271,6 +274,9 @@ def main(argv=None) -> int:
     ratios = measure(names, args.repeats)
     limits = limits_of(table, args.ci)
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    import peeljax
+
+    print(f"peeljax {peeljax.__version__} from {Path(peeljax.__file__).parent}")
     print(f"{'ratio':<24} {'measured':>9} {'limit':>7}   (load {load:.2f}, {time.perf_counter() - began:.0f} s)")
     for name, ratio in ratios.items():
         print(f"{name:<24} {ratio:>9.2f} {limits[name]:>7.2f}   {table[name]['what']}")
