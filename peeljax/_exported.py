@@ -50,8 +50,8 @@ SUBFOLDER = "exported-programs"
 MAX_BYTES = 2**30
 SUFFIX = ".jaxexport"
 # Classes whose structure is trusted to be what their name and static fields say.
-TRUSTED_PACKAGES = ("peeljax", "equinox", "diffrax", "lineax", "optimistix", "jax", "jaxlib", "builtins", "numpy")
-_LIBRARIES = ("jax", "jaxlib", "equinox", "diffrax", "lineax", "optimistix", "numpy", "flatbuffers")
+TRUSTED_PACKAGES = ("peeljax", "equinox", "diffrax", "lineax", "optimistix", "optax", "jax", "jaxlib", "builtins", "numpy")
+_LIBRARIES = ("jax", "jaxlib", "equinox", "diffrax", "lineax", "optimistix", "optax", "numpy", "flatbuffers")
 
 
 class NotExportable(Exception):

@@ -96,6 +96,29 @@ def test_an_orbit_gives_the_same_bits_read_back(folder):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
+@pytest.mark.parametrize("optimizer", ["adam", "lbfgs"])
+def test_a_fit_step_gives_the_same_bits_read_back(folder, optimizer):
+    """A fit's update (value, gradient, optax's step) through its kept program equals the same
+    fit traced anew; a user's own optax transformation is traced as before (never kept: its
+    functions cannot be told apart by name)."""
+    import optax
+
+    v = np.geomspace(0.01, 3.0, 12)
+    force = np.asarray(pj.AdhesionLaw(c1=430.0)(v, v))
+    options = {"start": pj.AdhesionLaw(), "free": ("c1", "c3"), "steps": 4, "progress": False, "optimizer": optimizer}
+    kept = pj.fit_adhesion_steady(v, force, **options)
+    assert len(list(folder.glob("*.jaxexport"))) == 1
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(_exported, "programs_folder", lambda: None)  # off: traced and compiled as before
+        _exported.forget()
+        plain = pj.fit_adhesion_steady(v, force, **options)
+    np.testing.assert_array_equal(kept.loss_history, plain.loss_history)
+    assert float(kept.adhesion.c1) == float(plain.adhesion.c1) != 400.0
+    _exported.forget()
+    pj.fit_adhesion_steady(v, force, **(options | {"optimizer": optax.sgd(1e-3)}))
+    assert len(list(folder.glob("*.jaxexport"))) == 1
+
+
 def test_a_corrupt_entry_is_exported_again(folder):
     program = _program()
     v = jnp.linspace(0.01, 2.0, 5)

@@ -14,7 +14,7 @@ import optax
 import pytest
 
 import peeljax as pj
-from peeljax.fit.trajectory import _update, restart_on_ascent
+from peeljax.fit.trajectory import _filtered_update, _kept_update, restart_on_ascent
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import fit_acceptance
@@ -131,10 +131,10 @@ def test_chained_transformation_lowers_the_loss_and_compiles_once():
     opt = optax.chain(optax.clip_by_global_norm(1.0), optax.sgd(0.01))
     result = pj.fit_adhesion_steady(v, force, start=start, steps=5, optimizer=opt, progress=False)
     assert result.steps == 5 and result.final_loss < result.initial_loss
-    size = _update._cached._cache_size()
+    size = _filtered_update._cached._cache_size()  # a user's transformation: traced in the process
     again = pj.fit_adhesion_steady(v, 1.01 * force, start=start, steps=5, optimizer=opt, progress=False)
     assert again.final_loss < again.initial_loss
-    assert _update._cached._cache_size() == size  # same shapes, free set and transformation
+    assert _filtered_update._cached._cache_size() == size  # same shapes, free set and transformation
     lbfgs = pj.fit_adhesion_steady(
         v, force, start=start, steps=10, optimizer=restart_on_ascent(optax.lbfgs()), progress=False
     )
@@ -144,7 +144,7 @@ def test_chained_transformation_lowers_the_loss_and_compiles_once():
 def test_bad_optimizers_are_rejected_before_compiling():
     obs = pj.Observation(V=1.1, t=np.linspace(0, 0.2, 5), v=np.ones(5))
     v, force, _ = steady_data()
-    size = _update._cached._cache_size()
+    sizes = (_filtered_update._cached._cache_size(), len(_kept_update._programs))
     for bad in ("sgd", optax.adam, (optax.adam(0.1).init, optax.adam(0.1).update), 0.1, None):
         with pytest.raises(ValueError, match="optimizer must be"):
             pj.fit_adhesion(obs, optimizer=bad, progress=False)
@@ -156,4 +156,4 @@ def test_bad_optimizers_are_rejected_before_compiling():
         pj.fit_adhesion(obs, optimizer=optax.adam(0.1), learning_rate=0.1, progress=False)
     with pytest.raises(ValueError, match="learning_rate.*optimizer"):
         pj.fit_adhesion_steady(v, force, optimizer=optax.sgd(0.1), learning_rate=0.1, progress=False)
-    assert _update._cached._cache_size() == size
+    assert (_filtered_update._cached._cache_size(), len(_kept_update._programs)) == sizes

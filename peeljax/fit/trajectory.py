@@ -43,6 +43,7 @@ import optax
 from jaxtyping import Array, ArrayLike, Float
 
 from .._atomic import write_text
+from .._exported import ExportedProgram
 from .._validation import check_positive
 from ..adhesion import AdhesionLaw
 from ..homogenized import HomogenizedODE
@@ -426,23 +427,48 @@ def _optimizer_setting(optimizer) -> str:
     return f"optax.{type(optimizer).__name__} (user)"
 
 
+# The setting each of the library's own transformations was made from, by the object's id (they
+# live for the process: ``_make_optimizer`` keeps them): its update's program can be kept on disk.
+_SETTING_OF: dict[int, tuple[str, float | None]] = {}
+
+
 @functools.cache  # one object per setting: the jitted update is cached on it
 def _make_optimizer(optimizer: str, learning_rate: float | None) -> optax.GradientTransformation:
     if optimizer == "adam":
-        return optax.adam(0.02 if learning_rate is None else learning_rate)
-    if optimizer == "lbfgs":
+        made = optax.adam(0.02 if learning_rate is None else learning_rate)
+    elif optimizer == "lbfgs":
         # A backtracking (Armijo) line search needs only loss values: the compiled update then
         # holds one gradient program, not a second one for the zoom line search's gradients.
         linesearch = optax.scale_by_backtracking_linesearch(max_backtracking_steps=20, store_grad=False)
-        return restart_on_ascent(optax.lbfgs(learning_rate=learning_rate, linesearch=linesearch))
-    raise ValueError(f"optimizer must be 'adam' or 'lbfgs', got {optimizer!r}")
+        made = restart_on_ascent(optax.lbfgs(learning_rate=learning_rate, linesearch=linesearch))
+    else:
+        raise ValueError(f"optimizer must be 'adam' or 'lbfgs', got {optimizer!r}")
+    _SETTING_OF[id(made)] = (optimizer, learning_rate)
+    return made
 
 
-@eqx.filter_jit
 def _update(loss_fn, opt: optax.GradientTransformation, theta, state):
+    """:func:`_filtered_update`, its traced program kept on disk (:mod:`peeljax._exported`)
+    where the transformation is the library's own (``"adam"``, ``"lbfgs"``) and every leaf an
+    array: a fit in a new process skips the tracing (~25 s for a fit at τ > 0)."""
+    setting = _SETTING_OF.get(id(opt))
+    args = (loss_fn, theta, state)
+    if setting is None or not all(isinstance(leaf, (jax.Array, np.ndarray, np.generic)) for leaf in jax.tree.leaves(args)):
+        return _filtered_update(loss_fn, opt, theta, state)
+    new_theta, state_leaves, value, grad, aux = _kept_update(setting, *args)
+    # the state comes back as its leaves (optax's state classes are not exported): same structure
+    return new_theta, jax.tree.unflatten(jax.tree.structure(state), state_leaves), value, grad, aux
+
+
+def _update_by_setting(setting, loss_fn, theta, state):
+    new_theta, new_state, value, grad, aux = _update_body(loss_fn, _make_optimizer(*setting), theta, state)
+    return new_theta, jax.tree.leaves(new_state), value, grad, aux
+
+
+def _update_body(loss_fn, opt: optax.GradientTransformation, theta, state):
     """One optimizer iteration at θ: (new θ, new state, L(θ), ∇L(θ), aux(θ)).
 
-    Module level and keyed on the loss module's structure and on ``opt`` (a NamedTuple of
+    Compiled (``_filtered_update``) keyed on the loss module's structure and on ``opt`` (a NamedTuple of
     functions: static, compared by identity): fits with new data or new start values but the
     same shapes and the same transformation object reuse the compiled program. A
     ``GradientTransformationExtraArgs`` (optax.lbfgs, optax.chain, ...) gets ``value``,
@@ -459,6 +485,10 @@ def _update(loss_fn, opt: optax.GradientTransformation, theta, state):
     else:
         updates, state = opt.update(grad, state, theta)
     return optax.apply_updates(theta, updates), state, value, grad, aux
+
+
+_filtered_update = eqx.filter_jit(_update_body)
+_kept_update = ExportedProgram("fit_adhesion_update", _update_by_setting, eqx.filter_jit(_update_by_setting))
 
 
 def _strong(x):
