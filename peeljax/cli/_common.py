@@ -35,10 +35,8 @@ _NEGATIVE_NUMBER = re.compile(
 
 
 class Parser(argparse.ArgumentParser):
-    """An ArgumentParser (subcommands' parsers included) that reads a negative number in any
-    spelling as a value, e.g. ``--rtol -1e-6``, so that the option's range check answers, and
-    answers a misspelled option or command with the closest one (Python 3.14's
-    ``suggest_on_error``, for the Pythons peeljax supports)."""
+    """An ArgumentParser that reads a negative number in any spelling as a value (``--rtol -1e-6``: the range
+    check answers) and answers a misspelled option or command with the closest one."""
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
@@ -107,10 +105,9 @@ class Parser(argparse.ArgumentParser):
 
 
 def unrecognized(extras: list[str], parser: argparse.ArgumentParser, others: dict | None = None) -> str:
-    """The words argparse did not recognize, in one message: for an option of other commands
-    (``others``: their parsers by name) which they are, for a misspelled option the closest of
-    ``parser``'s options (``--t-finl`` -> ``--t-final``), for a stray value the rule that every
-    value follows its option."""
+    """The words argparse did not recognize, in one message: for an option of other commands (``others``: their
+    parsers by name) which they are, for a misspelled option the closest of ``parser``'s options (``--t-finl`` ->
+    ``--t-final``), for a stray value the rule that every value follows its option."""
     known = [name for name in parser._option_string_actions if name.startswith("--")]
     options = [word for word in extras if word.startswith("-") and not _NEGATIVE_NUMBER.match(word)]
     if not options:
@@ -134,9 +131,8 @@ def unrecognized(extras: list[str], parser: argparse.ArgumentParser, others: dic
 
 
 def read_phi(path: str) -> tuple[AdhesionLaw, tuple[str, ...]]:
-    """The adhesion law in a JSON file and the coefficients it left out (they keep the paper's
-    values), the one-line note about those printed on stderr; every failure becomes a
-    ValueError naming --phi."""
+    """The adhesion law in a JSON file and the coefficients it left out (they keep the paper's values), the one-line
+    note about those printed on stderr; every failure becomes a ValueError naming --phi."""
     try:
         law, kept = read_json(path)
     except OSError as error:  # a directory, no permission, …: read_json handles only a missing file
@@ -282,9 +278,9 @@ def checked(allowed: str, check, *args):
 
 
 def solver_for(method: str, rho: float | None):
-    """``--method`` as the ``solver`` argument of :func:`peeljax.simulate` / :func:`peeljax.sweep`:
-    None for "default" (the library's choice), an ``AlphaMethod(rho=rho)`` for "alpha" (so that
-    ``--rho`` reaches it), else the stepper's name."""
+    """``--method`` as the ``solver`` argument of :func:`peeljax.simulate` / :func:`peeljax.sweep`: None for
+    "default" (the library's choice), an ``AlphaMethod(rho=rho)`` for "alpha" (so that ``--rho`` reaches it), else
+    the stepper's name."""
     if method == "default":
         return None
     if method == "alpha":
@@ -318,12 +314,11 @@ def phi_defaults(args: argparse.Namespace) -> list[str] | None:
 
 
 def stats_text(stats: dict, jumps_said: bool = False) -> str:
-    """The run's counters as ``key value, ...``, only those that mean something for this run: no
-    NaN (``step_size`` under error control, which has no one step), no Newton counts where none
-    were counted (an explicit stepper; diffrax's implicit ones count theirs inside), no
-    ``steps`` beside ``accepted_steps`` (the same count, or accepted + rejected for the diffrax
-    reference), no ``jumps`` where a line of its own gives them (``jumps_said``); floats to 4
-    significant digits."""
+    """The run's counters as ``key value, ...``, only those that mean something for this run: no NaN (``step_size``
+    under error control, which has no one step), no Newton counts where none were counted (an explicit stepper;
+    diffrax's implicit ones count theirs inside), no ``steps`` beside ``accepted_steps`` (the same count, or
+    accepted + rejected for the diffrax reference), no ``jumps`` where a line of its own gives them
+    (``jumps_said``); floats to 4 significant digits."""
     shown = {}
     for key, value in stats.items():
         if isinstance(value, float) and math.isnan(value):
@@ -394,10 +389,9 @@ _LEADING = re.compile(r"^(V|tau|dt|rtol|atol|rho|y0|geometry|transient|window|fo
 
 
 def option_names(message: str) -> str:
-    """A library message in the command line's words: ``max_jumps`` → ``--max-jumps``,
-    ``fold='stop'`` → ``--fold stop`` (``method=``, ``by=``, ``intervals=`` too), ``dt=0.01`` → ``--dt 0.01``, a remedy in the API's words
-    in the options', and a message that opens with a parameter's name (``tau must be ...``)
-    opens with its option."""
+    """A library message in the command line's words: ``max_jumps`` → ``--max-jumps``, ``fold='stop'`` → ``--fold
+    stop`` (``method=``, ``by=``, ``intervals=`` too), ``dt=0.01`` → ``--dt 0.01``, a remedy in the API's words in
+    the options', and a message that opens with a parameter's name (``tau must be ...``) opens with its option."""
     message = _UNDERSCORED.sub(lambda m: _PARAMETERS[m.group(1)], message)
     message = _ANOTHER_OUT.sub("another --out", message)  # the library's "choose another out"
     message = _CHOSEN.sub(r"--\1 \2", message)  # fold='stop' -> --fold stop, method='orbit' -> --method orbit
@@ -413,9 +407,9 @@ HEARTBEAT_S = 30.0
 
 
 class Elapsed:
-    """While a compiled run goes on (it cannot report from inside without a host callback in
-    its loop), a line on stderr every :data:`HEARTBEAT_S` seconds with the wall time elapsed,
-    and on leaving one with the total; nothing when ``on`` is False."""
+    """While a compiled run goes on (it cannot report from inside without a host callback in its loop), a line on
+    stderr every :data:`HEARTBEAT_S` seconds with the wall time elapsed, and on leaving one with the total;
+    nothing when ``on`` is False."""
 
     def __init__(self, on: bool, what: str):
         self.on, self.what = on, what
@@ -455,9 +449,7 @@ def ascii_text(text: str) -> str:
 
 
 def write_files(record: dict, *writers) -> list:
-    """Each ``(option, path, write)`` with a path: ``write(path)``. A failure is kept as ``(option,
-    path, error)`` and its key of ``record`` (``out``, ``plot``) set to None: the result is
-    reported whatever could not be written."""
+    """Each ``(option, path, write)`` with a path: ``write(path)``."""
     failed = []
     for option, path, write in writers:
         if path is None:
@@ -479,10 +471,8 @@ def plotter(name: str, *args, module: str = "peeljax.plots", **kwargs):
 
 
 def report(record: dict, as_json: bool, lines, failed=(), what: str = "", notes=()) -> int:
-    """``--json``: ``record`` as the one JSON object on stdout (strict: NaN is null); else the
-    summary ``lines`` (ASCII). Then on stderr the ``notes`` and each file that could not be
-    written (``failed``, after ``what`` was reported). Returns the exit status: 1 when a file
-    failed, else 0."""
+    """``--json``: ``record`` as the one JSON object on stdout (strict: NaN is null); else the summary ``lines``
+    (ASCII)."""
     if as_json:
         print(json.dumps(json_safe(record), allow_nan=False))
     else:

@@ -205,9 +205,8 @@ def join_processes(processes: Processes | None, args: argparse.Namespace) -> int
 
 
 def _quiet_stdout(keep: bool) -> None:
-    """Send what the runtime's C++ prints on stdout (gloo's "Rank 0 is connected to 1 peer ranks")
-    to stderr, so that stdout carries only peeljax's report (one JSON object with --json); keep
-    that report only in process 0."""
+    """Send what the runtime's C++ prints on stdout (gloo's "Rank 0 is connected to 1 peer ranks") to stderr, so that
+    stdout carries only peeljax's report (one JSON object with --json); keep that report only in process 0."""
     sys.stdout.flush()
     report = os.dup(1)
     os.dup2(2, 1)  # file descriptor 1, which C++ writes to, is now stderr

@@ -91,9 +91,8 @@ def _flush_and_exit() -> None:
 
 
 def interrupted(detail: str | None = None) -> int:
-    """After a ``KeyboardInterrupt``: print ``peeljax: interrupted[: detail]`` (once) and, if a
-    real SIGINT came, end the process with status 130; else (no signal: an interrupt raised
-    by code) return 130."""
+    """After a ``KeyboardInterrupt``: print ``peeljax: interrupted[: detail]`` (once) and, if a real SIGINT came, end
+    the process with status 130; else (no signal: an interrupt raised by code) return 130."""
     _say(detail)
     if _state.signalled.is_set():
         _flush_and_exit()
@@ -147,9 +146,9 @@ def _watch(reader: socket.socket) -> None:
 
 
 def _on_sigint(signum, frame) -> None:
-    """Python's handler (main thread): the first SIGINT raises KeyboardInterrupt; a second one,
-    while the first is being handled, is left to the watcher (no exception out of the clean-up),
-    unless the first one was swallowed (:func:`_unraisable`): then it is raised again."""
+    """Python's handler (main thread): the first SIGINT raises KeyboardInterrupt; a second one, while the first is
+    being handled, is left to the watcher (no exception out of the clean-up), unless the first one was swallowed
+    (:func:`_unraisable`): then it is raised again."""
     if _state.signalled.is_set() and not _state.reraise:
         return
     _state.reraise = False
@@ -158,9 +157,9 @@ def _on_sigint(signum, frame) -> None:
 
 
 def _unraisable(hook_args) -> None:
-    """``sys.unraisablehook`` while guarded: a KeyboardInterrupt that a callback swallowed (JAX's
-    garbage-collection callback) prints no "Exception ignored" traceback; it is raised again in
-    the main thread by the watcher (a raise from here would be swallowed too)."""
+    """``sys.unraisablehook`` while guarded: a KeyboardInterrupt that a callback swallowed (JAX's garbage-collection
+    callback) prints no "Exception ignored" traceback; it is raised again in the main thread by the watcher (a
+    raise from here would be swallowed too)."""
     if isinstance(hook_args.exc_value, KeyboardInterrupt) and _state.signalled.is_set():
         _state.swallowed.set()  # the watcher raises it again, once the callback has returned
         return
@@ -169,9 +168,8 @@ def _unraisable(hook_args) -> None:
 
 @contextlib.contextmanager
 def guard() -> Iterator[None]:
-    """While inside (the main thread of a command), SIGINT ends the process with status 130
-    and one line, whatever the main thread is doing (see the module's docstring). Elsewhere
-    (another thread, a platform without a wake-up fd) a no-op."""
+    """While inside (the main thread of a command), SIGINT ends the process with status 130 and one line, whatever
+    the main thread is doing (see the module's docstring)."""
     _state.said = False
     _state.signalled.clear()
     _state.swallowed.clear()

@@ -26,15 +26,11 @@ def add_command(subparsers) -> None:
     )
     parser.add_argument("--out", default="figures", metavar="FOLDER", help="output folder (created; default figures/)")
     parser.add_argument(
-        "--t-final",
-        dest="t_final",
-        type=float,
-        default=3.0,
-        help="end time of every run [s], >= 0.05 (default 3, the paper's; shorter for a quick check)",
-    )
-    parser.add_argument(
-        "--format", default="png", help="image format: png, pdf, svg, ... (any matplotlib writes; default png)"
-    )
+        "--t-final", dest="t_final", type=float, default=None,
+        help="end time of every run [s], >= 0.05 (default: the paper's, peeljax.figures.write_figures'; shorter for a "
+        "quick check)",
+    )  # fmt: skip
+    parser.add_argument("--format", default=None, help="image format: png, pdf, svg, ... (default: write_figures')")
     parser.add_argument("--json", action="store_true", help="print one JSON object (run facts, files) on stdout")
     options.add_progress(parser, "line per group of runs")
     parser.set_defaults(handler=_figures_command)
@@ -49,11 +45,14 @@ def _progress(args: argparse.Namespace):
 
 def _figures_command(args: argparse.Namespace) -> int:
     try:
-        checked("(0, inf)", check_positive, "t_final", args.t_final)
-        if args.t_final < 0.05:
-            raise ValueError(f"t_final must be >= 0.05 s (allowed range: [0.05, inf)), got {args.t_final}")
-        fmt = args.format.lower().lstrip(".")
-        if fmt not in plot_formats():
+        given = {}
+        if args.t_final is not None:
+            checked("(0, inf)", check_positive, "t_final", args.t_final)
+            if args.t_final < 0.05:
+                raise ValueError(f"t_final must be >= 0.05 s (allowed range: [0.05, inf)), got {args.t_final}")
+            given["t_final"] = args.t_final
+        fmt = None if args.format is None else args.format.lower().lstrip(".")
+        if fmt is not None and fmt not in plot_formats():
             raise ValueError(f"--format: unknown image format {fmt!r}; use one of {', '.join(sorted(plot_formats()))}")
         out = Path(args.out)
         check_output_folder("--out", args.out)
@@ -63,7 +62,7 @@ def _figures_command(args: argparse.Namespace) -> int:
     from ..figures import write_figures
 
     try:
-        facts = write_figures(out, t_final=args.t_final, fmt=fmt, progress=_progress(args))
+        facts = write_figures(out, **given, **({} if fmt is None else {"fmt": fmt}), progress=_progress(args))
     except OSError as error:
         return write_failed("--out", args.out, error, "the figures were computed but not all were saved")
     if args.json:

@@ -66,9 +66,9 @@ def _refuse(args: argparse.Namespace, names: tuple[str, ...], source: str) -> No
 
 
 def _table_window(args: argparse.Namespace) -> tuple[float, float]:
-    """--transient T and --window W of the table fit: statistics over [T, T + W], the runs end
-    at T + W; the same rule as the other commands' (the second half of the run): W defaults
-    to T, T to 0.5 s (or to W when only --window is given)."""
+    """--transient T and --window W of the table fit: statistics over [T, T + W], the runs end at T + W; the same
+    rule as the other commands' (the second half of the run): W defaults to T, T to 0.5 s (or to W when only
+    --window is given)."""
     _, window = options.one_window(args.window, fractions_allowed=False)
     if window is not None and not (math.isfinite(window) and window > 0):
         raise ValueError(f"--window must be > 0 [s] (allowed range: (0, inf)), got {window:g}")
@@ -191,7 +191,7 @@ def _validate_records(args: argparse.Namespace, observations: list[Observation],
     _refuse(args, _DATA_ONLY[1:], "force records (t, F): fitted by their statistics or point by point")
     _refuse(args, ("window", "n_starts", "starts_deprecated", "method"),
             "force records (t, F) (their statistics run from --transient to each record's end)")  # fmt: skip
-    by = _choice("--by", args.by, BY, "auto")
+    by = _choice("--by", args.by, BY, _RECORDS_DEFAULTS["by"])
     transient = args.transient
     if transient is not None:
         t_end = min(float(np.nanmax(o.series("F")[0])) for o in observations if o.series("F") is not None)
@@ -279,10 +279,10 @@ POORLY_DETERMINED = 0.05
 
 
 def poorly_determined(result, records: list[Observation], target: float = 0.01) -> str | None:
-    """A line for the coefficients the records determine to worse than ``POORLY_DETERMINED``
-    (relative standard error), with the record length that would give ``target``: the error of
-    a fit to noisy samples falls like 1/√(its samples), so the length scales with its square
-    (an estimate: it holds while longer records add samples like these, not new physics)."""
+    """A line for the coefficients the records determine to worse than ``POORLY_DETERMINED`` (relative standard
+    error), with the record length that would give ``target``: the error of a fit to noisy samples falls like
+    1/√(its samples), so the length scales with its square (an estimate: it holds while longer records add samples
+    like these, not new physics)."""
     uncertainty = getattr(result, "uncertainty", None)
     if uncertainty is None:
         return None
@@ -372,9 +372,7 @@ def _table_command(args: argparse.Namespace, config: dict) -> int:
 
 
 def _points_tau(args: argparse.Namespace, defaults: dict) -> float:
-    """τ of a fit point by point: --tau, else the data files' own (an .npz run's), else the
-    library's; in (0, 1e6]. Files of DAE runs (τ = 0) take the default too, said on stderr: a
-    fit point by point integrates the homogenized ODE."""
+    """τ of a fit point by point: --tau, else the data files' own (an .npz run's), else the library's; in (0, 1e6]."""
     default = _POINTS_DEFAULTS["tau"]
     if args.tau is None and defaults.get("tau") == 0.0:
         print(

@@ -1,26 +1,10 @@
-"""The options the ``peeljax`` subcommands share, each declared once and checked once.
+"""The options the ``peeljax`` subcommands share, each declared once (help text with its default
+and allowed range) beside the check that names the option (``--max-jumps``, never ``max_jumps``).
 
-Every ``add_*`` function declares one option (or one pair, such as ``--rtol``/``--atol``) with
-its help text, which states the default and the allowed range; the matching ``check_*``
-function validates the value in plain Python, before anything is compiled, and raises a
-``ValueError`` that names the option (``--max-jumps``, never the Python parameter
-``max_jumps``). A subcommand module adds what it shares from here and declares only what is
-its own.
-
-One vocabulary across the commands:
-
-* ``--t-final`` is the end of each run [s]; ``--transient T`` [s] is where the statistics start
-  and ``--window W`` [s] their length: they cover [T, T + W]. The default rule is the same
-  everywhere: the statistics cover the second half of the run (T = t_final/2, and W up to
-  t_final). ``fit --table``, whose runs end at T + W, has the same rule: W defaults to T
-  (T defaults to 0.5 s). The old ``sweep --window W0 W1`` (two fractions of t_final) is read
-  with a deprecation note naming the new form.
-* ``--V`` takes numbers separated by spaces or ranges ``START:STOP:COUNT`` (``--V 0.2:8:40``:
-  40 values from 0.2 to 8 m/s, equally spaced).
-* ``--n-*`` options are counts, each with its default in its help line.
-* ``--max-steps`` is error control's budget of step attempts (accepted or rejected) per run;
-  every command that runs error control takes it.
-* ``--no-progress`` turns off the progress shown on stderr (bars, fit iterations, elapsed time).
+One vocabulary: ``--t-final`` ends each run [s]; statistics cover [--transient T, T + --window W]
+(default: the second half of the run; ``fit --table``: W = T = 0.5 s); ``--V`` takes numbers or
+``START:STOP:COUNT``; ``--n-*`` are counts; ``--max-steps`` is error control's budget of step
+attempts; ``--no-progress`` silences stderr's progress.
 """
 
 from __future__ import annotations
@@ -42,49 +26,6 @@ from ..sweeps.integrators import DEFAULT_SWEEP_MAX_JUMPS
 from ..sweeps.least_tau import least_tau
 from ..sweeps.storage import check_writable_format, is_netcdf
 from ._common import PROG, STEPPERS, check_output_path, checked, library_default, plot_formats, read_phi, solver_for
-
-__all__ = [
-    "DEFAULT_CHUNK",
-    "MAX_JUMPS_LIMIT",
-    "MAX_SAVE_TIMES",
-    "MAX_STEPS_LIMIT",
-    "MAX_VALUES",
-    "add_engine",
-    "add_geometry_and_phi",
-    "add_json",
-    "add_max_jumps",
-    "add_max_steps",
-    "add_outputs",
-    "add_progress",
-    "add_statistics_window",
-    "add_t_final",
-    "add_tolerances",
-    "add_V",
-    "check_max_jumps",
-    "check_max_steps",
-    "check_method",
-    "check_outputs",
-    "check_positive_values",
-    "check_save_dt",
-    "check_statistics_window",
-    "check_sweep_folds",
-    "check_sweep_outputs",
-    "check_tolerances",
-    "chunk",
-    "deprecated",
-    "engine",
-    "engine_model",
-    "engine_record",
-    "engine_rho",
-    "engine_text",
-    "model_from",
-    "number",
-    "numbers",
-    "progress_on",
-    "refuse_with_dt",
-    "tau_grid",
-    "transient_default",
-]
 
 # --max-jumps: the jump record is allocated in full (5 arrays of max_jumps, per trajectory).
 MAX_JUMPS_LIMIT = 10_000_000
@@ -120,9 +61,9 @@ def number(option: str):
 
 
 def numbers(option: str, ranges: bool = True):
-    """An argparse ``type`` for one token of an ``nargs="+"`` option: a number, or (``ranges``)
-    ``START:STOP:COUNT``, COUNT equally spaced values from START to STOP; returns a list (the
-    lists of the tokens are joined by :func:`flatten`)."""
+    """An argparse ``type`` for one token of an ``nargs="+"`` option: a number, or (``ranges``) ``START:STOP:COUNT``,
+    COUNT equally spaced values from START to STOP; returns a list (the lists of the tokens are joined by
+    :func:`flatten`)."""
 
     def parse(token: str) -> list[float]:
         if ":" not in token:
@@ -286,9 +227,9 @@ MAX_SAVE_TIMES = 10_000_001  # --save-dt: output times per run (a typo must not 
 
 
 def check_save_dt(save_dt: float, t_final: float, memory=None) -> int:
-    """--save-dt S in (0, t_final]; returns the count of output times (0, S, 2S, ... and
-    t_final), counted without making them: ``memory(count)``, the caller's check that they fit,
-    first (it says what they would take), then at most :data:`MAX_SAVE_TIMES`."""
+    """--save-dt S in (0, t_final]; returns the count of output times (0, S, 2S, ... and t_final), counted without
+    making them: ``memory(count)``, the caller's check that they fit, first (it says what they would take), then
+    at most :data:`MAX_SAVE_TIMES`."""
     from ..integrators.dense import output_count
 
     if not (math.isfinite(save_dt) and 0 < save_dt <= t_final):
@@ -383,12 +324,7 @@ def add_engine(parser: argparse.ArgumentParser):
 
 
 def engine(args: argparse.Namespace) -> dict:
-    """The integrator's options, checked: ``dt`` (uniform mesh) or ``rtol``/``atol`` (error control).
-
-    Returns the keyword arguments of :func:`peeljax.sweep` / :func:`peeljax.least_tau` that choose
-    the engine (``save_dt``/``save_every`` only where the namespace has them, ``solver`` where
-    ``--method`` names a stepper), all others None.
-    """
+    """The integrator's options, checked: ``dt`` (uniform mesh) or ``rtol``/``atol`` (error control)."""
     chosen = _engine_options(args)
     method = getattr(args, "method", "default")
     if method != "default":
@@ -440,9 +376,8 @@ def _stepper(kwargs: dict, ran: str | None = None) -> str | None:
 
 
 def engine_text(kwargs: dict, ran: str | None = None) -> str:
-    """Which engine runs, in words (ASCII): the stepper (``ran``: the one that ran, from the
-    result's settings), error control with its tolerances or the uniform mesh, and ρ for the
-    α-method."""
+    """Which engine runs, in words (ASCII): the stepper (``ran``: the one that ran, from the result's settings),
+    error control with its tolerances or the uniform mesh, and ρ for the α-method."""
     stepper = _stepper(kwargs, ran)
     name = {"alpha": "alpha-method", None: "default stepper"}.get(stepper, stepper)
     if kwargs["dt"] is None:
@@ -454,9 +389,8 @@ def engine_text(kwargs: dict, ran: str | None = None) -> str:
 
 
 def engine_record(kwargs: dict, ran: str | None = None) -> dict:
-    """The integrator's settings for the JSON output: method (the stepper that ran, from the
-    result's settings, when given), dt (null with error control), rtol, atol, rho (null when the
-    stepper is not the α-method)."""
+    """The integrator's settings for the JSON output: method (the stepper that ran, from the result's settings, when
+    given), dt (null with error control), rtol, atol, rho (null when the stepper is not the α-method)."""
     default = "alpha" if kwargs["dt"] is not None else integrator_for(t_final=1.0).settings()["method"]  # τ > 0's
     return {
         "method": default if ran is None else ran,
@@ -503,11 +437,7 @@ def tau_grid(tau: list[float], n_tau: int | None) -> list[float]:
 
 
 def check_sweep_folds(args: argparse.Namespace, tau: list[float], dt: float | None) -> dict:
-    """--fold, --max-jumps, --max-steps and --start, checked against --tau and the integrator.
-
-    Returns the keyword arguments of :func:`peeljax.sweep` they set: --fold and --max-jumps as
-    given (None: the library's defaults, as an --out written before knows them).
-    """
+    """--fold, --max-jumps, --max-steps and --start, checked against --tau and the integrator."""
     uniform = None if dt is None else "--dt"
     resolve_fold(args.fold, dt=dt, dae=tau == [0.0])
     check_max_jumps(args.max_jumps, DEFAULT_SWEEP_MAX_JUMPS, uniform)
@@ -571,9 +501,8 @@ def check_statistics_window(transient: float | None, window: float | None, t_fin
 
 
 def one_window(window: list[float] | None, *, fractions_allowed: bool, t_final: float | None = None):
-    """--window as given: None, one length [s], or (``fractions_allowed``: sweep) the old form
-    W0 W1, two fractions of t_final, returned as (transient, window) in seconds with a
-    deprecation note on stderr."""
+    """--window as given: None, one length [s], or (``fractions_allowed``: sweep) the old form W0 W1, two fractions
+    of t_final, returned as (transient, window) in seconds with a deprecation note on stderr."""
     if window is None:
         return None, None
     if len(window) == 1:
@@ -604,9 +533,9 @@ _FORMATS = {".npz": "numpy", ".nc": "netCDF", ".json": "JSON", ".csv": "text"}
 
 
 def check_outputs(args: argparse.Namespace) -> None:
-    """--out and --plot: the folder exists and is writable, the image format known; --out's
-    suffix, if it has one, among those the command writes (``args.out_formats``, set by its
-    parser): ``--out sweep.csv`` would be a numpy file under a CSV name."""
+    """--out and --plot: the folder exists and is writable, the image format known; --out's suffix, if it has one,
+    among those the command writes (``args.out_formats``, set by its parser): ``--out sweep.csv`` would be a numpy
+    file under a CSV name."""
     out, formats = getattr(args, "out", None), getattr(args, "out_formats", None)
     if out is not None and formats:
         suffix = os.path.splitext(out)[1].lower()

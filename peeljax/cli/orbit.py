@@ -144,12 +144,8 @@ class OrbitConfig:
 
 
 def validate_orbit(args: argparse.Namespace) -> OrbitConfig:
-    """Every option checked in plain Python, before anything compiles (V once: a diagram's
-    START, the rest as for one V).
-
-    Raises:
-        ValueError: naming the option and its allowed range.
-    """
+    """Every option checked in plain Python, before anything compiles (V once: a diagram's START, the rest as for one
+    V)."""
     V_range = args.V if isinstance(args.V, tuple) else None
     V = args.V if V_range is None else V_range[0]
     checked("(0, inf)", check_positive, "--V", V)

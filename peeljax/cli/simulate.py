@@ -170,11 +170,7 @@ class RunConfig:
 
 
 def validate_run(args: argparse.Namespace) -> RunConfig:
-    """Check every option as the Python API would, without compiling anything.
-
-    Raises:
-        ValueError: naming the option and its allowed range.
-    """
+    """Check every option as the Python API would, without compiling anything."""
     options.check_method(args.method, METHODS, args.dt, args.rho, (*_UNIFORM_METHODS, "diffrax"))
     positive = "(0, inf)"
     checked(positive, check_positive, "--V", args.V)
@@ -258,9 +254,9 @@ def _check_tau(args: argparse.Namespace) -> None:
 
 
 def _check_folds(args: argparse.Namespace, dt: float | None) -> tuple[str, int, float]:
-    """--fold (the library's :func:`~peeljax.integrators.select.resolve_fold`; the diffrax reference
-    runs diffeqsolve's own loop, which has no fold events: it can only stop), --max-jumps and
-    --transient; returns the fold mode (its default when not given), max_jumps and the transient."""
+    """--fold (the library's :func:`~peeljax.integrators.select.resolve_fold`; the diffrax reference runs
+    diffeqsolve's own loop, which has no fold events: it can only stop), --max-jumps and --transient; returns the
+    fold mode (its default when not given), max_jumps and the transient."""
     reference = args.method == "diffrax"
     fold = resolve_fold(args.fold, dt=None if reference else dt, dae=args.tau == 0)
     if reference and args.fold not in (None, "stop"):

@@ -103,9 +103,9 @@ def summary_lines(record: dict, config, found=None) -> list[str]:
 
 
 def cycles(solution: Solution, config, record: dict):
-    """With a jump record: its count (``record["jumps"]``, ``"jumps_up"``) and the cycle statistics
-    over [transient, t_stop] (``record["cycles"]``, returned too; None with a note when the run
-    stopped before the transient was over)."""
+    """With a jump record: its count (``record["jumps"]``, ``"jumps_up"``) and the cycle statistics over [transient,
+    t_stop] (``record["cycles"]``, returned too; None with a note when the run stopped before the transient was
+    over)."""
     if solution.jumps is None:
         return None
     jumps = solution.jumps.as_numpy()

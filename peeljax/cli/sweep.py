@@ -14,7 +14,8 @@ import numpy as np
 
 from ..sweeps.integrators import DEFAULT_SWEEP_MAX_JUMPS
 from . import _interrupt, options
-from ._common import PROG, fail, phi_defaults, plotter, remedy_notes, report, write_failed, write_files
+from ..sweeps.api import sweep as sweep_api
+from ._common import PROG, fail, library_default, phi_defaults, plotter, remedy_notes, report, write_failed, write_files
 from ._distributed import add_distributed_options, distributed_settings, join_processes
 from .sweep_map import map_command
 
@@ -111,10 +112,10 @@ _DIFFER = re.compile(r"made with different settings \(([^()]*) differ\)")
 
 
 def resume_refusal(message: str, args: argparse.Namespace) -> str:
-    """The library's refusal to resume an --out made with other settings, in the options the
-    user set: ``tau`` is --tau (and --n-tau when given); ``chunk`` only when --chunk was given
-    (else it follows from the grid's size, which the options named beside it changed); the
-    statistics window only when --t-final is the same (it is kept as fractions of t_final)."""
+    """The library's refusal to resume an --out made with other settings, in the options the user set: ``tau`` is
+    --tau (and --n-tau when given); ``chunk`` only when --chunk was given (else it follows from the grid's size,
+    which the options named beside it changed); the statistics window only when --t-final is the same (it is kept
+    as fractions of t_final)."""
     found = _DIFFER.search(message)
     if found is None:
         return message
@@ -155,7 +156,7 @@ def validate_sweep(args: argparse.Namespace) -> dict:
     return {
         "model": model, "V": V, "tau": tau, **chosen, **folds, "t_final": float(args.t_final), "grid": "outer",
         "window": window, "chunk": options.chunk(args), "out": args.out, "rho": options.engine_rho(args),
-        "start": "paper" if args.start is None else args.start, "progress": args.progress and not args.json,
+        "start": library_default(sweep_api, "start") if args.start is None else args.start, "progress": args.progress and not args.json,
     }  # fmt: skip
 
 
