@@ -395,7 +395,7 @@ def option_names(message: str) -> str:
     message = _UNDERSCORED.sub(lambda m: _PARAMETERS[m.group(1)], message)
     message = _ANOTHER_OUT.sub("another --out", message)  # the library's "choose another out"
     message = _CHOSEN.sub(r"--\1 \2", message)  # fold='stop' -> --fold stop, method='orbit' -> --method orbit
-    message = _GIVEN.sub(r"--\1 \2", message)  # dt=0.01 -> --dt 0.01
+    message = _GIVEN.sub(r"--\1 \2", message.replace("(dt=None)", "(no --dt)").replace("(dt given)", "(--dt given)"))  # dt=0.01 -> --dt 0.01
     message = _DIFFRAX_SOLVER.sub("--method diffrax", message).replace("drop dt/solver", "drop --dt/--method")
     for said, option in _PHRASES:
         message = message.replace(said, option)

@@ -16,16 +16,15 @@ import sys
 
 import numpy as np
 
-from .._validation import MAX_STEPS_LIMIT, TAU_MAX, check_choice, check_mesh, check_positive, check_rho, check_tolerance
+from .._validation import MAX_STEPS_LIMIT, TAU_MAX, check_choice, check_mesh, check_tolerance
 from .._validation import check_max_steps as library_check_max_steps
-from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_MAX_STEPS_DENSE, DEFAULT_RTOL, integrator_for, resolve_fold
+from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_MAX_STEPS_DENSE, DEFAULT_RTOL, integrator_for
 from ..model import GEOMETRIES, PeelingModel
 from ..sweeps.api import sweep
-from ..sweeps.engine import STARTS
-from ..sweeps.integrators import DEFAULT_SWEEP_MAX_JUMPS
+from ..sweeps.integrators import DEFAULT_SWEEP_MAX_JUMPS, sweep_plan
 from ..sweeps.least_tau import least_tau
 from ..sweeps.storage import check_writable_format, is_netcdf
-from ._common import PROG, STEPPERS, check_output_path, checked, library_default, plot_formats, read_phi, solver_for
+from ._common import PROG, STEPPERS, check_output_path, library_default, plot_formats, read_phi, solver_for
 
 # --max-jumps: the jump record is allocated in full (5 arrays of max_jumps, per trajectory).
 MAX_JUMPS_LIMIT = 10_000_000
@@ -323,45 +322,38 @@ def add_engine(parser: argparse.ArgumentParser):
     return solver
 
 
-def engine(args: argparse.Namespace) -> dict:
-    """The integrator's options, checked: ``dt`` (uniform mesh) or ``rtol``/``atol`` (error control)."""
-    chosen = _engine_options(args)
-    method = getattr(args, "method", "default")
+def engine(args: argparse.Namespace, dae: bool = False) -> dict:
+    """The integrator's options (and a sweep's --fold, --max-jumps, --start) as the keyword arguments of
+    :func:`peeljax.sweep` / :func:`peeljax.least_tau`, checked by the library's
+    :func:`~peeljax.sweeps.integrators.sweep_plan` (their own check, before anything compiles); ``rtol``/``atol``
+    left out are the defaults it chose, ``solver`` and ``max_steps`` only where given."""
+    method, uniform = getattr(args, "method", "default"), None if args.dt is None else "--dt"
+    check_method(method, ("default", *STEPPERS), args.dt, args.rho)
+    check_max_steps(args.max_steps, uniform)
+    saving = {name: getattr(args, name) for name in ("save_dt", "save_every") if hasattr(args, name)}
+    chosen = {"dt": args.dt, "rtol": args.rtol, "atol": args.atol, **saving}
     if method != "default":
         chosen["solver"] = solver_for(method, engine_rho(args))
+    if args.max_steps is not None:  # left out: the library's budget
+        chosen["max_steps"] = int(args.max_steps)
+    if hasattr(args, "fold"):  # a sweep's (least_tau stops at the folds)
+        check_max_jumps(args.max_jumps, DEFAULT_SWEEP_MAX_JUMPS, uniform)
+        chosen.update(fold=args.fold, max_jumps=args.max_jumps)
+    plan = sweep_plan(
+        chosen.get("solver"), engine_rho(args), args.dt, args.t_final, args.rtol, args.atol, saving.get("save_dt"),
+        saving.get("save_every"), None, args.max_steps, chosen.get("fold", "stop"), args.max_jumps if
+        hasattr(args, "fold") else None, dae, getattr(args, "start", None) or "paper",
+    )  # fmt: skip
+    if saving.get("save_dt") is not None:
+        check_save_dt(saving["save_dt"], args.t_final)  # at most 1e7 output times
+    if not plan.uniform:
+        settings = plan.integrator.settings()
+        chosen.update(rtol=settings["rtol"], atol=settings["atol"])
     return chosen
 
 
 def engine_rho(args: argparse.Namespace) -> float:
     return 0.0 if args.rho is None else float(args.rho)
-
-
-def _engine_options(args: argparse.Namespace) -> dict:
-    check_method(getattr(args, "method", "default"), ("default", *STEPPERS), args.dt, args.rho)
-    save_dt = getattr(args, "save_dt", None)
-    save_every = getattr(args, "save_every", None)
-    if args.dt is not None:
-        refuse_with_dt(args.dt, {"--rtol": args.rtol, "--atol": args.atol, "--save-dt": save_dt})
-        n_steps = checked("dt in (0, t_final], t_final in (0, inf)", check_mesh, args.dt, args.t_final)
-        if save_every is not None and not 1 <= save_every <= n_steps:
-            raise ValueError(f"--save-every must lie in [1, {n_steps}] (the number of steps), got {save_every}")
-        chosen = {"dt": float(args.dt), "rtol": None, "atol": None}
-        if hasattr(args, "save_every"):
-            chosen.update(save_every=save_every, save_dt=None)
-        return chosen
-    if save_every is not None:
-        raise ValueError(
-            "--save-every counts the steps of a uniform mesh and needs --dt; "
-            "with error control (no --dt) save on times with --save-dt"
-        )
-    checked("(0, inf)", check_positive, "--t-final", args.t_final)
-    rtol, atol = check_tolerances(args.rtol, args.atol, (DEFAULT_RTOL, DEFAULT_ATOL))
-    chosen = {"dt": None, "rtol": rtol, "atol": atol}
-    if hasattr(args, "save_dt"):
-        if save_dt is not None:
-            check_save_dt(save_dt, args.t_final)
-        chosen.update(save_every=None, save_dt=None if save_dt is None else float(save_dt))
-    return chosen
 
 
 def _stepper(kwargs: dict, ran: str | None = None) -> str | None:
@@ -402,7 +394,6 @@ def engine_record(kwargs: dict, ran: str | None = None) -> dict:
 
 
 def engine_model(args) -> PeelingModel:
-    checked("[0, 1)", check_rho, engine_rho(args))
     model, args.phi_defaults = model_from(args)
     return model
 
@@ -434,20 +425,6 @@ def tau_grid(tau: list[float], n_tau: int | None) -> list[float]:
     if tau[0] >= tau[1]:
         raise ValueError(f"--tau LO HI needs LO < HI, got {tau[0]:g} {tau[1]:g}")
     return np.geomspace(tau[0], tau[1], n_tau).tolist()
-
-
-def check_sweep_folds(args: argparse.Namespace, tau: list[float], dt: float | None) -> dict:
-    """--fold, --max-jumps, --max-steps and --start, checked against --tau and the integrator."""
-    uniform = None if dt is None else "--dt"
-    resolve_fold(args.fold, dt=dt, dae=tau == [0.0])
-    check_max_jumps(args.max_jumps, DEFAULT_SWEEP_MAX_JUMPS, uniform)
-    check_max_steps(args.max_steps, uniform)
-    if args.start is not None:
-        check_choice("--start", args.start, STARTS)
-    chosen = {"fold": args.fold, "max_jumps": args.max_jumps}
-    if dt is None and args.max_steps is not None:  # left out: the library's budget
-        chosen["max_steps"] = int(args.max_steps)
-    return chosen
 
 
 def chunk(args: argparse.Namespace) -> int:

@@ -143,8 +143,7 @@ def validate_sweep(args: argparse.Namespace) -> dict:
     """Every option checked, nothing compiled; returns the keyword arguments of :func:`peeljax.sweep`."""
     V = options.check_positive_values("--V", args.V)
     tau = options.tau_grid([1e-3, 1e-1] if args.tau is None else args.tau, args.n_tau)
-    chosen = options.engine(args)
-    folds = options.check_sweep_folds(args, tau, chosen["dt"])
+    chosen = options.engine(args, dae=tau == [0.0])
     model = options.engine_model(args)
     window = _window(args)
     if args.plot is not None and tau == [0.0]:
@@ -154,7 +153,7 @@ def validate_sweep(args: argparse.Namespace) -> dict:
         )
     options.check_sweep_outputs(args)
     return {
-        "model": model, "V": V, "tau": tau, **chosen, **folds, "t_final": float(args.t_final), "grid": "outer",
+        "model": model, "V": V, "tau": tau, **chosen, "t_final": float(args.t_final), "grid": "outer",
         "window": window, "chunk": options.chunk(args), "out": args.out, "rho": options.engine_rho(args),
         "start": library_default(sweep_api, "start") if args.start is None else args.start, "progress": args.progress and not args.json,
     }  # fmt: skip

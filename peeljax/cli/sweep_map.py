@@ -34,9 +34,8 @@ def validate_map(args: argparse.Namespace) -> dict:
             "--window: the stick-slip map's cycle statistics run from --transient to each run's end; give "
             "--transient (and --t-final)"
         )
-    chosen = options.engine(args)
-    folds = options.check_sweep_folds(args, tau, None)
-    if folds["fold"] == "stop":
+    chosen = options.engine(args, dae=tau == [0.0])
+    if chosen["fold"] == "stop":
         raise ValueError("--fold stop ends every run at its first fold: --stick-slip-map needs --fold jump (or follow)")
     model = options.engine_model(args)
     transient, _ = options.check_statistics_window(args.transient, None, args.t_final)
@@ -44,8 +43,8 @@ def validate_map(args: argparse.Namespace) -> dict:
     return {
         "model": model, "V": V, "tau": tau[0], "t_final": float(args.t_final), "transient": transient,
         "starts": STARTS if args.start is None else (args.start,), "rtol": chosen["rtol"], "atol": chosen["atol"],
-        **({"solver": chosen["solver"]} if "solver" in chosen else {}),
-        **folds, "chunk": options.chunk(args), "rho": options.engine_rho(args), "progress": args.progress and not args.json,
+        **{key: chosen[key] for key in ("solver", "max_steps", "fold", "max_jumps") if key in chosen},
+        "chunk": options.chunk(args), "rho": options.engine_rho(args), "progress": args.progress and not args.json,
     }  # fmt: skip
 
 

@@ -53,9 +53,6 @@ def add_command(subparsers) -> None:
 def validate_tau_star(args: argparse.Namespace) -> dict:
     V = options.check_positive_values("--V", args.V)
     chosen = options.engine(args)
-    options.check_max_steps(args.max_steps, None if chosen["dt"] is None else "--dt")
-    if args.max_steps is not None:  # left out: the library's budget
-        chosen["max_steps"] = int(args.max_steps)
     model = options.engine_model(args)
     lo, hi = args.tau_range
     if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
