@@ -4,11 +4,10 @@ engine options of ``peeljax sweep``."""
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 
-from .._validation import check_tolerance
+from ..sweeps.least_tau import check_search
 from ..sweeps.least_tau import least_tau as _least_tau_api
 from . import options
 from ._common import PROG, Elapsed, fail, library_default, phi_defaults, report
@@ -54,12 +53,7 @@ def validate_tau_star(args: argparse.Namespace) -> dict:
     V = options.check_positive_values("--V", args.V)
     chosen = options.engine(args)
     model = options.engine_model(args)
-    lo, hi = args.tau_range
-    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
-        raise ValueError(f"--tau-range LO HI must satisfy 0 < LO < HI (finite), got {lo:g} {hi:g}")
-    check_tolerance("--tau-rtol", args.tau_rtol, 1.0)
-    if args.n_points < 2:
-        raise ValueError(f"--n-points must be an integer >= 2 (allowed range: [2, inf)), got {args.n_points}")
+    lo, hi = check_search(args.tau_range, args.tau_rtol, args.n_points)  # the library's check
     return {"model": model, "V": V, **chosen, "t_final": float(args.t_final), "tau_range": (lo, hi),
                 "tau_rtol": float(args.tau_rtol), "n_points": args.n_points, "rho": options.engine_rho(args)}  # fmt: skip
 

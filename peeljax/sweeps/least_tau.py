@@ -72,6 +72,21 @@ class LeastTau:
     settings: dict
 
 
+def check_search(tau_range, tau_rtol, n_points) -> tuple[float, float]:
+    """The search's options of :func:`least_tau`, checked (nothing compiles); returns (lo, hi)."""
+    try:
+        lo, hi = (float(x) for x in tau_range)
+    except (TypeError, ValueError):
+        raise ValueError(f"tau_range must be two numbers (lo, hi) with 0 < lo < hi, got {tau_range!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
+        raise ValueError(f"tau_range must satisfy 0 < lo < hi (finite), got {tau_range!r}")
+    if not (isinstance(tau_rtol, (int, float)) and 0 < tau_rtol < 1):
+        raise ValueError(f"tau_rtol must lie in (0, 1), got {tau_rtol!r}")
+    if isinstance(n_points, bool) or not isinstance(n_points, int) or n_points < 2:
+        raise ValueError(f"n_points must be an integer >= 2, got {n_points!r}")
+    return lo, hi
+
+
 def least_tau(
     model: PeelingModel | None = None,
     V: ArrayLike = (1.1, 2.0, 4.0),
@@ -115,16 +130,7 @@ def least_tau(
     check_parameter("V", Vs)
     # τ* is where the homogenized run stops at a fold: fold="stop", the paper's behaviour.
     plan = sweep_plan(solver, rho, dt, t_final, rtol, atol, None, None, dtmin, max_steps, fold="stop")
-    try:
-        lo, hi = (float(x) for x in tau_range)
-    except (TypeError, ValueError):
-        raise ValueError(f"tau_range must be two numbers (lo, hi) with 0 < lo < hi, got {tau_range!r}") from None
-    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
-        raise ValueError(f"tau_range must satisfy 0 < lo < hi (finite), got {tau_range!r}")
-    if not (isinstance(tau_rtol, (int, float)) and 0 < tau_rtol < 1):
-        raise ValueError(f"tau_rtol must lie in (0, 1), got {tau_rtol!r}")
-    if isinstance(n_points, bool) or not isinstance(n_points, int) or n_points < 2:
-        raise ValueError(f"n_points must be an integer >= 2, got {n_points!r}")
+    lo, hi = check_search(tau_range, tau_rtol, n_points)
     check_truncation(truncation)
     devices = list(jax.devices()) if devices is None else list(devices)
     m = Vs.size
