@@ -211,7 +211,7 @@ BAD_INPUT = [
     (["--method", "foo"], "method", "alpha, diffrax"),
     (["--y0", "0", "0", "0.001", "0"], "y0", "(0, inf)"),
     (["--phi", "MALFORMED"], "--phi", "not valid JSON"),
-    (["--rtol", "1e-6"], "--rtol", "uniform mesh"),  # error control with the uniform mesh (SHORT has --dt)
+    (["--rtol", "1e-6"], "--rtol", "cannot be combined with --dt"),  # error control with the uniform mesh (SHORT has --dt)
     (["--method", "diffrax", "--atol", "0"], "atol", "(0, inf)"),
     (["--save-dt", "0.1"], "--save-dt", "uniform mesh"),
     (["--save-dt", "0"], "save-dt", "(0, 0.2]"),

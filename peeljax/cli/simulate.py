@@ -10,10 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validation import TAU_MAX, check_mesh, check_positive, check_rho, check_tau, check_y0
+from .._validation import TAU_MAX, check_mesh, check_positive, check_tau, check_y0
 from ..integrators.dense import output_times
 from ..integrators.select import DEFAULT_ATOL as _ALPHA_ATOL
-from ..integrators.select import resolve_fold, resolve_max_steps
+from ..integrators.select import integrator_for, resolve_max_steps
 from ..integrators.select import DEFAULT_RTOL as _ALPHA_RTOL
 from ..model import PeelingModel
 from ..simulate import check_run_memory, simulate, simulate_reference
@@ -191,17 +191,20 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
         option = f"--dt {dt:g}" if args.dt is not None else "the diffrax output grid"
         kind = "mesh" if args.method != "diffrax" else "ts"
         _check_memory(option, n_steps + 1, kind, "give a larger --dt or a shorter --t-final")
-    rho = rtol = atol = None
+    reference, rho = args.method == "diffrax", None
     if args.method in _UNIFORM_METHODS:  # the α-method may run: its ρ
         rho = _RUN["rho"] if args.rho is None else args.rho
-        checked("[0, 1)", check_rho, rho)
-    if args.method != "diffrax" and dt is not None:
-        options.refuse_with_dt(dt, {"--rtol": args.rtol, "--atol": args.atol})
-    else:  # error control, or the diffrax reference with its own defaults
-        reference = args.method == "diffrax"
-        defaults = (_REFERENCE["rtol"], _REFERENCE["atol"]) if reference else (_ALPHA_RTOL, _ALPHA_ATOL)
-        rtol, atol = options.check_tolerances(args.rtol, args.atol, defaults)
-    fold, max_jumps, transient = _check_folds(args, dt)
+    fold, max_jumps, transient = _check_folds(args)
+    if reference:  # the diffrax reference: its own tolerances
+        rtol, atol = options.check_tolerances(args.rtol, args.atol, (_REFERENCE["rtol"], _REFERENCE["atol"]))
+    else:  # the library's checks of ρ, the tolerances (not with --dt) and the fold mode; their defaults
+        integrator = integrator_for(
+            solver_for(args.method, rho), rho=_RUN["rho"] if rho is None else rho, dt=dt, t_final=args.t_final,
+            rtol=args.rtol, atol=args.atol, fold=args.fold, dae=args.tau == 0,
+        )  # fmt: skip
+        events = getattr(integrator, "events", None)
+        fold = "stop" if events is None else events.mode
+        rtol, atol = (None, None) if dt is not None else (integrator.settings()[key] for key in ("rtol", "atol"))
     max_steps = args.max_steps
     options.check_max_steps(max_steps, "--dt" if args.method != "diffrax" and dt is not None else None)
     if max_steps is not None and save_ts is None and args.method != "diffrax":
@@ -253,12 +256,11 @@ def _check_tau(args: argparse.Namespace) -> None:
     checked(f"{'[' if other is None else '('}0, {TAU_MAX:g}]", check_tau, args.tau, other is None)
 
 
-def _check_folds(args: argparse.Namespace, dt: float | None) -> tuple[str, int, float]:
-    """--fold (the library's :func:`~peeljax.integrators.select.resolve_fold`; the diffrax reference runs
-    diffeqsolve's own loop, which has no fold events: it can only stop), --max-jumps and --transient; returns the
-    fold mode (its default when not given), max_jumps and the transient."""
+def _check_folds(args: argparse.Namespace) -> tuple[str, int, float]:
+    """--fold with the diffrax reference (diffeqsolve's own loop has no fold events: it can only stop),
+    --max-jumps and --transient; returns the fold mode ("stop" for the reference, else --fold as given), max_jumps
+    and the transient."""
     reference = args.method == "diffrax"
-    fold = resolve_fold(args.fold, dt=None if reference else dt, dae=args.tau == 0)
     if reference and args.fold not in (None, "stop"):
         raise ValueError(
             f"--fold {args.fold} needs error control (any stepper), which cuts a step at a fold; with --method "
@@ -266,7 +268,7 @@ def _check_folds(args: argparse.Namespace, dt: float | None) -> tuple[str, int, 
         )
     max_jumps = options.check_max_jumps(args.max_jumps, None, _without_error_control(args))
     transient, _ = options.check_statistics_window(args.transient, None, args.t_final)
-    return "stop" if reference else fold, max_jumps, transient
+    return "stop" if reference else args.fold, max_jumps, transient
 
 
 # ---------------------------------------------------------------------------- running and reporting
