@@ -195,6 +195,27 @@ def test_bad_options_are_refused_before_compiling():
             fit_stick_slip(table, **kwargs)
     with pytest.raises(TypeError, match="StickSlipTable"):
         fit_stick_slip({"V": [1.0]})
+    with pytest.raises(TypeError, match="progress must be"):
+        fit_stick_slip(table, progress="yes")
+
+
+def test_progress_is_silent_a_line_or_the_callers():
+    """progress=False and None are silent, True prints a line per iteration, a callable is called
+    (progress=False crashed after the first iteration: 'bool' object is not callable)."""
+    import io
+    from contextlib import redirect_stderr
+
+    from peeljax.fit.table import progress_callback
+
+    assert progress_callback(None) is None and progress_callback(False) is None
+    def mine(iteration, chi2):
+        pass
+
+    assert progress_callback(mine) is mine
+    err = io.StringIO()
+    with redirect_stderr(err):
+        progress_callback(True)(3, 12.5)
+    assert err.getvalue() == "iteration 3: chi2 = 12.5\n"
 
 
 SETTINGS = {"transient": 0.3, "window": 0.5}

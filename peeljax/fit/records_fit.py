@@ -35,7 +35,7 @@ from .measured_statistics import record_cycles, record_statistics
 from .points import PointRows
 from .stick_slip_table import StickSlipTable
 from .levenberg_marquardt import CONVERGED, STOP_REASONS
-from .table import TableFitResult, fit_rows, fit_stick_slip
+from .table import TableFitResult, fit_rows, fit_stick_slip, progress_callback
 from .parameters import check_free, law_from
 from .trajectory import Observation
 from .uncertainty import uncertainty_from_jacobian
@@ -223,7 +223,8 @@ def fit_records(
             orbit's exact statistics.
         rtol, atol: the point-by-point runs' tolerances.
         max_iterations, intervals, level, scale_covariance: as :func:`peeljax.fit.fit_stick_slip`.
-        progress: None or ``progress(iteration, chi2)``.
+        progress: None or False (silent), True (a line on stderr per iteration), or
+            ``progress(iteration, chi2)``.
 
     Returns:
         A :class:`~peeljax.fit.table.TableFitResult`; ``settings["records"]`` says how each record
@@ -241,6 +242,7 @@ def fit_records(
     if not (isinstance(level, float) and 0 < level < 1):
         raise ValueError(f"level must be a number in (0, 1), got {level!r}")
     names = check_free(free)
+    progress = progress_callback(progress)
     model = PeelingModel() if model is None else model
     start = model.adhesion if start is None else start
     if not isinstance(start, AdhesionLaw):

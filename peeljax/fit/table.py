@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 import time
 from collections.abc import Sequence
 
@@ -112,6 +113,18 @@ def _evaluate_batch(fit: TableFit, zs: np.ndarray, batch: int):
         r, J, v = _evaluate(fit, {n: jnp.asarray(padded[:, k]) for k, n in enumerate(fit.names)})
         out += list(zip(np.asarray(r), np.asarray(J), np.asarray(v)))[: len(chunk)]
     return out
+
+
+def progress_callback(progress):
+    """``progress`` as the fits take it: None (silent) for None or False, a line on stderr per
+    iteration for True, a callable ``progress(iteration, chi2)`` as it is."""
+    if progress is None or progress is False:
+        return None
+    if progress is True:
+        return lambda iteration, chi2: print(f"iteration {iteration}: chi2 = {chi2:.6g}", file=sys.stderr, flush=True)
+    if not callable(progress):
+        raise TypeError(f"progress must be None, True, False or a callable progress(iteration, chi2), got {progress!r}")
+    return progress
 
 
 def _solve(fit: TableFit, starts, evaluated, *, fit_rtol, fit_atol, max_iterations, progress=None) -> list[LevenbergMarquardt]:
@@ -432,8 +445,9 @@ def fit_stick_slip(
             every coefficient), ``"linear"`` (never).
         level: the confidence level of the profile intervals (default 0.95).
         max_jumps, max_steps: each window run's jump record and step budget.
-        progress: None, or ``progress(iteration, chi2)`` called on the host after each
-            Levenberg–Marquardt iteration (chi2: the lowest of the starts so far).
+        progress: None or False (silent), True (a line on stderr per iteration), or
+            ``progress(iteration, chi2)`` called on the host after each Levenberg–Marquardt
+            iteration (chi2: the lowest of the starts so far).
         instruments: {row: :class:`~peeljax.fit.instrument.Instrument`} for rows measured from
             force records (orbit method): the model's statistics there as that record's sampling
             and noise show them (:func:`peeljax.fit.fit_records` passes them).
@@ -470,6 +484,7 @@ def fit_stick_slip(
     n_starts = (1 if method == "orbit" else 3) if n_starts is None else n_starts
     n_coarse = (1 if method == "orbit" else 16) if n_coarse is None else n_coarse
     rtol, atol = table_tolerances(tau, rtol, atol)
+    progress = progress_callback(progress)
     _check_options(
         table, transient, window, n_samples, tau, n_starts, max_iterations, fit_rtol, fit_atol, n_coarse,
         coarse_spread, scale_covariance, taper,
