@@ -43,7 +43,7 @@ from jax import export
 
 from ._atomic import write_bytes
 
-__all__ = ["ExportedProgram", "forget", "programs_folder"]
+__all__ = ["ExportedProgram", "compiled", "forget", "programs_folder"]
 
 VARIABLE = "PEELJAX_EXPORTED_PROGRAMS"
 SUBFOLDER = "exported-programs"
@@ -338,3 +338,20 @@ class ExportedProgram:
         except OSError:
             pass  # a read-only cache: the program still runs, exported in this process
         return exported
+
+
+def compiled(fn: Callable, name: str) -> Callable:
+    """``fn`` compiled: called through ``jax.jit``'s C++ dispatch where every leaf of the
+    arguments is an array (~1 ms of overhead per orbit call against ~10 for
+    ``eqx.filter_jit``, measured at V = 1.1), else through ``eqx.filter_jit`` (a φ given as a
+    Python function). Called with concrete arrays, its traced program is kept on disk under
+    ``name``: a new process skips the tracing too."""
+    plain, filtered = jax.jit(fn), eqx.filter_jit(fn)
+    kept = ExportedProgram(name, lambda _, *args: fn(*args), lambda _, *args: plain(*args))
+
+    def call(*args):
+        if all(isinstance(leaf, (jax.Array, np.ndarray, np.generic)) for leaf in jax.tree_util.tree_leaves(args)):
+            return kept(None, *args)
+        return filtered(*args)
+
+    return call

@@ -30,6 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._exported import compiled
 from ..adhesion import AdhesionLaw
 from ..homogenized import HomogenizedODE
 from ..integrators.select import integrator_for
@@ -114,7 +115,7 @@ def _value_and_jacfwd(f, x):
     return out, columns
 
 
-_evaluate = eqx.filter_jit(lambda program, theta: program(theta))
+_evaluate = compiled(lambda program, theta: program(theta), "point_rows")  # traced once per machine
 
 
 class PointRows:

@@ -32,6 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._exported import compiled
 from ..adhesion import AdhesionLaw
 from ..model import PeelingModel
 from ..orbits.section import state_after_slip
@@ -161,7 +162,7 @@ class _WindowStatistics(eqx.Module):
         return values, jac, *aux
 
 
-_window = eqx.filter_jit(lambda program, theta: program(theta))
+_window = compiled(lambda program, theta: program(theta), "table_rows_window")  # traced once per machine
 
 
 class TableRows:

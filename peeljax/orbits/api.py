@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike
 
-from .._exported import ExportedProgram
+from .._exported import compiled
 from .._validation import check_positive, check_tolerance, is_concrete
 from ..cycles import cycle_statistics
 from ..integrators.select import integrator_for
@@ -87,23 +87,6 @@ def orbit_of(shooting: Shooting, model: PeelingModel, V, s0, slips, t_max) -> Pe
     scale = SlipSection.at(model, V).scale
     result = shoot(shooting, model, V, jax.lax.stop_gradient(s0 / scale), slips, t_max)
     return as_orbit(model, V, slips, result)
-
-
-def compiled(fn, name: str):
-    """``fn`` compiled: called through ``jax.jit``'s C++ dispatch where every leaf of the
-    arguments is an array (~1 ms of overhead per orbit call against ~10 for
-    ``eqx.filter_jit``, measured at V = 1.1), else through ``eqx.filter_jit`` (a φ given as a
-    Python function). Called with concrete arrays, its traced program is kept on disk under
-    ``name`` (:mod:`peeljax._exported`): a new process skips the tracing too."""
-    plain, filtered = jax.jit(fn), eqx.filter_jit(fn)
-    kept = ExportedProgram(name, lambda _, *args: fn(*args), lambda _, *args: plain(*args))
-
-    def call(*args):
-        if all(isinstance(leaf, (jax.Array, np.ndarray, np.generic)) for leaf in jax.tree_util.tree_leaves(args)):
-            return kept(None, *args)
-        return filtered(*args)
-
-    return call
 
 
 compiled_orbit = compiled(orbit_of, "orbit")  # orbit_of, traced and compiled once per machine

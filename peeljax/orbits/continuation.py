@@ -53,7 +53,8 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from ..cycles import STATISTICS
-from .api import PERIODS_PER_RUN, DEFAULT_ORBIT_RTOL, compiled, orbit_shooting
+from .._exported import compiled
+from .api import PERIODS_PER_RUN, DEFAULT_ORBIT_RTOL, orbit_shooting
 from .floquet import multipliers
 from .orbit import PeriodicOrbit
 from .period import OnePeriod, period_statistics
