@@ -449,7 +449,8 @@ def ascii_text(text: str) -> str:
 
 
 def write_files(record: dict, *writers) -> list:
-    """Each ``(option, path, write)`` with a path: ``write(path)``."""
+    """Each ``(option, path, write)`` with a path: ``write(path)``. A failure is kept as ``(option, path, error)``
+    and its key of ``record`` (``out``, ``plot``) set to None: the result is reported whatever could not be written."""
     failed = []
     for option, path, write in writers:
         if path is None:
@@ -472,7 +473,8 @@ def plotter(name: str, *args, module: str = "peeljax.plots", **kwargs):
 
 def report(record: dict, as_json: bool, lines, failed=(), what: str = "", notes=()) -> int:
     """``--json``: ``record`` as the one JSON object on stdout (strict: NaN is null); else the summary ``lines``
-    (ASCII)."""
+    (ASCII). Then on stderr the ``notes`` and each file that could not be written (``failed``, after ``what`` was
+    reported). Returns the exit status: 1 when a file failed, else 0."""
     if as_json:
         print(json.dumps(json_safe(record), allow_nan=False))
     else:
