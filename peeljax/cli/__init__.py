@@ -53,7 +53,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 # ---------------------------------------------------------------------------- entry point
 def main(argv: list[str] | None = None) -> int:
-    """Run the command line ``argv`` (default ``sys.argv[1:]``); returns the exit status."""
+    """Run the command line ``argv`` (default ``sys.argv[1:]``); returns the exit status.
+
+    0: the run completed or stopped early (see its status); 2: bad input (nothing was run);
+    130: interrupted (Ctrl-C; a sweep with --out says how many chunks are saved). After a real
+    SIGINT it does not return: it ends the process with status 130 (``os._exit``), as JAX's
+    clean-up at the interpreter's exit crashes while a compiled program still runs.
+    """
     with _interrupt.guard():  # Ctrl-C in any phase: 130 and one line (after a real SIGINT main does not return)
         try:
             parser = build_parser()

@@ -169,7 +169,8 @@ def _unraisable(hook_args) -> None:
 @contextlib.contextmanager
 def guard() -> Iterator[None]:
     """While inside (the main thread of a command), SIGINT ends the process with status 130 and one line, whatever
-    the main thread is doing (see the module's docstring)."""
+    the main thread is doing (see the module's docstring). Elsewhere (another thread, a platform without a
+    wake-up fd) a no-op."""
     _state.said = False
     _state.signalled.clear()
     _state.swallowed.clear()

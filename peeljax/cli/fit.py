@@ -196,7 +196,19 @@ def _V_per_file(paths: list[str], V) -> list[float | None]:
 
 
 def load_observations(paths: list[str], V=None, decimate: int | None = None) -> tuple[list[Observation], dict]:
-    """Observations from the --data files and the .npz files' tau/dt where they agree."""
+    """Observations from the --data files and the .npz files' tau/dt where they agree.
+
+    ``.npz`` files keep their layouts (module docstring); any other file is a text force
+    record (:func:`peeljax.fit.read_force_record`: a CSV or whitespace table with columns
+    t, F and optionally v, alpha, V). ``V`` (``--V``): the pull velocity of text files that carry
+    it neither in a V column nor in their name, one value for all files or one per file.
+    ``decimate`` (``--decimate``): keep every N-th sample of each file. A text file whose numbers
+    would not fit the memory limit is refused before it is read, naming the estimate.
+
+    Raises:
+        ValueError: starting with ``--data`` and naming the file (and the line and column or
+            field at fault), or naming ``--V``.
+    """
     if decimate is not None and decimate < 1:
         raise ValueError(f"--decimate must be >= 1 (allowed range: [1, inf)), got {decimate}")
     observations, defaults = [], {"tau": set(), "dt": set()}

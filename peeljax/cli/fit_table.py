@@ -372,7 +372,9 @@ def _table_command(args: argparse.Namespace, config: dict) -> int:
 
 
 def _points_tau(args: argparse.Namespace, defaults: dict) -> float:
-    """τ of a fit point by point: --tau, else the data files' own (an .npz run's), else the library's; in (0, 1e6]."""
+    """τ of a fit point by point: --tau, else the data files' own (an .npz run's), else the library's; in (0, 1e6].
+    Files of DAE runs (τ = 0) take the default too, said on stderr: a fit point by point integrates the homogenized
+    ODE."""
     default = _POINTS_DEFAULTS["tau"]
     if args.tau is None and defaults.get("tau") == 0.0:
         print(
