@@ -43,7 +43,7 @@ from jax import export
 
 from ._atomic import write_bytes
 
-__all__ = ["ExportedProgram", "compiled", "forget", "programs_folder"]
+__all__ = ["ExportedProgram", "all_arrays", "compiled", "forget", "programs_folder"]
 
 VARIABLE = "PEELJAX_EXPORTED_PROGRAMS"
 SUBFOLDER = "exported-programs"
@@ -340,6 +340,12 @@ class ExportedProgram:
         return exported
 
 
+def all_arrays(leaves) -> bool:
+    """Whether every leaf is an array (``jax.jit``'s C++ dispatch and a kept program take them;
+    a plain Python function or number among them takes ``eqx.filter_jit``)."""
+    return all(isinstance(leaf, (jax.Array, np.ndarray, np.generic)) for leaf in leaves)
+
+
 def compiled(fn: Callable, name: str) -> Callable:
     """``fn`` compiled: called through ``jax.jit``'s C++ dispatch where every leaf of the
     arguments is an array (~1 ms of overhead per orbit call against ~10 for
@@ -350,7 +356,7 @@ def compiled(fn: Callable, name: str) -> Callable:
     kept = ExportedProgram(name, lambda _, *args: fn(*args), lambda _, *args: plain(*args))
 
     def call(*args):
-        if all(isinstance(leaf, (jax.Array, np.ndarray, np.generic)) for leaf in jax.tree_util.tree_leaves(args)):
+        if all_arrays(jax.tree_util.tree_leaves(args)):
             return kept(None, *args)
         return filtered(*args)
 

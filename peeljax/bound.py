@@ -20,6 +20,7 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 from ._arrays import float_array
+from ._exported import all_arrays
 from ._validation import TAU_MAX, check_output_times, check_positive, check_tau, check_y0
 from .homogenized import HomogenizedODE
 from .integrators.alpha import AlphaMethod
@@ -70,7 +71,7 @@ class _Program:
 
     def __init__(self, integrator: AbstractIntegrator, ode, y0, t_final, ts):
         leaves, self.treedef = jax.tree_util.tree_flatten((integrator, ode, y0, t_final, ts))
-        self.fast = all(isinstance(leaf, (jax.Array, np.ndarray, np.generic)) for leaf in leaves)
+        self.fast = all_arrays(leaves)
         self.scalars = tuple(
             isinstance(leaf, (np.ndarray, np.generic)) and leaf.shape == () and leaf.dtype == np.float64
             for leaf in leaves

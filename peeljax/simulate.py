@@ -14,7 +14,7 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 from ._arrays import float_array
-from ._exported import ExportedProgram
+from ._exported import ExportedProgram, all_arrays
 from ._memory import check_output_memory
 from ._validation import (
     check_max_steps,
@@ -166,7 +166,7 @@ def _run(integrator: AbstractIntegrator, ode, y0, t_final, ts) -> Solution:
     scalars = tuple(
         isinstance(leaf, (np.ndarray, np.generic)) and leaf.shape == () and leaf.dtype == np.float64 for leaf in leaves
     )
-    if all(isinstance(leaf, (jax.Array, np.ndarray, np.generic)) for leaf in leaves):
+    if all_arrays(leaves):
         packed = np.array([leaf for leaf, is_scalar in zip(leaves, scalars) if is_scalar], dtype=float)
         rest = [leaf for leaf, is_scalar in zip(leaves, scalars) if not is_scalar]
         return _kept_run((treedef, scalars), packed, rest)

@@ -43,7 +43,7 @@ import optax
 from jaxtyping import Array, ArrayLike, Float
 
 from .._atomic import write_text
-from .._exported import ExportedProgram
+from .._exported import ExportedProgram, all_arrays
 from .._validation import check_positive
 from ..adhesion import AdhesionLaw
 from ..homogenized import HomogenizedODE
@@ -453,7 +453,7 @@ def _update(loss_fn, opt: optax.GradientTransformation, theta, state):
     array: a fit in a new process skips the tracing (~25 s for a fit at τ > 0)."""
     setting = _SETTING_OF.get(id(opt))
     args = (loss_fn, theta, state)
-    if setting is None or not all(isinstance(leaf, (jax.Array, np.ndarray, np.generic)) for leaf in jax.tree.leaves(args)):
+    if setting is None or not all_arrays(jax.tree.leaves(args)):
         return _filtered_update(loss_fn, opt, theta, state)
     new_theta, state_leaves, value, grad, aux = _kept_update(setting, *args)
     # the state comes back as its leaves (optax's state classes are not exported): same structure
