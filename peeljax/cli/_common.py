@@ -384,6 +384,8 @@ _PHRASES = (
     ("give start=(alpha, omega) and slips= to shoot near it",
      "the Python API shoots from a given state: peeljax.periodic_orbit(start=(alpha, omega), slips=K)"),
 )  # fmt: skip
+# The library's words for error control and the uniform mesh (sweep_plan's messages)
+_MESH_PHRASES = (("(dt=None)", "(no --dt)"), ("(dt given)", "(--dt given)"))
 # Names that open a library message ("tau must be ...", "y0: ...").
 _LEADING = re.compile(r"^(V|tau|dt|rtol|atol|rho|y0|geometry|transient|window|fold|start|free|statistics)\b(?![-=])")
 
@@ -395,7 +397,9 @@ def option_names(message: str) -> str:
     message = _UNDERSCORED.sub(lambda m: _PARAMETERS[m.group(1)], message)
     message = _ANOTHER_OUT.sub("another --out", message)  # the library's "choose another out"
     message = _CHOSEN.sub(r"--\1 \2", message)  # fold='stop' -> --fold stop, method='orbit' -> --method orbit
-    message = _GIVEN.sub(r"--\1 \2", message.replace("(dt=None)", "(no --dt)").replace("(dt given)", "(--dt given)"))  # dt=0.01 -> --dt 0.01
+    for said, option in _MESH_PHRASES:  # before the next line would read "dt=None" as a value given
+        message = message.replace(said, option)
+    message = _GIVEN.sub(r"--\1 \2", message)  # dt=0.01 -> --dt 0.01
     message = _DIFFRAX_SOLVER.sub("--method diffrax", message).replace("drop dt/solver", "drop --dt/--method")
     for said, option in _PHRASES:
         message = message.replace(said, option)
