@@ -170,6 +170,32 @@ def test_a_run_keeps_v_after_each_jump_in_its_rows(dae_run):
     np.testing.assert_array_equal(a.stick[before], up)
 
 
+def test_grids_of_lengths_in_one_bucket_share_one_compiled_run(caplog):
+    """simulate pads ``ts`` to the next of 8, 10, 12, 14, 16, 20, 24, … rows by repeating its last
+    time, and drops those rows after the run: a grid of another length in the same bucket
+    compiles only that cut, and its rows are the padded grid's without the repeats, the jumps
+    after its last time included (bit for bit: one program)."""
+    import logging
+
+    import jax
+
+    t_last = 0.167  # between the first slip (0.1663 s) and the re-stick (0.1682 s)
+    ts = np.linspace(0.0, t_last, 45)
+    short = pj.simulate(V=1.1, tau=0.0, t_final=0.2, ts=ts)
+    padded = pj.simulate(V=1.1, tau=0.0, t_final=0.2, ts=np.concatenate([ts, [t_last] * 3]))  # 48: its bucket
+    assert int(short.jumps.count) >= 3 and float(short.jumps.t[0]) < t_last < float(short.jumps.t[1])
+    assert padded.ts.shape[0] == short.ts.shape[0] + 3
+    at_last = np.flatnonzero(np.asarray(padded.ts) == t_last)
+    keep = np.setdiff1d(np.arange(padded.ts.shape[0]), at_last[1:4])
+    for name in ("ts", "ys", "valid", "after_jump"):
+        np.testing.assert_array_equal(np.asarray(getattr(short, name)), np.asarray(getattr(padded, name))[keep], err_msg=name)
+    with jax.log_compiles(), caplog.at_level(logging.WARNING):
+        other = pj.simulate(V=1.1, tau=0.0, t_final=0.2, ts=np.linspace(0.0, t_last, 46))
+    compiled = [r.getMessage() for r in caplog.records if r.getMessage().startswith("Compiling")]
+    assert compiled and all("_cut" in m for m in compiled), compiled
+    assert other.ts.shape[0] == short.ts.shape[0] + 1 and bool(other.completed)
+
+
 @pytest.mark.parametrize("kind", ["lax", "checkpointed"])
 def test_rows_after_those_in_use_are_not_evaluated_and_repeat_the_last(kind):
     """J_t and the DAE's v are computed after the loop on the rows in use only (the room kept
