@@ -27,7 +27,10 @@ from .integrators.alpha import AlphaMethod
 from .integrators.base import AbstractIntegrator
 from .integrators.select import DEFAULT_MAX_JUMPS, integrator_for, refuse_with_dt, resolve_max_steps
 from .model import PeelingModel
-from .simulate import FIRST_MAX_JUMPS, _check_memory, _finished, _kept_run, _packed_jit, _prepare, _run, grown_until_it_holds, is_dae
+from .simulate import (
+    FIRST_MAX_JUMPS, _bucketed, _check_memory, _finished, _first_rows, _kept_run, _packed_jit, _prepare, _run,
+    grown_until_it_holds, is_dae,
+)  # fmt: skip
 from .solution import Solution, StopReason, is_traced
 
 __all__ = ["Simulator"]
@@ -179,6 +182,7 @@ class Simulator:
         integrator_of = functools.partial(self._integrator_of, max_jumps=FIRST_MAX_JUMPS if self._grows else max_jumps)
         integrator = integrator_of(dae=False)
         self.ts = None if ts is None else check_output_times(ts, t_final)
+        self._run_ts = None if ts is None else _bucketed(self.ts)  # simulate's program: its rows cut alike
         _check_memory(integrator, self.ts, max_steps, memory_limit)
         self._max_steps, self._memory_limit = max_steps, memory_limit
         ode, _ = _prepare(model, 1.0, 1.0, None, truncation, allow_dae=True)  # the model's checks
@@ -207,7 +211,7 @@ class Simulator:
                 self._refuse_dae()
             ode, _ = _prepare(self.model, 1.0, 0.0 if dae else 1.0, None, self.truncation, allow_dae=True)
             y0 = np.zeros(4) if with_y0 else None
-            program = _Program(self.integrators[dae], ode, y0, self.t_final, self.ts)
+            program = _Program(self.integrators[dae], ode, y0, self.t_final, self._run_ts)
             self._programs[(dae, with_y0)] = program
         return program
 
@@ -257,7 +261,7 @@ class Simulator:
         return self._integrator_of(dae=dae, max_jumps=max_jumps)
 
     def _unpadded(self, solution: Solution) -> Solution:
-        return _finished(solution, self.ts)
+        return _finished(solution if self.ts is None else _first_rows(solution, self.ts.shape[0]), self.ts)
 
     def _general(self, V, tau, y0) -> Solution:
         """simulate's route (a traced V, τ or y0; a batch of y0; a diffrax solver): its checks, ODE, ``_run``."""
@@ -267,10 +271,10 @@ class Simulator:
             self._refuse_dae()
         ode, y0 = _prepare(self.model, V, tau, y0, self.truncation, allow_dae=True)
         if not self._grows:
-            return self._unpadded(_run(self.integrators[dae], ode, y0, self.t_final, self.ts))
+            return self._unpadded(_run(self.integrators[dae], ode, y0, self.t_final, self._run_ts))
         if is_traced((V, tau, y0)):  # simulate's record, its size fixed before the run
-            return self._unpadded(_run(self._integrator(dae, DEFAULT_MAX_JUMPS), ode, y0, self.t_final, self.ts))
-        return self._unpadded(self._grown(_run(self.integrators[dae], ode, y0, self.t_final, self.ts), ode, y0, dae))
+            return self._unpadded(_run(self._integrator(dae, DEFAULT_MAX_JUMPS), ode, y0, self.t_final, self._run_ts))
+        return self._unpadded(self._grown(_run(self.integrators[dae], ode, y0, self.t_final, self._run_ts), ode, y0, dae))
 
     def _grown(self, solution: Solution, ode, y0, dae: bool) -> Solution:
         """simulate's growth of a record that the run filled (:func:`~peeljax.simulate.grown_until_it_holds`)."""
@@ -278,6 +282,6 @@ class Simulator:
             return solution
         return grown_until_it_holds(
             solution, FIRST_MAX_JUMPS, functools.partial(self._integrator, dae),
-            lambda integrator: _run(integrator, ode, y0, self.t_final, self.ts), self.ts, self._max_steps,
+            lambda integrator: _run(integrator, ode, y0, self.t_final, self._run_ts), self.ts, self._max_steps,
             self._memory_limit, float(self.t_final),
         )  # fmt: skip
