@@ -98,6 +98,7 @@ _MAX_SLIPS = 127
 # near a grazing can take without end (it stops, unresolved, rather than hold up its round).
 _MAX_STEPS_PER_SECOND = 60_000
 _CHUNK = 16  # lanes per compiled batch: every round's sweep is padded to it (one program)
+_IDLE_PERIOD = 1e-9  # s: the period guess of a padding lane of orbits (its runs end at once)
 
 # Per attractor: the fields of AttractorMap (float unless named in _INT_FIELDS).
 ATTRACTOR_FIELDS: tuple[str, ...] = (
@@ -351,17 +352,21 @@ def _refine(model, V, state, slips, period, orbit_rtol) -> tuple[np.ndarray, ...
 
 def _padded_orbits(model, V, state, slips, period, orbit_rtol, max_iterations: int = 20):
     """:func:`peeljax.periodic_orbits` in chunks of ``_CHUNK`` lanes, the last one padded (one
-    compiled program for any number of lanes), the padding dropped."""
+    compiled program for any number of lanes), the padding dropped. A padding lane's runs are
+    bounded by ``_IDLE_PERIOD``: its first run ends at once, where a copy of a real lane would
+    shoot that lane's orbit again (a round of 9 lanes did 16 lanes' work)."""
     from .orbits.batch import periodic_orbits
 
     n = V.size
     pad = -n % _CHUNK
 
-    def padded(a):
+    def padded(a, fill=None):
         a = np.asarray(a)
-        return np.concatenate([a, np.repeat(a[-1:], pad, axis=0)])
+        tail = np.repeat(a[-1:], pad, axis=0) if fill is None else np.full(pad, fill, a.dtype)
+        return np.concatenate([a, tail])
 
-    lanes = [padded(V), padded(state), padded(np.asarray(slips, np.int64)), padded(period)]
+    period = np.broadcast_to(np.asarray(period, float), V.shape)
+    lanes = [padded(V), padded(state), padded(np.asarray(slips, np.int64)), padded(period, _IDLE_PERIOD)]
     blocks = []
     for i in range(0, n + pad, _CHUNK):
         V_i, state_i, slips_i, period_i = (a[i : i + _CHUNK] for a in lanes)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import types
 
 import numpy as np
 import pytest
@@ -88,6 +89,29 @@ def test_a_run_near_an_unstable_orbit_is_no_attractor():
     assert (near.hits, near.random_hits) == (2, 1)  # one row for both runs; the random start's share
     assert _change(orbit, near) == "loses stability (|mu1| = 1.000400)"
     assert _change(orbit, dataclasses.replace(near, slips=2)) == "lost to near an unstable orbit (k=2)"
+
+
+def test_padding_lanes_of_a_round_of_orbits_shoot_nothing(monkeypatch):
+    """A round of 3 orbits is padded to a whole chunk: the padding lanes' runs end at once (one
+    return map evaluated, none reached) where copies of the last lane would shoot its orbit 13
+    more times; the lanes given come back, the padding dropped."""
+    am = importlib.import_module("peeljax.attractor_map")
+    batch = importlib.import_module("peeljax.orbits.batch")
+    seen = {}
+
+    def periodic_orbits(model, V, start, slips, period, rtol, max_iterations):
+        seen.update(V=V, slips=slips, period=period)
+        n = V.size
+        fields = {"multipliers": np.zeros((n, 2)), "period": period, "state": np.zeros((n, 4))}
+        return types.SimpleNamespace(status=np.arange(n), **fields)
+
+    monkeypatch.setattr(batch, "periodic_orbits", periodic_orbits)
+    out = am._padded_orbits(None, np.array([1.0, 1.1, 1.2]), np.zeros((3, 4)), [1, 2, 3], [0.2, 0.3, 0.4], 1e-8)
+    assert out["status"].tolist() == [0, 1, 2] and out["period"].tolist() == [0.2, 0.3, 0.4]
+    assert seen["V"].size == am._CHUNK and np.all(seen["period"][3:] == am._IDLE_PERIOD)
+    last = {"V": float(seen["V"][-1]), "slips": int(seen["slips"][-1]), "start": (0.3, 16.0)}
+    idle = pj.periodic_orbit(**last, period=am._IDLE_PERIOD)
+    assert int(idle.iterations) == 1 and int(idle.status) == pj.OrbitStatus.EVENTS_CHANGED
 
 
 @pytest.mark.parametrize("boundary", [0.95317, 0.99995])
