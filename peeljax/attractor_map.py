@@ -13,7 +13,8 @@ trajectory, all lanes of a round one compiled program over every device):
 3. **Labels.** *steady*: no jump in the window. *periodic (k slips per period)*: the repeat found
    (strictly, or to 3 % on the later part of the window) and the orbit found from the last slip
    by :func:`peeljax.periodic_orbits` (batched Newton on the return map; converged with
-   |μ₁| < 1), with its exact period and Floquet multipliers. *Near an unstable orbit (k)*:
+   |μ₁| < 1; a solve held at Newton's floor by the runs' rounding is shot again at a tighter
+   ``rtol``), with its exact period and Floquet multipliers. *Near an unstable orbit (k)*:
    Newton converges from the run to an orbit with |μ₁| ≥ 1 whose period is the run's repeat
    (to 3 %): the run has not yet left it. Not an attractor: kept as a row with this label
    (where runs linger, and how often: ``hits``, its basin share), never a seed or a bisected
@@ -99,6 +100,11 @@ _MAX_SLIPS = 127
 _MAX_STEPS_PER_SECOND = 60_000
 _CHUNK = 16  # lanes per compiled batch: every round's sweep is padded to it (one program)
 _IDLE_PERIOD = 1e-9  # s: the period guess of a padding lane of orbits (its runs end at once)
+# Newton's floor: a solve that ends NOT_CONVERGED with |P^k(s) − s| below _FLOOR_RESIDUAL is
+# held up by the runs' rounding, not by its start; shot again from its last iterate at
+# _FLOOR_RTOL it converges (docs/attractors.md, "Newton's floor").
+_FLOOR_RESIDUAL = 1e-6
+_FLOOR_RTOL = 1e-10
 
 # Per attractor: the fields of AttractorMap (float unless named in _INT_FIELDS).
 ATTRACTOR_FIELDS: tuple[str, ...] = (
@@ -106,7 +112,7 @@ ATTRACTOR_FIELDS: tuple[str, ...] = (
     "G_slip_max", "G_stick_min", "slip_interval", "stick_fraction", "v_mean", "hits", "basin", "basin_se",
     "branch",
 )  # fmt: skip
-_ORBIT_FIELDS = ("status", "multipliers", "period", "state")
+_ORBIT_FIELDS = ("status", "multipliers", "period", "state", "residual")
 _STEADY_END = {FOLD: "fold of phi: dphi/dv(V, V) = 0", HOPF: "Hopf bifurcation"}
 _INT_FIELDS = ("V_index", "kind", "slips", "hits", "branch")
 _KIND = "attractor-map"  # the files' kind (peeljax.load)
@@ -351,6 +357,29 @@ def _refine(model, V, state, slips, period, orbit_rtol) -> tuple[np.ndarray, ...
 
 
 def _padded_orbits(model, V, state, slips, period, orbit_rtol, max_iterations: int = 20):
+    """:func:`peeljax.periodic_orbits` in chunks of ``_CHUNK`` lanes (:func:`_chunked_orbits`);
+    the solves that stop at Newton's floor (NOT_CONVERGED, residual below ``_FLOOR_RESIDUAL``)
+    shot again from their last iterate at ``_FLOOR_RTOL``, kept where they converge."""
+    from .orbits.shooting import OrbitStatus
+
+    orbits = _chunked_orbits(model, V, state, slips, period, orbit_rtol, max_iterations)
+    floor = np.flatnonzero(
+        (orbits["status"] == OrbitStatus.NOT_CONVERGED) & (orbits["residual"] < _FLOOR_RESIDUAL)
+        & np.all(np.isfinite(orbits["state"]), axis=-1) & np.isfinite(orbits["period"])
+    )  # fmt: skip
+    if floor.size == 0 or orbit_rtol <= _FLOOR_RTOL:
+        return orbits
+    again = _chunked_orbits(
+        model, V[floor], orbits["state"][floor], np.asarray(slips, np.int64)[floor], orbits["period"][floor],
+        _FLOOR_RTOL, max_iterations,
+    )  # fmt: skip
+    closed = again["status"] == OrbitStatus.CONVERGED
+    for name in orbits:
+        orbits[name][floor[closed]] = again[name][closed]
+    return orbits
+
+
+def _chunked_orbits(model, V, state, slips, period, orbit_rtol, max_iterations):
     """:func:`peeljax.periodic_orbits` in chunks of ``_CHUNK`` lanes, the last one padded (one
     compiled program for any number of lanes), the padding dropped. A padding lane's runs are
     bounded by ``_IDLE_PERIOD``: its first run ends at once, where a copy of a real lane would

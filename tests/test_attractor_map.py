@@ -102,7 +102,7 @@ def test_padding_lanes_of_a_round_of_orbits_shoot_nothing(monkeypatch):
     def periodic_orbits(model, V, start, slips, period, rtol, max_iterations):
         seen.update(V=V, slips=slips, period=period)
         n = V.size
-        fields = {"multipliers": np.zeros((n, 2)), "period": period, "state": np.zeros((n, 4))}
+        fields = {"multipliers": np.zeros((n, 2)), "period": period, "state": np.zeros((n, 4)), "residual": np.ones(n)}
         return types.SimpleNamespace(status=np.arange(n), **fields)
 
     monkeypatch.setattr(batch, "periodic_orbits", periodic_orbits)
@@ -112,6 +112,39 @@ def test_padding_lanes_of_a_round_of_orbits_shoot_nothing(monkeypatch):
     last = {"V": float(seen["V"][-1]), "slips": int(seen["slips"][-1]), "start": (0.3, 16.0)}
     idle = pj.periodic_orbit(**last, period=am._IDLE_PERIOD)
     assert int(idle.iterations) == 1 and int(idle.status) == pj.OrbitStatus.EVENTS_CHANGED
+
+
+def test_a_solve_held_at_newtons_floor_is_shot_again_at_the_tighter_tolerance(monkeypatch):
+    """Of three solves that end NOT_CONVERGED, the two whose residual is below the floor's bound
+    are shot again at ``_FLOOR_RTOL`` from their last iterate and period; the one that converges
+    there is kept, the one that does not stays as it was; the wanderer (residual 1e-2) is not
+    shot again."""
+    am = importlib.import_module("peeljax.attractor_map")
+    batch = importlib.import_module("peeljax.orbits.batch")
+    calls = []
+
+    def periodic_orbits(model, V, start, slips, period, rtol, max_iterations):
+        calls.append({"V": np.asarray(V), "start": np.asarray(start), "period": np.asarray(period), "rtol": rtol})
+        n = V.size
+        tight = rtol <= am._FLOOR_RTOL
+        status = np.where(tight & (V < 1.15), pj.OrbitStatus.CONVERGED, pj.OrbitStatus.NOT_CONVERGED)
+        residual = np.where(tight, 1e-11, np.where(V < 1.25, 1e-9, 1e-2))
+        state = np.column_stack([V + (0.0 if tight else 0.5), np.zeros((n, 3))])
+        return types.SimpleNamespace(status=status, residual=residual, state=state,
+                                     period=np.asarray(period) + 0.01, multipliers=np.full((n, 2), 0.5))  # fmt: skip
+
+    monkeypatch.setattr(batch, "periodic_orbits", periodic_orbits)
+    V = np.array([1.1, 1.2, 1.3])
+    out = am._padded_orbits(None, V, np.zeros((3, 4)), [44, 50, 3], [2.0, 3.0, 0.4], 1e-8)
+    assert [c["rtol"] for c in calls] == [1e-8, am._FLOOR_RTOL]
+    again = calls[1]
+    assert again["V"][:2].tolist() == [1.1, 1.2] and np.all(again["period"][2:] == am._IDLE_PERIOD)
+    assert again["start"][:2, 0].tolist() == [1.6, 1.7] and again["period"][:2].tolist() == [2.01, 3.01]
+    assert out["status"].tolist() == [pj.OrbitStatus.CONVERGED, pj.OrbitStatus.NOT_CONVERGED, pj.OrbitStatus.NOT_CONVERGED]
+    assert out["residual"].tolist() == [1e-11, 1e-9, 1e-2] and out["period"][0] == pytest.approx(2.02)
+    calls.clear()
+    am._padded_orbits(None, V, np.zeros((3, 4)), [44, 50, 3], [2.0, 3.0, 0.4], am._FLOOR_RTOL)
+    assert len(calls) == 1  # already at the floor's tolerance: nothing to shoot again
 
 
 @pytest.mark.parametrize("boundary", [0.95317, 0.99995])
