@@ -362,6 +362,7 @@ def _padded_orbits(model, V, state, slips, period, orbit_rtol, max_iterations: i
     shot again from their last iterate at ``_FLOOR_RTOL``, kept where they converge."""
     from .orbits.shooting import OrbitStatus
 
+    slips = np.asarray(slips, np.int64)
     orbits = _chunked_orbits(model, V, state, slips, period, orbit_rtol, max_iterations)
     floor = np.flatnonzero(
         (orbits["status"] == OrbitStatus.NOT_CONVERGED) & (orbits["residual"] < _FLOOR_RESIDUAL)
@@ -370,8 +371,7 @@ def _padded_orbits(model, V, state, slips, period, orbit_rtol, max_iterations: i
     if floor.size == 0 or orbit_rtol <= _FLOOR_RTOL:
         return orbits
     again = _chunked_orbits(
-        model, V[floor], orbits["state"][floor], np.asarray(slips, np.int64)[floor], orbits["period"][floor],
-        _FLOOR_RTOL, max_iterations,
+        model, V[floor], orbits["state"][floor], slips[floor], orbits["period"][floor], _FLOOR_RTOL, max_iterations,
     )  # fmt: skip
     closed = again["status"] == OrbitStatus.CONVERGED
     for name in orbits:
@@ -383,18 +383,21 @@ def _chunked_orbits(model, V, state, slips, period, orbit_rtol, max_iterations):
     """:func:`peeljax.periodic_orbits` in chunks of ``_CHUNK`` lanes, the last one padded (one
     compiled program for any number of lanes), the padding dropped. A padding lane's runs are
     bounded by ``_IDLE_PERIOD``: its first run ends at once, where a copy of a real lane would
-    shoot that lane's orbit again (a round of 9 lanes did 16 lanes' work)."""
+    shoot that lane's orbit again (a round of 9 lanes did 16 lanes' work). The lanes go in
+    order of slips and period: a chunk runs as long as its longest lane's passes."""
     from .orbits.batch import periodic_orbits
 
     n = V.size
     pad = -n % _CHUNK
+    period = np.broadcast_to(np.asarray(period, float), V.shape)
+    order = np.lexsort((period, np.asarray(slips)))
+    V, state, slips, period = (np.asarray(a)[order] for a in (V, state, slips, period))
 
     def padded(a, fill=None):
         a = np.asarray(a)
         tail = np.repeat(a[-1:], pad, axis=0) if fill is None else np.full(pad, fill, a.dtype)
         return np.concatenate([a, tail])
 
-    period = np.broadcast_to(np.asarray(period, float), V.shape)
     lanes = [padded(V), padded(state), padded(np.asarray(slips, np.int64)), padded(period, _IDLE_PERIOD)]
     blocks = []
     for i in range(0, n + pad, _CHUNK):
@@ -403,7 +406,8 @@ def _chunked_orbits(model, V, state, slips, period, orbit_rtol, max_iterations):
             model, V=V_i, start=state_i, slips=slips_i, period=period_i, rtol=orbit_rtol, max_iterations=max_iterations
         )
         blocks.append({name: np.asarray(getattr(orbits, name)) for name in _ORBIT_FIELDS})
-    return {name: np.concatenate([b[name] for b in blocks])[:n] for name in blocks[0]}
+    back = np.argsort(order)
+    return {name: np.concatenate([b[name] for b in blocks])[:n][back] for name in blocks[0]}
 
 
 def _prime_factors(k: int) -> list[int]:

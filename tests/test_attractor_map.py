@@ -147,6 +147,28 @@ def test_a_solve_held_at_newtons_floor_is_shot_again_at_the_tighter_tolerance(mo
     assert len(calls) == 1  # already at the floor's tolerance: nothing to shoot again
 
 
+def test_a_round_of_orbits_is_chunked_in_order_of_slips_and_comes_back_in_the_callers_order(monkeypatch):
+    """20 lanes of mixed k go to the batches sorted by (k, period guess), so that lanes of like
+    cost share a chunk; each result comes back to its own lane."""
+    am = importlib.import_module("peeljax.attractor_map")
+    batch = importlib.import_module("peeljax.orbits.batch")
+    chunks = []
+
+    def periodic_orbits(model, V, start, slips, period, rtol, max_iterations):
+        chunks.append(np.asarray(slips))
+        n = V.size
+        return types.SimpleNamespace(status=np.zeros(n, int), residual=np.zeros(n), state=np.column_stack([V] * 4),
+                                     period=np.asarray(period), multipliers=np.zeros((n, 2)))  # fmt: skip
+
+    monkeypatch.setattr(batch, "periodic_orbits", periodic_orbits)
+    rng = np.random.default_rng(0)
+    slips = rng.integers(1, 60, 20)
+    V, period = rng.uniform(0.3, 5.4, 20), rng.uniform(0.1, 1.0, 20)
+    out = am._padded_orbits(None, V, np.zeros((20, 4)), slips, period, 1e-8)
+    assert np.all(np.diff(chunks[0]) >= 0) and chunks[0].max() <= np.sort(slips)[am._CHUNK - 1]
+    assert np.array_equal(out["state"][:, 0], V) and np.array_equal(out["period"], period)
+
+
 @pytest.mark.parametrize("boundary", [0.95317, 0.99995])
 def test_a_branch_end_is_located_by_continuing_its_orbit(monkeypatch, boundary):
     """A model of Newton that finds the orbit below ``boundary`` only from an orbit at most 2e-3
