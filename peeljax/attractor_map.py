@@ -105,6 +105,7 @@ _IDLE_PERIOD = 1e-9  # s: the period guess of a padding lane of orbits (its runs
 # _FLOOR_RTOL it converges (docs/attractors.md, "Newton's floor").
 _FLOOR_RESIDUAL = 1e-6
 _FLOOR_RTOL = 1e-10
+_TWIN_RTOL = 1e-4  # runs of one V and k whose repeat periods agree to this refine one orbit
 
 # Per attractor: the fields of AttractorMap (float unless named in _INT_FIELDS).
 ATTRACTOR_FIELDS: tuple[str, ...] = (
@@ -509,14 +510,30 @@ def _labels(model, V: np.ndarray, lanes: dict, options) -> tuple[np.ndarray, np.
     cand = np.flatnonzero(kind == PERIODIC)
     multiplier = np.full(kind.size, np.nan)
     if cand.size:
-        ok, unstable, k, T, mu1 = _refine(
-            model, V[cand], lanes["slip_state"][cand], slips[cand], period[cand], options["orbit_rtol"]
-        )
+        # Twins (the same V, k and repeat period to _TWIN_RTOL: one orbit reached from two
+        # starts) take the orbit refined from the first of them.
+        first = _first_twins(V[cand], slips[cand], period[cand])
+        lead = np.unique(first)
+        refined = _refine(model, V[cand[lead]], lanes["slip_state"][cand[lead]], slips[cand[lead]],
+                          period[cand[lead]], options["orbit_rtol"])  # fmt: skip
+        ok, unstable, k, T, mu1 = (np.asarray(a)[np.searchsorted(lead, first)] for a in refined)
         found = ok | unstable
         slips[cand[found]], period[cand[found]], multiplier[cand[found]] = k[found], T[found], mu1[found]
         kind[cand[unstable]] = UNSTABLE
         kind[cand[~found]], slips[cand[~found]], period[cand[~found]] = IRREGULAR, 0, np.nan
     return kind, slips, period, multiplier
+
+
+def _first_twins(V: np.ndarray, slips: np.ndarray, period: np.ndarray) -> np.ndarray:
+    """Per candidate, the index of the first candidate with its V and k and a repeat period
+    within ``_TWIN_RTOL`` (relative) of its own (itself where none is earlier)."""
+    first = np.arange(V.size)
+    for i in range(V.size):
+        same = (V[:i] == V[i]) & (slips[:i] == slips[i]) & (np.abs(period[:i] - period[i]) <= _TWIN_RTOL * period[i])
+        same &= first[:i] == np.arange(i)  # a twin of the first of a group, not of another twin
+        if same.any():
+            first[i] = int(np.argmax(same))
+    return first
 
 
 def _classify(model, V_grid, js, y_start, lanes, options) -> list[_Attractor]:

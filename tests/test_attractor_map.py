@@ -169,6 +169,30 @@ def test_a_round_of_orbits_is_chunked_in_order_of_slips_and_comes_back_in_the_ca
     assert np.array_equal(out["state"][:, 0], V) and np.array_equal(out["period"], period)
 
 
+def test_runs_that_reach_one_orbit_from_several_starts_refine_it_once(monkeypatch):
+    """Candidates of one V and k whose repeat periods agree to ``_TWIN_RTOL`` are twins: the
+    orbit is refined from the first, and the others take its outcome; another V, another k or
+    a period farther off is refined on its own."""
+    am = importlib.import_module("peeljax.attractor_map")
+    V = np.array([1.0, 1.0, 1.0, 2.0, 1.0, 1.0])
+    slips = np.array([5, 5, 5, 5, 6, 5])
+    period = np.array([0.2, 0.2 * (1 + 0.5 * am._TWIN_RTOL), 0.3, 0.2, 0.2, 0.2 * (1 + 3 * am._TWIN_RTOL)])
+    assert am._first_twins(V, slips, period).tolist() == [0, 0, 2, 3, 4, 5]
+    seen = {}
+
+    def refine(model, V, state, slips, period, orbit_rtol):
+        seen["V"], seen["slips"] = V, slips
+        n = V.size
+        return np.arange(n) % 2 == 0, np.zeros(n, bool), slips, period + 1e-3 * np.arange(n), np.full(n, 0.5)
+
+    monkeypatch.setattr(am, "_candidates", lambda lanes: (np.full(6, am.PERIODIC), slips.copy(), period.copy()))
+    monkeypatch.setattr(am, "_refine", refine)
+    kind, k, T, mu1 = am._labels(None, V, {"slip_state": np.zeros((6, 4))}, {"orbit_rtol": 1e-8})
+    assert seen["V"].tolist() == [1.0, 1.0, 2.0, 1.0, 1.0] and seen["slips"].tolist() == [5, 5, 5, 6, 5]
+    assert kind.tolist() == [am.PERIODIC, am.PERIODIC, am.IRREGULAR, am.PERIODIC, am.IRREGULAR, am.PERIODIC]
+    assert T[1] == T[0] == pytest.approx(0.2) and T[3] == pytest.approx(0.202) and T[5] == pytest.approx(0.20006 + 4e-3)
+
+
 @pytest.mark.parametrize("boundary", [0.95317, 0.99995])
 def test_a_branch_end_is_located_by_continuing_its_orbit(monkeypatch, boundary):
     """A model of Newton that finds the orbit below ``boundary`` only from an orbit at most 2e-3
