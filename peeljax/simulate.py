@@ -74,8 +74,14 @@ def is_dae(tau) -> bool:
     return not isinstance(tau, jax.core.Tracer) and np.ndim(tau) == 0 and float(tau) == 0.0
 
 
+@functools.cache
+def _paper_model() -> PeelingModel:
+    """The paper's model, made once: a module is immutable, and making it takes ~40 µs of a P1 call's ~0.9 ms."""
+    return PeelingModel()
+
+
 def _prepare(model, V, tau, y0, truncation, allow_dae=False):
-    model = PeelingModel() if model is None else model
+    model = _paper_model() if model is None else model
     if not isinstance(model, PeelingModel):
         raise TypeError(f"model must be a PeelingModel, got {type(model).__name__}")
     check_positive("V", V)
