@@ -215,6 +215,8 @@ def main(argv=None):
     parser.add_argument("--lane-batch", type=int, default=None, help="P3's lanes under vmap, this many at once (a "
                         "lane's lax.cond becomes a select: both steppers' steps); writes results/switching_lane_batch.md")
     args = parser.parse_args(argv)
+    import peeljax  # noqa: F401 (first: its XLA flags apply only if it comes before JAX's backend starts)
+
     import jax
 
     started = time.perf_counter()

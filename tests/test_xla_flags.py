@@ -64,3 +64,14 @@ def test_fusion_emitters_flag_only_where_jaxlib_knows_it(monkeypatch, jaxlib, be
     monkeypatch.setattr(importlib.metadata, "version", lambda name: jaxlib)
     peeljax._fusion_emitters_flag()
     assert os.environ["XLA_FLAGS"] == expected
+
+
+@pytest.mark.parametrize("jax_first", [True, False])
+def test_an_import_after_the_backend_started_says_the_flags_do_not_apply(jax_first):
+    """Imported after JAX's CPU backend started, peeljax's flags cannot apply (runs several times
+    slower, one device): a RuntimeWarning says so; imported first, nothing is said."""
+    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "PEELJAX_KEEP_XLA_FLAGS")}
+    code = ("import jax; jax.devices(); " if jax_first else "") + "import peeljax"
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    said = "imported after JAX's CPU backend had started" in done.stderr
+    assert said == jax_first, done.stderr
