@@ -114,10 +114,9 @@ def _warn_flags_too_late(flags_before: str) -> None:
     warnings.warn(
         "peeljax was imported after JAX's CPU backend had started, so its XLA flags do not apply in this "
         f"process ({len(_jax.devices())} CPU device(s); small while loops not compiled as one call): runs take "
-        "several times longer (P1: 4.5-4.7 ms against 0.9-1.0 ms, measured) and sweeps use fewer cores. Import "
-        "peeljax before "
-        "anything that starts JAX (jax.devices(), a first jax.numpy operation), or restart the process; "
-        "PEELJAX_KEEP_XLA_FLAGS=1 silences this.",
+        "several times longer (P1: 4.5-4.7 ms against 0.9-1.0 ms, measured) and sweeps use fewer cores. "
+        "Import peeljax before anything that starts JAX (jax.devices(), a first jax.numpy operation), or "
+        "restart the process; PEELJAX_KEEP_XLA_FLAGS=1 silences this.",
         RuntimeWarning,
         stacklevel=3,
     )
