@@ -448,3 +448,24 @@ def test_docs_call_the_uniform_mesh_cycles_an_artefact():
     assert "artefact" in reproduction and "05_stick_slip.ipynb" in reproduction
     notebook = (REPO / "notebooks" / "03_sweeps.ipynb").read_text(encoding="utf-8")
     assert "stick-slip amplitude" not in notebook and "05_stick_slip.ipynb" in notebook
+
+
+@pytest.mark.parametrize("call", ["Simulator", "sweep", "periodic_orbit", "analyze"])
+def test_a_result_is_freed_once_dropped(call):
+    """Nothing keeps a result alive after the caller drops it (``simulate``'s copies once did, for
+    the life of the process: ``tests/test_jump_rows.py``); a loop of calls holds one at a time."""
+    import gc
+    import weakref
+
+    ts = np.linspace(0.0, 0.5, 6)
+    make = {
+        "Simulator": lambda: pj.Simulator(t_final=0.5, ts=ts)(1.1, 0.0),
+        "sweep": lambda: pj.sweep(V=[1.1, 2.0], tau=[0.01], t_final=0.5, progress=False),
+        "periodic_orbit": lambda: pj.periodic_orbit(V=1.1),
+        "analyze": lambda: pj.analyze(pj.simulate(V=1.1, tau=0.0, t_final=1.5)),
+    }[call]
+    result = make()
+    kept = weakref.ref(result)
+    del result
+    gc.collect()
+    assert kept() is None
