@@ -256,20 +256,3 @@ def test_jump_rows_under_an_eager_jvp_are_merged_in_the_program():
     assert ts.size < used < values.size
     np.testing.assert_allclose(values[:used], on_host, rtol=1e-5)  # (another program: its steps may differ)
     assert np.all(values[used:] == values[used - 1])  # the padding repeats the last row
-
-
-@pytest.mark.parametrize("tau", [0.0, 0.01])
-def test_a_run_is_freed_once_dropped(tau):
-    """``simulate``'s host-side copies (the jump rows merged, the rows added for the bucket cut)
-    keep nothing alive: equinox records each module it makes as initialising until its
-    ``__init__`` ends, and a copy made by ``copy.copy`` never ran one, so every run (its arrays
-    too) was kept for the life of the process."""
-    import gc
-    import weakref
-
-    sol = pj.simulate(V=1.1, tau=tau, t_final=1.5, ts=np.linspace(0.0, 1.5, 11))  # 11 rows: a bucket of 12
-    assert (int(sol.jumps.count) > 0) == (tau == 0)  # both paths: jump rows merged, and none to merge
-    run = weakref.ref(sol)
-    del sol
-    gc.collect()
-    assert run() is None

@@ -450,21 +450,28 @@ def test_docs_call_the_uniform_mesh_cycles_an_artefact():
     assert "stick-slip amplitude" not in notebook and "05_stick_slip.ipynb" in notebook
 
 
-@pytest.mark.parametrize("call", ["Simulator", "sweep", "periodic_orbit", "analyze"])
+@pytest.mark.parametrize("call", ["simulate, jumps merged", "simulate, none", "Simulator", "sweep", "periodic_orbit", "analyze"])
 def test_a_result_is_freed_once_dropped(call):
-    """Nothing keeps a result alive after the caller drops it (``simulate``'s copies once did, for
-    the life of the process: ``tests/test_jump_rows.py``); a loop of calls holds one at a time."""
+    """Nothing keeps a result alive after the caller drops it. ``simulate``'s host-side copies
+    (the jump rows merged, the rows added for the bucket cut) once did: equinox records each
+    module it makes as initialising until its ``__init__`` ends, and a copy made by
+    ``copy.copy`` never ran one, so every run (its arrays too) was kept for the life of the process."""
     import gc
     import weakref
 
     ts = np.linspace(0.0, 0.5, 6)
+    grid = np.linspace(0.0, 1.5, 11)  # 11 rows: a bucket of 12, cut on the host
     make = {
+        "simulate, jumps merged": lambda: pj.simulate(V=1.1, tau=0.0, t_final=1.5, ts=grid),
+        "simulate, none": lambda: pj.simulate(V=1.1, tau=0.01, t_final=1.5, ts=grid),
         "Simulator": lambda: pj.Simulator(t_final=0.5, ts=ts)(1.1, 0.0),
         "sweep": lambda: pj.sweep(V=[1.1, 2.0], tau=[0.01], t_final=0.5, progress=False),
         "periodic_orbit": lambda: pj.periodic_orbit(V=1.1),
         "analyze": lambda: pj.analyze(pj.simulate(V=1.1, tau=0.0, t_final=1.5)),
     }[call]
     result = make()
+    if call.startswith("simulate"):  # both paths: jump rows merged, and none to merge
+        assert (int(result.jumps.count) > 0) == (call == "simulate, jumps merged")
     kept = weakref.ref(result)
     del result
     gc.collect()
