@@ -30,6 +30,7 @@ import hashlib
 import importlib
 import importlib.metadata
 import json
+import math
 import os
 import struct
 import weakref
@@ -43,7 +44,7 @@ from jax import export
 
 from ._atomic import write_bytes
 
-__all__ = ["ExportedProgram", "all_arrays", "compiled", "forget", "programs_folder"]
+__all__ = ["ExportedProgram", "HostOutputs", "all_arrays", "compiled", "forget", "programs_folder"]
 
 VARIABLE = "PEELJAX_EXPORTED_PROGRAMS"
 SUBFOLDER = "exported-programs"
@@ -261,10 +262,11 @@ class ExportedProgram:
     exported, ``fallback(static, *args)`` runs instead (``fn`` compiled as before).
     """
 
-    def __init__(self, name: str, fn: Callable, fallback: Callable):
+    def __init__(self, name: str, fn: Callable, fallback: Callable, *, host_outputs: bool = False):
         self.name = name
         self.fn = fn
         self.fallback = fallback
+        self.host_outputs = host_outputs
         self._programs: dict = {}  # signature → the exported program under jit, or None: not exportable
         _PROGRAMS.add(self)
 
@@ -318,7 +320,10 @@ class ExportedProgram:
                 return None
         # Every argument placed on one device: an exported program's outputs are committed
         # arrays, and one handed back in (an orbit's model) would otherwise compile it again.
-        return jax.jit(exported.call, in_shardings=jax.sharding.SingleDeviceSharding(_device()))
+        sharding = jax.sharding.SingleDeviceSharding(_device())
+        if self.host_outputs:
+            return HostOutputs(exported.call, exported.out_tree, exported.out_avals, sharding)
+        return jax.jit(exported.call, in_shardings=sharding)
 
     def _export(self, static, treedef, leaves, path: Path):
         def flat(*leaves):  # the arguments' structure is in the key: the export sees arrays only
@@ -337,7 +342,49 @@ class ExportedProgram:
             _write(path, serialized, sorted(_class_name(cls) for cls in classes))
         except OSError:
             pass  # a read-only cache: the program still runs, exported in this process
-        return exported
+        # what the next process reads back: a program compiled around a fresh export has
+        # another compilation-cache key than one around the same export read back
+        return export.deserialize(bytearray(serialized))
+
+
+class HostOutputs:
+    """A program whose outputs come back to the host as NumPy arrays: the compiled program
+    returns one flat buffer per dtype (a few outputs instead of dozens), and each output is a
+    read-only view of its buffer, reshaped, in the program's output structure.
+
+    ``lower(*leaves).compile()`` compiles ahead of time; :meth:`unpack` turns what the compiled
+    program returns into the outputs, as a call does."""
+
+    def __init__(self, call: Callable, out_tree, out_avals, sharding):
+        self._tree = out_tree
+        dtypes = list(dict.fromkeys(np.dtype(aval.dtype) for aval in out_avals))
+        offsets = dict.fromkeys(dtypes, 0)
+        self._views = []  # (buffer, start, stop, shape) per output
+        for aval in out_avals:
+            buffer, size = dtypes.index(np.dtype(aval.dtype)), math.prod(aval.shape)
+            start = offsets[dtypes[buffer]]
+            offsets[dtypes[buffer]] = start + size
+            self._views.append((buffer, start, start + size, tuple(aval.shape)))
+
+        def by_dtype(*leaves):
+            outputs = jax.tree_util.tree_leaves(call(*leaves))
+            return tuple(
+                jax.numpy.concatenate([jax.numpy.ravel(o) for o in outputs if np.dtype(o.dtype) == dtype])
+                for dtype in dtypes
+            )
+
+        self._jitted = jax.jit(by_dtype, in_shardings=sharding)
+
+    def lower(self, *leaves):
+        return self._jitted.lower(*leaves)
+
+    def unpack(self, buffers):
+        host = [np.asarray(buffer) for buffer in buffers]
+        leaves = [host[b][start:stop].reshape(shape) for b, start, stop, shape in self._views]
+        return jax.tree_util.tree_unflatten(self._tree, leaves)
+
+    def __call__(self, *leaves):
+        return self.unpack(self._jitted(*leaves))
 
 
 def all_arrays(leaves) -> bool:

@@ -92,12 +92,13 @@ class _Program:
         if self.executable is None:
             leaves, structure = jax.tree_util.tree_flatten((self.template, self.rest))
             kept = _kept_run.program((self.treedef, self.scalars), structure, leaves)
-            if kept is None:  # simulate runs _packed_jit itself
+            if kept is None:  # simulate runs _packed_jit itself (its arrays then copied to the host)
                 lowered = _packed_jit.lower(self.template, self.rest, treedef=self.treedef, scalars=self.scalars)
-                self.executable = lowered.compile()
+                compiled = lowered.compile()
+                self.executable = lambda packed, rest: jax.device_get(compiled(packed, rest))
             else:  # simulate's program read back from disk (peeljax._exported): its compilation
                 compiled = kept.lower(*leaves).compile()
-                self.executable = lambda packed, rest: compiled(packed, *rest)
+                self.executable = lambda packed, rest: kept.unpack(compiled(packed, *rest))
         return self.executable
 
 

@@ -338,7 +338,8 @@ class JumpSides(eqx.Module):
         on the host the rows in use; traced (under ``jit``, ``vmap``, ``grad``) all
         ``len(ts) + 2·max_jumps``, those after the rows in use repeating the last of them."""
         n = np.shape(solution.ts)[-1]
-        traced = is_traced((solution, self))  # (under jax.jvp some leaves are traced, others not)
+        # (under jax.jvp some leaves are traced, others not; a run's NumPy arrays are on the host)
+        traced = not isinstance(self.written, np.ndarray) and is_traced((solution, self))
         if not traced and solution.after_jump is not None and int(self.written) == 0:
             return _replaced(solution, jump_sides=None)  # no jump: the rows are the output times'
         after = jnp.zeros(n, bool) if solution.after_jump is None else solution.after_jump
@@ -350,12 +351,12 @@ class JumpSides(eqx.Module):
             merged = (*merged[:3], merged[3] & ~padding, merged[4])
         elif int(self.written) == 0:  # no jump: the rows are the output times'
             merged = grid
-        else:  # one copy to the host and one back; indexing on the device would compile per row count
+        else:  # on the host (indexing on the device would compile per row count)
             grid, sides = jax.device_get((grid, self))
             written = int(sides.written)
             *pairs, pair_at = sides.unpacked(np, n, written)
             source, _ = jump_row_sources(n, pair_at, written, xp=np)
-            merged = jax.device_put(jax.tree_util.tree_map(lambda g, q: np.concatenate([g, q])[source], grid, tuple(pairs)))
+            merged = jax.tree_util.tree_map(lambda g, q: np.concatenate([g, q])[source], grid, tuple(pairs))
         ts, ys, valid, after_jump, diagnostics = merged
         return _replaced(
             solution, ts=ts, ys=ys, valid=valid, after_jump=after_jump, diagnostics=diagnostics, jump_sides=None
@@ -471,12 +472,13 @@ class Solution(eqx.Module):
         ``ts``: the accepted steps' rows after the last one) and the rows a dense output keeps
         for jumps that did not happen (at the end, repeating the last row: its time, its state,
         ``after_jump`` False). Host side (the number of rows depends on the run: not under
-        ``jit``/``vmap``); :func:`peeljax.simulate` returns its output at ``ts`` so.
+        ``jit``/``vmap``), its rows NumPy arrays; :func:`peeljax.simulate` returns its output at
+        ``ts`` so.
         """
         if np.ndim(self.status) != 0:
             raise ValueError("without_padding() is for a single trajectory; index the batch first")
         if self.jump_sides is not None:  # the rows in use, merged on the host: no padding
-            return self.jump_sides.merge(self)
+            return JumpSides.merge(self.jump_sides, self)
         ts = np.asarray(self.ts)
         keep = np.isfinite(ts)
         keep[0] = True  # the start, even of a run whose start was refused
@@ -492,9 +494,8 @@ class Solution(eqx.Module):
         if keep.all():
             return self
 
-        def rows(array):
-            # on the host, then back: indexing the device array would compile a gather per row count
-            return jax.device_put(np.asarray(array)[keep])
+        def rows(array):  # on the host: indexing the device array would compile a gather per row count
+            return np.asarray(array)[keep]
 
         return _replaced(
             self, ts=rows(self.ts), ys=rows(self.ys), valid=rows(self.valid),

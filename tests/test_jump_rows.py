@@ -173,7 +173,7 @@ def test_a_run_keeps_v_after_each_jump_in_its_rows(dae_run):
 def test_grids_of_lengths_in_one_bucket_share_one_compiled_run(caplog):
     """simulate pads ``ts`` to the next of 8, 10, 12, 14, 16, 20, 24, … rows by repeating its last
     time, and drops those rows after the run: a grid of another length in the same bucket
-    compiles only that cut, and its rows are the padded grid's without the repeats, the jumps
+    compiles nothing, and its rows are the padded grid's without the repeats, the jumps
     after its last time included (bit for bit: one program)."""
     import logging
 
@@ -192,7 +192,7 @@ def test_grids_of_lengths_in_one_bucket_share_one_compiled_run(caplog):
     with jax.log_compiles(), caplog.at_level(logging.WARNING):
         other = pj.simulate(V=1.1, tau=0.0, t_final=0.2, ts=np.linspace(0.0, t_last, 46))
     compiled = [r.getMessage() for r in caplog.records if r.getMessage().startswith("Compiling")]
-    assert compiled and all("_cut" in m for m in compiled), compiled
+    assert not compiled, compiled  # (the rows are cut on the host)
     assert other.ts.shape[0] == short.ts.shape[0] + 1 and bool(other.completed)
 
 
