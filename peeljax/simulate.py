@@ -291,7 +291,8 @@ def simulate(
             points) would take more is refused before anything compiles.
 
     Returns:
-        A :class:`Solution`. Uniform mesh: N + 1 time points. Error control: the points of
+        A :class:`Solution` (its arrays read-only NumPy arrays, traced under ``jit``, ``vmap``
+        and ``grad``). Uniform mesh: N + 1 time points. Error control: the points of
         ``ts``, or the accepted steps; ``stats`` has ``accepted_steps``, ``rejected_steps``
         and the smallest, mean and largest step. A run that cannot continue has
         ``status != 0``, ``t_stop`` and ``reason``; its later states are NaN. With folds

@@ -367,7 +367,9 @@ class Solution(eqx.Module):
     """A trajectory y = (α, ω, u, v) on a time grid with the reason it ended.
 
     States after ``t_stop`` are masked with NaN (``valid`` is False there): they are never
-    computed values. Under ``vmap`` every field gains a leading batch axis.
+    computed values. Under ``vmap`` every field gains a leading batch axis. A run made on the
+    host (:func:`peeljax.simulate`, :class:`peeljax.Simulator` with concrete inputs) holds
+    read-only NumPy arrays; traced (under ``jit``, ``vmap``, ``grad``), JAX arrays.
 
     **Both sides of every jump.** Where v jumps at a fold of φ (``fold="jump"``), the rows
     keep the left and the right limit at the jump time t_j, as DifferentialEquations.jl's
