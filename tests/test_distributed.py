@@ -24,7 +24,8 @@ from conftest import assert_refused, forbid, run_cli
 
 import peeljax
 from peeljax.cli import build_parser
-from peeljax.cli._distributed import DEFAULT_TIMEOUT, distributed_settings, join_processes
+from peeljax.cli.sweep import distributed_settings, join_processes
+from peeljax.sweeps.distributed import DEFAULT_TIMEOUT
 
 # The smallest sweep that shows it: 4 lanes of the DAE (tau = 0: each lane jumps at the folds of
 # φ, 4 to 60 jumps in 0.2 s), 2 chunks of 2 lanes, one lane a device per chunk.

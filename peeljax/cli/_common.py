@@ -368,9 +368,11 @@ _PARAMETERS = {
     "save_every": "--save-every", "n_tau": "--n-tau", "n_points": "--n-points", "n_starts": "--n-starts",
     "max_iterations": "--max-iterations", "learning_rate": "--learning-rate", "tau_rtol": "--tau-rtol",
     "tau_range": "--tau-range", "random_starts": "--random-starts", "seed_rounds": "--seed-rounds",
-    "boundary_tol": "--boundary-tol", "lyapunov_time": "--lyapunov-time",
+    "boundary_tol": "--boundary-tol", "lyapunov_time": "--lyapunov-time", "num_processes": "--num-processes",
+    "process_id": "--process-id", "join_timeout": "--distributed-timeout",
 }  # fmt: skip
 _UNDERSCORED = re.compile(r"(?<![\w-])(" + "|".join(_PARAMETERS) + r")\b")
+_ASSIGNED = re.compile(r"(?<![\w-])(--[a-z][\w-]*)=(?=\w)")  # --max-jumps=5 (from max_jumps=5) -> --max-jumps 5
 _ANOTHER_OUT = re.compile(r"\banother out\b")
 _CHOSEN = re.compile(r"(?<![\w-])(fold|method|by|intervals)='(\w+)'")
 # A parameter given its value ("dt=0.01", "tau=0"), the integrator a run's options make
@@ -383,18 +385,22 @@ _PHRASES = (
     ("a run too short", "a run too short (--transient)"),
     ("give start=(alpha, omega) and slips= to shoot near it",
      "the Python API shoots from a given state: peeljax.periodic_orbit(start=(alpha, omega), slips=K)"),
+    ("give coordinator HOST:PORT", "give --coordinator HOST:PORT"), ("the same coordinator?", "the same --coordinator?"),
+    ("or detect them under SLURM's srun", "or --distributed under SLURM's srun"),
 )  # fmt: skip
 # The library's words for error control and the uniform mesh (sweep_plan's messages)
 _MESH_PHRASES = (("(dt=None)", "(no --dt)"), ("(dt given)", "(--dt given)"))
 # Names that open a library message ("tau must be ...", "y0: ...").
-_LEADING = re.compile(r"^(V|tau|dt|rtol|atol|rho|y0|geometry|transient|window|fold|start|free|statistics)\b(?![-=])")
+_LEADING = re.compile(
+    r"^(V|tau|dt|rtol|atol|rho|y0|geometry|transient|window|fold|start|free|statistics|coordinator)\b(?![-=])"
+)
 
 
 def option_names(message: str) -> str:
     """A library message in the command line's words: ``max_jumps`` → ``--max-jumps``, ``fold='stop'`` → ``--fold
     stop`` (``method=``, ``by=``, ``intervals=`` too), ``dt=0.01`` → ``--dt 0.01``, a remedy in the API's words in
     the options', and a message that opens with a parameter's name (``tau must be ...``) opens with its option."""
-    message = _UNDERSCORED.sub(lambda m: _PARAMETERS[m.group(1)], message)
+    message = _ASSIGNED.sub(r"\1 ", _UNDERSCORED.sub(lambda m: _PARAMETERS[m.group(1)], message))
     message = _ANOTHER_OUT.sub("another --out", message)  # the library's "choose another out"
     message = _CHOSEN.sub(r"--\1 \2", message)  # fold='stop' -> --fold stop, method='orbit' -> --method orbit
     for said, option in _MESH_PHRASES:  # before the next line would read "dt=None" as a value given

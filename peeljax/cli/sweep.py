@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 import sys
 import time
@@ -15,8 +16,8 @@ import numpy as np
 from ..sweeps.integrators import DEFAULT_SWEEP_MAX_JUMPS
 from . import _interrupt, options
 from ..sweeps.api import sweep as sweep_api
+from ..sweeps import distributed
 from ._common import PROG, fail, library_default, phi_defaults, plotter, remedy_notes, report, write_failed, write_files
-from ._distributed import add_distributed_options, distributed_settings, join_processes
 from .sweep_map import map_command
 
 __all__ = ["add_command", "validate_sweep"]
@@ -96,8 +97,40 @@ def add_command(subparsers) -> None:
     )  # fmt: skip
     options.add_json(output)
     options.add_progress(output, "progress bar")
-    add_distributed_options(parser)
+    _add_distributed_options(parser)
     parser.set_defaults(handler=_sweep_command, out_formats=(".npz", ".nc"))
+
+
+def _add_distributed_options(parser: argparse.ArgumentParser) -> None:
+    """One ``peeljax sweep`` per process, with the same sweep options (docs/sweeps.md); without
+    these options nothing joins JAX's distributed runtime."""
+    group = parser.add_argument_group(
+        "several processes (JAX's distributed runtime: one command per process, same options; docs/sweeps.md)"
+    )
+    group.add_argument(
+        "--coordinator", default=None, metavar="HOST:PORT",
+        help="address of process 0, which every process connects to (default: $JAX_COORDINATOR_ADDRESS; "
+        "with --distributed under srun: the job's first node)",
+    )  # fmt: skip
+    group.add_argument(
+        "--num-processes", dest="num_processes", type=int, default=None, metavar="N",
+        help="processes in the sweep, >= 1 (with --distributed under srun: $SLURM_NTASKS)",
+    )  # fmt: skip
+    group.add_argument(
+        "--process-id", dest="process_id", type=int, default=None, metavar="I",
+        help="this process's rank, 0 <= I < N; 0 writes --out and reports (with --distributed under srun: "
+        "$SLURM_PROCID)",
+    )  # fmt: skip
+    group.add_argument(
+        "--distributed", action="store_true",
+        help="join the other processes, taking what the three options above leave out from the environment "
+        "($JAX_COORDINATOR_ADDRESS, SLURM's srun)",
+    )  # fmt: skip
+    timeout = distributed.DEFAULT_TIMEOUT
+    group.add_argument(
+        "--distributed-timeout", dest="distributed_timeout", type=float, default=timeout, metavar="S",
+        help=f"seconds to wait for every process to reach the coordinator, > 0 (default {timeout:g})",
+    )  # fmt: skip
 
 
 # ---------------------------------------------------------------------------- validation
@@ -200,6 +233,58 @@ def _jump_record(jumps: dict | None) -> dict | None:
             for i, n in enumerate(counts)
         ]
     return record
+
+
+# ---------------------------------------------------------------------------- several processes
+def distributed_settings(args: argparse.Namespace) -> distributed.Processes | None:
+    """The process options, checked by :func:`peeljax.sweeps.distributed.processes`; None for one process."""
+    given = (args.coordinator, args.num_processes, args.process_id)
+    asked = args.distributed or given != (None, None, None)
+    if asked and args.stick_slip_map:
+        raise ValueError(
+            "--coordinator, --num-processes, --process-id and --distributed run the (V, tau) sweep over several "
+            "processes, not --stick-slip-map"
+        )
+    processes = distributed.processes(*given, args.distributed_timeout, detect=args.distributed)
+    tasks = os.environ.get("SLURM_NTASKS")  # srun started several, but nothing joins them
+    if not asked and os.environ.get("SLURM_PROCID") is not None and tasks not in (None, "1"):
+        print(f"{PROG}: note: SLURM started {tasks} tasks; without --distributed (or --coordinator, "
+              "--num-processes, --process-id) each runs the whole sweep by itself", file=sys.stderr)  # fmt: skip
+    return processes
+
+
+def join_processes(processes: distributed.Processes | None, args: argparse.Namespace) -> int | None:
+    """Join JAX's distributed runtime (:func:`peeljax.sweeps.distributed.join`; nothing for None): None once
+    joined, else the exit status after a message. A process that cannot join in time exits 2 itself."""
+    if processes is None:
+        return None
+    try:
+        distributed.join(processes, on_timeout=_not_joined)
+    except (RuntimeError, ValueError) as error:
+        print(f"{PROG}: error: {processes.describe()}: could not join ({error})", file=sys.stderr)
+        return 2
+    _quiet_stdout(keep=processes.process_id == 0)
+    if processes.process_id != 0:  # process 0 reports; the others compute their share only
+        args.plot = None
+    return None
+
+
+def _not_joined(message: str) -> None:
+    """The join's watchdog: the refusal, exit 2 (the main thread is blocked inside JAX's C++ client)."""
+    fail(ValueError(message))
+    sys.stderr.flush()
+    os._exit(2)
+
+
+def _quiet_stdout(keep: bool) -> None:
+    """Send what the runtime's C++ prints on stdout (gloo's "Rank 0 is connected to 1 peer ranks") to stderr, so that
+    stdout carries only peeljax's report (one JSON object with --json); keep that report only in process 0."""
+    sys.stdout.flush()
+    report = os.dup(1)
+    os.dup2(2, 1)  # file descriptor 1, which C++ writes to, is now stderr
+    sys.stdout = os.fdopen(report, "w") if keep else open(os.devnull, "w")  # noqa: SIM115 (the process's life)
+    if not keep:
+        os.close(report)
 
 
 def _sweep_command(args: argparse.Namespace) -> int:
