@@ -210,7 +210,33 @@ def read_json(path: str | Path) -> tuple[AdhesionLaw, tuple[str, ...]]:
         raise ValueError(f"--phi: {str(path)!r} is not valid JSON ({error})") from None
     except UnicodeDecodeError as error:
         raise ValueError(f"--phi: {str(path)!r} is not a text (JSON) file ({error.reason})") from None
-    return AdhesionLaw.from_dict(data, source=str(path)), paper_defaults(data)
+    try:
+        return AdhesionLaw.from_dict(data, source=str(path)), paper_defaults(data)
+    except ValueError as error:  # a value said as the file spells it, not as Python does
+        raise ValueError(_in_json_terms(str(error), data)) from None
+
+
+_GOT = re.compile(r"coefficient '(\w+)' (.*), got '[^']*'$")
+
+
+def _in_json_terms(message: str, data: dict) -> str:
+    """A coefficient that is no number said as JSON spells it (``got null``, ``got true``, ``got
+    the string "abc"``), not as Python does (``'None'``, ``'True'``)."""
+    found = _GOT.search(message)
+    if found is None:
+        return message
+    value = data[found.group(1)]
+    if value is None or isinstance(value, bool):
+        shown = json.dumps(value)
+    elif isinstance(value, str):
+        shown = f"the string {json.dumps(value)}"
+    elif isinstance(value, list):
+        shown = f"the array {json.dumps(value)[:40]}"
+    elif isinstance(value, dict):
+        shown = "an object"
+    else:
+        shown = json.dumps(value)  # NaN, Infinity: JSON extensions Python reads
+    return f"{message[: found.start()]}coefficient '{found.group(1)}' {found.group(2)}, got {shown} (JSON)"
 
 
 def paper_defaults(data: dict) -> tuple[str, ...]:

@@ -139,8 +139,8 @@ def read_phi(path: str) -> tuple[AdhesionLaw, tuple[str, ...]]:
         raise ValueError(f"--phi: cannot read {path!r} ({error.strerror or error})") from None
     except RecursionError:  # json's decoder recurses once per level: [[[[…]]]] a few thousand deep
         raise ValueError(f"--phi: {path!r} is not a JSON object of coefficients (nested too deeply)") from None
-    except ValueError as error:
-        message = _in_json_terms(str(error), path)
+    except ValueError as error:  # read_json's messages name --phi, those of the coefficients the file
+        message = str(error)
         raise ValueError(message if message.startswith("--phi") else f"--phi: {message}") from None
     if kept:
         given = [name for name in COEFFICIENT_NAMES if name not in kept]
@@ -149,35 +149,6 @@ def read_phi(path: str) -> tuple[AdhesionLaw, tuple[str, ...]]:
             file=sys.stderr,
         )
     return law, kept
-
-
-_GOT = re.compile(r"coefficient '(\w+)' (.*), got '[^']*'$")
-
-
-def _in_json_terms(message: str, path: str) -> str:
-    """A coefficient that is no number, said as JSON spells it (``got null``, ``got true``,
-    ``got the string "abc"``), not as Python does (``'None'``, ``'True'``)."""
-    found = _GOT.search(message)
-    if found is None:
-        return message
-    try:
-        if os.path.getsize(path) > 1_000_000:  # read_json has read it already; a huge file keeps the message
-            return message
-        with open(path, encoding="utf-8") as handle:
-            value = json.load(handle)[found.group(1)]
-    except (OSError, ValueError, KeyError, TypeError):
-        return message
-    if value is None or isinstance(value, bool):
-        shown = json.dumps(value)
-    elif isinstance(value, str):
-        shown = f"the string {json.dumps(value)}"
-    elif isinstance(value, list):
-        shown = f"the array {json.dumps(value)[:40]}"
-    elif isinstance(value, dict):
-        shown = "an object"
-    else:
-        shown = json.dumps(value)  # NaN, Infinity: JSON extensions Python reads
-    return f"{message[: found.start()]}coefficient '{found.group(1)}' {found.group(2)}, got {shown} (JSON)"
 
 
 def load_phi(path: str | None) -> AdhesionLaw:
