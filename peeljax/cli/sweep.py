@@ -4,12 +4,10 @@ over V; its engine's options are ``peeljax tau-star``'s too (:mod:`.tau_star`)."
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import re
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -17,6 +15,7 @@ from ..sweeps.integrators import DEFAULT_SWEEP_MAX_JUMPS
 from . import _interrupt, options
 from ..sweeps.api import sweep as sweep_api
 from ..sweeps import distributed
+from ..sweeps.storage import saved_chunks
 from ._common import PROG, fail, library_default, phi_defaults, plotter, remedy_notes, report, write_failed, write_files
 from .sweep_map import map_command
 
@@ -343,14 +342,10 @@ def _saved_chunks(out: str | None) -> str:
     """After an interruption: how many chunks are saved, and how to go on (from the chunk folder)."""
     if out is None:
         return "nothing was saved (no --out); with --out a rerun resumes from the chunks finished"
-    folder = Path(str(out) + ".chunks")
-    saved = len(list(folder.glob("chunk_*.npz"))) if folder.is_dir() else 0
-    try:
-        total = f" of {int(json.loads((folder / 'meta.json').read_text())['n_chunks'])}"
-    except (OSError, ValueError, KeyError, TypeError, OverflowError):  # a damaged meta.json: no total
-        total = ""
+    saved, total = saved_chunks(out)
+    of = "" if total is None else f" of {total}"
     return (
-        f"{saved}{total} chunk{'' if saved == 1 and not total else 's'} saved in {str(folder)!r}; "
+        f"{saved}{of} chunk{'' if saved == 1 and total is None else 's'} saved in {str(out) + '.chunks'!r}; "
         "rerun the same command to resume"
     )
 

@@ -27,7 +27,8 @@ from .._files import META_KEY, metadata, read_netcdf, require_xarray, write_netc
 from .._npz import read_npz
 
 __all__ = [
-    "FORMAT", "VERSION", "ChunkStore", "check_writable_format", "is_netcdf", "load_npz", "write_npz_atomic", "write_result",
+    "FORMAT", "VERSION", "ChunkStore", "check_writable_format", "is_netcdf", "load_npz", "saved_chunks", "write_npz_atomic",
+    "write_result",
 ]
 
 FORMAT = "peeljax-sweep"
@@ -70,6 +71,17 @@ def load_npz(path: Path, required: tuple[str, ...] = ()) -> dict[str, np.ndarray
 def _differences(old: dict, new: dict) -> list[str]:
     keys = sorted(set(old) | set(new))
     return [key for key in keys if old.get(key) != new.get(key)]
+
+
+def saved_chunks(out: str | Path) -> tuple[int, int | None]:
+    """How many chunks of the sweep writing ``out`` are saved in its chunk folder, and of how many
+    (None where its meta.json cannot tell): what an interrupted sweep leaves to resume from."""
+    folder = Path(str(out) + ".chunks")
+    saved = len(list(folder.glob("chunk_*.npz"))) if folder.is_dir() else 0
+    try:
+        return saved, int(json.loads((folder / "meta.json").read_text())["n_chunks"])
+    except (OSError, ValueError, KeyError, TypeError, OverflowError):  # absent or damaged: no total
+        return saved, None
 
 
 class ChunkStore:
