@@ -197,7 +197,7 @@ def test_a_record_too_short_to_determine_a_coefficient_says_so_and_what_length_w
     record that would give 1 % (the error falls like 1/sqrt(length))."""
     from types import SimpleNamespace
 
-    from peeljax.cli.fit_table import poorly_determined
+    from peeljax.fit.records_fit import poorly_determined
     from peeljax.fit import Observation
 
     record = Observation(V=1.1, t=np.linspace(0.0, 0.002, 5), v=None, F=np.full(5, 250.0))

@@ -19,14 +19,11 @@ from .._validation import TAU_MAX, check_choice, check_tau
 from ..fit import DataFileError, Observation
 from ..fit.parameters import check_free
 from ..fit.records import check_fit_samples
-from ..fit.records_fit import fit_records
+from ..fit.records_fit import fit_records, poorly_determined
 from ..fit.table import INTERVALS, METHODS, fit_stick_slip
 from ..fit.trajectory import fit_adhesion
 from . import _interrupt, options
 from ._common import PROG, check_input_file, checked, load_phi, plotter, report, write_files
-
-__all__ = ["POORLY_DETERMINED", "poorly_determined"]
-
 
 def _defaults(function) -> dict:
     """A fit's defaults, read from its home module (the commands call ``peeljax.fit``'s)."""
@@ -272,33 +269,6 @@ def _report_lm(result, args: argparse.Namespace, settings: dict, lines: list[str
     record = {**result.to_dict(), "out": args.out, "plot": args.plot}
     failed = write_files(record, ("--out", args.out, result.to_json), ("--plot", args.plot, figure))
     return _finish(record, args, [*lines, _visited_line(record)], failed, notes)
-
-
-# A coefficient known to worse than this relative standard error is reported as poorly determined.
-POORLY_DETERMINED = 0.05
-
-
-def poorly_determined(result, records: list[Observation], target: float = 0.01) -> str | None:
-    """A line for the coefficients the records determine to worse than ``POORLY_DETERMINED`` (relative standard
-    error), with the record length that would give ``target``: the error of a fit to noisy samples falls like
-    1/√(its samples), so the length scales with its square (an estimate: it holds while longer records add samples
-    like these, not new physics)."""
-    uncertainty = getattr(result, "uncertainty", None)
-    if uncertainty is None:
-        return None
-    values = np.asarray(uncertainty.values, float)
-    errors = np.asarray(uncertainty.standard_errors, float)
-    relative = np.abs(errors / np.where(values != 0, values, np.nan))
-    worst = [(name, r) for name, r in zip(uncertainty.names, relative) if not r <= POORLY_DETERMINED]
-    if not worst:
-        return None
-    spans = [float(np.ptp(series[0])) for o in records if (series := o.series("F")) is not None and len(series[0])]
-    length = sum(spans)
-    said = ", ".join(f"{name} to {100 * r:.3g} %" if np.isfinite(r) else f"{name} not at all" for name, r in worst)
-    factor = max((r / target) ** 2 for _, r in worst)
-    longer = (f"; about {length * factor:.3g} s of record ({factor:.3g}x the {length:.3g} s given) would give "
-              f"{100 * target:g} %") if np.isfinite(factor) and length > 0 else ""  # fmt: skip
-    return f"the records determine {said} only (relative standard error){longer}"
 
 
 def _interrupted_fit(stop: KeyboardInterrupt, args: argparse.Namespace, write=None) -> int:

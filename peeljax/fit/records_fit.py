@@ -40,7 +40,7 @@ from .parameters import check_free, law_from
 from .trajectory import Observation
 from .uncertainty import uncertainty_from_jacobian
 
-__all__ = ["BY", "MIN_SLIPS", "fit_records", "how_fitted", "is_force_record"]
+__all__ = ["BY", "MIN_SLIPS", "POORLY_DETERMINED", "fit_records", "how_fitted", "is_force_record", "poorly_determined"]
 
 BY = ("auto", "statistics", "points")
 MIN_SLIPS = 10  # a record with fewer slips after its transient is fitted point by point
@@ -317,3 +317,30 @@ def _fit_points_only(points: PointRows, start: AdhesionLaw, names, options) -> T
         stop_reason=STOP_REASONS[run.reason], residuals=run.r, chi2=run.chi2, dof=uncertainty.dof,
         converged=run.reason in CONVERGED,
     )  # fmt: skip
+
+
+# A coefficient known to worse than this relative standard error is reported as poorly determined.
+POORLY_DETERMINED = 0.05
+
+
+def poorly_determined(result, records: list[Observation], target: float = 0.01) -> str | None:
+    """A line for the coefficients the records determine to worse than ``POORLY_DETERMINED`` (relative standard
+    error), with the record length that would give ``target``: the error of a fit to noisy samples falls like
+    1/√(its samples), so the length scales with its square (an estimate: it holds while longer records add samples
+    like these, not new physics)."""
+    uncertainty = getattr(result, "uncertainty", None)
+    if uncertainty is None:
+        return None
+    values = np.asarray(uncertainty.values, float)
+    errors = np.asarray(uncertainty.standard_errors, float)
+    relative = np.abs(errors / np.where(values != 0, values, np.nan))
+    worst = [(name, r) for name, r in zip(uncertainty.names, relative) if not r <= POORLY_DETERMINED]
+    if not worst:
+        return None
+    spans = [float(np.ptp(series[0])) for o in records if (series := o.series("F")) is not None and len(series[0])]
+    length = sum(spans)
+    said = ", ".join(f"{name} to {100 * r:.3g} %" if np.isfinite(r) else f"{name} not at all" for name, r in worst)
+    factor = max((r / target) ** 2 for _, r in worst)
+    longer = (f"; about {length * factor:.3g} s of record ({factor:.3g}x the {length:.3g} s given) would give "
+              f"{100 * target:g} %") if np.isfinite(factor) and length > 0 else ""  # fmt: skip
+    return f"the records determine {said} only (relative standard error){longer}"
