@@ -100,26 +100,24 @@ def add_command(subparsers) -> None:
     parser.set_defaults(handler=_sweep_command, out_formats=(".npz", ".nc"))
 
 
+# The options that place this process among the others (jax.distributed.initialize's arguments).
+_PROCESS_OPTIONS = (
+    ("--coordinator", str, "HOST:PORT", "address of process 0, which every process connects to (default: "
+     "$JAX_COORDINATOR_ADDRESS; with --distributed under srun: the job's first node)"),
+    ("--num-processes", int, "N", "processes in the sweep, >= 1 (with --distributed under srun: $SLURM_NTASKS)"),
+    ("--process-id", int, "I", "this process's rank, 0 <= I < N; 0 writes --out and reports (with --distributed "
+     "under srun: $SLURM_PROCID)"),
+)  # fmt: skip
+
+
 def _add_distributed_options(parser: argparse.ArgumentParser) -> None:
     """One ``peeljax sweep`` per process, with the same sweep options (docs/sweeps.md); without
     these options nothing joins JAX's distributed runtime."""
     group = parser.add_argument_group(
         "several processes (JAX's distributed runtime: one command per process, same options; docs/sweeps.md)"
     )
-    group.add_argument(
-        "--coordinator", default=None, metavar="HOST:PORT",
-        help="address of process 0, which every process connects to (default: $JAX_COORDINATOR_ADDRESS; "
-        "with --distributed under srun: the job's first node)",
-    )  # fmt: skip
-    group.add_argument(
-        "--num-processes", dest="num_processes", type=int, default=None, metavar="N",
-        help="processes in the sweep, >= 1 (with --distributed under srun: $SLURM_NTASKS)",
-    )  # fmt: skip
-    group.add_argument(
-        "--process-id", dest="process_id", type=int, default=None, metavar="I",
-        help="this process's rank, 0 <= I < N; 0 writes --out and reports (with --distributed under srun: "
-        "$SLURM_PROCID)",
-    )  # fmt: skip
+    for option, kind, metavar, text in _PROCESS_OPTIONS:  # None: one process, or what --distributed detects
+        group.add_argument(option, type=kind, default=None, metavar=metavar, help=text)
     group.add_argument(
         "--distributed", action="store_true",
         help="join the other processes, taking what the three options above leave out from the environment "
