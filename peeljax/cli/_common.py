@@ -257,7 +257,7 @@ def solver_for(method: str, rho: float | None):
     if method == "alpha":
         from ..integrators import AlphaMethod
 
-        return AlphaMethod(rho=0.0 if rho is None else rho)
+        return AlphaMethod(rho=library_default(AlphaMethod, "rho") if rho is None else rho)
     return method
 
 

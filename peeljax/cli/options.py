@@ -353,7 +353,8 @@ def engine(args: argparse.Namespace, dae: bool = False) -> dict:
 
 
 def engine_rho(args: argparse.Namespace) -> float:
-    return 0.0 if args.rho is None else float(args.rho)
+    """--rho, else peeljax.sweep's (and least_tau's) default."""
+    return library_default(sweep, "rho") if args.rho is None else float(args.rho)
 
 
 def _stepper(kwargs: dict, ran: str | None = None) -> str | None:
