@@ -625,7 +625,7 @@ ROW_BLOCK = 256
 
 
 def map_rows_in_use(fn, rows: Float[Array, "m n"], count, kind: Literal["checkpointed", "lax"], block: int = ROW_BLOCK):
-    """``jax.vmap(fn)(rows)`` on ``rows[:count]``, ``block`` rows at a time; the rows after repeat the last.
+    """``jax.vmap(fn)(rows)`` on ``rows[:count]``, at most ``block`` rows at a time; the rows after repeat the last.
 
     (A dense output's rows after those in use repeat the last, the padding of
     :class:`~peeljax.integrators.observers.DenseOutput`; a step-point output's are invalid.)
@@ -637,6 +637,7 @@ def map_rows_in_use(fn, rows: Float[Array, "m n"], count, kind: Literal["checkpo
     if n <= block:
         return jax.vmap(fn)(rows)
     blocks = -(-n // block)
+    block = -(-n // blocks)  # blocks of equal size: 320 rows as 2 × 160, not 2 × 256 (J_t at 512 rows: 85 µs, at 320: 61)
     shapes = jax.eval_shape(jax.vmap(fn), rows)
     zeros = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
 
