@@ -334,6 +334,19 @@ def test_the_old_module_peeljax_stick_slip_plots_warns_and_re_exports():
     assert old.plot_stick_slip_map is plots.plot_stick_slip_map
 
 
+def test_the_old_module_peeljax_fit_plots_warns_and_re_exports():
+    import importlib
+    import sys
+
+    import peeljax.plots.fit as new
+
+    sys.modules.pop("peeljax.fit.plots", None)
+    with pytest.warns(DeprecationWarning, match="peeljax.fit.plots is deprecated: import plot_table_fit"):
+        old = importlib.import_module("peeljax.fit.plots")
+    for name in ("plot_table_fit", "plot_records_fit", "fitted_values", "model_statistics"):
+        assert getattr(old, name) is getattr(new, name)
+
+
 # ---------------------------------------------------------------------------- the fold's end, stopped runs
 def test_no_fold_shading_starts_where_phi_loses_its_fold(tmp_path):
     """The stick-slip map shades "no fold" from the V where φ's maximum and minimum merge, found
@@ -465,7 +478,7 @@ def test_table_fit_figure_colours_every_V_and_error_bars_that_stay_positive(monk
 
     from matplotlib.colors import to_hex
 
-    import peeljax.fit.plots as fit_plots
+    import peeljax.plots.fit as fit_plots
     from peeljax import AdhesionLaw
     from peeljax.fit import StickSlipTable
 
@@ -506,7 +519,7 @@ def test_the_phi_panel_legend_is_true_to_its_lines_and_the_title_gives_the_fit()
 
     import peeljax as pj
     from peeljax._panels import draw_phi
-    from peeljax.fit.plots import fitted_values
+    from peeljax.plots.fit import fitted_values
 
     fig, ax = plt.subplots()
     law = pj.AdhesionLaw()
@@ -531,7 +544,7 @@ def test_a_records_fit_figure_shows_each_record_against_the_model(tmp_path):
 
     import peeljax as pj
     from peeljax.fit import Observation
-    from peeljax.fit.plots import plot_records_fit
+    from peeljax.plots.fit import plot_records_fit
 
     ts = np.linspace(0.0, 0.3, 301)
     run = pj.simulate(V=1.1, tau=0.0, t_final=0.3, ts=ts)

@@ -26,7 +26,7 @@ def no_fit(monkeypatch):
 
     reason = "compiled before the input was checked"
     forbid(monkeypatch, "peeljax.fit.table", "fit_stick_slip", "_solve", reason=reason)
-    forbid(monkeypatch, "peeljax.fit.plots", "model_statistics", reason=reason)
+    forbid(monkeypatch, "peeljax.plots.fit", "model_statistics", reason=reason)
 
 
 @pytest.mark.parametrize(

@@ -18,10 +18,11 @@
 * :mod:`.parameters` — θ ↔ φ: the free coefficients as the parameters every fit moves
   (c = c_start·exp(θ));
 * :mod:`.trajectory` — point-wise fits of smooth runs v(t), F(t), α(t) (optax), and of
-  steady peeling (φ's own branch);
-* :mod:`.plots` — data against fit, residuals, φ with its band and folds.
+  steady peeling (φ's own branch).
 
-(``peeljax.fit.data``, which held the first four in one file, is deprecated, removed in peeljax 0.3.0: it re-exports them.)
+The plots of a fit (data against fit, residuals, φ with its band and folds) are
+:mod:`peeljax.plots.fit`. Deprecated, removed in peeljax 0.3.0, each re-exporting its names:
+``peeljax.fit.data`` (held the first four in one file) and ``peeljax.fit.plots`` (the plots' old home).
 """
 
 from .measured_statistics import record_statistics

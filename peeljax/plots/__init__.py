@@ -7,6 +7,9 @@
 - :mod:`.orbits`: a periodic stick-slip orbit over one period (:func:`plot_orbit`).
 - :mod:`.orbit_diagram`: the orbits' bifurcation diagram over V (:func:`plot_orbit_diagram`).
 - :mod:`.attractor_map`: every attractor over V, its basin share and the boundaries (:func:`plot_attractor_map`).
+- :mod:`.fit`: a fit of φ, data against the fitted model with residuals and φ's band
+  (``plot_table_fit``, ``plot_records_fit``; imported from :mod:`peeljax.plots.fit`, not here: it
+  imports the fit).
 """
 
 from .attractor_map import plot_attractor_map
