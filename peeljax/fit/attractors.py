@@ -39,7 +39,7 @@ from ..adhesion import AdhesionLaw
 from ..branches import phi_folds
 from ..cycles import cycle_statistics
 from ..model import PeelingModel
-from ..orbits.api import PERIODS_PER_RUN, orbit_of, orbit_shooting
+from ..orbits.api import PERIODS_PER_RUN, orbit_of
 from ..orbits.section import SlipSection
 from ..orbits.shooting import OrbitStatus, Shooting
 from ..simulate import simulate
@@ -255,8 +255,4 @@ def _steady(start, names, theta, V):
         return jax.vmap(lambda Vi: law(Vi, Vi))(V)
 
     return force(theta), jax.jacfwd(force)(theta)
-
-
-def default_program(model: PeelingModel, start: AdhesionLaw, names, rtol: float) -> OrbitRows:
-    return OrbitRows(orbit_shooting(rtol=rtol), model, start, tuple(names))
 
