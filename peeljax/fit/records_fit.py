@@ -34,11 +34,9 @@ from .instrument import Instrument
 from .measured_statistics import record_cycles, record_statistics
 from .points import PointRows
 from .stick_slip_table import StickSlipTable
-from .levenberg_marquardt import CONVERGED, STOP_REASONS
-from .table import TableFitResult, fit_rows, fit_stick_slip, progress_callback
-from .parameters import check_free, law_from
+from .table import TableFitResult, check_intervals, fit_rows, fit_stick_slip, least_squares_result, progress_callback
+from .parameters import check_free
 from .trajectory import Observation
-from .uncertainty import uncertainty_from_jacobian
 
 __all__ = ["BY", "MIN_SLIPS", "POORLY_DETERMINED", "fit_records", "how_fitted", "is_force_record", "poorly_determined"]
 
@@ -237,10 +235,7 @@ def fit_records(
         raise ValueError(f"tau must be > 0 [s] for records fitted point by point, got {tau!r}")
     if isinstance(max_iterations, bool) or not isinstance(max_iterations, int) or max_iterations < 1:
         raise ValueError(f"max_iterations must be an integer >= 1, got {max_iterations!r}")
-    if intervals not in ("auto", "profile", "linear"):
-        raise ValueError(f"intervals must be one of 'auto', 'profile', 'linear', got {intervals!r}")
-    if not (isinstance(level, float) and 0 < level < 1):
-        raise ValueError(f"level must be a number in (0, 1), got {level!r}")
+    check_intervals(intervals, level)
     names = check_free(free)
     progress = progress_callback(progress)
     model = PeelingModel() if model is None else model
@@ -301,23 +296,12 @@ def fit_records(
 
 def _fit_points_only(points: PointRows, start: AdhesionLaw, names, options) -> TableFitResult:
     """Levenberg–Marquardt on records fitted point by point alone."""
+    began = time.perf_counter()
     opts = {"fit_rtol": 1e-6, "fit_atol": 1e-6, "max_iterations": options["max_iterations"], "progress": options["progress"]}
     fitted = fit_rows(points, start, names, opts, scale=options["scale_covariance"], intervals="linear",
                        level=options["level"])  # fmt: skip
-    run = fitted["runs"][0]
-    law = law_from({n: float(run.z[k]) for k, n in enumerate(names)}, start)
-    values = np.asarray([float(getattr(law, n)) for n in names])
-    uncertainty = uncertainty_from_jacobian(run.J, run.r, values, names, scaled=options["scale_covariance"])
-    v_range = np.asarray(run.v_range)
-    return TableFitResult(
-        adhesion=law, start=start, loss_history=np.asarray(run.history), initial_loss=fitted["initial"],
-        final_loss=run.chi2, gradient_norm=float(np.linalg.norm(2 * run.J.T @ run.r)), steps=run.evaluations,
-        stopped_early=run.reason in CONVERGED, v_range=(float(np.nanmin(v_range[:, 0])), float(np.nanmax(v_range[:, 1]))),
-        free=names, settings={"kind": "records", "method": "points"}, uncertainty=uncertainty,
-        stop_reason=STOP_REASONS[run.reason], residuals=run.r, chi2=run.chi2, dof=uncertainty.dof,
-        converged=run.reason in CONVERGED,
-    )  # fmt: skip
-
+    return least_squares_result(fitted["runs"], start, names, {"kind": "records", "method": "points"},
+                                scale=options["scale_covariance"], initial=fitted["initial"], began=began)  # fmt: skip
 
 # A coefficient known to worse than this relative standard error is reported as poorly determined.
 POORLY_DETERMINED = 0.05

@@ -65,8 +65,10 @@ __all__ = [
     "TableFitResult",
     "attractor_statistics",
     "build_table_fit",
+    "check_intervals",
     "fit_rows",
     "fit_stick_slip",
+    "least_squares_result",
     "table_residuals",
 ]
 
@@ -475,10 +477,7 @@ def fit_stick_slip(
         raise ValueError("instruments and points need method='orbit'")
     if method == "orbit" and not (isinstance(tau, (int, float)) and tau == 0):
         raise ValueError(f"tau must be 0 with method='orbit' (orbits of the DAE with jumps); use method='window' for tau > 0, got {tau!r}")
-    if intervals not in INTERVALS:
-        raise ValueError(f"intervals must be one of {', '.join(map(repr, INTERVALS))}, got {intervals!r}")
-    if not (isinstance(level, float) and 0 < level < 1):
-        raise ValueError(f"level must be a number in (0, 1), got {level!r}")
+    check_intervals(intervals, level)
     check_positive("orbit_rtol", orbit_rtol)
     taper = (0.25 if method == "orbit" else 0.0) if taper is None else taper
     n_starts = (1 if method == "orbit" else 3) if n_starts is None else n_starts
@@ -512,8 +511,8 @@ def fit_stick_slip(
         fitted = _fit_on_attractors(table, model, start, data, sigma, measured, names, window_options, orbit_rtol,
                                     cycle_scatter, options, scale=scale, intervals=intervals, level=level,
                                     instruments=instruments, points=points)  # fmt: skip
-        runs, coarse_losses, rows_model = fitted["runs"], None, fitted["rows"]
-        initial = fitted["initial"]
+        runs, initial = fitted.pop("runs"), fitted.pop("initial")
+        report = fitted  # the rows followed, why each has its kind, the crossings and the profiles
     else:
         fit = build_table_fit(start, model, table.V, data, sigma, measured, **window_options)
         n_coarse = max(n_coarse, n_starts)  # the starts are the best of the coarse batch
@@ -525,15 +524,43 @@ def fit_stick_slip(
         # than any that keeps it, whatever its χ²), then χ²
         order = np.lexsort((np.where(np.isfinite(coarse_losses), coarse_losses, np.inf), coarse_missing))[:n_starts]
         runs = _solve(fit, coarse[order], [evaluated[k] for k in order], **options)
-        rows_model, initial = None, float(coarse_losses[0])  # the coarse batch's first point is ``start`` itself
+        initial = float(coarse_losses[0])  # the coarse batch's first point is ``start`` itself
+        report = {"coarse_losses": coarse_losses}
+    settings = {
+        "kind": "stick-slip table", "V": [float(v) for v in table.V], "statistics": list(wanted), "method": method,
+        "tau": float(tau), "transient": float(transient), "window": float(window), "n_samples": n_samples,
+        "rtol": rtol, "atol": atol, "orbit_rtol": orbit_rtol, "fit_rtol": fit_rtol, "fit_atol": fit_atol,
+        "max_iterations": max_iterations, "n_starts": n_starts, "n_coarse": n_coarse, "coarse_spread": coarse_spread,
+        "seed": seed, "intervals": intervals, "level": level,
+        "solver": "levenberg-marquardt (forward-mode Jacobian)" + (
+            " from the start, each row's attractor followed" if method == "orbit" else " from the best of a coarse batch"),
+        "weights": "the table's standard deviations" if has_std else "column RMS",
+        "scale_covariance": scale if isinstance(scale, str) else bool(scale), "cycle_scatter": bool(cycle_scatter),
+        "taper": float(taper),
+        "parametrisation": "c = c_start*exp(theta)",
+    }  # fmt: skip
+    return least_squares_result(runs, start, names, settings, scale=scale, initial=initial, began=began, table=table,
+                                measured=measured, **report)  # fmt: skip
+
+
+def least_squares_result(runs: list[LevenbergMarquardt], start: AdhesionLaw, names, settings: dict, *, scale,
+                         initial: float, began: float, table: StickSlipTable | None = None, measured=None,
+                         coarse_losses=None, rows=None, why=None, crossings=(), profiles=None) -> TableFitResult:  # fmt: skip
+    """The one :class:`TableFitResult` of a Levenberg–Marquardt fit, from its ``runs`` (best
+    first once sorted: fewest missing statistics, then χ²): the law, its uncertainty
+    (:func:`~peeljax.fit.uncertainty.uncertainty_from_jacobian`, ``scale`` as
+    ``scale_covariance``), the table's outliers and missing entries (where ``table`` and its
+    (n, 5) ``measured`` mask are given), the optima, and the rows' report (``rows``: the
+    :class:`TableRows` followed, ``why`` each row's kind)."""
     runs.sort(key=lambda run: (missing_entries(run.r), run.chi2 if np.isfinite(run.chi2) else np.inf))
     best = runs[0]
-    theta = {n: jnp.asarray(best.z[k]) for k, n in enumerate(names)}
-    law = law_from(theta, start)
+    law = law_from({n: jnp.asarray(best.z[k]) for k, n in enumerate(names)}, start)
     values = np.asarray([float(getattr(law, n)) for n in names])
     uncertainty = uncertainty_from_jacobian(best.J, best.r, values, names, scaled=scale)
-    measured_rows, columns = np.nonzero(measured)
-    entries = [(int(i), float(table.V[i]), STATISTICS[j], float(x)) for i, j, x in zip(measured_rows, columns, best.r)]
+    entries = []
+    if table is not None:
+        measured_rows, columns = np.nonzero(measured)
+        entries = [(int(i), float(table.V[i]), STATISTICS[j], float(x)) for i, j, x in zip(measured_rows, columns, best.r)]
     missing = [e[:3] for e in entries if e[3] == MISSING_RESIDUAL]
     outliers = sorted((e for e in entries if abs(e[3]) > OUTLIER_SIGMA and e[3] != MISSING_RESIDUAL),
                       key=lambda e: -abs(e[3]))  # fmt: skip
@@ -548,24 +575,7 @@ def fit_stick_slip(
         if run.chi2 <= best.chi2 + EQUAL_CHI2 and np.any(np.abs(run.z - best.z) > np.maximum(se_log, 1e-12))
     ]  # fmt: skip
     v_range = np.asarray(best.v_range)
-    rows, crossings, profiles = [], [], {}
-    if rows_model is not None:
-        rows = _row_report(rows_model, best.state, fitted["why"])
-        crossings = fitted["crossings"]
-        profiles = fitted["profiles"]
-    settings = {
-        "kind": "stick-slip table", "V": [float(v) for v in table.V], "statistics": list(wanted), "method": method,
-        "tau": float(tau), "transient": float(transient), "window": float(window), "n_samples": n_samples,
-        "rtol": rtol, "atol": atol, "orbit_rtol": orbit_rtol, "fit_rtol": fit_rtol, "fit_atol": fit_atol,
-        "max_iterations": max_iterations, "n_starts": n_starts, "n_coarse": n_coarse, "coarse_spread": coarse_spread,
-        "seed": seed, "intervals": intervals, "level": level,
-        "solver": "levenberg-marquardt (forward-mode Jacobian)" + (
-            " from the start, each row's attractor followed" if method == "orbit" else " from the best of a coarse batch"),
-        "weights": "the table's standard deviations" if has_std else "column RMS",
-        "scale_covariance": scale if isinstance(scale, str) else bool(scale), "cycle_scatter": bool(cycle_scatter),
-        "taper": float(taper),
-        "parametrisation": "c = c_start*exp(theta)",
-    }  # fmt: skip
+    profiles = profiles or {}
     return TableFitResult(
         adhesion=law,
         start=start,
@@ -575,7 +585,7 @@ def fit_stick_slip(
         gradient_norm=float(np.linalg.norm(2 * best.J.T @ best.r)),
         steps=int(max(run.evaluations for run in runs)),
         stopped_early=best.reason in CONVERGED,
-        v_range=(float(max(np.min(v_range[:, 0]), V_REST)), float(np.max(v_range[:, 1]))),
+        v_range=(float(max(np.nanmin(v_range[:, 0]), V_REST)), float(np.nanmax(v_range[:, 1]))),
         free=names,
         settings=settings,
         wall_time_s=time.perf_counter() - began,
@@ -591,16 +601,23 @@ def fit_stick_slip(
         equivalent_optima=equivalent,
         coarse_losses=coarse_losses,
         converged=best.reason in CONVERGED and not missing,
-        rows=rows,
-        crossings=crossings,
+        rows=[] if rows is None else _row_report(rows, best.state, why),
+        crossings=list(crossings),
         profiles=profiles,
         intervals_used="profile" if profiles else "linear",
         table=table,
     )
 
-
 METHODS = ("orbit", "window")
 INTERVALS = ("auto", "profile", "linear")
+
+
+def check_intervals(intervals: str, level: float) -> None:
+    """``intervals`` one of :data:`INTERVALS` and ``level`` in (0, 1), as every least-squares fit takes them."""
+    if intervals not in INTERVALS:
+        raise ValueError(f"intervals must be one of {', '.join(map(repr, INTERVALS))}, got {intervals!r}")
+    if not (isinstance(level, float) and 0 < level < 1):
+        raise ValueError(f"level must be a number in (0, 1), got {level!r}")
 
 
 def _fit_on_attractors(table, model, start, data, sigma, measured, names, window_options, orbit_rtol, cycle_scatter,
