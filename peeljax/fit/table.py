@@ -46,11 +46,10 @@ import numpy as np
 from .._validation import check_positive
 from ..adhesion import AdhesionLaw
 from ..model import PeelingModel
-from ..orbits.api import DEFAULT_ORBIT_RTOL, orbit_shooting
-from .attractors import OrbitRows
+from ..orbits.api import DEFAULT_ORBIT_RTOL
 from .levenberg_marquardt import CONVERGED, STOP_REASONS, LevenbergMarquardt, missing_entries
 from .profile import profile
-from .table_rows import V_REST, Point, TableRows, row_kinds
+from .table_rows import V_REST, Point, TableRows, attractor_rows
 from .window_rows import MISSING_RESIDUAL, TableFit, build_table_fit, table_residuals
 from .stick_slip_table import STATISTICS, StickSlipTable
 from .parameters import check_free, law_from
@@ -622,21 +621,11 @@ def check_intervals(intervals: str, level: float) -> None:
 
 def _fit_on_attractors(table, model, start, data, sigma, measured, names, window_options, orbit_rtol, cycle_scatter,
                        options, *, scale, intervals, level, instruments=None, points=None) -> dict:  # fmt: skip
-    """Levenberg–Marquardt from ``start`` with every row on its attractor (:class:`TableRows`;
+    """Levenberg–Marquardt from ``start`` with every row on its attractor (:func:`attractor_rows`;
     with ``points``, a :class:`~peeljax.fit.points.PointRows`, records fitted point by point
     beside them): :func:`fit_rows`."""
-    start_model = eqx.tree_at(lambda m: m.adhesion, model, start)
-    program = OrbitRows(orbit_shooting(rtol=orbit_rtol), model, start, tuple(names))
-    kinds, starts, why = row_kinds(start_model, table.V, program=program)
-    window_rows = [i for i, k in enumerate(kinds) if k == "window"]
-    window_fit = None
-    if window_rows:
-        window_fit = build_table_fit(start, model, table.V[window_rows], data[window_rows], sigma[window_rows],
-                                     measured[window_rows], **window_options)  # fmt: skip
-    program = program if "orbit" in kinds else None
-    rows = TableRows(data, sigma, measured, table.V, kinds, starts, model=model, start=start, names=names,
-                     program=program, window_fit=window_fit, cycle_scatter=cycle_scatter,
-                     window_options=window_options)  # fmt: skip
+    rows, why = attractor_rows(model, start, table.V, data, sigma, measured, window_options=window_options,
+                               orbit_rtol=orbit_rtol, cycle_scatter=cycle_scatter)  # fmt: skip
     if instruments:
         rows.set_instruments(instruments)
     if points is not None:
@@ -645,7 +634,6 @@ def _fit_on_attractors(table, model, start, data, sigma, measured, names, window
         rows = Joint(rows, points)
     fitted = fit_rows(rows, start, names, options, scale=scale, intervals=intervals, level=level)
     return {**fitted, "why": why}
-
 
 def fit_rows(rows, start, names, options, *, scale, intervals, level) -> dict:
     """Levenberg–Marquardt from θ = 0 on ``rows`` (:class:`TableRows`, or anything with its
@@ -836,21 +824,12 @@ def attractor_statistics(law: AdhesionLaw, V, *, model: PeelingModel | None = No
     it with a fit of the same ``free``); ``window_fit_options``: :func:`peeljax.fit.window_rows.build_table_fit`'s
     for rows without a periodic attractor."""
     model = PeelingModel() if model is None else model
-    model = eqx.tree_at(lambda m: m.adhesion, model, law)
     V = np.asarray(V, float).reshape(-1)
     shape = (V.size, len(STATISTICS))
-    data, sigma, measured = np.zeros(shape), np.ones(shape), np.ones(shape, bool)
-    program = OrbitRows(orbit_shooting(rtol=orbit_rtol or DEFAULT_ORBIT_RTOL), model, law, tuple(names))
-    kinds, starts, why = row_kinds(model, V, program=program)
-    window = [i for i, k in enumerate(kinds) if k == "window"]
-    window_fit = None
-    if window:
-        rtol, atol = table_tolerances(0.0)
-        options = {"transient": 0.5, "window": 1.0, "n_samples": 401, "rtol": rtol, "atol": atol, "max_jumps": 4096,
-                   "max_steps": 400_000, "taper": 0.25, **(window_fit_options or {})}  # fmt: skip
-        window_fit = build_table_fit(law, model, V[window], data[window], sigma[window], measured[window],
-                                     names=tuple(names), tau=0.0, **options)  # fmt: skip
-    program = program if "orbit" in kinds else None
-    rows = TableRows(data, sigma, measured, V, kinds, starts, model=model, start=law, names=names, program=program,
-                     window_fit=window_fit)  # fmt: skip
+    rtol, atol = table_tolerances(0.0)
+    options = {"transient": 0.5, "window": 1.0, "n_samples": 401, "rtol": rtol, "atol": atol, "max_jumps": 4096,
+               "max_steps": 400_000, "taper": 0.25, **(window_fit_options or {}), "names": tuple(names), "tau": 0.0}  # fmt: skip
+    rows, why = attractor_rows(eqx.tree_at(lambda m: m.adhesion, model, law), law, V, np.zeros(shape), np.ones(shape),
+                               np.ones(shape, bool), window_options=options, orbit_rtol=orbit_rtol or DEFAULT_ORBIT_RTOL,
+                               follow_lost=False)  # fmt: skip
     return rows.start(), rows, why

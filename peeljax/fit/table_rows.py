@@ -35,13 +35,14 @@ import numpy as np
 from .._exported import compiled
 from ..adhesion import AdhesionLaw
 from ..model import PeelingModel
+from ..orbits.api import orbit_shooting
 from ..orbits.section import state_after_slip
 from .attractors import Attractor, OrbitRows, classify, find_attractor, shoot_rows, steady_force, steady_rows
 from .stick_slip_table import STATISTICS
 from .parameters import law_from
 from .window_rows import MISSING_RESIDUAL, build_table_fit
 
-__all__ = ["KINDS", "MAX_ELASTICITY", "Point", "TableRows", "row_kinds", "singular_rows"]
+__all__ = ["KINDS", "MAX_ELASTICITY", "Point", "TableRows", "attractor_rows", "row_kinds", "singular_rows"]
 
 KINDS = ("steady", "orbit", "window")
 SAME_POINT = 1e-7  # scaled section coordinates: P^d(s*) = s* (Newton's tolerance is 1e-10)
@@ -420,6 +421,28 @@ class TableRows:
                 differ.append(i)
         return differ
 
+
+def attractor_rows(model: PeelingModel, start: AdhesionLaw, V, data, sigma, measured, *, window_options: dict,
+                   orbit_rtol: float, cycle_scatter: bool = True, follow_lost: bool = True) -> tuple[TableRows, list[str]]:  # fmt: skip
+    """The :class:`TableRows` of (n, 5) ``data``/``sigma``/``measured`` at the pull velocities
+    ``V`` with φ = ``start`` (``model``'s spool and tape), and why each row has its kind: each
+    row's attractor found (:func:`row_kinds`, its orbits shot at ``orbit_rtol``), the window
+    rows' program built with ``window_options`` (:func:`~peeljax.fit.window_rows.build_table_fit`'s,
+    ``names`` among them). ``follow_lost``: an orbit row that loses its orbit at a trial θ takes
+    its window statistics (else it is left without)."""
+    V = np.asarray(V, float)
+    names = tuple(window_options["names"])
+    program = OrbitRows(orbit_shooting(rtol=orbit_rtol), model, start, names)
+    kinds, starts, why = row_kinds(eqx.tree_at(lambda m: m.adhesion, model, start), V, program=program)
+    window = [i for i, k in enumerate(kinds) if k == "window"]
+    window_fit = None
+    if window:
+        window_fit = build_table_fit(start, model, V[window], data[window], sigma[window], measured[window],
+                                     **window_options)  # fmt: skip
+    rows = TableRows(data, sigma, measured, V, kinds, starts, model=model, start=start, names=names,
+                     program=program if "orbit" in kinds else None, window_fit=window_fit,
+                     cycle_scatter=cycle_scatter, window_options=window_options if follow_lost else None)  # fmt: skip
+    return rows, why
 
 def singular_rows(values, jac, available, rows) -> dict[int, float]:
     """The ``rows`` whose derivative is singular, with their largest elasticity
