@@ -284,24 +284,16 @@ def fit_records(
                     duration = sum(float(o.series("F")[0][-1]) - begin for o in at_V)
                     instruments[i] = dataclasses.replace(first, duration=duration)
             result = fit_stick_slip(table, model, start=start, instruments=instruments, points=points, **options)
-    else:
-        result = _fit_points_only(points, start, names, options)
-        table = None
-    result.table = table if stats else None
+    else:  # records fitted point by point alone: no table, no intervals but the linearized ones
+        lm = {"fit_rtol": 1e-6, "fit_atol": 1e-6, "max_iterations": max_iterations, "progress": progress}
+        fitted = fit_rows(points, start, names, lm, scale=scale_covariance, intervals="linear", level=level)
+        result = least_squares_result(fitted["runs"], start, names, {"kind": "records", "method": "points"},
+                                      scale=scale_covariance, initial=fitted["initial"], began=began)  # fmt: skip
     result.settings.update(records=records, tau_points=float(tau) if pts else None, instrument=bool(instrument),
                            statistics_from=None if not stats else begin)  # fmt: skip
     result.wall_time_s = time.perf_counter() - began
     return result
 
-
-def _fit_points_only(points: PointRows, start: AdhesionLaw, names, options) -> TableFitResult:
-    """Levenberg–Marquardt on records fitted point by point alone."""
-    began = time.perf_counter()
-    opts = {"fit_rtol": 1e-6, "fit_atol": 1e-6, "max_iterations": options["max_iterations"], "progress": options["progress"]}
-    fitted = fit_rows(points, start, names, opts, scale=options["scale_covariance"], intervals="linear",
-                       level=options["level"])  # fmt: skip
-    return least_squares_result(fitted["runs"], start, names, {"kind": "records", "method": "points"},
-                                scale=options["scale_covariance"], initial=fitted["initial"], began=began)  # fmt: skip
 
 # A coefficient known to worse than this relative standard error is reported as poorly determined.
 POORLY_DETERMINED = 0.05
