@@ -15,7 +15,7 @@ import pytest
 from peeljax import PeelingModel
 from peeljax.fit import StickSlipTable, fit_records, fit_stick_slip
 from peeljax.fit.instrument import Instrument, recorded_statistics
-from peeljax.fit.measured_statistics import record_cycles
+from peeljax.fit.statistics import record_cycles
 from peeljax.fit.points import noise_level
 from peeljax.fit.profile import profile
 from peeljax.fit.records_fit import MIN_SLIPS, how_fitted, settled

@@ -1,5 +1,5 @@
 """The data layer of the fit (``peeljax.fit.records``, ``.stick_slip_table``,
-``.measured_statistics``, ``.text_tables``): force records (text and .npz), stick-slip tables,
+``.statistics``, ``.text_tables``): force records (text and .npz), stick-slip tables,
 the statistics of a measured sawtooth, and ``peeljax fit --data`` reading them."""
 
 from __future__ import annotations
@@ -758,6 +758,19 @@ def test_the_old_module_peeljax_fit_data_warns_and_re_exports_the_same_names():
                  "read_stick_slip_table", "record_statistics"):  # fmt: skip
         assert getattr(data, name) is getattr(fit, name)
     assert data.STATISTICS == STATISTICS and data.read_npz is read_npz
+
+
+def test_the_old_module_peeljax_fit_measured_statistics_warns_and_re_exports():
+    import importlib
+    import sys
+
+    import peeljax.fit.statistics as statistics
+
+    sys.modules.pop("peeljax.fit.measured_statistics", None)
+    with pytest.warns(DeprecationWarning, match="peeljax.fit.measured_statistics is deprecated: import record_statistics"):
+        old = importlib.import_module("peeljax.fit.measured_statistics")
+    for name in old.__all__:
+        assert getattr(old, name) is getattr(statistics, name)
 
 
 # ---------------------------------------------------------------------------- speed and memory

@@ -1,33 +1,40 @@
-"""Fitting the adhesion law φ(v, V) to what a peel test measures.
+"""Fitting the adhesion law φ(v, V) to what a peel test measures, in one flow:
+files → observations → rows → solver → intervals → result.
 
-* :mod:`.text_tables` — the reader of a lab's text files (header with units, cells, the
-  :class:`DataFileError` naming file, line and column);
-* :mod:`.records` — measured runs from files: force records (CSV/whitespace text) and ``.npz``;
-* :mod:`.stick_slip_table` — :class:`StickSlipTable`, statistics against V, and its file;
-* :mod:`.measured_statistics` — the stick-slip statistics of a measured sawtooth F(t);
-* :mod:`.statistics` — the same statistics of a simulated run, differentiable through its jumps;
-* :mod:`.table` — Levenberg–Marquardt on a stick-slip table (:func:`fit_stick_slip`);
-* :mod:`.table_rows` — each table row on its attractor: steady peeling, a periodic orbit, a window;
-* :mod:`.attractors` — each row's periodic orbit found, followed from step to step, checked;
-* :mod:`.profile` — profile-likelihood intervals, honest across bifurcations;
-* :mod:`.instrument` — the model's statistics as a record's sampling and noise show them;
-* :mod:`.points` — records fitted point by point by Levenberg–Marquardt, with uncertainties;
-* :mod:`.records_fit` — records of every kind in one fit (:func:`fit_records`);
-* :mod:`.uncertainty` — covariance, standard errors, correlations, undetermined coefficients,
-  the band on φ;
-* :mod:`.parameters` — θ ↔ φ: the free coefficients as the parameters every fit moves
+* **files → observations**: :mod:`.text_tables` reads a lab's text files (header with units,
+  cells; :class:`DataFileError` names file, line and column); :mod:`.records` gives force
+  records (text, ``.npz``) as :class:`Observation` s; :mod:`.stick_slip_table` gives a
+  :class:`StickSlipTable`, statistics against V, from its file or from force records;
+* **statistics**: :mod:`.statistics` holds :data:`~peeljax.fit.statistics.STATISTICS` and
+  computes them from both sides, a measured sawtooth F(t) (:func:`record_statistics`) and a
+  simulated run, differentiable through its jumps (:func:`jump_statistics`);
+* **rows** (what the model predicts for each datum at θ, its residuals and Jacobian):
+  :mod:`.table_rows` puts each table row on its attractor — steady peeling, a periodic orbit
+  (:mod:`.attractors` finds and follows it), or the statistics over a window of a run
+  (:mod:`.window_rows`); :mod:`.instrument` shows a row's statistics as a record's sampling and
+  noise would; :mod:`.points` fits records point by point;
+* **θ ↔ φ**: :mod:`.parameters`, the free coefficients as the parameters every fit moves
   (c = c_start·exp(θ));
-* :mod:`.trajectory` — point-wise fits of smooth runs v(t), F(t), α(t) (optax), and of
-  steady peeling (φ's own branch).
+* **solver**: :mod:`.levenberg_marquardt` for every least-squares fit, driven by :mod:`.table`
+  (:func:`fit_stick_slip`) and :mod:`.records_fit` (:func:`fit_records`: records of every kind
+  in one fit); optax for the smooth runs v(t), F(t), α(t) and steady peeling in
+  :mod:`.trajectory` (:func:`fit_adhesion`, :func:`fit_adhesion_steady`);
+* **intervals**: :mod:`.uncertainty` (linearized: covariance, standard errors, correlations,
+  undetermined coefficients, the band on φ) and :mod:`.profile` (profile likelihood, honest
+  across bifurcations);
+* **result**: :class:`FitResult`; a least-squares fit's :class:`~peeljax.fit.table.TableFitResult`
+  is built in one place, :func:`peeljax.fit.table.least_squares_result`.
 
-The plots of a fit (data against fit, residuals, φ with its band and folds) are
+:mod:`.synthetic` gives the model's statistics as a fit predicts them and tables made of them;
+the plots of a fit (data against fit, residuals, φ with its band and folds) are
 :mod:`peeljax.plots.fit`. Deprecated, removed in peeljax 0.3.0, each re-exporting its names:
-``peeljax.fit.data`` (held the first four in one file) and ``peeljax.fit.plots`` (the plots' old home).
+``peeljax.fit.data`` (the first three and the measured statistics in one file),
+``peeljax.fit.measured_statistics`` (now in :mod:`.statistics`) and ``peeljax.fit.plots`` (the
+plots' old home).
 """
 
-from .measured_statistics import record_statistics
 from .records import read_force_record, read_observations
-from .statistics import jump_statistics
+from .statistics import jump_statistics, record_statistics
 from .stick_slip_table import StickSlipTable, read_stick_slip_table
 from .instrument import Instrument
 from .records_fit import fit_records

@@ -16,7 +16,7 @@ re-exports the names above unchanged.
 
 import warnings
 
-from .measured_statistics import MIN_DROP_NOISE, MIN_DROP_RANGE, record_statistics
+from .statistics import MIN_DROP_NOISE, MIN_DROP_RANGE, record_statistics
 from .records import FILE_NAME_V, FORCE_COLUMNS, read_force_record, read_npz, read_observations
 from .stick_slip_table import STATISTICS, TABLE_UNITS, StickSlipTable, read_stick_slip_table
 from .text_tables import DataFileError

@@ -30,8 +30,7 @@ import numpy as np
 from ..model import PeelingModel
 from ..orbits.section import state_after_slip
 from ..simulate import simulate
-from .measured_statistics import MIN_DROP_NOISE, record_statistics
-from .stick_slip_table import STATISTICS
+from .statistics import MIN_DROP_NOISE, STATISTICS, record_statistics
 
 __all__ = ["REPLICATES", "Instrument", "instrument_bias", "orbit_force", "recorded_statistics"]
 

@@ -31,7 +31,7 @@ from ..adhesion import AdhesionLaw
 from ..model import PeelingModel
 from ..simulate import simulate
 from .instrument import Instrument
-from .measured_statistics import record_cycles, record_statistics
+from .statistics import record_cycles, record_statistics
 from .points import PointRows
 from .stick_slip_table import StickSlipTable
 from .table import TableFitResult, check_intervals, fit_rows, fit_stick_slip, least_squares_result, progress_callback

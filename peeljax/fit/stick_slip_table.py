@@ -26,8 +26,7 @@ from collections.abc import Iterable, Mapping
 import numpy as np
 
 from .._atomic import write_text
-from .measured_statistics import record_cycles, sample_std
-from ..cycles import STATISTICS
+from .statistics import STATISTICS, record_cycles, sample_std
 from .text_tables import TextTable, column_numbers, read_text_table
 from .trajectory import Observation
 

@@ -51,7 +51,8 @@ from .levenberg_marquardt import CONVERGED, STOP_REASONS, LevenbergMarquardt, mi
 from .profile import profile
 from .table_rows import V_REST, Point, TableRows, attractor_rows
 from .window_rows import MISSING_RESIDUAL, TableFit, build_table_fit, table_residuals
-from .stick_slip_table import STATISTICS, StickSlipTable
+from .statistics import STATISTICS
+from .stick_slip_table import StickSlipTable
 from .parameters import check_free, law_from
 from .trajectory import FitInterrupted, FitResult
 from .uncertainty import uncertainty_from_jacobian

@@ -38,7 +38,7 @@ from ..model import PeelingModel
 from ..orbits.api import orbit_shooting
 from ..orbits.section import state_after_slip
 from .attractors import Attractor, OrbitRows, classify, find_attractor, shoot_rows, steady_force, steady_rows
-from .stick_slip_table import STATISTICS
+from .statistics import STATISTICS
 from .parameters import law_from
 from .window_rows import MISSING_RESIDUAL, build_table_fit
 

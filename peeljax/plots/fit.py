@@ -23,7 +23,8 @@ from matplotlib.figure import Figure
 
 from .._panels import draw_phi, panels
 from ..fit.records import left_limit_rows
-from ..fit.stick_slip_table import STATISTICS, StickSlipTable
+from ..fit.statistics import STATISTICS
+from ..fit.stick_slip_table import StickSlipTable
 from ..fit.synthetic import model_statistics
 from ..model import PeelingModel
 
