@@ -1,18 +1,21 @@
 """θ ↔ φ: the free coefficients of the adhesion law as the parameters a fit moves.
 
 Every fit moves θ, one number per free coefficient, with c = c_start·exp(θ) (so a coefficient
-keeps its sign and θ = 0 is the start); the others stay at their start values.
+keeps its sign and θ = 0 is the start); the others stay at their start values. A least-squares
+fit takes its residuals' derivatives in θ forward (:func:`value_and_jacfwd`): few coefficients,
+many residuals.
 """
 
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
 from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw
 
-__all__ = ["check_free", "law_from"]
+__all__ = ["check_free", "law_from", "value_and_jacfwd"]
 
 
 def law_from(theta: dict[str, Array], start: AdhesionLaw) -> AdhesionLaw:
@@ -36,3 +39,15 @@ def check_free(free) -> tuple[str, ...]:
     if unknown or not free:
         raise ValueError(f"free: unknown coefficient(s) {unknown}; allowed: {', '.join(COEFFICIENT_NAMES)}")
     return tuple(n for n in COEFFICIENT_NAMES if n in free)  # canonical order, no duplicates
+
+
+def value_and_jacfwd(f, x):
+    """f(x) and the forward-mode Jacobian of its first output (the columns last), from one
+    trace: one tangent per component of x, the primal shared, not a trace for each."""
+
+    def tangent(direction):
+        out, d_out = jax.jvp(f, (x,), (direction,))
+        return out, d_out[0]
+
+    out, columns = jax.vmap(tangent, out_axes=(None, -1))(jnp.eye(x.size))
+    return out, columns

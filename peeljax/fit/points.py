@@ -37,7 +37,7 @@ from ..integrators.select import integrator_for
 from ..model import PeelingModel
 from .table_rows import Point
 from .window_rows import MISSING_RESIDUAL
-from .parameters import law_from
+from .parameters import law_from, value_and_jacfwd
 from .trajectory import Observation
 
 __all__ = ["Joint", "PointRows", "noise_level"]
@@ -99,20 +99,8 @@ class _PointResiduals(eqx.Module):
         return jax.lax.map(one, (s.V, s.t, s.values, s.sigma, s.mask))
 
     def __call__(self, theta):
-        (r, v_range), jac = _value_and_jacfwd(self.residuals, theta)
+        (r, v_range), jac = value_and_jacfwd(self.residuals, theta)
         return r, jac, v_range
-
-
-def _value_and_jacfwd(f, x):
-    """f(x) and the forward-mode Jacobian of its first output, from one trace (one tangent per
-    component of x, the primal shared)."""
-
-    def tangent(direction):
-        out, d_out = jax.jvp(f, (x,), (direction,))
-        return out, d_out[0]
-
-    out, columns = jax.vmap(tangent, out_axes=(None, -1))(jnp.eye(x.size))
-    return out, columns
 
 
 _evaluate = compiled(lambda program, theta: program(theta), "point_rows")  # traced once per machine

@@ -53,7 +53,7 @@ from .table_rows import V_REST, Point, TableRows, attractor_rows
 from .window_rows import MISSING_RESIDUAL, TableFit, build_table_fit, table_residuals
 from .statistics import STATISTICS
 from .stick_slip_table import StickSlipTable
-from .parameters import check_free, law_from
+from .parameters import check_free, law_from, value_and_jacfwd
 from .trajectory import FitInterrupted, FitResult
 from .uncertainty import uncertainty_from_jacobian
 
@@ -73,22 +73,6 @@ __all__ = [
 ]
 
 
-def _residuals_and_jacobian(fit: TableFit, theta):
-    """r(θ), its Jacobian (as ``jax.jacfwd``'s pytree) and the v range visited, from one
-    forward-mode trace of the runs (one tangent per coefficient, the primal shared) instead of
-    a trace for each."""
-    flat, unflatten = jax.flatten_util.ravel_pytree(theta)
-    basis = jnp.eye(flat.size)
-
-    def tangent(direction):
-        (r, v_range), (dr, _) = jax.jvp(lambda z: fit.residuals_and_range(unflatten(z)), (flat,), (direction,))
-        return r, v_range, dr
-
-    residuals, v_range, columns = jax.vmap(tangent, out_axes=(None, None, 0))(basis)
-    names = [path[0].key for path, _ in jax.tree_util.tree_flatten_with_path(theta)[0]]  # the flat order
-    return residuals, {name: columns[k] for k, name in enumerate(names)}, v_range
-
-
 @eqx.filter_jit
 def _evaluate(fit: TableFit, thetas):
     """For a batch of θ (each leaf (B,)), one after another (``lax.map``) in one compiled program:
@@ -99,8 +83,9 @@ def _evaluate(fit: TableFit, thetas):
     (the fold location, the jump, the output) runs at every step."""
 
     def one(theta):
-        r, jacobian, v_range = _residuals_and_jacobian(fit, theta)
-        return r, jnp.stack([jacobian[n] for n in fit.names], axis=1), v_range
+        z = jnp.stack([theta[n] for n in fit.names])
+        (r, v_range), J = value_and_jacfwd(lambda z: fit.residuals_and_range(dict(zip(fit.names, z))), z)
+        return r, J, v_range
 
     return jax.lax.map(one, thetas)
 

@@ -39,7 +39,7 @@ from ..orbits.api import orbit_shooting
 from ..orbits.section import state_after_slip
 from .attractors import Attractor, OrbitRows, classify, find_attractor, shoot_rows, steady_force, steady_rows
 from .statistics import STATISTICS
-from .parameters import law_from
+from .parameters import law_from, value_and_jacfwd
 from .window_rows import MISSING_RESIDUAL, build_table_fit
 
 __all__ = ["KINDS", "MAX_ELASTICITY", "Point", "TableRows", "attractor_rows", "row_kinds", "singular_rows"]
@@ -158,8 +158,7 @@ class _WindowStatistics(eqx.Module):
             )
             return values, (available, v_range, scatter)
 
-        jac, aux = jax.jacfwd(stats, has_aux=True)(theta)
-        values, _ = stats(theta)
+        (values, aux), jac = value_and_jacfwd(stats, theta)
         return values, jac, *aux
 
 
