@@ -28,7 +28,7 @@ from peeljax.fit.instrument import Instrument, orbit_force, recorded_statistics
 from peeljax.fit.records_fit import NOISE_FACTOR, SMOOTH
 from peeljax.fit.stick_slip_table import STATISTICS
 from peeljax.fit.table import attractor_statistics
-from peeljax.fit.trajectory import Observation
+from peeljax.fit.observations import Observation
 
 TRUTH = pj.AdhesionLaw(c1=420.0)
 V = (1.1, 1.6, 2.4)

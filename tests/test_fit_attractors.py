@@ -21,7 +21,7 @@ from peeljax.fit.profile import profile
 from peeljax.fit.records_fit import MIN_SLIPS, how_fitted, settled
 from peeljax.fit.levenberg_marquardt import LevenbergMarquardt
 from peeljax.fit.table_rows import Point
-from peeljax.fit.trajectory import Observation
+from peeljax.fit.observations import Observation
 from peeljax.fit.uncertainty import quantile
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))

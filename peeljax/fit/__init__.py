@@ -3,8 +3,9 @@ files → observations → rows → solver → intervals → result.
 
 * **files → observations**: :mod:`.text_tables` reads a lab's text files (header with units,
   cells; :class:`DataFileError` names file, line and column); :mod:`.records` gives force
-  records (text, ``.npz``) as :class:`Observation` s; :mod:`.stick_slip_table` gives a
-  :class:`StickSlipTable`, statistics against V, from its file or from force records;
+  records (text, ``.npz``) as :class:`Observation` s (:mod:`.observations`);
+  :mod:`.stick_slip_table` gives a :class:`StickSlipTable`, statistics against V, from its file
+  or from force records;
 * **statistics**: :mod:`.statistics` holds :data:`~peeljax.fit.statistics.STATISTICS` and
   computes them from both sides, a measured sawtooth F(t) (:func:`record_statistics`) and a
   simulated run, differentiable through its jumps (:func:`jump_statistics`);
@@ -22,8 +23,9 @@ files → observations → rows → solver → intervals → result.
 * **intervals**: :mod:`.uncertainty` (linearized: covariance, standard errors, correlations,
   undetermined coefficients, the band on φ) and :mod:`.profile` (profile likelihood, honest
   across bifurcations);
-* **result**: :class:`FitResult`; a least-squares fit's :class:`~peeljax.fit.table.TableFitResult`
-  is built in one place, :func:`peeljax.fit.table.least_squares_result`.
+* **result**: :mod:`.result`, every fit's :class:`FitResult`; a least-squares fit's
+  :class:`~peeljax.fit.result.TableFitResult` is built in one place,
+  :func:`~peeljax.fit.result.least_squares_result`.
 
 :mod:`.synthetic` gives the model's statistics as a fit predicts them and tables made of them;
 the plots of a fit (data against fit, residuals, φ with its band and folds) are

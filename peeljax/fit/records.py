@@ -54,7 +54,7 @@ import numpy as np
 
 from .._npz import check_declared_sizes
 from .text_tables import DataFileError, column_numbers, read_text_table
-from .trajectory import Observation
+from .observations import Observation
 
 __all__ = [
     "FILE_NAME_V", "FIT_BYTES_PER_SAMPLE", "FORCE_COLUMNS", "MAX_FIT_SAMPLES", "check_fit_samples", "decimate",

@@ -34,9 +34,10 @@ from .instrument import Instrument
 from .statistics import record_cycles, record_statistics
 from .points import PointRows
 from .stick_slip_table import StickSlipTable
-from .table import TableFitResult, check_intervals, fit_rows, fit_stick_slip, least_squares_result, progress_callback
+from .result import TableFitResult, least_squares_result
+from .table import check_intervals, fit_rows, fit_stick_slip, progress_callback
 from .parameters import check_free
-from .trajectory import Observation
+from .observations import Observation
 
 __all__ = ["BY", "MIN_SLIPS", "POORLY_DETERMINED", "fit_records", "how_fitted", "is_force_record", "poorly_determined"]
 

@@ -28,7 +28,7 @@ import numpy as np
 from .._atomic import write_text
 from .statistics import STATISTICS, record_cycles, sample_std
 from .text_tables import TextTable, column_numbers, read_text_table
-from .trajectory import Observation
+from .observations import Observation
 
 __all__ = ["STATISTICS", "TABLE_UNITS", "StickSlipTable", "read_stick_slip_table"]
 

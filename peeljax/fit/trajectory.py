@@ -26,13 +26,10 @@ and at the observed V; see ``docs/fitting.md``.
 from __future__ import annotations
 
 import abc
-import dataclasses
 import functools
-import json
 import math
 import time
 from collections.abc import Sequence
-from pathlib import Path
 
 import diffrax
 import equinox as eqx
@@ -42,7 +39,6 @@ import numpy as np
 import optax
 from jaxtyping import Array, ArrayLike, Float
 
-from .._atomic import write_text
 from .._exported import ExportedProgram, all_arrays
 from .._validation import check_positive
 from ..adhesion import AdhesionLaw
@@ -51,7 +47,9 @@ from ..integrators.alpha import AlphaMethod
 from ..integrators.base import AbstractIntegrator
 from ..integrators.select import integrator_for
 from ..model import PeelingModel
+from .observations import Observation
 from .parameters import check_free, law_from
+from .result import FitInterrupted, FitResult
 
 __all__ = [
     "FitInterrupted",
@@ -67,40 +65,6 @@ __all__ = [
 
 QUANTITIES = ("v", "F", "alpha")
 UNREACHED_PENALTY = 1.0  # per observation after the run stopped, in units of (data RMS)²
-
-
-@dataclasses.dataclass(frozen=True)
-class Observation:
-    """One observed run at pull velocity ``V``: ``v`` (and optionally ``F``, ``alpha``) on times ``t``.
-
-    Each quantity may have its own time grid: pass ``t_F``/``t_alpha`` (default: ``t``).
-    NaN entries (e.g. after a stop in a ``peeljax simulate --out`` file) are ignored.
-    """
-
-    V: float
-    t: np.ndarray
-    v: np.ndarray
-    F: np.ndarray | None = None
-    alpha: np.ndarray | None = None
-    t_F: np.ndarray | None = None
-    t_alpha: np.ndarray | None = None
-
-    def series(self, quantity: str) -> tuple[np.ndarray, np.ndarray] | None:
-        values = getattr(self, quantity)
-        if values is None:
-            return None
-        times = (
-            self.t
-            if quantity == "v"
-            else (getattr(self, f"t_{quantity}") if getattr(self, f"t_{quantity}") is not None else self.t)
-        )
-        times, values = np.asarray(times, float), np.asarray(values, float)
-        if times.shape != values.shape or times.ndim != 1:
-            raise ValueError(
-                f"observation at V = {self.V:g}: {quantity} and its times must be 1-D arrays of one length"
-            )
-        keep = np.isfinite(times) & np.isfinite(values)
-        return times[keep], values[keep]
 
 
 class _Data(eqx.Module):
@@ -271,88 +235,6 @@ class _SteadyLoss(_Loss):
     def loss(self, adhesion):
         info = LossInfo(v_min=jnp.min(self.v), v_max=jnp.max(self.v), t_stop=None)
         return jnp.mean(((adhesion(self.v, self.V) - self.force) / self.scale) ** 2), info
-
-
-@dataclasses.dataclass
-class FitResult:
-    """The outcome of :func:`fit_adhesion` / :func:`fit_adhesion_steady`.
-
-    Attributes:
-        adhesion: the fitted law (the best iterate).
-        start: the law the fit started from.
-        loss_history: the loss at θ_0 … θ_steps (``steps + 1`` entries).
-        initial_loss, final_loss: L at the start and at the fitted law.
-        gradient_norm: ‖∂L/∂θ‖₂ at the fitted law (θ the log parameters of the free coefficients).
-        steps: the optimizer's iterations (updates) taken, at most the ``steps`` asked for;
-            stopped_early: early stopping (patience/tolerance) fired.
-        v_range: (min, max) of v visited by the fitted model's runs (or of the data's v,
-            steady case): φ is determined by the data only there.
-        free: the fitted coefficients' names; settings: the fit's options.
-        uncertainty, stop_reason, residuals, start_losses: least-squares fits
-            (:func:`peeljax.fit.fit_stick_slip`): the coefficients' covariance, standard errors
-            and correlations (:class:`peeljax.fit.uncertainty.Uncertainty`), why it stopped, the
-            residuals at the optimum and every start's final loss.
-    """
-
-    adhesion: AdhesionLaw
-    start: AdhesionLaw
-    loss_history: np.ndarray
-    initial_loss: float
-    final_loss: float
-    gradient_norm: float
-    steps: int
-    stopped_early: bool
-    v_range: tuple[float, float]
-    free: tuple[str, ...]
-    settings: dict
-    t_stop: list[float] = dataclasses.field(default_factory=list)
-    wall_time_s: float = math.nan
-    uncertainty: object | None = None  # peeljax.fit.uncertainty.Uncertainty (least-squares fits)
-    stop_reason: str = ""
-    residuals: np.ndarray | None = None
-    start_losses: np.ndarray | None = None
-
-    @property
-    def loss_reduction(self) -> float:
-        return self.initial_loss / self.final_loss if self.final_loss > 0 else math.inf
-
-    def to_dict(self) -> dict:
-        """The 14 coefficients at top level (``AdhesionLaw.from_dict`` reads them) and the rest."""
-        return {
-            **self.adhesion.coefficients(),
-            "start": self.start.coefficients(),
-            "free": list(self.free),
-            "loss_history": [float(x) for x in self.loss_history],
-            "initial_loss": self.initial_loss,
-            "final_loss": self.final_loss,
-            "loss_reduction": self.loss_reduction,
-            "gradient_norm": self.gradient_norm,
-            "steps": self.steps,
-            "stopped_early": self.stopped_early,
-            "v_range": list(self.v_range),
-            "t_stop": list(self.t_stop),
-            "wall_time_s": self.wall_time_s,
-            "settings": self.settings,
-            **({} if not self.stop_reason else {"stop_reason": self.stop_reason}),
-            **({} if self.uncertainty is None else {"uncertainty": self.uncertainty.as_dict()}),
-            **({} if self.residuals is None else {"residuals": [float(x) for x in self.residuals]}),
-            **({} if self.start_losses is None else {"start_losses": [float(x) for x in self.start_losses]}),
-        }
-
-    def to_json(self, path: str | Path | None = None) -> str:
-        def finite(x):
-            if isinstance(x, float) and not math.isfinite(x):
-                return None
-            if isinstance(x, dict):
-                return {k: finite(v) for k, v in x.items()}
-            if isinstance(x, list):
-                return [finite(v) for v in x]
-            return x
-
-        text = json.dumps(finite(self.to_dict()), indent=2, allow_nan=False)
-        if path is not None:
-            write_text(path, text + "\n")
-        return text
 
 
 OPTIMIZERS = ("adam", "lbfgs")
@@ -571,16 +453,6 @@ def _fit(loss_fn: _Loss, names, settings, *, opt, steps, patience, tolerance, pr
     if best[3] is None:
         raise FloatingPointError(f"{description}: the loss is not finite at the start; check the data and the start")
     return result()
-
-
-class FitInterrupted(KeyboardInterrupt):
-    """Ctrl-C during :func:`fit_adhesion`: still a ``KeyboardInterrupt``, which also holds the
-    fit's best iterate so far as a :class:`FitResult` (``best``; its ``stop_reason`` says after
-    how many iterations), e.g. ``except FitInterrupted as stop: stop.best.adhesion``."""
-
-    def __init__(self, best: FitResult):
-        super().__init__(best.stop_reason)
-        self.best = best
 
 
 def fit_adhesion(
