@@ -41,13 +41,13 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import ndtri
 
 from ..adhesion import AdhesionLaw
+from .parameters import law_from
 
 __all__ = ["Uncertainty", "quantile", "uncertainty_from_jacobian"]
 
@@ -157,10 +157,7 @@ class Uncertainty:
         names = self.names
 
         def phi(theta):
-            changed = law
-            for name, th in zip(names, theta):
-                changed = _scaled(changed, name, th)
-            return changed(v, V)
+            return law_from(dict(zip(names, theta)), law)(v, V)
 
         theta0 = jnp.zeros(len(names))
         g = jax.jacfwd(phi)(theta0)  # (n_v, p)
@@ -220,11 +217,6 @@ class Uncertainty:
 
     def __str__(self) -> str:
         return self.table()
-
-
-def _scaled(law: AdhesionLaw, name: str, theta):
-    """φ with coefficient ``name`` multiplied by exp(θ)."""
-    return eqx.tree_at(lambda l: getattr(l, name), law, getattr(law, name) * jnp.exp(theta))
 
 
 def uncertainty_from_jacobian(
