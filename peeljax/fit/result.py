@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._atomic import write_text
+from .._files import json_safe
 from ..adhesion import AdhesionLaw
 from .levenberg_marquardt import CONVERGED, STOP_REASONS, LevenbergMarquardt, missing_entries
 from .parameters import law_from
@@ -109,16 +110,8 @@ class FitResult:
         }
 
     def to_json(self, path: str | Path | None = None) -> str:
-        def finite(x):
-            if isinstance(x, float) and not math.isfinite(x):
-                return None
-            if isinstance(x, dict):
-                return {k: finite(v) for k, v in x.items()}
-            if isinstance(x, list):
-                return [finite(v) for v in x]
-            return x
-
-        text = json.dumps(finite(self.to_dict()), indent=2, allow_nan=False)
+        """:meth:`to_dict` as strict JSON (NaN and infinities as null), written to ``path`` if given."""
+        text = json.dumps(json_safe(self.to_dict()), indent=2, allow_nan=False)
         if path is not None:
             write_text(path, text + "\n")
         return text
