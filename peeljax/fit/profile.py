@@ -68,11 +68,6 @@ class Profile:
         }  # fmt: skip
 
 
-def _attractor_key(point) -> tuple:
-    """Which branch of attractors the point is on (:attr:`~peeljax.fit.table_rows.Point.branch`)."""
-    return point.branch
-
-
 def profile(rows, best, j: int, *, se_log: float, threshold: float, level: float, c_hat: float,
             fit_rtol: float, fit_atol: float, valley=None) -> Profile:  # fmt: skip
     """The profile of coefficient ``j`` (module docstring) about the optimum ``best`` (a
@@ -129,14 +124,14 @@ def profile(rows, best, j: int, *, se_log: float, threshold: float, level: float
         """The end of the set between grid points k_in (inside) and k_out (outside)."""
         a, b = deltas[k_in], deltas[k_out]
         pa, pb = points[k_in], points[k_out]
-        if _attractor_key(pa) == _attractor_key(pb):
+        if pa.branch == pb.branch:
             ra, rb = rise[k_in], rise[k_out]
             return a + (b - a) * (threshold - ra) / (rb - ra) if rb != ra else b
         jumps.append(tuple(sorted((c_hat * math.exp(a), c_hat * math.exp(b)))))
         for _ in range(BISECTIONS):  # the jump between a and b
             m = 0.5 * (a + b)
             pm = optimise(m, pa)
-            if chi2(pm) <= threshold and _attractor_key(pm) == _attractor_key(pa):
+            if chi2(pm) <= threshold and pm.branch == pa.branch:
                 a, pa = m, pm
             else:
                 b, pb = m, pm
@@ -155,7 +150,7 @@ def profile(rows, best, j: int, *, se_log: float, threshold: float, level: float
         intervals.append((c_hat * math.exp(lo), c_hat * math.exp(hi)))
         k += 1
     for k in range(deltas.size - 1):  # jumps inside the set too
-        if _attractor_key(points[k]) != _attractor_key(points[k + 1]):
+        if points[k].branch != points[k + 1].branch:
             pair = tuple(sorted((c_hat * math.exp(deltas[k]), c_hat * math.exp(deltas[k + 1]))))
             if pair not in jumps:
                 jumps.append(pair)
