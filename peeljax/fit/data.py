@@ -8,7 +8,7 @@ name is importable from :mod:`peeljax.fit` (where to import it from now):
   :func:`read_observations`, :func:`read_npz`, :data:`FILE_NAME_V`, :data:`FORCE_COLUMNS`);
 * :mod:`.stick_slip_table` — :class:`StickSlipTable`, :func:`read_stick_slip_table`,
   :data:`STATISTICS`, :data:`TABLE_UNITS`;
-* :mod:`.measured_statistics` — :func:`record_statistics` of a measured force record.
+* :mod:`.statistics` — :func:`record_statistics` of a measured force record.
 
 Importing this module warns (``DeprecationWarning``; the module is removed in peeljax 0.3.0); it
 re-exports the names above unchanged.
@@ -40,7 +40,7 @@ __all__ = [
 warnings.warn(
     "peeljax.fit.data is deprecated: import from peeljax.fit (read_force_record, read_observations, "
     "read_stick_slip_table, record_statistics, StickSlipTable, DataFileError) or from its modules "
-    "peeljax.fit.records, .stick_slip_table, .measured_statistics, .text_tables "
+    "peeljax.fit.records, .stick_slip_table, .statistics, .text_tables "
     "(peeljax.fit.data is removed in peeljax 0.3.0)",
     DeprecationWarning,
     stacklevel=2,
