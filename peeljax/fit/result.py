@@ -127,6 +127,7 @@ class FitInterrupted(KeyboardInterrupt):
         self.best = best
 
 
+# summary()'s note where intervals="auto" kept the linearized intervals (why: peeljax.fit.table.rough_rows)
 ROUGH_PROFILES = "profile intervals are not computed where chi2 is rough at the optimum"
 OUTLIER_SIGMA = 5.0  # |residual| in σ from which a table entry is named in the result
 EQUAL_CHI2 = 1.0  # optima within χ²_min + 1 fit equally well (a 68 % joint region's edge for one coefficient)
