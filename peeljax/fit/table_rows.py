@@ -443,6 +443,7 @@ def attractor_rows(model: PeelingModel, start: AdhesionLaw, V, data, sigma, meas
                      cycle_scatter=cycle_scatter, window_options=window_options if follow_lost else None)  # fmt: skip
     return rows, why
 
+
 def singular_rows(values, jac, available, rows) -> dict[int, float]:
     """The ``rows`` whose derivative is singular, with their largest elasticity
     |∂ log s / ∂ log c| (> :data:`MAX_ELASTICITY`).
