@@ -15,6 +15,9 @@ from ._version import __version__
 
 import json
 import math
+import os
+import tempfile
+from pathlib import Path
 
 import numpy as np
 
@@ -24,6 +27,10 @@ __all__ = [
     "META_KEY",
     "PARAMETER_UNITS",
     "STATE_UNITS",
+    "check_input_file",
+    "check_output_folder",
+    "check_output_path",
+    "image_formats",
     "meta_array",
     "metadata",
     "peeljax_version",
@@ -122,3 +129,73 @@ def json_safe(value):
     if isinstance(value, np.generic):
         return json_safe(value.item())
     return value
+
+
+def check_input_file(option: str, path: str) -> None:
+    """An input file exists and is a file: a folder, a missing file or a file under a missing
+    folder, each said as such (a ValueError that opens with ``option``, the name the caller gave the path)."""
+    target = Path(path)
+    if target.is_file():
+        return
+    if target.is_dir():
+        raise ValueError(f"{option}: {path!r} is a folder, expected a file")
+    raise ValueError(f"{option}: file {path!r} does not exist")
+
+
+def _probe_folder(option: str, folder: Path) -> None:
+    """Create and remove a file in ``folder``: the one test of writability that also catches
+    read-only mounts, permissions and pseudo file systems such as /proc."""
+    try:
+        handle, name = tempfile.mkstemp(prefix=".peeljax-probe-", dir=folder)
+        os.close(handle)
+        os.remove(name)
+    except OSError as error:
+        raise ValueError(f"{option}: cannot write in the folder {str(folder)!r} ({error.strerror or error})") from None
+
+
+def _file_in_the_way(path: Path) -> Path | None:
+    """The first existing ancestor of ``path`` (or ``path`` itself) if it is a file, else None."""
+    for candidate in (path, *path.parents):
+        if candidate.exists():
+            return None if candidate.is_dir() else candidate
+    return None
+
+
+def check_output_path(option: str, path: str | None, suffixes: set[str] | None = None) -> None:
+    """Fail now rather than after a long run: the folder of ``path`` must exist and be writable, its suffix (an
+    image format) among ``suffixes`` when given; a ValueError that opens with ``option``. None: nothing to check."""
+    if path is None:
+        return
+    target = Path(path)
+    if target.is_dir():
+        raise ValueError(f"{option}: {path!r} is a directory, expected a file name")
+    folder = target.parent
+    if not folder.is_dir():
+        blocker = _file_in_the_way(folder)
+        if blocker is not None:
+            raise ValueError(f"{option}: {str(blocker)!r} is a file, not a folder")
+        raise ValueError(f"{option}: the folder {str(folder)!r} does not exist")
+    suffix = target.suffix.lstrip(".").lower()
+    if suffixes is not None and suffix and suffix not in suffixes:
+        raise ValueError(f"{option}: unknown image format {suffix!r}; use one of {', '.join(sorted(suffixes))}")
+    _probe_folder(option, folder)
+
+
+def check_output_folder(option: str, path: str) -> None:
+    """An output folder: absent (its parent must exist; it is created) or a writable folder."""
+    folder = Path(path)
+    blocker = _file_in_the_way(folder)
+    if blocker is not None:
+        what = repr(path) if blocker == folder else f"{str(blocker)!r}, on the way to {path!r},"
+        raise ValueError(f"{option}: {what} is a file, not a folder")
+    if not folder.exists() and not folder.parent.is_dir():
+        raise ValueError(f"{option}: the parent folder {str(folder.parent)!r} does not exist")
+    _probe_folder(option, folder if folder.exists() else folder.parent)
+
+
+def image_formats() -> set[str]:
+    """The image formats matplotlib's Agg canvas writes (the suffixes: ``png``, ``pdf``, ``svg``, ...)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    return set(FigureCanvasAgg(Figure()).get_supported_filetypes())

@@ -6,13 +6,10 @@ import argparse
 import difflib
 import json
 import math
-import os
 import re
 import sys
-import tempfile
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -156,78 +153,10 @@ def load_phi(path: str | None) -> AdhesionLaw:
     return AdhesionLaw() if path is None else read_phi(path)[0]
 
 
-def check_input_file(option: str, path: str) -> None:
-    """An input file exists and is a file: a folder, a missing file or a file under a missing
-    folder, each said as such."""
-    target = Path(path)
-    if target.is_file():
-        return
-    if target.is_dir():
-        raise ValueError(f"{option}: {path!r} is a folder, expected a file")
-    raise ValueError(f"{option}: file {path!r} does not exist")
-
-
-def _probe_folder(option: str, folder: Path) -> None:
-    """Create and remove a file in ``folder``: the one test of writability that also catches
-    read-only mounts, permissions and pseudo file systems such as /proc."""
-    try:
-        handle, name = tempfile.mkstemp(prefix=".peeljax-probe-", dir=folder)
-        os.close(handle)
-        os.remove(name)
-    except OSError as error:
-        raise ValueError(f"{option}: cannot write in the folder {str(folder)!r} ({error.strerror or error})") from None
-
-
-def _file_in_the_way(path: Path) -> Path | None:
-    """The first existing ancestor of ``path`` (or ``path`` itself) if it is a file, else None."""
-    for candidate in (path, *path.parents):
-        if candidate.exists():
-            return None if candidate.is_dir() else candidate
-    return None
-
-
-def check_output_path(option: str, path: str | None, suffixes: set[str] | None = None) -> None:
-    """Fail now rather than after a long run: the folder must exist and be writable, the suffix known."""
-    if path is None:
-        return
-    target = Path(path)
-    if target.is_dir():
-        raise ValueError(f"{option}: {path!r} is a directory, expected a file name")
-    folder = target.parent
-    if not folder.is_dir():
-        blocker = _file_in_the_way(folder)
-        if blocker is not None:
-            raise ValueError(f"{option}: {str(blocker)!r} is a file, not a folder")
-        raise ValueError(f"{option}: the folder {str(folder)!r} does not exist")
-    suffix = target.suffix.lstrip(".").lower()
-    if suffixes is not None and suffix and suffix not in suffixes:
-        raise ValueError(f"{option}: unknown image format {suffix!r}; use one of {', '.join(sorted(suffixes))}")
-    _probe_folder(option, folder)
-
-
-def check_output_folder(option: str, path: str) -> None:
-    """An output folder: absent (its parent must exist; it is created) or a writable folder."""
-    folder = Path(path)
-    blocker = _file_in_the_way(folder)
-    if blocker is not None:
-        what = repr(path) if blocker == folder else f"{str(blocker)!r}, on the way to {path!r},"
-        raise ValueError(f"{option}: {what} is a file, not a folder")
-    if not folder.exists() and not folder.parent.is_dir():
-        raise ValueError(f"{option}: the parent folder {str(folder.parent)!r} does not exist")
-    _probe_folder(option, folder if folder.exists() else folder.parent)
-
-
 def write_failed(option: str, path: str, error: OSError, what: str) -> int:
     """After a run: say what could not be written and where, instead of a traceback (exit 1)."""
     print(f"{PROG}: error: could not write {option} {path!r} ({error.strerror or error}); {what}", file=sys.stderr)
     return 1
-
-
-def plot_formats() -> set[str]:
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    return set(FigureCanvasAgg(Figure()).get_supported_filetypes())
 
 
 def library_default(function, name: str):

@@ -7,10 +7,10 @@ import json
 import sys
 from pathlib import Path
 
+from .._files import check_output_folder, image_formats, json_safe
 from .._validation import check_positive
 from . import options
-from .._files import json_safe
-from ._common import PROG, check_output_folder, checked, fail, plot_formats, write_failed
+from ._common import PROG, checked, fail, write_failed
 
 __all__ = ["add_command"]
 
@@ -52,8 +52,8 @@ def _figures_command(args: argparse.Namespace) -> int:
                 raise ValueError(f"t_final must be >= 0.05 s (allowed range: [0.05, inf)), got {args.t_final}")
             given["t_final"] = args.t_final
         fmt = None if args.format is None else args.format.lower().lstrip(".")
-        if fmt is not None and fmt not in plot_formats():
-            raise ValueError(f"--format: unknown image format {fmt!r}; use one of {', '.join(sorted(plot_formats()))}")
+        if fmt is not None and fmt not in image_formats():
+            raise ValueError(f"--format: unknown image format {fmt!r}; use one of {', '.join(sorted(image_formats()))}")
         out = Path(args.out)
         check_output_folder("--out", args.out)
     except ValueError as error:

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from .._atomic import write_text
-from .._files import json_safe
+from .._files import check_input_file, json_safe
 from .._validation import check_choice, check_mesh, check_positive
 from ..adhesion import COEFFICIENT_NAMES
 from ..fit import QUANTITIES, DataFileError, Observation, read_force_record
@@ -33,7 +33,7 @@ from ..fit.records_fit import is_force_record
 from ..fit.trajectory import OPTIMIZERS
 from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_RTOL
 from . import options
-from ._common import PROG, check_input_file, checked, fail, load_phi, plotter, write_files
+from ._common import PROG, checked, fail, load_phi, plotter, write_files
 from .fit_table import (
     _DATA_ONLY,
     _POINTS_DEFAULTS,

@@ -23,7 +23,8 @@ from ..fit.records_fit import fit_records, poorly_determined
 from ..fit.table import INTERVALS, METHODS, fit_stick_slip
 from ..fit.trajectory import fit_adhesion
 from . import _interrupt, options
-from ._common import PROG, check_input_file, checked, load_phi, plotter, report, write_files
+from .._files import check_input_file
+from ._common import PROG, checked, load_phi, plotter, report, write_files
 
 def _defaults(function) -> dict:
     """A fit's defaults, read from its home module (the commands call ``peeljax.fit``'s)."""

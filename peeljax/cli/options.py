@@ -24,7 +24,8 @@ from ..sweeps.api import sweep
 from ..sweeps.integrators import DEFAULT_SWEEP_MAX_JUMPS, sweep_plan
 from ..sweeps.least_tau import least_tau
 from ..sweeps.storage import check_writable_format, is_netcdf
-from ._common import PROG, STEPPERS, check_output_path, library_default, plot_formats, read_phi, solver_for
+from .._files import check_output_path, image_formats
+from ._common import PROG, STEPPERS, library_default, read_phi, solver_for
 
 # --max-jumps: the jump record is allocated in full (5 arrays of max_jumps, per trajectory).
 MAX_JUMPS_LIMIT = 10_000_000
@@ -523,7 +524,7 @@ def check_outputs(args: argparse.Namespace) -> None:
             raise ValueError(f"--out {out!r}: {command} writes {written}, not a {suffix} file")
     check_output_path("--out", out)
     if getattr(args, "plot", None) is not None:
-        check_output_path("--plot", args.plot, plot_formats())
+        check_output_path("--plot", args.plot, image_formats())
 
 
 def add_json(parser) -> None:
