@@ -274,27 +274,6 @@ def _orbit_command(args: argparse.Namespace) -> int:
 
 
 # ---------------------------------------------------------------------------- the diagram
-def _diagram_record(diagram, config: OrbitConfig) -> dict:
-    on, periodic = diagram.covered()
-    return {
-        "command": "orbit",
-        "V_range": list(diagram.V_range),
-        "branches": [
-            {"slips": sorted({int(k) for k in b.slips}), "V_min": float(b.V.min()), "V_max": float(b.V.max()),
-             "points": len(b), "stable_points": int(b.stable.sum()), "ends": b.ends}
-            for b in diagram.branches
-        ],
-        "bifurcations": [
-            {"branch": i, "kind": b.kind.value, "V": b.V, "slips": b.slips, "note": b.note} for i, b in diagram.bifurcations
-        ],
-        "seeds": {"runs": len(diagram.seeds), "periodic": periodic, "on_a_branch": on},
-        "settings": config.settings(),
-        "wall_time_s": diagram.wall_time,
-        "out": config.out,
-        "plot": config.plot,
-    }  # fmt: skip
-
-
 class _KeptSoFar:
     """--out of an orbit diagram written as it grows (after each seed's V and each branch,
     marked incomplete), so that Ctrl-C keeps what was finished; ``describe`` says what that is."""
@@ -340,19 +319,8 @@ def _diagram_command(config: OrbitConfig) -> int:
             return write_failed("--out", out, error, "the diagram was not finished")
         except KeyboardInterrupt:
             return _interrupt.interrupted(kept.describe())
-    record = _diagram_record(diagram, config)
+    record = {"command": "orbit", **diagram.as_dict(), "settings": config.settings(), "out": out, "plot": plot}
     failed = write_files(record, ("--out", out, diagram.save), ("--plot", plot, plotter("plot_orbit_diagram", diagram)))
-    return report(record, config.json, lambda: _diagram_lines(diagram, record), failed, "the diagram's summary is above")
+    lines = [diagram.summary()] + [f"wrote {record[key]}" for key in ("out", "plot") if record.get(key)]
+    return report(record, config.json, lines, failed, "the diagram's summary is above")
 
-
-def _diagram_lines(diagram, record: dict) -> list[str]:
-    """The diagram's summary: its table, each branch with its bifurcations, the files written."""
-    lines = [str(diagram)]
-    for i, branch in enumerate(diagram.branches):
-        ks = ", ".join(str(k) for k in sorted({int(k) for k in branch.slips}))
-        lines.append(
-            f"branch {i}: {ks} slips per period, V in [{branch.V.min():.6g}, {branch.V.max():.6g}] m/s, "
-            f"{len(branch)} orbits ({int(branch.stable.sum())} stable)"
-        )
-        lines += [f"  {b}" for b in branch.bifurcations]
-    return lines + [f"wrote {record[key]}" for key in ("out", "plot") if record.get(key)]

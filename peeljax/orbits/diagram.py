@@ -104,6 +104,37 @@ class OrbitDiagram:
         :func:`peeljax.load` reads it back."""
         write_diagram(path, self)
 
+    def as_dict(self) -> dict:
+        """The diagram as JSON-able numbers: ``V_range``; per branch its k (slips per period), V range,
+        orbits, stable orbits and how it ends; each bifurcation (branch index, kind, V, k, note); the
+        seed runs (``runs``, ``periodic``, ``on_a_branch``); ``wall_time_s``."""
+        on, periodic = self.covered()
+        return {
+            "V_range": list(self.V_range),
+            "branches": [
+                {"slips": sorted({int(k) for k in b.slips}), "V_min": float(b.V.min()), "V_max": float(b.V.max()),
+                 "points": len(b), "stable_points": int(b.stable.sum()), "ends": b.ends}
+                for b in self.branches
+            ],
+            "bifurcations": [
+                {"branch": i, "kind": b.kind.value, "V": b.V, "slips": b.slips, "note": b.note} for i, b in self.bifurcations
+            ],
+            "seeds": {"runs": len(self.seeds), "periodic": periodic, "on_a_branch": on},
+            "wall_time_s": self.wall_time,
+        }  # fmt: skip
+
+    def summary(self) -> str:
+        """:meth:`__str__`'s table, then each branch (k, V range, orbits, stable ones) with its bifurcations."""
+        lines = [str(self)]
+        for i, branch in enumerate(self.branches):
+            ks = ", ".join(str(k) for k in sorted({int(k) for k in branch.slips}))
+            lines.append(
+                f"branch {i}: {ks} slips per period, V in [{branch.V.min():.6g}, {branch.V.max():.6g}] m/s, "
+                f"{len(branch)} orbits ({int(branch.stable.sum())} stable)"
+            )
+            lines += [f"  {b}" for b in branch.bifurcations]
+        return "\n".join(lines)
+
     def __str__(self) -> str:
         on, periodic = self.covered()
         kinds = {}
