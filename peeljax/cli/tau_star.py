@@ -10,7 +10,7 @@ import time
 from ..sweeps.least_tau import check_search
 from ..sweeps.least_tau import least_tau as _least_tau_api
 from . import options
-from ._common import PROG, Elapsed, fail, library_default, phi_defaults, report
+from ._common import PROG, Elapsed, fail, library_default, option_names, phi_defaults, report
 
 __all__ = ["add_command", "validate_tau_star"]
 
@@ -77,12 +77,7 @@ def _tau_star_command(args: argparse.Namespace) -> int:
         result = _run_tau_star(kwargs)
     wall = time.perf_counter() - start
     record = {
-        "V": result.V.tolist(),
-        "tau_star": result.tau_star.tolist(),
-        "tau_below": result.tau_below.tolist(),
-        "found": result.found.tolist(),
-        "t_stop_below": result.t_stop_below.tolist(),
-        "rounds": result.rounds,
+        **result.as_dict(),
         **options.engine_record(kwargs),
         "t_final": kwargs["t_final"],
         "tau_range": list(kwargs["tau_range"]),
@@ -92,9 +87,6 @@ def _tau_star_command(args: argparse.Namespace) -> int:
         "phi_paper_defaults": phi_defaults(args),
     }
     lines = [f"{PROG} tau-star: {options.engine_text(kwargs)}, t_final = {kwargs['t_final']:g} s, "
-             f"tau_rtol = {kwargs['tau_rtol']:g}, {result.rounds} batched runs, {wall:.3g} s"]  # fmt: skip
-    for i, V in enumerate(result.V):
-        note = "" if result.found[i] else "  (not bracketed inside --tau-range)"
-        lines.append(f"V = {V:g} m/s: tau* = {result.tau_star[i]:.6g} s (tau*(1-tau_rtol) stops at t = "
-                     f"{result.t_stop_below[i]:.4g} s){note}")  # fmt: skip
+             f"tau_rtol = {kwargs['tau_rtol']:g}, {result.rounds} batched runs, {wall:.3g} s",
+             option_names(result.summary())]  # fmt: skip (tau_range -> --tau-range)
     return report(record, args.json, lines)

@@ -71,6 +71,21 @@ class LeastTau:
     tested: list
     settings: dict
 
+    def as_dict(self) -> dict:
+        """τ* per V as JSON-able lists (``V``, ``tau_star``, ``tau_below``, ``found``, ``t_stop_below``) and
+        ``rounds``."""
+        fields = ("V", "tau_star", "tau_below", "found", "t_stop_below")
+        return {name: np.asarray(getattr(self, name)).tolist() for name in fields} | {"rounds": self.rounds}
+
+    def summary(self) -> str:
+        """One line per V: τ*, where τ*·(1 − tau_rtol) stopped, and whether τ* was bracketed inside tau_range."""
+        lines = []
+        for i, V in enumerate(self.V):
+            note = "" if self.found[i] else "  (not bracketed inside tau_range)"
+            lines.append(f"V = {V:g} m/s: tau* = {self.tau_star[i]:.6g} s (tau*(1-tau_rtol) stops at t = "
+                         f"{self.t_stop_below[i]:.4g} s){note}")  # fmt: skip
+        return "\n".join(lines)
+
 
 def check_search(tau_range, tau_rtol, n_points) -> tuple[float, float]:
     """The search's options of :func:`least_tau`, checked (nothing compiles); returns (lo, hi)."""
