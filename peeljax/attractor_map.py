@@ -198,6 +198,17 @@ class AttractorMap:
             period=float(self.fields["period"][i]), **options,
         )  # fmt: skip
 
+    def as_dict(self) -> dict:
+        """The map as JSON-able lists: ``V`` (the grid), ``attractors`` (every field of
+        :data:`ATTRACTOR_FIELDS` and ``label``, per attractor), ``boundaries``, ``rounds`` and ``settings``."""
+        return {
+            "V": self.grid_V.tolist(),
+            "attractors": {name: np.asarray(self.fields[name]).tolist() for name in ATTRACTOR_FIELDS} | {"label": self.labels},
+            "boundaries": {name: np.asarray(value).tolist() for name, value in self.boundaries.items()},
+            "rounds": list(self.rounds),
+            "settings": self.settings,
+        }
+
     def summary(self) -> str:
         """A few lines: the attractors by label, the branches and the boundaries."""
         labels = self.labels

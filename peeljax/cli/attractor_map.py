@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 
-from ..attractor_map import ATTRACTOR_FIELDS, DEFAULT_V, attractor_map, check_attractor_map_options
+from ..attractor_map import DEFAULT_V, attractor_map, check_attractor_map_options
 from . import options
 from ._common import PROG, fail, library_default, phi_defaults, plotter, report, write_files
 
@@ -89,11 +89,7 @@ def _map_command(args: argparse.Namespace) -> int:
     amap = attractor_map(**kwargs)
     wall = time.perf_counter() - start
     record = {
-        "V": amap.grid_V.tolist(),
-        "attractors": {name: np.asarray(getattr(amap, name)).tolist() for name in ATTRACTOR_FIELDS} | {"label": amap.labels},
-        "boundaries": {name: np.asarray(value).tolist() for name, value in amap.boundaries.items()},
-        "rounds": list(amap.rounds),
-        "settings": amap.settings,
+        **amap.as_dict(),
         "wall_time_s": wall,
         "phi_paper_defaults": phi_defaults(args),
         "out": args.out,
