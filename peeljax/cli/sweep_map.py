@@ -7,8 +7,6 @@ import argparse
 import sys
 import time
 
-import numpy as np
-
 from ..sweeps.engine import STARTS
 from . import options
 from ._common import PROG, fail, phi_defaults, plotter, remedy_notes, report, write_files
@@ -55,17 +53,11 @@ def _run_map(kwargs: dict):
 
 
 def _map_record(smap, kwargs: dict, args: argparse.Namespace, wall: float) -> dict:
-    """The map as one JSON object: settings, the ranges, and every per-lane field (rows: starts)."""
-    from ..sweeps.stick_slip_map import FOLD_FIELDS, LANE_FIELDS
-
+    """The map as one JSON object: :meth:`~peeljax.sweeps.StickSlipMap.as_dict` and how it ran."""
     settings = smap.settings.get("sweep", {})
     engine = options.engine_record({**kwargs, "dt": None}, settings.get("method"))
     return {
-        "V": smap.V.tolist(),
-        "starts": list(smap.starts),
-        "tau": smap.tau,
-        "t_final": smap.t_final,
-        "transient": smap.transient,
+        **smap.as_dict(),
         "method": engine["method"],  # the stepper that ran
         "method_option": args.method,  # --method as given
         "rtol": kwargs["rtol"],
@@ -78,10 +70,6 @@ def _map_record(smap, kwargs: dict, args: argparse.Namespace, wall: float) -> di
         "phi_paper_defaults": phi_defaults(args),
         "out": args.out,
         "plot": args.plot,
-        "stick_slip_ranges": {start: [list(r) for r in smap.stick_slip_ranges(start)] for start in smap.starts},
-        "no_fold_ranges": [list(r) for r in smap.no_fold_ranges()],
-        "lanes": {name: np.asarray(getattr(smap, name)).tolist() for name in (*LANE_FIELDS, "stick_slip")},
-        "folds": {name: np.asarray(getattr(smap, name)).tolist() for name in FOLD_FIELDS},
     }
 
 

@@ -235,6 +235,19 @@ class StickSlipMap:
         return _runs(self.V, ~self.has_folds)
 
     # ------------------------------------------------------------------ output
+    def as_dict(self) -> dict:
+        """The map as JSON-able lists: ``V``, ``starts``, ``tau``, ``t_final``, ``transient``, the ranges
+        (``stick_slip_ranges`` per start, ``no_fold_ranges``), ``lanes`` (every field of :data:`LANE_FIELDS` and
+        ``stick_slip``, rows: starts) and ``folds`` (:data:`FOLD_FIELDS`, per V)."""
+        return {
+            "V": self.V.tolist(), "starts": list(self.starts), "tau": self.tau, "t_final": self.t_final,
+            "transient": self.transient,
+            "stick_slip_ranges": {start: [list(r) for r in self.stick_slip_ranges(start)] for start in self.starts},
+            "no_fold_ranges": [list(r) for r in self.no_fold_ranges()],
+            "lanes": {name: np.asarray(getattr(self, name)).tolist() for name in (*LANE_FIELDS, "stick_slip")},
+            "folds": {name: np.asarray(getattr(self, name)).tolist() for name in FOLD_FIELDS},
+        }  # fmt: skip
+
     def as_arrays(self) -> dict[str, np.ndarray]:
         """Plain arrays for ``np.savez`` (loads with ``allow_pickle=False``): V, starts (a
         string array), the scalars tau, t_final, transient and wall_time, every per-lane field,
