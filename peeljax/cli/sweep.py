@@ -9,8 +9,6 @@ import re
 import sys
 import time
 
-import numpy as np
-
 from ..sweeps.integrators import DEFAULT_SWEEP_MAX_JUMPS
 from . import _interrupt, options
 from ..sweeps.api import sweep as sweep_api
@@ -203,33 +201,10 @@ def _window(args: argparse.Namespace) -> tuple[float, float]:
 
 
 # ---------------------------------------------------------------------------- commands
-_TRAJECTORY_KEYS = ("V", "tau", "completed", "status", "t_stop", "v_mean", "v_std", "v_min", "v_max", "events",
-                    "accepted_steps", "rejected_steps", "window_time")  # fmt: skip
-
-
 def _run_sweep(kwargs: dict):
     from ..sweeps import sweep
 
     return sweep(**kwargs)
-
-
-_JUMP_RECORD_KEYS = ("jump_t", "jump_up", "jump_v_before", "jump_v_after", "jump_G")
-
-
-def _jump_record(jumps: dict | None) -> dict | None:
-    """Each trajectory's recorded jumps for the JSON output: jump_count, then one list per
-    trajectory (its recorded jumps only, in time order) of each of jump_t, … jump_G."""
-    if jumps is None:
-        return None
-    counts = np.asarray(jumps["jump_count"]).astype(int)
-    record = {"jump_count": counts.tolist()}
-    for key in _JUMP_RECORD_KEYS:
-        values = np.asarray(jumps[key])
-        record[key] = [
-            (values[i, :n].astype(bool) if key == "jump_up" else values[i, :n].astype(float)).tolist()
-            for i, n in enumerate(counts)
-        ]
-    return record
 
 
 # ---------------------------------------------------------------------------- several processes
@@ -326,9 +301,7 @@ def _sweep_command(args: argparse.Namespace) -> int:
         "window_s": (kwargs["window"][1] - kwargs["window"][0]) * kwargs["t_final"],  # [s]: --window
         "fold": result.settings.get("fold"), "max_jumps": result.settings.get("max_jumps"), "start": kwargs["start"],
         "wall_time_s": wall, "phi_paper_defaults": phi_defaults(args),
-        "computed_chunks": list(result.computed_chunks), "out": args.out, "plot": args.plot,
-        "trajectories": {key: np.asarray(getattr(result, key)).tolist() for key in _TRAJECTORY_KEYS},
-        "jumps": _jump_record(result.jumps),
+        "computed_chunks": list(result.computed_chunks), "out": args.out, "plot": args.plot, **result.as_dict(),
     }  # fmt: skip
     failed = write_files(record, ("--plot", args.plot, plotter("plot_sweep_map", result)))
     notes = remedy_notes(result.status, result.settings.get("max_steps", kwargs.get("max_steps")))
@@ -361,21 +334,12 @@ def _print_resumed(result, out: str | None) -> None:
 def _sweep_lines(record: dict, result, kwargs: dict, wall: float) -> list[str]:
     """The sweep's summary: what ran, then one row per trajectory."""
     t_final, (w0, w1) = kwargs["t_final"], kwargs["window"]
-    jumps = None if result.jumps is None else np.asarray(result.jumps["jump_count"])
-    folds = "" if jumps is None else f"; start {record['start']}, fold {record['fold']} (max_jumps {record['max_jumps']})"
+    folds = "" if result.jumps is None else f"; start {record['start']}, fold {record['fold']} (max_jumps {record['max_jumps']})"
     lines = [
         f"{PROG} sweep: {record['n']} trajectories, {record['n_completed']} completed t = {t_final:g} s, "
         f"wall time {wall:.3g} s",
         f"{options.engine_text(kwargs, result.settings.get('method'))}; v statistics over t in [{w0 * t_final:g}, "
         f"{w1 * t_final:g}] s (--transient {w0 * t_final:g} --window {(w1 - w0) * t_final:g}){folds}",
-        f"{'V':>8} {'tau':>10} {'status':>14} {'t_stop':>8} {'v_mean':>10} {'v_std':>10} {'events':>6} "
-        f"{'steps':>8} {'rejected':>8}{'' if jumps is None else f' {chr(32) * 2}jumps'}",
+        result.table(),
     ]
-    for i in range(len(result)):
-        lines.append(
-            f"{result.V[i]:8.4g} {result.tau[i]:10.4g} {result.reasons[i]:>14} {result.t_stop[i]:8.4g} "
-            f"{result.v_mean[i]:10.4g} {result.v_std[i]:10.4g} {result.events[i]:6d} "
-            f"{result.accepted_steps[i]:8d} {result.rejected_steps[i]:8d}"
-            + ("" if jumps is None else f" {jumps[i]:7d}")
-        )
     return lines + [f"wrote {record[key]}" for key in ("out", "plot") if record[key]]

@@ -65,6 +65,9 @@ _BYTES_PER_TRAJECTORY = 8 * len(PER_TRAJECTORY_KEYS)
 JUMP_KEYS: tuple[str, ...] = ("jump_count", "jump_t", "jump_up", "jump_v_before", "jump_v_after", "jump_G")
 _JUMP_FIELDS = {"jump_count": "count", "jump_t": "t", "jump_up": "up", "jump_v_before": "v_before",
                 "jump_v_after": "v_after", "jump_G": "G"}  # fmt: skip
+# SweepResult.as_dict's per-trajectory fields
+_RECORD_KEYS = ("V", "tau", "completed", "status", "t_stop", "v_mean", "v_std", "v_min", "v_max", "events",
+                "accepted_steps", "rejected_steps", "window_time")  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
@@ -162,6 +165,36 @@ class SweepResult:
         if self.cycles is not None:
             out.update(self.cycles)
         return out
+
+    def as_dict(self) -> dict:
+        """The trajectories as JSON-able lists: ``trajectories`` (V, tau, completed, status, t_stop, v's window
+        statistics, events, step counts, window_time; one entry per trajectory) and ``jumps`` (None where none were
+        recorded): ``jump_count``, then per trajectory its recorded jumps in time order, for each of jump_t,
+        jump_up, jump_v_before, jump_v_after and jump_G."""
+        record = {"trajectories": {key: np.asarray(getattr(self, key)).tolist() for key in _RECORD_KEYS}, "jumps": None}
+        if self.jumps is not None:
+            counts = np.asarray(self.jumps["jump_count"]).astype(int)
+            record["jumps"] = {"jump_count": counts.tolist()} | {
+                key: [np.asarray(self.jumps[key])[i, :n].astype(bool if key == "jump_up" else float).tolist()
+                      for i, n in enumerate(counts)]
+                for key in JUMP_KEYS[1:]
+            }  # fmt: skip
+        return record
+
+    def table(self) -> str:
+        """One row per trajectory under a header: V, tau, how it ended, t_stop, v's mean and standard deviation over
+        the window, events, accepted and rejected steps, and the jumps where they were recorded."""
+        jumps = None if self.jumps is None else np.asarray(self.jumps["jump_count"])
+        lines = [f"{'V':>8} {'tau':>10} {'status':>14} {'t_stop':>8} {'v_mean':>10} {'v_std':>10} {'events':>6} "
+                 f"{'steps':>8} {'rejected':>8}{'' if jumps is None else f' {chr(32) * 2}jumps'}"]  # fmt: skip
+        for i in range(len(self)):
+            lines.append(
+                f"{self.V[i]:8.4g} {self.tau[i]:10.4g} {self.reasons[i]:>14} {self.t_stop[i]:8.4g} "
+                f"{self.v_mean[i]:10.4g} {self.v_std[i]:10.4g} {self.events[i]:6d} "
+                f"{self.accepted_steps[i]:8d} {self.rejected_steps[i]:8d}"
+                + ("" if jumps is None else f" {jumps[i]:7d}")
+            )
+        return "\n".join(lines)
 
     # ------------------------------------------------------------------ labelled data and files
     def to_xarray(self):
