@@ -11,7 +11,7 @@ from conftest import PNG_MAGIC, assert_refused, forbid, run_cli
 
 from peeljax import AdhesionLaw
 from peeljax.adhesion import COEFFICIENT_NAMES
-from peeljax.cli.fit import load_observations
+from peeljax.fit.records import load_observations
 
 SHORT = ["--t-final", "0.2", "--save-dt", "0.01", "--tau", "0.1"]
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from conftest import assert_refused, forbid, run_cli
 
-from peeljax.cli.fit import load_observations
+from peeljax.fit.records import load_observations
 from peeljax.fit import (
     DataFileError,
     StickSlipTable,

@@ -290,10 +290,12 @@ _PHRASES = (
 )  # fmt: skip
 # The library's words for error control and the uniform mesh (sweep_plan's messages)
 _MESH_PHRASES = (("(dt=None)", "(no --dt)"), ("(dt given)", "(--dt given)"))
-# Names that open a library message ("tau must be ...", "y0: ...").
+# Names that open a library message ("tau must be ...", "y0: ..."), and those whose option has another name.
 _LEADING = re.compile(
-    r"^(V|tau|dt|rtol|atol|rho|y0|geometry|transient|window|fold|start|free|statistics|coordinator)\b(?![-=])"
+    r"^(V|tau|dt|rtol|atol|rho|y0|geometry|transient|window|fold|start|free|statistics|coordinator|decimate|paths)"
+    r"\b(?![-=])"
 )
+_RENAMED = {"paths": "--data"}  # peeljax.fit.records.load_observations(paths): the --data files
 
 
 def option_names(message: str) -> str:
@@ -309,7 +311,7 @@ def option_names(message: str) -> str:
     message = _DIFFRAX_SOLVER.sub("--method diffrax", message).replace("drop dt/solver", "drop --dt/--method")
     for said, option in _PHRASES:
         message = message.replace(said, option)
-    return _LEADING.sub(lambda m: "--" + m.group(1), message)
+    return _LEADING.sub(lambda m: _RENAMED.get(m.group(1), "--" + m.group(1)), message)
 
 
 # Seconds between two "still running" lines of a long compiled run (tests make it short).

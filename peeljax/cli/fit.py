@@ -17,18 +17,16 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 
 import numpy as np
 
 from .._atomic import write_text
-from .._files import check_input_file, json_safe
+from .._files import json_safe
 from .._validation import check_choice, check_mesh, check_positive
 from ..adhesion import COEFFICIENT_NAMES
-from ..fit import QUANTITIES, DataFileError, Observation, read_force_record
+from ..fit import QUANTITIES, Observation
 from ..fit.parameters import check_free
-from ..fit.records import check_fit_samples, read_npz
-from ..fit.records import decimate as thin
+from ..fit.records import check_fit_samples, load_observations
 from ..fit.records_fit import is_force_record
 from ..fit.trajectory import OPTIMIZERS
 from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_RTOL
@@ -52,7 +50,7 @@ from .fit_table import (
     _visited_line,
 )
 
-__all__ = ["add_command", "load_observations"]
+__all__ = ["add_command"]
 
 
 def add_command(subparsers) -> None:
@@ -181,52 +179,6 @@ def add_command(subparsers) -> None:
     parser.set_defaults(handler=_fit_command, out_formats=(".json",))
 
 
-def _V_per_file(paths: list[str], V) -> list[float | None]:
-    """--V: one pull velocity for every --data file, or one per file in order (None: not given)."""
-    if V is None:
-        return [None] * len(paths)
-    values = options.check_positive_values("--V", V if isinstance(V, (list, tuple)) else [V])
-    if len(values) == 1:
-        return values * len(paths)
-    if len(values) != len(paths):
-        raise ValueError(
-            f"--V takes one value for all --data files or one per file: {len(values)} values for {len(paths)} files"
-        )
-    return values
-
-
-def load_observations(paths: list[str], V=None, decimate: int | None = None) -> tuple[list[Observation], dict]:
-    """Observations from the --data files and the .npz files' tau/dt where they agree.
-
-    ``.npz`` files keep their layouts (module docstring); any other file is a text force
-    record (:func:`peeljax.fit.read_force_record`: a CSV or whitespace table with columns
-    t, F and optionally v, alpha, V). ``V`` (``--V``): the pull velocity of text files that carry
-    it neither in a V column nor in their name, one value for all files or one per file.
-    ``decimate`` (``--decimate``): keep every N-th sample of each file. A text file whose numbers
-    would not fit the memory limit is refused before it is read, naming the estimate.
-
-    Raises:
-        ValueError: starting with ``--data`` and naming the file (and the line and column or
-            field at fault), or naming ``--V``.
-    """
-    if decimate is not None and decimate < 1:
-        raise ValueError(f"--decimate must be >= 1 (allowed range: [1, inf)), got {decimate}")
-    observations, defaults = [], {"tau": set(), "dt": set()}
-    for path, V_file in zip(paths, _V_per_file(paths, V)):
-        check_input_file("--data", path)
-        try:
-            if Path(path).suffix.lower() == ".npz":
-                found, settings = read_npz(path, V=V_file)
-                for key, value in settings.items():
-                    defaults[key].add(value)
-            else:
-                found = [read_force_record(path, V=V_file)]
-        except DataFileError as error:
-            raise ValueError(f"--data: {error}") from None
-        observations.extend(found if decimate is None else [thin(o, decimate) for o in found])
-    return observations, {k: next(iter(v)) for k, v in defaults.items() if len(v) == 1}
-
-
 def _check_source(args: argparse.Namespace) -> None:
     """Exactly one of --data and --table, and no option of the other kind."""
     if args.data is not None and args.table is not None:
@@ -335,7 +287,8 @@ def _fit_command(args: argparse.Namespace) -> int:
             config = _validate_table(args)
         else:
             _check_run_options(args)
-            observations, defaults = load_observations(args.data, args.V, args.decimate)
+            V = None if args.V is None else options.flatten(args.V)
+            observations, defaults = load_observations(args.data, V, args.decimate)
             if args.by is not None or any(is_force_record(o) for o in observations):
                 config = _validate_records(args, observations, defaults)
             else:

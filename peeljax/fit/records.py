@@ -45,20 +45,23 @@ from __future__ import annotations
 import dataclasses
 
 import math
+import os
 import re
 import zipfile
 import zlib
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
+from .._files import check_input_file
 from .._npz import check_declared_sizes
 from .text_tables import DataFileError, column_numbers, read_text_table
 from .observations import Observation
 
 __all__ = [
     "FILE_NAME_V", "FIT_BYTES_PER_SAMPLE", "FORCE_COLUMNS", "MAX_FIT_SAMPLES", "check_fit_samples", "decimate",
-    "read_force_record", "read_npz", "read_observations",
+    "load_observations", "read_force_record", "read_npz", "read_observations",
 ]  # fmt: skip
 
 # A point-by-point fit (fit_adhesion) compiles a program that holds the model's state at every
@@ -202,8 +205,7 @@ def decimate(observation: Observation, every: int) -> Observation:
     """The observation with every ``every``-th sample of each series kept (the first included):
     measured values, not filtered ones. The kept arrays are copies, so the full record can be
     freed and a fit's program is sized to what is kept."""
-    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
-        raise ValueError(f"decimate must be an integer >= 1 (allowed range: [1, inf)), got {every!r}")
+    _check_every(every)
     if every == 1:
         return observation
 
@@ -214,6 +216,14 @@ def decimate(observation: Observation, every: int) -> Observation:
         V=observation.V, t=keep(observation.t), v=keep(observation.v), F=keep(observation.F),
         alpha=keep(observation.alpha), t_F=keep(observation.t_F), t_alpha=keep(observation.t_alpha),
     )  # fmt: skip
+
+
+def _check_every(every) -> None:
+    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+        raise ValueError(f"decimate must be an integer >= 1 (allowed range: [1, inf)), got {every!r}")
+
+
+_thin = decimate  # (load_observations' parameter of that name hides it)
 
 
 def check_fit_samples(observations: list[Observation], names: list[str], option: str = "decimate") -> None:
@@ -247,6 +257,49 @@ def read_observations(path, *, V: float | None = None) -> list[Observation]:
     if Path(str(path)).suffix.lower() == ".npz":
         return read_npz(path, V=V)[0]
     return [read_force_record(path, V=V)]
+
+
+def load_observations(
+    paths: Sequence[str | os.PathLike], V: float | Sequence[float] | None = None, decimate: int | None = None
+) -> tuple[list[Observation], dict[str, float]]:
+    """The observations of several data files (:func:`read_observations`, file by file) and the settings that
+    their ``.npz`` files agree on.
+
+    Args:
+        paths: the data files: ``.npz`` (either layout), any other suffix a text force record.
+        V: the pull velocity [m/s], > 0, of the text files that carry it neither in a ``V`` column nor in
+            their name: one value for every file, or one per file in order.
+        decimate: keep every N-th sample of each file (:func:`decimate`), an integer >= 1.
+
+    Returns:
+        The observations, and ``{"tau": ..., "dt": ...}``: each setting the ``.npz`` files give one value of.
+
+    Raises:
+        ValueError: ``decimate`` or ``V`` out of range, checked before any file is read; a missing file, a
+            folder or a file refused (:class:`~peeljax.fit.DataFileError`), as ``paths: <why, naming the file>``.
+    """
+    if decimate is not None:
+        _check_every(decimate)
+    V_files = [V] * len(paths) if V is None or np.ndim(V) == 0 else list(V)
+    if len(V_files) == 1:
+        V_files = V_files * len(paths)
+    if len(V_files) != len(paths):
+        raise ValueError(f"V takes one value for all data files or one per file: {len(V_files)} values for {len(paths)} files")
+    V_files = [_check_V_argument(value) for value in V_files]
+    observations, settings = [], {"tau": set(), "dt": set()}
+    for path, V_file in zip(paths, V_files):
+        check_input_file("paths", str(path))
+        try:
+            if Path(str(path)).suffix.lower() == ".npz":
+                found, given = read_npz(path, V=V_file)
+                for key, value in given.items():
+                    settings[key].add(value)
+            else:
+                found = [read_force_record(path, V=V_file)]
+        except DataFileError as error:
+            raise ValueError(f"paths: {error}") from None
+        observations.extend(found if decimate is None else [_thin(o, decimate) for o in found])
+    return observations, {key: next(iter(values)) for key, values in settings.items() if len(values) == 1}
 
 
 # ---------------------------------------------------------------------------- .npz files
