@@ -33,13 +33,15 @@ def _shown(value):
     return float(value) if isinstance(value, (np.ndarray, np.generic)) and np.ndim(value) == 0 else value
 
 
-def _finite_array(name: str, value) -> np.ndarray:
+def _finite_array(name: str, value, allowed: str | None = None) -> np.ndarray:
+    """``value`` as a float array, refused where it is no number or not finite (naming the ``allowed`` range)."""
+    within = "" if allowed is None else f" (allowed range: {allowed})"
     try:
         array = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a real number, got {_shown(value)!r}") from None
+        raise ValueError(f"{name} must be a real number{within}, got {_shown(value)!r}") from None
     if not np.all(np.isfinite(array)):
-        raise ValueError(f"{name} must be finite, got {_shown(value)!r}")
+        raise ValueError(f"{name} must be finite{within}, got {_shown(value)!r}")
     return array
 
 
@@ -55,7 +57,7 @@ def check_positive(name: str, value) -> None:
     """``name`` must be finite and > 0 (every entry, if an array)."""
     if _plain_positive(value) or not is_concrete(value):
         return
-    array = _finite_array(name, value)
+    array = _finite_array(name, value, "(0, inf)")
     if np.any(array <= 0):
         raise ValueError(f"{name} must be > 0 (allowed range: (0, inf)), got {_shown(value)!r}")
 
@@ -69,8 +71,8 @@ def check_tau(tau, allow_zero: bool = False) -> None:
     3 s), and from τ ≈ 1e150 J_t overflows."""
     if not is_concrete(tau):
         return
-    array = _finite_array("tau", tau)
     low = "[0" if allow_zero else "(0"
+    array = _finite_array("tau", tau, f"{low}, {TAU_MAX:g}]")
     if np.any(array < 0) or (not allow_zero and np.any(array == 0)):
         relation = ">= 0" if allow_zero else "> 0"
         raise ValueError(f"tau must be {relation} (allowed range: {low}, {TAU_MAX:g}]), got {_shown(tau)!r}")
@@ -85,7 +87,7 @@ def check_rho(rho) -> None:
     """ρ ∈ [0, 1)."""
     if not is_concrete(rho):
         return
-    array = _finite_array("rho", rho)
+    array = _finite_array("rho", rho, "[0, 1)")
     if np.any((array < 0) | (array >= 1)):
         raise ValueError(f"rho must lie in [0, 1), got {_shown(rho)!r}")
 
