@@ -292,7 +292,7 @@ _PHRASES = (
 _MESH_PHRASES = (("(dt=None)", "(no --dt)"), ("(dt given)", "(--dt given)"))
 # Names that open a library message ("tau must be ...", "y0: ..."), and those whose option has another name.
 _LEADING = re.compile(
-    r"^(V|tau|dt|rtol|atol|rho|y0|geometry|transient|window|fold|start|free|statistics|coordinator|decimate|paths)"
+    r"^(V|tau|dt|rtol|atol|rho|y0|geometry|transient|window|fold|start|free|statistics|coordinator|decimate|paths|slips)"
     r"\b(?![-=])"
 )
 _RENAMED = {"paths": "--data"}  # peeljax.fit.records.load_observations(paths): the --data files

@@ -14,18 +14,16 @@ import sys
 import time
 from dataclasses import dataclass
 
-from .._validation import check_positive
 from ..model import PeelingModel
-from ..orbits.api import ATOL_PER_RTOL, DEFAULT_TRANSIENT_RUN, orbit_shooting, periodic_orbit
+from ..orbits.api import ATOL_PER_RTOL, DEFAULT_TRANSIENT_RUN, MAX_ITERATIONS, MAX_SLIPS, check_periodic_orbit
+from ..orbits.api import orbit_shooting, periodic_orbit
 from ..orbits.diagram import orbit_diagram
 from . import _interrupt, options
-from ._common import PROG, Elapsed, checked, fail, library_default, plotter, report, write_failed, write_files
+from ._common import PROG, Elapsed, fail, library_default, plotter, report, write_failed, write_files
 
 __all__ = ["EXIT_NOT_CONVERGED", "OrbitConfig", "add_command", "validate_orbit"]
 
 EXIT_NOT_CONVERGED = 1
-MAX_ITERATIONS_LIMIT = 1000  # Newton's cap: a typo must not run for hours
-MAX_SLIPS = 1000  # k: each Newton iteration runs k slips (a typo must not run for hours)
 MAX_SEEDS = 2000  # seed runs of a diagram: a typo must not run for days
 _STATISTICS_WORDS = (
     ("F_mean", "F_mean", "N", 1.0),
@@ -95,7 +93,7 @@ def add_command(subparsers) -> None:
     )  # fmt: skip
     shooting.add_argument(
         "--max-iterations", dest="max_iterations", type=int, default=max_iterations, metavar="N",
-        help=f"Newton's iteration cap, an integer in [1, {MAX_ITERATIONS_LIMIT}] (default {max_iterations})",
+        help=f"Newton's iteration cap, an integer in [1, {MAX_ITERATIONS}] (default {max_iterations})",
     )  # fmt: skip
     options.add_tolerances(
         shooting, rtol_default=f"{_RTOL:g}", atol_default=f"{ATOL_PER_RTOL:g}*rtol",
@@ -144,11 +142,14 @@ class OrbitConfig:
 
 
 def validate_orbit(args: argparse.Namespace) -> OrbitConfig:
-    """Every option checked in plain Python, before anything compiles (V once: a diagram's START, the rest as for one
-    V)."""
+    """Every option checked in plain Python, before anything compiles, by the library's
+    :func:`~peeljax.orbits.api.check_periodic_orbit` (V once: a diagram's START, the rest as for one V); a
+    diagram's range START:STOP:SEEDS here."""
     V_range = args.V if isinstance(args.V, tuple) else None
     V = args.V if V_range is None else V_range[0]
-    checked("(0, inf)", check_positive, "--V", V)
+    rtol = _RTOL if args.rtol is None else args.rtol
+    check_periodic_orbit(None, V, slips=args.slips, period=None, rtol=rtol, atol=args.atol,
+                         max_iterations=args.max_iterations, transient=args.transient)  # fmt: skip
     if V_range is not None:
         lo, V, seeds = V_range
         if not lo < V:
@@ -157,16 +158,7 @@ def validate_orbit(args: argparse.Namespace) -> OrbitConfig:
             raise ValueError(f"--V START:STOP:SEEDS: SEEDS must be an integer in [2, {MAX_SEEDS}] (allowed range), got {seeds}")
         if args.slips is not None:
             raise ValueError("--slips applies to one orbit (--V a number); a diagram takes k from each seed run's repeat")
-    if args.slips is not None and not 1 <= args.slips <= MAX_SLIPS:
-        raise ValueError(f"--slips must be an integer in [1, {MAX_SLIPS}] (allowed range), got {args.slips}")
-    checked("(0, inf)", check_positive, "--transient", args.transient)
-    if not 1 <= args.max_iterations <= MAX_ITERATIONS_LIMIT:
-        raise ValueError(
-            f"--max-iterations must be an integer in [1, {MAX_ITERATIONS_LIMIT}] (allowed range), got {args.max_iterations}"
-        )
-    rtol = _RTOL if args.rtol is None else args.rtol
-    controller = orbit_shooting(rtol=rtol, atol=args.atol).integrator.controller  # the library's checks and atol
-    rtol, atol = float(controller.rtol), float(controller.atol)
+    atol = orbit_shooting(rtol=rtol, atol=args.atol).integrator.controller.atol  # the library's default atol
     model, phi_defaults = options.model_from(args)
     options.check_outputs(args)
     return OrbitConfig(

@@ -25,7 +25,7 @@ from .period import period_statistics
 from .section import SlipSection
 from .shooting import Shooting, ShootingResult, shoot
 
-__all__ = ["DEFAULT_ORBIT_RTOL", "OrbitNotFound", "orbit_shooting", "periodic_orbit"]
+__all__ = ["DEFAULT_ORBIT_RTOL", "OrbitNotFound", "check_periodic_orbit", "orbit_shooting", "periodic_orbit"]
 
 # The orbit's tolerances, chosen by measurement (docs/orbits.md, tests/test_orbits.py): at rtol
 # 1e-8 the period and the five statistics agree with rtol 1e-11 to ~1e-7 relative.
@@ -41,17 +41,60 @@ class OrbitNotFound(ValueError):
     """No periodic orbit to shoot for: the run shows no repeat (steady, too short, irregular)."""
 
 
+# k and Newton's iteration cap: each iteration runs k slips, so a typo must not run for hours
+MAX_SLIPS = 1000
+MAX_ITERATIONS = 1000
+
+
 def _check_slips(slips) -> int:
-    if isinstance(slips, bool) or not isinstance(slips, numbers.Integral) or slips < 1:
-        raise ValueError(f"slips must be a positive integer (stick → slip events per period), got {slips!r}")
+    if isinstance(slips, bool) or not isinstance(slips, numbers.Integral) or not 1 <= slips <= MAX_SLIPS:
+        raise ValueError(
+            f"slips must be a positive integer (allowed range: [1, {MAX_SLIPS}]; the stick-to-slip events per period), got "
+            f"{slips!r}"
+        )
     return int(slips)
 
 
 def check_iterations(max_iterations) -> int:
-    """``max_iterations`` of Newton's method on the return map, checked (a positive integer)."""
-    if isinstance(max_iterations, bool) or not isinstance(max_iterations, numbers.Integral) or max_iterations < 1:
-        raise ValueError(f"max_iterations must be a positive integer, got {max_iterations!r}")
+    """``max_iterations`` of Newton's method on the return map, checked (an integer in [1, 1000])."""
+    if (
+        isinstance(max_iterations, bool)
+        or not isinstance(max_iterations, numbers.Integral)
+        or not 1 <= max_iterations <= MAX_ITERATIONS
+    ):
+        raise ValueError(
+            f"max_iterations must be a positive integer (allowed range: [1, {MAX_ITERATIONS}]), got {max_iterations!r}"
+        )
     return int(max_iterations)
+
+
+def check_periodic_orbit(
+    model: PeelingModel | None,
+    V: ArrayLike,
+    *,
+    slips: int | None,
+    period: float | None,
+    rtol: float,
+    atol: float | None,
+    max_iterations: int,
+    transient: float,
+) -> None:
+    """The options of :func:`periodic_orbit`, checked in plain Python before anything compiles (what it
+    checks first): a ValueError (TypeError for the model) naming the parameter and its allowed range."""
+    if model is not None and not isinstance(model, PeelingModel):
+        raise TypeError(f"model must be a PeelingModel, got {type(model).__name__}")
+    if not is_concrete(V) or np.ndim(V) != 0:
+        raise ValueError(f"V must be one number (m/s, > 0), got {V!r}; for many V use peeljax.orbits.continue_orbits")
+    check_positive("V", V)
+    check_tolerance("rtol", rtol, upper=1.0)
+    if atol is not None:
+        check_tolerance("atol", atol)
+    if slips is not None:
+        _check_slips(slips)
+    if period is not None:
+        check_positive("period", period)
+    check_iterations(max_iterations)
+    check_positive("transient", transient)
 
 
 def orbit_shooting(
@@ -232,21 +275,11 @@ def periodic_orbit(
             tell, or irregular — said in the message.
         ValueError: a bad option, named with its allowed range (before anything compiles).
     """
+    check_periodic_orbit(
+        model, V, slips=slips, period=period, rtol=rtol, atol=atol, max_iterations=max_iterations, transient=transient
+    )
     model = PeelingModel() if model is None else model
-    if not isinstance(model, PeelingModel):
-        raise TypeError(f"model must be a PeelingModel, got {type(model).__name__}")
-    if not is_concrete(V) or np.ndim(V) != 0:
-        raise ValueError(f"V must be one number (m/s, > 0), got {V!r}; for many V use peeljax.orbits.continue_orbits")
-    check_positive("V", V)
-    check_tolerance("rtol", rtol, upper=1.0)
-    if atol is not None:
-        check_tolerance("atol", atol)
-    if slips is not None:
-        slips = _check_slips(slips)
-    if period is not None:
-        check_positive("period", period)
-    check_iterations(max_iterations)
-    check_positive("transient", transient)
+    slips = None if slips is None else int(slips)
     if not bool(phi_has_folds(model, jnp.asarray(V, float))):
         raise OrbitNotFound(
             f"phi has no fold at V = {float(V):g} m/s: the peeling is steady, there is no stick-slip orbit"
