@@ -104,7 +104,10 @@ def check_mesh(dt, t_final) -> int:
     ratio = t_final / dt  # inf for a subnormal dt: no integer count (round(inf) raises OverflowError)
     n_steps = max(1, round(ratio)) if math.isfinite(ratio) else math.inf
     if n_steps > 100_000_000:
-        raise ValueError(f"dt={dt} gives {n_steps} steps over t_final={t_final}; the limit is 1e8 steps")
+        raise ValueError(
+            f"dt={dt} gives {n_steps} steps over t_final={t_final}; the limit is 1e8 steps (allowed range: "
+            f"[{t_final / 1e8:.3g}, {t_final:g}])"
+        )
     return n_steps
 
 
@@ -161,9 +164,9 @@ def check_y0(y0) -> None:
     """y0 = (α, ω, u, v): four finite numbers with v > 0 (φ is defined for v > 0)."""
     if y0 is None or not is_concrete(y0):
         return
-    array = _finite_array("y0", y0)
+    array = _finite_array("y0", y0, "four finite numbers (alpha, omega, u, v) with v > 0")
     if array.shape[-1:] != (4,):
-        raise ValueError(f"y0 must hold four numbers (alpha, omega, u, v), got shape {array.shape}")
+        raise ValueError(f"y0 must hold four numbers (alpha, omega, u, v) with v > 0, got shape {array.shape}")
     if np.any(array[..., 3] <= 0):
         raise ValueError(f"y0: the peeling velocity v must be > 0 (allowed range: (0, inf)), got {array[..., 3]}")
 
