@@ -166,17 +166,6 @@ def library_default(function, name: str):
     return inspect.signature(function).parameters[name].default
 
 
-def checked(allowed: str, check, *args):
-    """Run a library check; add the allowed range where its message lacks one (e.g. "must be finite")."""
-    try:
-        return check(*args)
-    except ValueError as error:
-        message = str(error)
-        if "allowed range" in message or allowed in message:
-            raise
-        raise ValueError(f"{message} (allowed range: {allowed})") from None
-
-
 def solver_for(method: str, rho: float | None):
     """``--method`` as the ``solver`` argument of :func:`peeljax.simulate` / :func:`peeljax.sweep`: None for
     "default" (the library's choice), an ``AlphaMethod(rho=rho)`` for "alpha" (so that ``--rho`` reaches it), else

@@ -10,7 +10,7 @@ from pathlib import Path
 from .._files import check_output_folder, image_formats, json_safe
 from .._validation import check_positive
 from . import options
-from ._common import PROG, checked, fail, write_failed
+from ._common import PROG, fail, write_failed
 
 __all__ = ["add_command"]
 
@@ -47,7 +47,7 @@ def _figures_command(args: argparse.Namespace) -> int:
     try:
         given = {}
         if args.t_final is not None:
-            checked("(0, inf)", check_positive, "t_final", args.t_final)
+            check_positive("t_final", args.t_final)
             if args.t_final < 0.05:
                 raise ValueError(f"t_final must be >= 0.05 s (allowed range: [0.05, inf)), got {args.t_final}")
             given["t_final"] = args.t_final

@@ -31,7 +31,7 @@ from ..fit.records_fit import is_force_record
 from ..fit.trajectory import OPTIMIZERS
 from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_RTOL
 from . import options
-from ._common import PROG, checked, fail, load_phi, plotter, write_files
+from ._common import PROG, fail, load_phi, plotter, write_files
 from .fit_table import (
     _DATA_ONLY,
     _POINTS_DEFAULTS,
@@ -228,7 +228,7 @@ def _check_run_options(args: argparse.Namespace) -> None:
             raise ValueError(f"{option} must be >= 1 (allowed range: [1, inf)), got {value}")
     options.check_max_steps(args.max_steps, None if args.dt is None else "--dt")
     if args.learning_rate is not None:
-        checked("(0, inf)", check_positive, "--learning-rate", args.learning_rate)
+        check_positive("--learning-rate", args.learning_rate)
     if args.free is not None:
         check_free(args.free)
     for quantity in args.quantities or ():
@@ -251,9 +251,9 @@ def _validate(args: argparse.Namespace, observations: list[Observation], default
     rtol, atol = args.rtol, args.atol
     if dt is not None:
         options.refuse_with_dt(dt, {"--rtol": rtol, "--atol": atol})
-        n_steps = checked("dt in (0, t_final], t_final in (0, inf)", check_mesh, dt, t_final)
+        n_steps = check_mesh(dt, t_final)
     else:
-        checked("(0, inf)", check_positive, "--t-final", t_final)
+        check_positive("--t-final", t_final)
         rtol, atol = options.check_tolerances(rtol, atol, (DEFAULT_RTOL, DEFAULT_ATOL))
         n_steps = None
     start = load_phi(args.phi)

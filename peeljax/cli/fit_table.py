@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validation import TAU_MAX, check_choice, check_tau
+from .._validation import check_choice, check_tau
 from ..fit import DataFileError, Observation
 from ..fit.parameters import check_free
 from ..fit.records import check_fit_samples
@@ -24,7 +24,7 @@ from ..fit.table import INTERVALS, METHODS, fit_stick_slip
 from ..fit.trajectory import fit_adhesion
 from . import _interrupt, options
 from .._files import check_input_file
-from ._common import PROG, checked, load_phi, plotter, report, write_files
+from ._common import PROG, load_phi, plotter, report, write_files
 
 def _defaults(function) -> dict:
     """A fit's defaults, read from its home module (the commands call ``peeljax.fit``'s)."""
@@ -121,7 +121,7 @@ def _validate_table(args: argparse.Namespace, table=None, source: str | None = N
     if table is None:
         table, source = _read_table(args), f"the stick-slip table {args.table}"
     tau = _TABLE_DEFAULTS["tau"] if args.tau is None else args.tau
-    checked(f"[0, {TAU_MAX:g}]", check_tau, tau, True)
+    check_tau(tau, True)
     transient, window = _table_window(args)
     n_starts = _n_starts(args)
     max_iterations = _max_iterations(args, _TABLE_DEFAULTS)
@@ -356,5 +356,5 @@ def _points_tau(args: argparse.Namespace, defaults: dict) -> float:
         )
         return default
     tau = args.tau if args.tau is not None else defaults.get("tau", default)
-    checked(f"(0, {TAU_MAX:g}]", check_tau, tau)
+    check_tau(tau)
     return tau

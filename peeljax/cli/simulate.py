@@ -19,7 +19,7 @@ from ..model import PeelingModel
 from ..simulate import check_run_memory, simulate, simulate_reference
 from ..solution import Solution
 from . import options
-from ._common import STEPPERS, Elapsed, checked, fail, library_default, plotter, report, solver_for, write_files
+from ._common import STEPPERS, Elapsed, fail, library_default, plotter, report, solver_for, write_files
 from .simulate_report import announce, cycles, plot_title, regime_note, remedy_notes, summary_lines
 
 __all__ = ["add_command", "run", "summarize", "validate_run", "write_npz"]
@@ -172,14 +172,13 @@ class RunConfig:
 def validate_run(args: argparse.Namespace) -> RunConfig:
     """Check every option as the Python API would, without compiling anything."""
     options.check_method(args.method, METHODS, args.dt, args.rho, (*_UNIFORM_METHODS, "diffrax"))
-    positive = "(0, inf)"
-    checked(positive, check_positive, "--V", args.V)
+    check_positive("--V", args.V)
     _check_tau(args)
-    checked(positive, check_positive, "--t-final", args.t_final)
+    check_positive("--t-final", args.t_final)
     dt = args.dt
     if args.method == "diffrax" and dt is None and args.save_dt is None:
         dt = _REFERENCE["dt"]  # the reference's output spacing
-    n_steps = None if dt is None else checked("dt in (0, t_final], t_final in (0, inf)", check_mesh, dt, args.t_final)
+    n_steps = None if dt is None else check_mesh(dt, args.t_final)
     save_ts = None
     if args.save_dt is not None:
         remedy = "give a larger --save-dt or a shorter --t-final"
@@ -210,7 +209,7 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
     if max_steps is not None and save_ts is None and args.method != "diffrax":
         # the accepted steps are the output: max_steps + 1 rows (diffrax's reference keeps its output grid)
         _check_memory(f"--max-steps {max_steps}", max_steps + 1, "steps", "give a smaller --max-steps or a --save-dt")
-    checked("finite (alpha0, omega0, u0, v0) with v0 > 0", check_y0, args.y0)
+    check_y0(args.y0)
     model, phi_defaults = options.model_from(args)
     options.check_outputs(args)
     return RunConfig(
@@ -253,7 +252,7 @@ def _check_tau(args: argparse.Namespace) -> None:
             f"--tau 0 (the DAE itself, with jumps at the folds of phi) runs with error control (any stepper), "
             f"not on {what}: {_remedy(other)}, or give tau in (0, {TAU_MAX:g}] (the homogenized ODE)"
         )
-    checked(f"{'[' if other is None else '('}0, {TAU_MAX:g}]", check_tau, args.tau, other is None)
+    check_tau(args.tau, other is None)
 
 
 def _check_folds(args: argparse.Namespace) -> tuple[str, int, float]:
