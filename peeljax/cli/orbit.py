@@ -9,7 +9,6 @@ shoot for (φ has no fold at V, or the run shows no repeat), before any shooting
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 from dataclasses import dataclass
@@ -25,13 +24,6 @@ __all__ = ["EXIT_NOT_CONVERGED", "OrbitConfig", "add_command", "validate_orbit"]
 
 EXIT_NOT_CONVERGED = 1
 MAX_SEEDS = 2000  # seed runs of a diagram: a typo must not run for days
-_STATISTICS_WORDS = (
-    ("F_mean", "F_mean", "N", 1.0),
-    ("F_slip", "F_slip", "N", 1.0),
-    ("F_stick", "F_stick", "N", 1.0),
-    ("period", "time between slips", "ms", 1e3),
-    ("slip_duration", "slip duration", "ms", 1e3),
-)
 
 
 # Newton's iteration cap and a diagram's seed runs: the library's defaults
@@ -182,48 +174,15 @@ def _record(orbit, config: OrbitConfig, wall: float) -> dict:
     return record
 
 
-def _summary(record: dict, config: OrbitConfig) -> list[str]:
-    """A few lines of plain ASCII (whatever the terminal's encoding)."""
-    converged = record["status"] == "converged"
-    k = record["slips_per_period"]
+def _summary(orbit, record: dict, config: OrbitConfig) -> list[str]:
+    """How the orbit was sought, :meth:`~peeljax.PeriodicOrbit.summary`, the wall time and the files written."""
     lines = [
         f"{PROG} orbit: V = {config.V:g} m/s, tau = 0 (the DAE), Newton from the repeat of a {config.transient:g} s "
         f"run, rtol = {config.rtol:g}, atol = {config.atol:g}, geometry {config.model.geometry}",
-        f"{_status_line(record)} ({record['newton_iterations']} Newton iterations, residual {record['residual']:.2e})",
+        orbit.summary(),
+        f"wall time {record['wall_time_s']:.3g} s (including compilation)",
     ]
-    at = "" if converged else " (at Newton's last point: not an orbit)"
-    lines.append(
-        f"period T = {record['period']:.7g} s with {k} stick -> slip event{'' if k == 1 else 's'} per period{at}"
-    )
-    multipliers = record["multipliers"]
-    shown = ", ".join(_complex(m["re"], m["im"]) for m in multipliers)
-    moduli = ", ".join(f"{m['abs']:.4g}" for m in multipliers)
-    verdict = "stable" if record["stable"] else "unstable"
-    lines.append(f"{verdict}: Floquet multipliers {shown} (|lambda| {moduli}; stable when every |lambda| < 1)")
-    stats = record["statistics"]
-    words = ", ".join(f"{name} {scale * stats[key]:.6g} {unit}" for key, name, unit, scale in _STATISTICS_WORDS)
-    lines.append(f"over one period: {words}")
-    section = record["section"]
-    lines.append(
-        f"section: alpha = {section['alpha']:.7g} rad, omega = {section['omega']:.7g} rad/s (just before the slip)"
-    )
-    lines.append(f"wall time {record['wall_time_s']:.3g} s (including compilation)")
-    for key in ("out", "plot"):
-        if record.get(key):
-            lines.append(f"wrote {record[key]}")
-    return lines
-
-
-def _status_line(record: dict) -> str:
-    """``converged: ...`` or ``not_converged: <reason>``: the status once, then why."""
-    status, reason = record["status"], record["reason"]
-    return reason if reason.startswith(status) else f"{status}: {reason}"
-
-
-def _complex(re: float, im: float) -> str:
-    if abs(im) < 1e-12 * max(math.hypot(re, im), 1e-300):
-        return f"{re:.4g}"
-    return f"{re:.4g}{'+' if im >= 0 else '-'}{abs(im):.4g}i"
+    return lines + [f"wrote {record[key]}" for key in ("out", "plot") if record.get(key)]
 
 
 def _orbit_command(args: argparse.Namespace) -> int:
@@ -261,7 +220,7 @@ def _orbit_command(args: argparse.Namespace) -> int:
     else:
         failed += write_files(record, ("--plot", config.plot, plotter("plot_orbit", orbit)))
     notes = [] if converged else [f"{PROG}: the orbit did not converge ({record['status']}): {record['reason']}"]
-    code = report(record, config.json, lambda: _summary(record, config), failed, "the orbit's summary is above", notes)
+    code = report(record, config.json, lambda: _summary(orbit, record, config), failed, "the orbit's summary is above", notes)
     return EXIT_NOT_CONVERGED if not converged else code
 
 

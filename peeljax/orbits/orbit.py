@@ -22,6 +22,11 @@ from .shooting import OrbitStatus
 __all__ = ["PeriodicOrbit", "SavedOrbit", "read_orbit"]
 
 _UNITS = {"F_mean": "N", "F_slip": "N", "F_stick": "N", "period": "s", "slip_duration": "s"}
+# PeriodicOrbit.summary's statistics: key, name, unit, scale
+_STATISTICS_WORDS = (
+    ("F_mean", "F_mean", "N", 1.0), ("F_slip", "F_slip", "N", 1.0), ("F_stick", "F_stick", "N", 1.0),
+    ("period", "time between slips", "ms", 1e3), ("slip_duration", "slip duration", "ms", 1e3),
+)  # fmt: skip
 
 
 class PeriodicOrbit(eqx.Module):
@@ -146,6 +151,26 @@ class PeriodicOrbit(eqx.Module):
     def to_json(self) -> str:
         return json.dumps(self.as_dict(), indent=2)
 
+    def summary(self) -> str:
+        """A report in plain words (single orbits only): the status and why, the period and the events per period, the
+        Floquet multipliers and the stability, the five statistics over one period, and the section point."""
+        d = self.as_dict()
+        status, reason, k = d["status"], d["reason"], d["slips_per_period"]
+        at = "" if status == "converged" else " (at Newton's last point: not an orbit)"
+        shown = ", ".join(_complex(complex(m["re"], m["im"]), modulus=False) for m in d["multipliers"])
+        moduli = ", ".join(f"{m['abs']:.4g}" for m in d["multipliers"])
+        words = ", ".join(f"{name} {scale * d['statistics'][key]:.6g} {unit}" for key, name, unit, scale in _STATISTICS_WORDS)
+        return "\n".join([
+            f"{reason if reason.startswith(status) else f'{status}: {reason}'} ({d['newton_iterations']} Newton "
+            f"iterations, residual {d['residual']:.2e})",
+            f"period T = {d['period']:.7g} s with {k} stick -> slip event{'' if k == 1 else 's'} per period{at}",
+            f"{'stable' if d['stable'] else 'unstable'}: Floquet multipliers {shown} (|lambda| {moduli}; stable when "
+            "every |lambda| < 1)",
+            f"over one period: {words}",
+            f"section: alpha = {d['section']['alpha']:.7g} rad, omega = {d['section']['omega']:.7g} rad/s (just before "
+            "the slip)",
+        ])  # fmt: skip
+
     def save(self, path, settings: dict | None = None) -> None:
         """Write the orbit to an ``.npz`` that :func:`peeljax.load` reads back as a
         :class:`~peeljax.orbits.SavedOrbit` (:mod:`peeljax.orbits.files`; single orbits
@@ -179,9 +204,12 @@ def _stable(multipliers):
     return jnp.max(jnp.abs(multipliers), axis=-1) < 1.0
 
 
-def _complex(m: complex) -> str:
+def _complex(m: complex, modulus: bool = True) -> str:
+    """A multiplier in words: real where its imaginary part is negligible; else a+bi, with its modulus (``modulus``)."""
     if abs(m.imag) < 1e-12 * max(abs(m), 1e-300):
         return f"{m.real:.4g}"
+    if not modulus:
+        return f"{m.real:.4g}{'+' if m.imag >= 0 else '-'}{abs(m.imag):.4g}i"
     return f"{m.real:.4g}{'+' if m.imag >= 0 else '−'}{abs(m.imag):.4g}i (|λ| {abs(m):.4g})"
 
 
