@@ -38,6 +38,7 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 from .._validation import (
+    TAU_MAX,
     check_adjoint,
     check_max_steps,
     check_mesh,
@@ -215,9 +216,11 @@ def resolve_fold(fold: str | None, *, dt=None, solver=None, dae: bool = False) -
     diffrax_solver = _own_loop(solver)
     if dae and (dt is not None or diffrax_solver):
         what = f"dt={dt!r} (a uniform mesh)" if dt is not None else f"a diffrax solver ({type(solver).__name__})"
+        remedy = "drop dt" if dt is not None else "give a Runge-Kutta solver (e.g. 'kvaerno5')"
         raise ValueError(
             f"tau=0 (the DAE with jumps at the folds of phi) runs in the error-controlled loop (the alpha-method or "
-            f"a diffrax Runge-Kutta solver), not on {what}"
+            f"a diffrax Runge-Kutta solver), not on {what}: {remedy}, or give tau in (0, {TAU_MAX:g}] (the "
+            "homogenized ODE)"
         )
     if fold is None:
         return "stop" if dt is not None or diffrax_solver else "jump"
