@@ -275,7 +275,7 @@ _PHRASES = (
     ("give start=(alpha, omega) and slips= to shoot near it",
      "the Python API shoots from a given state: peeljax.periodic_orbit(start=(alpha, omega), slips=K)"),
     ("give coordinator HOST:PORT", "give --coordinator HOST:PORT"), ("the same coordinator?", "the same --coordinator?"),
-    ("or detect them under SLURM's srun", "or --distributed under SLURM's srun"),
+    ("or detect them under SLURM's srun", "or --distributed under SLURM's srun"), ("drop dt,", "drop --dt,"),
 )  # fmt: skip
 # The library's words for error control and the uniform mesh (sweep_plan's messages)
 _MESH_PHRASES = (("(dt=None)", "(no --dt)"), ("(dt given)", "(--dt given)"))

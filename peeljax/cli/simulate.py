@@ -236,23 +236,21 @@ def _without_error_control(args: argparse.Namespace) -> str | None:
     return None if args.dt is None else "--dt"
 
 
-def _remedy(other: str) -> str:
-    if other == "--dt":
-        return "drop --dt"
-    return "choose a stepper with error control (--method default, or a name such as kvaerno5)"
+_TO_ERROR_CONTROL = "choose a stepper with error control (--method default, or a name such as kvaerno5)"
 
 
 def _check_tau(args: argparse.Namespace) -> None:
-    """τ ∈ [0, 1e6] under error control (any stepper); τ = 0 (the DAE, with jumps) needs it, so
-    with --dt or --method diffrax the range is (0, 1e6]."""
-    other = _without_error_control(args)
-    if other is not None and args.tau == 0:
-        what = "a uniform mesh (--dt)" if other == "--dt" else "the diffrax reference (--method diffrax)"
+    """τ ∈ [0, 1e6] under error control (any stepper), (0, 1e6] on the uniform mesh (τ = 0 there: the library's
+    refusal, when the integrator is made) and on the diffrax reference, which integrates τ > 0 only."""
+    reference = args.method == "diffrax"
+    if reference and args.tau == 0:
         raise ValueError(
-            f"--tau 0 (the DAE itself, with jumps at the folds of phi) runs with error control (any stepper), "
-            f"not on {what}: {_remedy(other)}, or give tau in (0, {TAU_MAX:g}] (the homogenized ODE)"
+            "--tau 0 (the DAE itself, with jumps at the folds of phi) runs with error control (any stepper), not on "
+            f"the diffrax reference (--method diffrax): {_TO_ERROR_CONTROL}, or give tau in (0, {TAU_MAX:g}] (the "
+            "homogenized ODE)"
         )
-    check_tau(args.tau, other is None)
+    if args.tau != 0:
+        check_tau(args.tau, args.dt is None and not reference)
 
 
 def _check_folds(args: argparse.Namespace) -> tuple[str, int, float]:
@@ -263,7 +261,7 @@ def _check_folds(args: argparse.Namespace) -> tuple[str, int, float]:
     if reference and args.fold not in (None, "stop"):
         raise ValueError(
             f"--fold {args.fold} needs error control (any stepper), which cuts a step at a fold; with --method "
-            f"diffrax a run can only stop there: give --fold stop, or {_remedy('--method diffrax')}"
+            f"diffrax a run can only stop there: give --fold stop, or {_TO_ERROR_CONTROL}"
         )
     max_jumps = options.check_max_jumps(args.max_jumps, None, _without_error_control(args))
     transient, _ = options.check_statistics_window(args.transient, None, args.t_final)
