@@ -246,7 +246,7 @@ def _records_command(args: argparse.Namespace, config: dict) -> int:
         return _interrupted_fit(stop, args)
     by_points = any(kind == "points" for kind, _ in config["decided"])  # each record's F(t) against the model's, and φ
     figure = plotter("plot_records_fit", result, config["records"], model=model, tau=config["tau"] if by_points else 0.0,
-                     module="peeljax.fit.plots")  # fmt: skip
+                     module="peeljax.plots.fit")  # fmt: skip
     poorly = None if args.json else poorly_determined(result, config["records"])
     notes = [] if poorly is None else [f"{PROG}: {poorly}"]
     return _report_lm(result, args, {"data": args.data, "phi": args.phi}, [result.summary()], figure, notes)
@@ -338,7 +338,7 @@ def _table_command(args: argparse.Namespace, config: dict) -> int:
         # the coefficients, then each row's attractor, the bifurcations crossed, the profile intervals
         *result.summary().splitlines()[2:],
     ]
-    figure = plotter("plot_table_fit", result, table, model=model, module="peeljax.fit.plots")
+    figure = plotter("plot_table_fit", result, table, model=model, module="peeljax.plots.fit")
     return _report_lm(result, args, {"table": args.table, "data": args.data, "phi": args.phi}, lines, figure)
 
 
