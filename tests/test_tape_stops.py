@@ -144,7 +144,8 @@ def test_jump_times_after_releases_match_central_differences():
     slip after a release. d(jump times, x(0.6 s))/dω0 within 1e-4 of central differences at rtol
     1e-11 (h and h/4 agreeing to 4e-7); 3.5e-6 measured. The first slip after a release was
     8.7e-4 off while its tangential fold was differentiated from a reference 1e-8 deep (1e-3·rtol now: 1e-13 here)."""
-    y8 = pj.simulate(_model(), V=V, tau=0.0, t_final=8.0, ts=jnp.array([0.0, 8.0]), rtol=1e-10, atol=1e-13).ys[-1]
+    # (a run's rows are NumPy arrays on the host: jnp for the functional update below)
+    y8 = jnp.asarray(pj.simulate(_model(), V=V, tau=0.0, t_final=8.0, ts=jnp.array([0.0, 8.0]), rtol=1e-10, atol=1e-13).ys[-1])
 
     def run(omega, rtol=1e-11, adjoint="reverse"):
         sol = pj.simulate(_model(), V=V, tau=0.0, t_final=0.6, ts=jnp.array([0.0, 0.6]), y0=y8.at[1].set(omega),
