@@ -186,7 +186,7 @@ class SweepResult:
         the window, events, accepted and rejected steps, and the jumps where they were recorded."""
         jumps = None if self.jumps is None else np.asarray(self.jumps["jump_count"])
         lines = [f"{'V':>8} {'tau':>10} {'status':>14} {'t_stop':>8} {'v_mean':>10} {'v_std':>10} {'events':>6} "
-                 f"{'steps':>8} {'rejected':>8}{'' if jumps is None else f' {chr(32) * 2}jumps'}"]  # fmt: skip
+                 f"{'steps':>8} {'rejected':>8}{'' if jumps is None else '   jumps'}"]  # fmt: skip
         for i in range(len(self)):
             lines.append(
                 f"{self.V[i]:8.4g} {self.tau[i]:10.4g} {self.reasons[i]:>14} {self.t_stop[i]:8.4g} "
