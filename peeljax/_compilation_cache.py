@@ -16,7 +16,11 @@ command line, a sweep's workers) is read back by the next in milliseconds:
   ``JAX_COMPILATION_CACHE_MAX_SIZE`` overrides). A size limit also makes JAX lock the folder
   around each read and write (``filelock``), so processes sharing it never read an entry being
   written;
-* an entry that cannot be read (truncated, corrupt) is compiled again: JAX warns and goes on.
+* an entry that cannot be read (truncated, corrupt) is compiled again: JAX warns and goes on;
+* an entry without its record of last use (``KEY-atime`` beside ``KEY-cache``: a process killed
+  between JAX's two writes, or a folder filled with no size limit) would make every later write
+  fail — JAX's eviction reads every entry's last use — so that nothing is cached again: importing
+  peeljax gives each such entry its file's time (:func:`restore_last_use`).
 """
 
 from __future__ import annotations
@@ -31,6 +35,8 @@ MAX_BYTES = 4 * 2**30
 # Programs that compile faster than this are not written: about the time an entry takes to key,
 # write and read (JAX's own default, 1 s, left out most of an orbit's small programs).
 MIN_COMPILE_SECONDS = 0.1
+# JAX's names of an entry and of its last use (jax/_src/lru_cache.py)
+_ENTRY, _LAST_USE = "-cache", "-atime"
 
 
 def default_folder() -> Path:
@@ -72,4 +78,28 @@ def enable() -> Path | None:
         jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_SECONDS)
     if "JAX_COMPILATION_CACHE_MAX_SIZE" not in os.environ:
         jax.config.update("jax_compilation_cache_max_size", MAX_BYTES)
+    restore_last_use(folder)
     return folder
+
+
+def restore_last_use(folder: Path) -> int:
+    """Give each entry of JAX's cache in ``folder`` that lacks it a record of last use (``KEY-atime``:
+    the entry's modification time, 8 bytes of nanoseconds, little-endian, as JAX writes it);
+    returns how many. Without it JAX's size-limited cache cannot evict, and every write fails
+    (``FileNotFoundError … -atime``, a warning per compiled program)."""
+    try:
+        names = set(os.listdir(folder))
+    except OSError:
+        return 0
+    restored = 0
+    for name in names:
+        key = name.removesuffix(_ENTRY)
+        if key == name or key + _LAST_USE in names:
+            continue
+        try:  # (a process writing the entry now overwrites this with its own time: harmless)
+            used = (folder / name).stat().st_mtime_ns
+            (folder / (key + _LAST_USE)).write_bytes(int(used).to_bytes(8, "little"))
+        except OSError:
+            continue
+        restored += 1
+    return restored

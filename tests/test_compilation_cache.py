@@ -128,6 +128,20 @@ def test_peeljax_keeps_compiled_programs_in_the_user_cache_folder(tmp_path):
     assert third["hits"] == 0 and third["ys"] == first["ys"]
 
 
+def test_an_entry_without_its_last_use_does_not_stop_the_cache(tmp_path):
+    """An entry left without its record of last use (a process killed between JAX's two writes)
+    made every later write fail, so nothing was cached again; importing peeljax restores it."""
+    folder = tmp_path / "programs"
+    folder.mkdir()
+    (folder / "jit_killed-0123-cache").write_bytes(b"half written")
+    first = _probe(tmp_path, "run", PEELJAX_COMPILATION_CACHE=str(folder))
+    assert first["folder"] == str(folder) and (folder / "jit_killed-0123-atime").is_file()
+    written = [entry for entry in folder.iterdir() if entry.name.endswith("-cache") and "killed" not in entry.name]
+    assert written, sorted(entry.name for entry in folder.iterdir())
+    second = _probe(tmp_path, "run", PEELJAX_COMPILATION_CACHE=str(folder))
+    assert second["hits"] >= 1 and second["ys"] == first["ys"]
+
+
 def test_the_cache_folder_moves_turns_off_or_is_the_users_own(tmp_path):
     moved = tmp_path / "elsewhere"
     assert _probe(tmp_path, PEELJAX_COMPILATION_CACHE=str(moved))["folder"] == str(moved)
