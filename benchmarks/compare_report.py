@@ -171,7 +171,9 @@ def work_precision_plot(p1, path, cmd):
         ax.set_ylabel("wall time per run [s]")
         ax.set_title(f"V = {V} m/s, τ = {entry['tau']} s, t ∈ [0, {T_FINAL:g}] s")
         ax.grid(True, which="both", alpha=0.3)
-    axes[-1].legend(fontsize=8)
+    # one legend beside the panels: inside one it covered the cheapest settings' points
+    handles, labels = max((ax.get_legend_handles_labels() for ax in axes), key=lambda hl: len(hl[1]))
+    fig.legend(handles, labels, loc="outside right upper", fontsize=8)
     FigureCanvasAgg(fig).print_figure(path, dpi=120, metadata={"Description": made_by(cmd)})  # the PNG's header
 
 
