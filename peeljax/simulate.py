@@ -373,19 +373,18 @@ def _first_rows(solution: Solution, n: int) -> Solution:
 def _cut(rows, counts, n: int):
     """The first n rows: NumPy views on the host, one compiled program where traced."""
     if isinstance(rows[0], np.ndarray):
-        rows = jax.tree_util.tree_map(lambda a: a[:n], rows)
-        if counts is not None:
-            counts = np.where(np.arange(counts.shape[-1]) == PAIR_AT, np.minimum(counts, n), counts)
-        return rows, counts
+        return _cut_with(np, rows, counts, n)
     return _cut_traced(rows, counts, n)
 
 
-@functools.partial(jax.jit, static_argnums=2)
-def _cut_traced(rows, counts, n: int):
+def _cut_with(xp, rows, counts, n: int):
     rows = jax.tree_util.tree_map(lambda a: a[:n], rows)
     if counts is not None:
-        counts = jnp.where(jnp.arange(counts.shape[-1]) == PAIR_AT, jnp.minimum(counts, n), counts)
+        counts = xp.where(xp.arange(counts.shape[-1]) == PAIR_AT, xp.minimum(counts, n), counts)
     return rows, counts
+
+
+_cut_traced = jax.jit(functools.partial(_cut_with, jnp), static_argnums=2)
 
 
 def _finished(solution: Solution, ts) -> Solution:
