@@ -58,7 +58,7 @@ from .structure import (
     PHI_SEARCH_RANGE,
     jacobians,
     local_index,
-    phi_extremum,
+    phi_max_and_min,
     schur_complement,
     truncated_schur_complement,
 )
@@ -115,7 +115,7 @@ def trajectory_structure(
 def phi_extrema(model: PeelingModel | None = None, V: float = 1.1) -> tuple[float, float]:
     """The peeling velocities of the maximum and the minimum of φ(·, V) (∂φ/∂v = 0), NaN if absent.
 
-    :func:`peeljax.structure.phi_extremum` (the search the sweep engine runs in the graph), on
+    :func:`peeljax.structure.phi_max_and_min` (the search the sweep engine runs in the graph), on
     the host: v ∈ [1e-8, 1e2]·max(V, 1), a log grid refined by bisection in log v.
     """
     model = PeelingModel() if model is None else model
@@ -125,7 +125,7 @@ def phi_extrema(model: PeelingModel | None = None, V: float = 1.1) -> tuple[floa
 
 @eqx.filter_jit  # module level: compiled once per model structure, not per call
 def _phi_extrema_jit(model, V):
-    return phi_extremum(model, V, "max"), phi_extremum(model, V, "min")
+    return phi_max_and_min(model, V)
 
 
 _SLOPE_GRID = 4096  # log-spaced v of the search for min ∂φ/∂v: 400 points a decade

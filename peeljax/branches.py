@@ -29,7 +29,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from .model import PeelingModel
-from .structure import PHI_SEARCH_RANGE, phi_extremum
+from .structure import PHI_SEARCH_RANGE, phi_max_and_min
 
 __all__ = [
     "SLIP",
@@ -75,10 +75,9 @@ class Folds(eqx.Module):
 
 
 def phi_folds(model: PeelingModel, V: ArrayLike) -> Folds:
-    """φ's maximum and minimum in v (:func:`peeljax.structure.phi_extremum`) and its branch ends."""
+    """φ's maximum and minimum in v (:func:`peeljax.structure.phi_max_and_min`) and its branch ends."""
     V = jnp.asarray(V, float)
-    v_max = phi_extremum(model, V, "max")
-    v_min = phi_extremum(model, V, "min")
+    v_max, v_min = phi_max_and_min(model, V)
     v_min = jnp.where(jnp.isfinite(v_max), v_min, jnp.nan)
     scale = jnp.maximum(V, 1.0)
     v_low = _LOW_V * scale

@@ -40,6 +40,7 @@ __all__ = [
     "neumann_radius",
     "is_fast_scale",
     "phi_extremum",
+    "phi_max_and_min",
     "MAX_INDEX",
 ]
 
@@ -145,37 +146,44 @@ def phi_extremum(model: PeelingModel, V: ArrayLike, kind: Literal["max", "min"] 
     """
     if kind not in ("max", "min"):
         raise ValueError(f"kind must be 'max' or 'min', got {kind!r}")
-    return _phi_extremum(model, V, kind)
+    return _phi_extrema(model, V, (kind,))[0]
+
+
+def phi_max_and_min(model: PeelingModel, V: ArrayLike) -> tuple[Float[Array, ""], Float[Array, ""]]:
+    """φ's first maximum and first minimum in v, as :func:`phi_extremum` finds each, by one search."""
+    v_max, v_min = _phi_extrema(model, V, ("max", "min"))
+    return v_max, v_min
 
 
 @eqx.filter_jit  # called on the host too (phi_folds): its loop would be compiled anew at every call
-def _phi_extremum(model: PeelingModel, V: ArrayLike, kind: str) -> Array:
+def _phi_extrema(model: PeelingModel, V: ArrayLike, kinds: tuple[str, ...]) -> Array:
+    """:func:`phi_extremum` for each of ``kinds`` at once: one grid of ∂φ/∂v serves them all,
+    and one loop bisects their brackets together (φ's two folds cost one search, not two)."""
     V = jnp.asarray(V, float)
-    rising = 1.0 if kind == "max" else -1.0  # the sign of ∂φ/∂v before the extremum
+    rising = jnp.array([1.0 if kind == "max" else -1.0 for kind in kinds])  # ∂φ/∂v's sign before each
     scale = jnp.maximum(V, 1.0)
     log_v = jnp.linspace(jnp.log(PHI_SEARCH_RANGE[0]), jnp.log(PHI_SEARCH_RANGE[1]), _PHI_GRID) + jnp.log(scale)
 
     def slope(log_v):
-        return rising * jax.grad(lambda v: model.phi(v, V))(jnp.exp(log_v))
+        return jax.grad(lambda v: model.phi(v, V))(jnp.exp(log_v))
 
-    slopes = jax.vmap(slope)(log_v)
-    falls = (slopes[:-1] > 0) & (slopes[1:] <= 0)
-    index = jnp.argmax(falls)
-    bracket = (log_v[index], log_v[index + 1])
+    slopes = rising[:, None] * jax.vmap(slope)(log_v)
+    falls = (slopes[:, :-1] > 0) & (slopes[:, 1:] <= 0)
+    index = jnp.argmax(falls, axis=1)
 
     def bisect(_, bracket):
         lo, hi = bracket
         mid = 0.5 * (lo + hi)
-        before = slope(mid) > 0
+        before = rising * jax.vmap(slope)(mid) > 0
         return jnp.where(before, mid, lo), jnp.where(before, hi, mid)
 
-    lo, hi = jax.lax.fori_loop(0, _PHI_BISECTIONS, bisect, bracket)
-    found = jnp.any(falls)
+    lo, hi = jax.lax.fori_loop(0, _PHI_BISECTIONS, bisect, (log_v[index], log_v[index + 1]))
+    found = jnp.any(falls, axis=1)
     log_root = jax.lax.stop_gradient(jnp.where(found, 0.5 * (lo + hi), 0.0))
     # Derivatives by the implicit function theorem on ∂φ/∂v(v̂) = 0 (zero in value):
     # d log v̂ = −d(∂φ/∂v)/(∂²φ/∂v∂log v) at fixed v̂, with the curvature held constant.
-    curvature = jax.lax.stop_gradient(jax.grad(slope)(log_root))
+    curvature = jax.lax.stop_gradient(jax.vmap(jax.grad(slope))(log_root))
     curvature = jnp.where(curvature != 0, curvature, 1.0)
-    residual = slope(log_root)
+    residual = jax.vmap(slope)(log_root)
     log_root = log_root - (residual - jax.lax.stop_gradient(residual)) / curvature
     return jnp.where(found, jnp.exp(log_root), jnp.nan)
