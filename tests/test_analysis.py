@@ -140,6 +140,24 @@ def test_phi_extrema_and_the_sweep_slip_velocity_are_one_search():
     assert float(slip_velocity(model, jnp.asarray(8.0))) == np.inf  # no maximum: no events
 
 
+def test_both_folds_by_one_search_are_each_kinds_own_search():
+    """phi_max_and_min (one grid, one loop for both brackets) gives phi_extremum's value for each
+    kind, to the bit, traced under vmap, and its derivative in V (implicit function theorem)."""
+    from peeljax.structure import phi_extremum, phi_max_and_min
+
+    model = pj.PeelingModel()
+    Vs = jnp.array([0.3, 1.1, 4.0, 8.0])  # 8 m/s: no fold (NaN)
+    both = jax.vmap(lambda V: jnp.stack(phi_max_and_min(model, V)))(Vs)
+    for k, kind in enumerate(("max", "min")):
+        one = np.array([float(phi_extremum(model, V, kind)) for V in Vs])
+        np.testing.assert_array_equal(np.asarray(both[:, k]), one)
+    assert np.isnan(both[-1]).all() and np.isfinite(both[:-1]).all()
+    grad = jax.grad(lambda V: phi_max_and_min(model, V)[1])(1.1)
+    h = 1e-6
+    fd = (float(phi_max_and_min(model, 1.1 + h)[1]) - float(phi_max_and_min(model, 1.1 - h)[1])) / (2 * h)
+    assert float(grad) == pytest.approx(fd, rel=1e-5)
+
+
 def test_analyze_takes_the_runs_ode_truncation_included():
     """analyze(solution, ode) equals the keyword form, and honours the ODE's truncation: its J_t
     is the one the α-method used (diagnostics.schur), not the exact one."""
