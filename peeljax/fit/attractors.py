@@ -44,7 +44,7 @@ from ..orbits.section import SlipSection
 from ..orbits.shooting import OrbitStatus, Shooting
 from ..simulate import simulate
 from ..solution import Solution
-from .statistics import STATISTICS
+from ..measurements.statistics import STATISTICS
 from .parameters import law_from
 
 __all__ = ["CONTINUITY", "Attractor", "OrbitRows", "RowOrbits", "classify", "find_attractor", "steady_rows"]

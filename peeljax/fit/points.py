@@ -38,7 +38,7 @@ from ..model import PeelingModel
 from .table_rows import Point
 from .window_rows import MISSING_RESIDUAL
 from .parameters import law_from, value_and_jacfwd
-from .observations import Observation
+from ..measurements.observations import Observation
 
 __all__ = ["Joint", "PointRows", "noise_level"]
 

@@ -8,7 +8,7 @@ record holds them) at any pull velocities and decides per record how it is fitte
   half (by default: by then the run has settled on its attractor), pooled per V, each with the
   standard error of its mean (:meth:`StickSlipTable.from_force_records` with ``std="error"``),
   fitted with the attractor's statistics as the record's instrument would show them
-  (:mod:`peeljax.fit.instrument`: the sampling interval and the noise of the record itself);
+  (:mod:`peeljax.measurements.instrument`: the sampling interval and the noise of the record itself);
 * **points** — a record that does not stick-slip (a transient settling to steady peeling,
   steady peeling), or one with v or α: point by point (:mod:`peeljax.fit.points`), the
   homogenized ODE at ``tau`` from the paper's initial data.
@@ -30,14 +30,14 @@ import numpy as np
 from ..adhesion import AdhesionLaw
 from ..model import PeelingModel
 from ..simulate import simulate
-from .instrument import Instrument
-from .statistics import record_cycles, record_statistics
+from ..measurements.instrument import Instrument
+from ..measurements.statistics import record_cycles, record_statistics
 from .points import PointRows
-from .stick_slip_table import StickSlipTable
+from ..measurements.stick_slip_table import StickSlipTable
 from .result import TableFitResult, least_squares_result
 from .table import check_intervals, fit_rows, fit_stick_slip, progress_callback
 from .parameters import check_free
-from .observations import Observation
+from ..measurements.observations import Observation
 
 __all__ = ["BY", "MIN_SLIPS", "POORLY_DETERMINED", "fit_records", "how_fitted", "is_force_record", "poorly_determined"]
 
@@ -218,7 +218,7 @@ def fit_records(
         tau: the τ of the records fitted point by point [s] (> 0; the statistics are the DAE's,
             τ = 0).
         instrument: compare each stick-slip record with the model's statistics as its
-            instrument would show them (default; :mod:`peeljax.fit.instrument`); False: the
+            instrument would show them (default; :mod:`peeljax.measurements.instrument`); False: the
             orbit's exact statistics.
         rtol, atol: the point-by-point runs' tolerances.
         max_iterations, intervals, level, scale_covariance: as :func:`peeljax.fit.fit_stick_slip`.

@@ -25,8 +25,8 @@ from .._files import json_safe
 from ..adhesion import AdhesionLaw
 from .levenberg_marquardt import CONVERGED, STOP_REASONS, LevenbergMarquardt, missing_entries
 from .parameters import law_from
-from .statistics import STATISTICS
-from .stick_slip_table import StickSlipTable
+from ..measurements.statistics import STATISTICS
+from ..measurements.stick_slip_table import StickSlipTable
 from .table_rows import V_REST, TableRows
 from .uncertainty import uncertainty_from_jacobian
 from .window_rows import MISSING_RESIDUAL

@@ -14,8 +14,8 @@ import numpy as np
 
 from ..adhesion import AdhesionLaw
 from ..model import PeelingModel
-from .statistics import STATISTICS
-from .stick_slip_table import StickSlipTable
+from ..measurements.statistics import STATISTICS
+from ..measurements.stick_slip_table import StickSlipTable
 from .table import TableFit, attractor_statistics, build_table_fit
 
 __all__ = ["model_statistics", "synthetic_table"]

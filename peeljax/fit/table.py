@@ -3,7 +3,7 @@
 Each row of a :class:`~peeljax.fit.StickSlipTable` is one pull velocity V_i; the model
 runs there from the paper's initial data through the folds (τ = 0 by default: the DAE with
 jumps), and its statistics over the window [transient, transient + window]
-(:func:`peeljax.fit.statistics.jump_statistics`: ``F_mean``, ``F_slip``, ``F_stick``,
+(:func:`peeljax.measurements.statistics.jump_statistics`: ``F_mean``, ``F_slip``, ``F_stick``,
 ``period``, ``slip_duration``) are compared with the table's. All rows run as one batch
 (``lax.map``) in one compiled program. The residuals are
 
@@ -25,7 +25,7 @@ Levenberg–Marquardt from the best few (:class:`LevenbergMarquardt`, host-drive
 in lockstep through one compiled program that gives r and its forward-mode Jacobian — one
 tangent per free coefficient, through every jump by the implicit function theorem); its stop
 reason names the test that stopped it. σ² is the table's plus the model window's
-cycle-to-cycle scatter (:func:`peeljax.fit.statistics.window_scatter`); χ²/dof is reported and
+cycle-to-cycle scatter (:func:`peeljax.measurements.statistics.window_scatter`); χ²/dof is reported and
 scales the covariance where it exceeds 1 (:mod:`peeljax.fit.uncertainty`).
 """
 
@@ -50,8 +50,8 @@ from .levenberg_marquardt import CONVERGED, STOP_REASONS, LevenbergMarquardt, mi
 from .profile import profile
 from .table_rows import Point, TableRows, attractor_rows
 from .window_rows import MISSING_RESIDUAL, TableFit, build_table_fit, table_residuals
-from .statistics import STATISTICS
-from .stick_slip_table import StickSlipTable
+from ..measurements.statistics import STATISTICS
+from ..measurements.stick_slip_table import StickSlipTable
 from .parameters import check_free, value_and_jacfwd
 from .result import FitInterrupted, TableFitResult, interrupted, least_squares_result
 from .result import EQUAL_CHI2, OUTLIER_SIGMA, ROUGH_PROFILES  # noqa: F401 - importable from their old home
@@ -274,10 +274,10 @@ def fit_stick_slip(
             small), True (always, as ``curve_fit``), False (never);
             :mod:`peeljax.fit.uncertainty`. A table without σ is always scaled.
         cycle_scatter: add to each window statistic's σ² the model window's cycle-to-cycle
-            standard error² (:func:`peeljax.fit.statistics.window_scatter`); False: the table's
+            standard error² (:func:`peeljax.measurements.statistics.window_scatter`); False: the table's
             σ alone. (Orbit statistics are exact: nothing to add.)
         taper: the fraction of the window over which each edge's weight of a window statistic
-            ramps (:func:`peeljax.fit.statistics.jump_statistics`), in [0, 0.5]; default 0.25
+            ramps (:func:`peeljax.measurements.statistics.jump_statistics`), in [0, 0.5]; default 0.25
             for the orbit method's window rows (continuous in the coefficients), 0 for the
             window method (the table must be made with the same taper).
         intervals: ``"auto"`` (default: a profile-likelihood interval beside the linearized one
@@ -291,7 +291,7 @@ def fit_stick_slip(
         progress: None or False (silent), True (a line on stderr per iteration), or
             ``progress(iteration, chi2)`` called on the host after each Levenberg–Marquardt
             iteration (chi2: the lowest of the starts so far).
-        instruments: {row: :class:`~peeljax.fit.instrument.Instrument`} for rows measured from
+        instruments: {row: :class:`~peeljax.measurements.instrument.Instrument`} for rows measured from
             force records (orbit method): the model's statistics there as that record's sampling
             and noise show them (:func:`peeljax.fit.fit_records` passes them).
         points: a :class:`~peeljax.fit.points.PointRows` of records fitted point by point

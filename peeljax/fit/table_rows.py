@@ -12,7 +12,7 @@ predicts there depends on the attractor at V_i (:func:`row_kinds`, decided at th
   (:mod:`peeljax.fit.attractors`, which finds and follows the orbit);
 * **window** — stick-slip without a periodic attractor found (irregular, or a repeat longer
   than the runs could confirm): the run's statistics over ``[transient, transient + window]``
-  (:func:`peeljax.fit.statistics.jump_statistics`, tapered, with the cycle-to-cycle scatter
+  (:func:`peeljax.measurements.statistics.jump_statistics`, tapered, with the cycle-to-cycle scatter
   added to σ), as before there were orbits. An orbit row whose attractor is not periodic at a
   trial θ takes the same (:attr:`Point.windowed`).
 
@@ -38,7 +38,7 @@ from ..model import PeelingModel
 from ..orbits.api import orbit_shooting
 from ..orbits.section import state_after_slip
 from .attractors import Attractor, OrbitRows, classify, find_attractor, shoot_rows, steady_force, steady_rows
-from .statistics import STATISTICS
+from ..measurements.statistics import STATISTICS
 from .parameters import law_from, value_and_jacfwd
 from .window_rows import MISSING_RESIDUAL, build_table_fit
 
@@ -180,7 +180,7 @@ class TableRows:
             without a periodic attractor at θ gets its window statistics (None: it is missing).
 
     Rows measured from force records get their instrument (:meth:`set_instruments`): the bias
-    its sampling and noise add to the orbit's statistics (:mod:`peeljax.fit.instrument`,
+    its sampling and noise add to the orbit's statistics (:mod:`peeljax.measurements.instrument`,
     :meth:`update_bias`) is added to them, its Monte Carlo error to σ.
     """
 
@@ -200,7 +200,7 @@ class TableRows:
 
     # -- records: the statistics as their instrument saw them -------------------------------
     def set_instruments(self, instruments: dict) -> None:
-        """``instruments``: row → :class:`~peeljax.fit.instrument.Instrument` of the record(s)
+        """``instruments``: row → :class:`~peeljax.measurements.instrument.Instrument` of the record(s)
         that made it; their bias is added to the orbit rows' statistics (:meth:`update_bias`)."""
         self.instruments = dict(instruments)
 
@@ -210,7 +210,7 @@ class TableRows:
 
     def update_bias(self, point: Point) -> float:
         """The instruments' bias at ``point``'s orbits; returns the largest change in σ."""
-        from .instrument import instrument_bias
+        from ..measurements.instrument import instrument_bias
 
         model = eqx.tree_at(lambda m: m.adhesion, self.model, self.law(point.z))
         new, error = self.bias.copy(), self.bias_error.copy()

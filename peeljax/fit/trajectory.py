@@ -47,7 +47,7 @@ from ..integrators.alpha import AlphaMethod
 from ..integrators.base import AbstractIntegrator
 from ..integrators.select import integrator_for
 from ..model import PeelingModel
-from .observations import Observation
+from ..measurements.observations import Observation
 from .parameters import check_free, law_from
 from .result import FitInterrupted, FitResult
 

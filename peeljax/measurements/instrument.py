@@ -5,7 +5,7 @@ its noise: measured on the paper's φ with c1 × 1.05 (``docs/fitting.md``), noi
 1, 2, 5, 10 kHz give slip durations 53 %, 27 %, 11 %, 5.6 % longer than the exact ones (the
 maximum is the last sample before the slip, the minimum the first after the re-stick: about Δt
 in all), F_slip 0.1 % low at 1 kHz; with white noise of 0.5 % of F the detection of slips
-(:func:`peeljax.fit.record_statistics`, drops above 10 × the noise) merges small slips, and
+(:func:`peeljax.measurements.record_statistics`, drops above 10 × the noise) merges small slips, and
 the statistics are of another thing altogether.
 
 So a record is compared with the model's statistics *as a record would show them*
@@ -46,12 +46,12 @@ class Instrument:
     Attributes:
         dt: the sampling interval [s] (the median spacing of its times).
         noise: the white-noise level of F [N] (the median absolute deviation of its second
-            differences, :func:`peeljax.fit.record_statistics`'s ``noise``).
+            differences, :func:`peeljax.measurements.record_statistics`'s ``noise``).
         duration: the length of the window its statistics were taken over [s].
         min_drop: the slip threshold used on it [N] (None: the default rule, re-applied to
             each model record as to the record).
         smooth, noise_factor: the smoothing [s] and noise factor of its slip detection
-            (:func:`peeljax.fit.record_statistics`).
+            (:func:`peeljax.measurements.record_statistics`).
     """
 
     dt: float
@@ -72,7 +72,7 @@ class Instrument:
                    min_drop=min_drop, smooth=smooth, noise_factor=noise_factor)  # fmt: skip
 
     def statistics(self, t, F) -> dict:
-        """:func:`peeljax.fit.record_statistics` as this instrument's records were treated."""
+        """:func:`peeljax.measurements.record_statistics` as this instrument's records were treated."""
         return record_statistics(t, F, min_drop=self.min_drop, smooth=self.smooth, noise_factor=self.noise_factor)
 
     def as_dict(self) -> dict:
@@ -94,7 +94,7 @@ def orbit_force(model: PeelingModel, V: float, section, period: float, n: int = 
 
 def recorded_statistics(t_period, F_period, period: float, instrument: Instrument, *, seed: int = 0,
                         replicates: int = REPLICATES, spread: bool = False):  # fmt: skip
-    """The mean over ``replicates`` draws of :func:`peeljax.fit.record_statistics` of the periodic
+    """The mean over ``replicates`` draws of :func:`peeljax.measurements.record_statistics` of the periodic
     F (one period given densely) as ``instrument`` records it (module docstring); NaN for a
     statistic no draw produced. ``spread``: also the standard error of each mean (the draws'
     standard deviation / √replicates)."""

@@ -5,7 +5,7 @@
 
 **A measured force record** F(t), a sawtooth: plain NumPy on the host, in float64:
 :func:`record_statistics` for one record, :func:`record_cycles` for the per-cycle values that
-:meth:`StickSlipTable.from_force_records <peeljax.fit.StickSlipTable.from_force_records>` pools
+:meth:`StickSlipTable.from_force_records <peeljax.measurements.StickSlipTable.from_force_records>` pools
 over the records at one V. The slips are detected as force drops with hysteresis (see
 :func:`record_statistics` for the definitions and the default threshold).
 
@@ -14,7 +14,7 @@ to by the window rows). A run carried through the folds (``fold="jump"``) record
 (:class:`~peeljax.JumpRecord`); its times and the tension F = (k/l)·u at each jump carry
 derivatives (the implicit function theorem on the fold event, :mod:`peeljax.integrators.events`).
 Over the window [t_start, t_end] (after a transient), with the same definitions as
-:func:`peeljax.fit.record_statistics` applies to a measured force record:
+:func:`peeljax.measurements.record_statistics` applies to a measured force record:
 
 * ``F_slip``: the mean of F at the stick → slip jumps (F's maxima: during a stick F rises,
   during a slip it falls);
@@ -227,7 +227,7 @@ def record_statistics(t, F, *, transient: float = 0.0, min_drop: float | None = 
     Measured on records at V = 1.1 and 1.6 m/s with white noise of 0.5 % of F (``docs/fitting.md``):
     at 10 kHz, 0.6 ms and a factor 6 find 108 and 198 of their 107 and 204 slips (no smoothing and
     the default factor 10: 38 and 28). The statistics are then those of the smoothed record: a
-    model compared with it has to be smoothed alike (:mod:`peeljax.fit.instrument` does).
+    model compared with it has to be smoothed alike (:mod:`.instrument` does).
 
     Returns:
         a dict with ``F_mean``, ``F_mean_std`` and, where at least one value was found,

@@ -1,9 +1,9 @@
 """An observed run: what every fit of φ is given, whatever file it came from.
 
-:func:`~peeljax.fit.read_force_record` and :func:`~peeljax.fit.read_observations` make them of
+:func:`~peeljax.measurements.read_force_record` and :func:`~peeljax.measurements.read_observations` make them of
 a lab's files; :func:`~peeljax.fit.fit_adhesion` fits them point by point,
 :func:`~peeljax.fit.fit_records` by their stick-slip statistics or point by point, and
-:meth:`StickSlipTable.from_force_records <peeljax.fit.StickSlipTable.from_force_records>` pools
+:meth:`StickSlipTable.from_force_records <peeljax.measurements.StickSlipTable.from_force_records>` pools
 them into a table.
 """
 

@@ -3,7 +3,7 @@
 :class:`StickSlipTable` is what :func:`~peeljax.fit.fit_stick_slip` fits to; build one from a
 file (:func:`read_stick_slip_table`), from columns (:meth:`StickSlipTable.from_dict`) or from
 measured force records (:meth:`StickSlipTable.from_force_records`, by
-:func:`~peeljax.fit.record_statistics`). Plain NumPy on the host, in float64; a file is only
+:func:`~peeljax.measurements.record_statistics`). Plain NumPy on the host, in float64; a file is only
 ever read as numbers, never executed.
 
 **The file** (a CSV or whitespace-separated text file, :mod:`.text_tables`): one row per pull
@@ -14,7 +14,7 @@ unit). An empty cell (CSV) or ``-`` (either format) means not measured at that V
 ``nan`` is refused, as are ``inf``, text, V ≤ 0, a V given twice,
 ``period``/``slip_duration``/standard deviations ≤ 0, ``F_slip`` ≤ ``F_stick`` in a row, a
 standard deviation without its value and a row without any value. A refused file raises a
-:class:`~peeljax.fit.DataFileError` naming the file, the line and the column.
+:class:`~peeljax.measurements.DataFileError` naming the file, the line and the column.
 """
 
 from __future__ import annotations

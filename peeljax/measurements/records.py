@@ -36,7 +36,7 @@ velocity, or a version) give none.
 value there (a ``peeljax simulate --out`` file after a stop); times must be finite and ≥ 0,
 and an optional ``tau`` must be a finite number ≥ 0.
 
-Every refusal of a file is a :class:`~peeljax.fit.DataFileError` (a ``ValueError``) whose
+Every refusal of a file is a :class:`~peeljax.measurements.DataFileError` (a ``ValueError``) whose
 message names the file, the line and the column, or for ``.npz`` the field.
 """
 
@@ -138,7 +138,7 @@ def read_force_record(path, *, V: float | None = None, memory_limit: float | Non
     before it is read, is refused naming the estimate (:mod:`.text_tables`).
 
     Returns:
-        an :class:`~peeljax.fit.Observation` with ``t`` and ``F``, and ``v``/``alpha`` where
+        an :class:`~peeljax.measurements.Observation` with ``t`` and ``F``, and ``v``/``alpha`` where
         the file has them (``v`` is None otherwise), all float64 on the times ``t``.
 
     Raises:
@@ -276,7 +276,7 @@ def load_observations(
 
     Raises:
         ValueError: ``decimate`` or ``V`` out of range, checked before any file is read; a missing file, a
-            folder or a file refused (:class:`~peeljax.fit.DataFileError`), as ``paths: <why, naming the file>``.
+            folder or a file refused (:class:`~peeljax.measurements.DataFileError`), as ``paths: <why, naming the file>``.
     """
     if decimate is not None:
         _check_every(decimate)
