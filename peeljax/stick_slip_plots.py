@@ -1,5 +1,3 @@
 """Deprecated: :func:`peeljax.plots.plot_stick_slip_map` (removed in peeljax 0.3.0)."""
-
 from ._deprecated import moved_module
-
 __getattr__, __dir__ = moved_module(__name__, "peeljax.plots")

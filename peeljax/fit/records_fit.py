@@ -184,25 +184,12 @@ def _transient(t, transient) -> float:
     return 0.5 * (float(t[0]) + float(t[-1])) if transient is None else float(transient)
 
 
-def fit_records(
-    observations: Sequence[Observation],
-    model: PeelingModel | None = None,
-    *,
-    free: Sequence[str] | None = ("c1",),
-    start: AdhesionLaw | None = None,
-    by: str = "auto",
-    statistics: Sequence[str] | None = None,
-    transient: float | None = None,
-    tau: float = 0.01,
-    instrument: bool = True,
-    rtol: float = 1e-8,
-    atol: float = 1e-10,
-    max_iterations: int = 20,
-    intervals: str = "auto",
-    level: float = 0.95,
-    scale_covariance: bool | str = "auto",
-    progress=None,
-) -> TableFitResult:
+def fit_records(observations: Sequence[Observation], model: PeelingModel | None = None, *,
+                free: Sequence[str] | None = ("c1",), start: AdhesionLaw | None = None, by: str = "auto",
+                statistics: Sequence[str] | None = None, transient: float | None = None, tau: float = 0.01,
+                instrument: bool = True, rtol: float = 1e-8, atol: float = 1e-10, max_iterations: int = 20,
+                intervals: str = "auto", level: float = 0.95, scale_covariance: bool | str = "auto",
+                progress=None) -> TableFitResult:  # fmt: skip
     """Fit φ's free coefficients to measured records of any kind (module docstring).
 
     Args:

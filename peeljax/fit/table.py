@@ -202,39 +202,17 @@ def table_tolerances(tau: float, rtol: float | None = None, atol: float | None =
     )
 
 
-def fit_stick_slip(
-    table: StickSlipTable,
-    model: PeelingModel | None = None,
-    *,
-    free: Sequence[str] | None = ("c1", "c3", "c6"),
-    start: AdhesionLaw | None = None,
-    statistics: Sequence[str] | None = None,
-    method: str = "orbit",
-    tau: float = 0.0,
-    transient: float = 0.5,
-    window: float = 1.0,
-    n_samples: int = 401,
-    rtol: float | None = None,
-    atol: float | None = None,
-    orbit_rtol: float = DEFAULT_ORBIT_RTOL,
-    fit_rtol: float = 1e-6,
-    fit_atol: float = 1e-6,
-    max_iterations: int = 20,
-    n_starts: int | None = None,
-    n_coarse: int | None = None,
-    coarse_spread: float = 0.15,
-    seed: int = 0,
-    scale_covariance: bool | str = "auto",
-    cycle_scatter: bool = True,
-    taper: float | None = None,
-    intervals: str = "auto",
-    level: float = 0.95,
-    max_jumps: int = 4096,
-    max_steps: int = 400_000,
-    progress=None,
-    instruments: dict | None = None,
-    points=None,
-) -> TableFitResult:
+def fit_stick_slip(table: StickSlipTable, model: PeelingModel | None = None, *,
+                   free: Sequence[str] | None = ("c1", "c3", "c6"), start: AdhesionLaw | None = None,
+                   statistics: Sequence[str] | None = None, method: str = "orbit", tau: float = 0.0,
+                   transient: float = 0.5, window: float = 1.0, n_samples: int = 401,
+                   rtol: float | None = None, atol: float | None = None,
+                   orbit_rtol: float = DEFAULT_ORBIT_RTOL, fit_rtol: float = 1e-6, fit_atol: float = 1e-6,
+                   max_iterations: int = 20, n_starts: int | None = None, n_coarse: int | None = None,
+                   coarse_spread: float = 0.15, seed: int = 0, scale_covariance: bool | str = "auto",
+                   cycle_scatter: bool = True, taper: float | None = None, intervals: str = "auto",
+                   level: float = 0.95, max_jumps: int = 4096, max_steps: int = 400_000, progress=None,
+                   instruments: dict | None = None, points=None) -> TableFitResult:  # fmt: skip
     """Fit φ's free coefficients to a stick-slip table by Levenberg–Marquardt (module docstring).
 
     Args:

@@ -154,17 +154,9 @@ def _run_loss(model, V, tau, integrator, t_final, t, values, scale, mask, grid, 
     return total, LossInfo(v_min=v_min, v_max=v_max, t_stop=t_stop)
 
 
-def trajectory_loss(
-    adhesion: AdhesionLaw,
-    data: _Data,
-    *,
-    model: PeelingModel,
-    tau: ArrayLike,
-    integrator: AbstractIntegrator,
-    t_final: float,
-    weights: dict[str, float],
-    batch: str = "map",
-) -> tuple[Array, LossInfo]:
+def trajectory_loss(adhesion: AdhesionLaw, data: _Data, *, model: PeelingModel, tau: ArrayLike,
+                    integrator: AbstractIntegrator, t_final: float, weights: dict[str, float],
+                    batch: str = "map") -> tuple[Array, LossInfo]:  # fmt: skip
     """The fit's loss L (module docstring) for φ = ``adhesion``, and its :class:`LossInfo` (per V).
 
     ``batch="map"`` runs the pull velocities one after another (``lax.map``: a gradient costs
@@ -400,23 +392,14 @@ def _fit(loss_fn: _Loss, names, settings, *, opt, steps, patience, tolerance, pr
 
     def result(stop_reason: str = "") -> FitResult:
         value, theta_best, gnorm, aux = best
-        start = loss_fn.start
         return FitResult(
-            adhesion=law_from(theta_best, start),
-            start=start,
-            loss_history=np.asarray(history),
-            initial_loss=float(history[0]),
-            final_loss=float(value),
-            gradient_norm=float(gnorm),
-            steps=len(history) - 1,
-            stopped_early=early,
-            v_range=(float(np.min(aux.v_min)), float(np.max(aux.v_max))),
-            free=names,
-            settings=settings,
+            adhesion=law_from(theta_best, loss_fn.start), start=loss_fn.start, loss_history=np.asarray(history),
+            initial_loss=float(history[0]), final_loss=float(value), gradient_norm=float(gnorm),
+            steps=len(history) - 1, stopped_early=early, v_range=(float(np.min(aux.v_min)), float(np.max(aux.v_max))),
+            free=names, settings=settings,
             t_stop=[] if aux.t_stop is None else [float(x) for x in np.atleast_1d(aux.t_stop)],
-            wall_time_s=time.perf_counter() - began,
-            stop_reason=stop_reason,
-        )
+            wall_time_s=time.perf_counter() - began, stop_reason=stop_reason,
+        )  # fmt: skip
 
     try:
         for k in range(steps + 1):
@@ -455,29 +438,15 @@ def _fit(loss_fn: _Loss, names, settings, *, opt, steps, patience, tolerance, pr
     return result()
 
 
-def fit_adhesion(
-    observations: Observation | Sequence[Observation],
-    model: PeelingModel | None = None,
-    *,
-    tau: float = 0.01,
-    dt: float | None = None,
-    t_final: float | None = None,
-    free: Sequence[str] | None = None,
-    start: AdhesionLaw | None = None,
-    optimizer: str | optax.GradientTransformation = "adam",
-    steps: int = 500,
-    learning_rate: float | None = None,
-    weights: dict[str, float] | None = None,
-    patience: int = 50,
-    tolerance: float = 1e-4,
-    progress: bool = True,
-    solver: AlphaMethod | diffrax.AbstractSolver | None = None,
-    checkpoint_every=None,
-    batch: str = "map",
-    rtol: float | None = None,
-    atol: float | None = None,
-    max_steps: int | None = None,
-) -> FitResult:
+def fit_adhesion(observations: Observation | Sequence[Observation], model: PeelingModel | None = None, *,
+                 tau: float = 0.01, dt: float | None = None, t_final: float | None = None,
+                 free: Sequence[str] | None = None, start: AdhesionLaw | None = None,
+                 optimizer: str | optax.GradientTransformation = "adam", steps: int = 500,
+                 learning_rate: float | None = None, weights: dict[str, float] | None = None,
+                 patience: int = 50, tolerance: float = 1e-4, progress: bool = True,
+                 solver: AlphaMethod | diffrax.AbstractSolver | None = None, checkpoint_every=None,
+                 batch: str = "map", rtol: float | None = None, atol: float | None = None,
+                 max_steps: int | None = None) -> FitResult:  # fmt: skip
     """Fit φ's coefficients to observed runs (v(t), optionally F(t) and α(t)) at one or more V.
 
     Minimises the loss of :func:`trajectory_loss` (module docstring) over θ with
@@ -551,64 +520,29 @@ def fit_adhesion(
     integrator = integrator_for(
         solver, dt=dt, t_final=t_final, rtol=rtol, atol=atol, checkpoint_every=checkpoint_every, fold="stop", **budget
     )
-    loss_fn = _TrajectoryLoss(
-        start=start,
-        data=data,
-        model=model,
-        tau=jnp.asarray(tau, float),
-        integrator=integrator,
-        weights={q: jnp.asarray(weights[q], float) for q in data.values},
-        t_final=t_final,
-        batch=batch,
-    )
+    loss_fn = _TrajectoryLoss(start=start, data=data, model=model, tau=jnp.asarray(tau, float), integrator=integrator,
+                              weights={q: jnp.asarray(weights[q], float) for q in data.values}, t_final=t_final,
+                              batch=batch)  # fmt: skip
     uniform = dt is not None
     error_control = integrator.settings()
     settings = {
-        "V": [float(o.V) for o in observations],
-        "tau": float(tau),
-        "dt": float(t_final / integrator.n_steps) if uniform else None,
-        "t_final": t_final,
-        "n_steps": integrator.n_steps if uniform else None,
-        "optimizer": _optimizer_setting(optimizer),
-        "learning_rate": learning_rate,
-        "steps": steps,
-        "patience": patience,
-        "tolerance": tolerance,
-        "weights": {q: weights[q] for q in data.values},
-        "batch": batch,
-        "checkpoint_every": checkpoint_every,
-        "rtol": None if uniform else error_control["rtol"],
-        "atol": None if uniform else error_control["atol"],
-        "method": "alpha" if uniform else error_control["method"],
-        "parametrisation": "c = c_start*exp(theta)",
-    }
-    return _fit(
-        loss_fn,
-        names,
-        settings,
-        opt=opt,
-        steps=steps,
-        patience=patience,
-        tolerance=tolerance,
-        progress=progress,
-        description="fit_adhesion",
-    )
+        "V": [float(o.V) for o in observations], "tau": float(tau),
+        "dt": float(t_final / integrator.n_steps) if uniform else None, "t_final": t_final,
+        "n_steps": integrator.n_steps if uniform else None, "optimizer": _optimizer_setting(optimizer),
+        "learning_rate": learning_rate, "steps": steps, "patience": patience, "tolerance": tolerance,
+        "weights": {q: weights[q] for q in data.values}, "batch": batch, "checkpoint_every": checkpoint_every,
+        "rtol": None if uniform else error_control["rtol"], "atol": None if uniform else error_control["atol"],
+        "method": "alpha" if uniform else error_control["method"], "parametrisation": "c = c_start*exp(theta)",
+    }  # fmt: skip
+    return _fit(loss_fn, names, settings, opt=opt, steps=steps, patience=patience, tolerance=tolerance,
+                progress=progress, description="fit_adhesion")  # fmt: skip
 
 
-def fit_adhesion_steady(
-    v: ArrayLike,
-    force: ArrayLike,
-    V: ArrayLike | None = None,
-    *,
-    start: AdhesionLaw | None = None,
-    free: Sequence[str] | None = None,
-    optimizer: str | optax.GradientTransformation = "adam",
-    steps: int = 2000,
-    learning_rate: float | None = None,
-    patience: int = 200,
-    tolerance: float = 1e-6,
-    progress: bool = True,
-) -> FitResult:
+def fit_adhesion_steady(v: ArrayLike, force: ArrayLike, V: ArrayLike | None = None, *,
+                        start: AdhesionLaw | None = None, free: Sequence[str] | None = None,
+                        optimizer: str | optax.GradientTransformation = "adam", steps: int = 2000,
+                        learning_rate: float | None = None, patience: int = 200, tolerance: float = 1e-6,
+                        progress: bool = True) -> FitResult:  # fmt: skip
     """Fit φ to steady peeling: measured (v, peel force) pairs, φ(v_i, V_i) = force_i.
 
     In steady peeling the constraint (sac) holds with α, u constant, so the shear force
@@ -629,25 +563,10 @@ def fit_adhesion_steady(
     opt, learning_rate = _check_options(steps, optimizer, learning_rate)
     start = AdhesionLaw() if start is None else start
     loss_fn = _SteadyLoss(start=start, v=v, force=force, V=V, scale=jnp.sqrt(jnp.mean(force**2)))
-    settings = {
-        "kind": "steady",
-        "optimizer": _optimizer_setting(optimizer),
-        "learning_rate": learning_rate,
-        "steps": steps,
-        "patience": patience,
-        "tolerance": tolerance,
-    }
-    return _fit(
-        loss_fn,
-        names,
-        settings,
-        opt=opt,
-        steps=steps,
-        patience=patience,
-        tolerance=tolerance,
-        progress=progress,
-        description="fit_adhesion_steady",
-    )
+    settings = {"kind": "steady", "optimizer": _optimizer_setting(optimizer), "learning_rate": learning_rate,
+                "steps": steps, "patience": patience, "tolerance": tolerance}  # fmt: skip
+    return _fit(loss_fn, names, settings, opt=opt, steps=steps, patience=patience, tolerance=tolerance,
+                progress=progress, description="fit_adhesion_steady")  # fmt: skip
 
 
 def phi_relative_error(
