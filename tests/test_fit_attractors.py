@@ -16,7 +16,7 @@ from peeljax import PeelingModel
 from peeljax.fit import StickSlipTable, fit_records, fit_stick_slip
 from peeljax.measurements.instrument import Instrument, recorded_statistics
 from peeljax.measurements.statistics import record_cycles
-from peeljax.fit.points import noise_level
+from peeljax.measurements.statistics import noise_level
 from peeljax.fit.profile import profile
 from peeljax.fit.records_fit import MIN_SLIPS, how_fitted, settled
 from peeljax.fit.levenberg_marquardt import LevenbergMarquardt

@@ -28,47 +28,15 @@ the plots of a fit are :mod:`peeljax.plots.fit`. The old module paths ``peeljax.
 removed in peeljax 0.3.0.
 """
 
-from ..measurements.records import read_force_record, read_observations
-from ..measurements.statistics import jump_statistics, record_statistics
-from ..measurements.stick_slip_table import StickSlipTable, read_stick_slip_table
-from ..measurements.instrument import Instrument
+from ..measurements import (DataFileError, Instrument, StickSlipTable, jump_statistics, read_force_record,
+                           read_observations, read_stick_slip_table, record_statistics)  # fmt: skip
 from .records_fit import fit_records
 from .table import fit_stick_slip
-from ..measurements.text_tables import DataFileError
-from .trajectory import (
-    QUANTITIES,
-    FitInterrupted,
-    FitResult,
-    LossInfo,
-    Observation,
-    fit_adhesion,
-    fit_adhesion_steady,
-    phi_relative_error,
-    restart_on_ascent,
-    trajectory_loss,
-)
+from .trajectory import (QUANTITIES, FitInterrupted, FitResult, LossInfo, Observation, fit_adhesion,
+                         fit_adhesion_steady, phi_relative_error, restart_on_ascent, trajectory_loss)  # fmt: skip
 from .uncertainty import Uncertainty
 
-__all__ = [
-    "QUANTITIES",
-    "DataFileError",
-    "FitInterrupted",
-    "FitResult",
-    "Instrument",
-    "LossInfo",
-    "Observation",
-    "StickSlipTable",
-    "Uncertainty",
-    "fit_adhesion",
-    "fit_adhesion_steady",
-    "fit_records",
-    "fit_stick_slip",
-    "jump_statistics",
-    "phi_relative_error",
-    "read_force_record",
-    "read_observations",
-    "read_stick_slip_table",
-    "record_statistics",
-    "restart_on_ascent",
-    "trajectory_loss",
-]
+__all__ = ["QUANTITIES", "DataFileError", "FitInterrupted", "FitResult", "Instrument", "LossInfo", "Observation",
+    "StickSlipTable", "Uncertainty", "fit_adhesion", "fit_adhesion_steady", "fit_records", "fit_stick_slip",
+    "jump_statistics", "phi_relative_error", "read_force_record", "read_observations", "read_stick_slip_table",
+    "record_statistics", "restart_on_ascent", "trajectory_loss"]  # fmt: skip

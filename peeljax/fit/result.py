@@ -31,16 +31,8 @@ from .table_rows import V_REST, TableRows
 from .uncertainty import uncertainty_from_jacobian
 from .window_rows import MISSING_RESIDUAL
 
-__all__ = [
-    "EQUAL_CHI2",
-    "OUTLIER_SIGMA",
-    "ROUGH_PROFILES",
-    "FitInterrupted",
-    "FitResult",
-    "TableFitResult",
-    "interrupted",
-    "least_squares_result",
-]
+__all__ = ["EQUAL_CHI2", "OUTLIER_SIGMA", "ROUGH_PROFILES", "FitInterrupted", "FitResult", "TableFitResult",
+    "interrupted", "least_squares_result"]  # fmt: skip
 
 
 @dataclasses.dataclass

@@ -1,31 +1,25 @@
 """Fitting φ to a stick-slip table: Levenberg–Marquardt on the cycle statistics, with uncertainties.
 
-Each row of a :class:`~peeljax.fit.StickSlipTable` is one pull velocity V_i; the model
-runs there from the paper's initial data through the folds (τ = 0 by default: the DAE with
-jumps), and its statistics over the window [transient, transient + window]
-(:func:`peeljax.measurements.statistics.jump_statistics`: ``F_mean``, ``F_slip``, ``F_stick``,
-``period``, ``slip_duration``) are compared with the table's. All rows run as one batch
-(``lax.map``) in one compiled program. The residuals are
+Each row of a :class:`~peeljax.fit.StickSlipTable` is one pull velocity V_i, where the model's
+statistics (``F_mean``, ``F_slip``, ``F_stick``, ``period``, ``slip_duration``: on its attractor,
+:mod:`.table_rows`, or over the window [transient, transient + window] of a run from the paper's
+initial data through the folds, :mod:`.window_rows`) are compared with the table's:
 
     r_is = (model_s(V_i; θ) − data_is)/σ_is,
 
 σ_is² the table's variance (else the RMS of column s, and the covariance is then scaled by the
-residual variance) plus the model window's cycle-to-cycle scatter². A statistic the table
-has but the model run does not produce (no slip in the window) costs a fixed residual
-``MISSING_RESIDUAL`` with zero derivative, so that a trial step that loses the stick-slip is
-never mistaken for a better fit.
+residual variance) plus the model window's cycle-to-cycle scatter²
+(:func:`peeljax.measurements.statistics.window_scatter`). A statistic the table has but the model
+does not produce (no slip) costs a fixed residual ``MISSING_RESIDUAL`` with zero derivative, so
+that a trial step that loses the stick-slip is never mistaken for a better fit. A force record
+that stick-slips is fitted through these statistics, not point by point: the phase of a
+sawtooth drifts and would dominate a point-wise misfit (``docs/fitting.md`` measures it).
 
-A force record in the stick-slip range is fitted through these statistics
-(:meth:`StickSlipTable.from_force_records`), not point by point: the phase of a sawtooth drifts,
-and a point-wise misfit of two sawtooths with slightly different periods is dominated by that
-drift (``docs/fitting.md`` measures it).
-
-Solver: a coarse batch of starts (χ² at the start and at a Latin hypercube around it), then
-Levenberg–Marquardt from the best few (:class:`LevenbergMarquardt`, host-driven, the runs of every start
-in lockstep through one compiled program that gives r and its forward-mode Jacobian — one
-tangent per free coefficient, through every jump by the implicit function theorem); its stop
-reason names the test that stopped it. σ² is the table's plus the model window's
-cycle-to-cycle scatter (:func:`peeljax.measurements.statistics.window_scatter`); χ²/dof is reported and
+Solver: Levenberg–Marquardt (:class:`LevenbergMarquardt`, host-driven) from the start, or
+(window method) from the best few of a coarse batch (the start and a Latin hypercube around
+it), the runs of every start in lockstep through one compiled program that gives r and its
+forward-mode Jacobian (one tangent per free coefficient, through every jump by the implicit
+function theorem); its stop reason names the test that stopped it. χ²/dof is reported and
 scales the covariance where it exceeds 1 (:mod:`peeljax.fit.uncertainty`).
 """
 
@@ -57,20 +51,8 @@ from .result import FitInterrupted, TableFitResult, interrupted, least_squares_r
 from .result import EQUAL_CHI2, OUTLIER_SIGMA, ROUGH_PROFILES  # noqa: F401 - importable from their old home
 from .uncertainty import uncertainty_from_jacobian
 
-__all__ = [
-    "CONVERGED",
-    "MISSING_RESIDUAL",
-    "STOP_REASONS",
-    "TableFit",
-    "TableFitResult",
-    "attractor_statistics",
-    "build_table_fit",
-    "check_intervals",
-    "fit_rows",
-    "fit_stick_slip",
-    "least_squares_result",
-    "table_residuals",
-]
+__all__ = ["CONVERGED", "MISSING_RESIDUAL", "STOP_REASONS", "TableFit", "TableFitResult", "attractor_statistics",
+    "build_table_fit", "check_intervals", "fit_rows", "fit_stick_slip", "least_squares_result", "table_residuals"]  # fmt: skip
 
 
 @eqx.filter_jit
@@ -196,10 +178,7 @@ def table_tolerances(tau: float, rtol: float | None = None, atol: float | None =
     stepper's tighter tolerance costs little. τ > 0 keeps the α-method's 1e-7.
     """
     loose = float(tau) > 0
-    return (
-        (1e-7 if loose else 1e-9) if rtol is None else rtol,
-        (1e-10 if loose else 1e-12) if atol is None else atol,
-    )
+    return (1e-7 if loose else 1e-9) if rtol is None else rtol, (1e-10 if loose else 1e-12) if atol is None else atol
 
 
 def fit_stick_slip(table: StickSlipTable, model: PeelingModel | None = None, *,
@@ -239,15 +218,13 @@ def fit_stick_slip(table: StickSlipTable, model: PeelingModel | None = None, *,
         fit_rtol, fit_atol: Levenberg–Marquardt's convergence tolerances (``STOP_REASONS``:
             fit_atol on the Gauss–Newton step's predicted χ² decrease, fit_rtol on the relative
             step and χ² decrease); ``max_iterations``: its budget of model evaluations per start.
-        n_coarse, coarse_spread, seed: the coarse batch (window method) — χ² at the start and at
-            n_coarse − 1 points of a Latin hypercube with each free coefficient within
-            exp(±coarse_spread) of its start (``seed``), ``n_starts`` at a time through the one
-            compiled program (default 16; raised to ``n_starts`` where smaller). The orbit
-            method starts from ``start`` alone (default 1): its statistics are smooth between
-            bifurcations, and the profile intervals map the landscape across them.
+        n_coarse, coarse_spread, seed: the coarse batch (window method): χ² at the start and at
+            n_coarse − 1 points of a Latin hypercube (n_coarse default 16, raised to ``n_starts``),
+            each coefficient within exp(±coarse_spread) of its start (``seed``). The orbit method
+            starts from ``start`` alone: its statistics are smooth between bifurcations, and the
+            profile intervals map the landscape across them.
         n_starts: Levenberg–Marquardt runs from the n_starts best points of the coarse batch
-            (window method, default 3); the best end is kept, the others are reported
-            (``result.optima``).
+            (window method, default 3), the best end kept, the others in ``result.optima``.
         scale_covariance: ``"auto"`` (scale by χ²/dof where it exceeds 1: the table's σ too
             small), True (always, as ``curve_fit``), False (never);
             :mod:`peeljax.fit.uncertainty`. A table without σ is always scaled.
@@ -258,12 +235,11 @@ def fit_stick_slip(table: StickSlipTable, model: PeelingModel | None = None, *,
             ramps (:func:`peeljax.measurements.statistics.jump_statistics`), in [0, 0.5]; default 0.25
             for the orbit method's window rows (continuous in the coefficients), 0 for the
             window method (the table must be made with the same taper).
-        intervals: ``"auto"`` (default: a profile-likelihood interval beside the linearized one
-            of each coefficient whose linearized interval holds a bifurcation — a row on another
-            attractor at one of its ends —, :mod:`peeljax.fit.profile`; none where a row at the
-            optimum is judged by χ² alone or by window statistics, :func:`rough_rows`: profiles
-            of such a χ² were measured too narrow), ``"profile"`` (for
-            every coefficient), ``"linear"`` (never).
+        intervals: ``"auto"`` (default: a profile-likelihood interval, :mod:`peeljax.fit.profile`,
+            beside the linearized one of each coefficient whose linearized interval holds a
+            bifurcation — a row on another attractor at one of its ends —, unless χ² is rough at
+            the optimum, :func:`rough_rows`, where profiles were measured too narrow),
+            ``"profile"`` (for every coefficient), ``"linear"`` (never).
         level: the confidence level of the profile intervals (default 0.95).
         max_jumps, max_steps: each window run's jump record and step budget.
         progress: None or False (silent), True (a line on stderr per iteration), or
@@ -276,18 +252,12 @@ def fit_stick_slip(table: StickSlipTable, model: PeelingModel | None = None, *,
             together with the table (orbit method; :func:`peeljax.fit.fit_records`).
 
     Returns:
-        A :class:`TableFitResult`: ``adhesion`` (the fitted law), ``uncertainty``
-        (:class:`~peeljax.fit.uncertainty.Uncertainty`, χ²/dof and the singular directions
-        included), ``intervals()`` (the profile-likelihood set where computed, else the
-        linearized interval), ``profiles``, ``rows`` (per row: its kind — steady, orbit,
-        window —, k and stability of its orbit, how it was found, and ``singular_elasticity``
-        where its derivative is too steep to be used — an orbit near a grazing —, the row
-        judging the steps by its χ² alone, :func:`~peeljax.fit.table_rows.singular_rows`), ``crossings`` (every
-        bifurcation a step crossed or was refused across), ``stop_reason``, ``converged``,
-        ``chi2``/``dof``, ``outliers`` (entries beyond 5 σ), ``optima``/``equivalent_optima``,
-        ``residuals`` (the measured entries of (model − data)/σ, row by row), ``v_range`` (the v
-        visited, from at least ``V_REST`` = 1e-4 m/s where the tape comes to rest: φ is fixed by
-        the data only there) and ``settings``; ``summary()`` prints it.
+        A :class:`TableFitResult` (``summary()`` prints it): the fitted ``adhesion``, its
+        ``uncertainty`` and ``intervals()``, ``rows`` (per row its kind, its orbit, and
+        ``singular_elasticity`` where its derivative is too steep to use,
+        :func:`~peeljax.fit.table_rows.singular_rows`), ``crossings`` (every bifurcation a step
+        crossed or was refused across), χ², outliers, optima and ``v_range`` (from at least
+        ``V_REST`` = 1e-4 m/s, where the tape comes to rest: φ is fixed by the data only there).
     """
     began = time.perf_counter()
     if method not in METHODS:

@@ -82,8 +82,8 @@ class Point:
     orbits: dict
     changes: list = dataclasses.field(default_factory=list)
     branch: tuple = ()  # per row, how many attractor changes led here from the start (which branch)
-    singular: dict = dataclasses.field(default_factory=dict)  # row → its elasticity, derivative not used
-    windowed: tuple = ()  # orbit rows without a periodic attractor at z: their window statistics
+    singular: dict = dataclasses.field(default_factory=dict)
+    windowed: tuple = ()
 
 
 _STARTS: dict = {}  # (model's leaves, V) → row_kinds' answer, the orbits reduced to their least k

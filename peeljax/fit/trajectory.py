@@ -6,12 +6,11 @@ with observations on their own time grids:
     L(θ) = Σ_q w_q · (1/n_V) Σ_j  mean_i r_qij²,   r_qij = (q_model(t_ij; V_j, θ) − q_ij) / s_qj
 
 for the observed quantities q ∈ {v, F, alpha} (F = the tension (k/l)·u), the model taken at
-the observation times (error control: its dense output there; uniform mesh: interpolated
-linearly, ``jnp.interp``) and s_qj the RMS of the data q_ij. An observation time the model run did not reach (t > t_stop, a run that stopped) adds
-the fixed penalty 1 (the squared residual of predicting zero) in place of its residual, so
-that a trial step that stops the run is never mistaken for a better fit; the gradient comes
-from the reached part only. Its gradient is
-exact (implicit differentiation of every Newton solve, see :mod:`peeljax.integrators.alpha`).
+the observation times (error control: its dense output; uniform mesh: ``jnp.interp``) and s_qj
+the RMS of the data q_ij. An observation time the run did not reach (t > t_stop) costs the
+fixed penalty 1 (the squared residual of predicting zero), so that a trial step that stops the
+run is never mistaken for a better fit. The gradient, from the reached part only, is exact
+(implicit differentiation of every Newton solve, :mod:`peeljax.integrators.alpha`).
 
 Parametrisation (positivity): every free coefficient is c = c_start·exp(θ), θ = 0 at the
 start. A coefficient keeps the sign of its start value: the paper's 14 coefficients are all
@@ -51,17 +50,8 @@ from ..measurements.observations import Observation
 from .parameters import check_free, law_from
 from .result import FitInterrupted, FitResult
 
-__all__ = [
-    "FitInterrupted",
-    "FitResult",
-    "LossInfo",
-    "Observation",
-    "fit_adhesion",
-    "fit_adhesion_steady",
-    "phi_relative_error",
-    "restart_on_ascent",
-    "trajectory_loss",
-]
+__all__ = ["FitInterrupted", "FitResult", "LossInfo", "Observation", "fit_adhesion", "fit_adhesion_steady",
+    "phi_relative_error", "restart_on_ascent", "trajectory_loss"]  # fmt: skip
 
 QUANTITIES = ("v", "F", "alpha")
 UNREACHED_PENALTY = 1.0  # per observation after the run stopped, in units of (data RMS)²
@@ -380,11 +370,7 @@ def _fit(loss_fn: _Loss, names, settings, *, opt, steps, patience, tolerance, pr
     began = time.perf_counter()
     theta = {n: jnp.zeros((), float) for n in names}  # strongly typed: no recompile after step 1
     state = jax.tree.map(_strong, opt.init(theta))
-    history = []
-    best = (math.inf, theta, math.nan, None)
-    since_best = 0
-    early = False
-    bar = None
+    history, best, since_best, early, bar = [], (math.inf, theta, math.nan, None), 0, False, None
     if progress:
         from tqdm.auto import tqdm
 
@@ -408,14 +394,9 @@ def _fit(loss_fn: _Loss, names, settings, *, opt, steps, patience, tolerance, pr
             if not math.isfinite(value):
                 break
             history.append(value)
-            gnorm = float(optax.tree.norm(grad))
-            if value < best[0] * (1.0 - tolerance):
-                best = (value, theta, gnorm, aux)
-                since_best = 0
-            else:
-                if value < best[0]:
-                    best = (value, theta, gnorm, aux)
-                since_best += 1
+            since_best = 0 if value < best[0] * (1.0 - tolerance) else since_best + 1
+            if value < best[0]:
+                best = (value, theta, float(optax.tree.norm(grad)), aux)
             if k == steps:  # θ_steps evaluated; its update is not taken
                 break
             if bar is not None:
@@ -426,13 +407,12 @@ def _fit(loss_fn: _Loss, names, settings, *, opt, steps, patience, tolerance, pr
                 early = True
                 break
     except KeyboardInterrupt:
-        if bar is not None:
-            bar.close()
         if best[3] is None:
             raise
         raise FitInterrupted(result(f"interrupted after {len(history) - 1} iterations")) from None
-    if bar is not None:
-        bar.close()
+    finally:
+        if bar is not None:
+            bar.close()
     if best[3] is None:
         raise FloatingPointError(f"{description}: the loss is not finite at the start; check the data and the start")
     return result()
@@ -449,14 +429,10 @@ def fit_adhesion(observations: Observation | Sequence[Observation], model: Peeli
                  max_steps: int | None = None) -> FitResult:  # fmt: skip
     """Fit φ's coefficients to observed runs (v(t), optionally F(t) and α(t)) at one or more V.
 
-    Minimises the loss of :func:`trajectory_loss` (module docstring) over θ with
-    c = c_start·exp(θ) for each free coefficient, with optax's Adam (default), L-BFGS
-    (``optimizer="lbfgs"``) or any optax transformation passed as ``optimizer``. The model runs
-    with the error-controlled α-method (default; ``rtol``, ``atol``), or the uniform mesh of
-    step ``dt`` when given, on [0, t_final] (default: the last observation time), starting
-    from the paper's consistent initial data at each V. ``solver`` may be any
-    ``diffrax.AbstractSolver`` instead of the α-method (error control; gradients through
-    diffrax's ``RecursiveCheckpointAdjoint``).
+    Minimises :func:`trajectory_loss` (module docstring) over θ, c = c_start·exp(θ), with
+    optax; the model runs from the paper's consistent initial data at each V on [0, t_final]
+    (default: the last observation time). ``solver``: any ``diffrax.AbstractSolver`` in place
+    of the α-method (error control; gradients through diffrax's ``RecursiveCheckpointAdjoint``).
 
     Args:
         observations: one :class:`Observation` per pull velocity.
@@ -481,17 +457,15 @@ def fit_adhesion(observations: Observation | Sequence[Observation], model: Peeli
         progress: a tqdm progress bar (on stderr).
         checkpoint_every: passed to :func:`integrate_alpha` (``"sqrt"`` for long runs).
         batch: ``"map"`` (default) or ``"vmap"`` over the pull velocities.
-        dt: None (default) for error control; a number runs the uniform mesh of that step
-            (the model is then interpolated linearly to the observation times).
-        rtol, atol: error control's tolerances (default 1e-6, 1e-9; not with ``dt``): exact
-            reverse-mode gradients through its checkpointed loop (step sizes held constant),
-            the model evaluated at the observation times by the dense output.
+        dt: None (default): the error-controlled α-method, its dense output at the observation
+            times; a number: the uniform mesh of that step, interpolated linearly.
+        rtol, atol: error control's tolerances (default 1e-6, 1e-9; not with ``dt``); gradients
+            exact in reverse mode through its checkpointed loop (step sizes held constant).
         max_steps: error control's budget of step attempts per run (None: the library's,
             ``peeljax.integrators.select.DEFAULT_MAX_STEPS``); a run that uses it up stops there.
 
     Returns:
-        A :class:`FitResult` with the best iterate, the loss history, the gradient norm and
-        the visited v range.
+        A :class:`FitResult`: the best iterate, the loss history, the gradient norm, the v visited.
     """
     if isinstance(observations, Observation):
         observations = [observations]

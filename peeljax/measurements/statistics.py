@@ -69,6 +69,7 @@ __all__ = [
     "MIN_DROP_RANGE",
     "STATISTICS",
     "jump_statistics",
+    "noise_level",
     "record_cycles",
     "record_statistics",
     "sample_std",
@@ -80,9 +81,11 @@ MIN_DROP_NOISE = 10.0  # default min_drop: this many times the estimated noise �
 MIN_DROP_RANGE = 0.01  # … and at least this fraction of the record's peak-to-peak range
 
 
-def _noise(F: np.ndarray) -> float:
-    """The white noise's standard deviation, estimated from second differences (robust: the
-    median absolute deviation, which the few samples of each slip do not move)."""
+def noise_level(F) -> float:
+    """The white-noise level σ of a sampled signal: the median absolute deviation of its second
+    differences × 1.4826/√6 (a second difference of white noise has variance 6σ²; the median is
+    robust: the few samples of each slip, or a smooth signal's curvature, do not move it)."""
+    F = np.asarray(F, float)
     if F.size < 3:
         return 0.0
     d2 = np.diff(F, 2)
@@ -157,7 +160,7 @@ def record_cycles(t, F, *, transient: float = 0.0, min_drop: float | None = None
     if window.sum() < 2:
         raise ValueError(f"fewer than 2 samples after the transient {transient:g} s (the record ends at {t[-1]:g} s)")
     t, F = t[window], F[window]
-    noise = _noise(F)
+    noise = noise_level(F)
     if not (math.isfinite(smooth) and smooth >= 0):
         raise ValueError(f"smooth must be a number >= 0 [s], got {smooth!r}")
     F, w = smoothed(t, F, smooth)
