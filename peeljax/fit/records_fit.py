@@ -36,7 +36,7 @@ from .points import PointRows
 from ..measurements.stick_slip_table import StickSlipTable
 from .result import TableFitResult, least_squares_result
 from .table import check_intervals, fit_rows, fit_stick_slip, progress_callback
-from .parameters import check_free
+from .parameters import check_free, model_and_start
 from ..measurements.observations import Observation
 
 __all__ = ["BY", "MIN_SLIPS", "POORLY_DETERMINED", "fit_records", "how_fitted", "is_force_record", "poorly_determined"]
@@ -226,10 +226,7 @@ def fit_records(observations: Sequence[Observation], model: PeelingModel | None 
     check_intervals(intervals, level)
     names = check_free(free)
     progress = progress_callback(progress)
-    model = PeelingModel() if model is None else model
-    start = model.adhesion if start is None else start
-    if not isinstance(start, AdhesionLaw):
-        raise TypeError("fit_records fits an AdhesionLaw; the model's adhesion is a plain callable")
+    model, start = model_and_start(model, start, "fit_records")
     judge = eqx.tree_at(lambda m: m.adhesion, model, start)  # judges a record of too few slips to tell
     decided = how_fitted(observations, by, transient, judge)
     stats = [o for o, (kind, _) in zip(observations, decided) if kind == "statistics"]

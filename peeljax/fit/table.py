@@ -46,7 +46,7 @@ from .table_rows import Point, TableRows, attractor_rows
 from .window_rows import MISSING_RESIDUAL, TableFit, build_table_fit, table_residuals
 from ..measurements.statistics import STATISTICS
 from ..measurements.stick_slip_table import StickSlipTable
-from .parameters import check_free, value_and_jacfwd
+from .parameters import check_free, model_and_start, value_and_jacfwd
 from .result import FitInterrupted, TableFitResult, interrupted, least_squares_result
 from .result import EQUAL_CHI2, OUTLIER_SIGMA, ROUGH_PROFILES  # noqa: F401 - importable from their old home
 from .uncertainty import uncertainty_from_jacobian
@@ -278,10 +278,7 @@ def fit_stick_slip(table: StickSlipTable, model: PeelingModel | None = None, *,
         coarse_spread, scale_covariance, taper,
     )  # fmt: skip
     names = check_free(free)
-    model = PeelingModel() if model is None else model
-    start = model.adhesion if start is None else start
-    if not isinstance(start, AdhesionLaw):
-        raise TypeError("fit_stick_slip fits an AdhesionLaw; the model's adhesion is a plain callable")
+    model, start = model_and_start(model, start, "fit_stick_slip")
     wanted = table.statistics if statistics is None else tuple(statistics)
     unknown = [s for s in wanted if s not in table.statistics]
     if unknown or not wanted:

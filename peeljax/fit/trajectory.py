@@ -47,7 +47,7 @@ from ..integrators.base import AbstractIntegrator
 from ..integrators.select import integrator_for
 from ..model import PeelingModel
 from ..measurements.observations import Observation
-from .parameters import check_free, law_from
+from .parameters import check_free, law_from, model_and_start
 from .result import FitInterrupted, FitResult
 
 __all__ = ["FitInterrupted", "FitResult", "LossInfo", "Observation", "fit_adhesion", "fit_adhesion_steady",
@@ -480,10 +480,7 @@ def fit_adhesion(observations: Observation | Sequence[Observation], model: Peeli
     if batch not in ("map", "vmap"):
         raise ValueError(f"batch must be 'map' or 'vmap', got {batch!r}")
     names = check_free(free)
-    model = PeelingModel() if model is None else model
-    start = model.adhesion if start is None else start
-    if not isinstance(start, AdhesionLaw):
-        raise TypeError("fit_adhesion fits an AdhesionLaw; the model's adhesion is a plain callable")
+    model, start = model_and_start(model, start, "fit_adhesion")
     weights = {q: 1.0 for q in QUANTITIES} | dict(weights or {})
     data, t_obs_max = _pack(observations)
     t_final = float(t_obs_max if t_final is None else t_final)
