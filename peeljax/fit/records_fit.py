@@ -280,8 +280,7 @@ def fit_records(observations: Sequence[Observation], model: PeelingModel | None 
     return result
 
 
-# A coefficient known to worse than this relative standard error is reported as poorly determined.
-POORLY_DETERMINED = 0.05
+POORLY_DETERMINED = 0.05  # a coefficient known to worse relative standard error is reported as poorly determined
 
 
 def poorly_determined(result, records: list[Observation], target: float = 0.01) -> str | None:

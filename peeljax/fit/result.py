@@ -81,25 +81,16 @@ class FitResult:
     def to_dict(self) -> dict:
         """The 14 coefficients at top level (``AdhesionLaw.from_dict`` reads them) and the rest."""
         return {
-            **self.adhesion.coefficients(),
-            "start": self.start.coefficients(),
-            "free": list(self.free),
-            "loss_history": [float(x) for x in self.loss_history],
-            "initial_loss": self.initial_loss,
-            "final_loss": self.final_loss,
-            "loss_reduction": self.loss_reduction,
-            "gradient_norm": self.gradient_norm,
-            "steps": self.steps,
-            "stopped_early": self.stopped_early,
-            "v_range": list(self.v_range),
-            "t_stop": list(self.t_stop),
-            "wall_time_s": self.wall_time_s,
-            "settings": self.settings,
+            **self.adhesion.coefficients(), "start": self.start.coefficients(), "free": list(self.free),
+            "loss_history": [float(x) for x in self.loss_history], "initial_loss": self.initial_loss,
+            "final_loss": self.final_loss, "loss_reduction": self.loss_reduction, "gradient_norm": self.gradient_norm,
+            "steps": self.steps, "stopped_early": self.stopped_early, "v_range": list(self.v_range),
+            "t_stop": list(self.t_stop), "wall_time_s": self.wall_time_s, "settings": self.settings,
             **({} if not self.stop_reason else {"stop_reason": self.stop_reason}),
             **({} if self.uncertainty is None else {"uncertainty": self.uncertainty.as_dict()}),
             **({} if self.residuals is None else {"residuals": [float(x) for x in self.residuals]}),
             **({} if self.start_losses is None else {"start_losses": [float(x) for x in self.start_losses]}),
-        }
+        }  # fmt: skip
 
     def to_json(self, path: str | Path | None = None) -> str:
         """:meth:`to_dict` as strict JSON (NaN and infinities as null), written to ``path`` if given."""

@@ -100,10 +100,8 @@ def _solve(fit: TableFit, starts, evaluated, *, fit_rtol, fit_atol, max_iteratio
     """Levenberg–Marquardt from each start (rows of ``starts``, already ``evaluated``: (r, J, v
     range) each) in lockstep: each iteration evaluates every run's trial point in one call of
     :func:`_evaluate`."""
-    runs = [
-        LevenbergMarquardt(z, *e, fit_rtol=fit_rtol, fit_atol=fit_atol, max_iterations=max_iterations)
-        for z, e in zip(starts, evaluated)
-    ]  # fmt: skip
+    runs = [LevenbergMarquardt(z, *e, fit_rtol=fit_rtol, fit_atol=fit_atol, max_iterations=max_iterations)
+            for z, e in zip(starts, evaluated)]  # fmt: skip
     iteration = 0
     try:
         while any(run.reason is None for run in runs):
@@ -149,20 +147,15 @@ def _check_options(
 ):  # fmt: skip
     if not isinstance(table, StickSlipTable):
         raise TypeError(f"table must be a StickSlipTable (read_stick_slip_table), got {type(table).__name__}")
-    check_positive("window", window)
-    if not (isinstance(transient, (int, float)) and math.isfinite(transient) and transient >= 0):
-        raise ValueError(f"transient must be a number >= 0, got {transient!r}")
-    if not (isinstance(tau, (int, float)) and math.isfinite(tau) and tau >= 0):
-        raise ValueError(f"tau must be a number >= 0, got {tau!r}")
-    for name, value, least in (
-        ("n_samples", n_samples, 2), ("n_starts", n_starts, 1), ("max_iterations", max_iterations, 1),
-        ("n_coarse", n_coarse, 1),
-    ):  # fmt: skip
+    for name, value in (("window", window), ("fit_rtol", fit_rtol), ("fit_atol", fit_atol), ("coarse_spread", coarse_spread)):
+        check_positive(name, value)
+    for name, value in (("transient", transient), ("tau", tau)):
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+            raise ValueError(f"{name} must be a number >= 0, got {value!r}")
+    for name, value, least in (("n_samples", n_samples, 2), ("n_starts", n_starts, 1),
+                               ("max_iterations", max_iterations, 1), ("n_coarse", n_coarse, 1)):  # fmt: skip
         if isinstance(value, bool) or not isinstance(value, int) or value < least:
             raise ValueError(f"{name} must be an integer >= {least}, got {value!r}")
-    check_positive("fit_rtol", fit_rtol)
-    check_positive("fit_atol", fit_atol)
-    check_positive("coarse_spread", coarse_spread)
     if not (isinstance(taper, (int, float)) and 0 <= taper <= 0.5):
         raise ValueError(f"taper must be a number in [0, 0.5], got {taper!r}")
     if not (scale_covariance is True or scale_covariance is False or scale_covariance == "auto"):
@@ -356,6 +349,7 @@ def _fit_on_attractors(table, model, start, data, sigma, measured, names, window
         rows = Joint(rows, points)
     fitted = fit_rows(rows, start, names, options, scale=scale, intervals=intervals, level=level)
     return {**fitted, "why": why}
+
 
 def fit_rows(rows, start, names, options, *, scale, intervals, level) -> dict:
     """Levenberg–Marquardt from θ = 0 on ``rows`` (:class:`TableRows`, or anything with its

@@ -383,17 +383,12 @@ class TableRows:
         return row
 
     def _minimal(self, z, i: int, row: dict) -> dict:
-        if row["attractor"].minimal:
-            return row
-        row = self._least_k(z, i, row)
-        row["attractor"] = dataclasses.replace(row["attractor"], minimal=True)
-        return row
-
-    def _least_k(self, z, i: int, row: dict) -> dict:
         """The orbit with its least k: a near repeat of k events may be an orbit of k/m slips run
         m times (the same statistics per slip, other multipliers). Each proper divisor d of k,
         smallest first, is shot from the orbit's section point: where P^d returns there (Newton
         converged on the point itself), the orbit has d slips per period."""
+        if row["attractor"].minimal:
+            return row
         k = int(row["slips"])
         divisors = [d for d in range(1, k) if k % d == 0]
         a = row["attractor"]
@@ -401,8 +396,10 @@ class TableRows:
         for d, trial in zip(divisors, trials):  # every divisor in one batched call, the smallest that returns taken
             if int(trial["status"]) == 0 and np.max(np.abs(trial["z"] - row["z"])) <= SAME_POINT:
                 if not classify(_as_batch(trial), 0, None, 0, None):
-                    trial["attractor"] = dataclasses.replace(trial["attractor"], how=f"{a.how}: an orbit of {d} slips")
+                    trial["attractor"] = dataclasses.replace(trial["attractor"], how=f"{a.how}: an orbit of {d} slips",
+                                                             minimal=True)  # fmt: skip
                     return trial
+        row["attractor"] = dataclasses.replace(a, minimal=True)
         return row
 
     def from_rest(self, point: Point) -> list[int]:

@@ -96,10 +96,6 @@ def _pack(observations: Sequence[Observation]) -> tuple[_Data, float]:
     return _Data(V=V, t=t, values=values, scale=scale, mask=mask, grid=jnp.asarray(grid)), t_max
 
 
-def _model_quantities(model: PeelingModel, ys: Array) -> dict[str, Array]:
-    return {"v": ys[:, 3], "alpha": ys[:, 0], "F": model.tension(ys[:, 2], ys[:, 0])}
-
-
 class LossInfo(eqx.Module):
     """What a fit's loss reports besides its value.
 
@@ -126,7 +122,7 @@ def _run_loss(model, V, tau, integrator, t_final, t, values, scale, mask, grid, 
     ts = jnp.clip(grid, 0.0, t_final) if integrator.dense_output else None
     sol = integrator.integrate(ode, y0, 0.0, t_final, ts)
     ys = jnp.where(sol.valid[:, None], sol.ys, 0.0)  # the double where: no NaN reaches the gradient
-    quantities = _model_quantities(model, ys)
+    quantities = {"v": ys[:, 3], "alpha": ys[:, 0], "F": model.tension(ys[:, 2], ys[:, 0])}
     t_stop = jax.lax.stop_gradient(sol.t_stop)
     total = jnp.asarray(0.0)
     for q in values:
@@ -256,9 +252,7 @@ def restart_on_ascent(inner: optax.GradientTransformation) -> optax.GradientTran
 
 
 def _check_options(steps, optimizer, learning_rate) -> tuple[optax.GradientTransformation, float | None]:
-    """Checks the optimizer options before anything compiles.
-
-    Returns the optax transformation to run and ``learning_rate`` as a float (or None)."""
+    """The optax transformation to run and ``learning_rate`` (a float or None), checked before anything compiles."""
     if not isinstance(steps, int) or isinstance(steps, bool) or steps < 0:
         raise ValueError(
             f"steps must be an integer >= 0 (allowed range: [0, inf); 0 evaluates the start), got {steps!r}"
@@ -286,9 +280,7 @@ def _check_options(steps, optimizer, learning_rate) -> tuple[optax.GradientTrans
 
 def _optimizer_setting(optimizer) -> str:
     """``FitResult.settings["optimizer"]``: the name, or the kind of a user's transformation (JSON-able)."""
-    if isinstance(optimizer, str):
-        return optimizer
-    return f"optax.{type(optimizer).__name__} (user)"
+    return optimizer if isinstance(optimizer, str) else f"optax.{type(optimizer).__name__} (user)"
 
 
 # The setting each of the library's own transformations was made from, by the object's id (they
