@@ -25,7 +25,7 @@ import numpy as np
 
 import peeljax as pj
 from peeljax.fit import StickSlipTable, fit_stick_slip
-from peeljax.fit.statistics import STATISTICS
+from peeljax.measurements.statistics import STATISTICS
 from peeljax.fit.table import attractor_statistics
 
 PROBLEMS = {

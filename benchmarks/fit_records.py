@@ -4,7 +4,7 @@ of every kind").
 * ``--instrument``: records made from φ with c1 × 1.05 (τ = 0, 4 s from rest) at V = 1.1, 1.6,
   2.4 m/s, sampled at 1, 2, 5, 10 kHz, with and without white noise of 0.5 % of F; their
   statistics over [2, 4] s (found on F averaged over 0.6 ms, ``fit_records``' rule) against the
-  orbit's exact statistics and against the model's record (:mod:`peeljax.fit.instrument`).
+  orbit's exact statistics and against the model's record (:mod:`peeljax.measurements.instrument`).
 * ``--fit RATE``: the three records at RATE kHz with 0.5 % noise, fitted for c1 from the paper's
   400 by :func:`peeljax.fit.fit_records` (the truth 420: within 2 standard errors and 1 %?);
   ``--draws N``: N noise draws of them, the errors' mean and spread and the coverage.
@@ -24,11 +24,11 @@ import numpy as np
 
 import peeljax as pj
 from peeljax.fit import fit_records, record_statistics
-from peeljax.fit.instrument import Instrument, orbit_force, recorded_statistics
+from peeljax.measurements.instrument import Instrument, orbit_force, recorded_statistics
 from peeljax.fit.records_fit import NOISE_FACTOR, SMOOTH
-from peeljax.fit.stick_slip_table import STATISTICS
+from peeljax.measurements.stick_slip_table import STATISTICS
 from peeljax.fit.table import attractor_statistics
-from peeljax.fit.observations import Observation
+from peeljax.measurements.observations import Observation
 
 TRUTH = pj.AdhesionLaw(c1=420.0)
 V = (1.1, 1.6, 2.4)

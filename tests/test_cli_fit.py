@@ -11,7 +11,7 @@ from conftest import PNG_MAGIC, assert_refused, forbid, run_cli
 
 from peeljax import AdhesionLaw
 from peeljax.adhesion import COEFFICIENT_NAMES
-from peeljax.fit.records import load_observations
+from peeljax.measurements.records import load_observations
 
 SHORT = ["--t-final", "0.2", "--save-dt", "0.01", "--tau", "0.1"]
 
@@ -163,7 +163,7 @@ def test_simulate_out_csv_is_a_text_record_of_the_run(tmp_path):
     """``simulate --out run.csv``: the run's rows as text with a header and units; read back as a
     force record, its left limits are those of the same run's .npz."""
     from peeljax.fit import read_force_record
-    from peeljax.fit.records import read_npz
+    from peeljax.measurements.records import read_npz
 
     argv = ["simulate", "--V", "1.1", "--tau", "0", "--t-final", "0.3", "--save-dt", "0.001"]
     for name in ("run.csv", "run.npz"):

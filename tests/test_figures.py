@@ -322,29 +322,25 @@ def test_trajectory_fit_plot_shows_every_fitted_quantity(tmp_path):
             assert data[0].get_zorder() > max(line.get_zorder() for line in models)
 
 
-def test_the_old_module_peeljax_stick_slip_plots_warns_and_re_exports():
-    import importlib
-    import sys
-
+def test_the_old_module_peeljax_stick_slip_plots_warns_on_use_and_re_exports():
     import peeljax.plots as plots
+    import peeljax.stick_slip_plots as old
 
-    sys.modules.pop("peeljax.stick_slip_plots", None)
     with pytest.warns(DeprecationWarning, match="peeljax.stick_slip_plots is deprecated: import plot_stick_slip_map from peeljax.plots"):
-        old = importlib.import_module("peeljax.stick_slip_plots")
-    assert old.plot_stick_slip_map is plots.plot_stick_slip_map
+        assert old.plot_stick_slip_map is plots.plot_stick_slip_map
 
 
-def test_the_old_module_peeljax_fit_plots_warns_and_re_exports():
-    import importlib
-    import sys
-
+def test_the_old_module_peeljax_fit_plots_warns_on_use_and_re_exports():
     import peeljax.plots.fit as new
 
-    sys.modules.pop("peeljax.fit.plots", None)
     with pytest.warns(DeprecationWarning, match="peeljax.fit.plots is deprecated: import plot_table_fit"):
-        old = importlib.import_module("peeljax.fit.plots")
-    for name in ("plot_table_fit", "plot_records_fit", "fitted_values", "model_statistics"):
-        assert getattr(old, name) is getattr(new, name)
+        from peeljax.fit.plots import plot_table_fit
+    assert plot_table_fit is new.plot_table_fit
+    import peeljax.fit.plots as old
+
+    for name in ("plot_records_fit", "fitted_values", "model_statistics"):
+        with pytest.warns(DeprecationWarning, match=f"import {name} from peeljax.plots.fit"):
+            assert getattr(old, name) is getattr(new, name)
 
 
 # ---------------------------------------------------------------------------- the fold's end, stopped runs

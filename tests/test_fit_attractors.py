@@ -14,14 +14,14 @@ import pytest
 
 from peeljax import PeelingModel
 from peeljax.fit import StickSlipTable, fit_records, fit_stick_slip
-from peeljax.fit.instrument import Instrument, recorded_statistics
-from peeljax.fit.statistics import record_cycles
-from peeljax.fit.points import noise_level
+from peeljax.measurements.instrument import Instrument, recorded_statistics
+from peeljax.measurements.statistics import record_cycles
+from peeljax.measurements.statistics import noise_level
 from peeljax.fit.profile import profile
 from peeljax.fit.records_fit import MIN_SLIPS, how_fitted, settled
 from peeljax.fit.levenberg_marquardt import LevenbergMarquardt
 from peeljax.fit.table_rows import Point
-from peeljax.fit.observations import Observation
+from peeljax.measurements.observations import Observation
 from peeljax.fit.uncertainty import quantile
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
@@ -236,7 +236,7 @@ def truth_rows():
 
 
 def _table(point, noise, rng):
-    from peeljax.fit.stick_slip_table import STATISTICS
+    from peeljax.measurements.stick_slip_table import STATISTICS
 
     columns = {}
     for j, name in enumerate(STATISTICS):

@@ -1,4 +1,4 @@
-"""The data layer of the fit (``peeljax.fit.records``, ``.stick_slip_table``,
+"""What the fit is handed (``peeljax.measurements.records``, ``.stick_slip_table``,
 ``.statistics``, ``.text_tables``): force records (text and .npz), stick-slip tables,
 the statistics of a measured sawtooth, and ``peeljax fit --data`` reading them."""
 
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from conftest import assert_refused, forbid, run_cli
 
-from peeljax.fit.records import load_observations
+from peeljax.measurements.records import load_observations
 from peeljax.fit import (
     DataFileError,
     StickSlipTable,
@@ -21,9 +21,9 @@ from peeljax.fit import (
     read_stick_slip_table,
     record_statistics,
 )
-from peeljax.fit import records
-from peeljax.fit.records import _V_from_name, read_npz
-from peeljax.fit.stick_slip_table import STATISTICS
+from peeljax.measurements import records
+from peeljax.measurements.records import _V_from_name, read_npz
+from peeljax.measurements.stick_slip_table import STATISTICS
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "docs" / "examples"
 
@@ -745,32 +745,34 @@ def test_cli_fits_a_csv_force_record_end_to_end(tmp_path):
     assert record["c1"] == pytest.approx(440.0, rel=1e-3)
 
 
-def test_the_old_module_peeljax_fit_data_warns_and_re_exports_the_same_names():
+def test_the_old_module_peeljax_fit_data_warns_on_use_and_re_exports_the_same_names():
     import importlib
-    import sys
 
     import peeljax.fit as fit
 
-    sys.modules.pop("peeljax.fit.data", None)
-    with pytest.warns(DeprecationWarning, match="peeljax.fit.data is deprecated: import from peeljax.fit"):
-        data = importlib.import_module("peeljax.fit.data")
-    for name in ("DataFileError", "StickSlipTable", "read_force_record", "read_observations",
-                 "read_stick_slip_table", "record_statistics"):  # fmt: skip
-        assert getattr(data, name) is getattr(fit, name)
-    assert data.STATISTICS == STATISTICS and data.read_npz is read_npz
+    data = importlib.import_module("peeljax.fit.data")
+    with pytest.warns(DeprecationWarning, match="peeljax.fit.data is deprecated: import StickSlipTable from peeljax.measurements"):
+        assert data.StickSlipTable is fit.StickSlipTable
+    with pytest.warns(DeprecationWarning):
+        for name in ("DataFileError", "read_force_record", "read_observations", "read_stick_slip_table", "record_statistics"):
+            assert getattr(data, name) is getattr(fit, name)
+        assert data.STATISTICS == STATISTICS and data.read_npz is read_npz
 
 
-def test_the_old_module_peeljax_fit_measured_statistics_warns_and_re_exports():
+@pytest.mark.parametrize("old, new", [
+    ("peeljax.fit.measured_statistics", "peeljax.measurements.statistics"),
+    *[(f"peeljax.fit.{name}", f"peeljax.measurements.{name}")
+      for name in ("records", "statistics", "stick_slip_table", "text_tables", "observations", "instrument")],
+])  # fmt: skip
+def test_an_old_module_path_warns_on_use_and_re_exports(old, new):
     import importlib
-    import sys
 
-    import peeljax.fit.statistics as statistics
-
-    sys.modules.pop("peeljax.fit.measured_statistics", None)
-    with pytest.warns(DeprecationWarning, match="peeljax.fit.measured_statistics is deprecated: import record_statistics"):
-        old = importlib.import_module("peeljax.fit.measured_statistics")
-    for name in old.__all__:
-        assert getattr(old, name) is getattr(statistics, name)
+    old_module, new_module = importlib.import_module(old), importlib.import_module(new)
+    for name in new_module.__all__:
+        message = f"{old} is deprecated: import {name} from {new} ({old} is removed in peeljax 0.3.0)"
+        with pytest.warns(DeprecationWarning, match=re.escape(message)):
+            assert getattr(old_module, name) is getattr(new_module, name)
+    assert set(new_module.__all__) <= set(dir(old_module))
 
 
 # ---------------------------------------------------------------------------- speed and memory
@@ -786,7 +788,7 @@ def _record(path: Path, n: int, comment: str = "") -> Path:
 def test_a_good_record_is_parsed_by_numpys_reader_and_equals_the_scan(tmp_path, monkeypatch):
     """The C reader (numpy.loadtxt) reads a good file; the line-by-line scan, which words the
     refusals, reads the same numbers; trailing comments are comments in both."""
-    import peeljax.fit.text_tables as text_tables
+    import peeljax.measurements.text_tables as text_tables
 
     path = _record(tmp_path / "peel_V=1.1.csv", 2000)
     with open(path, "a") as stream:
@@ -801,7 +803,7 @@ def test_a_good_record_is_parsed_by_numpys_reader_and_equals_the_scan(tmp_path, 
 
 
 def test_the_memory_a_file_needs_is_estimated_before_reading_and_refused_when_too_much(tmp_path, monkeypatch):
-    import peeljax.fit.text_tables as text_tables
+    import peeljax.measurements.text_tables as text_tables
 
     path = _record(tmp_path / "peel_V=1.1.csv", 20_000)
     head = path.read_text()[: 1 << 16]

@@ -10,8 +10,8 @@ import scipy.optimize
 import scipy.stats
 
 from peeljax.fit import StickSlipTable, fit_stick_slip, jump_statistics, phi_relative_error
-from peeljax.fit.statistics import window_scatter
-from peeljax.fit.stick_slip_table import STATISTICS
+from peeljax.measurements.statistics import window_scatter
+from peeljax.measurements.stick_slip_table import STATISTICS
 from peeljax.fit.levenberg_marquardt import CONVERGED, STOP_REASONS, LevenbergMarquardt
 from peeljax.fit.uncertainty import quantile, uncertainty_from_jacobian
 from peeljax.solution import JumpRecord

@@ -1,4 +1,4 @@
-"""No module of ``peeljax.fit`` or ``peeljax.orbits`` imports another module's private name, and
+"""No module of ``peeljax.fit``, ``peeljax.measurements`` or ``peeljax.orbits`` imports another module's private name, and
 no benchmark imports one of the library's: what one module needs of another is public where it
 belongs (a private name imported elsewhere is a rule kept in two places, and breaks silently when
 its home changes)."""
@@ -12,7 +12,7 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "peeljax"
 BENCHMARKS = PACKAGE.parent / "benchmarks"
-FOLDERS = ("fit", "orbits")
+FOLDERS = ("fit", "measurements", "orbits")
 
 
 def _private_imports(path: Path, root: Path = PACKAGE.parent, only_peeljax: bool = False) -> list[str]:

@@ -77,7 +77,7 @@ def stick_slip_table(path: Path = HERE / "stick_slip_table.csv", noise: float = 
     put F_mean below F_stick at V = 2, where the sawtooth spans 4 N and 1 % is 3.3 N: a row no
     run can produce. The period and the slip duration get draws of their own."""
     from peeljax.fit.synthetic import model_statistics
-    from peeljax.fit.stick_slip_table import STATISTICS, StickSlipTable
+    from peeljax.measurements.stick_slip_table import STATISTICS, StickSlipTable
 
     truth = pj.AdhesionLaw(**{**pj.AdhesionLaw().coefficients(), **HIDDEN})
     settings = {k: v for k, v in TABLE.items() if k != "V"}

@@ -26,7 +26,7 @@ from .._validation import check_choice, check_mesh, check_positive
 from ..adhesion import COEFFICIENT_NAMES
 from ..fit import QUANTITIES, Observation
 from ..fit.parameters import check_free
-from ..fit.records import check_fit_samples, load_observations
+from ..measurements.records import check_fit_samples, load_observations
 from ..fit.records_fit import is_force_record
 from ..fit.trajectory import OPTIMIZERS
 from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_RTOL

@@ -18,7 +18,7 @@ import numpy as np
 from .._validation import check_choice, check_tau
 from ..fit import DataFileError, Observation
 from ..fit.parameters import check_free
-from ..fit.records import check_fit_samples
+from ..measurements.records import check_fit_samples
 from ..fit.records_fit import fit_records, poorly_determined
 from ..fit.table import INTERVALS, METHODS, fit_stick_slip
 from ..fit.trajectory import fit_adhesion
@@ -115,7 +115,7 @@ def _read_table(args: argparse.Namespace):
 def _validate_table(args: argparse.Namespace, table=None, source: str | None = None) -> dict:
     """--table's options (or those of force records fitted through their ``table``), all
     checked before anything is compiled."""
-    from ..fit.stick_slip_table import STATISTICS
+    from ..measurements.stick_slip_table import STATISTICS
     from ..fit.table import table_tolerances
 
     if table is None:
@@ -208,7 +208,7 @@ def _validate_records(args: argparse.Namespace, observations: list[Observation],
     tau = _points_tau(args, defaults)  # the τ of records fitted point by point
     statistics = None
     if args.statistics is not None:
-        from ..fit.stick_slip_table import STATISTICS
+        from ..measurements.stick_slip_table import STATISTICS
 
         unknown = [name for name in args.statistics if name not in STATISTICS]
         if unknown:

@@ -44,7 +44,7 @@ from ..orbits.section import SlipSection
 from ..orbits.shooting import OrbitStatus, Shooting
 from ..simulate import simulate
 from ..solution import Solution
-from .statistics import STATISTICS
+from ..measurements.statistics import STATISTICS
 from .parameters import law_from
 
 __all__ = ["CONTINUITY", "Attractor", "OrbitRows", "RowOrbits", "classify", "find_attractor", "steady_rows"]
@@ -144,19 +144,15 @@ class OrbitRows(eqx.Module):
             stats = jnp.stack([orbit.statistics[s] for s in STATISTICS])
             z = orbit.section / section.scale
             v_slip = section.after_slip(orbit.section)[3]  # the fastest v of the period: just after a slip
-            return (stats, z), (orbit, v_slip)
+            return (stats, z), (orbit, v_slip, stats)
 
-        (d_stats, d_z), (orbit, v_slip) = jax.jacfwd(quantities, has_aux=True)(theta)
+        (d_stats, d_z), (orbit, v_slip, stats) = jax.jacfwd(quantities, has_aux=True)(theta)
         return RowOrbits(
-            statistics=orbit_stats(orbit), jacobian=d_stats, section=orbit.section, z=orbit.section
+            statistics=stats, jacobian=d_stats, section=orbit.section, z=orbit.section
             / SlipSection.at(orbit.model, V).scale, z_jacobian=d_z, slips=orbit.slips, period=orbit.period,
             status=orbit.status, multipliers=jnp.abs(orbit.multipliers), approach=orbit.approach,
             crossing=orbit.crossing, v_slip=jax.lax.stop_gradient(v_slip),
         )  # fmt: skip
-
-
-def orbit_stats(orbit) -> Array:
-    return jnp.stack([orbit.statistics[s] for s in STATISTICS])
 
 
 class RowOrbits(eqx.Module):

@@ -14,8 +14,9 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from ..adhesion import COEFFICIENT_NAMES, AdhesionLaw
+from ..model import PeelingModel
 
-__all__ = ["check_free", "law_from", "value_and_jacfwd"]
+__all__ = ["check_free", "law_from", "model_and_start", "value_and_jacfwd"]
 
 
 def law_from(theta: dict[str, Array], start: AdhesionLaw) -> AdhesionLaw:
@@ -39,6 +40,15 @@ def check_free(free) -> tuple[str, ...]:
     if unknown or not free:
         raise ValueError(f"free: unknown coefficient(s) {unknown}; allowed: {', '.join(COEFFICIENT_NAMES)}")
     return tuple(n for n in COEFFICIENT_NAMES if n in free)  # canonical order, no duplicates
+
+
+def model_and_start(model: PeelingModel | None, start: AdhesionLaw | None, fit: str) -> tuple[PeelingModel, AdhesionLaw]:
+    """The model (default the paper's) and the law ``fit`` starts from (default the model's φ)."""
+    model = PeelingModel() if model is None else model
+    start = model.adhesion if start is None else start
+    if not isinstance(start, AdhesionLaw):
+        raise TypeError(f"{fit} fits an AdhesionLaw; the model's adhesion is a plain callable")
+    return model, start
 
 
 def value_and_jacfwd(f, x):

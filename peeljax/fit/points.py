@@ -7,8 +7,8 @@ or steady peeling itself — has no slips to take statistics of; it is fitted sa
 
 q ∈ {F, v, alpha} the quantities the record holds, q_model the homogenized ODE's run at τ from
 the paper's initial data at the record's V (its dense output at the record's times), σ_q the
-record's own white-noise level of q (:func:`noise_level`: the median absolute deviation of its
-second differences, which a smooth signal does not move; floored at 1e-6 of the record's RMS).
+record's own white-noise level of q (:func:`~peeljax.measurements.statistics.noise_level`;
+floored at 1e-6 of the record's RMS).
 r and its Jacobian come from one forward-mode pass (one tangent per free coefficient, through
 the α-method's implicit steps); the fit is the table fit's Levenberg–Marquardt
 (:mod:`peeljax.fit.table`), and its covariance is s²(JᵀJ)⁻¹ (:mod:`peeljax.fit.uncertainty`,
@@ -22,7 +22,6 @@ scaled by χ²/dof where that exceeds 1 — the noise estimate too small, or cor
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Sequence
 
 import equinox as eqx
@@ -38,22 +37,13 @@ from ..model import PeelingModel
 from .table_rows import Point
 from .window_rows import MISSING_RESIDUAL
 from .parameters import law_from, value_and_jacfwd
-from .observations import Observation
+from ..measurements.observations import Observation
+from ..measurements.statistics import noise_level
 
 __all__ = ["Joint", "PointRows", "noise_level"]
 
 QUANTITIES = ("F", "v", "alpha")
 _FLOOR = 1e-6  # σ_q ≥ this × the record's RMS of q (a noise-free record)
-
-
-def noise_level(values) -> float:
-    """The white-noise level σ of a sampled signal: the median absolute deviation of its second
-    differences / (0.6745·√6) (a second difference of white noise has variance 6σ²)."""
-    x = np.asarray(values, float)
-    if x.size < 3:
-        return 0.0
-    d2 = np.diff(x, 2)
-    return float(np.median(np.abs(d2 - np.median(d2))) / (0.6745 * math.sqrt(6.0)))
 
 
 class _Series(eqx.Module):

@@ -107,11 +107,9 @@ def profile(rows, best, j: int, *, se_log: float, threshold: float, level: float
 
     grid = {0.0: best}
     for sign in (1.0, -1.0):
-        previous = best
+        point = best
         for step in range(1, MAX_STEPS + 1):
-            point = optimise(sign * step * h, previous)
-            grid[sign * step * h] = point
-            previous = point
+            point = grid[sign * step * h] = optimise(sign * step * h, point)
             if chi2(point) > BEYOND * threshold:
                 break
     deltas = np.array(sorted(grid))

@@ -8,7 +8,7 @@ record holds them) at any pull velocities and decides per record how it is fitte
   half (by default: by then the run has settled on its attractor), pooled per V, each with the
   standard error of its mean (:meth:`StickSlipTable.from_force_records` with ``std="error"``),
   fitted with the attractor's statistics as the record's instrument would show them
-  (:mod:`peeljax.fit.instrument`: the sampling interval and the noise of the record itself);
+  (:mod:`peeljax.measurements.instrument`: the sampling interval and the noise of the record itself);
 * **points** — a record that does not stick-slip (a transient settling to steady peeling,
   steady peeling), or one with v or α: point by point (:mod:`peeljax.fit.points`), the
   homogenized ODE at ``tau`` from the paper's initial data.
@@ -30,14 +30,14 @@ import numpy as np
 from ..adhesion import AdhesionLaw
 from ..model import PeelingModel
 from ..simulate import simulate
-from .instrument import Instrument
-from .statistics import record_cycles, record_statistics
+from ..measurements.instrument import Instrument
+from ..measurements.statistics import record_cycles, record_statistics
 from .points import PointRows
-from .stick_slip_table import StickSlipTable
+from ..measurements.stick_slip_table import StickSlipTable
 from .result import TableFitResult, least_squares_result
 from .table import check_intervals, fit_rows, fit_stick_slip, progress_callback
-from .parameters import check_free
-from .observations import Observation
+from .parameters import check_free, model_and_start
+from ..measurements.observations import Observation
 
 __all__ = ["BY", "MIN_SLIPS", "POORLY_DETERMINED", "fit_records", "how_fitted", "is_force_record", "poorly_determined"]
 
@@ -184,25 +184,12 @@ def _transient(t, transient) -> float:
     return 0.5 * (float(t[0]) + float(t[-1])) if transient is None else float(transient)
 
 
-def fit_records(
-    observations: Sequence[Observation],
-    model: PeelingModel | None = None,
-    *,
-    free: Sequence[str] | None = ("c1",),
-    start: AdhesionLaw | None = None,
-    by: str = "auto",
-    statistics: Sequence[str] | None = None,
-    transient: float | None = None,
-    tau: float = 0.01,
-    instrument: bool = True,
-    rtol: float = 1e-8,
-    atol: float = 1e-10,
-    max_iterations: int = 20,
-    intervals: str = "auto",
-    level: float = 0.95,
-    scale_covariance: bool | str = "auto",
-    progress=None,
-) -> TableFitResult:
+def fit_records(observations: Sequence[Observation], model: PeelingModel | None = None, *,
+                free: Sequence[str] | None = ("c1",), start: AdhesionLaw | None = None, by: str = "auto",
+                statistics: Sequence[str] | None = None, transient: float | None = None, tau: float = 0.01,
+                instrument: bool = True, rtol: float = 1e-8, atol: float = 1e-10, max_iterations: int = 20,
+                intervals: str = "auto", level: float = 0.95, scale_covariance: bool | str = "auto",
+                progress=None) -> TableFitResult:  # fmt: skip
     """Fit φ's free coefficients to measured records of any kind (module docstring).
 
     Args:
@@ -218,7 +205,7 @@ def fit_records(
         tau: the τ of the records fitted point by point [s] (> 0; the statistics are the DAE's,
             τ = 0).
         instrument: compare each stick-slip record with the model's statistics as its
-            instrument would show them (default; :mod:`peeljax.fit.instrument`); False: the
+            instrument would show them (default; :mod:`peeljax.measurements.instrument`); False: the
             orbit's exact statistics.
         rtol, atol: the point-by-point runs' tolerances.
         max_iterations, intervals, level, scale_covariance: as :func:`peeljax.fit.fit_stick_slip`.
@@ -239,10 +226,7 @@ def fit_records(
     check_intervals(intervals, level)
     names = check_free(free)
     progress = progress_callback(progress)
-    model = PeelingModel() if model is None else model
-    start = model.adhesion if start is None else start
-    if not isinstance(start, AdhesionLaw):
-        raise TypeError("fit_records fits an AdhesionLaw; the model's adhesion is a plain callable")
+    model, start = model_and_start(model, start, "fit_records")
     judge = eqx.tree_at(lambda m: m.adhesion, model, start)  # judges a record of too few slips to tell
     decided = how_fitted(observations, by, transient, judge)
     stats = [o for o, (kind, _) in zip(observations, decided) if kind == "statistics"]
@@ -296,8 +280,7 @@ def fit_records(
     return result
 
 
-# A coefficient known to worse than this relative standard error is reported as poorly determined.
-POORLY_DETERMINED = 0.05
+POORLY_DETERMINED = 0.05  # a coefficient known to worse relative standard error is reported as poorly determined
 
 
 def poorly_determined(result, records: list[Observation], target: float = 0.01) -> str | None:

@@ -25,22 +25,14 @@ from .._files import json_safe
 from ..adhesion import AdhesionLaw
 from .levenberg_marquardt import CONVERGED, STOP_REASONS, LevenbergMarquardt, missing_entries
 from .parameters import law_from
-from .statistics import STATISTICS
-from .stick_slip_table import StickSlipTable
+from ..measurements.statistics import STATISTICS
+from ..measurements.stick_slip_table import StickSlipTable
 from .table_rows import V_REST, TableRows
 from .uncertainty import uncertainty_from_jacobian
 from .window_rows import MISSING_RESIDUAL
 
-__all__ = [
-    "EQUAL_CHI2",
-    "OUTLIER_SIGMA",
-    "ROUGH_PROFILES",
-    "FitInterrupted",
-    "FitResult",
-    "TableFitResult",
-    "interrupted",
-    "least_squares_result",
-]
+__all__ = ["EQUAL_CHI2", "OUTLIER_SIGMA", "ROUGH_PROFILES", "FitInterrupted", "FitResult", "TableFitResult",
+    "interrupted", "least_squares_result"]  # fmt: skip
 
 
 @dataclasses.dataclass
@@ -89,25 +81,16 @@ class FitResult:
     def to_dict(self) -> dict:
         """The 14 coefficients at top level (``AdhesionLaw.from_dict`` reads them) and the rest."""
         return {
-            **self.adhesion.coefficients(),
-            "start": self.start.coefficients(),
-            "free": list(self.free),
-            "loss_history": [float(x) for x in self.loss_history],
-            "initial_loss": self.initial_loss,
-            "final_loss": self.final_loss,
-            "loss_reduction": self.loss_reduction,
-            "gradient_norm": self.gradient_norm,
-            "steps": self.steps,
-            "stopped_early": self.stopped_early,
-            "v_range": list(self.v_range),
-            "t_stop": list(self.t_stop),
-            "wall_time_s": self.wall_time_s,
-            "settings": self.settings,
+            **self.adhesion.coefficients(), "start": self.start.coefficients(), "free": list(self.free),
+            "loss_history": [float(x) for x in self.loss_history], "initial_loss": self.initial_loss,
+            "final_loss": self.final_loss, "loss_reduction": self.loss_reduction, "gradient_norm": self.gradient_norm,
+            "steps": self.steps, "stopped_early": self.stopped_early, "v_range": list(self.v_range),
+            "t_stop": list(self.t_stop), "wall_time_s": self.wall_time_s, "settings": self.settings,
             **({} if not self.stop_reason else {"stop_reason": self.stop_reason}),
             **({} if self.uncertainty is None else {"uncertainty": self.uncertainty.as_dict()}),
             **({} if self.residuals is None else {"residuals": [float(x) for x in self.residuals]}),
             **({} if self.start_losses is None else {"start_losses": [float(x) for x in self.start_losses]}),
-        }
+        }  # fmt: skip
 
     def to_json(self, path: str | Path | None = None) -> str:
         """:meth:`to_dict` as strict JSON (NaN and infinities as null), written to ``path`` if given."""
@@ -245,20 +228,15 @@ class TableFitResult(FitResult):
 
 
 def _row_text(row: dict) -> str:
-    if row["kind"] == "orbit" and row.get("slips") is None:
-        return f"V = {row['V']:g}: {row['how']}" + _singular_text(row)
-    if row["kind"] == "orbit":
-        stable = "stable" if row.get("stable") else "UNSTABLE"
-        text = f"V = {row['V']:g}: orbit, {row['slips']} slips per period, {stable}"
-        text += _singular_text(row)
-        return text
-    return f"V = {row['V']:g}: {row['kind']}" + _singular_text(row)
-
-
-def _singular_text(row: dict) -> str:
-    if "singular_elasticity" not in row:  # peeljax.fit.table_rows.singular_rows
-        return ""
-    return f" (a derivative too steep to use: elasticity {row['singular_elasticity']:.3g})"
+    if row["kind"] != "orbit":
+        text = row["kind"]
+    elif row.get("slips") is None:
+        text = row["how"]
+    else:
+        text = f"orbit, {row['slips']} slips per period, {'stable' if row.get('stable') else 'UNSTABLE'}"
+    if "singular_elasticity" in row:  # peeljax.fit.table_rows.singular_rows
+        text += f" (a derivative too steep to use: elasticity {row['singular_elasticity']:.3g})"
+    return f"V = {row['V']:g}: {text}"
 
 
 def least_squares_result(runs: list[LevenbergMarquardt], start: AdhesionLaw, names, settings: dict, *, scale,
@@ -295,36 +273,17 @@ def least_squares_result(runs: list[LevenbergMarquardt], start: AdhesionLaw, nam
     v_range = np.asarray(best.v_range)
     profiles = profiles or {}
     return TableFitResult(
-        adhesion=law,
-        start=start,
-        loss_history=np.asarray(best.history),
-        initial_loss=initial,
-        final_loss=best.chi2,
-        gradient_norm=float(np.linalg.norm(2 * best.J.T @ best.r)),
-        steps=int(max(run.evaluations for run in runs)),
+        adhesion=law, start=start, loss_history=np.asarray(best.history), initial_loss=initial, final_loss=best.chi2,
+        gradient_norm=float(np.linalg.norm(2 * best.J.T @ best.r)), steps=int(max(run.evaluations for run in runs)),
         stopped_early=best.reason in CONVERGED,
         v_range=(float(max(np.nanmin(v_range[:, 0]), V_REST)), float(np.nanmax(v_range[:, 1]))),
-        free=names,
-        settings=settings,
-        wall_time_s=time.perf_counter() - began,
-        uncertainty=uncertainty,
-        stop_reason=STOP_REASONS[best.reason],
-        residuals=best.r,
-        start_losses=np.asarray([run.chi2 for run in runs]),
-        chi2=best.chi2,
-        dof=uncertainty.dof,
-        outliers=outliers,
-        missing=missing,
-        optima=optima,
-        equivalent_optima=equivalent,
-        coarse_losses=coarse_losses,
-        converged=best.reason in CONVERGED and not missing,
-        rows=[] if rows is None else _row_report(rows, best.state, why),
-        crossings=list(crossings),
-        profiles=profiles,
-        intervals_used="profile" if profiles else "linear",
-        table=table,
-    )
+        free=names, settings=settings, wall_time_s=time.perf_counter() - began, uncertainty=uncertainty,
+        stop_reason=STOP_REASONS[best.reason], residuals=best.r, start_losses=np.asarray([run.chi2 for run in runs]),
+        chi2=best.chi2, dof=uncertainty.dof, outliers=outliers, missing=missing, optima=optima,
+        equivalent_optima=equivalent, coarse_losses=coarse_losses, converged=best.reason in CONVERGED and not missing,
+        rows=[] if rows is None else _row_report(rows, best.state, why), crossings=list(crossings), profiles=profiles,
+        intervals_used="profile" if profiles else "linear", table=table,
+    )  # fmt: skip
 
 
 def interrupted(names, start: AdhesionLaw, run: LevenbergMarquardt, iterations: int) -> FitResult:

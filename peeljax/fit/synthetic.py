@@ -14,8 +14,8 @@ import numpy as np
 
 from ..adhesion import AdhesionLaw
 from ..model import PeelingModel
-from .statistics import STATISTICS
-from .stick_slip_table import StickSlipTable
+from ..measurements.statistics import STATISTICS
+from ..measurements.stick_slip_table import StickSlipTable
 from .table import TableFit, attractor_statistics, build_table_fit
 
 __all__ = ["model_statistics", "synthetic_table"]
@@ -26,22 +26,10 @@ def _statistics(fit: TableFit, theta):
     return fit.statistics(theta)
 
 
-def model_statistics(
-    law: AdhesionLaw,
-    V,
-    *,
-    model: PeelingModel | None = None,
-    method: str = "orbit",
-    tau: float = 0.0,
-    transient: float = 0.5,
-    window: float = 1.0,
-    n_samples: int = 401,
-    rtol: float = 1e-7,
-    atol: float = 1e-10,
-    max_jumps: int = 4096,
-    max_steps: int = 400_000,
-    taper: float | None = None,
-) -> tuple[dict[str, np.ndarray], np.ndarray]:
+def model_statistics(law: AdhesionLaw, V, *, model: PeelingModel | None = None, method: str = "orbit", tau: float = 0.0,
+                     transient: float = 0.5, window: float = 1.0, n_samples: int = 401, rtol: float = 1e-7,
+                     atol: float = 1e-10, max_jumps: int = 4096, max_steps: int = 400_000,
+                     taper: float | None = None) -> tuple[dict[str, np.ndarray], np.ndarray]:  # fmt: skip
     """The model's stick-slip statistics at the pull velocities ``V`` (a sequence, or a
     :class:`~peeljax.fit.StickSlipTable`), as :func:`~peeljax.fit.table.fit_stick_slip`
     predicts them with φ = ``law`` and its ``method``: ``"orbit"`` (default: each row on its

@@ -1,31 +1,25 @@
 """Fitting φ to a stick-slip table: Levenberg–Marquardt on the cycle statistics, with uncertainties.
 
-Each row of a :class:`~peeljax.fit.StickSlipTable` is one pull velocity V_i; the model
-runs there from the paper's initial data through the folds (τ = 0 by default: the DAE with
-jumps), and its statistics over the window [transient, transient + window]
-(:func:`peeljax.fit.statistics.jump_statistics`: ``F_mean``, ``F_slip``, ``F_stick``,
-``period``, ``slip_duration``) are compared with the table's. All rows run as one batch
-(``lax.map``) in one compiled program. The residuals are
+Each row of a :class:`~peeljax.fit.StickSlipTable` is one pull velocity V_i, where the model's
+statistics (``F_mean``, ``F_slip``, ``F_stick``, ``period``, ``slip_duration``: on its attractor,
+:mod:`.table_rows`, or over the window [transient, transient + window] of a run from the paper's
+initial data through the folds, :mod:`.window_rows`) are compared with the table's:
 
     r_is = (model_s(V_i; θ) − data_is)/σ_is,
 
 σ_is² the table's variance (else the RMS of column s, and the covariance is then scaled by the
-residual variance) plus the model window's cycle-to-cycle scatter². A statistic the table
-has but the model run does not produce (no slip in the window) costs a fixed residual
-``MISSING_RESIDUAL`` with zero derivative, so that a trial step that loses the stick-slip is
-never mistaken for a better fit.
+residual variance) plus the model window's cycle-to-cycle scatter²
+(:func:`peeljax.measurements.statistics.window_scatter`). A statistic the table has but the model
+does not produce (no slip) costs a fixed residual ``MISSING_RESIDUAL`` with zero derivative, so
+that a trial step that loses the stick-slip is never mistaken for a better fit. A force record
+that stick-slips is fitted through these statistics, not point by point: the phase of a
+sawtooth drifts and would dominate a point-wise misfit (``docs/fitting.md`` measures it).
 
-A force record in the stick-slip range is fitted through these statistics
-(:meth:`StickSlipTable.from_force_records`), not point by point: the phase of a sawtooth drifts,
-and a point-wise misfit of two sawtooths with slightly different periods is dominated by that
-drift (``docs/fitting.md`` measures it).
-
-Solver: a coarse batch of starts (χ² at the start and at a Latin hypercube around it), then
-Levenberg–Marquardt from the best few (:class:`LevenbergMarquardt`, host-driven, the runs of every start
-in lockstep through one compiled program that gives r and its forward-mode Jacobian — one
-tangent per free coefficient, through every jump by the implicit function theorem); its stop
-reason names the test that stopped it. σ² is the table's plus the model window's
-cycle-to-cycle scatter (:func:`peeljax.fit.statistics.window_scatter`); χ²/dof is reported and
+Solver: Levenberg–Marquardt (:class:`LevenbergMarquardt`, host-driven) from the start, or
+(window method) from the best few of a coarse batch (the start and a Latin hypercube around
+it), the runs of every start in lockstep through one compiled program that gives r and its
+forward-mode Jacobian (one tangent per free coefficient, through every jump by the implicit
+function theorem); its stop reason names the test that stopped it. χ²/dof is reported and
 scales the covariance where it exceeds 1 (:mod:`peeljax.fit.uncertainty`).
 """
 
@@ -50,27 +44,15 @@ from .levenberg_marquardt import CONVERGED, STOP_REASONS, LevenbergMarquardt, mi
 from .profile import profile
 from .table_rows import Point, TableRows, attractor_rows
 from .window_rows import MISSING_RESIDUAL, TableFit, build_table_fit, table_residuals
-from .statistics import STATISTICS
-from .stick_slip_table import StickSlipTable
-from .parameters import check_free, value_and_jacfwd
+from ..measurements.statistics import STATISTICS
+from ..measurements.stick_slip_table import StickSlipTable
+from .parameters import check_free, model_and_start, value_and_jacfwd
 from .result import FitInterrupted, TableFitResult, interrupted, least_squares_result
 from .result import EQUAL_CHI2, OUTLIER_SIGMA, ROUGH_PROFILES  # noqa: F401 - importable from their old home
 from .uncertainty import uncertainty_from_jacobian
 
-__all__ = [
-    "CONVERGED",
-    "MISSING_RESIDUAL",
-    "STOP_REASONS",
-    "TableFit",
-    "TableFitResult",
-    "attractor_statistics",
-    "build_table_fit",
-    "check_intervals",
-    "fit_rows",
-    "fit_stick_slip",
-    "least_squares_result",
-    "table_residuals",
-]
+__all__ = ["CONVERGED", "MISSING_RESIDUAL", "STOP_REASONS", "TableFit", "TableFitResult", "attractor_statistics",
+    "build_table_fit", "check_intervals", "fit_rows", "fit_stick_slip", "least_squares_result", "table_residuals"]  # fmt: skip
 
 
 @eqx.filter_jit
@@ -118,10 +100,8 @@ def _solve(fit: TableFit, starts, evaluated, *, fit_rtol, fit_atol, max_iteratio
     """Levenberg–Marquardt from each start (rows of ``starts``, already ``evaluated``: (r, J, v
     range) each) in lockstep: each iteration evaluates every run's trial point in one call of
     :func:`_evaluate`."""
-    runs = [
-        LevenbergMarquardt(z, *e, fit_rtol=fit_rtol, fit_atol=fit_atol, max_iterations=max_iterations)
-        for z, e in zip(starts, evaluated)
-    ]  # fmt: skip
+    runs = [LevenbergMarquardt(z, *e, fit_rtol=fit_rtol, fit_atol=fit_atol, max_iterations=max_iterations)
+            for z, e in zip(starts, evaluated)]  # fmt: skip
     iteration = 0
     try:
         while any(run.reason is None for run in runs):
@@ -167,20 +147,15 @@ def _check_options(
 ):  # fmt: skip
     if not isinstance(table, StickSlipTable):
         raise TypeError(f"table must be a StickSlipTable (read_stick_slip_table), got {type(table).__name__}")
-    check_positive("window", window)
-    if not (isinstance(transient, (int, float)) and math.isfinite(transient) and transient >= 0):
-        raise ValueError(f"transient must be a number >= 0, got {transient!r}")
-    if not (isinstance(tau, (int, float)) and math.isfinite(tau) and tau >= 0):
-        raise ValueError(f"tau must be a number >= 0, got {tau!r}")
-    for name, value, least in (
-        ("n_samples", n_samples, 2), ("n_starts", n_starts, 1), ("max_iterations", max_iterations, 1),
-        ("n_coarse", n_coarse, 1),
-    ):  # fmt: skip
+    for name, value in (("window", window), ("fit_rtol", fit_rtol), ("fit_atol", fit_atol), ("coarse_spread", coarse_spread)):
+        check_positive(name, value)
+    for name, value in (("transient", transient), ("tau", tau)):
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+            raise ValueError(f"{name} must be a number >= 0, got {value!r}")
+    for name, value, least in (("n_samples", n_samples, 2), ("n_starts", n_starts, 1),
+                               ("max_iterations", max_iterations, 1), ("n_coarse", n_coarse, 1)):  # fmt: skip
         if isinstance(value, bool) or not isinstance(value, int) or value < least:
             raise ValueError(f"{name} must be an integer >= {least}, got {value!r}")
-    check_positive("fit_rtol", fit_rtol)
-    check_positive("fit_atol", fit_atol)
-    check_positive("coarse_spread", coarse_spread)
     if not (isinstance(taper, (int, float)) and 0 <= taper <= 0.5):
         raise ValueError(f"taper must be a number in [0, 0.5], got {taper!r}")
     if not (scale_covariance is True or scale_covariance is False or scale_covariance == "auto"):
@@ -196,45 +171,20 @@ def table_tolerances(tau: float, rtol: float | None = None, atol: float | None =
     stepper's tighter tolerance costs little. τ > 0 keeps the α-method's 1e-7.
     """
     loose = float(tau) > 0
-    return (
-        (1e-7 if loose else 1e-9) if rtol is None else rtol,
-        (1e-10 if loose else 1e-12) if atol is None else atol,
-    )
+    return (1e-7 if loose else 1e-9) if rtol is None else rtol, (1e-10 if loose else 1e-12) if atol is None else atol
 
 
-def fit_stick_slip(
-    table: StickSlipTable,
-    model: PeelingModel | None = None,
-    *,
-    free: Sequence[str] | None = ("c1", "c3", "c6"),
-    start: AdhesionLaw | None = None,
-    statistics: Sequence[str] | None = None,
-    method: str = "orbit",
-    tau: float = 0.0,
-    transient: float = 0.5,
-    window: float = 1.0,
-    n_samples: int = 401,
-    rtol: float | None = None,
-    atol: float | None = None,
-    orbit_rtol: float = DEFAULT_ORBIT_RTOL,
-    fit_rtol: float = 1e-6,
-    fit_atol: float = 1e-6,
-    max_iterations: int = 20,
-    n_starts: int | None = None,
-    n_coarse: int | None = None,
-    coarse_spread: float = 0.15,
-    seed: int = 0,
-    scale_covariance: bool | str = "auto",
-    cycle_scatter: bool = True,
-    taper: float | None = None,
-    intervals: str = "auto",
-    level: float = 0.95,
-    max_jumps: int = 4096,
-    max_steps: int = 400_000,
-    progress=None,
-    instruments: dict | None = None,
-    points=None,
-) -> TableFitResult:
+def fit_stick_slip(table: StickSlipTable, model: PeelingModel | None = None, *,
+                   free: Sequence[str] | None = ("c1", "c3", "c6"), start: AdhesionLaw | None = None,
+                   statistics: Sequence[str] | None = None, method: str = "orbit", tau: float = 0.0,
+                   transient: float = 0.5, window: float = 1.0, n_samples: int = 401,
+                   rtol: float | None = None, atol: float | None = None,
+                   orbit_rtol: float = DEFAULT_ORBIT_RTOL, fit_rtol: float = 1e-6, fit_atol: float = 1e-6,
+                   max_iterations: int = 20, n_starts: int | None = None, n_coarse: int | None = None,
+                   coarse_spread: float = 0.15, seed: int = 0, scale_covariance: bool | str = "auto",
+                   cycle_scatter: bool = True, taper: float | None = None, intervals: str = "auto",
+                   level: float = 0.95, max_jumps: int = 4096, max_steps: int = 400_000, progress=None,
+                   instruments: dict | None = None, points=None) -> TableFitResult:  # fmt: skip
     """Fit φ's free coefficients to a stick-slip table by Levenberg–Marquardt (module docstring).
 
     Args:
@@ -261,55 +211,46 @@ def fit_stick_slip(
         fit_rtol, fit_atol: Levenberg–Marquardt's convergence tolerances (``STOP_REASONS``:
             fit_atol on the Gauss–Newton step's predicted χ² decrease, fit_rtol on the relative
             step and χ² decrease); ``max_iterations``: its budget of model evaluations per start.
-        n_coarse, coarse_spread, seed: the coarse batch (window method) — χ² at the start and at
-            n_coarse − 1 points of a Latin hypercube with each free coefficient within
-            exp(±coarse_spread) of its start (``seed``), ``n_starts`` at a time through the one
-            compiled program (default 16; raised to ``n_starts`` where smaller). The orbit
-            method starts from ``start`` alone (default 1): its statistics are smooth between
-            bifurcations, and the profile intervals map the landscape across them.
+        n_coarse, coarse_spread, seed: the coarse batch (window method): χ² at the start and at
+            n_coarse − 1 points of a Latin hypercube (n_coarse default 16, raised to ``n_starts``),
+            each coefficient within exp(±coarse_spread) of its start (``seed``). The orbit method
+            starts from ``start`` alone: its statistics are smooth between bifurcations, and the
+            profile intervals map the landscape across them.
         n_starts: Levenberg–Marquardt runs from the n_starts best points of the coarse batch
-            (window method, default 3); the best end is kept, the others are reported
-            (``result.optima``).
+            (window method, default 3), the best end kept, the others in ``result.optima``.
         scale_covariance: ``"auto"`` (scale by χ²/dof where it exceeds 1: the table's σ too
             small), True (always, as ``curve_fit``), False (never);
             :mod:`peeljax.fit.uncertainty`. A table without σ is always scaled.
         cycle_scatter: add to each window statistic's σ² the model window's cycle-to-cycle
-            standard error² (:func:`peeljax.fit.statistics.window_scatter`); False: the table's
+            standard error² (:func:`peeljax.measurements.statistics.window_scatter`); False: the table's
             σ alone. (Orbit statistics are exact: nothing to add.)
         taper: the fraction of the window over which each edge's weight of a window statistic
-            ramps (:func:`peeljax.fit.statistics.jump_statistics`), in [0, 0.5]; default 0.25
+            ramps (:func:`peeljax.measurements.statistics.jump_statistics`), in [0, 0.5]; default 0.25
             for the orbit method's window rows (continuous in the coefficients), 0 for the
             window method (the table must be made with the same taper).
-        intervals: ``"auto"`` (default: a profile-likelihood interval beside the linearized one
-            of each coefficient whose linearized interval holds a bifurcation — a row on another
-            attractor at one of its ends —, :mod:`peeljax.fit.profile`; none where a row at the
-            optimum is judged by χ² alone or by window statistics, :func:`rough_rows`: profiles
-            of such a χ² were measured too narrow), ``"profile"`` (for
-            every coefficient), ``"linear"`` (never).
+        intervals: ``"auto"`` (default: a profile-likelihood interval, :mod:`peeljax.fit.profile`,
+            beside the linearized one of each coefficient whose linearized interval holds a
+            bifurcation — a row on another attractor at one of its ends —, unless χ² is rough at
+            the optimum, :func:`rough_rows`, where profiles were measured too narrow),
+            ``"profile"`` (for every coefficient), ``"linear"`` (never).
         level: the confidence level of the profile intervals (default 0.95).
         max_jumps, max_steps: each window run's jump record and step budget.
         progress: None or False (silent), True (a line on stderr per iteration), or
             ``progress(iteration, chi2)`` called on the host after each Levenberg–Marquardt
             iteration (chi2: the lowest of the starts so far).
-        instruments: {row: :class:`~peeljax.fit.instrument.Instrument`} for rows measured from
+        instruments: {row: :class:`~peeljax.measurements.instrument.Instrument`} for rows measured from
             force records (orbit method): the model's statistics there as that record's sampling
             and noise show them (:func:`peeljax.fit.fit_records` passes them).
         points: a :class:`~peeljax.fit.points.PointRows` of records fitted point by point
             together with the table (orbit method; :func:`peeljax.fit.fit_records`).
 
     Returns:
-        A :class:`TableFitResult`: ``adhesion`` (the fitted law), ``uncertainty``
-        (:class:`~peeljax.fit.uncertainty.Uncertainty`, χ²/dof and the singular directions
-        included), ``intervals()`` (the profile-likelihood set where computed, else the
-        linearized interval), ``profiles``, ``rows`` (per row: its kind — steady, orbit,
-        window —, k and stability of its orbit, how it was found, and ``singular_elasticity``
-        where its derivative is too steep to be used — an orbit near a grazing —, the row
-        judging the steps by its χ² alone, :func:`~peeljax.fit.table_rows.singular_rows`), ``crossings`` (every
-        bifurcation a step crossed or was refused across), ``stop_reason``, ``converged``,
-        ``chi2``/``dof``, ``outliers`` (entries beyond 5 σ), ``optima``/``equivalent_optima``,
-        ``residuals`` (the measured entries of (model − data)/σ, row by row), ``v_range`` (the v
-        visited, from at least ``V_REST`` = 1e-4 m/s where the tape comes to rest: φ is fixed by
-        the data only there) and ``settings``; ``summary()`` prints it.
+        A :class:`TableFitResult` (``summary()`` prints it): the fitted ``adhesion``, its
+        ``uncertainty`` and ``intervals()``, ``rows`` (per row its kind, its orbit, and
+        ``singular_elasticity`` where its derivative is too steep to use,
+        :func:`~peeljax.fit.table_rows.singular_rows`), ``crossings`` (every bifurcation a step
+        crossed or was refused across), χ², outliers, optima and ``v_range`` (from at least
+        ``V_REST`` = 1e-4 m/s, where the tape comes to rest: φ is fixed by the data only there).
     """
     began = time.perf_counter()
     if method not in METHODS:
@@ -330,10 +271,7 @@ def fit_stick_slip(
         coarse_spread, scale_covariance, taper,
     )  # fmt: skip
     names = check_free(free)
-    model = PeelingModel() if model is None else model
-    start = model.adhesion if start is None else start
-    if not isinstance(start, AdhesionLaw):
-        raise TypeError("fit_stick_slip fits an AdhesionLaw; the model's adhesion is a plain callable")
+    model, start = model_and_start(model, start, "fit_stick_slip")
     wanted = table.statistics if statistics is None else tuple(statistics)
     unknown = [s for s in wanted if s not in table.statistics]
     if unknown or not wanted:
@@ -411,6 +349,7 @@ def _fit_on_attractors(table, model, start, data, sigma, measured, names, window
         rows = Joint(rows, points)
     fitted = fit_rows(rows, start, names, options, scale=scale, intervals=intervals, level=level)
     return {**fitted, "why": why}
+
 
 def fit_rows(rows, start, names, options, *, scale, intervals, level) -> dict:
     """Levenberg–Marquardt from θ = 0 on ``rows`` (:class:`TableRows`, or anything with its

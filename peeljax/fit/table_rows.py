@@ -12,7 +12,7 @@ predicts there depends on the attractor at V_i (:func:`row_kinds`, decided at th
   (:mod:`peeljax.fit.attractors`, which finds and follows the orbit);
 * **window** — stick-slip without a periodic attractor found (irregular, or a repeat longer
   than the runs could confirm): the run's statistics over ``[transient, transient + window]``
-  (:func:`peeljax.fit.statistics.jump_statistics`, tapered, with the cycle-to-cycle scatter
+  (:func:`peeljax.measurements.statistics.jump_statistics`, tapered, with the cycle-to-cycle scatter
   added to σ), as before there were orbits. An orbit row whose attractor is not periodic at a
   trial θ takes the same (:attr:`Point.windowed`).
 
@@ -38,7 +38,7 @@ from ..model import PeelingModel
 from ..orbits.api import orbit_shooting
 from ..orbits.section import state_after_slip
 from .attractors import Attractor, OrbitRows, classify, find_attractor, shoot_rows, steady_force, steady_rows
-from .statistics import STATISTICS
+from ..measurements.statistics import STATISTICS
 from .parameters import law_from, value_and_jacfwd
 from .window_rows import MISSING_RESIDUAL, build_table_fit
 
@@ -82,8 +82,8 @@ class Point:
     orbits: dict
     changes: list = dataclasses.field(default_factory=list)
     branch: tuple = ()  # per row, how many attractor changes led here from the start (which branch)
-    singular: dict = dataclasses.field(default_factory=dict)  # row → its elasticity, derivative not used
-    windowed: tuple = ()  # orbit rows without a periodic attractor at z: their window statistics
+    singular: dict = dataclasses.field(default_factory=dict)
+    windowed: tuple = ()
 
 
 _STARTS: dict = {}  # (model's leaves, V) → row_kinds' answer, the orbits reduced to their least k
@@ -180,7 +180,7 @@ class TableRows:
             without a periodic attractor at θ gets its window statistics (None: it is missing).
 
     Rows measured from force records get their instrument (:meth:`set_instruments`): the bias
-    its sampling and noise add to the orbit's statistics (:mod:`peeljax.fit.instrument`,
+    its sampling and noise add to the orbit's statistics (:mod:`peeljax.measurements.instrument`,
     :meth:`update_bias`) is added to them, its Monte Carlo error to σ.
     """
 
@@ -200,7 +200,7 @@ class TableRows:
 
     # -- records: the statistics as their instrument saw them -------------------------------
     def set_instruments(self, instruments: dict) -> None:
-        """``instruments``: row → :class:`~peeljax.fit.instrument.Instrument` of the record(s)
+        """``instruments``: row → :class:`~peeljax.measurements.instrument.Instrument` of the record(s)
         that made it; their bias is added to the orbit rows' statistics (:meth:`update_bias`)."""
         self.instruments = dict(instruments)
 
@@ -210,7 +210,7 @@ class TableRows:
 
     def update_bias(self, point: Point) -> float:
         """The instruments' bias at ``point``'s orbits; returns the largest change in σ."""
-        from .instrument import instrument_bias
+        from ..measurements.instrument import instrument_bias
 
         model = eqx.tree_at(lambda m: m.adhesion, self.model, self.law(point.z))
         new, error = self.bias.copy(), self.bias_error.copy()
@@ -383,17 +383,12 @@ class TableRows:
         return row
 
     def _minimal(self, z, i: int, row: dict) -> dict:
-        if row["attractor"].minimal:
-            return row
-        row = self._least_k(z, i, row)
-        row["attractor"] = dataclasses.replace(row["attractor"], minimal=True)
-        return row
-
-    def _least_k(self, z, i: int, row: dict) -> dict:
         """The orbit with its least k: a near repeat of k events may be an orbit of k/m slips run
         m times (the same statistics per slip, other multipliers). Each proper divisor d of k,
         smallest first, is shot from the orbit's section point: where P^d returns there (Newton
         converged on the point itself), the orbit has d slips per period."""
+        if row["attractor"].minimal:
+            return row
         k = int(row["slips"])
         divisors = [d for d in range(1, k) if k % d == 0]
         a = row["attractor"]
@@ -401,8 +396,10 @@ class TableRows:
         for d, trial in zip(divisors, trials):  # every divisor in one batched call, the smallest that returns taken
             if int(trial["status"]) == 0 and np.max(np.abs(trial["z"] - row["z"])) <= SAME_POINT:
                 if not classify(_as_batch(trial), 0, None, 0, None):
-                    trial["attractor"] = dataclasses.replace(trial["attractor"], how=f"{a.how}: an orbit of {d} slips")
+                    trial["attractor"] = dataclasses.replace(trial["attractor"], how=f"{a.how}: an orbit of {d} slips",
+                                                             minimal=True)  # fmt: skip
                     return trial
+        row["attractor"] = dataclasses.replace(a, minimal=True)
         return row
 
     def from_rest(self, point: Point) -> list[int]:

@@ -6,12 +6,11 @@ with observations on their own time grids:
     L(θ) = Σ_q w_q · (1/n_V) Σ_j  mean_i r_qij²,   r_qij = (q_model(t_ij; V_j, θ) − q_ij) / s_qj
 
 for the observed quantities q ∈ {v, F, alpha} (F = the tension (k/l)·u), the model taken at
-the observation times (error control: its dense output there; uniform mesh: interpolated
-linearly, ``jnp.interp``) and s_qj the RMS of the data q_ij. An observation time the model run did not reach (t > t_stop, a run that stopped) adds
-the fixed penalty 1 (the squared residual of predicting zero) in place of its residual, so
-that a trial step that stops the run is never mistaken for a better fit; the gradient comes
-from the reached part only. Its gradient is
-exact (implicit differentiation of every Newton solve, see :mod:`peeljax.integrators.alpha`).
+the observation times (error control: its dense output; uniform mesh: ``jnp.interp``) and s_qj
+the RMS of the data q_ij. An observation time the run did not reach (t > t_stop) costs the
+fixed penalty 1 (the squared residual of predicting zero), so that a trial step that stops the
+run is never mistaken for a better fit. The gradient, from the reached part only, is exact
+(implicit differentiation of every Newton solve, :mod:`peeljax.integrators.alpha`).
 
 Parametrisation (positivity): every free coefficient is c = c_start·exp(θ), θ = 0 at the
 start. A coefficient keeps the sign of its start value: the paper's 14 coefficients are all
@@ -47,21 +46,12 @@ from ..integrators.alpha import AlphaMethod
 from ..integrators.base import AbstractIntegrator
 from ..integrators.select import integrator_for
 from ..model import PeelingModel
-from .observations import Observation
-from .parameters import check_free, law_from
+from ..measurements.observations import Observation
+from .parameters import check_free, law_from, model_and_start
 from .result import FitInterrupted, FitResult
 
-__all__ = [
-    "FitInterrupted",
-    "FitResult",
-    "LossInfo",
-    "Observation",
-    "fit_adhesion",
-    "fit_adhesion_steady",
-    "phi_relative_error",
-    "restart_on_ascent",
-    "trajectory_loss",
-]
+__all__ = ["FitInterrupted", "FitResult", "LossInfo", "Observation", "fit_adhesion", "fit_adhesion_steady",
+    "phi_relative_error", "restart_on_ascent", "trajectory_loss"]  # fmt: skip
 
 QUANTITIES = ("v", "F", "alpha")
 UNREACHED_PENALTY = 1.0  # per observation after the run stopped, in units of (data RMS)²
@@ -106,10 +96,6 @@ def _pack(observations: Sequence[Observation]) -> tuple[_Data, float]:
     return _Data(V=V, t=t, values=values, scale=scale, mask=mask, grid=jnp.asarray(grid)), t_max
 
 
-def _model_quantities(model: PeelingModel, ys: Array) -> dict[str, Array]:
-    return {"v": ys[:, 3], "alpha": ys[:, 0], "F": model.tension(ys[:, 2], ys[:, 0])}
-
-
 class LossInfo(eqx.Module):
     """What a fit's loss reports besides its value.
 
@@ -136,7 +122,7 @@ def _run_loss(model, V, tau, integrator, t_final, t, values, scale, mask, grid, 
     ts = jnp.clip(grid, 0.0, t_final) if integrator.dense_output else None
     sol = integrator.integrate(ode, y0, 0.0, t_final, ts)
     ys = jnp.where(sol.valid[:, None], sol.ys, 0.0)  # the double where: no NaN reaches the gradient
-    quantities = _model_quantities(model, ys)
+    quantities = {"v": ys[:, 3], "alpha": ys[:, 0], "F": model.tension(ys[:, 2], ys[:, 0])}
     t_stop = jax.lax.stop_gradient(sol.t_stop)
     total = jnp.asarray(0.0)
     for q in values:
@@ -154,17 +140,9 @@ def _run_loss(model, V, tau, integrator, t_final, t, values, scale, mask, grid, 
     return total, LossInfo(v_min=v_min, v_max=v_max, t_stop=t_stop)
 
 
-def trajectory_loss(
-    adhesion: AdhesionLaw,
-    data: _Data,
-    *,
-    model: PeelingModel,
-    tau: ArrayLike,
-    integrator: AbstractIntegrator,
-    t_final: float,
-    weights: dict[str, float],
-    batch: str = "map",
-) -> tuple[Array, LossInfo]:
+def trajectory_loss(adhesion: AdhesionLaw, data: _Data, *, model: PeelingModel, tau: ArrayLike,
+                    integrator: AbstractIntegrator, t_final: float, weights: dict[str, float],
+                    batch: str = "map") -> tuple[Array, LossInfo]:  # fmt: skip
     """The fit's loss L (module docstring) for φ = ``adhesion``, and its :class:`LossInfo` (per V).
 
     ``batch="map"`` runs the pull velocities one after another (``lax.map``: a gradient costs
@@ -274,9 +252,7 @@ def restart_on_ascent(inner: optax.GradientTransformation) -> optax.GradientTran
 
 
 def _check_options(steps, optimizer, learning_rate) -> tuple[optax.GradientTransformation, float | None]:
-    """Checks the optimizer options before anything compiles.
-
-    Returns the optax transformation to run and ``learning_rate`` as a float (or None)."""
+    """The optax transformation to run and ``learning_rate`` (a float or None), checked before anything compiles."""
     if not isinstance(steps, int) or isinstance(steps, bool) or steps < 0:
         raise ValueError(
             f"steps must be an integer >= 0 (allowed range: [0, inf); 0 evaluates the start), got {steps!r}"
@@ -304,9 +280,7 @@ def _check_options(steps, optimizer, learning_rate) -> tuple[optax.GradientTrans
 
 def _optimizer_setting(optimizer) -> str:
     """``FitResult.settings["optimizer"]``: the name, or the kind of a user's transformation (JSON-able)."""
-    if isinstance(optimizer, str):
-        return optimizer
-    return f"optax.{type(optimizer).__name__} (user)"
+    return optimizer if isinstance(optimizer, str) else f"optax.{type(optimizer).__name__} (user)"
 
 
 # The setting each of the library's own transformations was made from, by the object's id (they
@@ -388,11 +362,7 @@ def _fit(loss_fn: _Loss, names, settings, *, opt, steps, patience, tolerance, pr
     began = time.perf_counter()
     theta = {n: jnp.zeros((), float) for n in names}  # strongly typed: no recompile after step 1
     state = jax.tree.map(_strong, opt.init(theta))
-    history = []
-    best = (math.inf, theta, math.nan, None)
-    since_best = 0
-    early = False
-    bar = None
+    history, best, since_best, early, bar = [], (math.inf, theta, math.nan, None), 0, False, None
     if progress:
         from tqdm.auto import tqdm
 
@@ -400,23 +370,14 @@ def _fit(loss_fn: _Loss, names, settings, *, opt, steps, patience, tolerance, pr
 
     def result(stop_reason: str = "") -> FitResult:
         value, theta_best, gnorm, aux = best
-        start = loss_fn.start
         return FitResult(
-            adhesion=law_from(theta_best, start),
-            start=start,
-            loss_history=np.asarray(history),
-            initial_loss=float(history[0]),
-            final_loss=float(value),
-            gradient_norm=float(gnorm),
-            steps=len(history) - 1,
-            stopped_early=early,
-            v_range=(float(np.min(aux.v_min)), float(np.max(aux.v_max))),
-            free=names,
-            settings=settings,
+            adhesion=law_from(theta_best, loss_fn.start), start=loss_fn.start, loss_history=np.asarray(history),
+            initial_loss=float(history[0]), final_loss=float(value), gradient_norm=float(gnorm),
+            steps=len(history) - 1, stopped_early=early, v_range=(float(np.min(aux.v_min)), float(np.max(aux.v_max))),
+            free=names, settings=settings,
             t_stop=[] if aux.t_stop is None else [float(x) for x in np.atleast_1d(aux.t_stop)],
-            wall_time_s=time.perf_counter() - began,
-            stop_reason=stop_reason,
-        )
+            wall_time_s=time.perf_counter() - began, stop_reason=stop_reason,
+        )  # fmt: skip
 
     try:
         for k in range(steps + 1):
@@ -425,14 +386,9 @@ def _fit(loss_fn: _Loss, names, settings, *, opt, steps, patience, tolerance, pr
             if not math.isfinite(value):
                 break
             history.append(value)
-            gnorm = float(optax.tree.norm(grad))
-            if value < best[0] * (1.0 - tolerance):
-                best = (value, theta, gnorm, aux)
-                since_best = 0
-            else:
-                if value < best[0]:
-                    best = (value, theta, gnorm, aux)
-                since_best += 1
+            since_best = 0 if value < best[0] * (1.0 - tolerance) else since_best + 1
+            if value < best[0]:
+                best = (value, theta, float(optax.tree.norm(grad)), aux)
             if k == steps:  # θ_steps evaluated; its update is not taken
                 break
             if bar is not None:
@@ -443,51 +399,32 @@ def _fit(loss_fn: _Loss, names, settings, *, opt, steps, patience, tolerance, pr
                 early = True
                 break
     except KeyboardInterrupt:
-        if bar is not None:
-            bar.close()
         if best[3] is None:
             raise
         raise FitInterrupted(result(f"interrupted after {len(history) - 1} iterations")) from None
-    if bar is not None:
-        bar.close()
+    finally:
+        if bar is not None:
+            bar.close()
     if best[3] is None:
         raise FloatingPointError(f"{description}: the loss is not finite at the start; check the data and the start")
     return result()
 
 
-def fit_adhesion(
-    observations: Observation | Sequence[Observation],
-    model: PeelingModel | None = None,
-    *,
-    tau: float = 0.01,
-    dt: float | None = None,
-    t_final: float | None = None,
-    free: Sequence[str] | None = None,
-    start: AdhesionLaw | None = None,
-    optimizer: str | optax.GradientTransformation = "adam",
-    steps: int = 500,
-    learning_rate: float | None = None,
-    weights: dict[str, float] | None = None,
-    patience: int = 50,
-    tolerance: float = 1e-4,
-    progress: bool = True,
-    solver: AlphaMethod | diffrax.AbstractSolver | None = None,
-    checkpoint_every=None,
-    batch: str = "map",
-    rtol: float | None = None,
-    atol: float | None = None,
-    max_steps: int | None = None,
-) -> FitResult:
+def fit_adhesion(observations: Observation | Sequence[Observation], model: PeelingModel | None = None, *,
+                 tau: float = 0.01, dt: float | None = None, t_final: float | None = None,
+                 free: Sequence[str] | None = None, start: AdhesionLaw | None = None,
+                 optimizer: str | optax.GradientTransformation = "adam", steps: int = 500,
+                 learning_rate: float | None = None, weights: dict[str, float] | None = None,
+                 patience: int = 50, tolerance: float = 1e-4, progress: bool = True,
+                 solver: AlphaMethod | diffrax.AbstractSolver | None = None, checkpoint_every=None,
+                 batch: str = "map", rtol: float | None = None, atol: float | None = None,
+                 max_steps: int | None = None) -> FitResult:  # fmt: skip
     """Fit φ's coefficients to observed runs (v(t), optionally F(t) and α(t)) at one or more V.
 
-    Minimises the loss of :func:`trajectory_loss` (module docstring) over θ with
-    c = c_start·exp(θ) for each free coefficient, with optax's Adam (default), L-BFGS
-    (``optimizer="lbfgs"``) or any optax transformation passed as ``optimizer``. The model runs
-    with the error-controlled α-method (default; ``rtol``, ``atol``), or the uniform mesh of
-    step ``dt`` when given, on [0, t_final] (default: the last observation time), starting
-    from the paper's consistent initial data at each V. ``solver`` may be any
-    ``diffrax.AbstractSolver`` instead of the α-method (error control; gradients through
-    diffrax's ``RecursiveCheckpointAdjoint``).
+    Minimises :func:`trajectory_loss` (module docstring) over θ, c = c_start·exp(θ), with
+    optax; the model runs from the paper's consistent initial data at each V on [0, t_final]
+    (default: the last observation time). ``solver``: any ``diffrax.AbstractSolver`` in place
+    of the α-method (error control; gradients through diffrax's ``RecursiveCheckpointAdjoint``).
 
     Args:
         observations: one :class:`Observation` per pull velocity.
@@ -512,17 +449,15 @@ def fit_adhesion(
         progress: a tqdm progress bar (on stderr).
         checkpoint_every: passed to :func:`integrate_alpha` (``"sqrt"`` for long runs).
         batch: ``"map"`` (default) or ``"vmap"`` over the pull velocities.
-        dt: None (default) for error control; a number runs the uniform mesh of that step
-            (the model is then interpolated linearly to the observation times).
-        rtol, atol: error control's tolerances (default 1e-6, 1e-9; not with ``dt``): exact
-            reverse-mode gradients through its checkpointed loop (step sizes held constant),
-            the model evaluated at the observation times by the dense output.
+        dt: None (default): the error-controlled α-method, its dense output at the observation
+            times; a number: the uniform mesh of that step, interpolated linearly.
+        rtol, atol: error control's tolerances (default 1e-6, 1e-9; not with ``dt``); gradients
+            exact in reverse mode through its checkpointed loop (step sizes held constant).
         max_steps: error control's budget of step attempts per run (None: the library's,
             ``peeljax.integrators.select.DEFAULT_MAX_STEPS``); a run that uses it up stops there.
 
     Returns:
-        A :class:`FitResult` with the best iterate, the loss history, the gradient norm and
-        the visited v range.
+        A :class:`FitResult`: the best iterate, the loss history, the gradient norm, the v visited.
     """
     if isinstance(observations, Observation):
         observations = [observations]
@@ -537,10 +472,7 @@ def fit_adhesion(
     if batch not in ("map", "vmap"):
         raise ValueError(f"batch must be 'map' or 'vmap', got {batch!r}")
     names = check_free(free)
-    model = PeelingModel() if model is None else model
-    start = model.adhesion if start is None else start
-    if not isinstance(start, AdhesionLaw):
-        raise TypeError("fit_adhesion fits an AdhesionLaw; the model's adhesion is a plain callable")
+    model, start = model_and_start(model, start, "fit_adhesion")
     weights = {q: 1.0 for q in QUANTITIES} | dict(weights or {})
     data, t_obs_max = _pack(observations)
     t_final = float(t_obs_max if t_final is None else t_final)
@@ -551,64 +483,29 @@ def fit_adhesion(
     integrator = integrator_for(
         solver, dt=dt, t_final=t_final, rtol=rtol, atol=atol, checkpoint_every=checkpoint_every, fold="stop", **budget
     )
-    loss_fn = _TrajectoryLoss(
-        start=start,
-        data=data,
-        model=model,
-        tau=jnp.asarray(tau, float),
-        integrator=integrator,
-        weights={q: jnp.asarray(weights[q], float) for q in data.values},
-        t_final=t_final,
-        batch=batch,
-    )
+    loss_fn = _TrajectoryLoss(start=start, data=data, model=model, tau=jnp.asarray(tau, float), integrator=integrator,
+                              weights={q: jnp.asarray(weights[q], float) for q in data.values}, t_final=t_final,
+                              batch=batch)  # fmt: skip
     uniform = dt is not None
     error_control = integrator.settings()
     settings = {
-        "V": [float(o.V) for o in observations],
-        "tau": float(tau),
-        "dt": float(t_final / integrator.n_steps) if uniform else None,
-        "t_final": t_final,
-        "n_steps": integrator.n_steps if uniform else None,
-        "optimizer": _optimizer_setting(optimizer),
-        "learning_rate": learning_rate,
-        "steps": steps,
-        "patience": patience,
-        "tolerance": tolerance,
-        "weights": {q: weights[q] for q in data.values},
-        "batch": batch,
-        "checkpoint_every": checkpoint_every,
-        "rtol": None if uniform else error_control["rtol"],
-        "atol": None if uniform else error_control["atol"],
-        "method": "alpha" if uniform else error_control["method"],
-        "parametrisation": "c = c_start*exp(theta)",
-    }
-    return _fit(
-        loss_fn,
-        names,
-        settings,
-        opt=opt,
-        steps=steps,
-        patience=patience,
-        tolerance=tolerance,
-        progress=progress,
-        description="fit_adhesion",
-    )
+        "V": [float(o.V) for o in observations], "tau": float(tau),
+        "dt": float(t_final / integrator.n_steps) if uniform else None, "t_final": t_final,
+        "n_steps": integrator.n_steps if uniform else None, "optimizer": _optimizer_setting(optimizer),
+        "learning_rate": learning_rate, "steps": steps, "patience": patience, "tolerance": tolerance,
+        "weights": {q: weights[q] for q in data.values}, "batch": batch, "checkpoint_every": checkpoint_every,
+        "rtol": None if uniform else error_control["rtol"], "atol": None if uniform else error_control["atol"],
+        "method": "alpha" if uniform else error_control["method"], "parametrisation": "c = c_start*exp(theta)",
+    }  # fmt: skip
+    return _fit(loss_fn, names, settings, opt=opt, steps=steps, patience=patience, tolerance=tolerance,
+                progress=progress, description="fit_adhesion")  # fmt: skip
 
 
-def fit_adhesion_steady(
-    v: ArrayLike,
-    force: ArrayLike,
-    V: ArrayLike | None = None,
-    *,
-    start: AdhesionLaw | None = None,
-    free: Sequence[str] | None = None,
-    optimizer: str | optax.GradientTransformation = "adam",
-    steps: int = 2000,
-    learning_rate: float | None = None,
-    patience: int = 200,
-    tolerance: float = 1e-6,
-    progress: bool = True,
-) -> FitResult:
+def fit_adhesion_steady(v: ArrayLike, force: ArrayLike, V: ArrayLike | None = None, *,
+                        start: AdhesionLaw | None = None, free: Sequence[str] | None = None,
+                        optimizer: str | optax.GradientTransformation = "adam", steps: int = 2000,
+                        learning_rate: float | None = None, patience: int = 200, tolerance: float = 1e-6,
+                        progress: bool = True) -> FitResult:  # fmt: skip
     """Fit φ to steady peeling: measured (v, peel force) pairs, φ(v_i, V_i) = force_i.
 
     In steady peeling the constraint (sac) holds with α, u constant, so the shear force
@@ -629,25 +526,10 @@ def fit_adhesion_steady(
     opt, learning_rate = _check_options(steps, optimizer, learning_rate)
     start = AdhesionLaw() if start is None else start
     loss_fn = _SteadyLoss(start=start, v=v, force=force, V=V, scale=jnp.sqrt(jnp.mean(force**2)))
-    settings = {
-        "kind": "steady",
-        "optimizer": _optimizer_setting(optimizer),
-        "learning_rate": learning_rate,
-        "steps": steps,
-        "patience": patience,
-        "tolerance": tolerance,
-    }
-    return _fit(
-        loss_fn,
-        names,
-        settings,
-        opt=opt,
-        steps=steps,
-        patience=patience,
-        tolerance=tolerance,
-        progress=progress,
-        description="fit_adhesion_steady",
-    )
+    settings = {"kind": "steady", "optimizer": _optimizer_setting(optimizer), "learning_rate": learning_rate,
+                "steps": steps, "patience": patience, "tolerance": tolerance}  # fmt: skip
+    return _fit(loss_fn, names, settings, opt=opt, steps=steps, patience=patience, tolerance=tolerance,
+                progress=progress, description="fit_adhesion_steady")  # fmt: skip
 
 
 def phi_relative_error(

@@ -64,12 +64,8 @@ def quantile(level: float, dof: float | None) -> float:
     if dof is None or not math.isfinite(dof):
         return z
     nu = max(float(dof), 1.0)
-    return (
-        z
-        + (z**3 + z) / (4 * nu)
-        + (5 * z**5 + 16 * z**3 + 3 * z) / (96 * nu**2)
-        + (3 * z**7 + 19 * z**5 + 17 * z**3 - 15 * z) / (384 * nu**3)
-    )
+    return (z + (z**3 + z) / (4 * nu) + (5 * z**5 + 16 * z**3 + 3 * z) / (96 * nu**2)
+            + (3 * z**7 + 19 * z**5 + 17 * z**3 - 15 * z) / (384 * nu**3))  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
@@ -147,9 +143,7 @@ class Uncertainty:
     def intervals(self, level: float = 0.95) -> dict[str, tuple[float, float]]:
         """Each coefficient's confidence interval value ± q·σ at ``level``."""
         q = self.quantile(level)
-        return {
-            n: (float(v - q * s), float(v + q * s)) for n, v, s in zip(self.names, self.values, self.standard_errors)
-        }
+        return {n: (float(v - q * s), float(v + q * s)) for n, v, s in zip(self.names, self.values, self.standard_errors)}
 
     def phi_band(self, law: AdhesionLaw, v, V, level: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
         """(φ(v, V), its half-width q·σ_φ) on the v given, by propagating Cov(θ) through φ."""
@@ -165,29 +159,20 @@ class Uncertainty:
         return np.asarray(phi(theta0)), self.quantile(level) * np.sqrt(np.maximum(np.asarray(var), 0.0))
 
     def as_dict(self) -> dict:
-        def finite(a):
-            return [[None if not math.isfinite(x) else float(x) for x in row] for row in np.atleast_2d(a)]
+        def finite(x):  # strict JSON: None for NaN and infinities, entry by entry
+            return [finite(y) for y in x] if np.ndim(x) else (float(x) if math.isfinite(x) else None)
 
         return {
-            "names": list(self.names),
-            "values": [float(x) for x in self.values],
-            "standard_errors": [None if not math.isfinite(x) else float(x) for x in self.standard_errors],
-            "correlation": finite(self.correlation),
-            "covariance": finite(self.covariance),
-            "singular_values": [float(x) for x in self.singular_values],
-            "undetermined": list(self.undetermined),
-            "residual_variance": self.residual_variance,
-            "dof": self.dof,
-            "scaled": self.scaled,
-            "scale_rule": self.scale_rule,
-            "chi2": None if not math.isfinite(self.chi2) else float(self.chi2),
-            "chi2_dof": None if not math.isfinite(self.chi2_dof) else float(self.chi2_dof),
-            "singular_directions": [
-                {"combination": text, "standard_error": None if not math.isfinite(err) else err}
-                for text, err in self.combinations()
-            ],
+            "names": list(self.names), "values": [float(x) for x in self.values],
+            "standard_errors": finite(self.standard_errors), "correlation": finite(np.atleast_2d(self.correlation)),
+            "covariance": finite(np.atleast_2d(self.covariance)),
+            "singular_values": [float(x) for x in self.singular_values], "undetermined": list(self.undetermined),
+            "residual_variance": self.residual_variance, "dof": self.dof, "scaled": self.scaled,
+            "scale_rule": self.scale_rule, "chi2": finite(self.chi2), "chi2_dof": finite(self.chi2_dof),
+            "singular_directions": [{"combination": text, "standard_error": finite(err)}
+                                    for text, err in self.combinations()],
             "intervals_95": {k: list(v) for k, v in self.intervals(0.95).items()},
-        }
+        }  # fmt: skip
 
     def table(self) -> str:
         """One line per coefficient: value ± standard error (relative) and the linearized 95 %
@@ -201,11 +186,8 @@ class Uncertainty:
         if self.undetermined:
             lines.append(f"not determined by the data: {', '.join(self.undetermined)}")
         if math.isfinite(self.chi2):
-            how = (
-                f"covariance scaled by chi2/dof = {self.residual_variance:.3g}"
-                if self.scaled
-                else "covariance not scaled (the table's standard deviations taken as they are)"
-            )
+            how = (f"covariance scaled by chi2/dof = {self.residual_variance:.3g}" if self.scaled
+                   else "covariance not scaled (the table's standard deviations taken as they are)")  # fmt: skip
             lines.append(f"chi2 = {self.chi2:.4g}, dof = {self.dof}, chi2/dof = {self.chi2_dof:.3g}; {how}")
         if self.undetermined or self.max_correlation() >= CORRELATED:
             lines.append(
@@ -219,9 +201,8 @@ class Uncertainty:
         return self.table()
 
 
-def uncertainty_from_jacobian(
-    jacobian, residuals, values, names, *, scaled: bool | str, rcond: float = UNDETERMINED_RCOND
-) -> Uncertainty:
+def uncertainty_from_jacobian(jacobian, residuals, values, names, *, scaled: bool | str,
+                              rcond: float = UNDETERMINED_RCOND) -> Uncertainty:  # fmt: skip
     """:class:`Uncertainty` from J = ∂r/∂θ (m × p) and r at the optimum, c = ``values``;
     ``scaled``: ``"auto"``, True or False (module docstring)."""
     if not any(scaled is rule or (isinstance(scaled, str) and scaled == rule) for rule in SCALE_RULES):

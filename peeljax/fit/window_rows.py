@@ -2,9 +2,9 @@
 
 Each row at V_i runs from the paper's initial data through the folds (τ = 0: the DAE with
 jumps; τ > 0: eq. ``hv`` with jumps) and its statistics over [transient, transient + window]
-(:func:`peeljax.fit.statistics.jump_statistics`, tapered where asked) are compared with the
+(:func:`peeljax.measurements.statistics.jump_statistics`, tapered where asked) are compared with the
 table's: r_is = (model_s(V_i; θ) − data_is)/σ_is, σ_is² the table's variance plus the model
-window's cycle-to-cycle scatter² (:func:`peeljax.fit.statistics.window_scatter`). A statistic
+window's cycle-to-cycle scatter² (:func:`peeljax.measurements.statistics.window_scatter`). A statistic
 the run does not produce (no slip in the window) costs ``MISSING_RESIDUAL`` with zero
 derivative. Used by the window method of :func:`peeljax.fit.fit_stick_slip` and by the rows
 without a periodic attractor of the orbit method (:mod:`peeljax.fit.table_rows`).
@@ -27,7 +27,7 @@ from ..integrators.base import AbstractIntegrator
 from ..integrators.select import integrator_for
 from ..model import PeelingModel
 from .parameters import law_from
-from .statistics import jump_statistics, window_scatter
+from ..measurements.statistics import jump_statistics, window_scatter
 
 __all__ = ["MISSING_RESIDUAL", "TableFit", "build_table_fit", "table_residuals"]
 
@@ -60,7 +60,7 @@ class TableFit(eqx.Module):
 
     def run_with_scatter(self, law: AdhesionLaw, V) -> tuple[Array, Array, Array, Array]:
         """:meth:`run` and the statistics' cycle-to-cycle standard errors over the window
-        (:func:`peeljax.fit.statistics.window_scatter`)."""
+        (:func:`peeljax.measurements.statistics.window_scatter`)."""
         model = eqx.tree_at(lambda m: m.adhesion, self.model, law)
         ode = ConstrainedDAE(model, V) if self.dae else HomogenizedODE(model, V, self.tau)
         t_end = self.transient + self.window

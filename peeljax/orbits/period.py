@@ -17,7 +17,7 @@ differentiates every event time and jumped state by the implicit function theore
 forward-mode derivatives of P^k include the saltation of every jump.
 
 The same runs give the period's statistics exactly — the five a stick-slip table holds
-(:data:`peeljax.fit.STATISTICS`), over one period [0, T] of the orbit:
+(:data:`peeljax.measurements.STATISTICS`), over one period [0, T] of the orbit:
 
 * ``F_mean``: the time average of the tension F over the period, ∫₀ᵀ F dt / T, by 4-point
   Gauss–Legendre quadrature on each accepted step's own interpolant

@@ -22,9 +22,9 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from .._panels import draw_phi, panels
-from ..fit.records import left_limit_rows
-from ..fit.statistics import STATISTICS
-from ..fit.stick_slip_table import StickSlipTable
+from ..measurements.records import left_limit_rows
+from ..measurements.statistics import STATISTICS
+from ..measurements.stick_slip_table import StickSlipTable
 from ..fit.synthetic import model_statistics
 from ..model import PeelingModel
 
