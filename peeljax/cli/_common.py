@@ -220,6 +220,32 @@ def stats_text(stats: dict, jumps_said: bool = False) -> str:
     return ", ".join(f"{key} {value}" for key, value in shown.items())
 
 
+def subcommand(subparsers, name: str, handler, help: str, description: str, **defaults) -> argparse.ArgumentParser:
+    """A subcommand's parser with its ``handler`` (and ``defaults`` such as ``out_formats``) set."""
+    parser = subparsers.add_parser(name, help=help, description=description)
+    parser.set_defaults(handler=handler, **defaults)
+    return parser
+
+
+def checked(validate, command):
+    """A handler that runs ``command(args, validate(args))``; a refusal of ``validate`` (ValueError, TypeError: the
+    library's checks, before anything compiles) is :func:`fail`'s one line and exit 2."""
+
+    def handler(args: argparse.Namespace) -> int:
+        try:
+            config = validate(args)
+        except (ValueError, TypeError) as error:
+            return fail(error)
+        return command(args, config)
+
+    return handler
+
+
+def wrote(record: dict) -> list[str]:
+    """The summary's last lines: the files written (``record``'s out and plot)."""
+    return [f"wrote {record[key]}" for key in ("out", "plot") if record.get(key)]
+
+
 def fail(error: Exception) -> int:
     """A refusal: ``peeljax: error: <message>`` on stderr, in the command line's words; exit 2."""
     message = option_names(str(error))
@@ -362,6 +388,11 @@ def write_files(record: dict, *writers) -> list:
             failed.append((option, path, error))
             record[option.lstrip("-")] = None
     return failed
+
+
+def write_then_plot(record: dict, args: argparse.Namespace, save, figure) -> list:
+    """--out with ``save``, then --plot with ``figure`` only beside a written file (:func:`write_files`)."""
+    return write_files(record, ("--out", args.out, save)) or write_files(record, ("--plot", args.plot, figure))
 
 
 def plotter(name: str, *args, module: str = "peeljax.plots", **kwargs):

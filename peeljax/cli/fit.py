@@ -31,7 +31,7 @@ from ..fit.records_fit import is_force_record
 from ..fit.trajectory import OPTIMIZERS
 from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_RTOL
 from . import options
-from ._common import PROG, fail, load_phi, plotter, write_files
+from ._common import PROG, fail, load_phi, plotter, subcommand, write_files
 from .fit_table import (
     _DATA_ONLY,
     _POINTS_DEFAULTS,
@@ -53,130 +53,80 @@ from .fit_table import (
 __all__ = ["add_command"]
 
 
+# The options of the group "the fit": (option, type, nargs, metavar, help); dest the option's name.
+_FIT_OPTIONS = (
+    ("--quantities", None, "+", "Q", "--data: the subset of v F alpha to fit (default: all in the data)"),
+    ("--by", None, None, "{auto,statistics,points}", "--data force records (t, F): fit each by its stick-slip "
+     "statistics, or point by point; auto: by statistics where it stick-slips (at least 10 slips after --transient), "
+     "else by points (default auto; the choice is said on stderr)"),
+    ("--method", None, None, "{orbit,window}", "--table: each row's statistics from its attractor (orbit: the "
+     "periodic orbit's over one period, steady peeling's phi(V, V), a window where no periodic attractor) or from a "
+     "window of a run from rest (window; needed for --tau > 0) (default orbit)"),
+    ("--intervals", None, None, "{auto,profile,linear}", "--table and force records: profile-likelihood intervals "
+     "beside the linearized ones where a bifurcation lies within them (auto), always (profile), never (linear) "
+     "(default auto)"),
+    ("--statistics", None, "+", "S", "--table: the table's statistics to fit (default: all it has)"),
+    ("--steps", int, None, None, f"--data: optimizer iterations, >= 1 (default {_POINTS_DEFAULTS['steps']})"),
+    ("--optimizer", None, None, "{adam,lbfgs}", f"--data: adam or lbfgs (default {_POINTS_DEFAULTS['optimizer']})"),
+    ("--learning-rate", float, None, None, "--data: > 0 (default adam 0.02, lbfgs its line search)"),
+    ("--patience", int, None, None, "--data: stop after this many iterations without progress, >= 1 (default "
+     f"{_POINTS_DEFAULTS['patience']})"),
+    ("--max-iterations", int, None, None, f"--table: Levenberg-Marquardt iterations at most, >= 1 (default "
+     f"{_TABLE_DEFAULTS['max_iterations']}; force records {_RECORDS_DEFAULTS['max_iterations']})"),
+    ("--n-starts", int, None, "N", "--table: Levenberg-Marquardt runs from the N best starting points, >= 1 (default "
+     "1 with --method orbit, 3 with --method window)"),
+)  # fmt: skip
+
+
 def add_command(subparsers) -> None:
-    parser = subparsers.add_parser(
-        "fit",
-        help="fit the adhesion law phi to observed runs",
-        description=(
-            "Fit phi's coefficients to observed v(t) (and F(t), alpha(t)) at one or more pull velocities "
-            "with exact gradients through the alpha-method (--data), or to a stick-slip table by "
-            "Levenberg-Marquardt with uncertainties (--table). Data keys: t, v, V (optional F, alpha, t_F, "
-            "t_alpha) per file, or V_0, t_0, v_0, V_1, ... for several V in one file."
-        ),
-    )
+    parser = subcommand(subparsers, "fit", _fit_command, "fit the adhesion law phi to observed runs", (
+        "Fit phi's coefficients to observed v(t) (and F(t), alpha(t)) at one or more V with exact gradients through the "
+        "alpha-method (--data), or to a stick-slip table by Levenberg-Marquardt with uncertainties (--table). Data keys: "
+        "t, v, V (optional F, alpha, t_F, t_alpha) per file, or V_0, t_0, v_0, V_1, ... for several V in one file."
+    ), out_formats=(".json",))  # fmt: skip
     source = parser.add_argument_group("what is fitted (one of --data and --table)")
-    source.add_argument(
-        "--data", action="append", default=None, metavar="FILE",
-        help="observations (repeatable): .npz, or a force record as CSV / whitespace text with a header naming "
-        "its columns: t [s], F [N] (the tension), optional v [m/s], alpha [rad], V [m/s] (default: none)",
-    )  # fmt: skip
-    source.add_argument(
-        "--table", default=None, metavar="TABLE.csv",
-        help="instead of --data: a stick-slip table (CSV / whitespace text, columns V and any of F_mean, F_slip, "
-        "F_stick, period, slip_duration, each optionally with <name>_std), fitted by Levenberg-Marquardt with "
-        "uncertainties (default: none)",
-    )  # fmt: skip
+    source.add_argument("--data", action="append", default=None, metavar="FILE",
+                        help="observations (repeatable): .npz, or a force record as CSV / whitespace text with a header "
+                        "naming its columns: t [s], F [N] (the tension), optional v [m/s], alpha [rad], V [m/s] "
+                        "(default: none)")  # fmt: skip
+    source.add_argument("--table", default=None, metavar="TABLE.csv",
+                        help="instead of --data: a stick-slip table (CSV / whitespace text, columns V and any of F_mean, "
+                        "F_slip, F_stick, period, slip_duration, each optionally with <name>_std), fitted by "
+                        "Levenberg-Marquardt with uncertainties (default: none)")  # fmt: skip
     options.add_V(source, many=True, default=None, help="--data: the pull velocity [m/s] of text files that carry it "
                   "neither in a V column nor in their name (peel_V=1.1.csv), one value for all or one per file")  # fmt: skip
-    source.add_argument(
-        "--decimate", type=int, default=None, metavar="N",
-        help="--data: keep every N-th sample of each file, N >= 1 (measured values, no filter): for a record denser "
-        "than the fit can hold (default: all samples)",
-    )  # fmt: skip
+    source.add_argument("--decimate", type=int, default=None, metavar="N",
+                        help="--data: keep every N-th sample of each file, N >= 1 (measured values, no filter): for a "
+                        "record denser than the fit can hold (default: all samples)")  # fmt: skip
     problem = parser.add_argument_group("the model's runs")
-    problem.add_argument(
-        "--tau", type=options.number("--tau"), default=None,
-        help="tau [s]: --data in (0, 1e6] (default: the data files' tau, else 0.01); --table in [0, 1e6] "
-        "(default 0: the DAE with jumps)",
-    )  # fmt: skip
-    options.add_t_final(
-        problem, default=None, help="--data: end time of the runs [s], > 0 (default: the last observation)"
-    )
-    problem.add_argument(
-        "--dt", type=float, default=None,
-        help="--data: run the model on the uniform mesh of this step [s], in (0, t_final] (default: error control)",
-    )  # fmt: skip
-    options.add_tolerances(
-        problem, rtol_default=f"{DEFAULT_RTOL:g}; --table: 1e-9 at tau 0, else 1e-7",
-        atol_default=f"{DEFAULT_ATOL:g}; --table: 1e-12 at tau 0, else 1e-10",
-    )  # fmt: skip
-    options.add_max_steps(
-        problem, default=f"{DEFAULT_MAX_STEPS} with --data, {_TABLE_DEFAULTS['max_steps']} with --table"
-    )
+    problem.add_argument("--tau", type=options.number("--tau"), default=None,
+                         help="tau [s]: --data in (0, 1e6] (default: the data files' tau, else 0.01); --table in [0, "
+                         "1e6] (default 0: the DAE with jumps)")  # fmt: skip
+    options.add_t_final(problem, default=None, help="--data: end time of the runs [s], > 0 (default: the last observation)")
+    problem.add_argument("--dt", type=float, default=None, help="--data: run the model on the uniform mesh of this step "
+                         "[s], in (0, t_final] (default: error control)")  # fmt: skip
+    options.add_tolerances(problem, rtol_default=f"{DEFAULT_RTOL:g}; --table: 1e-9 at tau 0, else 1e-7",
+                           atol_default=f"{DEFAULT_ATOL:g}; --table: 1e-12 at tau 0, else 1e-10")  # fmt: skip
+    options.add_max_steps(problem, default=f"{DEFAULT_MAX_STEPS} with --data, {_TABLE_DEFAULTS['max_steps']} with --table")
     options.add_statistics_window(
-        problem, transient="0.5 s with --table, where the model's runs end at T + W: their second half; with "
-        "--data force records fitted by statistics, the record's second half", window_default="T: the runs' "
-        "second half", what="the statistics (--table: of the model's runs; --data: of each force record)",
+        problem, transient="0.5 s with --table, where the model's runs end at T + W: their second half; with --data "
+        "force records fitted by statistics, the record's second half", window_default="T: the runs' second half",
+        what="the statistics (--table: of the model's runs; --data: of each force record)",
     )  # fmt: skip
     fit = parser.add_argument_group("the fit")
     fit.add_argument("--phi", metavar="START.json", help="start coefficients as JSON (default: the paper's law)")
-    fit.add_argument(
-        "--free", nargs="+", metavar="NAME", default=None,
-        help=(f"coefficients to fit, of c1, p1, ..., p9 (default all {len(COEFFICIENT_NAMES)}; --table: {' '.join(_TABLE_DEFAULTS['free'])}; "
-              f"force records: {' '.join(_RECORDS_DEFAULTS['free'])})"),
-    )  # fmt: skip
-    fit.add_argument(
-        "--quantities", nargs="+", metavar="Q", default=None,
-        help="--data: the subset of v F alpha to fit (default: all in the data)",
-    )  # fmt: skip
-    fit.add_argument(
-        "--by", default=None, metavar="{auto,statistics,points}",
-        help="--data force records (t, F): fit each by its stick-slip statistics, or point by point; auto: by "
-        "statistics where it stick-slips (at least 10 slips after --transient), else by points (default auto; the "
-        "choice is said on stderr)",
-    )  # fmt: skip
-    fit.add_argument(
-        "--method", default=None, metavar="{orbit,window}",
-        help="--table: each row's statistics from its attractor (orbit: the periodic orbit's over one period, "
-        "steady peeling's phi(V, V), a window where no periodic attractor) or from a window of a run from rest "
-        "(window; needed for --tau > 0) (default orbit)",
-    )  # fmt: skip
-    fit.add_argument(
-        "--intervals", default=None, metavar="{auto,profile,linear}",
-        help="--table and force records: profile-likelihood intervals beside the linearized ones where a "
-        "bifurcation lies within them (auto), always (profile), never (linear) (default auto)",
-    )  # fmt: skip
-    fit.add_argument(
-        "--statistics", nargs="+", metavar="S", default=None,
-        help="--table: the table's statistics to fit (default: all it has)",
-    )  # fmt: skip
-    fit.add_argument(
-        "--steps", type=int, default=None, help=f"--data: optimizer iterations, >= 1 (default {_POINTS_DEFAULTS['steps']})"
-    )
-    fit.add_argument(
-        "--optimizer", default=None, metavar="{adam,lbfgs}",
-        help=f"--data: adam or lbfgs (default {_POINTS_DEFAULTS['optimizer']})",
-    )  # fmt: skip
-    fit.add_argument(
-        "--learning-rate", dest="learning_rate", type=float, default=None,
-        help="--data: > 0 (default adam 0.02, lbfgs its line search)",
-    )  # fmt: skip
-    fit.add_argument(
-        "--patience", type=int, default=None,
-        help=f"--data: stop after this many iterations without progress, >= 1 (default {_POINTS_DEFAULTS['patience']})",
-    )  # fmt: skip
-    fit.add_argument(
-        "--max-iterations", dest="max_iterations", type=int, default=None,
-        help=f"--table: Levenberg-Marquardt iterations at most, >= 1 (default {_TABLE_DEFAULTS['max_iterations']}; "
-        f"force records {_RECORDS_DEFAULTS['max_iterations']})",
-    )  # fmt: skip
-    fit.add_argument(
-        "--n-starts", dest="n_starts", type=int, default=None, metavar="N",
-        help="--table: Levenberg-Marquardt runs from the N best starting points, >= 1 (default 1 with --method "
-        "orbit, 3 with --method window)",
-    )  # fmt: skip
+    fit.add_argument("--free", nargs="+", metavar="NAME", default=None,
+                     help=f"coefficients to fit, of c1, p1, ..., p9 (default all {len(COEFFICIENT_NAMES)}; --table: "
+                     f"{' '.join(_TABLE_DEFAULTS['free'])}; force records: {' '.join(_RECORDS_DEFAULTS['free'])})")  # fmt: skip
+    for option, kind, nargs, metavar, text in _FIT_OPTIONS:
+        fit.add_argument(option, type=kind, nargs=nargs, metavar=metavar, default=None, help=text)
     fit.add_argument("--starts", dest="starts_deprecated", type=int, default=None, help=argparse.SUPPRESS)
-    output = parser.add_argument_group("output")
-    options.add_outputs(
-        output, out_meta="FITTED.json",
-        out_help="the fitted coefficients, loss history and settings (required with --data; with --table also the "
-        "uncertainty, residuals and stop reason) (default: none)",
-        plot_meta="FIT.png", plot_help="data vs fitted model, and fitted phi vs start (--table: with residuals and "
-        "phi's 95%% band)",
+    options.add_output(
+        parser, "progress (iterations and loss)",
+        out=("FITTED.json", "the fitted coefficients, loss history and settings (required with --data; with --table "
+             "also the uncertainty, residuals and stop reason)"),
+        plot=("FIT.png", "data vs fitted model, and fitted phi vs start (--table: with residuals and phi's 95%% band)"),
     )  # fmt: skip
-    options.add_json(output)
-    options.add_progress(output, "progress (iterations and loss)")
-    parser.set_defaults(handler=_fit_command, out_formats=(".json",))
 
 
 def _check_source(args: argparse.Namespace) -> None:
@@ -193,23 +143,9 @@ def _check_source(args: argparse.Namespace) -> None:
 
 def _fit_runs(fit_adhesion, observations, config: dict, args: argparse.Namespace):
     """:func:`peeljax.fit.fit_adhesion` with the command's settings."""
-    return fit_adhesion(
-        observations,
-        tau=config["tau"],
-        dt=config["dt"],
-        t_final=config["t_final"],
-        free=args.free,
-        start=config["start"],
-        optimizer=args.optimizer,
-        steps=args.steps,
-        learning_rate=args.learning_rate,
-        weights=config["weights"],
-        patience=args.patience,
-        progress=options.progress_on(args),  # a bar with the iterations and the loss (stderr)
-        rtol=config["rtol"],
-        atol=config["atol"],
-        **({"max_steps": config["max_steps"]} if "max_steps" in config else {}),
-    )
+    given = {key: config[key] for key in ("tau", "dt", "t_final", "start", "weights", "rtol", "atol", "max_steps") if key in config}
+    return fit_adhesion(observations, free=args.free, optimizer=args.optimizer, steps=args.steps, patience=args.patience,
+                        learning_rate=args.learning_rate, progress=options.progress_on(args), **given)  # fmt: skip
 
 
 def _write_fit(result, args: argparse.Namespace) -> None:
@@ -260,17 +196,10 @@ def _validate(args: argparse.Namespace, observations: list[Observation], default
     options.check_outputs(args)
     weights = {q: (1.0 if args.quantities is None or q in args.quantities else 0.0) for q in QUANTITIES}
     return {
-        "observations": observations,
-        "tau": float(tau),
-        "dt": None if dt is None else float(dt),
-        "t_final": float(t_final),
-        "n_steps": n_steps,
-        "rtol": rtol,
-        "atol": atol,
-        "start": start,
-        "weights": weights,
+        "observations": observations, "tau": float(tau), "dt": None if dt is None else float(dt), "t_final": float(t_final),
+        "n_steps": n_steps, "rtol": rtol, "atol": atol, "start": start, "weights": weights,
         **({} if args.max_steps is None else {"max_steps": int(args.max_steps)}),  # left out: the library's
-    }
+    }  # fmt: skip
 
 
 def _engine(config: dict) -> str:

@@ -18,7 +18,7 @@ from ..orbits.api import ATOL_PER_RTOL, DEFAULT_TRANSIENT_RUN, MAX_ITERATIONS, M
 from ..orbits.api import orbit_shooting, periodic_orbit
 from ..orbits.diagram import orbit_diagram
 from . import _interrupt, options
-from ._common import PROG, Elapsed, fail, library_default, plotter, report, write_failed, write_files
+from ._common import PROG, Elapsed, checked, fail, library_default, plotter, report, subcommand, write_failed, write_files, wrote
 
 __all__ = ["EXIT_NOT_CONVERGED", "OrbitConfig", "add_command", "validate_orbit"]
 
@@ -51,57 +51,36 @@ def _one_V(token: str) -> float | tuple:
 
 def add_command(subparsers) -> None:
     max_iterations, seeds = _MAX_ITERATIONS, _SEEDS
-    parser = subparsers.add_parser(
-        "orbit",
-        help="find the periodic stick-slip orbit at one V: period, stability, statistics",
-        description=(
-            "Find the periodic stick-slip orbit of the DAE (tau = 0) at one pull velocity by shooting: Newton's "
-            "method on the return map after k stick -> slip events, on the section where the shear force reaches "
-            "phi's maximum. Newton starts from the repeat of a run from the paper's start (--transient). Prints "
-            "the period, the events per period, the Floquet multipliers and the stability, and the five "
-            "statistics of a stick-slip table over exactly one period. Exit status: 0 the orbit converged; 1 it "
-            "did not (status and reason printed) or an output could not be written; 2 bad input, or no orbit "
-            "to shoot for (phi has no fold at V, or the run shows no repeat); 130 interrupted (Ctrl-C)."
-        ),
-    )
-    problem = parser.add_argument_group("problem")
-    problem.add_argument(
-        "--V", type=_one_V, default=_V, metavar="V|START:STOP[:SEEDS]",
-        help=f"pull velocity [m/s], > 0 (default {_V:g}); or a range START:STOP: the bifurcation diagram over it — "
-        f"seed runs at SEEDS equally spaced V (default {seeds}) from the tape at rest and from steady "
-        "peeling, each repeat's orbit continued over V, every bifurcation located and the branch beyond it traced",
+    parser = subcommand(
+        subparsers, "orbit", checked(validate_orbit, _orbit_command), "find the periodic stick-slip orbit at one V: period, "
+        "stability, statistics", "Find the periodic stick-slip orbit of the DAE (tau = 0) at one V by shooting: Newton's "
+        "method on the return map after k stick -> slip events, from the repeat of a run from the paper's start (--transient). "
+        "Prints the period, the Floquet multipliers and the stability, and the statistics over one period. Exit status: 0 "
+        "the orbit converged; 1 it did not, or an output could not be written; 2 bad input, or no orbit to shoot for (phi "
+        "has no fold at V, or the run shows no repeat); 130 interrupted (Ctrl-C).", out_formats=(".npz",),
     )  # fmt: skip
+    problem = parser.add_argument_group("problem")
+    problem.add_argument("--V", type=_one_V, default=_V, metavar="V|START:STOP[:SEEDS]",
+                         help=f"pull velocity [m/s], > 0 (default {_V:g}); or a range START:STOP: the bifurcation "
+                         f"diagram over it — seed runs at SEEDS equally spaced V (default {seeds}) from the tape at rest "
+                         "and from steady peeling, each repeat's orbit continued over V, every bifurcation located and "
+                         "the branch beyond it traced")  # fmt: skip
     options.add_geometry_and_phi(problem)
     shooting = parser.add_argument_group("shooting")
-    shooting.add_argument(
-        "--slips", type=int, default=None, metavar="K",
-        help=f"k, the stick -> slip events per period, an integer in [1, {MAX_SLIPS}] (default: the repeat's; twice "
-        "it shoots for the period-doubled orbit)",
-    )  # fmt: skip
-    shooting.add_argument(
-        "--transient", type=float, default=DEFAULT_TRANSIENT_RUN, metavar="T",
-        help="the approach to the attractor: a run of T seconds from the paper's start, > 0, whose second half "
-        f"shows the repeat (k, T and the state at its last slip) that Newton starts from (default {DEFAULT_TRANSIENT_RUN:g})",
-    )  # fmt: skip
-    shooting.add_argument(
-        "--max-iterations", dest="max_iterations", type=int, default=max_iterations, metavar="N",
-        help=f"Newton's iteration cap, an integer in [1, {MAX_ITERATIONS}] (default {max_iterations})",
-    )  # fmt: skip
-    options.add_tolerances(
-        shooting, rtol_default=f"{_RTOL:g}", atol_default=f"{ATOL_PER_RTOL:g}*rtol",
-        note="each period's run",
-    )  # fmt: skip
-    output = parser.add_argument_group("output")
-    options.add_outputs(
-        output, out_meta="FILE.npz",
-        out_help="write the orbit (its section point, period, multipliers, statistics, model and settings; "
-        "peeljax.load reads it back; written also when Newton did not converge, with its status) (default: none)",
-        plot_help="write v(t) and F(t) over one period, the G-v loop over phi(v, V) and the multipliers against "
-        "the unit circle (a converged orbit only)",
-    )  # fmt: skip
-    options.add_json(output)
-    options.add_progress(output, "progress (the elapsed wall time while it compiles and shoots)")
-    parser.set_defaults(handler=_orbit_command, out_formats=(".npz",))
+    shooting.add_argument("--slips", type=int, default=None, metavar="K",
+                          help=f"k, the stick -> slip events per period, an integer in [1, {MAX_SLIPS}] (default: the "
+                          "repeat's; twice it shoots for the period-doubled orbit)")  # fmt: skip
+    shooting.add_argument("--transient", type=float, default=DEFAULT_TRANSIENT_RUN, metavar="T",
+                          help="the approach to the attractor: a run of T seconds from the paper's start, > 0, whose "
+                          "second half shows the repeat (k, T and the state at its last slip) that Newton starts from "
+                          f"(default {DEFAULT_TRANSIENT_RUN:g})")  # fmt: skip
+    shooting.add_argument("--max-iterations", dest="max_iterations", type=int, default=max_iterations, metavar="N",
+                          help=f"Newton's iteration cap, an integer in [1, {MAX_ITERATIONS}] (default {max_iterations})")
+    options.add_tolerances(shooting, rtol_default=f"{_RTOL:g}", atol_default=f"{ATOL_PER_RTOL:g}*rtol", note="each period's run")
+    options.add_output(parser, "progress (the elapsed wall time while it compiles and shoots)", out=("FILE.npz", (
+        "write the orbit (section point, period, multipliers, statistics, model, settings; also when Newton did not "
+        "converge, with its status); peeljax.load reads it back")), plot=("FILE.png", "write v(t), F(t) over one period, "
+        "the G-v loop over phi(v, V) and the multipliers against the unit circle (a converged orbit only)"))  # fmt: skip
 
 
 # ---------------------------------------------------------------------------- validation
@@ -164,14 +143,11 @@ def validate_orbit(args: argparse.Namespace) -> OrbitConfig:
 def _record(orbit, config: OrbitConfig, wall: float) -> dict:
     """The ``--json`` object: the orbit (:meth:`~peeljax.PeriodicOrbit.as_dict`), its test
     functions, how it was found, the wall time and the files written."""
-    record = {"command": "orbit", **orbit.as_dict()}
-    record["test_functions"] = {key: float(value) for key, value in orbit.test_functions.items()}
-    record["settings"] = config.settings()
-    record["phi_paper_defaults"] = None if config.phi_defaults is None else list(config.phi_defaults)
-    record["wall_time_s"] = wall
-    record["out"] = config.out
-    record["plot"] = config.plot
-    return record
+    return {
+        "command": "orbit", **orbit.as_dict(), "test_functions": {k: float(v) for k, v in orbit.test_functions.items()},
+        "settings": config.settings(), "phi_paper_defaults": None if config.phi_defaults is None else list(config.phi_defaults),
+        "wall_time_s": wall, "out": config.out, "plot": config.plot,
+    }  # fmt: skip
 
 
 def _summary(orbit, record: dict, config: OrbitConfig) -> list[str]:
@@ -182,14 +158,10 @@ def _summary(orbit, record: dict, config: OrbitConfig) -> list[str]:
         orbit.summary(),
         f"wall time {record['wall_time_s']:.3g} s (including compilation)",
     ]
-    return lines + [f"wrote {record[key]}" for key in ("out", "plot") if record.get(key)]
+    return lines + wrote(record)
 
 
-def _orbit_command(args: argparse.Namespace) -> int:
-    try:
-        config = validate_orbit(args)
-    except (ValueError, TypeError) as error:
-        return fail(error)
+def _orbit_command(args: argparse.Namespace, config: OrbitConfig) -> int:
     if config.V_range is not None:
         return _diagram_command(config)
     from ..orbits import OrbitNotFound, periodic_orbit
@@ -272,6 +244,5 @@ def _diagram_command(config: OrbitConfig) -> int:
             return _interrupt.interrupted(kept.describe())
     record = {"command": "orbit", **diagram.as_dict(), "settings": config.settings(), "out": out, "plot": plot}
     failed = write_files(record, ("--out", out, diagram.save), ("--plot", plot, plotter("plot_orbit_diagram", diagram)))
-    lines = [diagram.summary()] + [f"wrote {record[key]}" for key in ("out", "plot") if record.get(key)]
-    return report(record, config.json, lines, failed, "the diagram's summary is above")
+    return report(record, config.json, [diagram.summary(), *wrote(record)], failed, "the diagram's summary is above")
 

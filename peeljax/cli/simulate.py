@@ -19,7 +19,7 @@ from ..model import PeelingModel
 from ..simulate import check_run_memory, simulate, simulate_reference
 from ..solution import Solution
 from . import options
-from ._common import STEPPERS, Elapsed, fail, library_default, plotter, report, solver_for, write_files
+from ._common import STEPPERS, Elapsed, checked, library_default, plotter, report, solver_for, subcommand, write_files
 from .simulate_report import announce, cycles, plot_title, regime_note, remedy_notes, summary_lines
 
 __all__ = ["add_command", "run", "summarize", "validate_run", "write_npz"]
@@ -33,84 +33,50 @@ _RUN = {name: library_default(simulate, name) for name in ("V", "tau", "t_final"
 _REFERENCE = {name: library_default(simulate_reference, name) for name in ("dt", "rtol", "atol", "max_steps")}
 
 
-def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
-    """The problem's and the integrator's options of ``simulate`` (shared ones from :mod:`.options`)."""
+def add_command(subparsers) -> None:
+    parser = subcommand(
+        subparsers, "simulate", checked(validate_run, _simulate_command), "integrate one run",
+        "Integrate the homogenized peeling ODE (tau > 0) or the DAE itself (tau = 0) over [0, t_final], through the "
+        "folds of phi, and report how it ended.", out_formats=(".npz", ".csv"),
+    )  # fmt: skip
     physics = parser.add_argument_group("problem")
     options.add_V(physics, many=False, default=_RUN["V"])
-    physics.add_argument(
-        "--tau", type=options.number("--tau"), default=_RUN["tau"],
-        help=f"{options.tau_help(options.TAU_RANGE)}; 0 needs error control (default %(default)s)",
-    )  # fmt: skip
+    physics.add_argument("--tau", type=options.number("--tau"), default=_RUN["tau"],
+                         help=f"tau [s] in {options.TAU_RANGE}: 0 is the DAE itself (v from G = phi(v, V), jumping at "
+                         "the folds of phi); 0 needs error control (default %(default)s)")  # fmt: skip
     options.add_t_final(physics, default=_RUN["t_final"])
-    physics.add_argument(
-        "--y0", type=float, nargs=4, metavar=("ALPHA0", "OMEGA0", "U0", "v0"),
-        help="initial state: peel angle alpha0 [rad], spool speed omega0 [rad/s], tape stretch u0 [m] and "
-        "peeling velocity v0 [m/s] > 0 (not the pull velocity --V) (default: the paper's consistent data, "
-        "v0 = 1e-10*V)",
-    )  # fmt: skip
+    physics.add_argument("--y0", type=float, nargs=4, metavar=("ALPHA0", "OMEGA0", "U0", "v0"),
+                         help="initial state: peel angle alpha0 [rad], spool speed omega0 [rad/s], tape stretch u0 [m] "
+                         "and peeling velocity v0 [m/s] > 0 (not the pull velocity --V) (default: the paper's "
+                         "consistent data, v0 = 1e-10*V)")  # fmt: skip
     options.add_geometry_and_phi(physics)
     solver = parser.add_argument_group("integrator")
-    solver.add_argument(
-        "--method", "--solver", default="default", metavar="NAME",
-        help=f"the stepper of error control: default (the library's choice: auto), {', '.join(STEPPERS)}; or diffrax "
-        "(the Kvaerno5 reference on its output grid) (default: default)",
-    )  # fmt: skip
-    solver.add_argument(
-        "--dt", type=float, default=None,
-        help="default/alpha: a uniform mesh of N = round(t_final/dt) alpha-method steps instead of error control, "
-        f"dt in (0, t_final]; diffrax: the output spacing (default: error control; 1/{1 / _REFERENCE['dt']:g} for diffrax)",
-    )  # fmt: skip
-    solver.add_argument(
-        "--rho", type=float, default=None,
-        help=f"alpha-method's rho in [0, 1) (default {_RUN['rho']:g}; --method default or alpha)",
-    )  # fmt: skip
-    options.add_tolerances(
-        solver, rtol_default=f"{_ALPHA_RTOL:g}; {_REFERENCE['rtol']:g} for diffrax",
-        atol_default=f"{_ALPHA_ATOL:g}; {_REFERENCE['atol']:g} for diffrax", note="not on the uniform mesh",
-    )  # fmt: skip
+    solver.add_argument("--method", "--solver", default="default", metavar="NAME",
+                        help=f"the stepper of error control: default (the library's choice: auto), {', '.join(STEPPERS)}; "
+                        "or diffrax (the Kvaerno5 reference on its output grid) (default: default)")  # fmt: skip
+    solver.add_argument("--dt", type=float, default=None,
+                        help="default/alpha: a uniform mesh of N = round(t_final/dt) alpha-method steps instead of error "
+                        f"control, dt in (0, t_final]; diffrax: the output spacing (default: error control; "
+                        f"1/{1 / _REFERENCE['dt']:g} for diffrax)")  # fmt: skip
+    solver.add_argument("--rho", type=float, default=None,
+                        help=f"alpha-method's rho in [0, 1) (default {_RUN['rho']:g}; --method default or alpha)")
+    options.add_tolerances(solver, rtol_default=f"{_ALPHA_RTOL:g}; {_REFERENCE['rtol']:g} for diffrax",
+                           atol_default=f"{_ALPHA_ATOL:g}; {_REFERENCE['atol']:g} for diffrax", note="not on the uniform mesh")  # fmt: skip
     options.add_max_steps(solver)
-    solver.add_argument(
-        "--save-dt", dest="save_dt", type=float, default=None, metavar="S",
-        help="output at t = 0, S, 2S, ... <= t_final (and t_final) [s], S in (0, t_final] (default: error "
-        "control writes its accepted steps; diffrax uses --dt)",
-    )  # fmt: skip
+    solver.add_argument("--save-dt", dest="save_dt", type=float, default=None, metavar="S",
+                        help="output at t = 0, S, 2S, ... <= t_final (and t_final) [s], S in (0, t_final] (default: "
+                        "error control writes its accepted steps; diffrax uses --dt)")  # fmt: skip
     folds = parser.add_argument_group("folds of phi (stick-slip jumps)")
-    folds.add_argument(
-        "--fold",
-        default=None,
-        metavar="{jump,stop,follow}",
-        help="at a fold of phi: 'jump' (v jumps to the other stable branch at fixed alpha, omega, u; the run "
-        "goes on), 'stop' (the run ends there, the paper's behaviour) or 'follow' (tau > 0: jump at impasse "
-        "points only, follow singular passages); jump and follow need error control, any stepper (default: "
-        "jump with error control, stop with --dt or --method diffrax)",
-    )
+    folds.add_argument("--fold", default=None, metavar="{jump,stop,follow}",
+                       help="at a fold of phi: 'jump' (v jumps to the other stable branch at fixed alpha, omega, u; the "
+                       "run goes on), 'stop' (the run ends there, the paper's behaviour) or 'follow' (tau > 0: jump at "
+                       "impasse points only, follow singular passages); jump and follow need error control, any "
+                       "stepper (default: jump with error control, stop with --dt or --method diffrax)")  # fmt: skip
     options.add_max_jumps(folds, default="as many as the run makes")
     options.add_statistics_window(folds, window=False, what="the cycle statistics (over [T, t_stop])")
-
-
-def _add_output_arguments(parser: argparse.ArgumentParser) -> None:
-    output = parser.add_argument_group("output")
-    options.add_outputs(
-        output, out_meta="FILE.npz|FILE.csv",
-        out_help="write t, alpha, omega, u, v, F and the parameters: .npz (numpy), or .csv (text with a header; "
-        "the settings on # lines) (default: none)",
-        plot_help="write v(t), alpha(t), F(t) panels, or for a run with jumps v(t), G(t) and the G-v loop over "
-        "phi(v, V)",
-    )  # fmt: skip
-    options.add_json(output)
-    options.add_progress(output, "progress (the elapsed wall time of a long run)")
-
-
-def add_command(subparsers) -> None:
-    parser = subparsers.add_parser(
-        "simulate",
-        help="integrate one run",
-        description="Integrate the homogenized peeling ODE (tau > 0) or the DAE itself (tau = 0) over "
-        "[0, t_final], through the folds of phi, and report how it ended.",
-    )
-    _add_run_arguments(parser)
-    _add_output_arguments(parser)
-    parser.set_defaults(handler=_simulate_command, out_formats=(".npz", ".csv"))
+    out = "write t, alpha, omega, u, v, F and the parameters: .npz (numpy), or .csv (text; the settings on # lines)"
+    plot = "write v(t), alpha(t), F(t), or for a run with jumps v(t), G(t) and the G-v loop over phi(v, V)"
+    options.add_output(parser, "progress (the elapsed wall time of a long run)", ("FILE.npz|FILE.csv", out), ("FILE.png", plot))
 
 
 # ---------------------------------------------------------------------------- validation
@@ -344,11 +310,7 @@ def _rho_used(solution: Solution, config: RunConfig) -> float | None:
     return config.rho if config.rho is not None and solution.method.startswith("alpha") else None
 
 
-def _simulate_command(args: argparse.Namespace) -> int:
-    try:
-        config = validate_run(args)
-    except (ValueError, TypeError) as error:
-        return fail(error)
+def _simulate_command(args: argparse.Namespace, config: RunConfig) -> int:
     announce(config)
     # The run is one compiled loop: it reports its simulated time only at the end (a report from
     # inside would be a host callback in the integrator's loop); meanwhile the wall time is shown.

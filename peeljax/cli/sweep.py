@@ -14,7 +14,10 @@ from . import _interrupt, options
 from ..sweeps.api import sweep as sweep_api
 from ..sweeps import distributed
 from ..sweeps.storage import saved_chunks
-from ._common import PROG, fail, library_default, phi_defaults, plotter, remedy_notes, report, write_failed, write_files
+from ._common import PROG, fail, library_default, phi_defaults, plotter, remedy_notes, report, subcommand, wrote
+from ._common import write_failed, write_files
+from ._engine import DEFAULT_CHUNK, add_engine, check_sweep_outputs, chunk, engine, engine_model, engine_record
+from ._engine import engine_rho, engine_text, tau_grid
 from .sweep_map import map_command
 
 __all__ = ["add_command", "validate_sweep"]
@@ -22,80 +25,53 @@ __all__ = ["add_command", "validate_sweep"]
 
 # ---------------------------------------------------------------------------- parsers
 def add_command(subparsers) -> None:
-    parser = subparsers.add_parser(
-        "sweep",
-        help="batched runs over a grid of V and tau",
-        description=(
-            "Integrate every (V, tau) of a grid in compiled batches (error control by default, each "
-            "trajectory with its own steps, any stepper: --method; --dt for the alpha-method's uniform mesh); "
-            "write per-trajectory summaries (completed, t_stop, v mean/std/min/max over [--transient, "
-            "--transient + --window], stick-slip events, steps taken). With --out the sweep is written chunk "
-            "by chunk and a rerun resumes."
-        ),
-    )
-    solver = options.add_engine(parser)
-    solver.add_argument(
-        "--save-dt", dest="save_dt", type=float, default=None, metavar="S",
-        help="error control only: also save the states at t = 0, S, 2S, ... and t_final [s], S in (0, t_final] "
-        "(default: none)",
-    )  # fmt: skip
-    solver.add_argument(
-        "--save-every", dest="save_every", type=int, default=None, metavar="N",
-        help="uniform mesh only (with --dt): also save the states every N steps, N >= 1 (default: none)",
-    )  # fmt: skip
+    parser = subcommand(subparsers, "sweep", _sweep_command, "batched runs over a grid of V and tau", (
+        "Integrate every (V, tau) of a grid in compiled batches (error control by default, any stepper: --method; --dt for "
+        "the alpha-method's uniform mesh); write per-trajectory summaries (v statistics over [--transient, --transient + "
+        "--window], stick-slip events, steps taken). With --out the sweep is written chunk by chunk and a rerun resumes."
+    ), out_formats=(".npz", ".nc"))  # fmt: skip
+    solver = add_engine(parser)
+    solver.add_argument("--save-dt", dest="save_dt", type=float, default=None, metavar="S",
+                        help="error control only: also save the states at t = 0, S, 2S, ... and t_final [s], S in "
+                        "(0, t_final] (default: none)")  # fmt: skip
+    solver.add_argument("--save-every", dest="save_every", type=int, default=None, metavar="N",
+                        help="uniform mesh only (with --dt): also save the states every N steps, N >= 1 (default: none)")
     grid = parser.add_argument_group("the grid of tau")
-    grid.add_argument(
-        "--tau", type=options.numbers("--tau", ranges=False), nargs="+", default=None,
-        help="tau values [s]: all in (0, 1e6] (the homogenized ODE) or 0 (the DAE itself, jumping at the folds "
-        "of phi; error control only); with --n-tau, two numbers LO HI give a log-spaced grid (default 1e-3 "
-        "1e-1; with --stick-slip-map 0)",
-    )  # fmt: skip
-    grid.add_argument(
-        "--n-tau", dest="n_tau", type=int, default=None,
-        help="points of a log-spaced tau grid from --tau LO to HI, an integer >= 2 (default: none, the --tau "
-        "values as given)",
-    )  # fmt: skip
-    grid.add_argument(
-        "--chunk", type=int, default=None, help=f"trajectories per compiled batch, >= 1 (default {options.DEFAULT_CHUNK})"
-    )
+    grid.add_argument("--tau", type=options.numbers("--tau", ranges=False), nargs="+", default=None,
+                      help="tau values [s]: all in (0, 1e6] (the homogenized ODE) or 0 (the DAE itself, jumping at the "
+                      "folds of phi; error control only); with --n-tau, two numbers LO HI give a log-spaced grid "
+                      "(default 1e-3 1e-1; with --stick-slip-map 0)")  # fmt: skip
+    grid.add_argument("--n-tau", dest="n_tau", type=int, default=None,
+                      help="points of a log-spaced tau grid from --tau LO to HI, an integer >= 2 (default: none, the "
+                      "--tau values as given)")  # fmt: skip
+    grid.add_argument("--chunk", type=int, default=None, help=f"trajectories per compiled batch, >= 1 (default {DEFAULT_CHUNK})")
     folds = parser.add_argument_group("folds of phi (stick-slip jumps; error control only)")
-    folds.add_argument(
-        "--fold", default=None, metavar="{jump,stop,follow}",
-        help="at a fold of phi: 'jump' (v jumps to the other stable branch; the run goes on), 'stop' (the run "
-        "ends there) or 'follow' (tau > 0: jump at impasse points only); jump and follow need error control "
-        "(default: jump with error control, stop with --dt)",
-    )  # fmt: skip
+    folds.add_argument("--fold", default=None, metavar="{jump,stop,follow}",
+                       help="at a fold of phi: 'jump' (v jumps to the other stable branch; the run goes on), 'stop' (the "
+                       "run ends there) or 'follow' (tau > 0: jump at impasse points only); jump and follow need error "
+                       "control (default: jump with error control, stop with --dt)")  # fmt: skip
     options.add_max_jumps(folds, default=DEFAULT_SWEEP_MAX_JUMPS, per="trajectory")
-    folds.add_argument(
-        "--start", default=None, metavar="{paper,steady}",
-        help="each trajectory's initial state: 'paper' (the tape at rest) or 'steady' (steady peeling, v = V) "
-        "(default paper; with --stick-slip-map both, one after the other)",
-    )  # fmt: skip
-    statistics = parser.add_argument_group("statistics")
+    folds.add_argument("--start", default=None, metavar="{paper,steady}",
+                       help="each trajectory's initial state: 'paper' (the tape at rest) or 'steady' (steady peeling, "
+                       "v = V) (default paper; with --stick-slip-map both, one after the other)")  # fmt: skip
     options.add_statistics_window(
-        statistics, window_default="t_final - T; with --stick-slip-map the statistics run to each run's end",
-        what="the v statistics (the stick-slip map's cycle statistics)",
+        parser.add_argument_group("statistics"), what="the v statistics (the stick-slip map's cycle statistics)",
+        window_default="t_final - T; with --stick-slip-map the statistics run to each run's end",
     )  # fmt: skip
-    ssm = parser.add_argument_group("the stick-slip map over V")
-    ssm.add_argument(
+    parser.add_argument_group("the stick-slip map over V").add_argument(
         "--stick-slip-map", dest="stick_slip_map", action="store_true",
-        help="instead of the (V, tau) sweep: at one --tau (default 0, the DAE), one sweep over --V per start "
-        "(both unless --start), each run's jumps after --transient reduced to its cycle statistics; --out "
-        "writes the map's arrays (.npz), --plot its figure against V (forces at the jumps over phi's folds, "
-        "repeat period, v amplitude)",
+        help="instead of the (V, tau) sweep: at one --tau (default 0, the DAE), one sweep over --V per start (both "
+        "unless --start), each run's jumps after --transient reduced to its cycle statistics; --out writes the map's "
+        "arrays (.npz), --plot its figure against V (forces at the jumps over phi's folds, repeat period, v amplitude)",
     )  # fmt: skip
-    output = parser.add_argument_group("output")
-    options.add_outputs(
-        output, out_meta="FILE.npz",
-        out_help="results (numpy, with each trajectory's jump record; FILE.nc: netCDF with labelled dimensions, "
-        "needs pip install \"peeljax[xarray]\"); chunks in FILE.npz.chunks/, resumable; with --stick-slip-map the "
-        "map's arrays; peeljax.load reads either back (default: none)",
-        plot_help="the stick-slip map over (V, tau) (tau > 0); with --stick-slip-map the map against V",
+    options.add_output(
+        parser, "progress bar",
+        out=("FILE.npz", "results (numpy, with each trajectory's jump record; FILE.nc: netCDF with labelled "
+             "dimensions, needs pip install \"peeljax[xarray]\"); chunks in FILE.npz.chunks/, resumable; with "
+             "--stick-slip-map the map's arrays; peeljax.load reads either back"),
+        plot=("FILE.png", "the stick-slip map over (V, tau) (tau > 0); with --stick-slip-map the map against V"),
     )  # fmt: skip
-    options.add_json(output)
-    options.add_progress(output, "progress bar")
     _add_distributed_options(parser)
-    parser.set_defaults(handler=_sweep_command, out_formats=(".npz", ".nc"))
 
 
 # The options that place this process among the others (jax.distributed.initialize's arguments).
@@ -160,7 +136,7 @@ def resume_refusal(message: str, args: argparse.Namespace) -> str:
         if option == "--tau" and args.n_tau is not None:
             option = "--tau/--n-tau"
         if option == "--chunk" and args.chunk is None:
-            option = f"the batch size (--chunk, default {options.DEFAULT_CHUNK}, at most the number of trajectories)"
+            option = f"the batch size (--chunk, default {DEFAULT_CHUNK}, at most the number of trajectories)"
         if option not in said:
             said.append(option)
     joined = " and ".join(said) if len(said) <= 2 else ", ".join(said[:-1]) + " and " + said[-1]
@@ -170,19 +146,19 @@ def resume_refusal(message: str, args: argparse.Namespace) -> str:
 def validate_sweep(args: argparse.Namespace) -> dict:
     """Every option checked, nothing compiled; returns the keyword arguments of :func:`peeljax.sweep`."""
     V = options.check_positive_values("--V", args.V)
-    tau = options.tau_grid([1e-3, 1e-1] if args.tau is None else args.tau, args.n_tau)
-    chosen = options.engine(args, dae=tau == [0.0])
-    model = options.engine_model(args)
+    tau = tau_grid([1e-3, 1e-1] if args.tau is None else args.tau, args.n_tau)
+    chosen = engine(args, dae=tau == [0.0])
+    model = engine_model(args)
     window = _window(args)
     if args.plot is not None and tau == [0.0]:
         raise ValueError(
             "--plot draws the (V, tau) map, whose tau axis is logarithmic: with --tau 0 (the DAE) add "
             "--stick-slip-map for the map against V"
         )
-    options.check_sweep_outputs(args)
+    check_sweep_outputs(args)
     return {
         "model": model, "V": V, "tau": tau, **chosen, "t_final": float(args.t_final), "grid": "outer",
-        "window": window, "chunk": options.chunk(args), "out": args.out, "rho": options.engine_rho(args),
+        "window": window, "chunk": chunk(args), "out": args.out, "rho": engine_rho(args),
         "start": library_default(sweep_api, "start") if args.start is None else args.start, "progress": args.progress and not args.json,
     }  # fmt: skip
 
@@ -274,7 +250,7 @@ def _sweep_command(args: argparse.Namespace) -> int:
     if joined is not None:
         return joined
     n = len(kwargs["V"]) * len(kwargs["tau"])
-    print(f"{PROG}: sweep of {n} trajectories, {options.engine_text(kwargs)} (compiling first: a few seconds) ...",
+    print(f"{PROG}: sweep of {n} trajectories, {engine_text(kwargs)} (compiling first: a few seconds) ...",
           file=sys.stderr)  # fmt: skip
     start = time.perf_counter()
     # Ctrl-C's line says how many chunks are saved, whichever thread prints it (cli._interrupt)
@@ -292,7 +268,7 @@ def _sweep_command(args: argparse.Namespace) -> int:
         _print_resumed(result, args.out)
     record = {
         "n": len(result), "n_completed": int(result.completed.sum()), "V": kwargs["V"], "tau": kwargs["tau"],
-        **options.engine_record(kwargs, result.settings.get("method")),  # the stepper that ran (absent on the uniform mesh)
+        **engine_record(kwargs, result.settings.get("method")),  # the stepper that ran (absent on the uniform mesh)
         "method_option": args.method,  # --method as given
         "max_steps": result.settings.get("max_steps"),  # the budget of step attempts (error control)
         "save_dt": kwargs["save_dt"], "save_every": kwargs["save_every"], "t_final": kwargs["t_final"],
@@ -338,8 +314,8 @@ def _sweep_lines(record: dict, result, kwargs: dict, wall: float) -> list[str]:
     lines = [
         f"{PROG} sweep: {record['n']} trajectories, {record['n_completed']} completed t = {t_final:g} s, "
         f"wall time {wall:.3g} s",
-        f"{options.engine_text(kwargs, result.settings.get('method'))}; v statistics over t in [{w0 * t_final:g}, "
+        f"{engine_text(kwargs, result.settings.get('method'))}; v statistics over t in [{w0 * t_final:g}, "
         f"{w1 * t_final:g}] s (--transient {w0 * t_final:g} --window {(w1 - w0) * t_final:g}){folds}",
         result.table(),
     ]
-    return lines + [f"wrote {record[key]}" for key in ("out", "plot") if record[key]]
+    return lines + wrote(record)
