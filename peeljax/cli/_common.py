@@ -26,9 +26,10 @@ STEPPERS = tuple(SOLVER_NAMES)  # the steppers that the error-controlled loop ta
 # pattern (-1, -0.5) takes "-1e-6" for an option and answers "expected one argument", so the
 # range check of the option never sees it. No option of peeljax looks like a number.
 # A range START:STOP:COUNT that starts below zero (--V -1:2:4) is a value too, refused by its check.
-_NEGATIVE_NUMBER = re.compile(
-    r"^-(\d+\.?\d*(e[+-]?\d+)?|\.\d+(e[+-]?\d+)?|inf(inity)?|nan)(:[^\s]*)?$", re.IGNORECASE
-)
+_NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*(e[+-]?\d+)?|\.\d+(e[+-]?\d+)?|inf(inity)?|nan)(:[^\s]*)?$", re.IGNORECASE)
+
+
+_NUMBER = re.compile(r"^\s*[+-]?(\d+\.?\d*|\.\d+)(e[+-]?\d+)?\s*$", re.IGNORECASE)  # a finite number float() reads
 
 
 class Parser(argparse.ArgumentParser):
@@ -79,25 +80,19 @@ class Parser(argparse.ArgumentParser):
         try:
             return super()._get_value(action, arg_string)
         except argparse.ArgumentError:
-            if action.type is int:
-                try:
-                    number = float(arg_string)
-                except ValueError:
-                    number = math.nan
-                write = f": write {int(number)}" if math.isfinite(number) and number == int(number) else ""
-                raise argparse.ArgumentError(action, f"{arg_string!r} is not an integer{write}") from None
-            if action.type is float:
-                raise argparse.ArgumentError(action, f"{arg_string!r} is not a number") from None
-            raise
+            if action.type not in (int, float):
+                raise
+            number = float(arg_string) if _NUMBER.match(arg_string) else math.nan
+            write = f": write {int(number)}" if math.isfinite(number) and number == int(number) else ""
+            what = f"an integer{write}" if action.type is int else "a number"
+            raise argparse.ArgumentError(action, f"{arg_string!r} is not {what}") from None
 
     def _check_value(self, action, value):
         if action.choices is not None and value not in action.choices:
             choices = [str(choice) for choice in action.choices]
             close = difflib.get_close_matches(str(value), choices, n=1)
             hint = f"; did you mean {close[0]!r}?" if close else ""
-            raise argparse.ArgumentError(
-                action, f"invalid choice: {value!r}{hint} (choose from {', '.join(map(repr, choices))})"
-            )
+            raise argparse.ArgumentError(action, f"invalid choice: {value!r}{hint} (choose from {', '.join(map(repr, choices))})")
         super()._check_value(action, value)
 
 
@@ -108,11 +103,7 @@ def unrecognized(extras: list[str], parser: argparse.ArgumentParser, others: dic
     known = [name for name in parser._option_string_actions if name.startswith("--")]
     options = [word for word in extras if word.startswith("-") and not _NEGATIVE_NUMBER.match(word)]
     if not options:
-        values = " ".join(extras)
-        return (
-            f"unexpected value {values!r}: every value follows its option (e.g. --V 1.1); "
-            f"{parser.prog} --help lists them"
-        )
+        return f"unexpected value {' '.join(extras)!r}: every value follows its option (e.g. --V 1.1); {parser.prog} --help lists them"
     parts = []
     for word in options:
         name = word.split("=", 1)[0]
@@ -140,11 +131,8 @@ def read_phi(path: str) -> tuple[AdhesionLaw, tuple[str, ...]]:
         message = str(error)
         raise ValueError(message if message.startswith("--phi") else f"--phi: {message}") from None
     if kept:
-        given = [name for name in COEFFICIENT_NAMES if name not in kept]
-        print(
-            f"{PROG}: note: --phi {path} sets {', '.join(given)}; {', '.join(kept)} keep the paper's values",
-            file=sys.stderr,
-        )
+        given = ", ".join(name for name in COEFFICIENT_NAMES if name not in kept)
+        print(f"{PROG}: note: --phi {path} sets {given}; {', '.join(kept)} keep the paper's values", file=sys.stderr)
     return law, kept
 
 
@@ -161,9 +149,14 @@ def write_failed(option: str, path: str, error: OSError, what: str) -> int:
 
 def library_default(function, name: str):
     """The default of ``function``'s parameter ``name``: the command line's default, never restated."""
+    return library_defaults(function)[name]
+
+
+def library_defaults(function) -> dict:
+    """The defaults of ``function``'s parameters by name."""
     import inspect
 
-    return inspect.signature(function).parameters[name].default
+    return {name: p.default for name, p in inspect.signature(function).parameters.items()}
 
 
 def solver_for(method: str, rho: float | None):
@@ -190,10 +183,8 @@ def remedy_notes(status, budget) -> list[str]:
     remedy (stderr)."""
     status = np.asarray(status).ravel()
     out_of_steps = int(np.count_nonzero(status == int(StopReason.MAX_STEPS)))
-    if not out_of_steps:
-        return []
-    return [f"{PROG}: {out_of_steps} of {status.size} trajectories stopped at their step budget",
-            max_steps_remedy(budget)]  # fmt: skip
+    said = f"{PROG}: {out_of_steps} of {status.size} trajectories stopped at their step budget"
+    return [said, max_steps_remedy(budget)] if out_of_steps else []
 
 
 def phi_defaults(args: argparse.Namespace) -> list[str] | None:
@@ -208,16 +199,11 @@ def stats_text(stats: dict, jumps_said: bool = False) -> str:
     diffrax's implicit ones count theirs inside), no ``steps`` beside ``accepted_steps`` (the same count, or
     accepted + rejected for the diffrax reference), no ``jumps`` where a line of its own gives them
     (``jumps_said``); floats to 4 significant digits."""
-    shown = {}
-    for key, value in stats.items():
-        if isinstance(value, float) and math.isnan(value):
-            continue
-        if key in ("newton_iterations", "max_newton_iterations") and not stats.get("newton_iterations"):
-            continue
-        if (key == "steps" and "accepted_steps" in stats) or (key == "jumps" and jumps_said):
-            continue
-        shown[key] = f"{value:.4g}" if isinstance(value, float) else value
-    return ", ".join(f"{key} {value}" for key, value in shown.items())
+    hidden = {"steps"} if "accepted_steps" in stats else set()
+    hidden |= {"jumps"} if jumps_said else set()
+    hidden |= set() if stats.get("newton_iterations") else {"newton_iterations", "max_newton_iterations"}
+    shown = {key: value for key, value in stats.items() if key not in hidden and not (isinstance(value, float) and math.isnan(value))}
+    return ", ".join(f"{key} {value:.4g}" if isinstance(value, float) else f"{key} {value}" for key, value in shown.items())
 
 
 def subcommand(subparsers, name: str, handler, help: str, description: str, **defaults) -> argparse.ArgumentParser:
@@ -270,11 +256,8 @@ def closest_choice(message: str) -> str:
     else:
         return ""
     lowered = {name.lower(): name for name in allowed}
-    close = [difflib.get_close_matches(name.lower(), list(lowered), n=1) for name in given]
-    named = [lowered[c[0]] for c in close if c]
-    if not named or len(named) != len(given):
-        return ""
-    return "; did you mean " + ", ".join(repr(name) for name in named) + "?"
+    named = [lowered[c[0]] for name in given if (c := difflib.get_close_matches(name.lower(), list(lowered), n=1))]
+    return "; did you mean " + ", ".join(map(repr, named)) + "?" if named and len(named) == len(given) else ""
 
 
 # Python parameter names (with an underscore: never a word of prose) and their options.
@@ -339,10 +322,7 @@ class Elapsed:
     nothing when ``on`` is False."""
 
     def __init__(self, on: bool, what: str):
-        self.on, self.what = on, what
-        self._stop = threading.Event()
-        self._thread = None
-        self._start = 0.0
+        self.on, self.what, self._stop, self._thread, self._start = on, what, threading.Event(), None, 0.0
 
     def __enter__(self):
         self._start = time.perf_counter()
@@ -353,8 +333,7 @@ class Elapsed:
 
     def _beat(self, stream) -> None:
         while not self._stop.wait(HEARTBEAT_S):
-            print(f"{PROG}: {self.what}: still running, {time.perf_counter() - self._start:.0f} s elapsed",
-                  file=stream, flush=True)  # fmt: skip
+            print(f"{PROG}: {self.what}: still running, {time.perf_counter() - self._start:.0f} s elapsed", file=stream, flush=True)
 
     def __exit__(self, kind, value, traceback):
         self._stop.set()

@@ -11,15 +11,11 @@ import numpy as np
 
 from ..attractor_map import DEFAULT_V, attractor_map, check_attractor_map_options
 from . import options
-from ._common import PROG, checked, library_default, phi_defaults, plotter, report, subcommand, write_then_plot, wrote
+from ._common import PROG, checked, library_defaults, phi_defaults, plotter, report, subcommand, write_then_plot, wrote
 
 __all__ = ["add_command", "validate_attractor_map"]
 
-_DEFAULTS = {
-    name: library_default(attractor_map, name)
-    for name in ("random_starts", "seed", "t_final", "seed_rounds", "boundary_tol", "lyapunov_time", "transient",
-                 "extend", "branch_tol", "chaos_threshold", "orbit_rtol")
-}
+_DEFAULTS = library_defaults(attractor_map)
 
 
 def add_command(subparsers) -> None:

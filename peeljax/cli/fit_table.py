@@ -7,7 +7,6 @@ defaults, the refusal of an option of the other kind of fit, the report and Ctrl
 from __future__ import annotations
 
 import argparse
-import inspect
 import math
 import sys
 import time
@@ -24,16 +23,12 @@ from ..fit.table import INTERVALS, METHODS, fit_stick_slip
 from ..fit.trajectory import fit_adhesion
 from . import _interrupt, options
 from .._files import check_input_file
-from ._common import PROG, load_phi, plotter, report, write_files
+from ._common import PROG, library_defaults, load_phi, plotter, report, write_files
 
-def _defaults(function) -> dict:
-    """A fit's defaults, read from its home module (the commands call ``peeljax.fit``'s)."""
-    return {name: p.default for name, p in inspect.signature(function).parameters.items()}
-
-
-_TABLE_DEFAULTS = _defaults(fit_stick_slip)  # --table
-_RECORDS_DEFAULTS = _defaults(fit_records)  # --data force records (t, F)
-_POINTS_DEFAULTS = _defaults(fit_adhesion)  # --data runs with v or alpha, fitted point by point
+# The fits' defaults, read from their home modules (the commands call ``peeljax.fit``'s).
+_TABLE_DEFAULTS = library_defaults(fit_stick_slip)  # --table
+_RECORDS_DEFAULTS = library_defaults(fit_records)  # --data force records (t, F)
+_POINTS_DEFAULTS = library_defaults(fit_adhesion)  # --data runs with v or alpha, fitted point by point
 
 
 def _files_of(paths: list[str], observations: list[Observation]) -> list[str]:
@@ -43,24 +38,16 @@ def _files_of(paths: list[str], observations: list[Observation]) -> list[str]:
     return [f"{', '.join(paths)} (the run at V = {o.V:g})" for o in observations]
 
 
-_TABLE_ONLY = ("transient", "window", "n_starts", "starts_deprecated", "max_iterations", "statistics", "method",
-               "intervals")
+_TABLE_ONLY = ("transient", "window", "n_starts", "starts_deprecated", "max_iterations", "statistics", "method", "intervals")
 _DATA_ONLY = ("V", "dt", "t_final", "learning_rate", "quantities", "steps", "optimizer", "patience")
-
-
-def _option(name: str) -> str:
-    return "--starts" if name == "starts_deprecated" else "--" + name.replace("_", "-")
-
-
-# The option of the other kind of fit that does the same job.
-_COUNTERPART = {"steps": "--max-iterations", "max_iterations": "--steps"}
+_COUNTERPART = {"steps": "--max-iterations", "max_iterations": "--steps"}  # the other kind of fit's option for the job
 
 
 def _refuse(args: argparse.Namespace, names: tuple[str, ...], source: str) -> None:
-    for name in names:
-        if getattr(args, name) is not None:
-            instead = f" (its counterpart there is {_COUNTERPART[name]})" if name in _COUNTERPART else ""
-            raise ValueError(f"{_option(name)} does not apply to {source}{instead}")
+    for name in (name for name in names if getattr(args, name) is not None):
+        option = "--starts" if name == "starts_deprecated" else "--" + name.replace("_", "-")
+        instead = f" (its counterpart there is {_COUNTERPART[name]})" if name in _COUNTERPART else ""
+        raise ValueError(f"{option} does not apply to {source}{instead}")
 
 
 def _table_window(args: argparse.Namespace) -> tuple[float, float]:
@@ -87,12 +74,8 @@ def _n_starts(args: argparse.Namespace) -> int | None:
         if args.n_starts is not None:
             raise ValueError("--starts is the old spelling of --n-starts: give --n-starts only")
     n = args.n_starts if args.starts_deprecated is None else args.starts_deprecated
-    if n is None:
-        return None  # the library's default: 1 with --method orbit, 3 with window
-    if n < 1:
-        spelled = "--n-starts" if args.starts_deprecated is None else "--starts (now --n-starts)"
-        raise ValueError(f"{spelled} must be >= 1 (allowed range: [1, inf)), got {n}")
-    return int(n)
+    spelled = "--n-starts" if args.starts_deprecated is None else "--starts (now --n-starts)"
+    return None if n is None else _at_least_1(spelled, n)  # None: the library's, 1 with --method orbit, 3 with window
 
 
 def _read_table(args: argparse.Namespace):
@@ -148,28 +131,28 @@ def _validate_table(args: argparse.Namespace, table=None, source: str | None = N
     start = load_phi(args.phi)
     options.check_outputs(args)
     return {
-        "method": method, "intervals": intervals,
-        "table": table, "source": source, "tau": float(tau), "transient": transient, "window": window,
-        "n_starts": n_starts, "max_iterations": int(max_iterations), "rtol": rtol, "atol": atol,
-        "free": free, "statistics": tuple(statistics), "start": start,
-        # left out: fit_stick_slip's own budget
-        **({} if args.max_steps is None else {"max_steps": int(args.max_steps)}),
+        "method": method, "intervals": intervals, "table": table, "source": source, "tau": float(tau),
+        "transient": transient, "window": window, "n_starts": n_starts, "max_iterations": int(max_iterations),
+        "rtol": rtol, "atol": atol, "free": free, "statistics": tuple(statistics), "start": start,
+        **({} if args.max_steps is None else {"max_steps": int(args.max_steps)}),  # left out: fit_stick_slip's budget
     }  # fmt: skip
 
 
 def _choice(option: str, value, allowed: tuple[str, ...], default: str) -> str:
     """An option among ``allowed``; ``default`` (the library's) when not given."""
-    if value is None:
-        return default
-    check_choice(option, value, allowed)
-    return value
+    check_choice(option, default if value is None else value, allowed)
+    return default if value is None else value
 
 
 def _max_iterations(args: argparse.Namespace, defaults: dict) -> int:
     """--max-iterations >= 1; the fit's own default (``defaults``, the library's) when not given."""
     n = defaults["max_iterations"] if args.max_iterations is None else args.max_iterations
+    return _at_least_1("--max-iterations", n)
+
+
+def _at_least_1(option: str, n: int) -> int:
     if n < 1:
-        raise ValueError(f"--max-iterations must be >= 1 (allowed range: [1, inf)), got {n}")
+        raise ValueError(f"{option} must be >= 1 (allowed range: [1, inf)), got {n}")
     return int(n)
 
 
@@ -220,9 +203,8 @@ def _validate_records(args: argparse.Namespace, observations: list[Observation],
     intervals = _choice("--intervals", args.intervals, INTERVALS, _RECORDS_DEFAULTS["intervals"])
     options.check_outputs(args)
     return {"records": observations, "decided": decided, "by": by, "transient": transient, "tau": float(tau),
-            "statistics": statistics,
-            "max_iterations": int(max_iterations), "free": free, "rtol": rtol, "atol": atol, "intervals": intervals,
-            "start": start}  # fmt: skip
+            "statistics": statistics, "max_iterations": int(max_iterations), "free": free, "rtol": rtol, "atol": atol,
+            "intervals": intervals, "start": start}  # fmt: skip
 
 
 def _records_command(args: argparse.Namespace, config: dict) -> int:
@@ -255,7 +237,7 @@ def _records_command(args: argparse.Namespace, config: dict) -> int:
 def _finish(record: dict, args: argparse.Namespace, lines: list[str], failed, notes=()) -> int:
     """A fit's report: --json or ``lines`` and the files written."""
     written = [record[key] for key in ("out", "plot") if record.get(key)]
-    lines = lines + (["wrote " + " and ".join(written)] if written else [])
+    lines = lines + ["wrote " + " and ".join(written)] * bool(written)
     return report(record, args.json, lines, failed, "the fit's result is above", notes)
 
 
@@ -293,14 +275,10 @@ def _interrupted_fit(stop: KeyboardInterrupt, args: argparse.Namespace, write=No
 
 
 def _iteration_line(what: str):
-    """A progress callable for the table fit: one line per iteration on stderr."""
+    """A progress callable for the Levenberg-Marquardt fits: one line per iteration on stderr."""
     began = time.perf_counter()
-
-    def progress(iteration: int, loss: float) -> None:
-        print(f"{PROG}: {what}: iteration {iteration}, loss {loss:.6g} ({time.perf_counter() - began:.0f} s)",
-              file=sys.stderr, flush=True)  # fmt: skip
-
-    return progress
+    return lambda iteration, loss: print(f"{PROG}: {what}: iteration {iteration}, loss {loss:.6g} "
+                                         f"({time.perf_counter() - began:.0f} s)", file=sys.stderr, flush=True)  # fmt: skip
 
 
 def _table_command(args: argparse.Namespace, config: dict) -> int:

@@ -19,7 +19,7 @@ from ..model import PeelingModel
 from ..simulate import check_run_memory, simulate, simulate_reference
 from ..solution import Solution
 from . import options
-from ._common import STEPPERS, Elapsed, checked, library_default, plotter, report, solver_for, subcommand, write_files
+from ._common import STEPPERS, Elapsed, checked, library_defaults, plotter, report, solver_for, subcommand, write_files
 from .simulate_report import announce, cycles, plot_title, regime_note, remedy_notes, summary_lines
 
 __all__ = ["add_command", "run", "summarize", "validate_run", "write_npz"]
@@ -29,8 +29,7 @@ __all__ = ["add_command", "run", "summarize", "validate_run", "write_npz"]
 METHODS = ("default", "alpha", "diffrax", *(name for name in STEPPERS if name != "alpha"))
 _UNIFORM_METHODS = ("default", "alpha")  # those that run the uniform mesh (--dt) and take --rho
 # the defaults of a run and of the diffrax reference (--method diffrax), read once from the library
-_RUN = {name: library_default(simulate, name) for name in ("V", "tau", "t_final", "rho")}
-_REFERENCE = {name: library_default(simulate_reference, name) for name in ("dt", "rtol", "atol", "max_steps")}
+_RUN, _REFERENCE = library_defaults(simulate), library_defaults(simulate_reference)
 
 
 def add_command(subparsers) -> None:
@@ -137,54 +136,56 @@ class RunConfig:
 
 def validate_run(args: argparse.Namespace) -> RunConfig:
     """Check every option as the Python API would, without compiling anything."""
+    reference = args.method == "diffrax"  # the Kvaerno5 reference: diffeqsolve's own loop, τ > 0, no fold events
     options.check_method(args.method, METHODS, args.dt, args.rho, (*_UNIFORM_METHODS, "diffrax"))
     check_positive("--V", args.V)
-    _check_tau(args)
+    if reference and args.tau == 0:
+        raise ValueError("--tau 0 (the DAE itself, with jumps at the folds of phi) runs with error control (any stepper), "
+                         f"not on the diffrax reference (--method diffrax): {_TO_ERROR_CONTROL}, or give tau in (0, "
+                         f"{TAU_MAX:g}] (the homogenized ODE)")  # fmt: skip
+    if args.tau != 0:  # τ = 0 on the uniform mesh: the library's refusal, when the integrator is made
+        check_tau(args.tau, args.dt is None and not reference)
     check_positive("--t-final", args.t_final)
-    dt = args.dt
-    if args.method == "diffrax" and dt is None and args.save_dt is None:
-        dt = _REFERENCE["dt"]  # the reference's output spacing
-    n_steps = None if dt is None else check_mesh(dt, args.t_final)
-    save_ts = None
+    dt = _REFERENCE["dt"] if reference and args.dt is None and args.save_dt is None else args.dt  # the reference's grid
+    n_steps, save_ts = None if dt is None else check_mesh(dt, args.t_final), None
     if args.save_dt is not None:
         remedy = "give a larger --save-dt or a shorter --t-final"
         memory = lambda n: _check_memory(f"--save-dt {args.save_dt:g}", n, "ts", remedy)
         options.check_save_dt(args.save_dt, args.t_final, memory)  # counted first: the times could fill memory
-        options.refuse_with_dt(None if args.method == "diffrax" else dt, {"--save-dt": args.save_dt})
+        options.refuse_with_dt(None if reference else dt, {"--save-dt": args.save_dt})
         save_ts = tuple(output_times(args.save_dt, args.t_final))
     elif n_steps is not None:
         option = f"--dt {dt:g}" if args.dt is not None else "the diffrax output grid"
-        kind = "mesh" if args.method != "diffrax" else "ts"
-        _check_memory(option, n_steps + 1, kind, "give a larger --dt or a shorter --t-final")
-    reference, rho = args.method == "diffrax", None
-    if args.method in _UNIFORM_METHODS:  # the α-method may run: its ρ
-        rho = _RUN["rho"] if args.rho is None else args.rho
-    fold, max_jumps, transient = _check_folds(args)
+        _check_memory(option, n_steps + 1, "ts" if reference else "mesh", "give a larger --dt or a shorter --t-final")
+    rho = (_RUN["rho"] if args.rho is None else args.rho) if args.method in _UNIFORM_METHODS else None  # the α-method's
+    if reference and args.fold not in (None, "stop"):
+        raise ValueError(f"--fold {args.fold} needs error control (any stepper), which cuts a step at a fold; with "
+                         f"--method diffrax a run can only stop there: give --fold stop, or {_TO_ERROR_CONTROL}")  # fmt: skip
+    max_jumps = options.check_max_jumps(args.max_jumps, None, "--method diffrax" if reference else None if args.dt is None else "--dt")
+    transient, _ = options.check_statistics_window(args.transient, None, args.t_final)
     if reference:  # the diffrax reference: its own tolerances
         rtol, atol = options.check_tolerances(args.rtol, args.atol, (_REFERENCE["rtol"], _REFERENCE["atol"]))
+        fold = "stop"
     else:  # the library's checks of ρ, the tolerances (not with --dt) and the fold mode; their defaults
-        integrator = integrator_for(
-            solver_for(args.method, rho), rho=_RUN["rho"] if rho is None else rho, dt=dt, t_final=args.t_final,
-            rtol=args.rtol, atol=args.atol, fold=args.fold, dae=args.tau == 0,
-        )  # fmt: skip
-        events = getattr(integrator, "events", None)
-        fold = "stop" if events is None else events.mode
+        integrator = integrator_for(solver_for(args.method, rho), rho=_RUN["rho"] if rho is None else rho, dt=dt,
+                                    t_final=args.t_final, rtol=args.rtol, atol=args.atol, fold=args.fold, dae=args.tau == 0)  # fmt: skip
+        fold = getattr(getattr(integrator, "events", None), "mode", "stop")
         rtol, atol = (None, None) if dt is not None else (integrator.settings()[key] for key in ("rtol", "atol"))
-    max_steps = args.max_steps
-    options.check_max_steps(max_steps, "--dt" if args.method != "diffrax" and dt is not None else None)
-    if max_steps is not None and save_ts is None and args.method != "diffrax":
-        # the accepted steps are the output: max_steps + 1 rows (diffrax's reference keeps its output grid)
-        _check_memory(f"--max-steps {max_steps}", max_steps + 1, "steps", "give a smaller --max-steps or a --save-dt")
+    options.check_max_steps(args.max_steps, "--dt" if not reference and dt is not None else None)
+    if args.max_steps is not None and save_ts is None and not reference:  # the accepted steps are the output
+        _check_memory(f"--max-steps {args.max_steps}", args.max_steps + 1, "steps", "give a smaller --max-steps or a --save-dt")
     check_y0(args.y0)
     model, phi_defaults = options.model_from(args)
     options.check_outputs(args)
     return RunConfig(
         model=model, V=float(args.V), tau=float(args.tau), dt=None if dt is None else float(dt),
         t_final=float(args.t_final), n_steps=n_steps, method=args.method, rho=rho, rtol=rtol, atol=atol,
-        y0=None if args.y0 is None else tuple(args.y0), phi=args.phi, save_ts=save_ts, fold=fold,
-        max_jumps=max_jumps, transient=transient, phi_defaults=phi_defaults,
-        max_steps=None if max_steps is None else int(max_steps),
+        y0=None if args.y0 is None else tuple(args.y0), phi=args.phi, save_ts=save_ts, fold=fold, max_jumps=max_jumps,
+        transient=transient, phi_defaults=phi_defaults, max_steps=None if args.max_steps is None else int(args.max_steps),
     )  # fmt: skip
+
+
+_TO_ERROR_CONTROL = "choose a stepper with error control (--method default, or a name such as kvaerno5)"
 
 
 def _check_memory(option: str, rows: int, kind: str, remedy: str) -> None:
@@ -193,45 +194,6 @@ def _check_memory(option: str, rows: int, kind: str, remedy: str) -> None:
         check_run_memory(rows, kind, remedy=remedy)
     except ValueError as error:  # said with the option that asked for the rows
         raise ValueError(f"{option}: {error}") from None
-
-
-def _without_error_control(args: argparse.Namespace) -> str | None:
-    """The option that takes the run off error control (None: it has it)."""
-    if args.method == "diffrax":
-        return "--method diffrax"
-    return None if args.dt is None else "--dt"
-
-
-_TO_ERROR_CONTROL = "choose a stepper with error control (--method default, or a name such as kvaerno5)"
-
-
-def _check_tau(args: argparse.Namespace) -> None:
-    """τ ∈ [0, 1e6] under error control (any stepper), (0, 1e6] on the uniform mesh (τ = 0 there: the library's
-    refusal, when the integrator is made) and on the diffrax reference, which integrates τ > 0 only."""
-    reference = args.method == "diffrax"
-    if reference and args.tau == 0:
-        raise ValueError(
-            "--tau 0 (the DAE itself, with jumps at the folds of phi) runs with error control (any stepper), not on "
-            f"the diffrax reference (--method diffrax): {_TO_ERROR_CONTROL}, or give tau in (0, {TAU_MAX:g}] (the "
-            "homogenized ODE)"
-        )
-    if args.tau != 0:
-        check_tau(args.tau, args.dt is None and not reference)
-
-
-def _check_folds(args: argparse.Namespace) -> tuple[str, int, float]:
-    """--fold with the diffrax reference (diffeqsolve's own loop has no fold events: it can only stop),
-    --max-jumps and --transient; returns the fold mode ("stop" for the reference, else --fold as given), max_jumps
-    and the transient."""
-    reference = args.method == "diffrax"
-    if reference and args.fold not in (None, "stop"):
-        raise ValueError(
-            f"--fold {args.fold} needs error control (any stepper), which cuts a step at a fold; with --method "
-            f"diffrax a run can only stop there: give --fold stop, or {_TO_ERROR_CONTROL}"
-        )
-    max_jumps = options.check_max_jumps(args.max_jumps, None, _without_error_control(args))
-    transient, _ = options.check_statistics_window(args.transient, None, args.t_final)
-    return "stop" if reference else args.fold, max_jumps, transient
 
 
 # ---------------------------------------------------------------------------- running and reporting
@@ -279,13 +241,20 @@ def summarize(solution: Solution) -> dict:
 
 
 def write_out(path: str, solution: Solution, config: RunConfig) -> None:
-    """--out: :func:`write_npz`, or for a ``.csv`` the run's rows as text
-    (:func:`peeljax.run_file.write_run_text`)."""
-    if Path(path).suffix.lower() != ".csv":
-        return write_npz(path, solution, config)
+    """--out: :func:`write_npz`, or for a ``.csv`` the run's rows as text (:func:`peeljax.run_file.write_run_text`)."""
     from ..run_file import write_run_text
 
+    if Path(path).suffix.lower() != ".csv":
+        return write_npz(path, solution, config)
     write_run_text(path, solution, **_run_settings(solution, config))
+
+
+def write_npz(path: str, solution: Solution, config: RunConfig) -> None:
+    """The run as plain arrays and scalars (``np.load(path, allow_pickle=False)``; :func:`peeljax.load` reads it back):
+    :func:`peeljax.run_file.write_run`, the one writer of the format, atomic."""
+    from ..run_file import write_run
+
+    write_run(path, solution, **_run_settings(solution, config))
 
 
 def _run_settings(solution: Solution, config: RunConfig) -> dict:
@@ -295,14 +264,6 @@ def _run_settings(solution: Solution, config: RunConfig) -> dict:
         rho=_rho_used(solution, config), rtol=config.rtol, atol=config.atol, method_option=config.method,
         fold=config.fold, max_jumps=config.max_jumps, transient=config.transient,
     )  # fmt: skip
-
-
-def write_npz(path: str, solution: Solution, config: RunConfig) -> None:
-    """The run as plain arrays and scalars (``np.load(path, allow_pickle=False)``; :func:`peeljax.load`
-    reads it back): :func:`peeljax.run_file.write_run`, the one writer of the format, atomic."""
-    from ..run_file import write_run
-
-    write_run(path, solution, **_run_settings(solution, config))
 
 
 def _rho_used(solution: Solution, config: RunConfig) -> float | None:
@@ -333,9 +294,7 @@ def _simulate_command(args: argparse.Namespace, config: RunConfig) -> int:
         "transient": config.transient, "stats": {key: summary[key] for key in solution.stats if key in summary},
         "wall_time_s": wall, "out": args.out, "plot": args.plot,
     }  # fmt: skip
-    note = regime_note(config)
-    if note:
-        record["note"] = note
+    record.update({"note": note} if (note := regime_note(config)) else {})
     found = cycles(solution, config, record)
     if record.get("jumps"):  # the stick-slip figure: v(t) and G(t) with the jumps, the G-v loop
         settled = config.transient if config.transient < record["t_stop"] else None
@@ -343,10 +302,6 @@ def _simulate_command(args: argparse.Namespace, config: RunConfig) -> int:
                          title=plot_title(config, record))  # fmt: skip
     else:
         figure = plotter("plot_run", solution, config.model, V=config.V, title=plot_title(config, record))
-    failed = write_files(
-        record, ("--out", args.out, lambda path: write_out(path, solution, config)), ("--plot", args.plot, figure)
-    )
-    return report(
-        record, args.json, lambda: summary_lines(record, config, found), failed, "the run's summary is above",
-        remedy_notes(solution, config),
-    )  # fmt: skip
+    failed = write_files(record, ("--out", args.out, lambda path: write_out(path, solution, config)), ("--plot", args.plot, figure))
+    return report(record, args.json, lambda: summary_lines(record, config, found), failed, "the run's summary is above",
+                  remedy_notes(solution, config))  # fmt: skip

@@ -74,34 +74,23 @@ def add_command(subparsers) -> None:
     _add_distributed_options(parser)
 
 
-# The options that place this process among the others (jax.distributed.initialize's arguments).
-_PROCESS_OPTIONS = (
-    ("--coordinator", str, "HOST:PORT", "address of process 0, which every process connects to (default: "
-     "$JAX_COORDINATOR_ADDRESS; with --distributed under srun: the job's first node)"),
-    ("--num-processes", int, "N", "processes in the sweep, >= 1 (with --distributed under srun: $SLURM_NTASKS)"),
-    ("--process-id", int, "I", "this process's rank, 0 <= I < N; 0 writes --out and reports (with --distributed "
-     "under srun: $SLURM_PROCID)"),
-)  # fmt: skip
-
-
 def _add_distributed_options(parser: argparse.ArgumentParser) -> None:
-    """One ``peeljax sweep`` per process, with the same sweep options (docs/sweeps.md); without
-    these options nothing joins JAX's distributed runtime."""
+    """One ``peeljax sweep`` per process, with the same sweep options (docs/sweeps.md); without these options nothing
+    joins JAX's distributed runtime (jax.distributed.initialize's arguments; None: one process, or what
+    --distributed detects)."""
     group = parser.add_argument_group(
         "several processes (JAX's distributed runtime: one command per process, same options; docs/sweeps.md)"
     )
-    for option, kind, metavar, text in _PROCESS_OPTIONS:  # None: one process, or what --distributed detects
-        group.add_argument(option, type=kind, default=None, metavar=metavar, help=text)
-    group.add_argument(
-        "--distributed", action="store_true",
-        help="join the other processes, taking what the three options above leave out from the environment "
-        "($JAX_COORDINATOR_ADDRESS, SLURM's srun)",
-    )  # fmt: skip
-    timeout = distributed.DEFAULT_TIMEOUT
-    group.add_argument(
-        "--distributed-timeout", dest="distributed_timeout", type=float, default=timeout, metavar="S",
-        help=f"seconds to wait for every process to reach the coordinator, > 0 (default {timeout:g})",
-    )  # fmt: skip
+    under_srun, timeout = "with --distributed under srun", distributed.DEFAULT_TIMEOUT
+    group.add_argument("--coordinator", metavar="HOST:PORT", help="address of process 0, which every process connects "
+                       f"to (default: $JAX_COORDINATOR_ADDRESS; {under_srun}: the job's first node)")  # fmt: skip
+    group.add_argument("--num-processes", type=int, metavar="N", help=f"processes in the sweep, >= 1 ({under_srun}: $SLURM_NTASKS)")
+    group.add_argument("--process-id", type=int, metavar="I", help="this process's rank, 0 <= I < N; 0 writes --out and "
+                       f"reports ({under_srun}: $SLURM_PROCID)")  # fmt: skip
+    group.add_argument("--distributed", action="store_true", help="join the other processes, taking what the three "
+                       "options above leave out from the environment ($JAX_COORDINATOR_ADDRESS, SLURM's srun)")  # fmt: skip
+    group.add_argument("--distributed-timeout", dest="distributed_timeout", type=float, default=timeout, metavar="S",
+                       help=f"seconds to wait for every process to reach the coordinator, > 0 (default {timeout:g})")
 
 
 # ---------------------------------------------------------------------------- validation
@@ -145,16 +134,11 @@ def resume_refusal(message: str, args: argparse.Namespace) -> str:
 
 def validate_sweep(args: argparse.Namespace) -> dict:
     """Every option checked, nothing compiled; returns the keyword arguments of :func:`peeljax.sweep`."""
-    V = options.check_positive_values("--V", args.V)
-    tau = tau_grid([1e-3, 1e-1] if args.tau is None else args.tau, args.n_tau)
-    chosen = engine(args, dae=tau == [0.0])
-    model = engine_model(args)
-    window = _window(args)
+    V, tau = options.check_positive_values("--V", args.V), tau_grid([1e-3, 1e-1] if args.tau is None else args.tau, args.n_tau)
+    chosen, model, window = engine(args, dae=tau == [0.0]), engine_model(args), _window(args)
     if args.plot is not None and tau == [0.0]:
-        raise ValueError(
-            "--plot draws the (V, tau) map, whose tau axis is logarithmic: with --tau 0 (the DAE) add "
-            "--stick-slip-map for the map against V"
-        )
+        raise ValueError("--plot draws the (V, tau) map, whose tau axis is logarithmic: with --tau 0 (the DAE) add "
+                         "--stick-slip-map for the map against V")  # fmt: skip
     check_sweep_outputs(args)
     return {
         "model": model, "V": V, "tau": tau, **chosen, "t_final": float(args.t_final), "grid": "outer",
@@ -172,11 +156,9 @@ def _window(args: argparse.Namespace) -> tuple[float, float]:
             raise ValueError("--window W0 W1 (the deprecated form) sets the transient too: give --transient T --window W")
         return (float(args.window[0]), float(args.window[1]))
     T, W = options.check_statistics_window(args.transient, W, args.t_final)
-    t_final = args.t_final
-    return (T / t_final, min(1.0, (T + W) / t_final))
+    return (T / args.t_final, min(1.0, (T + W) / args.t_final))
 
 
-# ---------------------------------------------------------------------------- commands
 def _run_sweep(kwargs: dict):
     from ..sweeps import sweep
 
@@ -189,10 +171,8 @@ def distributed_settings(args: argparse.Namespace) -> distributed.Processes | No
     given = (args.coordinator, args.num_processes, args.process_id)
     asked = args.distributed or given != (None, None, None)
     if asked and args.stick_slip_map:
-        raise ValueError(
-            "--coordinator, --num-processes, --process-id and --distributed run the (V, tau) sweep over several "
-            "processes, not --stick-slip-map"
-        )
+        raise ValueError("--coordinator, --num-processes, --process-id and --distributed run the (V, tau) sweep over "
+                         "several processes, not --stick-slip-map")  # fmt: skip
     processes = distributed.processes(*given, args.distributed_timeout, detect=args.distributed)
     tasks = os.environ.get("SLURM_NTASKS")  # srun started several, but nothing joins them
     if not asked and os.environ.get("SLURM_PROCID") is not None and tasks not in (None, "1"):
@@ -250,8 +230,7 @@ def _sweep_command(args: argparse.Namespace) -> int:
     if joined is not None:
         return joined
     n = len(kwargs["V"]) * len(kwargs["tau"])
-    print(f"{PROG}: sweep of {n} trajectories, {engine_text(kwargs)} (compiling first: a few seconds) ...",
-          file=sys.stderr)  # fmt: skip
+    print(f"{PROG}: sweep of {n} trajectories, {engine_text(kwargs)} (compiling first: a few seconds) ...", file=sys.stderr)
     start = time.perf_counter()
     # Ctrl-C's line says how many chunks are saved, whichever thread prints it (cli._interrupt)
     with _interrupt.note(lambda: _saved_chunks(args.out)):
@@ -281,8 +260,8 @@ def _sweep_command(args: argparse.Namespace) -> int:
     }  # fmt: skip
     failed = write_files(record, ("--plot", args.plot, plotter("plot_sweep_map", result)))
     notes = remedy_notes(result.status, result.settings.get("max_steps", kwargs.get("max_steps")))
-    lines = lambda: _sweep_lines(record, result, kwargs, wall)
-    return report(record, args.json, lines, failed, "the sweep's results are above", notes)
+    return report(record, args.json, lambda: _sweep_lines(record, result, kwargs, wall), failed,
+                  "the sweep's results are above", notes)  # fmt: skip
 
 
 def _saved_chunks(out: str | None) -> str:
@@ -290,11 +269,8 @@ def _saved_chunks(out: str | None) -> str:
     if out is None:
         return "nothing was saved (no --out); with --out a rerun resumes from the chunks finished"
     saved, total = saved_chunks(out)
-    of = "" if total is None else f" of {total}"
-    return (
-        f"{saved}{of} chunk{'' if saved == 1 and total is None else 's'} saved in {str(out) + '.chunks'!r}; "
-        "rerun the same command to resume"
-    )
+    chunks = f"{saved} chunk{'' if saved == 1 else 's'}" if total is None else f"{saved} of {total} chunks"
+    return f"{chunks} saved in {str(out) + '.chunks'!r}; rerun the same command to resume"
 
 
 def _print_resumed(result, out: str | None) -> None:
@@ -311,11 +287,9 @@ def _sweep_lines(record: dict, result, kwargs: dict, wall: float) -> list[str]:
     """The sweep's summary: what ran, then one row per trajectory."""
     t_final, (w0, w1) = kwargs["t_final"], kwargs["window"]
     folds = "" if result.jumps is None else f"; start {record['start']}, fold {record['fold']} (max_jumps {record['max_jumps']})"
-    lines = [
-        f"{PROG} sweep: {record['n']} trajectories, {record['n_completed']} completed t = {t_final:g} s, "
-        f"wall time {wall:.3g} s",
+    return [
+        f"{PROG} sweep: {record['n']} trajectories, {record['n_completed']} completed t = {t_final:g} s, wall time {wall:.3g} s",
         f"{engine_text(kwargs, result.settings.get('method'))}; v statistics over t in [{w0 * t_final:g}, "
         f"{w1 * t_final:g}] s (--transient {w0 * t_final:g} --window {(w1 - w0) * t_final:g}){folds}",
-        result.table(),
+        result.table(), *wrote(record),
     ]
-    return lines + wrote(record)

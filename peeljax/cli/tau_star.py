@@ -10,13 +10,12 @@ import time
 from ..sweeps.least_tau import check_search
 from ..sweeps.least_tau import least_tau as _least_tau_api
 from . import options
-from ._common import PROG, Elapsed, checked, library_default, option_names, phi_defaults, report, subcommand
+from ._common import PROG, Elapsed, checked, library_defaults, option_names, phi_defaults, report, subcommand
 from ._engine import add_engine, engine, engine_model, engine_record, engine_rho, engine_text
 
 __all__ = ["add_command", "validate_tau_star"]
 
-# the search, left out: peeljax.least_tau's
-_TAU_STAR = {name: library_default(_least_tau_api, name) for name in ("tau_range", "tau_rtol", "n_points")}
+_TAU_STAR = library_defaults(_least_tau_api)  # the search, left out: peeljax.least_tau's
 
 
 def add_command(subparsers) -> None:
