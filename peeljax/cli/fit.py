@@ -31,24 +31,10 @@ from ..fit.records_fit import is_force_record
 from ..fit.trajectory import OPTIMIZERS
 from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_RTOL
 from . import options
-from ._common import PROG, fail, load_phi, plotter, subcommand, write_files
-from .fit_table import (
-    _DATA_ONLY,
-    _POINTS_DEFAULTS,
-    _RECORDS_DEFAULTS,
-    _TABLE_DEFAULTS,
-    _TABLE_ONLY,
-    _files_of,
-    _finish,
-    _interrupted_fit,
-    _points_tau,
-    _records_command,
-    _refuse,
-    _table_command,
-    _validate_records,
-    _validate_table,
-    _visited_line,
-)
+from ._common import PROG, checked, load_phi, plotter, subcommand, write_files
+from .fit_table import (_DATA_ONLY, _POINTS_DEFAULTS, _RECORDS_DEFAULTS, _TABLE_DEFAULTS, _TABLE_ONLY, _files_of, _finish,
+                        _interrupted_fit, _points_tau, _records_command, _refuse, _table_command, _validate_records,
+                        _validate_table, _visited_line)  # fmt: skip
 
 __all__ = ["add_command"]
 
@@ -79,7 +65,7 @@ _FIT_OPTIONS = (
 
 
 def add_command(subparsers) -> None:
-    parser = subcommand(subparsers, "fit", _fit_command, "fit the adhesion law phi to observed runs", (
+    parser = subcommand(subparsers, "fit", checked(_validate_fit, _fit_command), "fit the adhesion law phi to observed runs", (
         "Fit phi's coefficients to observed v(t) (and F(t), alpha(t)) at one or more V with exact gradients through the "
         "alpha-method (--data), or to a stick-slip table by Levenberg-Marquardt with uncertainties (--table). Data keys: "
         "t, v, V (optional F, alpha, t_F, t_alpha) per file, or V_0, t_0, v_0, V_1, ... for several V in one file."
@@ -173,25 +159,20 @@ def _check_run_options(args: argparse.Namespace) -> None:
 
 def _validate(args: argparse.Namespace, observations: list[Observation], defaults: dict) -> dict:
     _refuse(args, _TABLE_ONLY, "--data with v or alpha (a point-by-point fit of the runs)")
-    for name in ("optimizer", "steps", "patience"):  # None until here, so that a table fit can refuse them
-        if getattr(args, name) is None:
-            setattr(args, name, _POINTS_DEFAULTS[name])
+    for name in (name for name in ("optimizer", "steps", "patience") if getattr(args, name) is None):
+        setattr(args, name, _POINTS_DEFAULTS[name])  # None until here, so that a table fit can refuse them
     check_fit_samples(observations, [f"--data {name}" for name in _files_of(args.data, observations)], "--decimate")
     if args.quantities is not None:
         drop = {q: None for q in ("F", "alpha") if q not in args.quantities}
         observations = [Observation(**{**o.__dict__, **drop}) for o in observations]
-    tau = _points_tau(args, defaults)
-    dt = args.dt
-    t_last = max(float(np.nanmax(o.t)) for o in observations)
-    t_final = args.t_final if args.t_final is not None else t_last
-    rtol, atol = args.rtol, args.atol
+    tau, dt, rtol, atol, n_steps = _points_tau(args, defaults), args.dt, args.rtol, args.atol, None
+    t_final = args.t_final if args.t_final is not None else max(float(np.nanmax(o.t)) for o in observations)
     if dt is not None:
         options.refuse_with_dt(dt, {"--rtol": rtol, "--atol": atol})
         n_steps = check_mesh(dt, t_final)
     else:
         check_positive("--t-final", t_final)
         rtol, atol = options.check_tolerances(rtol, atol, (DEFAULT_RTOL, DEFAULT_ATOL))
-        n_steps = None
     start = load_phi(args.phi)
     options.check_outputs(args)
     weights = {q: (1.0 if args.quantities is None or q in args.quantities else 0.0) for q in QUANTITIES}
@@ -209,21 +190,20 @@ def _engine(config: dict) -> str:
     return f"uniform mesh of {config['n_steps']} steps"
 
 
-def _fit_command(args: argparse.Namespace) -> int:
-    try:
-        _check_source(args)
-        if args.table is not None:
-            config = _validate_table(args)
-        else:
-            _check_run_options(args)
-            V = None if args.V is None else options.flatten(args.V)
-            observations, defaults = load_observations(args.data, V, args.decimate)
-            if args.by is not None or any(is_force_record(o) for o in observations):
-                config = _validate_records(args, observations, defaults)
-            else:
-                config = _validate(args, observations, defaults)
-    except (ValueError, TypeError) as error:
-        return fail(error)
+def _validate_fit(args: argparse.Namespace) -> dict:
+    """Every option checked before anything is fitted: the kind of fit from the source (a table, force records, runs
+    with v or alpha) and its options."""
+    _check_source(args)
+    if args.table is not None:
+        return _validate_table(args)
+    _check_run_options(args)
+    observations, defaults = load_observations(args.data, None if args.V is None else options.flatten(args.V), args.decimate)
+    if args.by is not None or any(is_force_record(o) for o in observations):
+        return _validate_records(args, observations, defaults)
+    return _validate(args, observations, defaults)
+
+
+def _fit_command(args: argparse.Namespace, config: dict) -> int:
     if "table" in config:
         return _table_command(args, config)
     if "records" in config:
@@ -231,11 +211,8 @@ def _fit_command(args: argparse.Namespace) -> int:
     from ..fit import fit_adhesion
 
     observations = config["observations"]
-    print(
-        f"{PROG}: fitting {len(args.free or COEFFICIENT_NAMES)} coefficient(s) to {len(observations)} run(s) "
-        f"(V = {', '.join(f'{o.V:g}' for o in observations)}), {_engine(config)}; compiling first ...",
-        file=sys.stderr,
-    )
+    print(f"{PROG}: fitting {len(args.free or COEFFICIENT_NAMES)} coefficient(s) to {len(observations)} run(s) (V = "
+          f"{', '.join(f'{o.V:g}' for o in observations)}), {_engine(config)}; compiling first ...", file=sys.stderr)  # fmt: skip
     try:
         result = _fit_runs(fit_adhesion, observations, config, args)
     except KeyboardInterrupt as stop:
@@ -251,11 +228,9 @@ def _fit_command(args: argparse.Namespace) -> int:
     failed = write_files(record, ("--out", args.out, lambda path: _write_fit(result, args)),
                          ("--plot", args.plot, plotter("plot_fit", result, observations)))  # fmt: skip
     fitted = ", ".join(f"{n} {result.adhesion.coefficients()[n]:.6g}" for n in result.free)
-    lines = [
+    return _finish(record, args, [
         f"peeljax fit: {result.steps} iterations ({args.optimizer}), loss {result.initial_loss:.4g} -> "
         f"{result.final_loss:.4g} ({result.loss_reduction:.3g}x), gradient norm {result.gradient_norm:.3g}",
-        _visited_line(record),
-        # values +- standard errors, correlations
+        _visited_line(record),  # then the values +- standard errors and correlations, or the values
         uncertainty.table() if uncertainty is not None else f"fitted: {fitted}",
-    ]
-    return _finish(record, args, lines, failed)
+    ], failed)  # fmt: skip

@@ -57,15 +57,12 @@ def _table_window(args: argparse.Namespace) -> tuple[float, float]:
     _, window = options.one_window(args.window, fractions_allowed=False)
     if window is not None and not (math.isfinite(window) and window > 0):
         raise ValueError(f"--window must be > 0 [s] (allowed range: (0, inf)), got {window:g}")
-    transient = args.transient
-    if transient is None:
-        transient = _TABLE_DEFAULTS["transient"] if window is None else window
+    transient = (_TABLE_DEFAULTS["transient"] if window is None else window) if args.transient is None else args.transient
     if not (math.isfinite(transient) and transient >= 0):
         raise ValueError(f"--transient must be >= 0 [s] (allowed range: [0, inf)), got {transient:g}")
     if window is None and transient == 0:
         raise ValueError("--window must be > 0 [s] (allowed range: (0, inf)): with --transient 0 give --window")
-    window = transient if window is None else window
-    return float(transient), float(window)
+    return float(transient), float(transient if window is None else window)
 
 
 def _n_starts(args: argparse.Namespace) -> int | None:
@@ -83,10 +80,8 @@ def _read_table(args: argparse.Namespace):
 
     check_input_file("--table", args.table)
     if Path(args.table).suffix.lower() == ".npz":
-        raise ValueError(
-            f"--table {args.table!r}: a stick-slip table is text (CSV or whitespace columns V, F_mean, ...); "
-            "runs in an .npz are fitted with --data"
-        )
+        raise ValueError(f"--table {args.table!r}: a stick-slip table is text (CSV or whitespace columns V, F_mean, ...); "
+                         "runs in an .npz are fitted with --data")  # fmt: skip
     try:
         return read_stick_slip_table(args.table)
     except DataFileError as error:
@@ -95,14 +90,12 @@ def _read_table(args: argparse.Namespace):
         raise ValueError(f"--table: cannot read {args.table!r} ({error.strerror or error})") from None
 
 
-def _validate_table(args: argparse.Namespace, table=None, source: str | None = None) -> dict:
-    """--table's options (or those of force records fitted through their ``table``), all
-    checked before anything is compiled."""
+def _validate_table(args: argparse.Namespace) -> dict:
+    """--table's options, all checked before anything is compiled."""
     from ..fit.stick_slip_table import STATISTICS
     from ..fit.table import table_tolerances
 
-    if table is None:
-        table, source = _read_table(args), f"the stick-slip table {args.table}"
+    table, source = _read_table(args), f"the stick-slip table {args.table}"
     tau = _TABLE_DEFAULTS["tau"] if args.tau is None else args.tau
     check_tau(tau, True)
     transient, window = _table_window(args)
@@ -114,16 +107,12 @@ def _validate_table(args: argparse.Namespace, table=None, source: str | None = N
     statistics = table.statistics if args.statistics is None else tuple(args.statistics)
     unknown = [s for s in statistics if s not in table.statistics]
     if unknown:
-        raise ValueError(
-            f"--statistics: {unknown} not in {source}, which has {', '.join(table.statistics)} "
-            f"(of {', '.join(STATISTICS)})"
-        )
+        raise ValueError(f"--statistics: {unknown} not in {source}, which has {', '.join(table.statistics)} (of "
+                         f"{', '.join(STATISTICS)})")  # fmt: skip
     n_measured = sum(int(np.sum(~np.isnan(table.values[s]))) for s in statistics)
     if n_measured <= len(free):
-        raise ValueError(
-            f"--free: {n_measured} measured values in {source} cannot determine {len(free)} coefficient(s) "
-            "with an error estimate; fit fewer"
-        )
+        raise ValueError(f"--free: {n_measured} measured values in {source} cannot determine {len(free)} coefficient(s) "
+                         "with an error estimate; fit fewer")  # fmt: skip
     method = _choice("--method", args.method, METHODS, "orbit" if tau == 0 else "window")
     if method == "orbit" and tau != 0:
         raise ValueError(f"--method orbit needs --tau 0 (orbits of the DAE with jumps); --tau {tau:g} needs --method window")
@@ -186,17 +175,14 @@ def _validate_records(args: argparse.Namespace, observations: list[Observation],
         raise ValueError(f"--by {by}: {error}") from None
     points = [o for o, (kind, _) in zip(observations, decided) if kind == "points"]
     if points:
-        check_fit_samples(points, [f"--data {name}" for name, (kind, _) in
-                                   zip(_files_of(args.data, observations), decided) if kind == "points"], "--decimate")  # fmt: skip
+        names = [f"--data {name}" for name, (kind, _) in zip(_files_of(args.data, observations), decided) if kind == "points"]
+        check_fit_samples(points, names, "--decimate")
     tau = _points_tau(args, defaults)  # the τ of records fitted point by point
-    statistics = None
-    if args.statistics is not None:
-        from ..fit.stick_slip_table import STATISTICS
+    from ..fit.stick_slip_table import STATISTICS
 
-        unknown = [name for name in args.statistics if name not in STATISTICS]
-        if unknown:
-            raise ValueError(f"--statistics: {unknown} is not a statistic of force records; allowed: {', '.join(STATISTICS)}")
-        statistics = tuple(args.statistics)
+    statistics = None if args.statistics is None else tuple(args.statistics)
+    if unknown := [name for name in statistics or () if name not in STATISTICS]:
+        raise ValueError(f"--statistics: {unknown} is not a statistic of force records; allowed: {', '.join(STATISTICS)}")
     max_iterations = _max_iterations(args, _RECORDS_DEFAULTS)
     free = _free(args, _RECORDS_DEFAULTS)
     rtol, atol = options.check_tolerances(args.rtol, args.atol, (_RECORDS_DEFAULTS["rtol"], _RECORDS_DEFAULTS["atol"]))
@@ -207,6 +193,9 @@ def _validate_records(args: argparse.Namespace, observations: list[Observation],
             "intervals": intervals, "start": start}  # fmt: skip
 
 
+_RECORDS_KEYS = ("free", "by", "transient", "tau", "rtol", "atol", "max_iterations", "statistics", "intervals")
+
+
 def _records_command(args: argparse.Namespace, config: dict) -> int:
     """``peeljax fit --data`` with force records: :func:`peeljax.fit.fit_records`."""
     from ..fit import fit_records
@@ -215,15 +204,10 @@ def _records_command(args: argparse.Namespace, config: dict) -> int:
     for name, (kind, why) in zip(_files_of(args.data, config["records"]), config["decided"]):
         print(f"{PROG}: --data {name}: fitted by {kind} ({why})", file=sys.stderr)
     print(f"{PROG}: fitting {', '.join(config['free'])}; compiling first ...", file=sys.stderr)
-    model = PeelingModel(adhesion=config["start"])
-    hooked = options.progress_on(args)
+    model, given = PeelingModel(adhesion=config["start"]), {key: config[key] for key in _RECORDS_KEYS}
     try:
-        result = fit_records(
-            config["records"], model, free=config["free"], by=config["by"], transient=config["transient"],
-            tau=config["tau"], rtol=config["rtol"], atol=config["atol"], max_iterations=config["max_iterations"],
-            statistics=config["statistics"],
-            intervals=config["intervals"], progress=_iteration_line("Levenberg-Marquardt") if hooked else None,
-        )  # fmt: skip
+        result = fit_records(config["records"], model, **given,
+                             progress=_iteration_line("Levenberg-Marquardt") if options.progress_on(args) else None)  # fmt: skip
     except KeyboardInterrupt as stop:
         return _interrupted_fit(stop, args)
     by_points = any(kind == "points" for kind, _ in config["decided"])  # each record's F(t) against the model's, and φ
@@ -286,35 +270,24 @@ def _table_command(args: argparse.Namespace, config: dict) -> int:
     from ..fit import fit_stick_slip
     from ..model import PeelingModel
 
-    table = config["table"]
-    print(
-        f"{PROG}: fitting {', '.join(config['free'])} to {config['source']} "
-        f"({len(table)} rows, V = {', '.join(f'{V:g}' for V in table.V)}; {', '.join(config['statistics'])}), "
-        f"tau {config['tau']:g}, statistics over [{config['transient']:g}, {config['transient'] + config['window']:g}] s "
-        f"(--transient {config['transient']:g} --window {config['window']:g}), at most {config['max_iterations']} "
-        "iterations; compiling first ...",
-        file=sys.stderr,
-    )
+    table, T, W = config["table"], config["transient"], config["window"]
+    print(f"{PROG}: fitting {', '.join(config['free'])} to {config['source']} ({len(table)} rows, V = "
+          f"{', '.join(f'{V:g}' for V in table.V)}; {', '.join(config['statistics'])}), tau {config['tau']:g}, statistics "
+          f"over [{T:g}, {T + W:g}] s (--transient {T:g} --window {W:g}), at most {config['max_iterations']} iterations; "
+          "compiling first ...", file=sys.stderr)  # fmt: skip
     model = PeelingModel(adhesion=config["start"])
     # the hook of fit_stick_slip (progress(iteration, chi2)); left out where it has none
     hooked = options.progress_on(args) and "progress" in _TABLE_DEFAULTS
     progress = {"progress": _iteration_line("Levenberg-Marquardt")} if hooked else {}
+    given = {key: value for key, value in config.items() if key not in ("table", "source", "start")}
     try:
-        result = fit_stick_slip(
-            table, model, free=config["free"], statistics=config["statistics"], tau=config["tau"],
-            method=config["method"], intervals=config["intervals"],
-            transient=config["transient"], window=config["window"], rtol=config["rtol"], atol=config["atol"],
-            max_iterations=config["max_iterations"], n_starts=config["n_starts"],
-            **({"max_steps": config["max_steps"]} if "max_steps" in config else {}), **progress,
-        )  # fmt: skip
+        result = fit_stick_slip(table, model, **given, **progress)
     except KeyboardInterrupt as stop:
         return _interrupted_fit(stop, args)
     lines = [
-        f"peeljax fit: {result.steps} iterations (Levenberg-Marquardt), loss {result.initial_loss:.4g} -> "
-        f"{result.final_loss:.4g}",
+        f"peeljax fit: {result.steps} iterations (Levenberg-Marquardt), loss {result.initial_loss:.4g} -> {result.final_loss:.4g}",
         f"stopped: {result.stop_reason}",
-        # the coefficients, then each row's attractor, the bifurcations crossed, the profile intervals
-        *result.summary().splitlines()[2:],
+        *result.summary().splitlines()[2:],  # the coefficients, each row's attractor, the bifurcations, the intervals
     ]
     figure = plotter("plot_table_fit", result, table, model=model, module="peeljax.plots.fit")
     return _report_lm(result, args, {"table": args.table, "data": args.data, "phi": args.phi}, lines, figure)
@@ -326,12 +299,9 @@ def _points_tau(args: argparse.Namespace, defaults: dict) -> float:
     ODE."""
     default = _POINTS_DEFAULTS["tau"]
     if args.tau is None and defaults.get("tau") == 0.0:
-        print(
-            f"{PROG}: --data: the files hold runs at tau = 0 (the DAE with jumps; a jump's two rows read as the "
-            f"state before it); a fit point by point integrates the homogenized ODE: tau = {default:g} "
-            "(--tau to choose; 1e-3 is closer to the DAE)",
-            file=sys.stderr,
-        )
+        print(f"{PROG}: --data: the files hold runs at tau = 0 (the DAE with jumps; a jump's two rows read as the state "
+              f"before it); a fit point by point integrates the homogenized ODE: tau = {default:g} (--tau to choose; "
+              "1e-3 is closer to the DAE)", file=sys.stderr)  # fmt: skip
         return default
     tau = args.tau if args.tau is not None else defaults.get("tau", default)
     check_tau(tau)
