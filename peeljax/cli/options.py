@@ -202,6 +202,15 @@ def check_max_steps(max_steps: int | None, uniform_option: str | None = None) ->
                          f"{uniform_option} asks for a uniform mesh, which takes no budget: give one or the other")  # fmt: skip
 
 
+def add_fold(group, stop_with: str) -> None:
+    """--fold: what a run does at a fold of φ (stop is the only choice without error control: ``stop_with``)."""
+    group.add_argument("--fold", default=None, metavar="{jump,stop,follow}",
+                       help="at a fold of phi: 'jump' (v jumps to the other stable branch at fixed alpha, omega, u; the "
+                       "run goes on), 'stop' (the run ends there, the paper's behaviour) or 'follow' (tau > 0: jump at "
+                       "impasse points only, follow singular passages); jump and follow need error control, any "
+                       f"stepper (default: jump with error control, stop with {stop_with})")  # fmt: skip
+
+
 def add_max_jumps(group, *, default: int | str, per: str = "run") -> None:
     stop = "one more jump stops the run" if per == "run" else f"each {per} keeps its last N jumps and never stops for it"
     group.add_argument("--max-jumps", dest="max_jumps", type=int, default=None, metavar="N",

@@ -18,7 +18,7 @@ from ..orbits.api import ATOL_PER_RTOL, DEFAULT_TRANSIENT_RUN, MAX_ITERATIONS, M
 from ..orbits.api import orbit_shooting, periodic_orbit
 from ..orbits.diagram import orbit_diagram
 from . import _interrupt, options
-from ._common import PROG, Elapsed, checked, fail, library_default, plotter, report, subcommand, write_failed, write_files, wrote
+from ._common import PROG, Elapsed, checked, fail, library_default, library_defaults, plotter, report, subcommand, write_failed, write_files, wrote
 
 __all__ = ["EXIT_NOT_CONVERGED", "OrbitConfig", "add_command", "validate_orbit"]
 
@@ -26,10 +26,9 @@ EXIT_NOT_CONVERGED = 1
 MAX_SEEDS = 2000  # seed runs of a diagram: a typo must not run for days
 
 
-# Newton's iteration cap and a diagram's seed runs: the library's defaults
-_MAX_ITERATIONS = library_default(periodic_orbit, "max_iterations")
-_V, _RTOL = library_default(periodic_orbit, "V"), library_default(periodic_orbit, "rtol")
-_SEEDS = library_default(orbit_diagram, "seeds")
+# V, the tolerance, Newton's iteration cap and a diagram's seed runs: the library's defaults
+_ORBIT, _SEEDS = library_defaults(periodic_orbit), library_default(orbit_diagram, "seeds")
+_V, _RTOL, _MAX_ITERATIONS = _ORBIT["V"], _ORBIT["rtol"], _ORBIT["max_iterations"]
 
 
 def _one_V(token: str) -> float | tuple:
@@ -40,13 +39,10 @@ def _one_V(token: str) -> float | tuple:
     if len(parts) not in (2, 3):
         raise argparse.ArgumentTypeError(f"{token!r}: give one V, or START:STOP or START:STOP:SEEDS")
     lo, hi = (options.number("--V")(part) for part in parts[:2])
-    seeds = _SEEDS
-    if len(parts) == 3:
-        try:
-            seeds = int(parts[2])
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{token!r}: SEEDS must be an integer in [2, {MAX_SEEDS}]") from None
-    return (lo, hi, seeds)
+    try:
+        return (lo, hi, int(parts[2]) if len(parts) == 3 else _SEEDS)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{token!r}: SEEDS must be an integer in [2, {MAX_SEEDS}]") from None
 
 
 def add_command(subparsers) -> None:
@@ -106,10 +102,8 @@ class OrbitConfig:
 
     def settings(self) -> dict:
         """How the orbit is found, as the ``--out`` file and ``--json`` keep it."""
-        return {
-            "rtol": self.rtol, "atol": self.atol, "transient": self.transient, "slips_asked": self.slips,
-            "max_iterations": self.max_iterations, "geometry": self.model.geometry, "phi": self.phi,
-        }  # fmt: skip
+        return {"rtol": self.rtol, "atol": self.atol, "transient": self.transient, "slips_asked": self.slips,
+                "max_iterations": self.max_iterations, "geometry": self.model.geometry, "phi": self.phi}  # fmt: skip
 
 
 def validate_orbit(args: argparse.Namespace) -> OrbitConfig:
@@ -152,13 +146,11 @@ def _record(orbit, config: OrbitConfig, wall: float) -> dict:
 
 def _summary(orbit, record: dict, config: OrbitConfig) -> list[str]:
     """How the orbit was sought, :meth:`~peeljax.PeriodicOrbit.summary`, the wall time and the files written."""
-    lines = [
+    return [
         f"{PROG} orbit: V = {config.V:g} m/s, tau = 0 (the DAE), Newton from the repeat of a {config.transient:g} s "
         f"run, rtol = {config.rtol:g}, atol = {config.atol:g}, geometry {config.model.geometry}",
-        orbit.summary(),
-        f"wall time {record['wall_time_s']:.3g} s (including compilation)",
+        orbit.summary(), f"wall time {record['wall_time_s']:.3g} s (including compilation)", *wrote(record),
     ]
-    return lines + wrote(record)
 
 
 def _orbit_command(args: argparse.Namespace, config: OrbitConfig) -> int:
@@ -166,18 +158,13 @@ def _orbit_command(args: argparse.Namespace, config: OrbitConfig) -> int:
         return _diagram_command(config)
     from ..orbits import OrbitNotFound, periodic_orbit
 
-    print(
-        f"{PROG}: a {config.transient:g} s run to find the repeat, then Newton on the return map at V = {config.V:g} "
-        "m/s (compiling first: a minute or more) ...",
-        file=sys.stderr,
-    )
+    print(f"{PROG}: a {config.transient:g} s run to find the repeat, then Newton on the return map at V = {config.V:g} "
+          "m/s (compiling first: a minute or more) ...", file=sys.stderr)  # fmt: skip
     start = time.perf_counter()
     try:
         with Elapsed(config.progress, f"orbit at V = {config.V:g} m/s"):
-            orbit = periodic_orbit(
-                config.model, config.V, slips=config.slips, rtol=config.rtol, atol=config.atol,
-                max_iterations=config.max_iterations, transient=config.transient,
-            )  # fmt: skip
+            orbit = periodic_orbit(config.model, config.V, slips=config.slips, rtol=config.rtol, atol=config.atol,
+                                   max_iterations=config.max_iterations, transient=config.transient)  # fmt: skip
     except OrbitNotFound as error:  # nothing to shoot for: said before any shooting
         reason = str(error).removeprefix("start: ")
         return fail(ValueError(f"no orbit to shoot for at V = {config.V:g} m/s: {reason}"))
@@ -213,29 +200,22 @@ class _KeptSoFar:
             return "nothing was saved (no --out; with --out the diagram is written as it grows)"
         if self.branches is None:
             return f"nothing was finished to keep in {self.out!r}"
-        return (
-            f"{self.out!r} holds what was finished, marked incomplete: {self.seeds} seed runs and {self.branches} "
-            f"branch{'' if self.branches == 1 else 'es'} (pj.load reads it)"
-        )
+        return (f"{self.out!r} holds what was finished, marked incomplete: {self.seeds} seed runs and {self.branches} "
+                f"branch{'' if self.branches == 1 else 'es'} (pj.load reads it)")  # fmt: skip
 
 
 def _diagram_command(config: OrbitConfig) -> int:
     from ..orbits import orbit_diagram
 
     (lo, hi, seeds), out, plot = config.V_range, config.out, config.plot
-    print(
-        f"{PROG}: the orbit diagram over V in [{lo:g}, {hi:g}] m/s: {seeds} V x 2 starts of {config.transient:g} s "
-        "runs, each repeat's orbit continued over V (compiling first: minutes) ...",
-        file=sys.stderr,
-    )
+    print(f"{PROG}: the orbit diagram over V in [{lo:g}, {hi:g}] m/s: {seeds} V x 2 starts of {config.transient:g} s "
+          "runs, each repeat's orbit continued over V (compiling first: minutes) ...", file=sys.stderr)  # fmt: skip
     kept = _KeptSoFar(out)
     with _interrupt.note(kept.describe):
         try:
             with Elapsed(config.progress, f"orbit diagram over V in [{lo:g}, {hi:g}] m/s"):
-                diagram = orbit_diagram(
-                    config.model, V=(lo, hi), seeds=seeds, t_final=config.transient, rtol=config.rtol,
-                    progress=config.progress, on_progress=kept.save if out is not None else None,
-                )  # fmt: skip
+                diagram = orbit_diagram(config.model, V=(lo, hi), seeds=seeds, t_final=config.transient, rtol=config.rtol,
+                                        progress=config.progress, on_progress=kept.save if out is not None else None)  # fmt: skip
         except ValueError as error:
             return fail(error)
         except OSError as error:  # --out, written as the diagram grows

@@ -66,11 +66,7 @@ def add_command(subparsers) -> None:
                         help="output at t = 0, S, 2S, ... <= t_final (and t_final) [s], S in (0, t_final] (default: "
                         "error control writes its accepted steps; diffrax uses --dt)")  # fmt: skip
     folds = parser.add_argument_group("folds of phi (stick-slip jumps)")
-    folds.add_argument("--fold", default=None, metavar="{jump,stop,follow}",
-                       help="at a fold of phi: 'jump' (v jumps to the other stable branch at fixed alpha, omega, u; the "
-                       "run goes on), 'stop' (the run ends there, the paper's behaviour) or 'follow' (tau > 0: jump at "
-                       "impasse points only, follow singular passages); jump and follow need error control, any "
-                       "stepper (default: jump with error control, stop with --dt or --method diffrax)")  # fmt: skip
+    options.add_fold(folds, "--dt or --method diffrax")
     options.add_max_jumps(folds, default="as many as the run makes")
     options.add_statistics_window(folds, window=False, what="the cycle statistics (over [T, t_stop])")
     out = "write t, alpha, omega, u, v, F and the parameters: .npz (numpy), or .csv (text; the settings on # lines)"
@@ -103,34 +99,26 @@ class RunConfig:
     max_steps: int | None = None  # error control's budget of step attempts; None: the library's
 
     @property
-    def adaptive(self) -> bool:
-        """Error control (any stepper), rather than the uniform mesh or the diffrax reference."""
+    def adaptive(self) -> bool:  # error control (any stepper), not the uniform mesh or the diffrax reference
         return self.method != "diffrax" and self.dt is None
 
     @property
-    def uniform(self) -> bool:
-        """The α-method's uniform mesh (--dt)."""
+    def uniform(self) -> bool:  # the α-method's uniform mesh (--dt)
         return self.method != "diffrax" and self.dt is not None
 
     @property
-    def solver(self):
-        """The ``solver`` argument of :func:`peeljax.simulate` (error control and the uniform mesh)."""
+    def solver(self):  # the ``solver`` argument of peeljax.simulate (error control and the uniform mesh)
         return solver_for(self.method, self.rho)
 
     @property
     def budget(self) -> int | None:
         """The step budget the run gets: --max-steps, else the library's (None on the uniform mesh)."""
-        if self.uniform:
-            return None
-        if self.max_steps is not None:
+        if self.uniform or self.max_steps is not None:
             return self.max_steps
-        if self.method == "diffrax":
-            return _REFERENCE["max_steps"]
-        return resolve_max_steps(None, keeps_steps=self.save_ts is None)
+        return _REFERENCE["max_steps"] if self.method == "diffrax" else resolve_max_steps(None, keeps_steps=self.save_ts is None)
 
     @property
-    def dae(self) -> bool:
-        """τ = 0: the DAE itself rather than the homogenized ODE."""
+    def dae(self) -> bool:  # τ = 0: the DAE itself rather than the homogenized ODE
         return self.tau == 0.0
 
 
@@ -206,18 +194,14 @@ def run(config: RunConfig) -> tuple[Solution, float]:
     # --max-steps left out: the library's own budget (it depends on the output asked for)
     budget = {} if config.max_steps is None else {"max_steps": config.max_steps}
     if config.method == "diffrax":
-        solution = simulate_reference(
-            config.model, config.V, config.tau, config.dt if ts is None else None, config.t_final, config.y0,
-            rtol=config.rtol, atol=config.atol, ts=ts, **budget,
-        )  # fmt: skip
+        solution = simulate_reference(config.model, config.V, config.tau, config.dt if ts is None else None, config.t_final,
+                                      config.y0, rtol=config.rtol, atol=config.atol, ts=ts, **budget)  # fmt: skip
     else:  # error control, or the uniform mesh (config.dt)
         control = {} if config.uniform else {"rtol": config.rtol, "atol": config.atol, "ts": ts, "fold": config.fold,
                                              "max_jumps": config.max_jumps, **budget}  # fmt: skip
         rho = _RUN["rho"] if config.rho is None else config.rho
-        solution = simulate(
-            config.model, config.V, config.tau, config.dt, config.t_final, rho, config.y0, solver=config.solver,
-            **control,
-        )  # fmt: skip
+        solution = simulate(config.model, config.V, config.tau, config.dt, config.t_final, rho, config.y0,
+                            solver=config.solver, **control)  # fmt: skip
         if config.adaptive and ts is None:  # the accepted steps, without the rows left for more
             solution = solution.without_padding()
     solution = jax.block_until_ready(solution)  # JAX dispatches asynchronously: time the finished run
@@ -226,10 +210,8 @@ def run(config: RunConfig) -> tuple[Solution, float]:
 
 def step_used(solution: Solution, config: RunConfig) -> float:
     """The α-method's uniform step t_final/N, the diffrax output grid's spacing, or NaN (error control)."""
-    if config.adaptive:
-        return math.nan
-    if config.uniform:
-        return float(solution.stats["step_size"])
+    if config.adaptive or config.uniform:
+        return math.nan if config.adaptive else float(solution.stats["step_size"])
     if config.save_ts is not None:
         return float(config.save_ts[1] - config.save_ts[0]) if len(config.save_ts) > 1 else config.t_final
     return config.t_final / config.n_steps
@@ -280,12 +262,10 @@ def _simulate_command(args: argparse.Namespace, config: RunConfig) -> int:
     summary = summarize(solution)
     record_size = getattr(solution.jumps, "max_jumps", config.max_jumps)  # --max-jumps, or the size the run grew to
     record = {
-        **summary,
-        "status_code": int(np.asarray(solution.status)),  # the StopReason (as in the .npz)
+        **summary, "status_code": int(np.asarray(solution.status)),  # the StopReason (as in the .npz)
         "V": config.V, "tau": config.tau, "dt": step_used(solution, config), "dt_requested": config.dt,
         "save_dt": args.save_dt, "t_final": config.t_final, "n_steps": config.n_steps,
-        "method": solution.method,  # the stepper that ran
-        "method_option": config.method,  # --method as given
+        "method": solution.method, "method_option": config.method,  # the stepper that ran, --method as given
         "geometry": config.model.geometry, "rho": _rho_used(solution, config), "rtol": config.rtol,
         "atol": config.atol, "y0": None if config.y0 is None else list(config.y0), "phi": config.phi,
         "phi_paper_defaults": None if config.phi_defaults is None else list(config.phi_defaults),
@@ -298,8 +278,7 @@ def _simulate_command(args: argparse.Namespace, config: RunConfig) -> int:
     found = cycles(solution, config, record)
     if record.get("jumps"):  # the stick-slip figure: v(t) and G(t) with the jumps, the G-v loop
         settled = config.transient if config.transient < record["t_stop"] else None
-        figure = plotter("plot_stick_slip", solution, config.model, config.V, transient=settled,
-                         title=plot_title(config, record))  # fmt: skip
+        figure = plotter("plot_stick_slip", solution, config.model, config.V, transient=settled, title=plot_title(config, record))
     else:
         figure = plotter("plot_run", solution, config.model, V=config.V, title=plot_title(config, record))
     failed = write_files(record, ("--out", args.out, lambda path: write_out(path, solution, config)), ("--plot", args.plot, figure))

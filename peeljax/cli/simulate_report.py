@@ -53,13 +53,10 @@ def regime_note(config) -> str | None:
     paper's φ loses its maximum between V = 4 and 8 m/s) and large V makes the run stiff."""
     from ..analysis import phi_extrema
 
-    v_peak, _ = phi_extrema(config.model, config.V)
-    if math.isfinite(v_peak):
+    if math.isfinite(phi_extrema(config.model, config.V)[0]):
         return None
-    return (
-        f"phi(v, V = {config.V:g}) has no maximum for v in [1e-3, 50] m/s: no stick-slip regime at this V "
-        "(the paper's law has one up to V of about 7 m/s)"
-    )
+    return (f"phi(v, V = {config.V:g}) has no maximum for v in [1e-3, 50] m/s: no stick-slip regime at this V (the "
+            "paper's law has one up to V of about 7 m/s)")  # fmt: skip
 
 
 def summary_lines(record: dict, config, found=None) -> list[str]:
@@ -113,15 +110,12 @@ def cycles(solution: Solution, config, record: dict):
     record["jumps_up"] = int(np.count_nonzero(jumps["jump_up"]))
     t_stop = float(solution.t_stop)
     if not config.transient < t_stop:
-        record["cycles"] = None
-        record["cycles_note"] = (
-            f"the run stopped at t = {t_stop:.6g} s, before its transient ended (--transient {config.transient:g} s): "
-            "no cycle statistics"
-        )
+        record["cycles"], record["cycles_note"] = None, (f"the run stopped at t = {t_stop:.6g} s, before its transient "
+                                                         f"ended (--transient {config.transient:g} s): no cycle statistics")  # fmt: skip
         return None
-    cycles = cycle_statistics(jumps, t_stop, transient=config.transient)
-    record["cycles"] = cycles.as_dict()
-    return cycles
+    found = cycle_statistics(jumps, t_stop, transient=config.transient)
+    record["cycles"] = found.as_dict()
+    return found
 
 
 def announce(config) -> None:
@@ -134,10 +128,8 @@ def announce(config) -> None:
         mesh = f"{config.n_steps} step{'' if config.n_steps == 1 else 's'}"
     method = "default stepper" if config.method == "default" else config.method
     budget = "" if config.budget is None else f", at most {config.budget} step attempts (--max-steps)"
-    print(
-        f"{PROG}: {method} run with {mesh} to t = {config.t_final:g} s{budget} (compiling first: a few seconds) ...",
-        file=sys.stderr,
-    )
+    print(f"{PROG}: {method} run with {mesh} to t = {config.t_final:g} s{budget} (compiling first: a few seconds) ...",
+          file=sys.stderr)  # fmt: skip
 
 
 def remedy_notes(solution: Solution, config) -> list[str]:

@@ -14,7 +14,7 @@ from . import _interrupt, options
 from ..sweeps.api import sweep as sweep_api
 from ..sweeps import distributed
 from ..sweeps.storage import saved_chunks
-from ._common import PROG, fail, library_default, phi_defaults, plotter, remedy_notes, report, subcommand, wrote
+from ._common import PROG, checked, fail, library_default, phi_defaults, plotter, remedy_notes, report, subcommand, wrote
 from ._common import write_failed, write_files
 from ._engine import DEFAULT_CHUNK, add_engine, check_sweep_outputs, chunk, engine, engine_model, engine_record
 from ._engine import engine_rho, engine_text, tau_grid
@@ -25,7 +25,7 @@ __all__ = ["add_command", "validate_sweep"]
 
 # ---------------------------------------------------------------------------- parsers
 def add_command(subparsers) -> None:
-    parser = subcommand(subparsers, "sweep", _sweep_command, "batched runs over a grid of V and tau", (
+    parser = subcommand(subparsers, "sweep", checked(_check, _sweep_command), "batched runs over a grid of V and tau", (
         "Integrate every (V, tau) of a grid in compiled batches (error control by default, any stepper: --method; --dt for "
         "the alpha-method's uniform mesh); write per-trajectory summaries (v statistics over [--transient, --transient + "
         "--window], stick-slip events, steps taken). With --out the sweep is written chunk by chunk and a rerun resumes."
@@ -46,10 +46,7 @@ def add_command(subparsers) -> None:
                       "--tau values as given)")  # fmt: skip
     grid.add_argument("--chunk", type=int, default=None, help=f"trajectories per compiled batch, >= 1 (default {DEFAULT_CHUNK})")
     folds = parser.add_argument_group("folds of phi (stick-slip jumps; error control only)")
-    folds.add_argument("--fold", default=None, metavar="{jump,stop,follow}",
-                       help="at a fold of phi: 'jump' (v jumps to the other stable branch; the run goes on), 'stop' (the "
-                       "run ends there) or 'follow' (tau > 0: jump at impasse points only); jump and follow need error "
-                       "control (default: jump with error control, stop with --dt)")  # fmt: skip
+    options.add_fold(folds, "--dt")
     options.add_max_jumps(folds, default=DEFAULT_SWEEP_MAX_JUMPS, per="trajectory")
     folds.add_argument("--start", default=None, metavar="{paper,steady}",
                        help="each trajectory's initial state: 'paper' (the tape at rest) or 'steady' (steady peeling, "
@@ -215,17 +212,16 @@ def _quiet_stdout(keep: bool) -> None:
         os.close(report)
 
 
-def _sweep_command(args: argparse.Namespace) -> int:
-    try:
-        processes = distributed_settings(args)  # checked first, joined after the sweep's own checks
-    except ValueError as error:
-        return fail(error)
-    if args.stick_slip_map:
+def _check(args: argparse.Namespace) -> tuple:
+    """The process options (checked first, joined after the sweep's own checks) and the sweep's keyword arguments
+    (None for --stick-slip-map, checked by :func:`.sweep_map.map_command`)."""
+    return distributed_settings(args), None if args.stick_slip_map else validate_sweep(args)
+
+
+def _sweep_command(args: argparse.Namespace, checked_: tuple) -> int:
+    processes, kwargs = checked_
+    if kwargs is None:
         return map_command(args)
-    try:
-        kwargs = validate_sweep(args)
-    except (ValueError, TypeError) as error:
-        return fail(error)
     joined = join_processes(processes, args)
     if joined is not None:
         return joined
@@ -247,8 +243,7 @@ def _sweep_command(args: argparse.Namespace) -> int:
         _print_resumed(result, args.out)
     record = {
         "n": len(result), "n_completed": int(result.completed.sum()), "V": kwargs["V"], "tau": kwargs["tau"],
-        **engine_record(kwargs, result.settings.get("method")),  # the stepper that ran (absent on the uniform mesh)
-        "method_option": args.method,  # --method as given
+        **engine_record(kwargs, result.settings.get("method")), "method_option": args.method,  # the stepper that ran, --method
         "max_steps": result.settings.get("max_steps"),  # the budget of step attempts (error control)
         "save_dt": kwargs["save_dt"], "save_every": kwargs["save_every"], "t_final": kwargs["t_final"],
         "window": list(kwargs["window"]),  # fractions of t_final, as pj.sweep takes them
