@@ -42,8 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     parser = Parser(
         prog=PROG,
-        description="Stick-slip peeling of an adhesive tape off a rotating spool (homogenized DAE, in JAX).",
-    )
+        description="Stick-slip peeling of an adhesive tape off a rotating spool (homogenized DAE, in JAX).")
     parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for command in COMMANDS:

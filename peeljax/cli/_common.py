@@ -267,8 +267,7 @@ _PARAMETERS = {
     "max_iterations": "--max-iterations", "learning_rate": "--learning-rate", "tau_rtol": "--tau-rtol",
     "tau_range": "--tau-range", "random_starts": "--random-starts", "seed_rounds": "--seed-rounds",
     "boundary_tol": "--boundary-tol", "lyapunov_time": "--lyapunov-time", "num_processes": "--num-processes",
-    "process_id": "--process-id", "join_timeout": "--distributed-timeout",
-}  # fmt: skip
+    "process_id": "--process-id", "join_timeout": "--distributed-timeout"}  # fmt: skip
 _UNDERSCORED = re.compile(r"(?<![\w-])(" + "|".join(_PARAMETERS) + r")\b")
 _ASSIGNED = re.compile(r"(?<![\w-])(--[a-z][\w-]*)=(?=\w)")  # --max-jumps=5 (from max_jumps=5) -> --max-jumps 5
 _ANOTHER_OUT = re.compile(r"\banother out\b")
@@ -284,15 +283,13 @@ _PHRASES = (
     ("give start=(alpha, omega) and slips= to shoot near it",
      "the Python API shoots from a given state: peeljax.periodic_orbit(start=(alpha, omega), slips=K)"),
     ("give coordinator HOST:PORT", "give --coordinator HOST:PORT"), ("the same coordinator?", "the same --coordinator?"),
-    ("or detect them under SLURM's srun", "or --distributed under SLURM's srun"), ("drop dt,", "drop --dt,"),
-)  # fmt: skip
+    ("or detect them under SLURM's srun", "or --distributed under SLURM's srun"), ("drop dt,", "drop --dt,"))  # fmt: skip
 # The library's words for error control and the uniform mesh (sweep_plan's messages)
 _MESH_PHRASES = (("(dt=None)", "(no --dt)"), ("(dt given)", "(--dt given)"))
 # Names that open a library message ("tau must be ...", "y0: ..."), and those whose option has another name.
 _LEADING = re.compile(
     r"^(V|tau|dt|rtol|atol|rho|y0|geometry|transient|window|fold|start|free|statistics|coordinator|decimate|paths|slips)"
-    r"\b(?![-=])"
-)
+    r"\b(?![-=])")
 _RENAMED = {"paths": "--data"}  # peeljax.fit.records.load_observations(paths): the --data files
 
 

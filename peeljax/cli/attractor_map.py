@@ -50,13 +50,11 @@ def validate_attractor_map(args: argparse.Namespace) -> dict:
     kwargs = {
         "model": model, "V": V, "t_final": float(args.t_final), "random_starts": args.random_starts, "seed": args.seed,
         "seed_rounds": args.seed_rounds, "boundary_tol": None if args.boundary_tol == 0 else args.boundary_tol,
-        "lyapunov_time": args.lyapunov_time, "progress": options.progress_on(args) and not args.json,
-    }  # fmt: skip
+        "lyapunov_time": args.lyapunov_time, "progress": options.progress_on(args) and not args.json}  # fmt: skip
     check_attractor_map_options(  # the library's checks; what the command line leaves out, the library's defaults
         model, V, args.random_starts, args.seed, kwargs["t_final"], _DEFAULTS["transient"], args.seed_rounds,
         _DEFAULTS["extend"], kwargs["boundary_tol"], _DEFAULTS["branch_tol"], args.lyapunov_time,
-        _DEFAULTS["chaos_threshold"], _DEFAULTS["orbit_rtol"], {},
-    )  # fmt: skip
+        _DEFAULTS["chaos_threshold"], _DEFAULTS["orbit_rtol"], {})  # fmt: skip
     return kwargs
 
 

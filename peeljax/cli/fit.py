@@ -60,8 +60,7 @@ _FIT_OPTIONS = (
     ("--max-iterations", int, None, None, f"--table: Levenberg-Marquardt iterations at most, >= 1 (default "
      f"{_TABLE_DEFAULTS['max_iterations']}; force records {_RECORDS_DEFAULTS['max_iterations']})"),
     ("--n-starts", int, None, "N", "--table: Levenberg-Marquardt runs from the N best starting points, >= 1 (default "
-     "1 with --method orbit, 3 with --method window)"),
-)  # fmt: skip
+     "1 with --method orbit, 3 with --method window)"))  # fmt: skip
 
 
 def add_command(subparsers) -> None:
@@ -97,8 +96,7 @@ def add_command(subparsers) -> None:
     options.add_statistics_window(
         problem, transient="0.5 s with --table, where the model's runs end at T + W: their second half; with --data "
         "force records fitted by statistics, the record's second half", window_default="T: the runs' second half",
-        what="the statistics (--table: of the model's runs; --data: of each force record)",
-    )  # fmt: skip
+        what="the statistics (--table: of the model's runs; --data: of each force record)")  # fmt: skip
     fit = parser.add_argument_group("the fit")
     fit.add_argument("--phi", metavar="START.json", help="start coefficients as JSON (default: the paper's law)")
     fit.add_argument("--free", nargs="+", metavar="NAME", default=None,
@@ -111,8 +109,7 @@ def add_command(subparsers) -> None:
         parser, "progress (iterations and loss)",
         out=("FITTED.json", "the fitted coefficients, loss history and settings (required with --data; with --table "
              "also the uncertainty, residuals and stop reason)"),
-        plot=("FIT.png", "data vs fitted model, and fitted phi vs start (--table: with residuals and phi's 95%% band)"),
-    )  # fmt: skip
+        plot=("FIT.png", "data vs fitted model, and fitted phi vs start (--table: with residuals and phi's 95%% band)"))  # fmt: skip
 
 
 def _check_source(args: argparse.Namespace) -> None:
@@ -223,8 +220,7 @@ def _fit_command(args: argparse.Namespace, config: dict) -> int:
         "final_loss": result.final_loss, "loss_reduction": result.loss_reduction,
         "gradient_norm": result.gradient_norm, "v_range": list(result.v_range), "free": list(result.free),
         "coefficients": result.adhesion.coefficients(),
-        "uncertainty": None if uncertainty is None else uncertainty.as_dict(), "wall_time_s": result.wall_time_s,
-    }  # fmt: skip
+        "uncertainty": None if uncertainty is None else uncertainty.as_dict(), "wall_time_s": result.wall_time_s}  # fmt: skip
     failed = write_files(record, ("--out", args.out, lambda path: _write_fit(result, args)),
                          ("--plot", args.plot, plotter("plot_fit", result, observations)))  # fmt: skip
     fitted = ", ".join(f"{n} {result.adhesion.coefficients()[n]:.6g}" for n in result.free)

@@ -53,8 +53,7 @@ def add_command(subparsers) -> None:
         "method on the return map after k stick -> slip events, from the repeat of a run from the paper's start (--transient). "
         "Prints the period, the Floquet multipliers and the stability, and the statistics over one period. Exit status: 0 "
         "the orbit converged; 1 it did not, or an output could not be written; 2 bad input, or no orbit to shoot for (phi "
-        "has no fold at V, or the run shows no repeat); 130 interrupted (Ctrl-C).", out_formats=(".npz",),
-    )  # fmt: skip
+        "has no fold at V, or the run shows no repeat); 130 interrupted (Ctrl-C).", out_formats=(".npz",))  # fmt: skip
     problem = parser.add_argument_group("problem")
     problem.add_argument("--V", type=_one_V, default=_V, metavar="V|START:STOP[:SEEDS]",
                          help=f"pull velocity [m/s], > 0 (default {_V:g}); or a range START:STOP: the bifurcation "
@@ -129,8 +128,7 @@ def validate_orbit(args: argparse.Namespace) -> OrbitConfig:
     return OrbitConfig(
         model=model, V=float(V), slips=args.slips, transient=float(args.transient), rtol=float(rtol),
         atol=float(atol), max_iterations=int(args.max_iterations), phi=args.phi, phi_defaults=phi_defaults,
-        V_range=V_range, out=args.out, plot=args.plot, json=args.json, progress=options.progress_on(args),
-    )  # fmt: skip
+        V_range=V_range, out=args.out, plot=args.plot, json=args.json, progress=options.progress_on(args))  # fmt: skip
 
 
 # ---------------------------------------------------------------------------- the command
@@ -140,8 +138,7 @@ def _record(orbit, config: OrbitConfig, wall: float) -> dict:
     return {
         "command": "orbit", **orbit.as_dict(), "test_functions": {k: float(v) for k, v in orbit.test_functions.items()},
         "settings": config.settings(), "phi_paper_defaults": None if config.phi_defaults is None else list(config.phi_defaults),
-        "wall_time_s": wall, "out": config.out, "plot": config.plot,
-    }  # fmt: skip
+        "wall_time_s": wall, "out": config.out, "plot": config.plot}  # fmt: skip
 
 
 def _summary(orbit, record: dict, config: OrbitConfig) -> list[str]:
@@ -149,8 +146,7 @@ def _summary(orbit, record: dict, config: OrbitConfig) -> list[str]:
     return [
         f"{PROG} orbit: V = {config.V:g} m/s, tau = 0 (the DAE), Newton from the repeat of a {config.transient:g} s "
         f"run, rtol = {config.rtol:g}, atol = {config.atol:g}, geometry {config.model.geometry}",
-        orbit.summary(), f"wall time {record['wall_time_s']:.3g} s (including compilation)", *wrote(record),
-    ]
+        orbit.summary(), f"wall time {record['wall_time_s']:.3g} s (including compilation)", *wrote(record)]
 
 
 def _orbit_command(args: argparse.Namespace, config: OrbitConfig) -> int:

@@ -36,8 +36,7 @@ def add_command(subparsers) -> None:
     parser = subcommand(
         subparsers, "simulate", checked(validate_run, _simulate_command), "integrate one run",
         "Integrate the homogenized peeling ODE (tau > 0) or the DAE itself (tau = 0) over [0, t_final], through the "
-        "folds of phi, and report how it ended.", out_formats=(".npz", ".csv"),
-    )  # fmt: skip
+        "folds of phi, and report how it ended.", out_formats=(".npz", ".csv"))  # fmt: skip
     physics = parser.add_argument_group("problem")
     options.add_V(physics, many=False, default=_RUN["V"])
     physics.add_argument("--tau", type=options.number("--tau"), default=_RUN["tau"],
@@ -169,8 +168,7 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
         model=model, V=float(args.V), tau=float(args.tau), dt=None if dt is None else float(dt),
         t_final=float(args.t_final), n_steps=n_steps, method=args.method, rho=rho, rtol=rtol, atol=atol,
         y0=None if args.y0 is None else tuple(args.y0), phi=args.phi, save_ts=save_ts, fold=fold, max_jumps=max_jumps,
-        transient=transient, phi_defaults=phi_defaults, max_steps=None if args.max_steps is None else int(args.max_steps),
-    )  # fmt: skip
+        transient=transient, phi_defaults=phi_defaults, max_steps=None if args.max_steps is None else int(args.max_steps))  # fmt: skip
 
 
 _TO_ERROR_CONTROL = "choose a stepper with error control (--method default, or a name such as kvaerno5)"
@@ -244,8 +242,7 @@ def _run_settings(solution: Solution, config: RunConfig) -> dict:
     return dict(
         model=config.model, V=config.V, tau=config.tau, t_final=config.t_final, dt=step_used(solution, config),
         rho=_rho_used(solution, config), rtol=config.rtol, atol=config.atol, method_option=config.method,
-        fold=config.fold, max_jumps=config.max_jumps, transient=config.transient,
-    )  # fmt: skip
+        fold=config.fold, max_jumps=config.max_jumps, transient=config.transient)  # fmt: skip
 
 
 def _rho_used(solution: Solution, config: RunConfig) -> float | None:
@@ -272,8 +269,7 @@ def _simulate_command(args: argparse.Namespace, config: RunConfig) -> int:
         "fold": config.fold, "max_jumps": record_size if config.adaptive else None,
         "max_steps": config.max_steps,  # --max-steps; null: the library's budget
         "transient": config.transient, "stats": {key: summary[key] for key in solution.stats if key in summary},
-        "wall_time_s": wall, "out": args.out, "plot": args.plot,
-    }  # fmt: skip
+        "wall_time_s": wall, "out": args.out, "plot": args.plot}  # fmt: skip
     record.update({"note": note} if (note := regime_note(config)) else {})
     found = cycles(solution, config, record)
     if record.get("jumps"):  # the stick-slip figure: v(t) and G(t) with the jumps, the G-v loop

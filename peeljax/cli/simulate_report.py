@@ -18,8 +18,7 @@ __all__ = ["announce", "cycles", "method_title", "plot_title", "remedy_notes", "
 # The stepper that ran (the Solution's ``method``), in words; other names are shown as they are.
 _METHOD_TITLES = {
     "alpha": "alpha-method", "alpha-adaptive": "alpha-method", "diffrax": "diffrax Kvaerno5 reference",
-    "switching-tsit5-alpha": "Tsit5 <-> alpha-method",
-}  # fmt: skip
+    "switching-tsit5-alpha": "Tsit5 <-> alpha-method"}  # fmt: skip
 
 
 def method_title(method: str, option: str | None = None) -> str:
@@ -86,8 +85,7 @@ def summary_lines(record: dict, config, found=None) -> list[str]:
         f"peeljax simulate: {method_title(record['method'], config.method)}, V = {config.V:g} m/s, {tau}, "
         f"{mesh}, t_final = {config.t_final:g} s, {', '.join(settings)}, geometry {config.model.geometry}",
         ended,
-        f"v [m/s]: final {record['v_final']:.6g}, min {record['v_min']:.6g}, max {record['v_max']:.6g}",
-    ]
+        f"v [m/s]: final {record['v_final']:.6g}, min {record['v_min']:.6g}, max {record['v_max']:.6g}"]
     if record.get("jumps") is not None:
         up = record["jumps_up"]
         lines.append(f"jumps at the folds of phi: {record['jumps']} ({up} stick -> slip, {record['jumps'] - up} slip -> stick)")

@@ -53,21 +53,18 @@ def add_command(subparsers) -> None:
                        "v = V) (default paper; with --stick-slip-map both, one after the other)")  # fmt: skip
     options.add_statistics_window(
         parser.add_argument_group("statistics"), what="the v statistics (the stick-slip map's cycle statistics)",
-        window_default="t_final - T; with --stick-slip-map the statistics run to each run's end",
-    )  # fmt: skip
+        window_default="t_final - T; with --stick-slip-map the statistics run to each run's end")  # fmt: skip
     parser.add_argument_group("the stick-slip map over V").add_argument(
         "--stick-slip-map", dest="stick_slip_map", action="store_true",
         help="instead of the (V, tau) sweep: at one --tau (default 0, the DAE), one sweep over --V per start (both "
         "unless --start), each run's jumps after --transient reduced to its cycle statistics; --out writes the map's "
-        "arrays (.npz), --plot its figure against V (forces at the jumps over phi's folds, repeat period, v amplitude)",
-    )  # fmt: skip
+        "arrays (.npz), --plot its figure against V (forces at the jumps over phi's folds, repeat period, v amplitude)")  # fmt: skip
     options.add_output(
         parser, "progress bar",
         out=("FILE.npz", "results (numpy, with each trajectory's jump record; FILE.nc: netCDF with labelled "
              "dimensions, needs pip install \"peeljax[xarray]\"); chunks in FILE.npz.chunks/, resumable; with "
              "--stick-slip-map the map's arrays; peeljax.load reads either back"),
-        plot=("FILE.png", "the stick-slip map over (V, tau) (tau > 0); with --stick-slip-map the map against V"),
-    )  # fmt: skip
+        plot=("FILE.png", "the stick-slip map over (V, tau) (tau > 0); with --stick-slip-map the map against V"))  # fmt: skip
     _add_distributed_options(parser)
 
 
@@ -76,8 +73,7 @@ def _add_distributed_options(parser: argparse.ArgumentParser) -> None:
     joins JAX's distributed runtime (jax.distributed.initialize's arguments; None: one process, or what
     --distributed detects)."""
     group = parser.add_argument_group(
-        "several processes (JAX's distributed runtime: one command per process, same options; docs/sweeps.md)"
-    )
+        "several processes (JAX's distributed runtime: one command per process, same options; docs/sweeps.md)")
     under_srun, timeout = "with --distributed under srun", distributed.DEFAULT_TIMEOUT
     group.add_argument("--coordinator", metavar="HOST:PORT", help="address of process 0, which every process connects "
                        f"to (default: $JAX_COORDINATOR_ADDRESS; {under_srun}: the job's first node)")  # fmt: skip
@@ -96,8 +92,7 @@ _SETTING_OPTIONS = {
     "V": "--V", "tau": "--tau", "dae": "--tau", "t_final": "--t-final", "window": "--transient/--window",
     "method": "--method", "solver": "--method/--rho", "rtol": "--rtol", "atol": "--atol", "max_steps": "--max-steps",
     "dt": "--dt", "n_steps": "--dt", "fold": "--fold", "max_jumps": "--max-jumps", "start": "--start",
-    "save_dt": "--save-dt", "save_every": "--save-every", "chunk": "--chunk", "model": "--geometry/--phi",
-}  # fmt: skip
+    "save_dt": "--save-dt", "save_every": "--save-every", "chunk": "--chunk", "model": "--geometry/--phi"}  # fmt: skip
 _DIFFER = re.compile(r"made with different settings \(([^()]*) differ\)")
 
 
@@ -140,8 +135,7 @@ def validate_sweep(args: argparse.Namespace) -> dict:
     return {
         "model": model, "V": V, "tau": tau, **chosen, "t_final": float(args.t_final), "grid": "outer",
         "window": window, "chunk": chunk(args), "out": args.out, "rho": engine_rho(args),
-        "start": library_default(sweep_api, "start") if args.start is None else args.start, "progress": args.progress and not args.json,
-    }  # fmt: skip
+        "start": library_default(sweep_api, "start") if args.start is None else args.start, "progress": args.progress and not args.json}  # fmt: skip
 
 
 def _window(args: argparse.Namespace) -> tuple[float, float]:
@@ -251,8 +245,7 @@ def _sweep_command(args: argparse.Namespace, checked_: tuple) -> int:
         "window_s": (kwargs["window"][1] - kwargs["window"][0]) * kwargs["t_final"],  # [s]: --window
         "fold": result.settings.get("fold"), "max_jumps": result.settings.get("max_jumps"), "start": kwargs["start"],
         "wall_time_s": wall, "phi_paper_defaults": phi_defaults(args),
-        "computed_chunks": list(result.computed_chunks), "out": args.out, "plot": args.plot, **result.as_dict(),
-    }  # fmt: skip
+        "computed_chunks": list(result.computed_chunks), "out": args.out, "plot": args.plot, **result.as_dict()}  # fmt: skip
     failed = write_files(record, ("--plot", args.plot, plotter("plot_sweep_map", result)))
     notes = remedy_notes(result.status, result.settings.get("max_steps", kwargs.get("max_steps")))
     return report(record, args.json, lambda: _sweep_lines(record, result, kwargs, wall), failed,
@@ -286,5 +279,4 @@ def _sweep_lines(record: dict, result, kwargs: dict, wall: float) -> list[str]:
         f"{PROG} sweep: {record['n']} trajectories, {record['n_completed']} completed t = {t_final:g} s, wall time {wall:.3g} s",
         f"{engine_text(kwargs, result.settings.get('method'))}; v statistics over t in [{w0 * t_final:g}, "
         f"{w1 * t_final:g}] s (--transient {w0 * t_final:g} --window {(w1 - w0) * t_final:g}){folds}",
-        result.table(), *wrote(record),
-    ]
+        result.table(), *wrote(record)]

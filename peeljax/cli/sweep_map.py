@@ -31,8 +31,7 @@ def validate_map(args: argparse.Namespace) -> dict:
     if args.window is not None:
         raise ValueError(
             "--window: the stick-slip map's cycle statistics run from --transient to each run's end; give "
-            "--transient (and --t-final)"
-        )
+            "--transient (and --t-final)")
     chosen = engine(args, dae=tau == [0.0])
     if chosen["fold"] == "stop":
         raise ValueError("--fold stop ends every run at its first fold: --stick-slip-map needs --fold jump (or follow)")
@@ -43,8 +42,7 @@ def validate_map(args: argparse.Namespace) -> dict:
         "model": model, "V": V, "tau": tau[0], "t_final": float(args.t_final), "transient": transient,
         "starts": STARTS if args.start is None else (args.start,), "rtol": chosen["rtol"], "atol": chosen["atol"],
         **{key: chosen[key] for key in ("solver", "max_steps", "fold", "max_jumps") if key in chosen},
-        "chunk": chunk(args), "rho": engine_rho(args), "progress": args.progress and not args.json,
-    }  # fmt: skip
+        "chunk": chunk(args), "rho": engine_rho(args), "progress": args.progress and not args.json}  # fmt: skip
 
 
 def _run_map(kwargs: dict):
@@ -61,8 +59,7 @@ def _map_record(smap, kwargs: dict, args: argparse.Namespace, wall: float) -> di
         **smap.as_dict(), "method": ran["method"], "method_option": args.method,  # the stepper that ran, --method
         "rtol": kwargs["rtol"], "atol": kwargs["atol"], "rho": ran["rho"], "fold": settings.get("fold"),
         "max_jumps": settings.get("max_jumps"), "max_steps": settings.get("max_steps", kwargs.get("max_steps")),
-        "wall_time_s": wall, "phi_paper_defaults": phi_defaults(args), "out": args.out, "plot": args.plot,
-    }  # fmt: skip
+        "wall_time_s": wall, "phi_paper_defaults": phi_defaults(args), "out": args.out, "plot": args.plot}  # fmt: skip
 
 
 def map_command(args: argparse.Namespace) -> int:

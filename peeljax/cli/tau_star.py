@@ -23,8 +23,7 @@ def add_command(subparsers) -> None:
         subparsers, "tau-star", checked(validate_tau_star, _tau_star_command), "the least resolvable tau per V",
         "For each V, tau* = the least tested tau above which every tested tau completes [0, t_final], with "
         "tau*(1 - tau_rtol) stopping (docs/sweeps.md). All V are searched in parallel. The runs use error control "
-        "(--rtol, --atol) by default, a uniform mesh with --dt.",
-    )  # fmt: skip
+        "(--rtol, --atol) by default, a uniform mesh with --dt.")  # fmt: skip
     add_engine(star)
     search, (lo, hi) = star.add_argument_group("the search"), _TAU_STAR["tau_range"]
     search.add_argument("--tau-range", dest="tau_range", type=float, nargs=2, default=[lo, hi], metavar=("LO", "HI"),
@@ -60,8 +59,7 @@ def _tau_star_command(args: argparse.Namespace, kwargs: dict) -> int:
     record = {
         **result.as_dict(), **engine_record(kwargs), "t_final": kwargs["t_final"], "tau_range": list(kwargs["tau_range"]),
         "tau_rtol": kwargs["tau_rtol"], "max_steps": kwargs.get("max_steps"),  # --max-steps; null: the library's budget
-        "wall_time_s": wall, "phi_paper_defaults": phi_defaults(args),
-    }  # fmt: skip
+        "wall_time_s": wall, "phi_paper_defaults": phi_defaults(args)}  # fmt: skip
     lines = [f"{PROG} tau-star: {engine_text(kwargs)}, t_final = {kwargs['t_final']:g} s, "
              f"tau_rtol = {kwargs['tau_rtol']:g}, {result.rounds} batched runs, {wall:.3g} s",
              option_names(result.summary())]  # fmt: skip (tau_range -> --tau-range)
