@@ -29,7 +29,7 @@ from ..fit.parameters import check_free
 from ..fit.records import check_fit_samples, load_observations
 from ..fit.records_fit import is_force_record
 from ..fit.trajectory import OPTIMIZERS
-from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_RTOL
+from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_RTOL, refuse_with_dt
 from . import options
 from ._common import PROG, checked, load_phi, plotter, subcommand, write_files
 from .fit_table import (_DATA_ONLY, _POINTS_DEFAULTS, _RECORDS_DEFAULTS, _TABLE_DEFAULTS, _TABLE_ONLY, _files_of, _finish,
@@ -165,7 +165,7 @@ def _validate(args: argparse.Namespace, observations: list[Observation], default
     tau, dt, rtol, atol, n_steps = _points_tau(args, defaults), args.dt, args.rtol, args.atol, None
     t_final = args.t_final if args.t_final is not None else max(float(np.nanmax(o.t)) for o in observations)
     if dt is not None:
-        options.refuse_with_dt(dt, {"--rtol": rtol, "--atol": atol})
+        refuse_with_dt(dt, rtol=rtol, atol=atol)  # the library's rule (option_names: in the options' words)
         n_steps = check_mesh(dt, t_final)
     else:
         check_positive("--t-final", t_final)

@@ -34,12 +34,9 @@ def _as_number(option: str, token: str, many: bool) -> float:
     try:
         return float(token)
     except ValueError:
-        pass
-    if "," in token:
         parts = " ".join(part.strip() for part in token.split(",") if part.strip())
-        how = f"separate values by spaces: {option} {parts}" if many else "it takes one value"
-        raise argparse.ArgumentTypeError(f"{token!r} is not a number: {how}")
-    raise argparse.ArgumentTypeError(f"{token!r} is not a number")
+        how = "" if "," not in token else f": separate values by spaces: {option} {parts}" if many else ": it takes one value"
+        raise argparse.ArgumentTypeError(f"{token!r} is not a number{how}") from None
 
 
 def number(option: str):
@@ -151,15 +148,6 @@ def check_method(method: str, allowed: tuple[str, ...], dt, rho, alpha_methods=(
         raise ValueError(f"--rho is the alpha-method's parameter: it applies with --method default or alpha, not --method {method}")
 
 
-def refuse_with_dt(dt, given: dict) -> None:
-    """Error control's options (``given``: values by option, None when left out) do not go with --dt's uniform mesh
-    (the library's rule, :func:`peeljax.integrators.select.refuse_with_dt`)."""
-    named = [option for option, value in given.items() if value is not None]
-    if dt is not None and named:
-        raise ValueError(f"{'/'.join(named)} set{'s' if len(named) == 1 else ''} the alpha-method's error control; "
-                         "--dt asks for a uniform mesh: give one or the other")  # fmt: skip
-
-
 def check_tolerances(rtol: float | None, atol: float | None, defaults: tuple[float, float]) -> tuple[float, float]:
     """--rtol in (0, 1) and --atol in (0, inf) (the library's checks), each its default when not given."""
     rtol, atol = defaults[0] if rtol is None else rtol, defaults[1] if atol is None else atol
@@ -194,10 +182,9 @@ def add_max_steps(group, *, default: str | None = None) -> None:
 def check_max_steps(max_steps: int | None, uniform_option: str | None = None) -> None:
     """--max-steps: None (the library's budget) or the library's range; refused with the uniform mesh
     (``uniform_option``, e.g. "--dt"), which takes no budget."""
-    if max_steps is None:
-        return
-    library_check_max_steps(max_steps)
-    if uniform_option is not None:
+    if max_steps is not None:
+        library_check_max_steps(max_steps)
+    if max_steps is not None and uniform_option is not None:
         raise ValueError(f"--max-steps (allowed range: [1, {MAX_STEPS_LIMIT}]) is error control's budget of step attempts; "
                          f"{uniform_option} asks for a uniform mesh, which takes no budget: give one or the other")  # fmt: skip
 

@@ -13,7 +13,7 @@ import numpy as np
 from .._validation import TAU_MAX, check_mesh, check_positive, check_tau, check_y0
 from ..integrators.dense import output_times
 from ..integrators.select import DEFAULT_ATOL as _ALPHA_ATOL
-from ..integrators.select import integrator_for, resolve_max_steps
+from ..integrators.select import integrator_for, refuse_with_dt, resolve_max_steps
 from ..integrators.select import DEFAULT_RTOL as _ALPHA_RTOL
 from ..model import PeelingModel
 from ..simulate import check_run_memory, simulate, simulate_reference
@@ -139,7 +139,8 @@ def validate_run(args: argparse.Namespace) -> RunConfig:
         remedy = "give a larger --save-dt or a shorter --t-final"
         memory = lambda n: _check_memory(f"--save-dt {args.save_dt:g}", n, "ts", remedy)
         options.check_save_dt(args.save_dt, args.t_final, memory)  # counted first: the times could fill memory
-        options.refuse_with_dt(None if reference else dt, {"--save-dt": args.save_dt})
+        if dt is not None and not reference:  # the library's rule, in its words (option_names: the options')
+            refuse_with_dt(dt, save_dt=args.save_dt)
         save_ts = tuple(output_times(args.save_dt, args.t_final))
     elif n_steps is not None:
         option = f"--dt {dt:g}" if args.dt is not None else "the diffrax output grid"
