@@ -41,39 +41,27 @@ class Parser(argparse.ArgumentParser):
         self._negative_number_matcher = _NEGATIVE_NUMBER
 
     def parse_args(self, args=None, namespace=None):
-        words = sys.argv[1:] if args is None else list(args)
-        commands = self._commands()
+        words, commands = sys.argv[1:] if args is None else list(args), self._commands()
         if commands and not words:  # argparse: "the following arguments are required: COMMAND"
             self.error(f"give a command: {', '.join(commands)} ({self.prog} COMMAND --help lists its options)")
-        if commands:  # an unknown option before the command: argparse would only say COMMAND is missing
-            for word in words:
-                if not word.startswith("-"):
-                    break
-                name = word.split("=", 1)[0]
-                if name not in self._option_string_actions:
-                    close = difflib.get_close_matches(name.lstrip("-"), commands, n=1)
-                    if close:
-                        self.error(f"unrecognized option {name} (did you mean the command {close[0]}, without dashes?)")
-                    self.error(unrecognized([word], self))
+        for word in words if commands else ():  # an unknown option before the command: argparse says COMMAND is missing
+            if not word.startswith("-"):
+                break
+            if (name := word.split("=", 1)[0]) not in self._option_string_actions:
+                if close := difflib.get_close_matches(name.lstrip("-"), list(commands), n=1):
+                    self.error(f"unrecognized option {name} (did you mean the command {close[0]}, without dashes?)")
+                self.error(unrecognized([word], self))
         parsed, extras = self.parse_known_args(args, namespace)
         if extras:  # argparse's own: "unrecognized arguments: --t-finl 3", from the top-level parser
-            command = self._command_parser(parsed)
-            action = self._command_action()
-            others = {} if action is None else {name: p for name, p in action.choices.items() if p is not command}
+            command = commands.get(getattr(parsed, "command", None))  # the subcommand's parser that read the line
+            others = {name: parser for name, parser in commands.items() if parser is not command}
             (command or self).error(unrecognized(extras, command or self, others))
         return parsed
 
-    def _command_action(self) -> argparse._SubParsersAction | None:
-        return next((a for a in self._actions if isinstance(a, argparse._SubParsersAction)), None)
-
-    def _commands(self) -> list[str]:
-        subparsers = self._command_action()
-        return [] if subparsers is None else list(subparsers.choices)
-
-    def _command_parser(self, parsed) -> argparse.ArgumentParser | None:
-        """The subcommand's parser that read the command line (None without subcommands)."""
-        subparsers = self._command_action()
-        return None if subparsers is None else subparsers.choices.get(getattr(parsed, subparsers.dest, None))
+    def _commands(self) -> dict:
+        """The subcommands' parsers by name (none without subcommands)."""
+        action = next((a for a in self._actions if isinstance(a, argparse._SubParsersAction)), None)
+        return {} if action is None else dict(action.choices)
 
     def _get_value(self, action, arg_string):
         """argparse's "invalid int value: '1e5'" said for a user: not an integer, write 100000."""

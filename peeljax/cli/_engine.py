@@ -79,10 +79,8 @@ def _stepper(kwargs: dict, ran: str | None = None) -> str | None:
     for an AlphaMethod); None: the library's default, not known before it ran."""
     if ran is not None:
         return "alpha" if ran.startswith("alpha") else ran
-    solver = kwargs.get("solver")
-    if kwargs["dt"] is not None or (solver is not None and not isinstance(solver, str)):
-        return "alpha"  # the uniform mesh, or --method alpha's AlphaMethod
-    return solver
+    solver = kwargs.get("solver")  # the uniform mesh, or --method alpha's AlphaMethod: the α-method
+    return "alpha" if kwargs["dt"] is not None or (solver is not None and not isinstance(solver, str)) else solver
 
 
 def engine_text(kwargs: dict, ran: str | None = None) -> str:
@@ -90,11 +88,9 @@ def engine_text(kwargs: dict, ran: str | None = None) -> str:
     tolerances or the uniform mesh, and ρ for the α-method."""
     stepper = _stepper(kwargs, ran)
     name = {"alpha": "alpha-method", None: "default stepper"}.get(stepper, stepper)
-    if kwargs["dt"] is None:
-        text = f"{name}, error control rtol = {kwargs['rtol']:g}, atol = {kwargs['atol']:g}"
-    else:
-        n_steps = check_mesh(kwargs["dt"], kwargs["t_final"])
-        text = f"{name}, uniform mesh dt = {kwargs['t_final'] / n_steps:.6g} s ({n_steps} steps)"
+    n_steps = None if kwargs["dt"] is None else check_mesh(kwargs["dt"], kwargs["t_final"])
+    text = (f"{name}, error control rtol = {kwargs['rtol']:g}, atol = {kwargs['atol']:g}" if n_steps is None else
+            f"{name}, uniform mesh dt = {kwargs['t_final'] / n_steps:.6g} s ({n_steps} steps)")  # fmt: skip
     return text if stepper not in ("alpha", None) else f"{text}, rho = {kwargs['rho']:g}"
 
 

@@ -105,21 +105,14 @@ def resume_refusal(message: str, args: argparse.Namespace) -> str:
     if found is None:
         return message
     names = [name.strip() for name in found.group(1).split(",")]
-    if "chunk" in names and args.chunk is None and len(names) > 1:
-        names.remove("chunk")
-    if "n_steps" in names and ("dt" in names or "t_final" in names):  # n_steps = t_final/dt
-        names.remove("n_steps")
-    if "window" in names and "t_final" in names:  # kept as fractions of t_final: --transient T may be as before
-        names.remove("window")
-    said = []
-    for name in names:
-        option = _SETTING_OPTIONS.get(name, name)
-        if option == "--tau" and args.n_tau is not None:
-            option = "--tau/--n-tau"
-        if option == "--chunk" and args.chunk is None:
-            option = f"the batch size (--chunk, default {DEFAULT_CHUNK}, at most the number of trajectories)"
-        if option not in said:
-            said.append(option)
+    dropped = {"chunk"} if args.chunk is None and len(names) > 1 else set()
+    dropped |= {"n_steps"} if {"dt", "t_final"} & set(names) else set()  # n_steps = t_final/dt
+    dropped |= {"window"} if "t_final" in names else set()  # kept as fractions of t_final: --transient may be as before
+    said, renamed = [], {"--tau": "--tau/--n-tau"} if args.n_tau is not None else {}
+    if args.chunk is None:
+        renamed["--chunk"] = f"the batch size (--chunk, default {DEFAULT_CHUNK}, at most the number of trajectories)"
+    for option in (_SETTING_OPTIONS.get(name, name) for name in names if name not in dropped):
+        said += [] if renamed.get(option, option) in said else [renamed.get(option, option)]
     joined = " and ".join(said) if len(said) <= 2 else ", ".join(said[:-1]) + " and " + said[-1]
     return f"{message[: found.start()]}made with a different {joined}{message[found.end() :]}"
 
