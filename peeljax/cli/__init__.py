@@ -61,12 +61,10 @@ def main(argv: list[str] | None = None) -> int:
     """
     with _interrupt.guard():  # Ctrl-C in any phase: 130 and one line (after a real SIGINT main does not return)
         try:
-            parser = build_parser()
             try:
-                args = parser.parse_args(argv)
+                args = build_parser().parse_args(argv)
             except SystemExit as exit_:  # argparse has printed its usage error (2) or --help (0)
-                code = exit_.code
-                return code if isinstance(code, int) else (0 if code is None else 2)
+                return exit_.code if isinstance(exit_.code, int) else (0 if exit_.code is None else 2)
             return args.handler(args)
         except KeyboardInterrupt:  # one line, no traceback, the shell's status for SIGINT
             return _interrupt.interrupted()

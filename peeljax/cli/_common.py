@@ -249,13 +249,10 @@ def closest_choice(message: str) -> str:
 
 
 # Python parameter names (with an underscore: never a word of prose) and their options.
-_PARAMETERS = {
-    "max_jumps": "--max-jumps", "max_steps": "--max-steps", "t_final": "--t-final", "save_dt": "--save-dt",
-    "save_every": "--save-every", "n_tau": "--n-tau", "n_points": "--n-points", "n_starts": "--n-starts",
-    "max_iterations": "--max-iterations", "learning_rate": "--learning-rate", "tau_rtol": "--tau-rtol",
-    "tau_range": "--tau-range", "random_starts": "--random-starts", "seed_rounds": "--seed-rounds",
-    "boundary_tol": "--boundary-tol", "lyapunov_time": "--lyapunov-time", "num_processes": "--num-processes",
-    "process_id": "--process-id", "join_timeout": "--distributed-timeout"}  # fmt: skip
+_PARAMETERS = {name: "--" + name.replace("_", "-") for name in (
+    "max_jumps", "max_steps", "t_final", "save_dt", "save_every", "n_tau", "n_points", "n_starts", "max_iterations",
+    "learning_rate", "tau_rtol", "tau_range", "random_starts", "seed_rounds", "boundary_tol", "lyapunov_time",
+    "num_processes", "process_id")} | {"join_timeout": "--distributed-timeout"}  # fmt: skip
 _UNDERSCORED = re.compile(r"(?<![\w-])(" + "|".join(_PARAMETERS) + r")\b")
 _ASSIGNED = re.compile(r"(?<![\w-])(--[a-z][\w-]*)=(?=\w)")  # --max-jumps=5 (from max_jumps=5) -> --max-jumps 5
 _ANOTHER_OUT = re.compile(r"\banother out\b")
@@ -343,9 +340,7 @@ def write_files(record: dict, *writers) -> list:
     """Each ``(option, path, write)`` with a path: ``write(path)``. A failure is kept as ``(option, path, error)``
     and its key of ``record`` (``out``, ``plot``) set to None: the result is reported whatever could not be written."""
     failed = []
-    for option, path, write in writers:
-        if path is None:
-            continue
+    for option, path, write in (writer for writer in writers if writer[1] is not None):
         try:
             write(path)
         except OSError as error:
@@ -371,10 +366,7 @@ def report(record: dict, as_json: bool, lines, failed=(), what: str = "", notes=
     """``--json``: ``record`` as the one JSON object on stdout (strict: NaN is null); else the summary ``lines``
     (ASCII). Then on stderr the ``notes`` and each file that could not be written (``failed``, after ``what`` was
     reported). Returns the exit status: 1 when a file failed, else 0."""
-    if as_json:
-        print(json.dumps(json_safe(record), allow_nan=False))
-    else:
-        print(ascii_text("\n".join(lines() if callable(lines) else lines)))
+    print(json.dumps(json_safe(record), allow_nan=False) if as_json else ascii_text("\n".join(lines() if callable(lines) else lines)))
     for note in notes:
         print(note, file=sys.stderr)
     for option, path, error in failed:

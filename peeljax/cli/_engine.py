@@ -17,7 +17,7 @@ from ..sweeps.integrators import DEFAULT_SWEEP_MAX_JUMPS, sweep_plan
 from ..sweeps.least_tau import least_tau
 from ..sweeps.storage import check_writable_format, is_netcdf
 from ._common import STEPPERS, library_default, solver_for
-from .options import (add_geometry_and_phi, add_max_steps, add_t_final, add_tolerances, add_V, check_max_jumps,
+from .options import (add_geometry_and_phi, add_max_steps, add_method, add_t_final, add_tolerances, add_V, check_max_jumps,
                       check_max_steps, check_method, check_outputs, check_save_dt, flatten, model_from)  # fmt: skip
 
 
@@ -32,10 +32,7 @@ def add_engine(parser: argparse.ArgumentParser):
     solver.add_argument("--dt", type=float, default=None,
                         help="uniform-mesh step [s] of the alpha-method, in (0, t_final] (default: error control)")  # fmt: skip
     add_tolerances(solver, rtol_default=f"{DEFAULT_RTOL:g}", atol_default=f"{DEFAULT_ATOL:g}")
-    solver.add_argument("--rho", type=float, default=None, help="alpha-method's rho in [0, 1) (default 0)")
-    solver.add_argument("--method", "--solver", default="default", metavar="NAME",
-                        help=f"the stepper of error control: default (the library's choice: auto) or one of "
-                        f"{', '.join(STEPPERS)}; --dt and --rho with default or alpha only (default: default)")  # fmt: skip
+    add_method(solver, library_default(sweep, "rho"))
     add_max_steps(solver, default=f"{DEFAULT_MAX_STEPS_DENSE:.0e}; stick-slip takes about 50-100 a jump")
     return solver
 

@@ -57,11 +57,8 @@ def _say(detail: str | None) -> bool:
         if _state.said:
             return False
         _state.said = True
-    line = f"{PROG}: interrupted" + (f": {detail}" if detail else "")
-    try:
-        print(line, file=sys.stderr, flush=True)
-    except (OSError, ValueError):  # stderr closed or gone: the status still says it
-        pass
+    with contextlib.suppress(OSError, ValueError):  # stderr closed or gone: the status still says it
+        print(f"{PROG}: interrupted" + (f": {detail}" if detail else ""), file=sys.stderr, flush=True)
     return True
 
 

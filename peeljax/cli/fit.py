@@ -32,7 +32,7 @@ from ..fit.trajectory import OPTIMIZERS
 from ..integrators.select import DEFAULT_ATOL, DEFAULT_MAX_STEPS, DEFAULT_RTOL, refuse_with_dt
 from . import options
 from ._common import PROG, checked, load_phi, plotter, subcommand, write_files
-from .fit_table import (_DATA_ONLY, _POINTS_DEFAULTS, _RECORDS_DEFAULTS, _TABLE_DEFAULTS, _TABLE_ONLY, _files_of, _finish,
+from .fit_table import (_DATA_ONLY, _POINTS_DEFAULTS, _RECORDS_DEFAULTS, _TABLE_DEFAULTS, _TABLE_ONLY, _at_least_1, _files_of, _finish,
                         _interrupted_fit, _points_tau, _records_command, _refuse, _table_command, _validate_records,
                         _validate_table, _visited_line)  # fmt: skip
 
@@ -143,8 +143,8 @@ def _check_run_options(args: argparse.Namespace) -> None:
     if args.optimizer is not None:
         check_choice("--optimizer", args.optimizer, OPTIMIZERS)
     for option, value in (("--steps", args.steps), ("--patience", args.patience)):
-        if value is not None and value < 1:
-            raise ValueError(f"{option} must be >= 1 (allowed range: [1, inf)), got {value}")
+        if value is not None:
+            _at_least_1(option, value)
     options.check_max_steps(args.max_steps, None if args.dt is None else "--dt")
     if args.learning_rate is not None:
         check_positive("--learning-rate", args.learning_rate)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validation import check_choice, check_tau
+from .._validation import check_choice, check_positive, check_tau
 from ..fit import DataFileError, Observation
 from ..fit.parameters import check_free
 from ..fit.records import check_fit_samples
@@ -55,8 +55,8 @@ def _table_window(args: argparse.Namespace) -> tuple[float, float]:
     rule as the other commands' (the second half of the run): W defaults to T, T to 0.5 s (or to W when only
     --window is given)."""
     _, window = options.one_window(args.window, fractions_allowed=False)
-    if window is not None and not (math.isfinite(window) and window > 0):
-        raise ValueError(f"--window must be > 0 [s] (allowed range: (0, inf)), got {window:g}")
+    if window is not None:
+        check_positive("--window", window)
     transient = (_TABLE_DEFAULTS["transient"] if window is None else window) if args.transient is None else args.transient
     if not (math.isfinite(transient) and transient >= 0):
         raise ValueError(f"--transient must be >= 0 [s] (allowed range: [0, inf)), got {transient:g}")

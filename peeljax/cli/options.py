@@ -21,7 +21,7 @@ from .._validation import check_max_steps as library_check_max_steps
 from ..integrators.select import DEFAULT_MAX_STEPS, DEFAULT_MAX_STEPS_DENSE
 from ..model import GEOMETRIES, PeelingModel
 from .._files import check_output_path, image_formats
-from ._common import PROG, library_default, read_phi
+from ._common import PROG, STEPPERS, library_default, read_phi
 
 MAX_JUMPS_LIMIT = 10_000_000  # --max-jumps: the jump record is allocated in full (5 arrays of max_jumps a run)
 MAX_VALUES = 1_000_000  # values of one range START:STOP:COUNT (a typo must not fill the memory)
@@ -135,6 +135,14 @@ def add_tolerances(group, *, rtol_default: str, atol_default: str, note: str = "
     for name, upper, default in (("rtol", "1", rtol_default), ("atol", "inf", atol_default)):
         group.add_argument(f"--{name}", type=float, default=None,
                            help=f"error control's {'relative' if name == 'rtol' else 'absolute'} tolerance in (0, {upper}) (default {default}; {note})")  # fmt: skip
+
+
+def add_method(group, rho_default: float, more: str = "") -> None:
+    """--method (the stepper; ``more``: what else it takes) and --rho, the α-method's ρ."""
+    group.add_argument("--method", "--solver", default="default", metavar="NAME",
+                       help=f"the stepper of error control: default (the library's choice: auto) or one of "
+                       f"{', '.join(STEPPERS)}{more}; --dt and --rho with default or alpha only (default: default)")  # fmt: skip
+    group.add_argument("--rho", type=float, default=None, help=f"alpha-method's rho in [0, 1) (default {rho_default:g})")
 
 
 def check_method(method: str, allowed: tuple[str, ...], dt, rho, alpha_methods=("default", "alpha")) -> None:

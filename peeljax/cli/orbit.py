@@ -172,8 +172,7 @@ def _orbit_command(args: argparse.Namespace, config: OrbitConfig) -> int:
     if config.plot is not None and not converged:
         record["plot"] = None
         print(f"{PROG}: no figure: the orbit did not converge (--plot {config.plot} not written)", file=sys.stderr)
-    else:
-        failed += write_files(record, ("--plot", config.plot, plotter("plot_orbit", orbit)))
+    failed += write_files(record, ("--plot", config.plot if converged else None, plotter("plot_orbit", orbit)))
     notes = [] if converged else [f"{PROG}: the orbit did not converge ({record['status']}): {record['reason']}"]
     code = report(record, config.json, lambda: _summary(orbit, record, config), failed, "the orbit's summary is above", notes)
     return EXIT_NOT_CONVERGED if not converged else code
@@ -192,10 +191,9 @@ class _KeptSoFar:
         self.branches, self.seeds = len(diagram.branches), len(diagram.seeds)
 
     def describe(self) -> str:
-        if self.out is None:
-            return "nothing was saved (no --out; with --out the diagram is written as it grows)"
-        if self.branches is None:
-            return f"nothing was finished to keep in {self.out!r}"
+        if self.out is None or self.branches is None:
+            return ("nothing was saved (no --out; with --out the diagram is written as it grows)" if self.out is None
+                    else f"nothing was finished to keep in {self.out!r}")  # fmt: skip
         return (f"{self.out!r} holds what was finished, marked incomplete: {self.seeds} seed runs and {self.branches} "
                 f"branch{'' if self.branches == 1 else 'es'} (pj.load reads it)")  # fmt: skip
 

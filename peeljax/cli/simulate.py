@@ -49,15 +49,11 @@ def add_command(subparsers) -> None:
                          "consistent data, v0 = 1e-10*V)")  # fmt: skip
     options.add_geometry_and_phi(physics)
     solver = parser.add_argument_group("integrator")
-    solver.add_argument("--method", "--solver", default="default", metavar="NAME",
-                        help=f"the stepper of error control: default (the library's choice: auto), {', '.join(STEPPERS)}; "
-                        "or diffrax (the Kvaerno5 reference on its output grid) (default: default)")  # fmt: skip
+    options.add_method(solver, _RUN["rho"], "; or diffrax (the Kvaerno5 reference on its output grid)")
     solver.add_argument("--dt", type=float, default=None,
                         help="default/alpha: a uniform mesh of N = round(t_final/dt) alpha-method steps instead of error "
                         f"control, dt in (0, t_final]; diffrax: the output spacing (default: error control; "
                         f"1/{1 / _REFERENCE['dt']:g} for diffrax)")  # fmt: skip
-    solver.add_argument("--rho", type=float, default=None,
-                        help=f"alpha-method's rho in [0, 1) (default {_RUN['rho']:g}; --method default or alpha)")
     options.add_tolerances(solver, rtol_default=f"{_ALPHA_RTOL:g}; {_REFERENCE['rtol']:g} for diffrax",
                            atol_default=f"{_ALPHA_ATOL:g}; {_REFERENCE['atol']:g} for diffrax", note="not on the uniform mesh")  # fmt: skip
     options.add_max_steps(solver)

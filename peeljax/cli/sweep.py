@@ -176,8 +176,7 @@ def join_processes(processes: distributed.Processes | None, args: argparse.Names
         print(f"{PROG}: error: {processes.describe()}: could not join ({error})", file=sys.stderr)
         return 2
     _quiet_stdout(keep=processes.process_id == 0)
-    if processes.process_id != 0:  # process 0 reports; the others compute their share only
-        args.plot = None
+    args.plot = args.plot if processes.process_id == 0 else None  # process 0 reports; the others compute their share
     return None
 
 
@@ -256,11 +255,8 @@ def _saved_chunks(out: str | None) -> str:
 
 def _print_resumed(result, out: str | None) -> None:
     """The line :func:`peeljax.sweep` prints with its progress bar when it resumed an --out."""
-    if out is None:
-        return
     n_chunks = -(-len(result) // int(result.settings["chunk"]))
-    loaded = n_chunks - len(result.computed_chunks)
-    if loaded:
+    if out is not None and (loaded := n_chunks - len(result.computed_chunks)):
         print(f"resumed: {loaded} of {n_chunks} chunks loaded from {str(out) + '.chunks'!r}", file=sys.stderr)
 
 
