@@ -35,14 +35,11 @@ __all__ = ["build_parser", "json_safe", "main", "summarize", "validate_run", "wr
 COMMANDS = (_simulate, _sweep, _tau_star, _orbit, _attractor_map, _figures, _fit)
 
 
-# ---------------------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
     """The top-level parser with one subparser per command (each sets ``handler``)."""
     from .._version import __version__
 
-    parser = Parser(
-        prog=PROG,
-        description="Stick-slip peeling of an adhesive tape off a rotating spool (homogenized DAE, in JAX).")
+    parser = Parser(prog=PROG, description="Stick-slip peeling of an adhesive tape off a rotating spool (homogenized DAE, in JAX).")
     parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for command in COMMANDS:
@@ -50,7 +47,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-# ---------------------------------------------------------------------------- entry point
 def main(argv: list[str] | None = None) -> int:
     """Run the command line ``argv`` (default ``sys.argv[1:]``); returns the exit status.
 

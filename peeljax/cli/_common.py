@@ -102,8 +102,7 @@ def unrecognized(extras: list[str], parser: argparse.ArgumentParser, others: dic
             parts.append(f"{name} (an option of peeljax {commands}, not of {parser.prog})")
         else:
             parts.append(f"{name} (did you mean {close[0]}?)" if close else name)
-    what = "option" if len(parts) == 1 else "options"
-    return f"unrecognized {what} {', '.join(parts)}: {parser.prog} --help lists the options"
+    return f"unrecognized {'option' if len(parts) == 1 else 'options'} {', '.join(parts)}: {parser.prog} --help lists the options"
 
 
 def read_phi(path: str) -> tuple[AdhesionLaw, tuple[str, ...]]:
@@ -151,13 +150,11 @@ def solver_for(method: str, rho: float | None):
     """``--method`` as the ``solver`` argument of :func:`peeljax.simulate` / :func:`peeljax.sweep`: None for
     "default" (the library's choice), an ``AlphaMethod(rho=rho)`` for "alpha" (so that ``--rho`` reaches it), else
     the stepper's name."""
-    if method == "default":
-        return None
-    if method == "alpha":
-        from ..integrators import AlphaMethod
+    if method != "alpha":
+        return None if method == "default" else method
+    from ..integrators import AlphaMethod
 
-        return AlphaMethod(rho=library_default(AlphaMethod, "rho") if rho is None else rho)
-    return method
+    return AlphaMethod() if rho is None else AlphaMethod(rho=rho)  # left out: its own default ρ
 
 
 def max_steps_remedy(budget) -> str:
@@ -167,8 +164,7 @@ def max_steps_remedy(budget) -> str:
 
 
 def remedy_notes(status, budget) -> list[str]:
-    """After trajectories (a sweep's, a map's) that used up their step budget: how many, and the
-    remedy (stderr)."""
+    """After trajectories (a sweep's, a map's) that used up their step budget: how many, and the remedy (stderr)."""
     status = np.asarray(status).ravel()
     out_of_steps = int(np.count_nonzero(status == int(StopReason.MAX_STEPS)))
     said = f"{PROG}: {out_of_steps} of {status.size} trajectories stopped at their step budget"
@@ -177,8 +173,7 @@ def remedy_notes(status, budget) -> list[str]:
 
 def phi_defaults(args: argparse.Namespace) -> list[str] | None:
     """The coefficients --phi left at the paper's values (None without --phi)."""
-    kept = getattr(args, "phi_defaults", None)
-    return None if kept is None else list(kept)
+    return None if (kept := getattr(args, "phi_defaults", None)) is None else list(kept)
 
 
 def stats_text(stats: dict, jumps_said: bool = False) -> str:
@@ -234,8 +229,8 @@ _ALLOWED = re.compile(r"\[([^\]]*)\]; allowed: ([^;()]+)")
 
 
 def closest_choice(message: str) -> str:
-    """``"; did you mean 'tsit5'?"`` for a refusal that lists the allowed names, when a given
-    name is close to one of them (case aside: ``Tsit5``, ``C1``); else ""."""
+    """``"; did you mean 'tsit5'?"`` for a refusal that lists the allowed names, when a given name is close to one of
+    them (case aside: ``Tsit5``, ``C1``); else ""."""
     found = _ONE_OF.search(message)
     if found is not None:
         allowed, given = found.group(1).split(", "), [found.group(2)]
@@ -272,9 +267,8 @@ _PHRASES = (
 # The library's words for error control and the uniform mesh (sweep_plan's messages)
 _MESH_PHRASES = (("(dt=None)", "(no --dt)"), ("(dt given)", "(--dt given)"))
 # Names that open a library message ("tau must be ...", "y0: ..."), and those whose option has another name.
-_LEADING = re.compile(
-    r"^(V|tau|dt|rtol|atol|rho|y0|geometry|transient|window|fold|start|free|statistics|coordinator|decimate|paths|slips)"
-    r"\b(?![-=])")
+_LEADING = re.compile(r"^(V|tau|dt|rtol|atol|rho|y0|geometry|transient|window|fold|start|free|statistics|coordinator|"
+                      r"decimate|paths|slips)\b(?![-=])")
 _RENAMED = {"paths": "--data"}  # peeljax.fit.records.load_observations(paths): the --data files
 
 

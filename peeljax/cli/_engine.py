@@ -54,10 +54,9 @@ def engine(args: argparse.Namespace, dae: bool = False) -> dict:
     if sweeping:  # a sweep's (least_tau stops at the folds)
         check_max_jumps(args.max_jumps, DEFAULT_SWEEP_MAX_JUMPS, uniform)
         chosen.update(fold=args.fold, max_jumps=args.max_jumps)
-    plan = sweep_plan(
-        chosen.get("solver"), engine_rho(args), args.dt, args.t_final, args.rtol, args.atol, saving.get("save_dt"),
-        saving.get("save_every"), None, args.max_steps, chosen.get("fold", "stop"),
-        args.max_jumps if sweeping else None, dae, getattr(args, "start", None) or "paper")  # fmt: skip
+    plan = sweep_plan(chosen.get("solver"), engine_rho(args), args.dt, args.t_final, args.rtol, args.atol, saving.get("save_dt"),
+                      saving.get("save_every"), None, args.max_steps, chosen.get("fold", "stop"),
+                      args.max_jumps if sweeping else None, dae, getattr(args, "start", None) or "paper")  # fmt: skip
     if saving.get("save_dt") is not None:
         check_save_dt(saving["save_dt"], args.t_final)  # at most 1e7 output times
     if not plan.uniform:

@@ -101,12 +101,9 @@ def note(describe: Callable[[], str | None]) -> Iterator[None]:
 
 def _detail() -> str | None:
     describe = _state.note
-    if describe is None:
-        return None
-    try:
-        return describe()
-    except Exception:  # a damaged chunk folder must not hide the interruption itself
-        return None
+    with contextlib.suppress(Exception):  # a damaged chunk folder must not hide the interruption itself
+        return None if describe is None else describe()
+    return None
 
 
 def _watch(reader: socket.socket) -> None:

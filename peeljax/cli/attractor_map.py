@@ -51,10 +51,10 @@ def validate_attractor_map(args: argparse.Namespace) -> dict:
         "model": model, "V": V, "t_final": float(args.t_final), "random_starts": args.random_starts, "seed": args.seed,
         "seed_rounds": args.seed_rounds, "boundary_tol": None if args.boundary_tol == 0 else args.boundary_tol,
         "lyapunov_time": args.lyapunov_time, "progress": options.progress_on(args) and not args.json}  # fmt: skip
-    check_attractor_map_options(  # the library's checks; what the command line leaves out, the library's defaults
-        model, V, args.random_starts, args.seed, kwargs["t_final"], _DEFAULTS["transient"], args.seed_rounds,
-        _DEFAULTS["extend"], kwargs["boundary_tol"], _DEFAULTS["branch_tol"], args.lyapunov_time,
-        _DEFAULTS["chaos_threshold"], _DEFAULTS["orbit_rtol"], {})  # fmt: skip
+    # the library's checks, of the options given and (left out here) its defaults
+    given = {key: value for key, value in kwargs.items() if key != "progress"}
+    left_out = {name: _DEFAULTS[name] for name in ("transient", "extend", "branch_tol", "chaos_threshold", "orbit_rtol")}
+    check_attractor_map_options(**given, **left_out, sweep_kwargs={})
     return kwargs
 
 

@@ -16,8 +16,7 @@ __all__ = ["add_command"]
 
 
 def add_command(subparsers) -> None:
-    parser = subcommand(
-        subparsers, "figures", checked(_check, _figures_command), "regenerate the paper's figures",
+    parser = subcommand(subparsers, "figures", checked(_check, _figures_command), "regenerate the paper's figures",
         "Run the paper's simulations (V = 1.1, 2, 4 m/s; the tau lists and steps of peeljax.figures.RUNS) and write "
         "Figs. 2-7, phi with its extrema and |J_t| with the local index, plus captions.md.")  # fmt: skip
     parser.add_argument("--out", default="figures", metavar="FOLDER", help="output folder (created; default figures/)")

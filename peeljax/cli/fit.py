@@ -71,9 +71,8 @@ def add_command(subparsers) -> None:
     ), out_formats=(".json",))  # fmt: skip
     source = parser.add_argument_group("what is fitted (one of --data and --table)")
     source.add_argument("--data", action="append", default=None, metavar="FILE",
-                        help="observations (repeatable): .npz, or a force record as CSV / whitespace text with a header "
-                        "naming its columns: t [s], F [N] (the tension), optional v [m/s], alpha [rad], V [m/s] "
-                        "(default: none)")  # fmt: skip
+                        help="observations (repeatable): .npz, or a force record as CSV / whitespace text with a header naming "
+                        "its columns: t [s], F [N] (the tension), optional v [m/s], alpha [rad], V [m/s] (default: none)")  # fmt: skip
     source.add_argument("--table", default=None, metavar="TABLE.csv",
                         help="instead of --data: a stick-slip table (CSV / whitespace text, columns V and any of F_mean, "
                         "F_slip, F_stick, period, slip_duration, each optionally with <name>_std), fitted by "
@@ -105,8 +104,7 @@ def add_command(subparsers) -> None:
     for option, kind, nargs, metavar, text in _FIT_OPTIONS:
         fit.add_argument(option, type=kind, nargs=nargs, metavar=metavar, default=None, help=text)
     fit.add_argument("--starts", dest="starts_deprecated", type=int, default=None, help=argparse.SUPPRESS)
-    options.add_output(
-        parser, "progress (iterations and loss)",
+    options.add_output(parser, "progress (iterations and loss)",
         out=("FITTED.json", "the fitted coefficients, loss history and settings (required with --data; with --table "
              "also the uncertainty, residuals and stop reason)"),
         plot=("FIT.png", "data vs fitted model, and fitted phi vs start (--table: with residuals and phi's 95%% band)"))  # fmt: skip
@@ -181,10 +179,9 @@ def _validate(args: argparse.Namespace, observations: list[Observation], default
 
 
 def _engine(config: dict) -> str:
-    if config["dt"] is None:
-        budget = config.get("max_steps", DEFAULT_MAX_STEPS)
-        return f"error control rtol {config['rtol']:g}, atol {config['atol']:g}, at most {budget} step attempts a run"
-    return f"uniform mesh of {config['n_steps']} steps"
+    if config["dt"] is not None:
+        return f"uniform mesh of {config['n_steps']} steps"
+    return f"error control rtol {config['rtol']:g}, atol {config['atol']:g}, at most {config.get('max_steps', DEFAULT_MAX_STEPS)} step attempts a run"
 
 
 def _validate_fit(args: argparse.Namespace) -> dict:
@@ -225,8 +222,6 @@ def _fit_command(args: argparse.Namespace, config: dict) -> int:
                          ("--plot", args.plot, plotter("plot_fit", result, observations)))  # fmt: skip
     fitted = ", ".join(f"{n} {result.adhesion.coefficients()[n]:.6g}" for n in result.free)
     return _finish(record, args, [
-        f"peeljax fit: {result.steps} iterations ({args.optimizer}), loss {result.initial_loss:.4g} -> "
-        f"{result.final_loss:.4g} ({result.loss_reduction:.3g}x), gradient norm {result.gradient_norm:.3g}",
-        _visited_line(record),  # then the values +- standard errors and correlations, or the values
-        uncertainty.table() if uncertainty is not None else f"fitted: {fitted}",
-    ], failed)  # fmt: skip
+        f"peeljax fit: {result.steps} iterations ({args.optimizer}), loss {result.initial_loss:.4g} -> {result.final_loss:.4g} "
+        f"({result.loss_reduction:.3g}x), gradient norm {result.gradient_norm:.3g}", _visited_line(record),
+        uncertainty.table() if uncertainty is not None else f"fitted: {fitted}"], failed)  # fmt: skip

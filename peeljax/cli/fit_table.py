@@ -51,9 +51,8 @@ def _refuse(args: argparse.Namespace, names: tuple[str, ...], source: str) -> No
 
 
 def _table_window(args: argparse.Namespace) -> tuple[float, float]:
-    """--transient T and --window W of the table fit: statistics over [T, T + W], the runs end at T + W; the same
-    rule as the other commands' (the second half of the run): W defaults to T, T to 0.5 s (or to W when only
-    --window is given)."""
+    """--transient T and --window W of the table fit: statistics over [T, T + W], the runs end at T + W; the other
+    commands' rule (the second half of the run): W defaults to T, T to 0.5 s (or to W when only --window is given)."""
     _, window = options.one_window(args.window, fractions_allowed=False)
     if window is not None:
         check_positive("--window", window)
@@ -294,9 +293,8 @@ def _table_command(args: argparse.Namespace, config: dict) -> int:
 
 
 def _points_tau(args: argparse.Namespace, defaults: dict) -> float:
-    """τ of a fit point by point: --tau, else the data files' own (an .npz run's), else the library's; in (0, 1e6].
-    Files of DAE runs (τ = 0) take the default too, said on stderr: a fit point by point integrates the homogenized
-    ODE."""
+    """τ of a fit point by point: --tau, else the data files' own (an .npz run's), else the library's; in (0, 1e6]. Files
+    of DAE runs (τ = 0) take the default too, said on stderr: a fit point by point integrates the homogenized ODE."""
     default = _POINTS_DEFAULTS["tau"]
     if args.tau is None and defaults.get("tau") == 0.0:
         print(f"{PROG}: --data: the files hold runs at tau = 0 (the DAE with jumps; a jump's two rows read as the state "

@@ -66,10 +66,8 @@ def numbers(option: str, ranges: bool = True):
                 raise ValueError(token)
             start, stop, count = float(parts[0]), float(parts[1]), int(parts[2])
         except ValueError:
-            raise argparse.ArgumentTypeError(
-                f"{token!r} is not a range START:STOP:COUNT: START and STOP numbers, COUNT an integer "
-                f"(e.g. {option} 0.2:8:40, 40 values from 0.2 to 8)"
-            ) from None
+            raise argparse.ArgumentTypeError(f"{token!r} is not a range START:STOP:COUNT: START and STOP numbers, COUNT "
+                                             f"an integer (e.g. {option} 0.2:8:40, 40 values from 0.2 to 8)") from None
         if not 2 <= count <= MAX_VALUES:
             raise argparse.ArgumentTypeError(f"{token!r}: COUNT must be an integer in [2, {MAX_VALUES}] (allowed range), got {count}")
         if not (math.isfinite(start) and math.isfinite(stop) and start < stop):
@@ -285,9 +283,8 @@ _FORMATS = {".npz": "numpy", ".nc": "netCDF", ".json": "JSON", ".csv": "text"}
 
 
 def check_outputs(args: argparse.Namespace) -> None:
-    """--out and --plot: the folder exists and is writable, the image format known; --out's suffix, if it has one,
-    among those the command writes (``args.out_formats``, set by its parser): ``--out sweep.csv`` would be a numpy
-    file under a CSV name."""
+    """--out and --plot: the folder exists and is writable, the image format known; --out's suffix, if any, among those
+    the command writes (``args.out_formats``, set by its parser): ``--out sweep.csv`` would be numpy under a CSV name."""
     out, formats = getattr(args, "out", None), getattr(args, "out_formats", None)
     suffix = "" if out is None else os.path.splitext(out)[1].lower()
     if formats and suffix and suffix not in formats:
@@ -310,5 +307,4 @@ def progress_on(args: argparse.Namespace) -> bool:
 
 def deprecated(old: str, new: str, what: str = "") -> None:
     """One line on stderr: ``old`` still works until peeljax 0.3.0; ``new`` is its spelling now."""
-    what = f" {what}" if what else ""
-    print(f"{PROG}: note: {old}{what} is deprecated and is removed in peeljax 0.3.0: give {new}", file=sys.stderr)
+    print(f"{PROG}: note: {old}{' ' + what if what else ''} is deprecated and is removed in peeljax 0.3.0: give {new}", file=sys.stderr)

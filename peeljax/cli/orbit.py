@@ -56,10 +56,9 @@ def add_command(subparsers) -> None:
         "has no fold at V, or the run shows no repeat); 130 interrupted (Ctrl-C).", out_formats=(".npz",))  # fmt: skip
     problem = parser.add_argument_group("problem")
     problem.add_argument("--V", type=_one_V, default=_V, metavar="V|START:STOP[:SEEDS]",
-                         help=f"pull velocity [m/s], > 0 (default {_V:g}); or a range START:STOP: the bifurcation "
-                         f"diagram over it — seed runs at SEEDS equally spaced V (default {seeds}) from the tape at rest "
-                         "and from steady peeling, each repeat's orbit continued over V, every bifurcation located and "
-                         "the branch beyond it traced")  # fmt: skip
+                         help=f"pull velocity [m/s], > 0 (default {_V:g}); or a range START:STOP: the bifurcation diagram "
+                         f"over it — seed runs at SEEDS equally spaced V (default {seeds}) from the tape at rest and from steady "
+                         "peeling, each repeat's orbit continued over V, every bifurcation located and the branch beyond it traced")  # fmt: skip
     options.add_geometry_and_phi(problem)
     shooting = parser.add_argument_group("shooting")
     shooting.add_argument("--slips", type=int, default=None, metavar="K",
@@ -106,11 +105,9 @@ class OrbitConfig:
 
 
 def validate_orbit(args: argparse.Namespace) -> OrbitConfig:
-    """Every option checked in plain Python, before anything compiles, by the library's
-    :func:`~peeljax.orbits.api.check_periodic_orbit` (V once: a diagram's START, the rest as for one V); a
-    diagram's range START:STOP:SEEDS here."""
-    V_range = args.V if isinstance(args.V, tuple) else None
-    V = args.V if V_range is None else V_range[0]
+    """Every option checked before anything compiles, by the library's :func:`~peeljax.orbits.api.check_periodic_orbit`
+    (V once: a diagram's START, the rest as for one V); a diagram's range START:STOP:SEEDS here."""
+    V_range, V = (args.V, args.V[0]) if isinstance(args.V, tuple) else (None, args.V)
     rtol = _RTOL if args.rtol is None else args.rtol
     check_periodic_orbit(None, V, slips=args.slips, period=None, rtol=rtol, atol=args.atol,
                          max_iterations=args.max_iterations, transient=args.transient)  # fmt: skip
@@ -125,10 +122,9 @@ def validate_orbit(args: argparse.Namespace) -> OrbitConfig:
     atol = orbit_shooting(rtol=rtol, atol=args.atol).integrator.controller.atol  # the library's default atol
     model, phi_defaults = options.model_from(args)
     options.check_outputs(args)
-    return OrbitConfig(
-        model=model, V=float(V), slips=args.slips, transient=float(args.transient), rtol=float(rtol),
-        atol=float(atol), max_iterations=int(args.max_iterations), phi=args.phi, phi_defaults=phi_defaults,
-        V_range=V_range, out=args.out, plot=args.plot, json=args.json, progress=options.progress_on(args))  # fmt: skip
+    return OrbitConfig(model=model, V=float(V), slips=args.slips, transient=float(args.transient), rtol=float(rtol),
+                       atol=float(atol), max_iterations=int(args.max_iterations), phi=args.phi, phi_defaults=phi_defaults,
+                       V_range=V_range, out=args.out, plot=args.plot, json=args.json, progress=options.progress_on(args))  # fmt: skip
 
 
 # ---------------------------------------------------------------------------- the command

@@ -33,8 +33,7 @@ _RUN, _REFERENCE = library_defaults(simulate), library_defaults(simulate_referen
 
 
 def add_command(subparsers) -> None:
-    parser = subcommand(
-        subparsers, "simulate", checked(validate_run, _simulate_command), "integrate one run",
+    parser = subcommand(subparsers, "simulate", checked(validate_run, _simulate_command), "integrate one run",
         "Integrate the homogenized peeling ODE (tau > 0) or the DAE itself (tau = 0) over [0, t_final], through the "
         "folds of phi, and report how it ended.", out_formats=(".npz", ".csv"))  # fmt: skip
     physics = parser.add_argument_group("problem")
@@ -51,9 +50,8 @@ def add_command(subparsers) -> None:
     solver = parser.add_argument_group("integrator")
     options.add_method(solver, _RUN["rho"], "; or diffrax (the Kvaerno5 reference on its output grid)")
     solver.add_argument("--dt", type=float, default=None,
-                        help="default/alpha: a uniform mesh of N = round(t_final/dt) alpha-method steps instead of error "
-                        f"control, dt in (0, t_final]; diffrax: the output spacing (default: error control; "
-                        f"1/{1 / _REFERENCE['dt']:g} for diffrax)")  # fmt: skip
+                        help="default/alpha: a uniform mesh of N = round(t_final/dt) alpha-method steps instead of error control, "
+                        f"dt in (0, t_final]; diffrax: the output spacing (default: error control; 1/{1 / _REFERENCE['dt']:g} for diffrax)")  # fmt: skip
     options.add_tolerances(solver, rtol_default=f"{_ALPHA_RTOL:g}; {_REFERENCE['rtol']:g} for diffrax",
                            atol_default=f"{_ALPHA_ATOL:g}; {_REFERENCE['atol']:g} for diffrax", note="not on the uniform mesh")  # fmt: skip
     options.add_max_steps(solver)
@@ -236,10 +234,9 @@ def write_npz(path: str, solution: Solution, config: RunConfig) -> None:
 
 def _run_settings(solution: Solution, config: RunConfig) -> dict:
     """The run's settings as :func:`peeljax.run_file.run_arrays` takes them."""
-    return dict(
-        model=config.model, V=config.V, tau=config.tau, t_final=config.t_final, dt=step_used(solution, config),
-        rho=_rho_used(solution, config), rtol=config.rtol, atol=config.atol, method_option=config.method,
-        fold=config.fold, max_jumps=config.max_jumps, transient=config.transient)  # fmt: skip
+    return dict(model=config.model, V=config.V, tau=config.tau, t_final=config.t_final, dt=step_used(solution, config),
+                rho=_rho_used(solution, config), rtol=config.rtol, atol=config.atol, method_option=config.method,
+                fold=config.fold, max_jumps=config.max_jumps, transient=config.transient)  # fmt: skip
 
 
 def _rho_used(solution: Solution, config: RunConfig) -> float | None:

@@ -65,11 +65,8 @@ def summary_lines(record: dict, config, found=None) -> list[str]:
         settings.append(f"rtol = {config.rtol:g}, atol = {config.atol:g}")
     if config.adaptive:
         settings.append(f"fold {config.fold} (--max-jumps {config.max_jumps}, --max-steps {config.budget})")
-        mesh = f"error control ({record['accepted_steps']} accepted, {record['rejected_steps']} rejected steps)"
-    elif config.n_steps is None:
-        mesh = f"output at {len(config.save_ts)} times"
-    else:
-        mesh = f"dt = {record['dt']:.6g} s ({config.n_steps} steps)"
+    mesh = _mesh(config, f" ({record['accepted_steps']} accepted, {record['rejected_steps']} rejected steps)",
+                 f"dt = {record['dt']:.6g} s ({config.n_steps} steps)")  # fmt: skip
     tau = "tau = 0 (the DAE)" if config.dae else f"tau = {config.tau:g} s"
     stopped = f"stopped at t = {record['t_stop']:.6g} s"
     if record["status"] == "completed":
@@ -99,8 +96,7 @@ def summary_lines(record: dict, config, found=None) -> list[str]:
 
 def cycles(solution: Solution, config, record: dict):
     """With a jump record: its count (``record["jumps"]``, ``"jumps_up"``) and the cycle statistics over [transient,
-    t_stop] (``record["cycles"]``, returned too; None with a note when the run stopped before the transient was
-    over)."""
+    t_stop] (``record["cycles"]``, returned too; None with a note when the run stopped before the transient ended)."""
     if solution.jumps is None:
         return None
     jumps = solution.jumps.as_numpy()
@@ -116,14 +112,16 @@ def cycles(solution: Solution, config, record: dict):
     return found
 
 
+def _mesh(config, steps: str, uniform: str) -> str:
+    """How the run's output is laid out: error control's steps (``steps`` said after), output times, or ``uniform``."""
+    if config.adaptive:
+        return f"error control{steps}"
+    return f"output at {len(config.save_ts)} times" if config.n_steps is None else uniform
+
+
 def announce(config) -> None:
     """What runs, on stderr, before it compiles."""
-    if config.adaptive:
-        mesh = "error control"
-    elif config.n_steps is None:
-        mesh = f"output at {len(config.save_ts)} times"
-    else:
-        mesh = f"{config.n_steps} step{'' if config.n_steps == 1 else 's'}"
+    mesh = _mesh(config, "", f"{config.n_steps} step{'' if config.n_steps == 1 else 's'}")
     method = "default stepper" if config.method == "default" else config.method
     budget = "" if config.budget is None else f", at most {config.budget} step attempts (--max-steps)"
     print(f"{PROG}: {method} run with {mesh} to t = {config.t_final:g} s{budget} (compiling first: a few seconds) ...",

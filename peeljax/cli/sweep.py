@@ -42,8 +42,8 @@ def add_command(subparsers) -> None:
                       "folds of phi; error control only); with --n-tau, two numbers LO HI give a log-spaced grid "
                       "(default 1e-3 1e-1; with --stick-slip-map 0)")  # fmt: skip
     grid.add_argument("--n-tau", dest="n_tau", type=int, default=None,
-                      help="points of a log-spaced tau grid from --tau LO to HI, an integer >= 2 (default: none, the "
-                      "--tau values as given)")  # fmt: skip
+                      help="points of a log-spaced tau grid from --tau LO to HI, an integer >= 2 (default: none, the --tau values "
+                      "as given)")  # fmt: skip
     grid.add_argument("--chunk", type=int, default=None, help=f"trajectories per compiled batch, >= 1 (default {DEFAULT_CHUNK})")
     folds = parser.add_argument_group("folds of phi (stick-slip jumps; error control only)")
     options.add_fold(folds, "--dt")
@@ -59,21 +59,18 @@ def add_command(subparsers) -> None:
         help="instead of the (V, tau) sweep: at one --tau (default 0, the DAE), one sweep over --V per start (both "
         "unless --start), each run's jumps after --transient reduced to its cycle statistics; --out writes the map's "
         "arrays (.npz), --plot its figure against V (forces at the jumps over phi's folds, repeat period, v amplitude)")  # fmt: skip
-    options.add_output(
-        parser, "progress bar",
-        out=("FILE.npz", "results (numpy, with each trajectory's jump record; FILE.nc: netCDF with labelled "
-             "dimensions, needs pip install \"peeljax[xarray]\"); chunks in FILE.npz.chunks/, resumable; with "
-             "--stick-slip-map the map's arrays; peeljax.load reads either back"),
-        plot=("FILE.png", "the stick-slip map over (V, tau) (tau > 0); with --stick-slip-map the map against V"))  # fmt: skip
+    options.add_output(parser, "progress bar", out=("FILE.npz", "results (numpy, with each trajectory's jump record; FILE.nc: "
+                       "netCDF with labelled dimensions, needs pip install \"peeljax[xarray]\"); chunks in FILE.npz.chunks/, "
+                       "resumable; with --stick-slip-map the map's arrays; peeljax.load reads either back"),
+                       plot=("FILE.png", "the stick-slip map over (V, tau) (tau > 0); with --stick-slip-map the map against V"))  # fmt: skip
     _add_distributed_options(parser)
 
 
 def _add_distributed_options(parser: argparse.ArgumentParser) -> None:
-    """One ``peeljax sweep`` per process, with the same sweep options (docs/sweeps.md); without these options nothing
-    joins JAX's distributed runtime (jax.distributed.initialize's arguments; None: one process, or what
-    --distributed detects)."""
-    group = parser.add_argument_group(
-        "several processes (JAX's distributed runtime: one command per process, same options; docs/sweeps.md)")
+    """One ``peeljax sweep`` per process, with the same options (docs/sweeps.md); without these nothing joins JAX's
+    distributed runtime (jax.distributed.initialize's arguments; None: one process, or what --distributed detects)."""
+    group = parser.add_argument_group("several processes (JAX's distributed runtime: one command per process, same options; "
+                                      "docs/sweeps.md)")  # fmt: skip
     under_srun, timeout = "with --distributed under srun", distributed.DEFAULT_TIMEOUT
     group.add_argument("--coordinator", metavar="HOST:PORT", help="address of process 0, which every process connects "
                        f"to (default: $JAX_COORDINATOR_ADDRESS; {under_srun}: the job's first node)")  # fmt: skip

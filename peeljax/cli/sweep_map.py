@@ -29,9 +29,8 @@ def validate_map(args: argparse.Namespace) -> dict:
             what = "a uniform mesh, which keeps no jumps" if option != "--save-dt" else "saved states"
             raise ValueError(f"{option} asks for {what}; --stick-slip-map reads the jumps of error-controlled runs")
     if args.window is not None:
-        raise ValueError(
-            "--window: the stick-slip map's cycle statistics run from --transient to each run's end; give "
-            "--transient (and --t-final)")
+        raise ValueError("--window: the stick-slip map's cycle statistics run from --transient to each run's end; give "
+                         "--transient (and --t-final)")  # fmt: skip
     chosen = engine(args, dae=tau == [0.0])
     if chosen["fold"] == "stop":
         raise ValueError("--fold stop ends every run at its first fold: --stick-slip-map needs --fold jump (or follow)")

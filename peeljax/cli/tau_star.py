@@ -19,8 +19,7 @@ _TAU_STAR = library_defaults(_least_tau_api)  # the search, left out: peeljax.le
 
 
 def add_command(subparsers) -> None:
-    star = subcommand(
-        subparsers, "tau-star", checked(validate_tau_star, _tau_star_command), "the least resolvable tau per V",
+    star = subcommand(subparsers, "tau-star", checked(validate_tau_star, _tau_star_command), "the least resolvable tau per V",
         "For each V, tau* = the least tested tau above which every tested tau completes [0, t_final], with "
         "tau*(1 - tau_rtol) stopping (docs/sweeps.md). All V are searched in parallel. The runs use error control "
         "(--rtol, --atol) by default, a uniform mesh with --dt.")  # fmt: skip
