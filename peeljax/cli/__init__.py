@@ -1,5 +1,6 @@
 """The ``peeljax`` command line: ``peeljax simulate ...`` (one module per subcommand; a part of one
-in its own module: :mod:`.simulate_report`, :mod:`.sweep_map`, :mod:`.fit_table`).
+in its own module: :mod:`.simulate_report`, :mod:`.sweep_map`, :mod:`.fit_table`; the options
+several share in :mod:`.options`, the batched engine's in :mod:`._engine`).
 
 The command line only translates: it parses, calls one library function and prints. Inputs
 are checked with the Python API's own checks (:mod:`peeljax._validation`, the library
@@ -11,7 +12,8 @@ iteration, …) exits with status 0: stopping is a result, reported in the summa
 ``--json`` object and the ``--out`` file.
 
 With ``--json`` stdout carries exactly one JSON object; progress notes always go to stderr.
-Each subcommand module has ``add_command(subparsers)``, which sets the parser's ``handler``.
+Each subcommand module has ``add_command(subparsers)``, which registers it (:func:`._common.subcommand`) with
+its ``handler``, most often :func:`._common.checked`: the command's validation, then its run.
 """
 
 from __future__ import annotations
