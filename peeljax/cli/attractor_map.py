@@ -27,7 +27,8 @@ def add_command(subparsers) -> None:
     problem, grid, d = parser.add_argument_group("problem"), DEFAULT_V, _DEFAULTS
     options.add_V(problem, many=True, default=None, help="the grid of pull velocities [m/s], increasing",
                   shown=f"{grid[0]:g}:{grid[-1]:g}:{grid.size}")  # fmt: skip
-    options.add_t_final(problem, default=d["t_final"], help=f"length of each run [s], > 0 (default {d['t_final']:g}; its second half is the window)")  # fmt: skip
+    options.add_t_final(problem, default=d["t_final"],
+                        help=f"length of each run [s], > 0 (default {d['t_final']:g}; its second half is the window)")
     options.add_geometry_and_phi(problem)
     search = parser.add_argument_group("the search")
     for option, kind, text in (
@@ -50,7 +51,7 @@ def validate_attractor_map(args: argparse.Namespace) -> dict:
     kwargs = {
         "model": model, "V": V, "t_final": float(args.t_final), "random_starts": args.random_starts, "seed": args.seed,
         "seed_rounds": args.seed_rounds, "boundary_tol": None if args.boundary_tol == 0 else args.boundary_tol,
-        "lyapunov_time": args.lyapunov_time, "progress": options.progress_on(args) and not args.json}  # fmt: skip
+        "lyapunov_time": args.lyapunov_time, "progress": args.progress and not args.json}  # fmt: skip
     # the library's checks, of the options given and (left out here) its defaults
     given = {key: value for key, value in kwargs.items() if key != "progress"}
     left_out = {name: _DEFAULTS[name] for name in ("transient", "extend", "branch_tol", "chaos_threshold", "orbit_rtol")}

@@ -47,7 +47,7 @@ def _check(args: argparse.Namespace) -> dict:
 def _figures_command(args: argparse.Namespace, given: dict) -> int:
     from ..figures import write_figures
 
-    say = options.progress_on(args) and (lambda message: print(f"{PROG}: {message}", file=sys.stderr))
+    say = args.progress and (lambda message: print(f"{PROG}: {message}", file=sys.stderr))
     try:
         facts = write_figures(Path(args.out), **given, progress=say)
     except OSError as error:

@@ -126,7 +126,7 @@ def _fit_runs(fit_adhesion, observations, config: dict, args: argparse.Namespace
     """:func:`peeljax.fit.fit_adhesion` with the command's settings."""
     given = {key: config[key] for key in ("tau", "dt", "t_final", "start", "weights", "rtol", "atol", "max_steps") if key in config}
     return fit_adhesion(observations, free=args.free, optimizer=args.optimizer, steps=args.steps, patience=args.patience,
-                        learning_rate=args.learning_rate, progress=options.progress_on(args), **given)  # fmt: skip
+                        learning_rate=args.learning_rate, progress=args.progress, **given)  # fmt: skip
 
 
 def _write_fit(result, args: argparse.Namespace) -> None:
@@ -181,7 +181,8 @@ def _validate(args: argparse.Namespace, observations: list[Observation], default
 def _engine(config: dict) -> str:
     if config["dt"] is not None:
         return f"uniform mesh of {config['n_steps']} steps"
-    return f"error control rtol {config['rtol']:g}, atol {config['atol']:g}, at most {config.get('max_steps', DEFAULT_MAX_STEPS)} step attempts a run"
+    budget = config.get("max_steps", DEFAULT_MAX_STEPS)
+    return f"error control rtol {config['rtol']:g}, atol {config['atol']:g}, at most {budget} step attempts a run"
 
 
 def _validate_fit(args: argparse.Namespace) -> dict:

@@ -206,7 +206,7 @@ def _records_command(args: argparse.Namespace, config: dict) -> int:
     model, given = PeelingModel(adhesion=config["start"]), {key: config[key] for key in _RECORDS_KEYS}
     try:
         result = fit_records(config["records"], model, **given,
-                             progress=_iteration_line("Levenberg-Marquardt") if options.progress_on(args) else None)  # fmt: skip
+                             progress=_iteration_line("Levenberg-Marquardt") if args.progress else None)  # fmt: skip
     except KeyboardInterrupt as stop:
         return _interrupted_fit(stop, args)
     by_points = any(kind == "points" for kind, _ in config["decided"])  # each record's F(t) against the model's, and φ
@@ -276,7 +276,7 @@ def _table_command(args: argparse.Namespace, config: dict) -> int:
           "compiling first ...", file=sys.stderr)  # fmt: skip
     model = PeelingModel(adhesion=config["start"])
     # the hook of fit_stick_slip (progress(iteration, chi2)); left out where it has none
-    hooked = options.progress_on(args) and "progress" in _TABLE_DEFAULTS
+    hooked = args.progress and "progress" in _TABLE_DEFAULTS
     progress = {"progress": _iteration_line("Levenberg-Marquardt")} if hooked else {}
     given = {key: value for key, value in config.items() if key not in ("table", "source", "start")}
     try:

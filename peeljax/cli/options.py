@@ -16,7 +16,7 @@ import sys
 
 import numpy as np
 
-from .._validation import MAX_STEPS_LIMIT, TAU_MAX, check_choice, check_positive, check_tolerance
+from .._validation import MAX_STEPS_LIMIT, check_choice, check_positive, check_tolerance
 from .._validation import check_max_steps as library_check_max_steps
 from ..integrators.select import DEFAULT_MAX_STEPS, DEFAULT_MAX_STEPS_DENSE
 from ..model import GEOMETRIES, PeelingModel
@@ -124,15 +124,12 @@ def model_from(args: argparse.Namespace) -> tuple[PeelingModel, tuple[str, ...] 
     return PeelingModel(adhesion=law, geometry=args.geometry), kept
 
 
-TAU_RANGE = f"[0, {TAU_MAX:.0e}]".replace("e+0", "e")
-
-
 # ---------------------------------------------------------------------------- the integrator
 def add_tolerances(group, *, rtol_default: str, atol_default: str, note: str = "not with --dt") -> None:
     """--rtol and --atol: error control's tolerances."""
-    for name, upper, default in (("rtol", "1", rtol_default), ("atol", "inf", atol_default)):
+    for name, kind, upper, default in (("rtol", "relative", "1", rtol_default), ("atol", "absolute", "inf", atol_default)):
         group.add_argument(f"--{name}", type=float, default=None,
-                           help=f"error control's {'relative' if name == 'rtol' else 'absolute'} tolerance in (0, {upper}) (default {default}; {note})")  # fmt: skip
+                           help=f"error control's {kind} tolerance in (0, {upper}) (default {default}; {note})")
 
 
 def add_method(group, rho_default: float, more: str = "") -> None:
@@ -181,8 +178,9 @@ def add_max_steps(group, *, default: str | None = None) -> None:
     """--max-steps: error control's budget of step attempts per run."""
     default = default or f"{DEFAULT_MAX_STEPS} where the accepted steps are the output, {DEFAULT_MAX_STEPS_DENSE:.0e} with --save-dt"
     group.add_argument("--max-steps", dest="max_steps", type=int, default=None, metavar="N",
-                       help=f"error control's budget of step attempts (accepted or rejected) per run, an integer in "
-                       f"[1, {MAX_STEPS_LIMIT}]; a run that uses it up stops, and stderr says so; not with --dt (default {default})")  # fmt: skip
+                       help=f"error control's budget of step attempts (accepted or rejected) per run, an integer in [1, "
+                       f"{MAX_STEPS_LIMIT}]; a run that uses it up stops, and stderr says so; not with --dt (default "
+                       f"{default})")  # fmt: skip
 
 
 def check_max_steps(max_steps: int | None, uniform_option: str | None = None) -> None:
@@ -261,8 +259,9 @@ def one_window(window: list[float] | None, *, fractions_allowed: bool, t_final: 
         T, W = w0 * t_final, (w1 - w0) * t_final
         deprecated(f"--window {w0:g} {w1:g}", f"--transient {T:g} --window {W:g}", "(fractions of t_final)")
         return T, W
+    old_form = "" if fractions_allowed else "; sweep's old form W0 W1 is --transient T --window W here"
     raise ValueError(f"--window takes one length W [s] (the statistics cover [--transient, --transient + W]), got "
-                     f"{len(window)} values" + ("" if fractions_allowed else "; sweep's old form W0 W1 is --transient T --window W here"))  # fmt: skip
+                     f"{len(window)} values{old_form}")
 
 
 # ---------------------------------------------------------------------------- output and progress
@@ -299,10 +298,6 @@ def check_outputs(args: argparse.Namespace) -> None:
 def add_progress(parser, what: str = "progress") -> None:
     parser.add_argument("--no-progress", dest="progress", action="store_false",
                         help=f"no {what} on stderr (default: shown; what runs and how it ended are always said)")  # fmt: skip
-
-
-def progress_on(args: argparse.Namespace) -> bool:
-    return bool(getattr(args, "progress", True))
 
 
 def deprecated(old: str, new: str, what: str = "") -> None:

@@ -18,7 +18,8 @@ from ..orbits.api import ATOL_PER_RTOL, DEFAULT_TRANSIENT_RUN, MAX_ITERATIONS, M
 from ..orbits.api import orbit_shooting, periodic_orbit
 from ..orbits.diagram import orbit_diagram
 from . import _interrupt, options
-from ._common import PROG, Elapsed, checked, fail, library_default, library_defaults, plotter, report, subcommand, write_failed, write_files, wrote
+from ._common import PROG, Elapsed, checked, fail, library_default, library_defaults, plotter, report, subcommand
+from ._common import write_failed, write_files, wrote
 
 __all__ = ["EXIT_NOT_CONVERGED", "OrbitConfig", "add_command", "validate_orbit"]
 
@@ -56,9 +57,10 @@ def add_command(subparsers) -> None:
         "has no fold at V, or the run shows no repeat); 130 interrupted (Ctrl-C).", out_formats=(".npz",))  # fmt: skip
     problem = parser.add_argument_group("problem")
     problem.add_argument("--V", type=_one_V, default=_V, metavar="V|START:STOP[:SEEDS]",
-                         help=f"pull velocity [m/s], > 0 (default {_V:g}); or a range START:STOP: the bifurcation diagram "
-                         f"over it — seed runs at SEEDS equally spaced V (default {seeds}) from the tape at rest and from steady "
-                         "peeling, each repeat's orbit continued over V, every bifurcation located and the branch beyond it traced")  # fmt: skip
+                         help=f"pull velocity [m/s], > 0 (default {_V:g}); or a range START:STOP: the bifurcation "
+                         f"diagram over it — seed runs at SEEDS equally spaced V (default {seeds}) from the tape at "
+                         "rest and from steady peeling, each repeat's orbit continued over V, every bifurcation "
+                         "located and the branch beyond it traced")  # fmt: skip
     options.add_geometry_and_phi(problem)
     shooting = parser.add_argument_group("shooting")
     shooting.add_argument("--slips", type=int, default=None, metavar="K",
@@ -124,7 +126,7 @@ def validate_orbit(args: argparse.Namespace) -> OrbitConfig:
     options.check_outputs(args)
     return OrbitConfig(model=model, V=float(V), slips=args.slips, transient=float(args.transient), rtol=float(rtol),
                        atol=float(atol), max_iterations=int(args.max_iterations), phi=args.phi, phi_defaults=phi_defaults,
-                       V_range=V_range, out=args.out, plot=args.plot, json=args.json, progress=options.progress_on(args))  # fmt: skip
+                       V_range=V_range, out=args.out, plot=args.plot, json=args.json, progress=args.progress)  # fmt: skip
 
 
 # ---------------------------------------------------------------------------- the command

@@ -38,9 +38,10 @@ def add_command(subparsers) -> None:
         "folds of phi, and report how it ended.", out_formats=(".npz", ".csv"))  # fmt: skip
     physics = parser.add_argument_group("problem")
     options.add_V(physics, many=False, default=_RUN["V"])
+    tau_range = f"[0, {TAU_MAX:.0e}]".replace("e+0", "e")
     physics.add_argument("--tau", type=options.number("--tau"), default=_RUN["tau"],
-                         help=f"tau [s] in {options.TAU_RANGE}: 0 is the DAE itself (v from G = phi(v, V), jumping at "
-                         "the folds of phi); 0 needs error control (default %(default)s)")  # fmt: skip
+                         help=f"tau [s] in {tau_range}: 0 is the DAE itself (v from G = phi(v, V), jumping at the folds of "
+                         "phi); 0 needs error control (default %(default)s)")  # fmt: skip
     options.add_t_final(physics, default=_RUN["t_final"])
     physics.add_argument("--y0", type=float, nargs=4, metavar=("ALPHA0", "OMEGA0", "U0", "v0"),
                          help="initial state: peel angle alpha0 [rad], spool speed omega0 [rad/s], tape stretch u0 [m] "
@@ -50,10 +51,12 @@ def add_command(subparsers) -> None:
     solver = parser.add_argument_group("integrator")
     options.add_method(solver, _RUN["rho"], "; or diffrax (the Kvaerno5 reference on its output grid)")
     solver.add_argument("--dt", type=float, default=None,
-                        help="default/alpha: a uniform mesh of N = round(t_final/dt) alpha-method steps instead of error control, "
-                        f"dt in (0, t_final]; diffrax: the output spacing (default: error control; 1/{1 / _REFERENCE['dt']:g} for diffrax)")  # fmt: skip
+                        help="default/alpha: a uniform mesh of N = round(t_final/dt) alpha-method steps instead of error "
+                        f"control, dt in (0, t_final]; diffrax: the output spacing (default: error control; "
+                        f"1/{1 / _REFERENCE['dt']:g} for diffrax)")  # fmt: skip
     options.add_tolerances(solver, rtol_default=f"{_ALPHA_RTOL:g}; {_REFERENCE['rtol']:g} for diffrax",
-                           atol_default=f"{_ALPHA_ATOL:g}; {_REFERENCE['atol']:g} for diffrax", note="not on the uniform mesh")  # fmt: skip
+                           atol_default=f"{_ALPHA_ATOL:g}; {_REFERENCE['atol']:g} for diffrax",
+                           note="not on the uniform mesh")  # fmt: skip
     options.add_max_steps(solver)
     solver.add_argument("--save-dt", dest="save_dt", type=float, default=None, metavar="S",
                         help="output at t = 0, S, 2S, ... <= t_final (and t_final) [s], S in (0, t_final] (default: "
@@ -248,7 +251,7 @@ def _simulate_command(args: argparse.Namespace, config: RunConfig) -> int:
     announce(config)
     # The run is one compiled loop: it reports its simulated time only at the end (a report from
     # inside would be a host callback in the integrator's loop); meanwhile the wall time is shown.
-    with Elapsed(options.progress_on(args), f"simulating to t = {config.t_final:g} s"):
+    with Elapsed(args.progress, f"simulating to t = {config.t_final:g} s"):
         solution, wall = run(config)
     summary = summarize(solution)
     record_size = getattr(solution.jumps, "max_jumps", config.max_jumps)  # --max-jumps, or the size the run grew to

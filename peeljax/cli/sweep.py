@@ -62,7 +62,8 @@ def add_command(subparsers) -> None:
     options.add_output(parser, "progress bar", out=("FILE.npz", "results (numpy, with each trajectory's jump record; FILE.nc: "
                        "netCDF with labelled dimensions, needs pip install \"peeljax[xarray]\"); chunks in FILE.npz.chunks/, "
                        "resumable; with --stick-slip-map the map's arrays; peeljax.load reads either back"),
-                       plot=("FILE.png", "the stick-slip map over (V, tau) (tau > 0); with --stick-slip-map the map against V"))  # fmt: skip
+                       plot=("FILE.png", "the stick-slip map over (V, tau) (tau > 0); with --stick-slip-map the map "
+                             "against V"))  # fmt: skip
     _add_distributed_options(parser)
 
 
@@ -124,8 +125,8 @@ def validate_sweep(args: argparse.Namespace) -> dict:
     check_sweep_outputs(args)
     return {
         "model": model, "V": V, "tau": tau, **chosen, "t_final": float(args.t_final), "grid": "outer",
-        "window": window, "chunk": chunk(args), "out": args.out, "rho": engine_rho(args),
-        "start": library_default(sweep_api, "start") if args.start is None else args.start, "progress": args.progress and not args.json}  # fmt: skip
+        "window": window, "chunk": chunk(args), "out": args.out, "rho": engine_rho(args), "progress": args.progress and not args.json,
+        "start": library_default(sweep_api, "start") if args.start is None else args.start}  # fmt: skip
 
 
 def _window(args: argparse.Namespace) -> tuple[float, float]:

@@ -28,7 +28,8 @@ def add_command(subparsers) -> None:
     search.add_argument("--tau-range", dest="tau_range", type=float, nargs=2, default=[lo, hi], metavar=("LO", "HI"),
                         help=f"search interval [s], 0 < LO < HI (default {lo:g} {hi:g})")  # fmt: skip
     search.add_argument("--tau-rtol", dest="tau_rtol", type=float, default=_TAU_STAR["tau_rtol"],
-                        help=f"relative resolution of tau* in (0, 1), not an integrator tolerance (default {_TAU_STAR['tau_rtol']:g})")  # fmt: skip
+                        help="relative resolution of tau* in (0, 1), not an integrator tolerance (default "
+                        f"{_TAU_STAR['tau_rtol']:g})")  # fmt: skip
     search.add_argument("--n-points", dest="n_points", type=int, default=_TAU_STAR["n_points"],
                         help=f"tau values per V and round, an integer >= 2 (default {_TAU_STAR['n_points']})")  # fmt: skip
     options.add_output(star, "progress (the elapsed wall time)")
@@ -52,7 +53,7 @@ def _tau_star_command(args: argparse.Namespace, kwargs: dict) -> int:
           file=sys.stderr)  # fmt: skip
     start = time.perf_counter()
     # least_tau runs its rounds as compiled batches and reports nothing in between: the wall time is shown
-    with Elapsed(options.progress_on(args), "searching tau*"):
+    with Elapsed(args.progress, "searching tau*"):
         result = _run_tau_star(kwargs)
     wall = time.perf_counter() - start
     record = {
