@@ -242,7 +242,7 @@ NEGATIVE = [
     (["simulate", "--save-dt", "-.5"], "--save-dt must lie in (0, --t-final]"),
     (["simulate", "--transient", "-1e0"], "--transient must lie in [0, --t-final)"),
     (["sweep", "--rtol", "-1e-6"], "--rtol must lie in (0, 1)"),
-    (["sweep", "--V", "1", "-2e0"], "--V must be finite and > 0"),
+    (["sweep", "--V", "1", "-2e0"], "--V must be > 0 (allowed range: (0, inf))"),
     (["sweep", "--tau", "-1e-3", "--n-tau", "2"], "--tau"),
 ]
 

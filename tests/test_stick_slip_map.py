@@ -354,7 +354,7 @@ MAP = ["sweep", "--V", "1.1", "--stick-slip-map"]
         ([*MAP, "--transient", "3"], ("--transient must lie in [0, --t-final)",)),
         ([*MAP, "--transient=-1"], ("--transient must lie in [0, --t-final)",)),
         ([*MAP, "--start", "x"], ("--start",)),
-        ([*MAP, "--V", "0"], ("--V must be finite and > 0",)),
+        ([*MAP, "--V", "0"], ("--V must be > 0 (allowed range: (0, inf))",)),
         ([*MAP, "--rtol", "0"], ("--rtol",)),
         ([*MAP, "--max-jumps", "0"], ("--max-jumps",)),
         ([*MAP, "--plot", "map.xyz"], ("--plot", "unknown image format")),

@@ -1,5 +1,6 @@
 """The ``peeljax`` command line: ``peeljax simulate ...`` (one module per subcommand; a part of one
-in its own module: :mod:`.simulate_report`, :mod:`.sweep_map`, :mod:`.fit_table`).
+in its own module: :mod:`.simulate_report`, :mod:`.sweep_map`, :mod:`.fit_table`; the options
+several share in :mod:`.options`, the batched engine's in :mod:`._engine`).
 
 The command line only translates: it parses, calls one library function and prints. Inputs
 are checked with the Python API's own checks (:mod:`peeljax._validation`, the library
@@ -11,7 +12,8 @@ iteration, …) exits with status 0: stopping is a result, reported in the summa
 ``--json`` object and the ``--out`` file.
 
 With ``--json`` stdout carries exactly one JSON object; progress notes always go to stderr.
-Each subcommand module has ``add_command(subparsers)``, which sets the parser's ``handler``.
+Each subcommand module has ``add_command(subparsers)``, which registers it (:func:`._common.subcommand`) with
+its ``handler``, most often :func:`._common.checked`: the command's validation, then its run.
 """
 
 from __future__ import annotations
@@ -35,15 +37,11 @@ __all__ = ["build_parser", "json_safe", "main", "summarize", "validate_run", "wr
 COMMANDS = (_simulate, _sweep, _tau_star, _orbit, _attractor_map, _figures, _fit)
 
 
-# ---------------------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
     """The top-level parser with one subparser per command (each sets ``handler``)."""
     from .._version import __version__
 
-    parser = Parser(
-        prog=PROG,
-        description="Stick-slip peeling of an adhesive tape off a rotating spool (homogenized DAE, in JAX).",
-    )
+    parser = Parser(prog=PROG, description="Stick-slip peeling of an adhesive tape off a rotating spool (homogenized DAE, in JAX).")
     parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for command in COMMANDS:
@@ -51,7 +49,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-# ---------------------------------------------------------------------------- entry point
 def main(argv: list[str] | None = None) -> int:
     """Run the command line ``argv`` (default ``sys.argv[1:]``); returns the exit status.
 
@@ -62,12 +59,10 @@ def main(argv: list[str] | None = None) -> int:
     """
     with _interrupt.guard():  # Ctrl-C in any phase: 130 and one line (after a real SIGINT main does not return)
         try:
-            parser = build_parser()
             try:
-                args = parser.parse_args(argv)
+                args = build_parser().parse_args(argv)
             except SystemExit as exit_:  # argparse has printed its usage error (2) or --help (0)
-                code = exit_.code
-                return code if isinstance(code, int) else (0 if code is None else 2)
+                return exit_.code if isinstance(exit_.code, int) else (0 if exit_.code is None else 2)
             return args.handler(args)
         except KeyboardInterrupt:  # one line, no traceback, the shell's status for SIGINT
             return _interrupt.interrupted()

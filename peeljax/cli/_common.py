@@ -26,9 +26,10 @@ STEPPERS = tuple(SOLVER_NAMES)  # the steppers that the error-controlled loop ta
 # pattern (-1, -0.5) takes "-1e-6" for an option and answers "expected one argument", so the
 # range check of the option never sees it. No option of peeljax looks like a number.
 # A range START:STOP:COUNT that starts below zero (--V -1:2:4) is a value too, refused by its check.
-_NEGATIVE_NUMBER = re.compile(
-    r"^-(\d+\.?\d*(e[+-]?\d+)?|\.\d+(e[+-]?\d+)?|inf(inity)?|nan)(:[^\s]*)?$", re.IGNORECASE
-)
+_NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*(e[+-]?\d+)?|\.\d+(e[+-]?\d+)?|inf(inity)?|nan)(:[^\s]*)?$", re.IGNORECASE)
+
+
+_NUMBER = re.compile(r"^\s*[+-]?(\d+\.?\d*|\.\d+)(e[+-]?\d+)?\s*$", re.IGNORECASE)  # a finite number float() reads
 
 
 class Parser(argparse.ArgumentParser):
@@ -40,64 +41,46 @@ class Parser(argparse.ArgumentParser):
         self._negative_number_matcher = _NEGATIVE_NUMBER
 
     def parse_args(self, args=None, namespace=None):
-        words = sys.argv[1:] if args is None else list(args)
-        commands = self._commands()
+        words, commands = sys.argv[1:] if args is None else list(args), self._commands()
         if commands and not words:  # argparse: "the following arguments are required: COMMAND"
             self.error(f"give a command: {', '.join(commands)} ({self.prog} COMMAND --help lists its options)")
-        if commands:  # an unknown option before the command: argparse would only say COMMAND is missing
-            for word in words:
-                if not word.startswith("-"):
-                    break
-                name = word.split("=", 1)[0]
-                if name not in self._option_string_actions:
-                    close = difflib.get_close_matches(name.lstrip("-"), commands, n=1)
-                    if close:
-                        self.error(f"unrecognized option {name} (did you mean the command {close[0]}, without dashes?)")
-                    self.error(unrecognized([word], self))
+        for word in words if commands else ():  # an unknown option before the command: argparse says COMMAND is missing
+            if not word.startswith("-"):
+                break
+            if (name := word.split("=", 1)[0]) not in self._option_string_actions:
+                if close := difflib.get_close_matches(name.lstrip("-"), list(commands), n=1):
+                    self.error(f"unrecognized option {name} (did you mean the command {close[0]}, without dashes?)")
+                self.error(unrecognized([word], self))
         parsed, extras = self.parse_known_args(args, namespace)
         if extras:  # argparse's own: "unrecognized arguments: --t-finl 3", from the top-level parser
-            command = self._command_parser(parsed)
-            action = self._command_action()
-            others = {} if action is None else {name: p for name, p in action.choices.items() if p is not command}
+            command = commands.get(getattr(parsed, "command", None))  # the subcommand's parser that read the line
+            others = {name: parser for name, parser in commands.items() if parser is not command}
             (command or self).error(unrecognized(extras, command or self, others))
         return parsed
 
-    def _command_action(self) -> argparse._SubParsersAction | None:
-        return next((a for a in self._actions if isinstance(a, argparse._SubParsersAction)), None)
-
-    def _commands(self) -> list[str]:
-        subparsers = self._command_action()
-        return [] if subparsers is None else list(subparsers.choices)
-
-    def _command_parser(self, parsed) -> argparse.ArgumentParser | None:
-        """The subcommand's parser that read the command line (None without subcommands)."""
-        subparsers = self._command_action()
-        return None if subparsers is None else subparsers.choices.get(getattr(parsed, subparsers.dest, None))
+    def _commands(self) -> dict:
+        """The subcommands' parsers by name (none without subcommands)."""
+        action = next((a for a in self._actions if isinstance(a, argparse._SubParsersAction)), None)
+        return {} if action is None else dict(action.choices)
 
     def _get_value(self, action, arg_string):
         """argparse's "invalid int value: '1e5'" said for a user: not an integer, write 100000."""
         try:
             return super()._get_value(action, arg_string)
         except argparse.ArgumentError:
-            if action.type is int:
-                try:
-                    number = float(arg_string)
-                except ValueError:
-                    number = math.nan
-                write = f": write {int(number)}" if math.isfinite(number) and number == int(number) else ""
-                raise argparse.ArgumentError(action, f"{arg_string!r} is not an integer{write}") from None
-            if action.type is float:
-                raise argparse.ArgumentError(action, f"{arg_string!r} is not a number") from None
-            raise
+            if action.type not in (int, float):
+                raise
+            number = float(arg_string) if _NUMBER.match(arg_string) else math.nan
+            write = f": write {int(number)}" if math.isfinite(number) and number == int(number) else ""
+            what = f"an integer{write}" if action.type is int else "a number"
+            raise argparse.ArgumentError(action, f"{arg_string!r} is not {what}") from None
 
     def _check_value(self, action, value):
         if action.choices is not None and value not in action.choices:
             choices = [str(choice) for choice in action.choices]
             close = difflib.get_close_matches(str(value), choices, n=1)
             hint = f"; did you mean {close[0]!r}?" if close else ""
-            raise argparse.ArgumentError(
-                action, f"invalid choice: {value!r}{hint} (choose from {', '.join(map(repr, choices))})"
-            )
+            raise argparse.ArgumentError(action, f"invalid choice: {value!r}{hint} (choose from {', '.join(map(repr, choices))})")
         super()._check_value(action, value)
 
 
@@ -108,11 +91,7 @@ def unrecognized(extras: list[str], parser: argparse.ArgumentParser, others: dic
     known = [name for name in parser._option_string_actions if name.startswith("--")]
     options = [word for word in extras if word.startswith("-") and not _NEGATIVE_NUMBER.match(word)]
     if not options:
-        values = " ".join(extras)
-        return (
-            f"unexpected value {values!r}: every value follows its option (e.g. --V 1.1); "
-            f"{parser.prog} --help lists them"
-        )
+        return f"unexpected value {' '.join(extras)!r}: every value follows its option (e.g. --V 1.1); {parser.prog} --help lists them"
     parts = []
     for word in options:
         name = word.split("=", 1)[0]
@@ -123,8 +102,7 @@ def unrecognized(extras: list[str], parser: argparse.ArgumentParser, others: dic
             parts.append(f"{name} (an option of peeljax {commands}, not of {parser.prog})")
         else:
             parts.append(f"{name} (did you mean {close[0]}?)" if close else name)
-    what = "option" if len(parts) == 1 else "options"
-    return f"unrecognized {what} {', '.join(parts)}: {parser.prog} --help lists the options"
+    return f"unrecognized {'option' if len(parts) == 1 else 'options'} {', '.join(parts)}: {parser.prog} --help lists the options"
 
 
 def read_phi(path: str) -> tuple[AdhesionLaw, tuple[str, ...]]:
@@ -140,11 +118,8 @@ def read_phi(path: str) -> tuple[AdhesionLaw, tuple[str, ...]]:
         message = str(error)
         raise ValueError(message if message.startswith("--phi") else f"--phi: {message}") from None
     if kept:
-        given = [name for name in COEFFICIENT_NAMES if name not in kept]
-        print(
-            f"{PROG}: note: --phi {path} sets {', '.join(given)}; {', '.join(kept)} keep the paper's values",
-            file=sys.stderr,
-        )
+        given = ", ".join(name for name in COEFFICIENT_NAMES if name not in kept)
+        print(f"{PROG}: note: --phi {path} sets {given}; {', '.join(kept)} keep the paper's values", file=sys.stderr)
     return law, kept
 
 
@@ -161,22 +136,25 @@ def write_failed(option: str, path: str, error: OSError, what: str) -> int:
 
 def library_default(function, name: str):
     """The default of ``function``'s parameter ``name``: the command line's default, never restated."""
+    return library_defaults(function)[name]
+
+
+def library_defaults(function) -> dict:
+    """The defaults of ``function``'s parameters by name."""
     import inspect
 
-    return inspect.signature(function).parameters[name].default
+    return {name: p.default for name, p in inspect.signature(function).parameters.items()}
 
 
 def solver_for(method: str, rho: float | None):
     """``--method`` as the ``solver`` argument of :func:`peeljax.simulate` / :func:`peeljax.sweep`: None for
     "default" (the library's choice), an ``AlphaMethod(rho=rho)`` for "alpha" (so that ``--rho`` reaches it), else
     the stepper's name."""
-    if method == "default":
-        return None
-    if method == "alpha":
-        from ..integrators import AlphaMethod
+    if method != "alpha":
+        return None if method == "default" else method
+    from ..integrators import AlphaMethod
 
-        return AlphaMethod(rho=library_default(AlphaMethod, "rho") if rho is None else rho)
-    return method
+    return AlphaMethod() if rho is None else AlphaMethod(rho=rho)  # left out: its own default ρ
 
 
 def max_steps_remedy(budget) -> str:
@@ -186,20 +164,16 @@ def max_steps_remedy(budget) -> str:
 
 
 def remedy_notes(status, budget) -> list[str]:
-    """After trajectories (a sweep's, a map's) that used up their step budget: how many, and the
-    remedy (stderr)."""
+    """After trajectories (a sweep's, a map's) that used up their step budget: how many, and the remedy (stderr)."""
     status = np.asarray(status).ravel()
     out_of_steps = int(np.count_nonzero(status == int(StopReason.MAX_STEPS)))
-    if not out_of_steps:
-        return []
-    return [f"{PROG}: {out_of_steps} of {status.size} trajectories stopped at their step budget",
-            max_steps_remedy(budget)]  # fmt: skip
+    said = f"{PROG}: {out_of_steps} of {status.size} trajectories stopped at their step budget"
+    return [said, max_steps_remedy(budget)] if out_of_steps else []
 
 
 def phi_defaults(args: argparse.Namespace) -> list[str] | None:
     """The coefficients --phi left at the paper's values (None without --phi)."""
-    kept = getattr(args, "phi_defaults", None)
-    return None if kept is None else list(kept)
+    return None if (kept := getattr(args, "phi_defaults", None)) is None else list(kept)
 
 
 def stats_text(stats: dict, jumps_said: bool = False) -> str:
@@ -208,16 +182,37 @@ def stats_text(stats: dict, jumps_said: bool = False) -> str:
     diffrax's implicit ones count theirs inside), no ``steps`` beside ``accepted_steps`` (the same count, or
     accepted + rejected for the diffrax reference), no ``jumps`` where a line of its own gives them
     (``jumps_said``); floats to 4 significant digits."""
-    shown = {}
-    for key, value in stats.items():
-        if isinstance(value, float) and math.isnan(value):
-            continue
-        if key in ("newton_iterations", "max_newton_iterations") and not stats.get("newton_iterations"):
-            continue
-        if (key == "steps" and "accepted_steps" in stats) or (key == "jumps" and jumps_said):
-            continue
-        shown[key] = f"{value:.4g}" if isinstance(value, float) else value
-    return ", ".join(f"{key} {value}" for key, value in shown.items())
+    hidden = {"steps"} if "accepted_steps" in stats else set()
+    hidden |= {"jumps"} if jumps_said else set()
+    hidden |= set() if stats.get("newton_iterations") else {"newton_iterations", "max_newton_iterations"}
+    shown = {key: value for key, value in stats.items() if key not in hidden and not (isinstance(value, float) and math.isnan(value))}
+    return ", ".join(f"{key} {value:.4g}" if isinstance(value, float) else f"{key} {value}" for key, value in shown.items())
+
+
+def subcommand(subparsers, name: str, handler, help: str, description: str, **defaults) -> argparse.ArgumentParser:
+    """A subcommand's parser with its ``handler`` (and ``defaults`` such as ``out_formats``) set."""
+    parser = subparsers.add_parser(name, help=help, description=description)
+    parser.set_defaults(handler=handler, **defaults)
+    return parser
+
+
+def checked(validate, command):
+    """A handler that runs ``command(args, validate(args))``; a refusal of ``validate`` (ValueError, TypeError: the
+    library's checks, before anything compiles) is :func:`fail`'s one line and exit 2."""
+
+    def handler(args: argparse.Namespace) -> int:
+        try:
+            config = validate(args)
+        except (ValueError, TypeError) as error:
+            return fail(error)
+        return command(args, config)
+
+    return handler
+
+
+def wrote(record: dict) -> list[str]:
+    """The summary's last lines: the files written (``record``'s out and plot)."""
+    return [f"wrote {record[key]}" for key in ("out", "plot") if record.get(key)]
 
 
 def fail(error: Exception) -> int:
@@ -234,8 +229,8 @@ _ALLOWED = re.compile(r"\[([^\]]*)\]; allowed: ([^;()]+)")
 
 
 def closest_choice(message: str) -> str:
-    """``"; did you mean 'tsit5'?"`` for a refusal that lists the allowed names, when a given
-    name is close to one of them (case aside: ``Tsit5``, ``C1``); else ""."""
+    """``"; did you mean 'tsit5'?"`` for a refusal that lists the allowed names, when a given name is close to one of
+    them (case aside: ``Tsit5``, ``C1``); else ""."""
     found = _ONE_OF.search(message)
     if found is not None:
         allowed, given = found.group(1).split(", "), [found.group(2)]
@@ -244,22 +239,15 @@ def closest_choice(message: str) -> str:
     else:
         return ""
     lowered = {name.lower(): name for name in allowed}
-    close = [difflib.get_close_matches(name.lower(), list(lowered), n=1) for name in given]
-    named = [lowered[c[0]] for c in close if c]
-    if not named or len(named) != len(given):
-        return ""
-    return "; did you mean " + ", ".join(repr(name) for name in named) + "?"
+    named = [lowered[c[0]] for name in given if (c := difflib.get_close_matches(name.lower(), list(lowered), n=1))]
+    return "; did you mean " + ", ".join(map(repr, named)) + "?" if named and len(named) == len(given) else ""
 
 
 # Python parameter names (with an underscore: never a word of prose) and their options.
-_PARAMETERS = {
-    "max_jumps": "--max-jumps", "max_steps": "--max-steps", "t_final": "--t-final", "save_dt": "--save-dt",
-    "save_every": "--save-every", "n_tau": "--n-tau", "n_points": "--n-points", "n_starts": "--n-starts",
-    "max_iterations": "--max-iterations", "learning_rate": "--learning-rate", "tau_rtol": "--tau-rtol",
-    "tau_range": "--tau-range", "random_starts": "--random-starts", "seed_rounds": "--seed-rounds",
-    "boundary_tol": "--boundary-tol", "lyapunov_time": "--lyapunov-time", "num_processes": "--num-processes",
-    "process_id": "--process-id", "join_timeout": "--distributed-timeout",
-}  # fmt: skip
+_PARAMETERS = {name: "--" + name.replace("_", "-") for name in (
+    "max_jumps", "max_steps", "t_final", "save_dt", "save_every", "n_tau", "n_points", "n_starts", "max_iterations",
+    "learning_rate", "tau_rtol", "tau_range", "random_starts", "seed_rounds", "boundary_tol", "lyapunov_time",
+    "num_processes", "process_id")} | {"join_timeout": "--distributed-timeout"}  # fmt: skip
 _UNDERSCORED = re.compile(r"(?<![\w-])(" + "|".join(_PARAMETERS) + r")\b")
 _ASSIGNED = re.compile(r"(?<![\w-])(--[a-z][\w-]*)=(?=\w)")  # --max-jumps=5 (from max_jumps=5) -> --max-jumps 5
 _ANOTHER_OUT = re.compile(r"\banother out\b")
@@ -275,16 +263,13 @@ _PHRASES = (
     ("give start=(alpha, omega) and slips= to shoot near it",
      "the Python API shoots from a given state: peeljax.periodic_orbit(start=(alpha, omega), slips=K)"),
     ("give coordinator HOST:PORT", "give --coordinator HOST:PORT"), ("the same coordinator?", "the same --coordinator?"),
-    ("or detect them under SLURM's srun", "or --distributed under SLURM's srun"), ("drop dt,", "drop --dt,"),
-)  # fmt: skip
+    ("or detect them under SLURM's srun", "or --distributed under SLURM's srun"), ("drop dt,", "drop --dt,"))  # fmt: skip
 # The library's words for error control and the uniform mesh (sweep_plan's messages)
 _MESH_PHRASES = (("(dt=None)", "(no --dt)"), ("(dt given)", "(--dt given)"))
 # Names that open a library message ("tau must be ...", "y0: ..."), and those whose option has another name.
-_LEADING = re.compile(
-    r"^(V|tau|dt|rtol|atol|rho|y0|geometry|transient|window|fold|start|free|statistics|coordinator|decimate|paths|slips)"
-    r"\b(?![-=])"
-)
-_RENAMED = {"paths": "--data"}  # peeljax.fit.records.load_observations(paths): the --data files
+_LEADING = re.compile(r"^(V|tau|dt|rtol|atol|rho|y0|geometry|transient|window|fold|start|free|statistics|coordinator|"
+                      r"decimate|paths|slips)\b(?![-=])")
+_RENAMED = {"paths": "--data"}  # peeljax.measurements.records.load_observations(paths): the --data files
 
 
 def option_names(message: str) -> str:
@@ -313,10 +298,7 @@ class Elapsed:
     nothing when ``on`` is False."""
 
     def __init__(self, on: bool, what: str):
-        self.on, self.what = on, what
-        self._stop = threading.Event()
-        self._thread = None
-        self._start = 0.0
+        self.on, self.what, self._stop, self._thread, self._start = on, what, threading.Event(), None, 0.0
 
     def __enter__(self):
         self._start = time.perf_counter()
@@ -327,8 +309,7 @@ class Elapsed:
 
     def _beat(self, stream) -> None:
         while not self._stop.wait(HEARTBEAT_S):
-            print(f"{PROG}: {self.what}: still running, {time.perf_counter() - self._start:.0f} s elapsed",
-                  file=stream, flush=True)  # fmt: skip
+            print(f"{PROG}: {self.what}: still running, {time.perf_counter() - self._start:.0f} s elapsed", file=stream, flush=True)
 
     def __exit__(self, kind, value, traceback):
         self._stop.set()
@@ -353,15 +334,18 @@ def write_files(record: dict, *writers) -> list:
     """Each ``(option, path, write)`` with a path: ``write(path)``. A failure is kept as ``(option, path, error)``
     and its key of ``record`` (``out``, ``plot``) set to None: the result is reported whatever could not be written."""
     failed = []
-    for option, path, write in writers:
-        if path is None:
-            continue
+    for option, path, write in (writer for writer in writers if writer[1] is not None):
         try:
             write(path)
         except OSError as error:
             failed.append((option, path, error))
             record[option.lstrip("-")] = None
     return failed
+
+
+def write_then_plot(record: dict, args: argparse.Namespace, save, figure) -> list:
+    """--out with ``save``, then --plot with ``figure`` only beside a written file (:func:`write_files`)."""
+    return write_files(record, ("--out", args.out, save)) or write_files(record, ("--plot", args.plot, figure))
 
 
 def plotter(name: str, *args, module: str = "peeljax.plots", **kwargs):
@@ -376,10 +360,7 @@ def report(record: dict, as_json: bool, lines, failed=(), what: str = "", notes=
     """``--json``: ``record`` as the one JSON object on stdout (strict: NaN is null); else the summary ``lines``
     (ASCII). Then on stderr the ``notes`` and each file that could not be written (``failed``, after ``what`` was
     reported). Returns the exit status: 1 when a file failed, else 0."""
-    if as_json:
-        print(json.dumps(json_safe(record), allow_nan=False))
-    else:
-        print(ascii_text("\n".join(lines() if callable(lines) else lines)))
+    print(json.dumps(json_safe(record), allow_nan=False) if as_json else ascii_text("\n".join(lines() if callable(lines) else lines)))
     for note in notes:
         print(note, file=sys.stderr)
     for option, path, error in failed:

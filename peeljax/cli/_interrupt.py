@@ -1,27 +1,17 @@
 """Ctrl-C: exit status 130 and one line on stderr, in every phase of every command.
 
-Python turns SIGINT into a ``KeyboardInterrupt`` raised in the main thread at its next
-bytecode. In a JAX program that alone went wrong two ways (measured on ``peeljax simulate
---tau 0 --t-final 2000`` interrupted 0 to 10 s after it announced the run):
+A plain ``KeyboardInterrupt`` went wrong two ways in a JAX program (measured on ``peeljax simulate
+--tau 0 --t-final 2000`` interrupted 0 to 10 s after it announced the run): the interpreter's exit
+ran JAX's ``atexit`` clean-up while a compilation still ran, and crashed (exit 139); or a callback
+(JAX's garbage-collection callback) swallowed the exception and the command ran on, exit 0.
 
-* after the exception, the interpreter's ordinary exit runs JAX's ``atexit`` clean-up, which
-  clears the backends while a compilation or a dispatched program still runs: it waited up to
-  the end of the compilation (6.7 s) and then crashed, a segmentation fault (exit 139);
-* the exception can be raised inside a callback that swallows it (JAX's garbage-collection
-  callback: "Exception ignored in: <function _xla_gc_callback>"), and the command ran on to
-  the end, exit 0.
-
-So while a command runs, :func:`guard` notes each SIGINT twice. Python's handler (main thread)
-raises the ``KeyboardInterrupt`` that lets the command remove what it was half writing and say
-what was saved (:func:`interrupted`). The C-level wake-up file descriptor
-(``signal.set_wakeup_fd``), written by the signal handler itself whatever the main thread is
-doing, wakes a watcher thread. A ``KeyboardInterrupt`` swallowed by a callback is raised
-again (:func:`_unraisable`); if the main thread has still not ended the process
-:data:`GRACE_S` seconds later (a call into C++ that does not return to Python, or an exception
-swallowed again and again), the watcher prints the line itself. Either way the process ends
-with ``os._exit(130)`` after flushing stdout and stderr, which skips the ``atexit`` clean-up
-that would crash. A ``KeyboardInterrupt`` raised without a signal (a test's stand-in) returns
-130 as before.
+So while a command runs, :func:`guard` notes each SIGINT twice: Python's handler raises the
+``KeyboardInterrupt`` that lets the command remove what it half wrote and say what was saved
+(:func:`interrupted`); the C-level wake-up fd (``signal.set_wakeup_fd``) wakes a watcher thread,
+which raises a swallowed one again (:func:`_unraisable`) and, if the main thread has not ended the
+process :data:`GRACE_S` seconds later, prints the line itself. Either way the process ends with
+``os._exit(130)`` after flushing stdout and stderr, skipping the ``atexit`` clean-up that would
+crash. A ``KeyboardInterrupt`` raised without a signal (a test's stand-in) returns 130.
 """
 
 from __future__ import annotations
@@ -67,11 +57,8 @@ def _say(detail: str | None) -> bool:
         if _state.said:
             return False
         _state.said = True
-    line = f"{PROG}: interrupted" + (f": {detail}" if detail else "")
-    try:
-        print(line, file=sys.stderr, flush=True)
-    except (OSError, ValueError):  # stderr closed or gone: the status still says it
-        pass
+    with contextlib.suppress(OSError, ValueError):  # stderr closed or gone: the status still says it
+        print(f"{PROG}: interrupted" + (f": {detail}" if detail else ""), file=sys.stderr, flush=True)
     return True
 
 
@@ -114,12 +101,9 @@ def note(describe: Callable[[], str | None]) -> Iterator[None]:
 
 def _detail() -> str | None:
     describe = _state.note
-    if describe is None:
-        return None
-    try:
-        return describe()
-    except Exception:  # a damaged chunk folder must not hide the interruption itself
-        return None
+    with contextlib.suppress(Exception):  # a damaged chunk folder must not hide the interruption itself
+        return None if describe is None else describe()
+    return None
 
 
 def _watch(reader: socket.socket) -> None:

@@ -18,8 +18,7 @@ __all__ = ["announce", "cycles", "method_title", "plot_title", "remedy_notes", "
 # The stepper that ran (the Solution's ``method``), in words; other names are shown as they are.
 _METHOD_TITLES = {
     "alpha": "alpha-method", "alpha-adaptive": "alpha-method", "diffrax": "diffrax Kvaerno5 reference",
-    "switching-tsit5-alpha": "Tsit5 <-> alpha-method",
-}  # fmt: skip
+    "switching-tsit5-alpha": "Tsit5 <-> alpha-method"}  # fmt: skip
 
 
 def method_title(method: str, option: str | None = None) -> str:
@@ -53,13 +52,10 @@ def regime_note(config) -> str | None:
     paper's φ loses its maximum between V = 4 and 8 m/s) and large V makes the run stiff."""
     from ..analysis import phi_extrema
 
-    v_peak, _ = phi_extrema(config.model, config.V)
-    if math.isfinite(v_peak):
+    if math.isfinite(phi_extrema(config.model, config.V)[0]):
         return None
-    return (
-        f"phi(v, V = {config.V:g}) has no maximum for v in [1e-3, 50] m/s: no stick-slip regime at this V "
-        "(the paper's law has one up to V of about 7 m/s)"
-    )
+    return (f"phi(v, V = {config.V:g}) has no maximum for v in [1e-3, 50] m/s: no stick-slip regime at this V (the "
+            "paper's law has one up to V of about 7 m/s)")  # fmt: skip
 
 
 def summary_lines(record: dict, config, found=None) -> list[str]:
@@ -69,11 +65,8 @@ def summary_lines(record: dict, config, found=None) -> list[str]:
         settings.append(f"rtol = {config.rtol:g}, atol = {config.atol:g}")
     if config.adaptive:
         settings.append(f"fold {config.fold} (--max-jumps {config.max_jumps}, --max-steps {config.budget})")
-        mesh = f"error control ({record['accepted_steps']} accepted, {record['rejected_steps']} rejected steps)"
-    elif config.n_steps is None:
-        mesh = f"output at {len(config.save_ts)} times"
-    else:
-        mesh = f"dt = {record['dt']:.6g} s ({config.n_steps} steps)"
+    mesh = _mesh(config, f" ({record['accepted_steps']} accepted, {record['rejected_steps']} rejected steps)",
+                 f"dt = {record['dt']:.6g} s ({config.n_steps} steps)")  # fmt: skip
     tau = "tau = 0 (the DAE)" if config.dae else f"tau = {config.tau:g} s"
     stopped = f"stopped at t = {record['t_stop']:.6g} s"
     if record["status"] == "completed":
@@ -89,8 +82,7 @@ def summary_lines(record: dict, config, found=None) -> list[str]:
         f"peeljax simulate: {method_title(record['method'], config.method)}, V = {config.V:g} m/s, {tau}, "
         f"{mesh}, t_final = {config.t_final:g} s, {', '.join(settings)}, geometry {config.model.geometry}",
         ended,
-        f"v [m/s]: final {record['v_final']:.6g}, min {record['v_min']:.6g}, max {record['v_max']:.6g}",
-    ]
+        f"v [m/s]: final {record['v_final']:.6g}, min {record['v_min']:.6g}, max {record['v_max']:.6g}"]
     if record.get("jumps") is not None:
         up = record["jumps_up"]
         lines.append(f"jumps at the folds of phi: {record['jumps']} ({up} stick -> slip, {record['jumps'] - up} slip -> stick)")
@@ -104,8 +96,7 @@ def summary_lines(record: dict, config, found=None) -> list[str]:
 
 def cycles(solution: Solution, config, record: dict):
     """With a jump record: its count (``record["jumps"]``, ``"jumps_up"``) and the cycle statistics over [transient,
-    t_stop] (``record["cycles"]``, returned too; None with a note when the run stopped before the transient was
-    over)."""
+    t_stop] (``record["cycles"]``, returned too; None with a note when the run stopped before the transient ended)."""
     if solution.jumps is None:
         return None
     jumps = solution.jumps.as_numpy()
@@ -113,31 +104,28 @@ def cycles(solution: Solution, config, record: dict):
     record["jumps_up"] = int(np.count_nonzero(jumps["jump_up"]))
     t_stop = float(solution.t_stop)
     if not config.transient < t_stop:
-        record["cycles"] = None
-        record["cycles_note"] = (
-            f"the run stopped at t = {t_stop:.6g} s, before its transient ended (--transient {config.transient:g} s): "
-            "no cycle statistics"
-        )
+        record["cycles"], record["cycles_note"] = None, (f"the run stopped at t = {t_stop:.6g} s, before its transient "
+                                                         f"ended (--transient {config.transient:g} s): no cycle statistics")  # fmt: skip
         return None
-    cycles = cycle_statistics(jumps, t_stop, transient=config.transient)
-    record["cycles"] = cycles.as_dict()
-    return cycles
+    found = cycle_statistics(jumps, t_stop, transient=config.transient)
+    record["cycles"] = found.as_dict()
+    return found
+
+
+def _mesh(config, steps: str, uniform: str) -> str:
+    """How the run's output is laid out: error control's steps (``steps`` said after), output times, or ``uniform``."""
+    if config.adaptive:
+        return f"error control{steps}"
+    return f"output at {len(config.save_ts)} times" if config.n_steps is None else uniform
 
 
 def announce(config) -> None:
     """What runs, on stderr, before it compiles."""
-    if config.adaptive:
-        mesh = "error control"
-    elif config.n_steps is None:
-        mesh = f"output at {len(config.save_ts)} times"
-    else:
-        mesh = f"{config.n_steps} step{'' if config.n_steps == 1 else 's'}"
+    mesh = _mesh(config, "", f"{config.n_steps} step{'' if config.n_steps == 1 else 's'}")
     method = "default stepper" if config.method == "default" else config.method
     budget = "" if config.budget is None else f", at most {config.budget} step attempts (--max-steps)"
-    print(
-        f"{PROG}: {method} run with {mesh} to t = {config.t_final:g} s{budget} (compiling first: a few seconds) ...",
-        file=sys.stderr,
-    )
+    print(f"{PROG}: {method} run with {mesh} to t = {config.t_final:g} s{budget} (compiling first: a few seconds) ...",
+          file=sys.stderr)  # fmt: skip
 
 
 def remedy_notes(solution: Solution, config) -> list[str]:

@@ -14,7 +14,10 @@ from . import _interrupt, options
 from ..sweeps.api import sweep as sweep_api
 from ..sweeps import distributed
 from ..sweeps.storage import saved_chunks
-from ._common import PROG, fail, library_default, phi_defaults, plotter, remedy_notes, report, write_failed, write_files
+from ._common import PROG, checked, fail, library_default, phi_defaults, plotter, remedy_notes, report, subcommand, wrote
+from ._common import write_failed, write_files
+from ._engine import DEFAULT_CHUNK, add_engine, check_sweep_outputs, chunk, engine, engine_model, engine_record
+from ._engine import engine_rho, engine_text, tau_grid
 from .sweep_map import map_command
 
 __all__ = ["add_command", "validate_sweep"]
@@ -22,110 +25,63 @@ __all__ = ["add_command", "validate_sweep"]
 
 # ---------------------------------------------------------------------------- parsers
 def add_command(subparsers) -> None:
-    parser = subparsers.add_parser(
-        "sweep",
-        help="batched runs over a grid of V and tau",
-        description=(
-            "Integrate every (V, tau) of a grid in compiled batches (error control by default, each "
-            "trajectory with its own steps, any stepper: --method; --dt for the alpha-method's uniform mesh); "
-            "write per-trajectory summaries (completed, t_stop, v mean/std/min/max over [--transient, "
-            "--transient + --window], stick-slip events, steps taken). With --out the sweep is written chunk "
-            "by chunk and a rerun resumes."
-        ),
-    )
-    solver = options.add_engine(parser)
-    solver.add_argument(
-        "--save-dt", dest="save_dt", type=float, default=None, metavar="S",
-        help="error control only: also save the states at t = 0, S, 2S, ... and t_final [s], S in (0, t_final] "
-        "(default: none)",
-    )  # fmt: skip
-    solver.add_argument(
-        "--save-every", dest="save_every", type=int, default=None, metavar="N",
-        help="uniform mesh only (with --dt): also save the states every N steps, N >= 1 (default: none)",
-    )  # fmt: skip
+    parser = subcommand(subparsers, "sweep", checked(_check, _sweep_command), "batched runs over a grid of V and tau", (
+        "Integrate every (V, tau) of a grid in compiled batches (error control by default, any stepper: --method; --dt for "
+        "the alpha-method's uniform mesh); write per-trajectory summaries (v statistics over [--transient, --transient + "
+        "--window], stick-slip events, steps taken). With --out the sweep is written chunk by chunk and a rerun resumes."
+    ), out_formats=(".npz", ".nc"))  # fmt: skip
+    solver = add_engine(parser)
+    solver.add_argument("--save-dt", dest="save_dt", type=float, default=None, metavar="S",
+                        help="error control only: also save the states at t = 0, S, 2S, ... and t_final [s], S in "
+                        "(0, t_final] (default: none)")  # fmt: skip
+    solver.add_argument("--save-every", dest="save_every", type=int, default=None, metavar="N",
+                        help="uniform mesh only (with --dt): also save the states every N steps, N >= 1 (default: none)")
     grid = parser.add_argument_group("the grid of tau")
-    grid.add_argument(
-        "--tau", type=options.numbers("--tau", ranges=False), nargs="+", default=None,
-        help="tau values [s]: all in (0, 1e6] (the homogenized ODE) or 0 (the DAE itself, jumping at the folds "
-        "of phi; error control only); with --n-tau, two numbers LO HI give a log-spaced grid (default 1e-3 "
-        "1e-1; with --stick-slip-map 0)",
-    )  # fmt: skip
-    grid.add_argument(
-        "--n-tau", dest="n_tau", type=int, default=None,
-        help="points of a log-spaced tau grid from --tau LO to HI, an integer >= 2 (default: none, the --tau "
-        "values as given)",
-    )  # fmt: skip
-    grid.add_argument(
-        "--chunk", type=int, default=None, help=f"trajectories per compiled batch, >= 1 (default {options.DEFAULT_CHUNK})"
-    )
+    grid.add_argument("--tau", type=options.numbers("--tau", ranges=False), nargs="+", default=None,
+                      help="tau values [s]: all in (0, 1e6] (the homogenized ODE) or 0 (the DAE itself, jumping at the "
+                      "folds of phi; error control only); with --n-tau, two numbers LO HI give a log-spaced grid "
+                      "(default 1e-3 1e-1; with --stick-slip-map 0)")  # fmt: skip
+    grid.add_argument("--n-tau", dest="n_tau", type=int, default=None,
+                      help="points of a log-spaced tau grid from --tau LO to HI, an integer >= 2 (default: none, the --tau values "
+                      "as given)")  # fmt: skip
+    grid.add_argument("--chunk", type=int, default=None, help=f"trajectories per compiled batch, >= 1 (default {DEFAULT_CHUNK})")
     folds = parser.add_argument_group("folds of phi (stick-slip jumps; error control only)")
-    folds.add_argument(
-        "--fold", default=None, metavar="{jump,stop,follow}",
-        help="at a fold of phi: 'jump' (v jumps to the other stable branch; the run goes on), 'stop' (the run "
-        "ends there) or 'follow' (tau > 0: jump at impasse points only); jump and follow need error control "
-        "(default: jump with error control, stop with --dt)",
-    )  # fmt: skip
+    options.add_fold(folds, "--dt")
     options.add_max_jumps(folds, default=DEFAULT_SWEEP_MAX_JUMPS, per="trajectory")
-    folds.add_argument(
-        "--start", default=None, metavar="{paper,steady}",
-        help="each trajectory's initial state: 'paper' (the tape at rest) or 'steady' (steady peeling, v = V) "
-        "(default paper; with --stick-slip-map both, one after the other)",
-    )  # fmt: skip
-    statistics = parser.add_argument_group("statistics")
+    folds.add_argument("--start", default=None, metavar="{paper,steady}",
+                       help="each trajectory's initial state: 'paper' (the tape at rest) or 'steady' (steady peeling, "
+                       "v = V) (default paper; with --stick-slip-map both, one after the other)")  # fmt: skip
     options.add_statistics_window(
-        statistics, window_default="t_final - T; with --stick-slip-map the statistics run to each run's end",
-        what="the v statistics (the stick-slip map's cycle statistics)",
-    )  # fmt: skip
-    ssm = parser.add_argument_group("the stick-slip map over V")
-    ssm.add_argument(
+        parser.add_argument_group("statistics"), what="the v statistics (the stick-slip map's cycle statistics)",
+        window_default="t_final - T; with --stick-slip-map the statistics run to each run's end")  # fmt: skip
+    parser.add_argument_group("the stick-slip map over V").add_argument(
         "--stick-slip-map", dest="stick_slip_map", action="store_true",
-        help="instead of the (V, tau) sweep: at one --tau (default 0, the DAE), one sweep over --V per start "
-        "(both unless --start), each run's jumps after --transient reduced to its cycle statistics; --out "
-        "writes the map's arrays (.npz), --plot its figure against V (forces at the jumps over phi's folds, "
-        "repeat period, v amplitude)",
-    )  # fmt: skip
-    output = parser.add_argument_group("output")
-    options.add_outputs(
-        output, out_meta="FILE.npz",
-        out_help="results (numpy, with each trajectory's jump record; FILE.nc: netCDF with labelled dimensions, "
-        "needs pip install \"peeljax[xarray]\"); chunks in FILE.npz.chunks/, resumable; with --stick-slip-map the "
-        "map's arrays; peeljax.load reads either back (default: none)",
-        plot_help="the stick-slip map over (V, tau) (tau > 0); with --stick-slip-map the map against V",
-    )  # fmt: skip
-    options.add_json(output)
-    options.add_progress(output, "progress bar")
+        help="instead of the (V, tau) sweep: at one --tau (default 0, the DAE), one sweep over --V per start (both "
+        "unless --start), each run's jumps after --transient reduced to its cycle statistics; --out writes the map's "
+        "arrays (.npz), --plot its figure against V (forces at the jumps over phi's folds, repeat period, v amplitude)")  # fmt: skip
+    options.add_output(parser, "progress bar", out=("FILE.npz", "results (numpy, with each trajectory's jump record; FILE.nc: "
+                       "netCDF with labelled dimensions, needs pip install \"peeljax[xarray]\"); chunks in FILE.npz.chunks/, "
+                       "resumable; with --stick-slip-map the map's arrays; peeljax.load reads either back"),
+                       plot=("FILE.png", "the stick-slip map over (V, tau) (tau > 0); with --stick-slip-map the map "
+                             "against V"))  # fmt: skip
     _add_distributed_options(parser)
-    parser.set_defaults(handler=_sweep_command, out_formats=(".npz", ".nc"))
-
-
-# The options that place this process among the others (jax.distributed.initialize's arguments).
-_PROCESS_OPTIONS = (
-    ("--coordinator", str, "HOST:PORT", "address of process 0, which every process connects to (default: "
-     "$JAX_COORDINATOR_ADDRESS; with --distributed under srun: the job's first node)"),
-    ("--num-processes", int, "N", "processes in the sweep, >= 1 (with --distributed under srun: $SLURM_NTASKS)"),
-    ("--process-id", int, "I", "this process's rank, 0 <= I < N; 0 writes --out and reports (with --distributed "
-     "under srun: $SLURM_PROCID)"),
-)  # fmt: skip
 
 
 def _add_distributed_options(parser: argparse.ArgumentParser) -> None:
-    """One ``peeljax sweep`` per process, with the same sweep options (docs/sweeps.md); without
-    these options nothing joins JAX's distributed runtime."""
-    group = parser.add_argument_group(
-        "several processes (JAX's distributed runtime: one command per process, same options; docs/sweeps.md)"
-    )
-    for option, kind, metavar, text in _PROCESS_OPTIONS:  # None: one process, or what --distributed detects
-        group.add_argument(option, type=kind, default=None, metavar=metavar, help=text)
-    group.add_argument(
-        "--distributed", action="store_true",
-        help="join the other processes, taking what the three options above leave out from the environment "
-        "($JAX_COORDINATOR_ADDRESS, SLURM's srun)",
-    )  # fmt: skip
-    timeout = distributed.DEFAULT_TIMEOUT
-    group.add_argument(
-        "--distributed-timeout", dest="distributed_timeout", type=float, default=timeout, metavar="S",
-        help=f"seconds to wait for every process to reach the coordinator, > 0 (default {timeout:g})",
-    )  # fmt: skip
+    """One ``peeljax sweep`` per process, with the same options (docs/sweeps.md); without these nothing joins JAX's
+    distributed runtime (jax.distributed.initialize's arguments; None: one process, or what --distributed detects)."""
+    group = parser.add_argument_group("several processes (JAX's distributed runtime: one command per process, same options; "
+                                      "docs/sweeps.md)")  # fmt: skip
+    under_srun, timeout = "with --distributed under srun", distributed.DEFAULT_TIMEOUT
+    group.add_argument("--coordinator", metavar="HOST:PORT", help="address of process 0, which every process connects "
+                       f"to (default: $JAX_COORDINATOR_ADDRESS; {under_srun}: the job's first node)")  # fmt: skip
+    group.add_argument("--num-processes", type=int, metavar="N", help=f"processes in the sweep, >= 1 ({under_srun}: $SLURM_NTASKS)")
+    group.add_argument("--process-id", type=int, metavar="I", help="this process's rank, 0 <= I < N; 0 writes --out and "
+                       f"reports ({under_srun}: $SLURM_PROCID)")  # fmt: skip
+    group.add_argument("--distributed", action="store_true", help="join the other processes, taking what the three "
+                       "options above leave out from the environment ($JAX_COORDINATOR_ADDRESS, SLURM's srun)")  # fmt: skip
+    group.add_argument("--distributed-timeout", dest="distributed_timeout", type=float, default=timeout, metavar="S",
+                       help=f"seconds to wait for every process to reach the coordinator, > 0 (default {timeout:g})")
 
 
 # ---------------------------------------------------------------------------- validation
@@ -134,8 +90,7 @@ _SETTING_OPTIONS = {
     "V": "--V", "tau": "--tau", "dae": "--tau", "t_final": "--t-final", "window": "--transient/--window",
     "method": "--method", "solver": "--method/--rho", "rtol": "--rtol", "atol": "--atol", "max_steps": "--max-steps",
     "dt": "--dt", "n_steps": "--dt", "fold": "--fold", "max_jumps": "--max-jumps", "start": "--start",
-    "save_dt": "--save-dt", "save_every": "--save-every", "chunk": "--chunk", "model": "--geometry/--phi",
-}  # fmt: skip
+    "save_dt": "--save-dt", "save_every": "--save-every", "chunk": "--chunk", "model": "--geometry/--phi"}  # fmt: skip
 _DIFFER = re.compile(r"made with different settings \(([^()]*) differ\)")
 
 
@@ -148,43 +103,30 @@ def resume_refusal(message: str, args: argparse.Namespace) -> str:
     if found is None:
         return message
     names = [name.strip() for name in found.group(1).split(",")]
-    if "chunk" in names and args.chunk is None and len(names) > 1:
-        names.remove("chunk")
-    if "n_steps" in names and ("dt" in names or "t_final" in names):  # n_steps = t_final/dt
-        names.remove("n_steps")
-    if "window" in names and "t_final" in names:  # kept as fractions of t_final: --transient T may be as before
-        names.remove("window")
-    said = []
-    for name in names:
-        option = _SETTING_OPTIONS.get(name, name)
-        if option == "--tau" and args.n_tau is not None:
-            option = "--tau/--n-tau"
-        if option == "--chunk" and args.chunk is None:
-            option = f"the batch size (--chunk, default {options.DEFAULT_CHUNK}, at most the number of trajectories)"
-        if option not in said:
-            said.append(option)
+    dropped = {"chunk"} if args.chunk is None and len(names) > 1 else set()
+    dropped |= {"n_steps"} if {"dt", "t_final"} & set(names) else set()  # n_steps = t_final/dt
+    dropped |= {"window"} if "t_final" in names else set()  # kept as fractions of t_final: --transient may be as before
+    said, renamed = [], {"--tau": "--tau/--n-tau"} if args.n_tau is not None else {}
+    if args.chunk is None:
+        renamed["--chunk"] = f"the batch size (--chunk, default {DEFAULT_CHUNK}, at most the number of trajectories)"
+    for option in (_SETTING_OPTIONS.get(name, name) for name in names if name not in dropped):
+        said += [] if renamed.get(option, option) in said else [renamed.get(option, option)]
     joined = " and ".join(said) if len(said) <= 2 else ", ".join(said[:-1]) + " and " + said[-1]
     return f"{message[: found.start()]}made with a different {joined}{message[found.end() :]}"
 
 
 def validate_sweep(args: argparse.Namespace) -> dict:
     """Every option checked, nothing compiled; returns the keyword arguments of :func:`peeljax.sweep`."""
-    V = options.check_positive_values("--V", args.V)
-    tau = options.tau_grid([1e-3, 1e-1] if args.tau is None else args.tau, args.n_tau)
-    chosen = options.engine(args, dae=tau == [0.0])
-    model = options.engine_model(args)
-    window = _window(args)
+    V, tau = options.check_positive_values("--V", args.V), tau_grid([1e-3, 1e-1] if args.tau is None else args.tau, args.n_tau)
+    chosen, model, window = engine(args, dae=tau == [0.0]), engine_model(args), _window(args)
     if args.plot is not None and tau == [0.0]:
-        raise ValueError(
-            "--plot draws the (V, tau) map, whose tau axis is logarithmic: with --tau 0 (the DAE) add "
-            "--stick-slip-map for the map against V"
-        )
-    options.check_sweep_outputs(args)
+        raise ValueError("--plot draws the (V, tau) map, whose tau axis is logarithmic: with --tau 0 (the DAE) add "
+                         "--stick-slip-map for the map against V")  # fmt: skip
+    check_sweep_outputs(args)
     return {
         "model": model, "V": V, "tau": tau, **chosen, "t_final": float(args.t_final), "grid": "outer",
-        "window": window, "chunk": options.chunk(args), "out": args.out, "rho": options.engine_rho(args),
-        "start": library_default(sweep_api, "start") if args.start is None else args.start, "progress": args.progress and not args.json,
-    }  # fmt: skip
+        "window": window, "chunk": chunk(args), "out": args.out, "rho": engine_rho(args), "progress": args.progress and not args.json,
+        "start": library_default(sweep_api, "start") if args.start is None else args.start}  # fmt: skip
 
 
 def _window(args: argparse.Namespace) -> tuple[float, float]:
@@ -196,11 +138,9 @@ def _window(args: argparse.Namespace) -> tuple[float, float]:
             raise ValueError("--window W0 W1 (the deprecated form) sets the transient too: give --transient T --window W")
         return (float(args.window[0]), float(args.window[1]))
     T, W = options.check_statistics_window(args.transient, W, args.t_final)
-    t_final = args.t_final
-    return (T / t_final, min(1.0, (T + W) / t_final))
+    return (T / args.t_final, min(1.0, (T + W) / args.t_final))
 
 
-# ---------------------------------------------------------------------------- commands
 def _run_sweep(kwargs: dict):
     from ..sweeps import sweep
 
@@ -213,10 +153,8 @@ def distributed_settings(args: argparse.Namespace) -> distributed.Processes | No
     given = (args.coordinator, args.num_processes, args.process_id)
     asked = args.distributed or given != (None, None, None)
     if asked and args.stick_slip_map:
-        raise ValueError(
-            "--coordinator, --num-processes, --process-id and --distributed run the (V, tau) sweep over several "
-            "processes, not --stick-slip-map"
-        )
+        raise ValueError("--coordinator, --num-processes, --process-id and --distributed run the (V, tau) sweep over "
+                         "several processes, not --stick-slip-map")  # fmt: skip
     processes = distributed.processes(*given, args.distributed_timeout, detect=args.distributed)
     tasks = os.environ.get("SLURM_NTASKS")  # srun started several, but nothing joins them
     if not asked and os.environ.get("SLURM_PROCID") is not None and tasks not in (None, "1"):
@@ -236,8 +174,7 @@ def join_processes(processes: distributed.Processes | None, args: argparse.Names
         print(f"{PROG}: error: {processes.describe()}: could not join ({error})", file=sys.stderr)
         return 2
     _quiet_stdout(keep=processes.process_id == 0)
-    if processes.process_id != 0:  # process 0 reports; the others compute their share only
-        args.plot = None
+    args.plot = args.plot if processes.process_id == 0 else None  # process 0 reports; the others compute their share
     return None
 
 
@@ -259,23 +196,21 @@ def _quiet_stdout(keep: bool) -> None:
         os.close(report)
 
 
-def _sweep_command(args: argparse.Namespace) -> int:
-    try:
-        processes = distributed_settings(args)  # checked first, joined after the sweep's own checks
-    except ValueError as error:
-        return fail(error)
-    if args.stick_slip_map:
+def _check(args: argparse.Namespace) -> tuple:
+    """The process options (checked first, joined after the sweep's own checks) and the sweep's keyword arguments
+    (None for --stick-slip-map, checked by :func:`.sweep_map.map_command`)."""
+    return distributed_settings(args), None if args.stick_slip_map else validate_sweep(args)
+
+
+def _sweep_command(args: argparse.Namespace, checked_: tuple) -> int:
+    processes, kwargs = checked_
+    if kwargs is None:
         return map_command(args)
-    try:
-        kwargs = validate_sweep(args)
-    except (ValueError, TypeError) as error:
-        return fail(error)
     joined = join_processes(processes, args)
     if joined is not None:
         return joined
     n = len(kwargs["V"]) * len(kwargs["tau"])
-    print(f"{PROG}: sweep of {n} trajectories, {options.engine_text(kwargs)} (compiling first: a few seconds) ...",
-          file=sys.stderr)  # fmt: skip
+    print(f"{PROG}: sweep of {n} trajectories, {engine_text(kwargs)} (compiling first: a few seconds) ...", file=sys.stderr)
     start = time.perf_counter()
     # Ctrl-C's line says how many chunks are saved, whichever thread prints it (cli._interrupt)
     with _interrupt.note(lambda: _saved_chunks(args.out)):
@@ -292,8 +227,7 @@ def _sweep_command(args: argparse.Namespace) -> int:
         _print_resumed(result, args.out)
     record = {
         "n": len(result), "n_completed": int(result.completed.sum()), "V": kwargs["V"], "tau": kwargs["tau"],
-        **options.engine_record(kwargs, result.settings.get("method")),  # the stepper that ran (absent on the uniform mesh)
-        "method_option": args.method,  # --method as given
+        **engine_record(kwargs, result.settings.get("method")), "method_option": args.method,  # the stepper that ran, --method
         "max_steps": result.settings.get("max_steps"),  # the budget of step attempts (error control)
         "save_dt": kwargs["save_dt"], "save_every": kwargs["save_every"], "t_final": kwargs["t_final"],
         "window": list(kwargs["window"]),  # fractions of t_final, as pj.sweep takes them
@@ -301,12 +235,11 @@ def _sweep_command(args: argparse.Namespace) -> int:
         "window_s": (kwargs["window"][1] - kwargs["window"][0]) * kwargs["t_final"],  # [s]: --window
         "fold": result.settings.get("fold"), "max_jumps": result.settings.get("max_jumps"), "start": kwargs["start"],
         "wall_time_s": wall, "phi_paper_defaults": phi_defaults(args),
-        "computed_chunks": list(result.computed_chunks), "out": args.out, "plot": args.plot, **result.as_dict(),
-    }  # fmt: skip
+        "computed_chunks": list(result.computed_chunks), "out": args.out, "plot": args.plot, **result.as_dict()}  # fmt: skip
     failed = write_files(record, ("--plot", args.plot, plotter("plot_sweep_map", result)))
     notes = remedy_notes(result.status, result.settings.get("max_steps", kwargs.get("max_steps")))
-    lines = lambda: _sweep_lines(record, result, kwargs, wall)
-    return report(record, args.json, lines, failed, "the sweep's results are above", notes)
+    return report(record, args.json, lambda: _sweep_lines(record, result, kwargs, wall), failed,
+                  "the sweep's results are above", notes)  # fmt: skip
 
 
 def _saved_chunks(out: str | None) -> str:
@@ -314,20 +247,14 @@ def _saved_chunks(out: str | None) -> str:
     if out is None:
         return "nothing was saved (no --out); with --out a rerun resumes from the chunks finished"
     saved, total = saved_chunks(out)
-    of = "" if total is None else f" of {total}"
-    return (
-        f"{saved}{of} chunk{'' if saved == 1 and total is None else 's'} saved in {str(out) + '.chunks'!r}; "
-        "rerun the same command to resume"
-    )
+    chunks = f"{saved} chunk{'' if saved == 1 else 's'}" if total is None else f"{saved} of {total} chunks"
+    return f"{chunks} saved in {str(out) + '.chunks'!r}; rerun the same command to resume"
 
 
 def _print_resumed(result, out: str | None) -> None:
     """The line :func:`peeljax.sweep` prints with its progress bar when it resumed an --out."""
-    if out is None:
-        return
     n_chunks = -(-len(result) // int(result.settings["chunk"]))
-    loaded = n_chunks - len(result.computed_chunks)
-    if loaded:
+    if out is not None and (loaded := n_chunks - len(result.computed_chunks)):
         print(f"resumed: {loaded} of {n_chunks} chunks loaded from {str(out) + '.chunks'!r}", file=sys.stderr)
 
 
@@ -335,11 +262,8 @@ def _sweep_lines(record: dict, result, kwargs: dict, wall: float) -> list[str]:
     """The sweep's summary: what ran, then one row per trajectory."""
     t_final, (w0, w1) = kwargs["t_final"], kwargs["window"]
     folds = "" if result.jumps is None else f"; start {record['start']}, fold {record['fold']} (max_jumps {record['max_jumps']})"
-    lines = [
-        f"{PROG} sweep: {record['n']} trajectories, {record['n_completed']} completed t = {t_final:g} s, "
-        f"wall time {wall:.3g} s",
-        f"{options.engine_text(kwargs, result.settings.get('method'))}; v statistics over t in [{w0 * t_final:g}, "
+    return [
+        f"{PROG} sweep: {record['n']} trajectories, {record['n_completed']} completed t = {t_final:g} s, wall time {wall:.3g} s",
+        f"{engine_text(kwargs, result.settings.get('method'))}; v statistics over t in [{w0 * t_final:g}, "
         f"{w1 * t_final:g}] s (--transient {w0 * t_final:g} --window {(w1 - w0) * t_final:g}){folds}",
-        result.table(),
-    ]
-    return lines + [f"wrote {record[key]}" for key in ("out", "plot") if record[key]]
+        result.table(), *wrote(record)]
