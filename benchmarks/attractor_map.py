@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 from collections import Counter
 from pathlib import Path
 
@@ -32,6 +31,9 @@ import numpy as np
 
 import peeljax as pj
 from peeljax.attractor_map import PERIODIC, UNSTABLE
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from machine import timed  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -46,20 +48,13 @@ def main(argv=None) -> int:
     V = np.linspace(0.3, 5.4, args.n_V)
     small = np.linspace(0.3, 5.4, 16)
 
-    begin = time.perf_counter()
-    pj.attractor_map(V=small, progress=False, **kwargs)
-    pj.stick_slip_map(V=small, progress=False)
-    warm = time.perf_counter() - begin
+    _, warm = timed(lambda: (pj.attractor_map(V=small, progress=False, **kwargs), pj.stick_slip_map(V=small, progress=False)))
 
     load = os.getloadavg()[0]
-    t0 = time.perf_counter()
-    amap = pj.attractor_map(V=V, **kwargs)
-    t_map = time.perf_counter() - t0
+    amap, t_map = timed(pj.attractor_map, V=V, **kwargs)
     if args.save:
         amap.save(args.save)
-    t0 = time.perf_counter()
-    smap = pj.stick_slip_map(V=V, progress=False)
-    t_brute = time.perf_counter() - t0
+    smap, t_brute = timed(pj.stick_slip_map, V=V, progress=False)
 
     labels = Counter(amap.labels)
     missing, transient, multiple = compare(amap, smap)

@@ -43,7 +43,7 @@ from compare_problems import (
     P4_T_FINAL, REF_ATOL, REF_RTOL, T_FINAL, calibrate, central_differences, one_line, p3_grid, p3_subsample,
     p4_coefficients, reference, relative_errors, scaled_error
 )  # fmt: skip
-from machine import command, cpu_model, load_average, round_robin, versions, write_json
+from machine import command, cpu_model, load_average, round_robin, timed, versions, write_json
 from peers import NotRun, Peer
 from peers.casadi_peer import CasadiBatch, CasadiLoss, CasadiPeer, dae_casadi_idas, p4_data
 from peers.diffrax_peer import DiffraxPeer, dae_diffrax_index1, diffrax_loss_of, diffrax_vmap
@@ -83,12 +83,9 @@ def check(peer: Peer, v_ref: np.ndarray):
     scale = np.max(np.abs(v_ref))
     for setting in peer.settings:
         try:
-            started = time.perf_counter()
-            peer.setup(setting)  # the solver object, integrator or compiled program: set-up, not the run
-            setup = time.perf_counter() - started
-            compiled, started = _COMPILES[0], time.perf_counter()
-            v = peer.run(setting)
-            first = time.perf_counter() - started
+            _, setup = timed(peer.setup, setting)  # the solver object, integrator or compiled program, not the run
+            compiled = _COMPILES[0]
+            v, first = timed(peer.run, setting)
             compiled = _COMPILES[0] - compiled  # after setup, a run compiles nothing
         except Exception as error:  # noqa: BLE001 (a failing setting is reported)
             rows.append({"setting": setting, "status": f"failed: {one_line(error)}"})
@@ -114,9 +111,8 @@ def time_round_robin(peers, rows_of, repeats):
         for peer in peers:
             for row in rows_of[peer.name]:
                 if row.get("status") == "ok":
-                    compiled, started = _COMPILES[0], time.perf_counter()
-                    peer.run(row["setting"])
-                    row["times"].append(time.perf_counter() - started)
+                    compiled = _COMPILES[0]
+                    row["times"].append(timed(peer.run, row["setting"])[1])
                     row["compiles_in_run"] += _COMPILES[0] - compiled
     for rows in rows_of.values():
         for row in rows:
@@ -190,62 +186,48 @@ def measure_batch(n_tau, per_v, settings, repeats, radau_count):
     print(f"  [P3 reference on {sub.size} trajectories: {time.perf_counter() - started:.0f} s]", file=sys.stderr)
     casadi, cvode = CasadiBatch(), CvodeBatch()  # their solvers are built by setup(rtol), outside every timing
     calibration = {}
-
-    def looped(batch, Vs_, taus_, rtol):
-        batch.setup(rtol)
-        return _loop(batch, Vs_, taus_, rtol)
-
     radau_pos = np.searchsorted(sub, radau_sub)
-    (r_adaptive, _, _), met_adaptive = calibrate(
-        "peeljax error control (rtol)", settings["rtols_adaptive"],
-        lambda r: peeljax_batch_adaptive(Vs[sub], taus[sub], r)[0], v_ref, calibration,
-    )  # fmt: skip
     tuned = lambda V_, tau_, r: peeljax_batch_adaptive(V_, tau_, r, rho=P3_TUNED_RHO, atol_factor=P3_TUNED_ATOL)
-    (r_tuned, _, _), met_tuned = calibrate(
-        f"peeljax error control, ρ = {P3_TUNED_RHO:g}, atol = {P3_TUNED_ATOL:g}·rtol (rtol)", settings["rtols_adaptive"],
-        lambda r: tuned(Vs[sub], taus[sub], r)[0], v_ref, calibration,
-    )  # fmt: skip
-    (n_alpha, _, _), met_alpha = calibrate(
-        "peeljax uniform mesh (N)", settings["steps"], lambda n: peeljax_batch(Vs[sub], taus[sub], n)[0], v_ref,
-        calibration,
-    )  # fmt: skip
-    (r_diffrax, _, _), met_diffrax = calibrate(
-        "diffrax", settings["rtols_diffrax"], lambda r: run_diffrax(Vs[sub], taus[sub], r)[0], v_ref, calibration
-    )
-    (r_cvode, _, _), met_cvode = calibrate(
-        "cvode", settings["rtols_loop"], lambda r: looped(cvode, Vs[sub], taus[sub], r), v_ref, calibration
-    )
-    (r_casadi, _, _), met_casadi = calibrate(
-        "casadi", settings["rtols_loop"], lambda r: looped(casadi, Vs[sub], taus[sub], r), v_ref, calibration
-    )
-    (r_radau, _, _), met_radau = calibrate(
-        "radau", settings["rtols_radau"], lambda r: _loop(radau_y, Vs[radau_sub], taus[radau_sub], r),
-        v_ref[radau_pos], calibration,
-    )  # fmt: skip
+    looped = lambda batch: lambda V_, tau_, r: _loop(batch, V_, tau_, r)
+    # key: (its calibration's name, the settings tried, run(Vs, taus, setting) -> v or a tuple led by v)
+    runs = {
+        "adaptive": ("peeljax error control (rtol)", settings["rtols_adaptive"], peeljax_batch_adaptive),
+        "tuned": (f"peeljax error control, ρ = {P3_TUNED_RHO:g}, atol = {P3_TUNED_ATOL:g}·rtol (rtol)",
+                  settings["rtols_adaptive"], tuned),
+        "uniform": ("peeljax uniform mesh (N)", settings["steps"], peeljax_batch),
+        "diffrax": ("diffrax", settings["rtols_diffrax"], run_diffrax),
+        "cvode": ("cvode", settings["rtols_loop"], looped(cvode)),
+        "casadi": ("casadi", settings["rtols_loop"], looped(casadi)),
+        "radau": ("radau", settings["rtols_radau"], looped(radau_y)),
+    }  # fmt: skip
+    lanes = {key: radau_sub if key == "radau" else slice(None) for key in runs}  # what the timed run covers
+    chosen = {}  # key: (setting, whether it met TARGET)
+    for key, (name, tried, run) in runs.items():
+        checked, ref = (radau_sub, v_ref[radau_pos]) if key == "radau" else (sub, v_ref)
+
+        def on_checked(setting, key=key, run=run, checked=checked):
+            if key in ("cvode", "casadi"):
+                {"cvode": cvode, "casadi": casadi}[key].setup(setting)
+            v = run(Vs[checked], taus[checked], setting)
+            return v[0] if isinstance(v, tuple) else v
+
+        (setting, _, _), met = calibrate(name, tried, on_checked, ref, calibration)
+        chosen[key] = (setting, met)
+    n_alpha = chosen["uniform"][0]
     radius = float(peeljax.AlphaMethod().rho)
     petsc = petsc_tsalpha(list(zip(Vs[radau_sub], taus[radau_sub])), n_alpha, radius)
-
-    calls = {
-        "adaptive": lambda: peeljax_batch_adaptive(Vs, taus, r_adaptive),
-        "tuned": lambda: tuned(Vs, taus, r_tuned),
-        "uniform": lambda: peeljax_batch(Vs, taus, n_alpha),
-        "diffrax": lambda: run_diffrax(Vs, taus, r_diffrax),
-        "cvode": lambda: _loop(cvode, Vs, taus, r_cvode),
-        "casadi": lambda: _loop(casadi, Vs, taus, r_casadi),
-        "radau": lambda: _loop(radau_y, Vs[radau_sub], taus[radau_sub], r_radau),
-    }
+    calls = {key: functools.partial(run, Vs[lanes[key]], taus[lanes[key]], chosen[key][0])
+             for key, (_, _, run) in runs.items()}  # fmt: skip
     # First (compiling) calls on the whole batch, then `repeats` round-robin rounds.
     first, outputs = {}, {}
     for key in ("adaptive", "tuned", "uniform", "diffrax"):
-        start = time.perf_counter()
-        outputs[key] = calls[key]()
-        first[key] = time.perf_counter() - start
+        outputs[key], first[key] = timed(calls[key])
     v_adaptive, status_adaptive, accepted, rejected = outputs["adaptive"]
     v_tuned, status_tuned, accepted_tuned, _ = outputs["tuned"]
     v_alpha, status_alpha = outputs["uniform"]
     v_dfx, status_dfx = outputs["diffrax"]
-    casadi.setup(r_casadi)
-    cvode.setup(r_cvode)
+    casadi.setup(chosen["casadi"][0])
+    cvode.setup(chosen["cvode"][0])
 
     def progress(times):
         print(f"  [P3 round: { {k: round(t[-1], 2) for k, t in times.items()} }]", file=sys.stderr, flush=True)
@@ -271,9 +253,6 @@ def measure_batch(n_tau, per_v, settings, repeats, radau_count):
         "casadi": float(np.max(relative_errors(outputs["casadi"][sub], v_ref))),
         "radau": float(np.max(relative_errors(outputs["radau"], v_ref[radau_pos]))),
     }
-    chosen = {"adaptive": (r_adaptive, met_adaptive), "tuned": (r_tuned, met_tuned), "uniform": (n_alpha, met_alpha),
-              "diffrax": (r_diffrax, met_diffrax), "cvode": (r_cvode, met_cvode), "casadi": (r_casadi, met_casadi),
-              "radau": (r_radau, met_radau)}  # fmt: skip
     methods = {
         key: {"setting": setting, "met": met, "median_s": float(np.median(times[key])), "times": times[key],
               "first_s": first.get(key), "timed_n": radau_sub.size if key == "radau" else B,
@@ -319,15 +298,13 @@ def measure_gradient(settings, repeats):
     methods = []  # (name, setting text, prepare() -> (setup s, call), family)
 
     def jit_compiled(fn, *args):
-        start = time.perf_counter()
-        exe = jax.jit(fn).lower(*args).compile()
-        return time.perf_counter() - start, exe
+        return timed(lambda: jax.jit(fn).lower(*args).compile())
 
     c_jax = jnp.asarray(c)
 
     def reverse_mode(loss):
         """(setup seconds, call) for jax.grad of ``loss(c) -> (L, status)``, compiled once."""
-        setup, exe = jit_compiled(jax.value_and_grad(loss, has_aux=True), c_jax)
+        exe, setup = jit_compiled(jax.value_and_grad(loss, has_aux=True), c_jax)
 
         def call():
             (L, status), g = jax.block_until_ready(exe(c_jax))
@@ -342,16 +319,14 @@ def measure_gradient(settings, repeats):
         prepare = functools.partial(reverse_mode, lambda c, rtol=rtol: adaptive_loss(c, rtol))
         methods.append(("peeljax adaptive α, reverse mode (jax.grad)", f"rtol = {rtol:g}", prepare, "adaptive"))
     def prepare_fd(n=n_base):
-        setup, exe = jit_compiled(lambda c: alpha_loss(c, n)[0], c_jax)
+        exe, setup = jit_compiled(lambda c: alpha_loss(c, n)[0], c_jax)
         value = lambda x: float(exe(jnp.asarray(x)))
         L = value(c)
         return setup, lambda: (L, central_differences(value, c), 0)
 
     methods.append(("central differences of peeljax", f"N = {n_base}", prepare_fd, "fd"))
     def prepare_casadi(rtol, differences):
-        start = time.perf_counter()
-        loss = CasadiLoss(rtol, v_data)
-        setup = time.perf_counter() - start
+        loss, setup = timed(CasadiLoss, rtol, v_data)
         if differences:
             L = loss.value(c)
             return setup, lambda: (L, central_differences(loss.value, c), 0)
@@ -367,7 +342,7 @@ def measure_gradient(settings, repeats):
     for rtol in settings["rtols_diffrax"]:
         def prepare_diffrax(rtol=rtol):
             if "exe" not in diffrax_exe:  # rtol is traced: one compilation serves every rtol
-                diffrax_exe["setup"], diffrax_exe["exe"] = jit_compiled(jax.value_and_grad(diffrax_loss), c_jax, 1e-8)
+                diffrax_exe["exe"], diffrax_exe["setup"] = jit_compiled(jax.value_and_grad(diffrax_loss), c_jax, 1e-8)
             setup, exe = diffrax_exe["setup"], diffrax_exe["exe"]
 
             def call():
@@ -384,9 +359,7 @@ def measure_gradient(settings, repeats):
         row, call = {"name": name, "setting": setting, "family": family, "times": []}, None
         try:
             row["setup"], call = prepare()
-            start = time.perf_counter()
-            L, g, status = call()  # warm-up; its answer is the one checked
-            row["first"] = time.perf_counter() - start
+            (L, g, status), row["first"] = timed(call)  # warm-up; its answer is the one checked
             if status != 0 or not (np.isfinite(L) and np.all(np.isfinite(g))):
                 row["status"] = f"stopped (status {status})" if status else "non-finite loss or gradient"
             else:
@@ -397,8 +370,8 @@ def measure_gradient(settings, repeats):
         rows.append(row)
         calls.append(call)
         print(f"  [P4 {name} {setting}: {row['status']} {row.get('error', '')}]", file=sys.stderr, flush=True)
-    timed = round_robin({i: call for i, call in enumerate(calls) if rows[i]["status"] == "ok"}, repeats)
-    for i, samples in timed.items():
+    times = round_robin({i: call for i, call in enumerate(calls) if rows[i]["status"] == "ok"}, repeats)
+    for i, samples in times.items():
         rows[i]["times"], rows[i]["median"] = samples, float(np.median(samples))
     return {"c": c, "L_ref": L_ref, "repeats": repeats, "diffrax_run": bool(settings["rtols_diffrax"]), "rows": rows,
             "elapsed_s": time.perf_counter() - started}  # fmt: skip

@@ -35,11 +35,10 @@ def render(data) -> list[str]:
     """The lines of the markdown report of one ``compare.py`` run (its JSON results, as loaded)."""
     out = []
 
-    def emit(line=""):
-        out.append(line)
+    def emit(*lines):  # emit(): a blank line
+        out.extend(lines or [""])
 
-    emit(made_by(data["command"]))
-    emit()
+    emit(made_by(data["command"]), "")
     header(emit, data)
     for entry in data.get("p1") or ():
         one_trajectory_section(emit, entry)
@@ -57,25 +56,21 @@ def render(data) -> list[str]:
 
 def header(emit, data):
     machine = data["machine"]
-    emit("# peeljax against its peers (issue 6: P1–P5)")
-    emit()
+    emit("# peeljax against its peers (issue 6: P1–P5)", "")
     emit(f"- CPU: {machine['cpu']}, {machine['cores']} logical cores; load average at start {machine['load']:.2f}")
     emit(f"- {data['versions']}")
     emit(f"- problem: V = {V}, t ∈ [0, {T_FINAL:g}] s, paper geometry and initial data; error = max over the")
     emit(f"  301 times 0, 0.01, …, 3 s of |v − v_ref|, v_ref = diffrax Kvaerno5 at rtol {REF_RTOL:g}, atol {REF_ATOL:g}")
     emit(f"- medians of {data['repeats']} runs after a warm-up run; adaptive peers use atol = 1e-2·rtol, "
-         f"peeljax adaptive α atol = {ADAPTIVE_ALPHA_ATOL:g}·rtol")  # fmt: skip
-    emit()
+         f"peeljax adaptive α atol = {ADAPTIVE_ALPHA_ATOL:g}·rtol", "")  # fmt: skip
 
 
 # --------------------------------------------------------------------------- (P1, P2) one trajectory
 def one_trajectory_section(emit, entry):
     tau, peers = entry["tau"], entry["peers"]
     rows_of = {p["name"]: p["rows"] for p in peers}
-    emit(f"## τ = {tau}")
-    emit()
-    emit(f"### (P1) the cheapest setting with error ≤ {TARGET:g}")
-    emit()
+    emit(f"## τ = {tau}", "")
+    emit(f"### (P1) the cheapest setting with error ≤ {TARGET:g}", "")
     base = cheapest_at(rows_of[entry["base_peer"]], TARGET)
     base_adaptive = cheapest_at(rows_of[entry["adaptive_peer"]], TARGET)
     emit("| method | setting | error | median s | set-up s | time / peeljax's | time / peeljax adaptive α's |")
@@ -102,10 +97,8 @@ def one_trajectory_section(emit, entry):
                  for r in peer["rows"] if r.get("compiles_in_run")]  # fmt: skip
     emit()
     emit("JAX compilations inside the timed calls (the checking run and the timed runs, after `setup`): "
-         + ("none." if not compiling else "**" + ", ".join(compiling) + "**: their times include compilation."))
-    emit()
-    emit("### (P2) work-precision: every setting")
-    emit()
+         + ("none." if not compiling else "**" + ", ".join(compiling) + "**: their times include compilation."), "")
+    emit("### (P2) work-precision: every setting", "")
     emit("| method | setting | status | error | median s | set-up s | first call s |")
     emit("|---|---:|---|---:|---:|---:|---:|")
     for peer in peers:
@@ -196,23 +189,20 @@ def batch_section(emit, d):
     Vs, taus = np.asarray(d["Vs"], float), np.asarray(d["taus"], float)
     completed = {k: np.asarray(v, bool) for k, v in d["completed"].items()}
     device = d["devices"]
-    emit(f"## (P3) a batch of {B} trajectories")
-    emit()
+    emit(f"## (P3) a batch of {B} trajectories", "")
     emit(f"V ∈ {{{', '.join(f'{v:g}' for v in velocities)}}} × {d['n_tau']} τ log-spaced in "
          f"[{tau_range[0]:g}, {tau_range[1]:g}] s, t ∈ [0, {T_FINAL:g}] s, paper initial data, v kept at the 301 times "
          f"of P1. Error of a trajectory: max over those times of |v − v_ref| / max|v_ref| (relative to the largest v of "
          f"the reference), v_ref = diffrax Kvaerno5 at rtol {REF_RTOL:g}, atol {REF_ATOL:g} under vmap; checked on "
          f"{sub_size} trajectories spread over the grid ({per_v} τ per V, both ends included). Each method's setting is "
-         f"the cheapest of those tried whose max error on them is ≤ {TARGET:g}.")  # fmt: skip
-    emit()
+         f"the cheapest of those tried whose max error on them is ≤ {TARGET:g}.", "")  # fmt: skip
     platform = device["platform"]
     kind = platform + ("" if device["device_kind"] == platform else f", {device['device_kind']}")
     emit(f"peeljax.sweep ran on {device['count']} JAX device(s) ({kind}; "
          f"jax.devices() of this process), its lanes dealt over them; with error control each device runs its lanes "
          f"{'one at a time (lane_batch = 1, the CPU default)' if platform == 'cpu' else 'together (vmap)'} "
          f"and v is saved at the 301 times by save_dt = {d['save_dt']:g} (dense output). diffrax under vmap runs on "
-         "one device; the looped peers run one trajectory after another in this process (one core).")  # fmt: skip
-    emit()
+         "one device; the looped peers run one trajectory after another in this process (one core).", "")  # fmt: skip
     median = {k: m[k]["median_s"] for k in m}
     base = median["adaptive"]
     r_adaptive, n_alpha = m["adaptive"]["setting"], m["uniform"]["setting"]
@@ -264,8 +254,7 @@ def batch_section(emit, d):
          "compile s: JAX's compilation (first call − median), CasADi's integrator and CVODE's solver object (their "
          "construction time). "
          "time / peeljax's: divided by peeljax.sweep with error control (the first row; > 1: it is faster). "
-         "Settings tried on the checked trajectories (setting: max error, completed):")  # fmt: skip
-    emit()
+         "Settings tried on the checked trajectories (setting: max error, completed):", "")  # fmt: skip
     for name, tried in d["calibration"].items():
         emit(f"- {name}: " + "; ".join(f"{s:g}: {e:.1e} ({c})" for s, e, c in tried))
     sub_Vs = np.asarray(d["sub_Vs"], float)
@@ -277,21 +266,18 @@ def batch_section(emit, d):
          + f"; uniform mesh at N = {n_alpha}: "
          + ", ".join(f"{Vp:g}: {np.max(errors_alpha[sub_Vs == Vp]):.1e}" for Vp in velocities)
          + " (one dt serves the whole batch, so the hardest (V, τ) sets it; with error control each trajectory "
-           "takes the steps its own error needs).")  # fmt: skip
-    emit()
+           "takes the steps its own error needs).", "")  # fmt: skip
     accepted, rejected = np.asarray(d["accepted"]), np.asarray(d["rejected"])
     emit(f"Steps of the error-controlled sweep per trajectory (whole batch): accepted mean {np.mean(accepted):.0f} "
          f"(min {int(np.min(accepted))}, max {int(np.max(accepted))}; by V: "
          + ", ".join(f"{Vp:g}: {np.mean(accepted[Vs == Vp]):.0f}" for Vp in velocities)
-         + f"), rejected mean {np.mean(rejected):.1f}; the uniform mesh takes N = {n_alpha} on every trajectory.")  # fmt: skip
-    emit()
+         + f"), rejected mean {np.mean(rejected):.1f}; the uniform mesh takes N = {n_alpha} on every trajectory.", "")  # fmt: skip
     others = {"diffrax": completed["diffrax"], "CVODE": completed["cvode"], "CasADi": completed["casadi"]}
     note = lambda label, setting, key: _stopped_note(label, setting, completed[key], others, Vs, taus, B, velocities)
     emit(note("peeljax with error control", f"rtol = {r_adaptive:g}", "adaptive")
          + "; " + note("on the uniform mesh", f"N = {n_alpha}", "uniform")
          + f"; diffrax completed {int(completed['diffrax'].sum())}, CVODE {int(completed['cvode'].sum())}, "
-         f"CasADi {int(completed['casadi'].sum())}.")  # fmt: skip
-    emit()
+         f"CasADi {int(completed['casadi'].sum())}.", "")  # fmt: skip
     n_cores = device["count"] if platform == "cpu" else 1
     casadi_shared = per_batch["casadi"] / n_cores  # the loop split perfectly over the cores peeljax used
     ratio_dfx = per_batch["diffrax"] / base
@@ -306,8 +292,7 @@ def batch_section(emit, d):
          f"peeljax.sweep with error control at equal error ({base:.2f} s per batch on {device['count']} device(s)); on the "
          f"uniform mesh (before): {per_batch['diffrax'] / per_batch['uniform']:.2f}× diffrax, "
          f"{casadi_shared / per_batch['uniform']:.2f}× CasADi on the same cores. Best looped peer: {best} "
-         f"({looped[best]:.2f} s per batch). P3 time: {d['elapsed_s']:.0f} s.")  # fmt: skip
-    emit()
+         f"({looped[best]:.2f} s per batch). P3 time: {d['elapsed_s']:.0f} s.", "")  # fmt: skip
     tuned = per_batch["tuned"]
     accepted_tuned = np.asarray(d["accepted_tuned"])
     emit(f"Tuned (ρ = {d['tuned']['rho']:g}, atol = {d['tuned']['atol_factor']:g}·rtol, the peers' atol rule; "
@@ -315,23 +300,20 @@ def batch_section(emit, d):
          f"{m['tuned']['setting']:g}, {np.mean(accepted_tuned):.0f} accepted steps per trajectory (default: "
          f"{np.mean(accepted):.0f}); {base / tuned:.2f}× the default sweep's speed, {per_batch['diffrax'] / tuned:.2f}× "
          f"diffrax's, against CasADi's loop split over the same cores {casadi_shared / tuned:.2f}× "
-         f"({'met' if casadi_shared / tuned > 1 else 'missed'}).")  # fmt: skip
-    emit()
+         f"({'met' if casadi_shared / tuned > 1 else 'missed'}).", "")  # fmt: skip
 
 
 # --------------------------------------------------------------------------- (P4) the gradient of a trajectory loss
 def gradient_section(emit, d):
     rows, c, repeats = d["rows"], np.asarray(d["c"], float), d["repeats"]
-    emit("## (P4) the gradient of a trajectory loss with respect to φ's 14 coefficients")
-    emit()
+    emit("## (P4) the gradient of a trajectory loss with respect to φ's 14 coefficients", "")
     emit(f"L(c) = mean over the {P4_TIMES.size} times t_i = i/{P4_DEN} s, t ∈ [0, {P4_T_FINAL:g}] s, of (v(t_i) − "
          f"v_data(t_i))², V = {V}, τ = {P4_TAU}; v_data: the paper's φ (CasADi cvodes, rtol 1e-11); the gradient is "
          f"taken at the paper's φ with {P4_PERTURBATION[0]} × {P4_PERTURBATION[1]:g} (L = {d['L_ref']:.4e}). Reference "
          "gradient: CasADi cvodes forward sensitivities at rtol 1e-11 (atol 1e-13). Gradient error: "
          "max_i |c_i·(g − g_ref)_i| / max_i |c_i·g_ref,i| (sensitivities to relative changes of the coefficients); "
          "it includes each method's discretization error of the trajectory (different discretizations have "
-         f"different gradients). Central differences: relative step {P4_FD_STEP:g}, 28 forward runs.")  # fmt: skip
-    emit()
+         f"different gradients). Central differences: relative step {P4_FD_STEP:g}, 28 forward runs.", "")  # fmt: skip
     base_row = rows[0]
     base = base_row.get("median", math.nan)
     emit("| method | setting | status | L | gradient error | median s | first-call overhead s | time / peeljax's |")
@@ -366,8 +348,7 @@ def gradient_section(emit, d):
                 ("adaptive", "peeljax adaptive α"))  # fmt: skip
     emit("Time of the cheapest setting of each peer with a gradient error ≤ peeljax's (within 5 %), divided by "
          "peeljax's time (> 1: peeljax faster), for each setting of peeljax on the uniform mesh and of the adaptive "
-         "α-method:")  # fmt: skip
-    emit()
+         "α-method:", "")  # fmt: skip
     emit("| peeljax setting | gradient error | median s | " + " | ".join(label for _, label in families) + " |")
     emit("|---|---:|---:|" + "---|" * len(families))
     verdicts = []
@@ -405,21 +386,18 @@ def gradient_section(emit, d):
                 state = f"{'met' if found[0] > 1 else 'missed'} ({found[0]:.2f}×)"
             lines.append(f"{p_row['setting'].split(' (')[0]}: faster than {label.split(' (')[0]}: {state}")
     emit("Targets (issue 6), at equal gradient error: " + "; ".join(lines)
-         + f". P4 time: {d['elapsed_s']:.0f} s.")  # fmt: skip
-    emit()
+         + f". P4 time: {d['elapsed_s']:.0f} s.", "")  # fmt: skip
 
 
 # --------------------------------------------------------------------------- (P5) the direct DAE
 def direct_dae_section(emit, d):
     rtols = d["rtols"]
-    emit("## (P5) the direct DAE: where each solver stops")
-    emit()
+    emit("## (P5) the direct DAE: where each solver stops", "")
     emit("t_stop [s] (v there [m/s]) per tolerance; t_final = 3 s means it completed. The paper")
     emit("claims that direct DAE solvers fail at the stick-slip points (J_t → 0 at the maximum of φ).")
     emit("IDA and scipy report their last internal step; CasADi idas runs output interval by output interval")
     emit("(every 0.05 s) and reports the last one reached; diffrax reports its last output time (every 1 ms).")
-    emit("φ at V = 1.1 has its maximum at v = 0.524 and its minimum at v = 8.49.")
-    emit()
+    emit("φ at V = 1.1 has its maximum at v = 0.524 and its minimum at v = 8.49.", "")
     emit("| solver | V | " + " | ".join(f"rtol {r:g}" for r in rtols) + " |")
     emit("|---|---:|" + "---:|" * len(rtols))
     for row in d["rows"]:

@@ -27,6 +27,7 @@ import time
 import numpy as np
 
 import peeljax as pj
+from machine import timed
 
 VELOCITIES = (1.1, 2.0, 4.0)
 
@@ -178,9 +179,8 @@ def main(argv=None) -> None:
     if args.table:
         print_table(run_table(V=args.V, seed=1 if args.seed == 0 else args.seed, method=args.method))
         return
-    started = time.perf_counter()
-    out = run(**{key: getattr(args, key) for key in ("t_final", "tau", "steps", "free", "optimizer", "seed", "rtol", "dt")})
-    wall = time.perf_counter() - started
+    out, wall = timed(run, **{key: getattr(args, key) for key in ("t_final", "tau", "steps", "free", "optimizer", "seed",
+                                                                 "rtol", "dt")})  # fmt: skip
     result, start, floor = out["result"], out["start"], out["noise_floor"]
     engine = f"uniform mesh dt = {args.dt:g}" if args.dt is not None else f"error control rtol = {args.rtol:g}"
     print(f"fitted {list(result.free)} ({engine}): {result.steps} iterations, {result.wall_time_s:.0f} s in the fit, "

@@ -18,7 +18,6 @@ of every kind").
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 
@@ -29,6 +28,7 @@ from peeljax.fit.records_fit import NOISE_FACTOR, SMOOTH
 from peeljax.measurements.stick_slip_table import STATISTICS
 from peeljax.fit.table import attractor_statistics
 from peeljax.measurements.observations import Observation
+from machine import timed
 
 TRUTH = pj.AdhesionLaw(c1=420.0)
 V = (1.1, 1.6, 2.4)
@@ -76,9 +76,8 @@ def fit(rate_khz: float, draws: int = 1) -> None:
         for V_i in V:
             t, F = record(V_i, 1e3 * rate_khz, 0.005, seed=int(100 * V_i) + 1000 * draw)
             observations.append(Observation(V=V_i, t=t, v=None, F=F))
-        began = time.perf_counter()
-        result = fit_records(observations, free=("c1",))
-        walls.append(time.perf_counter() - began)
+        result, wall = timed(fit_records, observations, free=("c1",))
+        walls.append(wall)
         (value,), (se,) = result.uncertainty.values, result.uncertainty.standard_errors
         if draws == 1:
             print(result.summary())
@@ -98,10 +97,9 @@ def points(draws: int) -> None:
     rng = np.random.default_rng(1)
     covered, z, walls = [], [], []
     for _ in range(draws):
-        began = time.perf_counter()
-        result = fit_records([Observation(V=1.1, t=t, v=None, F=F * (1 + 0.005 * rng.standard_normal(F.size)))],
-                             free=("c1",), tau=0.01)  # fmt: skip
-        walls.append(time.perf_counter() - began)
+        F_i = F * (1 + 0.005 * rng.standard_normal(F.size))
+        result, wall = timed(fit_records, [Observation(V=1.1, t=t, v=None, F=F_i)], free=("c1",), tau=0.01)
+        walls.append(wall)
         (lo, hi), = result.intervals()["c1"]
         covered.append(lo <= 420.0 <= hi)
         z.append((result.uncertainty.values[0] - 420.0) / result.uncertainty.standard_errors[0])

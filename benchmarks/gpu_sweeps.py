@@ -27,7 +27,6 @@ import os
 import platform
 import resource
 import sys
-import time
 from pathlib import Path
 
 import jax
@@ -37,7 +36,7 @@ import peeljax as pj
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from compare_problems import P3_SAVE_DT, p3_grid  # noqa: E402
-from machine import cpu_model, load_average, write_result  # noqa: E402
+from machine import cpu_model, load_average, timed, write_result  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -74,26 +73,17 @@ def nbytes(value) -> int:
 def v_map(n: int, t_final: float, chunk: int, max_jumps: int) -> dict:
     V = np.linspace(0.2, 8.0, n)
     options = dict(tau=0.0, t_final=t_final, chunk=chunk, max_jumps=max_jumps, progress=False)
-    began = time.perf_counter()
     # one chunk of the map's sweep (the same compiled program): compiles it, and its host bytes a lane
-    lanes = pj.sweep(V=V[:chunk], grid="pairs", window=(0.5, 1.0), **options)
-    first = time.perf_counter() - began
-    options["starts"] = ("paper",)
-    began = time.perf_counter()
-    smap = pj.stick_slip_map(V=V, **options)
-    run = time.perf_counter() - began
+    lanes, first = timed(pj.sweep, V=V[:chunk], grid="pairs", window=(0.5, 1.0), **options)
+    smap, run = timed(pj.stick_slip_map, V=V, starts=("paper",), **options)
     return row(f"V-map, {n} lanes", n, chunk, first, run, smap, int(smap.stick_slip.sum()), nbytes(lanes) / lanes.V.size)
 
 
 def p3(n_tau: int, chunk: int, t_final: float = 3.0) -> dict:
     V, tau = p3_grid(n_tau)
     options = dict(V=V, tau=tau, grid="pairs", t_final=t_final, save_dt=P3_SAVE_DT, chunk=chunk, progress=False)
-    began = time.perf_counter()
-    pj.sweep(**options)
-    first = time.perf_counter() - began
-    began = time.perf_counter()
-    result = pj.sweep(**options)
-    run = time.perf_counter() - began
+    _, first = timed(pj.sweep, **options)
+    result, run = timed(pj.sweep, **options)
     stick_slip = int((result.events > 0).sum())
     return row(f"P3, {V.size} lanes", V.size, chunk, first, run, result, stick_slip, nbytes(result) / V.size)
 

@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import statistics
 import sys
-import time
 from pathlib import Path
 
 import diffrax
@@ -34,7 +33,7 @@ import peeljax as pj
 from peeljax.integrators.uniform_mesh import integrate_alpha
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import write_result  # noqa: E402
+from machine import round_robin, timed, write_result  # noqa: E402
 
 V, TAU, T_FINAL = 1.1, 0.1, 3.0
 RESULTS = Path(__file__).parent / "results"
@@ -64,20 +63,15 @@ def diffrax_loss(law, n_steps):
     return jnp.mean(ys[:, 3] ** 2 + ys[:, 0])
 
 
-def timed(fn, *args, repeats=3):
-    jax.block_until_ready(fn(*args))
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
+def median_s(fn, *args, repeats=3):
+    """The median of ``repeats`` calls after a first."""
+    call = lambda: jax.block_until_ready(fn(*args))
+    call()
+    return statistics.median(round_robin({0: call}, repeats)[0])
 
 
 def compiled(fn, *args):
-    start = time.perf_counter()
-    exe = jax.jit(fn).lower(*args).compile()
-    return exe, time.perf_counter() - start
+    return timed(lambda: jax.jit(fn).lower(*args).compile())
 
 
 def temp_mib(exe) -> float:
@@ -89,13 +83,13 @@ def measure(n_steps: int, with_diffrax: bool, repeats: int) -> dict:
     law = pj.AdhesionLaw()
     row = {"N": n_steps}
     fwd, row["compile_fwd_s"] = compiled(lambda p: alpha_loss(p, n_steps), law)
-    row["forward_s"] = timed(fwd, law, repeats=repeats)
+    row["forward_s"] = median_s(fwd, law, repeats=repeats)
     grad, row["compile_grad_s"] = compiled(jax.value_and_grad(lambda p: alpha_loss(p, n_steps)), law)
-    row["grad_s"] = timed(grad, law, repeats=repeats)
+    row["grad_s"] = median_s(grad, law, repeats=repeats)
     row["mem_grad_mib"] = temp_mib(grad)
     row["mem_fwd_mib"] = temp_mib(fwd)
     grad_ck, row["compile_grad_ckpt_s"] = compiled(jax.value_and_grad(lambda p: alpha_loss(p, n_steps, "sqrt")), law)
-    row["grad_ckpt_s"] = timed(grad_ck, law, repeats=repeats)
+    row["grad_ckpt_s"] = median_s(grad_ck, law, repeats=repeats)
     row["mem_grad_ckpt_mib"] = temp_mib(grad_ck)
     g_plain, g_ck = grad(law)[1], grad_ck(law)[1]
     row["ckpt_grad_max_rel_diff"] = max(
@@ -106,14 +100,12 @@ def measure(n_steps: int, with_diffrax: bool, repeats: int) -> dict:
     bumped = [
         eqx.tree_at(lambda p, n=n: getattr(p, n), law, getattr(law, n) * (1 + 1e-6)) for n in pj.COEFFICIENT_NAMES
     ]
-    start = time.perf_counter()
-    jax.block_until_ready([fwd(law)] + [fwd(b) for b in bumped])
-    row["fd15_s"] = time.perf_counter() - start
+    row["fd15_s"] = timed(lambda: jax.block_until_ready([fwd(law)] + [fwd(b) for b in bumped]))[1]
     if with_diffrax:
         dfwd, row["compile_diffrax_fwd_s"] = compiled(lambda p: diffrax_loss(p, n_steps), law)
-        row["diffrax_forward_s"] = timed(dfwd, law, repeats=repeats)
+        row["diffrax_forward_s"] = median_s(dfwd, law, repeats=repeats)
         dgrad, row["compile_diffrax_grad_s"] = compiled(jax.value_and_grad(lambda p: diffrax_loss(p, n_steps)), law)
-        row["diffrax_grad_s"] = timed(dgrad, law, repeats=repeats)
+        row["diffrax_grad_s"] = median_s(dgrad, law, repeats=repeats)
         row["mem_diffrax_grad_mib"] = temp_mib(dgrad)
     print(row, flush=True)
     return row

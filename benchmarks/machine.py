@@ -76,6 +76,13 @@ def versions(*modules) -> str:
     return ", ".join(out)
 
 
+def timed(call, *args, **kwargs):
+    """(``call(*args, **kwargs)``, the wall seconds it took)."""
+    started = time.perf_counter()
+    answer = call(*args, **kwargs)
+    return answer, time.perf_counter() - started
+
+
 def round_robin(calls, repeats, after_round=None, outputs=None, rotate=False, cpu=None) -> dict:
     """``repeats`` rounds, each calling every one of ``calls`` ({key: callable}) once, so that load on a
     shared machine hits all alike: {key: [seconds]}; ``after_round(times)`` runs after each round,

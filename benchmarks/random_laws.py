@@ -33,7 +33,7 @@ import numpy as np
 import peeljax as pj
 from peeljax.adhesion import COEFFICIENT_NAMES, PAPER_COEFFICIENTS
 
-from machine import cpu_model, write_result
+from machine import cpu_model, timed, write_result
 
 V_VALUES = np.linspace(0.3, 5.4, 10)
 T_FINAL = 3.0
@@ -64,9 +64,8 @@ def main(argv=None) -> None:
         stops += bool(np.any(np.asarray(f.phi_min) < np.asarray(f.phi_zero)))
         pushes[i * n_v : (i + 1) * n_v] = np.asarray(f.phi_min) < 0
 
-    start = time.perf_counter()
-    swept = pj.sweep(V=lane_V, tau=[0.0], t_final=T_FINAL, grid="pairs", params=lane_params, progress=True, max_jumps=64)
-    sweep_s = time.perf_counter() - start
+    swept, sweep_s = timed(pj.sweep, V=lane_V, tau=[0.0], t_final=T_FINAL, grid="pairs", params=lane_params,
+                           progress=True, max_jumps=64)  # fmt: skip
 
     ts = np.array([0.0, T_FINAL])
     completed, jump_count, last_jump, final = [], [], [], []

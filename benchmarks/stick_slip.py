@@ -48,7 +48,7 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from machine import command, cpu_model, made_by, round_robin, versions, write_json
+from machine import command, cpu_model, made_by, round_robin, timed, versions, write_json
 from machine import load_average as load
 from peers.jump_peers import (
     ATOL_RATIO, T_FINAL, CasadiEvents, DiffraxEvents, DiffraxWhileLoop, InertialModel, PeeljaxDAE, ScipyEvents, V,
@@ -91,20 +91,14 @@ def jump_error(jumps, reference):
 def check(peer, reference, tightest, cap):
     """Set-up, then the ladder loose → tight once; stops at the first rung meeting ``tightest``."""
     entry = {"name": peer.name, "rungs": []}
-    started = time.perf_counter()
-    peer.prepare()
-    prepare_s = time.perf_counter() - started
+    _, prepare_s = timed(peer.prepare)
     first = peer.settings[0]
     for i, rtol in enumerate(peer.settings):
         rung = {"rtol": rtol}
         try:
-            started = time.perf_counter()
-            jumps = peer.run(rtol)
-            rung["first_s"] = time.perf_counter() - started
+            jumps, rung["first_s"] = timed(peer.run, rtol)
             if i == 0:  # a second, warm call at the first rung: the set-up is the difference
-                started = time.perf_counter()
-                peer.run(first)
-                rung["warm_s"] = time.perf_counter() - started
+                rung["warm_s"] = timed(peer.run, first)[1]
                 entry["setup_s"] = prepare_s + max(rung["first_s"] - rung["warm_s"], 0.0)
             rung["jumps"] = int(np.size(jumps))
             rung["error"] = jump_error(jumps, reference)
@@ -163,9 +157,7 @@ def vmap_scipy(rtol):
 
 
 def measure_vmap(scipy_rtol, repeats):
-    started = time.perf_counter()
-    vmap_sweep(np.full(VMAP_V.size, 8.0))
-    compile_s = time.perf_counter() - started
+    _, compile_s = timed(vmap_sweep, np.full(VMAP_V.size, 8.0))
     log(f"V-map: sweep compiled (+ 200 cheap lanes) in {compile_s:.1f} s")
     out = {}
     calls = {"sweep": lambda: vmap_sweep(VMAP_V), "scipy": lambda: vmap_scipy(scipy_rtol)}
@@ -227,15 +219,14 @@ def measure(args):
     }
     started_all = time.perf_counter()
     ref_mod = jump_reference()
-    started = time.perf_counter()
-    reference = ref_mod.reference_jump_run(V, T_FINAL, rtol=REF_RTOL, atol=REF_ATOL, method="LSODA")["jump_t"]
-    data["reference"] = {"jumps": int(reference.size), "seconds": time.perf_counter() - started}
+    reference, seconds = timed(ref_mod.reference_jump_run, V, T_FINAL, rtol=REF_RTOL, atol=REF_ATOL, method="LSODA")
+    reference = reference["jump_t"]
+    data["reference"] = {"jumps": int(reference.size), "seconds": seconds}
     log(f"reference: {reference.size} jumps in {data['reference']['seconds']:.1f} s")
     if args.check_reference:
-        started = time.perf_counter()
-        radau = ref_mod.reference_jump_run(V, T_FINAL, rtol=REF_RTOL, atol=REF_ATOL, method="Radau")["jump_t"]
-        data["reference"]["radau_agreement"] = jump_error(radau, reference)
-        data["reference"]["radau_seconds"] = time.perf_counter() - started
+        radau, data["reference"]["radau_seconds"] = timed(
+            ref_mod.reference_jump_run, V, T_FINAL, rtol=REF_RTOL, atol=REF_ATOL, method="Radau")
+        data["reference"]["radau_agreement"] = jump_error(radau["jump_t"], reference)
         log(f"Radau reference agrees to {data['reference']['radau_agreement']:.2g} s")
 
     peers = {key: peer for key, peer in all_peers().items() if selected(args.only, key, peer.name)}

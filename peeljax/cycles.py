@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -76,6 +76,16 @@ def _json_float(value: float) -> float | None:
     return None if not math.isfinite(value) else float(value)
 
 
+def _json_fields(record) -> dict:
+    """A result dataclass's fields as a dict, its float fields through :func:`_json_float`."""
+    return {f.name: _json_float(getattr(record, f.name)) if f.type == "float" else getattr(record, f.name)
+            for f in fields(record)}  # fmt: skip
+
+
+def _slip_events(k: int) -> str:
+    return f"{k} stick → slip event{'' if k == 1 else 's'}"
+
+
 # ---------------------------------------------------------------------------- results
 @dataclass(frozen=True)
 class Spread:
@@ -96,7 +106,7 @@ class Spread:
 
     def as_dict(self) -> dict:
         """``{"mean", "min", "max", "n"}``, JSON-able (NaN -> None)."""
-        return {"mean": _json_float(self.mean), "min": _json_float(self.min), "max": _json_float(self.max), "n": self.n}
+        return _json_fields(self)
 
     def _ms(self) -> str:
         """``mean ms (min–max)``, or ``—`` when empty."""
@@ -128,13 +138,11 @@ class RepeatPattern:
 
     def as_dict(self) -> dict:
         """``{"period", "events", "repeats", "spread"}``, JSON-able."""
-        return {"period": _json_float(self.period), "events": self.events, "repeats": self.repeats,
-                "spread": _json_float(self.spread)}  # fmt: skip
+        return _json_fields(self)
 
     def __str__(self) -> str:
-        events = "event" if self.events == 1 else "events"
         return (
-            f"T = {self.period:.7g} s with {self.events} stick → slip {events} per repeat "
+            f"T = {self.period:.7g} s with {_slip_events(self.events)} per repeat "
             f"({self.repeats} repeats seen, intervals matched to {self.spread:.2g} s)"
         )
 
@@ -172,9 +180,7 @@ class TooFewRepeats:
 
     def as_dict(self) -> dict:
         """The fields as a dict, JSON-able (NaN -> None)."""
-        return {"events": self.events, "period": _json_float(self.period), "spread": _json_float(self.spread),
-                "tolerance": _json_float(self.tolerance), "start": _json_float(self.start),
-                "end": _json_float(self.end), "length": _json_float(self.length)}  # fmt: skip
+        return _json_fields(self)
 
     def __str__(self) -> str:
         if math.isfinite(self.start):
@@ -185,10 +191,9 @@ class TooFewRepeats:
             would = "a longer window would do"
         if self.events == 0:
             return f"too few repeats to tell (no near repeat in fewer than {MIN_EVENTS} stick → slip events; {would})"
-        events = "event" if self.events == 1 else "events"
         return (
-            f"too few repeats to tell (near repeat: T ≈ {self.period:.4g} s with {self.events} stick → slip "
-            f"{events}, matched to {self.spread:.2g} s of {self.tolerance:.2g} s; {would})"
+            f"too few repeats to tell (near repeat: T ≈ {self.period:.4g} s with {_slip_events(self.events)}, "
+            f"matched to {self.spread:.2g} s of {self.tolerance:.2g} s; {would})"
         )
 
 

@@ -119,10 +119,7 @@ def evaluate(y, p, psi, jac, want_jac):
     w0, w1, w2 = _solve3(m00, m01, m02, m10, m11, m12, m20, m21, m22, fv0, 0.0, fv2)
     J = -phiv + tau * (Ft0 * w0 + Ft2 * w2)
     drive = Ft0 * f0 + Ft2 * f2
-    psi[0] = f0
-    psi[1] = f1
-    psi[2] = f2
-    psi[3] = -drive / J
+    psi[0], psi[1], psi[2], psi[3] = f0, f1, f2, -drive / J
     if want_jac:
         phivv = (
             c1 * p1 * (p1 - 1.0) * vp1 / v
@@ -133,18 +130,9 @@ def evaluate(y, p, psi, jac, want_jac):
         # λ = M⁻ᵀ F̃
         _l0, l1, l2 = _solve3(m00, m10, m20, m01, m11, m21, m02, m12, m22, Ft0, 0.0, Ft2)
         # rows 0..2: [f_x | f_v]
-        jac[0, 0] = 0.0
-        jac[0, 1] = 1.0
-        jac[0, 2] = 0.0
-        jac[0, 3] = fv0
-        jac[1, 0] = fx10
-        jac[1, 1] = 0.0
-        jac[1, 2] = fx12
-        jac[1, 3] = 0.0
-        jac[2, 0] = fx20
-        jac[2, 1] = fx21
-        jac[2, 2] = 0.0
-        jac[2, 3] = fv2
+        jac[0, 0], jac[0, 1], jac[0, 2], jac[0, 3] = 0.0, 1.0, 0.0, fv0
+        jac[1, 0], jac[1, 1], jac[1, 2], jac[1, 3] = fx10, 0.0, fx12, 0.0
+        jac[2, 0], jac[2, 1], jac[2, 2], jac[2, 3] = fx20, fx21, 0.0, fv2
         # ∂(F̃·f)/∂y_k = (∂F̃/∂y_k)·f + F̃·(∂f/∂y_k)
         dd_a = (-K * u * sa) * f0 + (K * ca) * f2 + Ft0 * 0.0 + Ft2 * fx20
         dd_o = Ft0 * 1.0 + Ft2 * fx21
@@ -164,10 +152,8 @@ def evaluate(y, p, psi, jac, want_jac):
         dJ_v = -phivv + tau * l2 * (tau * (-ca) * w0)
         iJ = 1.0 / J
         q = drive * iJ * iJ
-        jac[3, 0] = -dd_a * iJ + q * dJ_a
-        jac[3, 1] = -dd_o * iJ + q * dJ_o
-        jac[3, 2] = -dd_u * iJ + q * dJ_u
-        jac[3, 3] = -dd_v * iJ + q * dJ_v
+        jac[3, 0], jac[3, 1] = -dd_a * iJ + q * dJ_a, -dd_o * iJ + q * dJ_o
+        jac[3, 2], jac[3, 3] = -dd_u * iJ + q * dJ_u, -dd_v * iJ + q * dJ_v
     return J, drive
 
 

@@ -38,6 +38,15 @@ def jump_reference():
     return jump_reference
 
 
+class JumpPeer(Peer):
+    """A peer of P6 (τ = 0): ``run_stats`` gives the counts its last run kept in ``_last`` (None before one)."""
+
+    _last = None
+
+    def run_stats(self, rtol):
+        return self._last
+
+
 # --------------------------------------------------------------------------- peeljax
 SOLVERS = {"alpha": "AlphaMethod", "tsit5": "Tsit5", "dopri5": "Dopri5", "dopri8": "Dopri8", "kvaerno5": "Kvaerno5"}
 
@@ -61,7 +70,7 @@ def solver_named(name):
     return getattr(diffrax, SOLVERS[name])()
 
 
-class PeeljaxDAE(Peer):
+class PeeljaxDAE(JumpPeer):
     """``peeljax.simulate(V, tau=0, rtol, atol, solver=…)``: output at [0, t_final] only (``ts``), so no step buffer.
 
     ``solver``: None (peeljax's default) or a name of :data:`SOLVERS` (:func:`solver_named`); ``in_time``:
@@ -198,12 +207,11 @@ def scipy_events_run(V, rtol, atol, method="LSODA", t_final=T_FINAL):
     return np.array(jumps), nfev
 
 
-class ScipyEvents(Peer):
+class ScipyEvents(JumpPeer):
     def __init__(self, settings, method="LSODA", refine=False, V=V):
         super().__init__(0.0, settings)
         self.method, self.refine, self.V = method, refine, V
         self.name = f"scipy {method} events" + (" + arclength refinement" if refine else "")
-        self._last = None
 
     def prepare(self):
         self._ref = jump_reference()
@@ -235,7 +243,7 @@ def fold_segment(ode, term, solver, t0, t1, y0, controller, max_steps):
     return t_end, jnp.where(hit, ode.jump(y_end).y, y_end), hit, sol
 
 
-class DiffraxEvents(Peer):
+class DiffraxEvents(JumpPeer):
     """``diffeqsolve`` with ``diffrax.Event`` on ``peeljax.ConstrainedDAE``, restarted on the host after each jump.
 
     The state is y = (α, ω, u, v) with ψ_v = 0 (``ConstrainedDAE``): v is solved from the
@@ -249,7 +257,6 @@ class DiffraxEvents(Peer):
         super().__init__(0.0, settings)
         self.solver_name, self.V, self.max_steps = solver_name, V, max_steps
         self.name = f"diffrax {solver_name} + Event"
-        self._last = None
 
     def prepare(self):
         import diffrax
@@ -288,11 +295,8 @@ class DiffraxEvents(Peer):
         self._last = {"accepted_steps": accepted, "rejected_steps": rejected, "restarts": len(jumps)}
         return np.array(jumps)
 
-    def run_stats(self, rtol):
-        return self._last
 
-
-class DiffraxWhileLoop(Peer):
+class DiffraxWhileLoop(JumpPeer):
     """The loop diffrax's maintainers recommend for restarting after events (diffrax issue #492).
 
     One compiled function: a ``jax.lax.while_loop`` whose body runs :func:`fold_segment` (``diffrax.Tsit5()``
@@ -308,7 +312,6 @@ class DiffraxWhileLoop(Peer):
     def __init__(self, settings, V=V, max_steps=1_000_000, slots=512, t_final=T_FINAL):
         super().__init__(0.0, settings)
         self.V, self.max_steps, self.slots, self.t_final = V, max_steps, slots, t_final
-        self._last = None
 
     def prepare(self):
         import diffrax
@@ -362,12 +365,9 @@ class DiffraxWhileLoop(Peer):
             raise RuntimeError(f"the buffer of {self.slots} jump times is full at t = {t:.9g} s")
         return np.asarray(buffer)[:n]
 
-    def run_stats(self, rtol):
-        return self._last
-
 
 # --------------------------------------------------------------------------- CasADi
-class CasadiEvents(Peer):
+class CasadiEvents(JumpPeer):
     """CasADi cvodes with CasADi 3.8's experimental events (``dae["zero"]`` and the ``transition`` option).
 
     The model is :func:`casadi_event_model`'s, with a register of the last four jump times: CasADi
@@ -483,7 +483,7 @@ def read_jump_register(xf, register):
 
 
 # --------------------------------------------------------------------------- the inertial model
-class InertialModel(Peer):
+class InertialModel(JumpPeer):
     """``integrate_inertial`` (diffrax Kvaerno5, m·v̇ = G − φ) at mass m; jumps: v crossing √(v̂·v̌).
 
     The crossing times are interpolated linearly in log v between the saved accepted steps
@@ -494,7 +494,6 @@ class InertialModel(Peer):
         super().__init__(0.0, settings)
         self.m, self.V, self.max_steps = m, V, max_steps
         self.name = f"inertial model m = {m:g} kg (diffrax Kvaerno5)"
-        self._last = None
 
     def prepare(self):
         import peeljax
@@ -516,6 +515,3 @@ class InertialModel(Peer):
         i = np.flatnonzero(np.sign(w[:-1]) != np.sign(w[1:]))
         self._last = {"saved_steps": int(valid.sum())}
         return t[i] - w[i] * (t[i + 1] - t[i]) / (w[i + 1] - w[i])
-
-    def run_stats(self, rtol):
-        return self._last

@@ -21,55 +21,34 @@ class ScipyPeer(MaybeLog):
         self.method = method
 
     def prepare(self):
-        from scipy.integrate import solve_ivp
-
-        self._solve_ivp = solve_ivp
-        self._rhs, self._jac, self._y0 = compiled_rhs(self.tau, self.log_v)
+        self._compiled = compiled_rhs(self.tau, self.log_v)
 
     def run(self, rtol):
-        sol = self._solve_ivp(
-            self._rhs,
-            (0.0, T_FINAL),
-            self._y0,
-            method=self.method,
-            t_eval=GRID,
-            rtol=rtol,
-            atol=1e-2 * rtol,
-            jac=self._jac,
-        )
-        v = np.full(GRID.size, np.nan)
-        v[: sol.y.shape[1]] = physical_v(sol.y[3], self.log_v)
-        return v
+        return _v_on_grid(self._compiled, self.method, rtol, self.log_v)
+
+
+def _v_on_grid(compiled, method, rtol, log_v):
+    """v on ``GRID`` (NaN after a stop) by ``solve_ivp`` on ``compiled_rhs``'s (rhs, jacobian, y0), atol = 1e-2·rtol."""
+    from scipy.integrate import solve_ivp
+
+    rhs, jac, y0 = compiled
+    sol = solve_ivp(rhs, (0.0, T_FINAL), y0, method=method, t_eval=GRID, rtol=rtol, atol=1e-2 * rtol, jac=jac)
+    v = np.full(GRID.size, np.nan)
+    v[: sol.y.shape[1]] = physical_v(sol.y[3], log_v)
+    return v
 
 
 def radau_y(Vp, tau, rtol):
     """scipy Radau on y with the compiled ψ and exact Jacobian (as the P1 peer); v on ``GRID``."""
-    from scipy.integrate import solve_ivp
-
-    rhs, jac, y0 = compiled_rhs(tau, False, Vp)
-    sol = solve_ivp(rhs, (0.0, T_FINAL), y0, method="Radau", t_eval=GRID, rtol=rtol, atol=1e-2 * rtol, jac=jac)
-    v = np.full(GRID.size, np.nan)
-    v[: sol.y.shape[1]] = sol.y[3]
-    return v
+    return _v_on_grid(compiled_rhs(tau, False, Vp), "Radau", rtol, False)
 
 
 def dae_index1_ode(Vp, rtol, method="Radau"):
     """scipy ``method`` on the index-1 ODE v' = F̃·f/∂φ/∂v (eq. ``hv`` at τ = 0)."""
-    from peers.compiled_loop import evaluate, initial_state, parameters
     from scipy.integrate import solve_ivp
 
-    p = parameters(Vp, 0.0)
-    psi, jac = np.empty(4), np.empty((4, 4))
-
-    def rhs(t, y):
-        evaluate(np.asarray(y, dtype=float), p, psi, jac, False)
-        return psi.copy()
-
-    def jacobian(t, y):
-        evaluate(np.asarray(y, dtype=float), p, psi, jac, True)
-        return jac.copy()
-
-    sol = solve_ivp(rhs, (0.0, T_FINAL), initial_state(p), method=method, rtol=rtol, atol=1e-2 * rtol, jac=jacobian)
+    rhs, jacobian, y0 = compiled_rhs(0.0, False, Vp)  # τ = 0: ψ is the index-1 ODE
+    sol = solve_ivp(rhs, (0.0, T_FINAL), y0, method=method, rtol=rtol, atol=1e-2 * rtol, jac=jacobian)
     finite = np.all(np.isfinite(sol.y), axis=0)
     last = int(np.argmin(finite)) - 1 if not finite.all() else sol.t.size - 1
     return float(sol.t[last]), float(sol.y[3, last]), " ".join(str(sol.message).split())[:60]

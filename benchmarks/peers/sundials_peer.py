@@ -8,35 +8,40 @@
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 from compare_problems import GRID, T_FINAL, V
+from machine import timed
 
 from peers import MaybeLog, physical_v
 from peers.numba_peer import compiled_rhs
+
+
+def cvode_of(p, log_v):
+    """rtol ↦ CVODE (BDF, atol = 1e-2·rtol) with the compiled ψ and ψ' at the parameter vector ``p``
+    (read at every call), in z = (α, ω, u, log v) when ``log_v``."""
+    from peers.compiled_loop import evaluate_carried
+    from sksundae.cvode import CVODE
+
+    psi, yy, scratch = np.empty(4), np.empty(4), np.empty((4, 4))
+
+    def rhsfn(t, y, yp):  # SUNDIALS' own arrays: y read-only, yp the output
+        evaluate_carried(y, log_v, p, yp, scratch, yy, False)
+
+    def jacfn(t, y, yp, JJ):
+        evaluate_carried(y, log_v, p, psi, JJ, yy, True)
+
+    return lambda rtol: CVODE(rhsfn, jacfn=jacfn, method="BDF", rtol=rtol, atol=1e-2 * rtol, max_num_steps=200_000)
 
 
 class CvodePeer(MaybeLog):
     base_name = "SUNDIALS CVODE (BDF)"
 
     def prepare(self):
-        from peers.compiled_loop import evaluate_carried, parameters
-        from sksundae.cvode import CVODE
+        from peers.compiled_loop import parameters
 
         _, _, self._y0 = compiled_rhs(self.tau, self.log_v)
-        p = parameters(V, self.tau)
-        psi, yy, scratch, log_v = np.empty(4), np.empty(4), np.empty((4, 4)), self.log_v
-
-        def rhsfn(t, y, yp):  # SUNDIALS' own arrays: y read-only, yp the output
-            evaluate_carried(y, log_v, p, yp, scratch, yy, False)
-
-        def jacfn(t, y, yp, JJ):
-            evaluate_carried(y, log_v, p, psi, JJ, yy, True)
-
-        self._make = lambda rtol: CVODE(
-            rhsfn, jacfn=jacfn, method="BDF", rtol=rtol, atol=1e-2 * rtol, max_num_steps=200_000
-        )
+        self._make = cvode_of(parameters(V, self.tau), self.log_v)
         self._solvers = {}
 
     def setup(self, rtol):
@@ -61,29 +66,16 @@ class CvodeBatch:
     """
 
     def __init__(self):
-        from peers.compiled_loop import evaluate_carried, parameters
+        from peers.compiled_loop import parameters
 
         self._p = np.array(parameters(V, 0.01), dtype=float)
-        p, psi, yy, scratch = self._p, np.empty(4), np.empty(4), np.empty((4, 4))
-
-        def rhsfn(t, y, yp):
-            evaluate_carried(y, True, p, yp, scratch, yy, False)
-
-        def jacfn(t, y, yp, JJ):
-            evaluate_carried(y, True, p, psi, JJ, yy, True)
-
-        self._rhsfn, self._jacfn = rhsfn, jacfn
+        self._make = cvode_of(self._p, True)
         self._solvers = {}
         self.setup_seconds = {}
 
     def setup(self, rtol):
-        from sksundae.cvode import CVODE
-
         if rtol not in self._solvers:
-            started = time.perf_counter()
-            self._solvers[rtol] = CVODE(self._rhsfn, jacfn=self._jacfn, method="BDF", rtol=rtol, atol=1e-2 * rtol,
-                                        max_num_steps=200_000)  # fmt: skip
-            self.setup_seconds[rtol] = time.perf_counter() - started
+            self._solvers[rtol], self.setup_seconds[rtol] = timed(self._make, rtol)
 
     def __call__(self, Vp, tau, rtol):
         from peers.compiled_loop import initial_state, parameters

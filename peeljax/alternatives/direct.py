@@ -145,19 +145,16 @@ def tolerance_sensitivity(
     for rtol in rtols:
         sol = run(model, V, dt, t_final, rtol=rtol, atol=atol_ratio * rtol)
         v = np.asarray(sol.v)[np.asarray(sol.valid)]
-        rows.append(
-            {
-                "form": form,
-                "V": float(V),
-                "rtol": float(rtol),
-                "atol": float(atol_ratio * rtol),
-                "completed": bool(sol.completed),
-                "t_stop": float(sol.t_stop),
-                "v_at_stop": float(v[-1]) if v.size else float("nan"),
-                "steps": int(np.asarray(sol.stats["steps"])),
-            }
-        )
+        row = _row(form, V, rtol, float(atol_ratio * rtol), bool(sol.completed), float(sol.t_stop),
+                   float(v[-1]) if v.size else float("nan"))  # fmt: skip
+        rows.append(row | {"steps": int(np.asarray(sol.stats["steps"]))})
     return rows
+
+
+def _row(form, V, rtol, atol, completed, t_stop, v_at_stop) -> dict:
+    """Where a direct integration stopped, as a row of :func:`tolerance_sensitivity` or :func:`integrate_ida`."""
+    return {"form": form, "V": float(V), "rtol": float(rtol), "atol": atol, "completed": completed,
+            "t_stop": t_stop, "v_at_stop": v_at_stop}  # fmt: skip
 
 
 def integrate_ida(
@@ -219,31 +216,14 @@ def integrate_ida(
         **options,
     )
     ts = np.linspace(0.0, float(t_final), n + 1)
+    atol_out = atol if np.ndim(atol) == 0 else list(np.asarray(atol, float))
     try:
         result = solver.solve(ts, y0, yp0)
     except RuntimeError as error:
-        return {
-            "form": "ida",
-            "V": float(V),
-            "rtol": float(rtol),
-            "atol": atol if np.ndim(atol) == 0 else list(np.asarray(atol, float)),
-            "completed": False,
-            "t_stop": float("nan"),
-            "v_at_stop": float("nan"),
-            "message": f"IDA setup failed: {error}",
-            "ts": np.zeros(0),
-            "ys": np.zeros((0, 4)),
-        }
+        failed = {"message": f"IDA setup failed: {error}", "ts": np.zeros(0), "ys": np.zeros((0, 4))}
+        return _row("ida", V, rtol, atol_out, False, float("nan"), float("nan")) | failed
     t_out, y_out = np.asarray(result.t), np.asarray(result.y)
-    return {
-        "form": "ida",
-        "V": float(V),
-        "rtol": float(rtol),
-        "atol": atol if np.ndim(atol) == 0 else list(np.asarray(atol, float)),
-        "completed": bool(result.success) and t_out.size == ts.size,
-        "t_stop": float(t_out[-1]) if t_out.size else 0.0,
-        "v_at_stop": float(y_out[-1, 3]) if t_out.size else float("nan"),
-        "message": str(result.message),
-        "ts": t_out,
-        "ys": y_out,
-    }
+    completed = bool(result.success) and t_out.size == ts.size
+    v_stop = float(y_out[-1, 3]) if t_out.size else float("nan")
+    row = _row("ida", V, rtol, atol_out, completed, float(t_out[-1]) if t_out.size else 0.0, v_stop)
+    return row | {"message": str(result.message), "ts": t_out, "ys": y_out}

@@ -72,6 +72,17 @@ __all__ = [
 ]
 
 
+class _Misses(eqx.Module):
+    # The fold's closest miss (τ = 0: the fold distance G − φ at the fold, N): a local maximum
+    # below the fold at a step end, as a fraction of g_scale, and its time; the highest value
+    # since the branch began or the last miss, and its time.
+    miss: Array
+    miss_t: Array
+    peak: Array
+    peak_t: Array
+    grazed_t: Array  # the first near miss within _GRAZING·rtol of the fold (NaN: none)
+
+
 class _Carry(eqx.Module):
     t: Array
     h: Array  # the step the controller proposes next
@@ -95,14 +106,7 @@ class _Carry(eqx.Module):
     reference_drive: Array  # its F̃·f (the homogenized ODE's impasse reference)
     g_scale: Array
     cut_steps: Array  # rejected attempts over a fold whose retry was cut at the fold
-    # The fold's closest miss (τ = 0: the fold distance G − φ at the fold, N): a local maximum
-    # below the fold at a step end, as a fraction of g_scale, and its time; the highest value
-    # since the branch began or the last miss, and its time.
-    miss: Array
-    miss_t: Array
-    peak: Array
-    peak_t: Array
-    grazed_t: Array  # the first near miss within _GRAZING·rtol of the fold (NaN: none)
+    misses: _Misses
     passed_t: Array  # the first singular passage followed (fold="follow"; NaN: none)
 
 
@@ -132,19 +136,19 @@ _FAR_REFERENCE = 16.0
 _CUT_PAST = 1e-3
 
 
-def _near_miss(misses, event, t, advance, restarted, g_scale, rtol):
+def _near_miss(misses: _Misses, event, t, advance, restarted, g_scale, rtol) -> _Misses:
     """The fold's closest miss after an accepted step whose end has fold distance ``event`` (< 0
     below the fold) at time t: the event came closest at ``peak`` and has since fallen away by
     more than that distance (and than the run's error): a jump that appears or vanishes under a
-    small perturbation (a grazing). ``misses``: (miss, its time, peak, its time, grazed_t)."""
-    miss, miss_t, peak, peak_t, grazed_t = misses
+    small perturbation (a grazing)."""
+    miss, miss_t, peak, peak_t, grazed_t = misses.miss, misses.miss_t, misses.peak, misses.peak_t, misses.grazed_t
     fell = peak - jnp.maximum(-peak, rtol * g_scale)
     turned_back = advance & (peak < 0) & (event < fell) & jnp.isfinite(peak)
     margin = jnp.where(turned_back, -peak / jnp.maximum(g_scale, 1e-300), jnp.inf)
     closer = margin < miss
     grazed = jnp.isnan(grazed_t) & (margin < _GRAZING * rtol)
     higher = (advance | restarted) & (restarted | turned_back | (event > peak))
-    return (
+    return _Misses(
         jnp.where(closer, margin, miss),
         jnp.where(closer, peak_t, miss_t),
         jnp.where(higher, event, peak),
@@ -327,11 +331,13 @@ def adaptive_loop(
         reference_drive=state0.drive,
         g_scale=jnp.zeros(()) if events is None else jnp.abs(reference_event(state0.y)),
         cut_steps=zero,
-        miss=jnp.asarray(jnp.inf),
-        miss_t=jnp.asarray(jnp.nan),
-        peak=jnp.zeros(()) if events is None or schur_event else jax.lax.stop_gradient(reference_event(state0.y)),
-        peak_t=t0 if not timed else jax.lax.stop_gradient(state0.y[time_index]),
-        grazed_t=jnp.asarray(jnp.nan),
+        misses=_Misses(
+            miss=jnp.asarray(jnp.inf),
+            miss_t=jnp.asarray(jnp.nan),
+            peak=jnp.zeros(()) if events is None or schur_event else jax.lax.stop_gradient(reference_event(state0.y)),
+            peak_t=t0 if not timed else jax.lax.stop_gradient(state0.y[time_index]),
+            grazed_t=jnp.asarray(jnp.nan),
+        ),
         passed_t=jnp.asarray(jnp.nan),
     )
 
@@ -457,7 +463,7 @@ def adaptive_loop(
         kept = jax.tree_util.tree_map(lambda a, b: jnp.where(advance, a, b), new, attempt.retained)
         kept = eqx.tree_at(lambda s: s.status, kept, status.astype(jnp.int32))
         h_taken = jax.lax.stop_gradient(h)
-        misses = (c.miss, c.miss_t, c.peak, c.peak_t, c.grazed_t)
+        misses = c.misses
         deeper_far = jnp.asarray(False)
         if events is None:
             deeper = jnp.asarray(False)
@@ -474,7 +480,6 @@ def adaptive_loop(
                     deeper_far = advance & (event <= -_FAR_REFERENCE * depth)
                 t_kept = jax.lax.stop_gradient(clock(t_new, kept.y))
                 misses = _near_miss(misses, event, t_kept, advance & ~restarted, restarted, g_scale, controller.rtol)
-        miss, miss_t, peak, peak_t, grazed_t = misses
         return _Carry(
             t=jnp.where(advance, t_new, c.t),
             h=h_next,
@@ -496,11 +501,7 @@ def adaptive_loop(
             reference_drive=jnp.where(deeper, kept.drive, c.reference_drive),
             g_scale=g_scale,
             cut_steps=c.cut_steps + cut,
-            miss=miss,
-            miss_t=miss_t,
-            peak=peak,
-            peak_t=peak_t,
-            grazed_t=grazed_t,
+            misses=misses,
             passed_t=passed_t,
         )
 
@@ -717,9 +718,9 @@ def _solution(
     if final.jumps is not None:
         stats["jumps"] = final.jumps.count
         stats["steps_cut_at_folds"] = final.cut_steps
-        stats["fold_closest_miss"] = final.miss
-        stats["fold_closest_miss_t"] = final.miss_t
-        stats["grazed_at"] = final.grazed_t
+        stats["fold_closest_miss"] = final.misses.miss
+        stats["fold_closest_miss_t"] = final.misses.miss_t
+        stats["grazed_at"] = final.misses.grazed_t
         stats["singular_passage_at"] = final.passed_t
     solution = Solution(
         ts=ts,

@@ -108,7 +108,22 @@ the closest approach to a grazing at those nodes (module docstring): the record 
         return jnp.where(step.advance, total + part, total), jnp.where(step.advance, closest, approach)
 
 
-class Slip(eqx.Module):
+class _Return(eqx.Module):  # the fields a slip and a period share (a period's: sums over its slips)
+    end: Float[Array, "2"]
+    end_state: Float[Array, "4"]
+    time: Float[Array, ""]
+    force_integral: Float[Array, ""]
+    F_slip: Float[Array, ""]
+    F_stick: Float[Array, ""]
+    slip_duration: Float[Array, ""]
+    approach: Float[Array, ""]
+    crossing: Float[Array, ""]
+    reached: Bool[Array, ""]
+    status: Int[Array, ""]
+    steps: Int[Array, ""]
+
+
+class Slip(_Return):
     """One return to the section: from s through a slip and a stick to the next slip.
 
     Attributes:
@@ -122,19 +137,6 @@ class Slip(eqx.Module):
         reached: the run came to the next stick → slip fold (else ``status`` says why not).
         status: the run's :class:`~peeljax.StopReason`; steps: its step attempts.
     """
-
-    end: Float[Array, "2"]
-    end_state: Float[Array, "4"]
-    time: Float[Array, ""]
-    force_integral: Float[Array, ""]
-    F_slip: Float[Array, ""]
-    F_stick: Float[Array, ""]
-    slip_duration: Float[Array, ""]
-    approach: Float[Array, ""]
-    crossing: Float[Array, ""]
-    reached: Bool[Array, ""]
-    status: Int[Array, ""]
-    steps: Int[Array, ""]
 
 
 def one_slip(section: SlipSection, integrator: ErrorControl, s: Float[Array, "2"], t_max: Float[Array, ""]) -> Slip:
@@ -165,7 +167,7 @@ def one_slip(section: SlipSection, integrator: ErrorControl, s: Float[Array, "2"
     )
 
 
-class OnePeriod(eqx.Module):
+class OnePeriod(_Return):
     """k returns to the section from s (module docstring): sums over its slips.
 
     Attributes:
@@ -179,19 +181,7 @@ class OnePeriod(eqx.Module):
         status: the last run's :class:`~peeljax.StopReason`; steps: step attempts in all.
     """
 
-    end: Float[Array, "2"]
-    end_state: Float[Array, "4"]
-    time: Float[Array, ""]
-    force_integral: Float[Array, ""]
     slips: Int[Array, ""]
-    F_slip: Float[Array, ""]
-    F_stick: Float[Array, ""]
-    slip_duration: Float[Array, ""]
-    approach: Float[Array, ""]
-    crossing: Float[Array, ""]
-    reached: Bool[Array, ""]
-    status: Int[Array, ""]
-    steps: Int[Array, ""]
 
 
 def one_period(

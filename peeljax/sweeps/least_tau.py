@@ -198,23 +198,12 @@ def least_tau(
                 history[j][float(points[j, k])] = (bool(done[j, k]), float(t_stop[j, k]))
             state[j] = _bracket(history[j], tau_rtol)
             active[j] = state[j][3] is None
-    lower = np.array([s[0] for s in state])
-    upper = np.array([s[1] for s in state])
-    t_below = np.array([s[2] for s in state])
-    found = np.array([s[3] is True for s in state])
-    tau_star = upper
+    lower, upper, t_below = np.array([s[:3] for s in state], float).reshape(-1, 3).T
     settings = {**plan.settings(), "t_final": float(t_final), "tau_range": [lo, hi], "tau_rtol": float(tau_rtol),
                 "n_points": n_points, "truncation": truncation}  # fmt: skip
-    return LeastTau(
-        V=Vs,
-        tau_star=tau_star,
-        tau_below=lower,
-        found=found,
-        t_stop_below=t_below,
-        rounds=rounds,
-        tested=[sorted(h.items()) for h in history],
-        settings=settings,
-    )
+    found = np.array([s[3] is True for s in state])
+    return LeastTau(V=Vs, tau_star=upper, tau_below=lower, found=found, t_stop_below=t_below, rounds=rounds,
+                    tested=[sorted(h.items()) for h in history], settings=settings)  # fmt: skip
 
 
 def _bracket(history: dict[float, tuple[bool, float]], tau_rtol: float):
