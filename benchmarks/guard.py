@@ -213,9 +213,27 @@ def _block(value):
     return jax.block_until_ready(value)
 
 
+# A round of a check times this long at least: a sub-millisecond call (P1, 0.6 ms) timed once a
+# round read P1's ratio anywhere in 1.08-1.27 over four runs of the same code; in rounds of
+# ~20 ms, 1.13-1.18 over three (2026-12-06; calls of one kind back to back, caches warm).
+ROUND_SECONDS = 0.02
+
+
+def _calls_per_round(numerator, denominator) -> int:
+    """Calls of each side in one timed round: enough that the quicker side's round takes
+    ``ROUND_SECONDS`` (one call for the checks that take longer), the same for both sides."""
+    once = []
+    for fn in (numerator, denominator):
+        began = time.perf_counter()
+        _block(fn())
+        once.append(time.perf_counter() - began)
+    return max(1, min(100, int(ROUND_SECONDS / max(min(once), 1e-6))))
+
+
 def measure(names, repeats: int = 5) -> dict[str, float]:
     """Each named check's ratio: the calls compiled (first call), then ``repeats`` rounds of each
-    check in turn, numerator and denominator alternately; median ÷ median.
+    check in turn, numerator and denominator alternately (a round of a quick check: several
+    calls, :data:`ROUND_SECONDS`); median ÷ median.
 
     A check's rounds run together, not interleaved with the other checks': interleaved, each
     call followed another check's and found the memory it needs freshly returned to the system,
@@ -232,11 +250,13 @@ def measure(names, repeats: int = 5) -> dict[str, float]:
         pairs[name] = (numerator, denominator, [], [])
         setup[name] = time.perf_counter() - began
     for numerator, denominator, top, bottom in pairs.values():
+        calls = _calls_per_round(numerator, denominator)
         for _ in range(repeats):
             for fn, times in ((numerator, top), (denominator, bottom)):
                 began = time.perf_counter()
-                _block(fn())
-                times.append(time.perf_counter() - began)
+                for _ in range(calls):
+                    _block(fn())
+                times.append((time.perf_counter() - began) / calls)
     ratios = {name: statistics.median(top) / statistics.median(bottom) for name, (_, _, top, bottom) in pairs.items()}
     print("set-up (compilation or cache reads) [s]:", {name: round(seconds, 1) for name, seconds in setup.items()})
     if "compile" in names:
