@@ -214,8 +214,9 @@ def _block(value):
 
 
 # A round of a check times this long at least: a sub-millisecond call (P1, 0.6 ms) timed once a
-# round read P1's ratio anywhere in 1.08-1.27 over four runs of the same code; in rounds of
-# ~20 ms, 1.13-1.18 over three (2026-12-06; calls of one kind back to back, caches warm).
+# round read P1's ratio anywhere in 1.08-1.27 over six runs (668812d and branches of it that
+# alternating calls measured at 1.08-1.13); in rounds of ~20 ms, 1.13-1.18 over three runs of
+# dabb0d1 (2026-12-06; calls of one kind back to back, caches warm).
 ROUND_SECONDS = 0.02
 
 
