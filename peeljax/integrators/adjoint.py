@@ -29,11 +29,12 @@ from jax.flatten_util import ravel_pytree
 __all__ = ["TANGENT_BYTES", "TANGENT_LIMITS", "reverse_by_tangents", "undefined_where_unreached"]
 
 # Most perturbed scalars differentiated by tangents (3 s at V = 1.1, rtol 1e-6, the run's
-# time ×, benchmarks/jump_gradient_cost.py --tangents, results/jump_gradient_cost*.md): the DAE
-# (τ = 0, 210 jumps) 1, 4, 7 tangents 1.1, 1.7, 2.1, then a step, 8 tangents 7.7, the
-# checkpointed loop 4.3; the homogenized ODE (τ = 1e-3, 158 jumps) 1, 4, 16 tangents 2.2, 3.0,
-# 5.8, 32 tangents 9.4, the checkpointed loop 20.6.
-TANGENT_LIMITS = {"dae": 7, "ode": 16}
+# time ×, benchmarks/jump_gradient_cost.py --tangents, results/jump_gradient_cost*.md,
+# 2026-12-06): the DAE (τ = 0, 210 jumps) 1, 4, 7 tangents 1.2, 1.7, 2.2, then a step, 8
+# tangents 5.0, the checkpointed loop 4.5; the homogenized ODE with its default stepper, the
+# same step at 8: τ = 0.01 (no jump) 4, 7, 8, 16 tangents 2.6, 3.5, 8.9, 10.8, the checkpointed
+# loop 5.9; τ = 1e-3 (158 jumps) 4, 8, 16 tangents 4.4, 12.1, 16.7, the checkpointed loop 12.3.
+TANGENT_LIMITS = {"dae": 7, "ode": 7}
 # Most bytes the k tangents of a run's output rows may take (they are kept for the backward pass).
 TANGENT_BYTES = 256 * 2**20
 
