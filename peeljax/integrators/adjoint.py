@@ -34,7 +34,10 @@ __all__ = ["TANGENT_BYTES", "TANGENT_LIMITS", "reverse_by_tangents", "undefined_
 # tangents 5.0, the checkpointed loop 4.5; the homogenized ODE with its default stepper, the
 # same step at 8: τ = 0.01 (no jump) 4, 7, 8, 16 tangents 2.6, 3.5, 8.9, 10.8, the checkpointed
 # loop 5.9; τ = 1e-3 (158 jumps) 4, 8, 16 tangents 4.4, 12.1, 16.7, the checkpointed loop 12.3.
-TANGENT_LIMITS = {"dae": 7, "ode": 7}
+# Yet the limit at τ > 0 stays 16: with the α-method's steps the checkpointed loop's pullback is
+# dear (each step's exact Newton matrix), and compare.py's P4 (14 coefficients, the adaptive
+# α-method) took 3.0–5.9× as long with a limit of 7 (docs/fitting.md).
+TANGENT_LIMITS = {"dae": 7, "ode": 16}
 # Most bytes the k tangents of a run's output rows may take (they are kept for the backward pass).
 TANGENT_BYTES = 256 * 2**20
 
