@@ -398,7 +398,6 @@ def test_rows_with_a_singular_derivative_are_named_and_left_out_of_the_step():
     assert singular_rows(values, jac, available, [0, 1]) == {}
 
 
-
 def test_where_the_tape_stops_the_rows_attractor_is_an_orbit_that_settles_slowly():
     """φ with c1 × 1.07, c3 × 0.93, c6 × 1.07 at 0.5 m/s (the tape stops after every slip; the
     table of ``benchmarks/fit_coverage.py --problem wide``): the 3 and 8 s runs of
