@@ -405,14 +405,12 @@ def test_where_the_tape_stops_the_rows_attractor_is_an_orbit_that_settles_slowly
     fitted on its window statistics (docs/fitting.md). The attractor is nevertheless periodic:
     a 10-slip orbit with |μ₁| = 0.952, whose slip intervals a 30 s run shows repeating to 1e-3
     (they still drift by ~1e-5 s a period)."""
-    import equinox as eqx
+    import fit_coverage  # benchmarks/
 
     import peeljax as pj
     from peeljax.fit.attractors import find_attractor
 
-    law = PeelingModel().adhesion
-    law = eqx.tree_at(lambda a: (a.c1, a.c3, a.c6), law, (1.07 * law.c1, 0.93 * law.c3, 1.07 * law.c6))
-    model = eqx.tree_at(lambda m: m.adhesion, PeelingModel(), law)
+    model = PeelingModel(adhesion=fit_coverage.truth_of("wide")[0])
     first = find_attractor(model, 0.5)
     near = pj.periodic_orbit(model, V=0.5, start=first.section, slips=first.slips, period=first.period)
     assert first.slips == 2 and int(near.status) == 0 and np.max(np.abs(near.multipliers)) > 1.0
