@@ -213,16 +213,16 @@ def _block(value):
     return jax.block_until_ready(value)
 
 
-# A round of a check times this long at least: a sub-millisecond call (P1, 0.6 ms) timed once a
-# round read P1's ratio anywhere in 1.08-1.27 over six runs (668812d and branches of it that
-# alternating calls measured at 1.08-1.13); in rounds of ~20 ms, 1.13-1.18 over three runs of
-# dabb0d1 (2026-12-06; calls of one kind back to back, caches warm).
+# A repeat of a quick check takes this long at least, in rounds of one call per side: five single
+# calls read P1's ratio anywhere in 1.08-1.27 over six runs (668812d); rounds of ~20 ms of calls
+# back to back 1.11-1.22 in four runs of ed35730 (their mean carries the slow calls' tail), where
+# ~340 single calls alternating read 1.09-1.12 in five (2026-12-06).
 ROUND_SECONDS = 0.02
 
 
-def _calls_per_round(numerator, denominator) -> int:
-    """Calls of each side in one timed round: enough that the quicker side's round takes
-    ``ROUND_SECONDS`` (one call for the checks that take longer), the same for both sides."""
+def _rounds_per_repeat(numerator, denominator) -> int:
+    """Rounds of one call of each side per repeat: enough that the quicker side's calls take
+    ``ROUND_SECONDS`` (one round for the checks that take longer)."""
     once = []
     for fn in (numerator, denominator):
         began = time.perf_counter()
@@ -232,9 +232,9 @@ def _calls_per_round(numerator, denominator) -> int:
 
 
 def measure(names, repeats: int = 5) -> dict[str, float]:
-    """Each named check's ratio: the calls compiled (first call), then ``repeats`` rounds of each
-    check in turn, numerator and denominator alternately (a round of a quick check: several
-    calls, :data:`ROUND_SECONDS`); median ÷ median.
+    """Each named check's ratio: the calls compiled (first call), then rounds of one call each,
+    numerator and denominator alternately, each check's in turn: ``repeats`` rounds, times as
+    many as fill :data:`ROUND_SECONDS` for a quick check; median ÷ median of the single calls.
 
     A check's rounds run together, not interleaved with the other checks': interleaved, each
     call followed another check's and found the memory it needs freshly returned to the system,
@@ -251,13 +251,11 @@ def measure(names, repeats: int = 5) -> dict[str, float]:
         pairs[name] = (numerator, denominator, [], [])
         setup[name] = time.perf_counter() - began
     for numerator, denominator, top, bottom in pairs.values():
-        calls = _calls_per_round(numerator, denominator)
-        for _ in range(repeats):
+        for _ in range(repeats * _rounds_per_repeat(numerator, denominator)):
             for fn, times in ((numerator, top), (denominator, bottom)):
                 began = time.perf_counter()
-                for _ in range(calls):
-                    _block(fn())
-                times.append((time.perf_counter() - began) / calls)
+                _block(fn())
+                times.append(time.perf_counter() - began)
     ratios = {name: statistics.median(top) / statistics.median(bottom) for name, (_, _, top, bottom) in pairs.items()}
     print("set-up (compilation or cache reads) [s]:", {name: round(seconds, 1) for name, seconds in setup.items()})
     if "compile" in names:

@@ -181,6 +181,7 @@ class Simulator:
             merge_jump_rows=False,  # simulate's program: the jumps' rows merged on the host
         )  # fmt: skip
         integrator_of = functools.partial(self._integrator_of, max_jumps=FIRST_MAX_JUMPS if self._grows else max_jumps)
+        self._on_the_host = functools.partial(integrator_of, folds_at_first_jump=True)  # concrete calls
         integrator = integrator_of(dae=False)
         self.ts = None if ts is None else check_output_times(ts, t_final)
         self._run_ts = None if ts is None else _bucketed(self.ts)  # simulate's program: its rows cut alike
@@ -212,7 +213,7 @@ class Simulator:
                 self._refuse_dae()
             ode, _ = _prepare(self.model, 1.0, 0.0 if dae else 1.0, None, self.truncation, allow_dae=True)
             y0 = np.zeros(4) if with_y0 else None
-            program = _Program(self.integrators[dae], ode, y0, self.t_final, self._run_ts)
+            program = _Program(self._on_the_host(dae=dae), ode, y0, self.t_final, self._run_ts)
             self._programs[(dae, with_y0)] = program
         return program
 
@@ -258,8 +259,8 @@ class Simulator:
             solution = self._grown(solution, ode, y0, t == 0.0)
         return self._unpadded(solution)
 
-    def _integrator(self, dae: bool, max_jumps: int) -> AbstractIntegrator:
-        return self._integrator_of(dae=dae, max_jumps=max_jumps)
+    def _integrator(self, dae: bool, max_jumps: int, on_the_host: bool = False) -> AbstractIntegrator:
+        return self._integrator_of(dae=dae, max_jumps=max_jumps, folds_at_first_jump=on_the_host)
 
     def _unpadded(self, solution: Solution) -> Solution:
         return _finished(solution if self.ts is None else _first_rows(solution, self.ts.shape[0]), self.ts)
@@ -275,14 +276,15 @@ class Simulator:
             return self._unpadded(_run(self.integrators[dae], ode, y0, self.t_final, self._run_ts))
         if is_traced((V, tau, y0)):  # simulate's record, its size fixed before the run
             return self._unpadded(_run(self._integrator(dae, DEFAULT_MAX_JUMPS), ode, y0, self.t_final, self._run_ts))
-        return self._unpadded(self._grown(_run(self.integrators[dae], ode, y0, self.t_final, self._run_ts), ode, y0, dae))
+        integrator = self._on_the_host(dae=dae)
+        return self._unpadded(self._grown(_run(integrator, ode, y0, self.t_final, self._run_ts), ode, y0, dae))
 
     def _grown(self, solution: Solution, ode, y0, dae: bool) -> Solution:
         """simulate's growth of a record that the run filled (:func:`~peeljax.simulate.grown_until_it_holds`)."""
         if is_traced(solution.status) or int(solution.status) != StopReason.MAX_JUMPS:
             return solution
         return grown_until_it_holds(
-            solution, FIRST_MAX_JUMPS, functools.partial(self._integrator, dae),
+            solution, FIRST_MAX_JUMPS, lambda max_jumps: self._integrator(dae, max_jumps, on_the_host=True),
             lambda integrator: _run(integrator, ode, y0, self.t_final, self._run_ts), self.ts, self._max_steps,
             self._memory_limit, float(self.t_final),
         )  # fmt: skip

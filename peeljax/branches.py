@@ -73,6 +73,17 @@ class Folds(eqx.Module):
         """True where φ(·, V) has both folds (stick-slip is possible)."""
         return jnp.isfinite(self.v_max) & jnp.isfinite(self.v_min)
 
+    @classmethod
+    def not_searched(cls) -> Folds:
+        """A placeholder of NaNs for folds not searched yet (:attr:`searched` False)."""
+        nan = jnp.full((), jnp.nan)
+        return cls(nan, nan, nan, nan, nan, nan, nan)
+
+    @property
+    def searched(self) -> Bool[Array, ""]:
+        """False for :meth:`not_searched`'s placeholder (a search always gives a finite ``v_top``)."""
+        return ~jnp.isnan(self.v_top)
+
 
 def phi_folds(model: PeelingModel, V: ArrayLike) -> Folds:
     """φ's maximum and minimum in v (:func:`peeljax.structure.phi_max_and_min`) and its branch ends."""

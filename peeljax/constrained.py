@@ -72,9 +72,9 @@ class ConstrainedDAE(eqx.Module):
     def __call__(self, y: Float[Array, "4"]) -> Float[Array, "4"]:
         return self.evaluate(y).psi
 
-    def with_folds(self) -> ConstrainedDAE:
-        """This ODE with φ's folds computed (needed by every other method)."""
-        return _with_folds(self)
+    def with_folds(self, folds: Folds | None = None) -> ConstrainedDAE:
+        """This ODE with φ's folds, given or computed (needed by every other method)."""
+        return _with_folds(self, folds)
 
     def fold_event(self, y: Float[Array, "4"]) -> Array:
         """G(x) − φ(v̂, V) on the stick branch, φ(v̌, V) − G(x) on the slip branch (N)."""

@@ -80,8 +80,8 @@ class DesingularizedDAE(eqx.Module):
     def tau(self) -> Array:
         return jnp.zeros(())
 
-    def with_folds(self) -> DesingularizedDAE:
-        return _with_folds(self)
+    def with_folds(self, folds: Folds | None = None) -> DesingularizedDAE:
+        return _with_folds(self, folds)
 
     def extend(self, y0: Float[Array, "4"], t0) -> Float[Array, "5"]:
         """The carried state at t0 of a physical state y0 = (α, ω, u, v) (a fully stuck tape,

@@ -98,7 +98,7 @@ class FoldingODE(ODE, Protocol):
     integrator calls it on every accepted and output state where ``completes_state`` is True.
     """
 
-    def with_folds(self) -> FoldingODE: ...
+    def with_folds(self, folds: Folds | None = None) -> FoldingODE: ...
 
     def fold_event(self, y: Float[Array, " n"]) -> Array: ...
 
@@ -197,9 +197,9 @@ class HomogenizedODE(eqx.Module):
         return v_s * jnp.exp(jnp.minimum(self.model.shear_force(x) - phi_s, 0.0) / slope)
 
     # ------------------------------------------------------------------ folds (fold="jump")
-    def with_folds(self) -> HomogenizedODE:
-        """This ODE with φ's folds (:func:`peeljax.branches.phi_folds`) computed."""
-        return _with_folds(self)
+    def with_folds(self, folds: Folds | None = None) -> HomogenizedODE:
+        """This ODE with φ's folds: ``folds`` where given, else computed (:func:`peeljax.branches.phi_folds`)."""
+        return _with_folds(self, folds)
 
     def fold_event(self, y: Float[Array, "4"]) -> Array:
         """J_t(τ) at y: negative on a stable branch, zero where the homogenized solution ends
@@ -249,8 +249,10 @@ def _jump(model: PeelingModel, V, folds: Folds, y, floor=0.0) -> Jump:
     )  # fmt: skip
 
 
-def _with_folds(ode):
-    """``ode`` (with ``model``, ``V`` and ``folds`` fields) with φ's folds at its V computed, once."""
-    if ode.folds is not None:
+def _with_folds(ode, folds: Folds | None = None):
+    """``ode`` (with ``model``, ``V`` and ``folds`` fields) with ``folds``, or with φ's folds at
+    its V computed, once."""
+    if folds is None and ode.folds is not None:
         return ode
-    return eqx.tree_at(lambda o: o.folds, ode, phi_folds(ode.model, ode.V), is_leaf=lambda x: x is None)
+    folds = phi_folds(ode.model, ode.V) if folds is None else folds
+    return eqx.tree_at(lambda o: o.folds, ode, folds, is_leaf=lambda x: x is None)

@@ -318,13 +318,15 @@ def simulate(
         refuse_with_dt(dt, ts=ts)
     check_tau(tau, allow_zero=True)
     max_steps = resolve_max_steps(max_steps, keeps_steps=ts is None)
-    grows = max_jumps is None and not is_traced((model, V, tau, rho, y0, ts))
+    concrete = not is_traced((model, V, tau, rho, y0, ts))
+    grows = max_jumps is None and concrete
 
     def integrator_with(max_jumps: int):
         return integrator_for(
             solver, rho=rho, dt=dt, t_final=t_final, rtol=rtol, atol=atol, dtmin=dtmin, max_steps=max_steps,
             adjoint=adjoint, checkpoint_every=checkpoint_every, fold=fold, max_jumps=max_jumps, dae=is_dae(tau),
             merge_jump_rows=False,  # merged below: on the host, the rows in use only
+            folds_at_first_jump=concrete,  # neither batched nor differentiated
         )  # fmt: skip
 
     size = max_jumps if max_jumps is not None else FIRST_MAX_JUMPS if grows else DEFAULT_MAX_JUMPS

@@ -167,6 +167,32 @@ def test_the_jump_record_grows_to_the_run_unless_its_size_is_given(monkeypatch):
     assert traced.shape == (DEFAULT_MAX_JUMPS,)
 
 
+def test_folds_searched_at_the_first_jump_give_the_same_run(monkeypatch):
+    """At τ > 0 a run on concrete inputs searches φ's folds at its first jump, not before the
+    run (a run without a jump skips the search): the same bits, jumps included, as a run that
+    searched them first. Traced (under ``vmap``: its ``lax.cond`` runs both branches) they are
+    searched before the run."""
+    simulate_module = importlib.import_module("peeljax.simulate")
+    integrator_for = simulate_module.integrator_for
+    asked = []
+
+    def recording(*args, **options):
+        asked.append(options["folds_at_first_jump"])
+        return integrator_for(*args, **options)
+
+    monkeypatch.setattr(simulate_module, "integrator_for", recording)
+    ts = np.linspace(0.0, 0.5, 51)
+    later = pj.simulate(V=1.1, tau=1e-3, t_final=0.5, ts=ts)
+    monkeypatch.setattr(simulate_module, "integrator_for", lambda *a, **o: integrator_for(*a, **{**o, "folds_at_first_jump": False}))
+    first = pj.simulate(V=1.1, tau=1e-3, t_final=0.5, ts=ts)
+    assert asked == [True] and int(later.stats["jumps"]) > 4
+    for a, b in zip(jax.tree_util.tree_leaves(later), jax.tree_util.tree_leaves(first)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    monkeypatch.setattr(simulate_module, "integrator_for", recording)
+    jax.eval_shape(jax.vmap(lambda V: pj.simulate(V=V, tau=1e-3, t_final=0.5, ts=ts).ys), jnp.array([1.1, 2.0]))
+    assert asked == [True, False]
+
+
 @pytest.mark.slow
 def test_no_fold_no_jump():
     """V = 6 m/s: the paper's φ has no fold there, so nothing jumps."""

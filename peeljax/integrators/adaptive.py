@@ -49,6 +49,7 @@ from jaxtyping import Array, ArrayLike, Float
 from .._arrays import optional_float_array
 from .._cotangents import skip_zero_cotangents
 from .._validation import check_adjoint, check_max_steps
+from ..branches import Folds
 from ..homogenized import ODE
 from ..solution import JumpRecord, JumpSides, Solution, StepDiagnostics, StopReason
 from ..structure import local_index
@@ -108,6 +109,7 @@ class _Carry(eqx.Module):
     cut_steps: Array  # rejected attempts over a fold whose retry was cut at the fold
     misses: _Misses
     passed_t: Array  # the first singular passage followed (fold="follow"; NaN: none)
+    folds: Folds | None  # φ's folds, searched at the first jump (FoldEvents.folds_at_first_jump); else None
 
 
 _REFERENCE_DEPTH = 1e-5
@@ -184,11 +186,14 @@ def _initial_step(stepper: AbstractStepper, controller: PIController, ode, y, is
 
 
 def _at_fold(
-    events: FoldEvents, ode, stepper: AbstractStepper, fold: FoldHit, new: StepperState, t_new, g_new, jumps, clock
+    events: FoldEvents, ode, stepper: AbstractStepper, fold: FoldHit, new: StepperState, t_new, g_new, jumps, clock,
+    folds: Folds | None = None,
 ):
     """The step's outcome at a fold: the state to go on from, its time and event value, the
-    jump record, a stop status (0, ``FOLD`` or ``MAX_JUMPS``) and the cut step's end
-    (y, J) for the observer. Without a fold hit, the step as it was."""
+    jump record, a stop status (0, ``FOLD`` or ``MAX_JUMPS``), the cut step's end
+    (y, J) for the observer and φ's folds (``folds``: those carried where they are searched at
+    the first jump, searched there if not yet; None: ``ode`` has them). Without a fold hit, the
+    step as it was."""
 
     nan = jnp.full((), jnp.nan)
     no_jump = (jnp.asarray(False), nan, jnp.asarray(False), nan, nan, nan, nan)  # (write, t, up, v⁻, v⁺, G, F)
@@ -202,25 +207,29 @@ def _at_fold(
         end = (y_fold, event.J)
         if events.mode == "stop":
             stopped = eqx.tree_at(lambda s: (s.y, s.psi, s.J, s.drive), new, (y_fold, event.psi, event.J, event.drive))
-            return stopped, fold_event(ode, y_fold), no_jump, jnp.asarray(StopReason.FOLD, jnp.int32), end
+            return stopped, fold_event(ode, y_fold), no_jump, jnp.asarray(StopReason.FOLD, jnp.int32), end, folds
+        found, folded = folds, ode
+        if folds is not None:
+            found = jax.lax.cond(folds.searched, lambda: folds, lambda: ode.with_folds().folds)
+            folded = ode.with_folds(found)
         full = jumps.full  # (a ring buffer never is)
-        jump = ode.jump(y_fold)
+        jump = folded.jump(y_fold)
         y = jnp.where(full, y_fold, jump.y)
         restarted = stepper.restart(ode, fold.t, y, new)
         entry = (~full, clock(fold.t, y_fold), jump.up, jump.v_before, jump.v_after, jump.G, jump.F)
         if keeps_state:
             entry = (*entry, physical(stepper, y_fold))
         status = jnp.where(full, StopReason.MAX_JUMPS, 0).astype(jnp.int32)
-        return restarted, fold_event(ode, y), entry, status, end
+        return restarted, fold_event(ode, y), entry, status, end, found
 
     def no_fold():
-        return new, g_new, no_jump, jnp.asarray(0, jnp.int32), (new.y, new.J)
+        return new, g_new, no_jump, jnp.asarray(0, jnp.int32), (new.y, new.J), folds
 
     # The record is written outside the cond: carried through it, its buffers were copied at
     # every step (measured: +7.5 µs per Tsit5 step at τ > 0, P1 2.4 ms against 0.8 with fold="follow").
-    state, g, entry, status, end = jax.lax.cond(fold.hit, at_fold, no_fold)
+    state, g, entry, status, end, folds = jax.lax.cond(fold.hit, at_fold, no_fold)
     record = jumps.record(fold.hit & entry[0], *entry[1:])
-    return state, jnp.where(fold.hit, fold.t, t_new), g, record, status, end
+    return state, jnp.where(fold.hit, fold.t, t_new), g, record, status, end, folds
 
 
 def _events_for(events: FoldEvents | None, ode) -> FoldEvents | None:
@@ -263,7 +272,9 @@ def adaptive_loop(
     span = t_final - t0
     dtmin = jnp.minimum(1e-12 * span, 3e-12) if dtmin is None else jnp.asarray(dtmin, float)  # not ∝ a long span
     events = _events_for(events, ode)
-    if events is not None:
+    # Where the fold event is J_t, the folds serve the jumps only: searched at the first one.
+    folds_later = events is not None and events.folds_at_first_jump and getattr(ode, "fold_event_is_schur", False)
+    if events is not None and not folds_later:
         ode = ode.with_folds()
     ode, state0 = stepper.start(ode, t0, jnp.asarray(y0, float))
     # An ODE in pseudo-time s (DesingularizedDAE) carries t as a component: the loop steps in s.
@@ -339,6 +350,7 @@ def adaptive_loop(
             grazed_t=jnp.asarray(jnp.nan),
         ),
         passed_t=jnp.asarray(jnp.nan),
+        folds=Folds.not_searched() if folds_later else None,
     )
 
     def running(c: _Carry):
@@ -384,7 +396,7 @@ def adaptive_loop(
         passed_t = c.passed_t
         if events is None:
             impasse = accept & (state.J * new.J < 0) & (state.drive * new.drive > 0)
-            fold_status, g, jumps, restarted, g_scale = 0, c.g, None, jnp.asarray(False), c.g_scale
+            fold_status, g, jumps, restarted, g_scale, folds = 0, c.g, None, jnp.asarray(False), c.g_scale, c.folds
             step_end = (new.y, new.J)
         else:
             impasse = jnp.asarray(False)
@@ -422,8 +434,8 @@ def adaptive_loop(
                 fold = eqx.tree_at(
                     lambda f: f.y, fold, jax.lax.cond(fold.hit, lambda: tangential(fold.y, c.reference, c.reference_far), lambda: fold.y)
                 )
-            new, t_new, g, jumps, fold_status, step_end = _at_fold(
-                events, ode, stepper, fold, new, t_new, g_new, c.jumps, clock
+            new, t_new, g, jumps, fold_status, step_end, folds = _at_fold(
+                events, ode, stepper, fold, new, t_new, g_new, c.jumps, clock, c.folds
             )
             restarted = fold.hit & (fold_status == 0)
             if events.mode == "follow" and schur_event:  # a singular passage followed, not a fold hit
@@ -503,6 +515,7 @@ def adaptive_loop(
             cut_steps=c.cut_steps + cut,
             misses=misses,
             passed_t=passed_t,
+            folds=folds,
         )
 
     def buffers(c: _Carry) -> tuple:  # written in place, never read in the loop (static choices only)

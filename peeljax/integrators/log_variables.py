@@ -76,8 +76,12 @@ class LogTransformedODE(eqx.Module):
         """The component holding the time, for an ODE in pseudo-time (never a log component)."""
         return getattr(self.ode, "time_index", None)
 
-    def with_folds(self):
-        return LogTransformedODE(self.ode.with_folds(), self.log_components)
+    @property
+    def folds(self):
+        return self.ode.folds
+
+    def with_folds(self, folds=None):
+        return LogTransformedODE(self.ode.with_folds(folds), self.log_components)
 
     def fold_event(self, z):
         return self.ode.fold_event(from_log(z, self.log_components))

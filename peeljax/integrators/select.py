@@ -172,11 +172,11 @@ def _controller(rtol: float, atol: float) -> PIController:
 
 
 @functools.lru_cache(maxsize=64)
-def _error_control(rho, rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps, dae, merge) -> ErrorControl:
+def _error_control(rho, rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps, dae, merge, folds_later) -> ErrorControl:
     # The default method's integrator, built once per setting rather than on every call.
     method = _named(DEFAULT_ODE_STEPPER) if rho == 0.0 and not dae else _default_solver(rho)
     integrator = ErrorControl(method, _controller(rtol, atol), dtmin, max_steps, adjoint)
-    return _with_events(integrator, fold, max_jumps, dae, merge=merge)
+    return _with_events(integrator, fold, max_jumps, dae, merge=merge, folds_at_first_jump=folds_later)
 
 
 @functools.lru_cache(maxsize=64)
@@ -188,7 +188,8 @@ def _error_control_dae(rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps, m
 
 
 def _with_events(
-    integrator: ErrorControl, fold: str, max_jumps: int, dae: bool, pseudo_time: bool = False, merge: bool = True
+    integrator: ErrorControl, fold: str, max_jumps: int, dae: bool, pseudo_time: bool = False, merge: bool = True,
+    folds_at_first_jump: bool = False,
 ) -> ErrorControl:
     """The integrator with its fold events. For the DAE (``dae``) an explicit Runge–Kutta
     stepper runs in pseudo-time where ``pseudo_time`` (it was named, or given as a diffrax
@@ -203,7 +204,8 @@ def _with_events(
         method = dataclasses.replace(method, log_components=(3,), time_scale=DEFAULT_TIME_SCALE)
     elif dae and not (isinstance(method, RungeKutta) and method.time_scale is not None):
         method = dataclasses.replace(method, log_components=())
-    return dataclasses.replace(integrator, method=method, events=FoldEvents(fold, max_jumps), merge_jump_rows=merge)
+    events = FoldEvents(fold, max_jumps, folds_at_first_jump=folds_at_first_jump)
+    return dataclasses.replace(integrator, method=method, events=events, merge_jump_rows=merge)
 
 
 def _own_loop(solver) -> bool:
@@ -252,12 +254,15 @@ def integrator_for(
     max_jumps: int = DEFAULT_MAX_JUMPS,
     dae: bool = False,
     merge_jump_rows: bool = True,
+    folds_at_first_jump: bool = False,
 ) -> AbstractIntegrator:
     """The integrator the options describe (module docstring), every option checked.
 
     Raises ``ValueError``/``TypeError`` naming the option and its allowed values; nothing is
     compiled. ``rho`` is used only when ``solver`` is None. ``merge_jump_rows=False``: the
     jumps' rows come back apart (``Solution.jump_sides``) for the caller to merge (simulate).
+    ``folds_at_first_jump``: for a run that is neither batched nor differentiated
+    (:class:`~peeljax.integrators.events.FoldEvents`).
     """
     check_adjoint(adjoint)
     check_max_jumps(max_jumps)
@@ -291,6 +296,11 @@ def integrator_for(
     if solver is None and dae and type(rho) in (float, int) and float(rho) == 0.0:
         return _error_control_dae(rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps, merge_jump_rows)
     if solver is None and type(rho) in (float, int):
-        return _error_control(float(rho), rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps, dae, merge_jump_rows)
+        return _error_control(
+            float(rho), rtol, atol, dtmin, max_steps, adjoint, fold, max_jumps, dae, merge_jump_rows, folds_at_first_jump
+        )
     integrator = ErrorControl(method, _controller(rtol, atol), dtmin, max_steps, adjoint)
-    return _with_events(integrator, fold, max_jumps, dae, pseudo_time=not isinstance(solver, RungeKutta), merge=merge_jump_rows)
+    return _with_events(
+        integrator, fold, max_jumps, dae, pseudo_time=not isinstance(solver, RungeKutta), merge=merge_jump_rows,
+        folds_at_first_jump=folds_at_first_jump,
+    )
