@@ -167,6 +167,9 @@ def test_fold_events_default_is_the_plain_record():
     assert FoldEvents(ring=True).settings()["jump_record"] == "ring"
     with pytest.raises(ValueError, match="ring must be True or False"):
         FoldEvents(ring="yes")
+    assert not events.folds_at_first_jump and "folds_at_first_jump" not in events.settings()  # (the same results)
+    with pytest.raises(ValueError, match="folds_at_first_jump must be True or False"):
+        FoldEvents(folds_at_first_jump=1)
 
 
 # ---------------------------------------------------------------------------- the DAE's runs

@@ -96,8 +96,9 @@ class FoldEvents(eqx.Module):
     def __check_init__(self):
         check_fold(self.mode)
         check_max_jumps(self.max_jumps)
-        if not isinstance(self.ring, bool):
-            raise ValueError(f"ring must be True or False, got {self.ring!r}")
+        for name in ("ring", "folds_at_first_jump"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
 
     def empty_record(self) -> JumpRecord:
         """The record a run starts with: ``max_jumps`` empty slots (a ring buffer if ``ring``)."""
