@@ -273,7 +273,8 @@ def adaptive_loop(
     dtmin = jnp.minimum(1e-12 * span, 3e-12) if dtmin is None else jnp.asarray(dtmin, float)  # not ∝ a long span
     events = _events_for(events, ode)
     # Where the fold event is J_t, the folds serve the jumps only: searched at the first one.
-    folds_later = events is not None and events.folds_at_first_jump and getattr(ode, "fold_event_is_schur", False)
+    schur_event = getattr(ode, "fold_event_is_schur", False)
+    folds_later = events is not None and events.folds_at_first_jump and schur_event
     if events is not None and not folds_later:
         ode = ode.with_folds()
     ode, state0 = stepper.start(ode, t0, jnp.asarray(y0, float))
@@ -320,7 +321,6 @@ def adaptive_loop(
     h0 = jax.lax.stop_gradient(jnp.clip(jnp.where(jnp.isfinite(h0), h0, dtmin), dtmin, span))
     zero = jnp.asarray(0, jnp.int32)
     completes = getattr(ode, "completes_state", False)
-    schur_event = getattr(ode, "fold_event_is_schur", False)
     init = _Carry(
         t=t0,
         h=h0,
