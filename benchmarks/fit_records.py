@@ -7,7 +7,10 @@ of every kind").
   orbit's exact statistics and against the model's record (:mod:`peeljax.measurements.instrument`).
 * ``--fit RATE``: the three records at RATE kHz with 0.5 % noise, fitted for c1 from the paper's
   400 by :func:`peeljax.fit.fit_records` (the truth 420: within 2 standard errors and 1 %?);
-  ``--draws N``: N noise draws of them, the errors' mean and spread and the coverage.
+  ``--draws N``: N draws of them, the errors' mean and spread and the coverage. Each draw has
+  its own noise and its records their own start (uniform in [0, 1] s after draw 0's), as
+  records taken on another day would: where in the attractor's period a window falls moves its
+  statistics as much as the noise does.
 * ``--points N``: a 1 s record at V = 1.1, τ = 0.01 (the transient from rest settling to steady
   peeling, 1 kHz) made with c1 = 420, N draws of 0.5 % noise, each fitted point by point from
   400: the coverage of the 95 % intervals.
@@ -34,15 +37,16 @@ TRUTH = pj.AdhesionLaw(c1=420.0)
 V = (1.1, 1.6, 2.4)
 
 
-def record(V_i: float, rate: float, noise: float, seed: int, t_final: float = 4.0, tau: float = 0.0):
-    """(t, F) of a run from rest with φ = TRUTH, sampled at ``rate`` Hz, multiplicative noise."""
+def record(V_i: float, rate: float, noise: float, seed: int, t_final: float = 4.0, tau: float = 0.0, start: float = 0.0):
+    """(t, F) of a run from rest with φ = TRUTH, sampled at ``rate`` Hz over [start, start +
+    t_final] (its times from 0), multiplicative noise."""
     model = pj.PeelingModel(adhesion=TRUTH)
-    ts = np.arange(int(round(t_final * rate))) / rate
-    sol = pj.simulate(model, V=V_i, tau=tau, t_final=t_final, ts=ts, rtol=1e-9, atol=1e-11)
+    ts = start + np.arange(int(round(t_final * rate))) / rate
+    sol = pj.simulate(model, V=V_i, tau=tau, t_final=start + t_final, ts=ts, rtol=1e-9, atol=1e-11)
     rows = ~np.asarray(sol.before_jump) & ~np.asarray(sol.after_jump) & np.asarray(sol.valid)  # the samples, not the jumps
     ys = np.asarray(sol.ys)[rows]
     F = np.asarray(model.tension(ys[:, 2], ys[:, 0]))
-    return np.asarray(sol.ts)[rows], F * (1 + noise * np.random.default_rng(seed).standard_normal(F.size))
+    return np.asarray(sol.ts)[rows] - start, F * (1 + noise * np.random.default_rng(seed).standard_normal(F.size))
 
 
 def instrument() -> None:
@@ -73,8 +77,11 @@ def fit(rate_khz: float, draws: int = 1) -> None:
     z, covered, walls = [], [], []
     for draw in range(draws):
         observations = []
+        # Each draw's records start at another time (draw 0 from rest): where in the attractor's
+        # period a record's window falls moves its statistics as much as its noise does.
+        start = 0.0 if draw == 0 else float(np.random.default_rng(draw).uniform(0.0, 1.0))
         for V_i in V:
-            t, F = record(V_i, 1e3 * rate_khz, 0.005, seed=int(100 * V_i) + 1000 * draw)
+            t, F = record(V_i, 1e3 * rate_khz, 0.005, seed=int(100 * V_i) + 1000 * draw, start=start)
             observations.append(Observation(V=V_i, t=t, v=None, F=F))
         result, wall = timed(fit_records, observations, free=("c1",))
         walls.append(wall)

@@ -16,7 +16,7 @@ from peeljax import PeelingModel
 from peeljax.fit import StickSlipTable, fit_records, fit_stick_slip
 from peeljax.measurements.instrument import Instrument, recorded_statistics
 from peeljax.measurements.statistics import record_cycles
-from peeljax.measurements.statistics import noise_level
+from peeljax.measurements.statistics import STATISTICS, noise_level
 from peeljax.fit.profile import profile
 from peeljax.fit.records_fit import MIN_SLIPS, how_fitted, settled
 from peeljax.fit.levenberg_marquardt import LevenbergMarquardt
@@ -152,6 +152,72 @@ def test_the_instrument_sees_a_sawtooth_as_the_phase_averaged_samples_predict():
     assert seen["period"] == pytest.approx(T, rel=1e-4)
     offset = 0.5 * dt * ((b - a) / (a + b) - (a - b) / (a + b))
     assert seen["slip_duration"] == pytest.approx((T - rise) + offset, abs=0.02 * dt)
+
+
+def _beating_sawtooth(T=0.02, rise=0.016, cycles=5, n=20001):
+    """One period (``cycles`` sawtooth cycles) of a sawtooth whose peak beats cycle to cycle, as
+    a long orbit's slips do: the mean of a short record depends on where in it the record falls."""
+    t = np.linspace(0.0, cycles * T, n)
+    k, phase = np.floor(t / T), np.mod(t, T)
+    F1 = 220.0 + 6.0 * np.sin(2 * np.pi * k / cycles)
+    F = np.where(phase < rise, 200.0 + (F1 - 200.0) * phase / rise, F1 - (F1 - 200.0) * (phase - rise) / (T - rise))
+    return t, F, cycles * T
+
+
+def test_a_records_covariance_is_the_scatter_of_records_at_other_phases():
+    """Records of a beating sawtooth at random phases scatter as the instrument's draws predict
+    (the covariance a records fit whitens its rows by), not as their own cycle-to-cycle
+    standard errors say."""
+    from peeljax.measurements.instrument import _recorded_draws, record_covariance
+    from peeljax.measurements.stick_slip_table import StickSlipTable
+
+    t_p, F_p, P = _beating_sawtooth()
+    inst = Instrument(dt=5e-4, noise=0.3, duration=0.37)
+    draws, _ = _recorded_draws(t_p, F_p, P, inst, seed=1, replicates=200)
+    cov = record_covariance(draws)
+    R, p = 200, 5
+    assert np.allclose(cov, np.cov(draws, rowvar=False) * (R - 1) / (R - p - 2) * (1 + 1 / R)
+                       + np.diag((1e-6 * draws.mean(axis=0)) ** 2) * (1 + 1 / R))  # fmt: skip
+    predicted = np.sqrt(np.diag(cov) / ((R - 1) / (R - p - 2) * (1 + 1 / R)))
+    rng = np.random.default_rng(7)
+    records, errors = [], []
+    for _ in range(200):  # records of the same length, elsewhere in the period, with other noise
+        t = rng.uniform(0.0, P) + inst.dt * np.arange(int(inst.duration / inst.dt) + 1)
+        F = np.interp(np.mod(t, P), t_p, F_p) + inst.noise * rng.standard_normal(t.size)
+        records.append(list(inst.statistics(t - t[0], F).get(s, np.nan) for s in STATISTICS))
+        table = StickSlipTable.from_force_records([Observation(V=1.0, t=t - t[0], v=None, F=F)], std="error")
+        errors.append(table.std["F_mean"][0])
+    measured = np.nanstd(np.asarray(records), axis=0, ddof=1)
+    assert np.allclose(predicted, measured, rtol=0.2)
+    # the record's own standard error of F_mean (its cycles taken as independent) misses it
+    assert not 0.5 < np.median(errors) / measured[0] < 2.0
+
+
+def test_a_records_rows_are_whitened_by_their_covariance():
+    """χ² of a whitened row is dᵀC⁻¹d over its measured statistics; one without a covariance
+    for a statistic keeps that statistic's σ; a row off its orbit is left as it is."""
+    from types import SimpleNamespace
+
+    from peeljax.fit.table_rows import TableRows
+
+    d = np.array([[1.0, -2.0, 0.5, 3e-4, 1e-5], [1.0, 1.0, 1.0, 1.0, 1.0]])
+    data = np.zeros((2, 5))
+    jac = np.arange(20.0).reshape(2, 5, 2)
+    a = np.random.default_rng(0).standard_normal((5, 5))
+    cov = a @ a.T + np.eye(5)
+    cov[4, :], cov[:, 4] = np.nan, np.nan  # slip durations not produced by enough draws
+    sigma = np.full((2, 5), 2.0)
+    measured = np.array([[True, True, True, False, True], [True] * 5])
+    rows = SimpleNamespace(covariance={0: cov, 1: cov}, measured=measured, data=data)
+    r, J = d / sigma, jac / sigma[..., None]
+    TableRows._whiten(rows, r, J, d, jac, np.ones((2, 5), bool), sigma, orbits={0: None})
+    m = [0, 1, 2, 4]
+    c = np.zeros((4, 4))
+    c[:3, :3] = cov[np.ix_([0, 1, 2], [0, 1, 2])]
+    c[3, 3] = 4.0
+    assert float(r[0, m] @ r[0, m]) == pytest.approx(float(d[0, m] @ np.linalg.solve(c, d[0, m])))
+    assert np.allclose(J[0, m].T @ J[0, m], jac[0, m].T @ np.linalg.solve(c, jac[0, m]))
+    assert np.array_equal(r[1], d[1] / 2.0)  # off its orbit: as it was
 
 
 def test_noise_level_reads_white_noise_off_a_smooth_signal():

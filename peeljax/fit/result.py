@@ -236,6 +236,8 @@ def _row_text(row: dict) -> str:
         text = f"orbit, {row['slips']} slips per period, {'stable' if row.get('stable') else 'UNSTABLE'}"
     if "singular_elasticity" in row:  # peeljax.fit.table_rows.singular_rows
         text += f" (a derivative too steep to use: elasticity {row['singular_elasticity']:.3g})"
+    if "slips_found" in row:
+        text += f" (its record finds {row['slips_found']:.0%} of the slips: F_mean only)"
     return f"V = {row['V']:g}: {text}"
 
 
@@ -319,5 +321,7 @@ def _row_report(rows: TableRows, point, why) -> list[dict]:
             entry.update(slips=None, stable=False, how="no periodic attractor at the optimum")
         if point is not None and i in point.singular:
             entry["singular_elasticity"] = float(point.singular[i])
+        if i in getattr(rows, "slips_found", {}):  # a record's instrument misses slips: F_mean alone
+            entry["slips_found"] = float(rows.slips_found[i])
         report.append(entry)
     return report

@@ -292,6 +292,7 @@ def fit_stick_slip(table: StickSlipTable, model: PeelingModel | None = None, *,
                                     instruments=instruments, points=points)  # fmt: skip
         runs, initial = fitted.pop("runs"), fitted.pop("initial")
         report = fitted  # the rows followed, why each has its kind, the crossings and the profiles
+        measured = getattr(report["rows"], "table", report["rows"]).measured  # less what records' instruments miss
     else:
         fit = build_table_fit(start, model, table.V, data, sigma, measured, **window_options)
         n_coarse = max(n_coarse, n_starts)  # the starts are the best of the coarse batch
