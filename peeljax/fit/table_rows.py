@@ -232,7 +232,7 @@ class TableRows:
             if i in point.orbits:
                 new[i], error[i], self.covariance[i], found = instrument_bias(model, float(self.V[i]), point.orbits[i],
                                                                               instrument)  # fmt: skip
-                if first and found < SLIPS_FOUND:
+                if first and found < SLIPS_FOUND and self.measured[i, 0]:
                     self.slips_found[i] = found
                     self.measured[i, 1:] = False  # F_mean alone: the others are of the slips it happens to find
         change = float(np.max(np.abs(new - self.bias) / np.sqrt(self.sigma**2 + error**2), initial=0.0))
