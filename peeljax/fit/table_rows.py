@@ -235,7 +235,11 @@ class TableRows:
                 if first and found < SLIPS_FOUND and self.measured[i, 0]:
                     self.slips_found[i] = found
                     self.measured[i, 1:] = False  # F_mean alone: the others are of the slips it happens to find
-        change = float(np.max(np.abs(new - self.bias) / np.sqrt(self.sigma**2 + error**2), initial=0.0))
+        scale = np.sqrt(self.sigma**2 + error**2)
+        for i, cov in self.covariance.items():  # a record's row: its statistics' spread over the draws
+            spread = np.sqrt(np.diag(cov))
+            scale[i] = np.where(np.isfinite(spread), spread, scale[i])
+        change = float(np.max(np.where(self.measured, np.abs(new - self.bias) / scale, 0.0), initial=0.0))
         self.bias, self.bias_error = new, error
         return change
 
@@ -249,9 +253,7 @@ class TableRows:
         statistic without a covariance keeps its σ. In place."""
         for i, cov in self.covariance.items():
             m = self.measured[i] & available[i]
-            if i not in orbits:
-                continue
-            if not m.any():
+            if i not in orbits or not m.any():
                 continue
             c = np.where(np.isnan(cov), 0.0, cov)[np.ix_(m, m)]
             own = np.isnan(np.diag(cov))[m]

@@ -194,8 +194,8 @@ def instrument_bias(model: PeelingModel, V: float, orbit: dict, instrument: Inst
                     seed: int = 0) -> InstrumentBias:  # fmt: skip
     """What ``instrument`` adds to each of the orbit's exact statistics, and the covariance of a
     record's statistics over its phase and noise (:class:`InstrumentBias`)."""
-    t, F = orbit_force(model, V, orbit["section"], float(orbit["period"]))
     period = float(orbit["period"])
+    t, F = orbit_force(model, V, orbit["section"], period)
     draws, slips = _recorded_draws(t, F, period, instrument, seed, REPLICATES)
     recorded, errors = _means(draws)
     exact = np.asarray(orbit["statistics"], float)
