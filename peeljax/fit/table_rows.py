@@ -208,6 +208,7 @@ class TableRows:
         self.bias_error = np.zeros_like(self.data, dtype=float)  # its Monte Carlo standard error, added to σ
         self.covariance: dict = {}  # row → a record's statistics' covariance about the model's (update_bias)
         self.slips_found: dict = {}  # row → the fraction of its slips the instrument finds, where it drops some statistics
+        self._slips_judged = False  # (update_bias: at the start only)
         self.instruments: dict = {}
 
     # -- records: the statistics as their instrument saw them -------------------------------
@@ -222,12 +223,13 @@ class TableRows:
 
     def update_bias(self, point: Point) -> float:
         """The instruments' bias and a record's covariance at ``point``'s orbits; returns the
-        largest change of the bias in σ."""
+        largest change of the bias in σ. On the first call (the start), a row whose instrument
+        finds fewer than ``SLIPS_FOUND`` of its slips keeps F_mean alone, for the whole fit."""
         from ..measurements.instrument import instrument_bias
 
         model = eqx.tree_at(lambda m: m.adhesion, self.model, self.law(point.z))
         new, error = self.bias.copy(), self.bias_error.copy()
-        first = not self.covariance
+        first, self._slips_judged = not self._slips_judged, True
         for i, instrument in self.instruments.items():
             if i in point.orbits:
                 new[i], error[i], self.covariance[i], found = instrument_bias(model, float(self.V[i]), point.orbits[i],
