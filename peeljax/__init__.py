@@ -8,6 +8,7 @@ The modules follow the data flow; each imports only those above it:
     homogenized.py           ψ(y; τ) of eq. (hv): the ODE every integrator solves (``ODE``)
     integrators/             one contract (base.py), three integrators → ``Solution``
     simulate.py              one run, its options checked before anything compiles
+    run_program.py, bound.py    its compiled program and the host's assembly; a run bound to its options
     measurements/            lab files, force records, stick-slip tables and their statistics
     sweeps/, fit/, analysis.py      many runs at once; φ from data; stick-slip and index in time
     lyapunov.py, attractor_map.py   exponents through the jumps; every attractor over V

@@ -1,8 +1,9 @@
 """A simulator bound to its options: :func:`peeljax.simulate` for callers that run it in a loop.
 
 :func:`peeljax.simulate` checks its options, builds the integrator and the ODE, packs about
-thirty parameters and copies them to the device on every call: ~0.2 ms around a compiled run
-of a few tenths of a millisecond (``benchmarks/studies/results/adaptive_drivers.md``).
+thirty parameters and copies them to the device on a call: ~0.2 ms around a compiled run
+of a few tenths of a millisecond (``benchmarks/studies/results/adaptive_drivers.md``); on a
+second call with the same options it makes a :class:`Simulator` and keeps it.
 :class:`Simulator` does all of that once, for every option but V, τ and y0; a call checks V
 and τ with plain float comparisons, writes them into the packed parameter vector of
 ``simulate._run`` and runs ``simulate``'s own program, compiled ahead of time
@@ -11,6 +12,7 @@ and τ with plain float comparisons, writes them into the packed parameter vecto
 
 from __future__ import annotations
 
+import collections
 import functools
 import math
 
@@ -27,7 +29,7 @@ from .integrators.alpha import AlphaMethod
 from .integrators.base import AbstractIntegrator
 from .integrators.select import DEFAULT_MAX_JUMPS, integrator_for, refuse_with_dt, resolve_max_steps
 from .model import PeelingModel
-from .simulate import (
+from .run_program import (
     FIRST_MAX_JUMPS, _bucketed, _check_memory, _finished, _first_rows, _kept_run, _packed_jit, _prepare, _run,
     grown_until_it_holds, is_dae,
 )  # fmt: skip
@@ -91,15 +93,32 @@ class _Program:
     def compile(self):
         if self.executable is None:
             leaves, structure = jax.tree_util.tree_flatten((self.template, self.rest))
-            kept = _kept_run.program((self.treedef, self.scalars), structure, leaves)
-            if kept is None:  # simulate runs _packed_jit itself (its arrays then copied to the host)
-                lowered = _packed_jit.lower(self.template, self.rest, treedef=self.treedef, scalars=self.scalars)
-                compiled = lowered.compile()
-                self.executable = lambda packed, rest: jax.device_get(compiled(packed, rest))
-            else:  # simulate's program read back from disk (peeljax._exported): its compilation
-                compiled = kept.lower(*leaves).compile()
-                self.executable = lambda packed, rest: kept.unpack(compiled(packed, *rest))
+            signature = (self.treedef, self.scalars, structure, tuple((np.shape(x), np.asarray(x).dtype.str) for x in leaves))
+            self.executable = _EXECUTABLES.get(signature)
+            if self.executable is None:
+                self.executable = _EXECUTABLES[signature] = self._compiled(leaves, structure)
+                if len(_EXECUTABLES) > KEPT_EXECUTABLES:
+                    _EXECUTABLES.popitem(last=False)
+            else:
+                _EXECUTABLES.move_to_end(signature)
         return self.executable
+
+    def _compiled(self, leaves, structure):
+        kept = _kept_run.program((self.treedef, self.scalars), structure, leaves)
+        if kept is None:  # simulate runs _packed_jit itself (its arrays then copied to the host)
+            lowered = _packed_jit.lower(self.template, self.rest, treedef=self.treedef, scalars=self.scalars)
+            compiled = lowered.compile()
+            return lambda packed, rest: jax.device_get(compiled(packed, rest))
+        compiled = kept.lower(*leaves).compile()  # simulate's program read back from disk (peeljax._exported)
+        return lambda packed, rest: kept.unpack(compiled(packed, *rest))
+
+
+# The compiled programs of the Simulators in the process, by signature (the tree of the
+# integrator, ODE and output times, and the arrays' shapes), the most recently used last:
+# Simulators of other models or options with the same structure share one compilation
+# (``simulate`` makes one per options). A Simulator keeps its own in any case.
+_EXECUTABLES: collections.OrderedDict = collections.OrderedDict()
+KEPT_EXECUTABLES = 32
 
 
 def _position(leaves: list, leaf) -> int:
@@ -133,8 +152,10 @@ class Simulator:
     ``simulate``'s. So does a run with a leaf that is not an array (a diffrax solver; then
     only the option checks are saved).
 
-    Per call, the checks of ``simulate`` are saved: P1 (``benchmarks/guard.py``'s
-    ``simulator_call``) through a ``Simulator`` takes 0.73× its time through ``simulate``.
+    Per call, the checks of ``simulate`` are saved. ``simulate`` itself keeps a ``Simulator``
+    for options it sees a second time (:func:`peeljax.simulate._kept_simulator`): P1 through
+    ``simulate`` then takes 1.02–1.03× its time through a ``Simulator`` (``benchmarks/guard.py``'s
+    ``simulator_call``; 1.3–1.4× before).
 
     Example::
 

@@ -180,12 +180,22 @@ def forbid(monkeypatch, module: str | ModuleType, *names: str, reason: str) -> N
         monkeypatch.setattr(module, name, forbidden)
 
 
+@pytest.fixture(autouse=True)
+def _simulate_keeps_no_simulator_from_other_tests():
+    """Each test starts with none of the Simulators simulate keeps (peeljax.simulate._kept_simulator):
+    a test that patches what simulate's own route calls sees its own calls take that route."""
+    simulate_module = importlib.import_module("peeljax.simulate")
+    simulate_module._KEPT_SIMULATORS.clear()
+    simulate_module._SEEN_ONCE.clear()
+
+
 @pytest.fixture
 def no_compilation(monkeypatch):
     """Fail the test if anything reaches a compiled runner of ``peeljax.simulate`` or of the sweeps."""
     reason = "compiled before the input was checked"
     # the module, not the function peeljax.simulate
     forbid(monkeypatch, "peeljax.simulate", "_run", "_run_reference", reason=reason)
+    monkeypatch.setattr(importlib.import_module("peeljax.simulate"), "KEPT_SIMULATORS", 0)  # (its Simulators skip _run)
     forbid(monkeypatch, "peeljax.sweeps.engine", "run_batch", reason=reason)
 
 

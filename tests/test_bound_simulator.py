@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import sys
 
 import diffrax
 import jax
@@ -23,6 +24,12 @@ import peeljax as pj
 
 # Error control with the default fold="jump": the DAE jumps 18 times on [0, 0.3 s].
 OPTIONS = {"t_final": 0.3, "rtol": 1e-5, "atol": 1e-8, "ts": np.linspace(0.0, 0.3, 31)}
+# simulate's options but V, τ and y0, at their defaults (peeljax.simulate._kept_simulator's keys)
+_ALL_OPTIONS = {
+    "t_final": 3.0, "ts": None, "dt": None, "rtol": None, "atol": None, "rho": 0.0, "solver": None, "fold": None,
+    "max_steps": None, "max_jumps": None, "dtmin": None, "truncation": None, "adjoint": "reverse",
+    "checkpoint_every": None, "memory_limit": None,
+}  # fmt: skip
 _COMPILES = [0]
 
 
@@ -239,3 +246,53 @@ def test_options_of_tau_positive_only_are_refused_on_a_dae_call(options):
         simulated = refusal(lambda: pj.simulate(V=1.1, tau=0.0, t_final=1.0, **options))
     assert bound == simulated
     assert count[0] == 0
+
+
+# ---------------------------------------------------------------------------- simulate keeps Simulators
+def test_simulate_called_again_with_its_options_runs_through_a_kept_simulator():
+    """The second call with the same options (the model by its values) makes a Simulator and
+    keeps it; the third runs through it: the same bits as simulate's own route and as a
+    Simulator's call. Other options, another model, a traced V: simulate's own route."""
+    simulate_module = sys.modules["peeljax.simulate"]
+    kept = simulate_module._KEPT_SIMULATORS
+    own = pj.simulate(V=1.1, tau=0.05, **OPTIONS)
+    assert not kept  # options seen once: simulate's own route
+    second = pj.simulate(V=1.1, tau=0.05, **OPTIONS)
+    assert len(kept) == 1
+    with compilations() as count:
+        third = pj.simulate(model=pj.PeelingModel(), V=2.0, tau=0.02, **OPTIONS)  # (None and the paper's: two keys)
+        third = pj.simulate(model=pj.PeelingModel(), V=2.0, tau=0.02, **OPTIONS)
+        fourth = pj.simulate(V=2.0, tau=0.02, **OPTIONS)
+    assert count[0] == 0 and len(kept) == 2  # one program for every Simulator of this structure
+    assert_same_solution(second, own)
+    assert_same_solution(third, fourth)
+    assert_same_solution(fourth, pj.Simulator(**OPTIONS)(2.0, 0.02))
+    other_law = pj.PeelingModel(adhesion=pj.AdhesionLaw(c1=420.0))
+    for _ in range(2):
+        changed = pj.simulate(model=other_law, V=2.0, tau=0.02, **OPTIONS)
+    assert len(kept) == 3 and not np.array_equal(np.asarray(changed.ys), np.asarray(fourth.ys))
+    for _ in range(2):
+        jax.eval_shape(lambda V: pj.simulate(V=V, tau=0.05, **OPTIONS).ys, 1.1)
+    assert len(kept) == 3  # traced: simulate's own route
+    with pytest.raises(ValueError, match="V must be > 0"):
+        pj.simulate(V=-1.0, tau=0.05, **OPTIONS)  # refused by the kept Simulator with simulate's words
+    assert refusal(lambda: pj.simulate(V=1.1, tau=0.05, **{**OPTIONS, "rtol": -1.0})) == refusal(
+        lambda: pj.simulate(V=1.1, tau=0.05, **{**OPTIONS, "rtol": -1.0})
+    )
+
+
+def test_simulate_keeps_the_simulators_of_its_most_recent_options(monkeypatch):
+    """At most KEPT_SIMULATORS Simulators, the least recently used let go first; 0 keeps none."""
+    simulate_module = sys.modules["peeljax.simulate"]
+    monkeypatch.setattr(simulate_module, "KEPT_SIMULATORS", 2)
+    key = lambda t_final: simulate_module._options_key(None, {**_ALL_OPTIONS, **OPTIONS, "t_final": t_final})  # noqa: E731
+    for t_final in (0.3, 0.4, 0.3, 0.5):
+        for _ in range(2):
+            simulate_module._kept_simulator(None, 1.1, 0.05, None, {**_ALL_OPTIONS, **OPTIONS, "t_final": t_final})
+    assert list(simulate_module._KEPT_SIMULATORS) == [key(0.3), key(0.5)]
+    assert simulate_module._options_key(None, {**_ALL_OPTIONS, "ts": jnp.linspace(0.0, 0.3, 31)}) is None  # a JAX array
+    solver = lambda rho: simulate_module._options_key(None, {**_ALL_OPTIONS, "solver": pj.AlphaMethod(rho=rho)})  # noqa: E731
+    assert solver(0.5) == solver(0.5) != solver(0.3)  # a solver given as a module: by its values
+    assert simulate_module._options_key(None, {**_ALL_OPTIONS, "solver": pj.AlphaMethod(rho=jnp.asarray(0.5))}) is None
+    monkeypatch.setattr(simulate_module, "KEPT_SIMULATORS", 0)
+    assert simulate_module._kept_simulator(None, 1.1, 0.05, None, {**_ALL_OPTIONS, **OPTIONS, "t_final": 0.3}) is None

@@ -72,6 +72,7 @@ def run_guarded(argv: list[str], workdir: Path, interrupt: bool = False) -> tupl
         mp.chdir(workdir)  # relative paths land in the case's folder
         for module, name in HEAVY:
             mp.setattr(importlib.import_module(module), name, heavy)
+        mp.setattr(importlib.import_module("peeljax.simulate"), "KEPT_SIMULATORS", 0)  # (its Simulators skip _run)
         # joining other processes is heavy (it waits on the network); one process joins nothing
         mp.setattr("peeljax.cli.sweep.join_processes", lambda processes, args: None if processes is None else heavy())
         out, err = io.StringIO(), io.StringIO()

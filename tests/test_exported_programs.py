@@ -62,12 +62,13 @@ def test_a_program_is_exported_once_and_read_back_without_tracing(folder, monkey
 
 def test_a_run_gives_the_same_bits_read_back(folder):
     """simulate through its kept program equals the same call traced anew."""
-    simulate_module = sys.modules["peeljax.simulate"]
+    simulate_module = sys.modules["peeljax.run_program"]
     sol = pj.simulate(V=1.1, tau=0, t_final=0.3)
     assert list(folder.glob("*.jaxexport"))  # the run's program was kept
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(_exported, "programs_folder", lambda: None)  # off: traced and compiled as before
         patch.setattr(simulate_module._kept_run, "_programs", {})
+        patch.setattr(sys.modules["peeljax.simulate"], "KEPT_SIMULATORS", 0)  # (the same options again)
         plain = pj.simulate(V=1.1, tau=0, t_final=0.3)
         assert simulate_module._kept_run._programs == {next(iter(simulate_module._kept_run._programs)): None}
     np.testing.assert_array_equal(np.asarray(sol.ys), np.asarray(plain.ys))

@@ -24,7 +24,7 @@ LAYERS = [
     ("homogenized ODE and the DAE", {"homogenized", "constrained", "desingularized"}),
     ("the result type", {"solution", "run_file"}),
     ("integrators", {"integrators"}),
-    ("one run", {"simulate", "bound", "saved"}),
+    ("one run", {"run_program", "simulate", "bound", "saved"}),
     ("a run's cycles, periodic orbits", {"cycles", "orbits"}),
     ("measurements", {"measurements"}),
     ("many runs, fit, analysis", {"sweeps", "fit", "analysis", "alternatives", "lyapunov", "attractor_map"}),

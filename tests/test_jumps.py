@@ -173,6 +173,7 @@ def test_folds_searched_at_the_first_jump_give_the_same_run(monkeypatch):
     searched them first. Traced (under ``vmap``: its ``lax.cond`` runs both branches) they are
     searched before the run."""
     simulate_module = importlib.import_module("peeljax.simulate")
+    monkeypatch.setattr(simulate_module, "KEPT_SIMULATORS", 0)  # each call takes simulate's own route
     integrator_for = simulate_module.integrator_for
     asked = []
 
