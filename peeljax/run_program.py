@@ -198,12 +198,16 @@ def _bucketed(ts: np.ndarray) -> np.ndarray:
 def _first_rows(solution: Solution, n: int) -> Solution:
     """The run's rows at the n output times the caller gave: those :func:`_bucketed` added
     dropped, and each jump's count of output times before it (``PAIR_AT``) held to n."""
-    if np.shape(solution.ts)[-1] == n:
+    fields = vars(solution)  # (one read: a module's attribute costs ~1 µs through equinox, per call)
+    if np.shape(fields["ts"])[-1] == n:
         return solution
-    rows = (solution.ts, solution.ys, solution.valid, solution.diagnostics, solution.after_jump)
-    sides = solution.jump_sides
-    no_jump = sides is None or (not is_traced(sides) and int(sides.written) == 0)  # (merge reads it anyway)
-    (ts, ys, valid, diagnostics, after_jump), counts = _cut(rows, None if no_jump else sides.counts, n)
+    rows = tuple(fields[name] for name in ("ts", "ys", "valid", "diagnostics", "after_jump"))
+    sides = fields["jump_sides"]
+    written = None if sides is None else vars(sides)["written"]
+    no_jump = sides is None or (  # (merge reads it anyway)
+        (isinstance(written, np.ndarray) or not is_traced(sides)) and int(written) == 0
+    )
+    (ts, ys, valid, diagnostics, after_jump), counts = _cut(rows, None if no_jump else vars(sides)["counts"], n)
     if counts is not None:
         sides = _replaced(sides, counts=counts)
     return _replaced(
@@ -232,9 +236,10 @@ def _finished(solution: Solution, ts) -> Solution:
     """The run as ``simulate`` returns it: the jumps' rows merged among the output times (on
     the host the rows in use; traced all, static shapes), the rows left for more steps dropped."""
     # (the methods called on the class: a bound method of a module is a module, ~10 µs to make)
-    if solution.jump_sides is not None:
-        return JumpSides.merge(solution.jump_sides, solution)
-    if ts is not None and (isinstance(solution.ts, np.ndarray) or not is_traced(solution)):
+    fields = vars(solution)
+    if fields["jump_sides"] is not None:
+        return JumpSides.merge(fields["jump_sides"], solution)
+    if ts is not None and (isinstance(fields["ts"], np.ndarray) or not is_traced(solution)):
         return Solution.without_padding(solution)
     return solution
 
