@@ -154,7 +154,7 @@ class Simulator:
 
     Per call, the checks of ``simulate`` are saved. ``simulate`` itself keeps a ``Simulator``
     for options it sees a second time (:func:`peeljax.simulate._kept_simulator`): P1 through
-    ``simulate`` then takes 1.02–1.03× its time through a ``Simulator`` (``benchmarks/guard.py``'s
+    ``simulate`` then takes 1.02–1.06× its time through a ``Simulator`` (``benchmarks/guard.py``'s
     ``simulator_call``; 1.3–1.4× before).
 
     Example::
