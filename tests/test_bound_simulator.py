@@ -260,8 +260,8 @@ def test_simulate_called_again_with_its_options_runs_through_a_kept_simulator():
     second = pj.simulate(V=1.1, tau=0.05, **OPTIONS)
     assert len(kept) == 1
     with compilations() as count:
-        third = pj.simulate(model=pj.PeelingModel(), V=2.0, tau=0.02, **OPTIONS)  # (None and the paper's: two keys)
-        third = pj.simulate(model=pj.PeelingModel(), V=2.0, tau=0.02, **OPTIONS)
+        pj.simulate(model=pj.PeelingModel(), V=2.0, tau=0.02, **OPTIONS)  # the paper's model given: another key than None
+        third = pj.simulate(model=pj.PeelingModel(), V=2.0, tau=0.02, **OPTIONS)  # its second call: a Simulator
         fourth = pj.simulate(V=2.0, tau=0.02, **OPTIONS)
     assert count[0] == 0 and len(kept) == 2  # one program for every Simulator of this structure
     assert_same_solution(second, own)
