@@ -10,6 +10,7 @@ programs read back from the persistent cache) are counted by JAX's monitoring ev
 from __future__ import annotations
 
 import contextlib
+import inspect
 import math
 import sys
 
@@ -26,9 +27,8 @@ import peeljax as pj
 OPTIONS = {"t_final": 0.3, "rtol": 1e-5, "atol": 1e-8, "ts": np.linspace(0.0, 0.3, 31)}
 # simulate's options but V, τ and y0, at their defaults (peeljax.simulate._kept_simulator's keys)
 _ALL_OPTIONS = {
-    "t_final": 3.0, "ts": None, "dt": None, "rtol": None, "atol": None, "rho": 0.0, "solver": None, "fold": None,
-    "max_steps": None, "max_jumps": None, "dtmin": None, "truncation": None, "adjoint": "reverse",
-    "checkpoint_every": None, "memory_limit": None,
+    name: p.default for name, p in inspect.signature(pj.simulate).parameters.items()
+    if name not in ("model", "V", "tau", "y0")
 }  # fmt: skip
 _COMPILES = [0]
 
