@@ -68,13 +68,14 @@ def options(key, rtol):
     return dict(kwargs, rtol=rtol, solver=_solver(kwargs["solver"]))
 
 
-def calibrate(run, error_of):
-    """(rtol, error, result) at the loosest rung meeting TARGET, and every rung tried."""
+def calibrate(run, error_of, attempts_of=None):
+    """(rtol, error, result) at the loosest rung meeting TARGET, and every rung tried (rtol,
+    error, attempts: None without ``attempts_of``)."""
     tried = []
     for rtol in LADDER:
         result = run(rtol)
         error = error_of(result)
-        tried.append((rtol, error))
+        tried.append((rtol, error, None if attempts_of is None else attempts_of(result[1])))
         if error <= TARGET:
             return (rtol, error, result), tried
     return None, tried
@@ -88,7 +89,7 @@ def measure(problem, keys, run, error, attempts, casadi_run, casadi_call, timing
     chosen, ladders = {}, {}
     for key in keys:
         started = time.perf_counter()
-        found, ladders[key] = calibrate(lambda r, key=key: run(key, r), error)
+        found, ladders[key] = calibrate(lambda r, key=key: run(key, r), error, attempts)
         if found is None:
             print(f"  [{problem} {key}: no rung met the target]", file=sys.stderr)
             continue
@@ -224,9 +225,12 @@ def table(title, attempts_label, chosen, ladders, timings, loads, per_core_devic
             cells += f" {1e3 * np.median(wall):.2f} | {k * np.median(wall) / np.median(base):.2f} | {low:.2f}–{high:.2f} |"
         first = next(iter(timings.values()))
         lines.append(cells + f" {np.median(first[key][1]) / np.median(first['casadi'][1]):.2f} |")
-    ladder_text = "; ".join(f"{k}: " + ", ".join(f"{r:g}: {e:.2g}" for r, e in v) for k, v in ladders.items())
+    def rung(rtol, error, attempts):
+        return f"{rtol:g}: {error:.2g}" + ("" if attempts is None else f" ({attempts:.0f})")
+
+    ladder_text = "; ".join(f"{k}: " + ", ".join(rung(*t) for t in v) for k, v in ladders.items())
     return lines + ["", "Load averages during the timing: " + ", ".join(f"{x:.1f}" for x in loads), "",
-                    "Ladders (rtol: error): " + ladder_text, ""]  # fmt: skip
+                    "Ladders (rtol: error (attempts)): " + ladder_text, ""]  # fmt: skip
 
 
 def main(argv=None):
