@@ -4,8 +4,9 @@ P1 (one trajectory, τ = 0.01 and 0.1) and a 64-lane P3 slice (``compare_problem
 candidate and CasADi cvodes (log v) at the loosest rtol of ``LADDER`` that meets ``TARGET``, timed
 in round-robin rounds (wall and CPU medians); then the step attempts of two long runs. P1 is
 timed two ways: one call of each a round (the issue's protocol; a ~1 ms call, so many rounds),
-and ``P1_CALLS`` calls of each in a row a round (what a loop of calls sees: CasADi's call is
-then ~1.6× faster, measured, peeljax's ~1.1×).
+and ``P1_CALLS`` calls of each in a row a round (what a loop of calls sees: in eight runs on
+2026-12-06 CasADi's call was then 1.1–1.8× faster than with one call a round, peeljax's
+0.95–1.3×).
 
     python benchmarks/switching.py                 # ~10 min on 2 shared cores
     python benchmarks/switching.py --only P1 long  # P1 and the long runs (~3 min)
