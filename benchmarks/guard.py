@@ -6,7 +6,8 @@ medians: the gradient through 210 jumps at τ = 0 ÷ the forward run (by a tange
 ``adjoint="checkpointed"``: ``--ci`` or ``--only`` alone), P1 with the default ``fold`` ÷ with
 ``fold="stop"`` (no jump happens: the room kept for jumps should cost nothing), P1 through
 ``simulate`` ÷ through a ``Simulator`` (one compiled program; simulate keeps a Simulator for
-options it has seen), P6 ÷ the compiled diffrax peer
+options it has seen), P1 at τ = 0.01 with the default (switching) stepper ÷ with Tsit5 alone,
+P6 ÷ the compiled diffrax peer
 (``peers/jump_peers.py``), ``periodic_orbit(V=1.1)`` ÷ P6's 3 s run, one step of
 ``fit_adhesion`` ÷ the forward run it fits, and the compilation of P6's program ÷ that of
 diffrax's ``diffeqsolve`` (each made new, so that neither comes from a cache).
@@ -94,6 +95,20 @@ def simulator_call():
     options = {"t_final": 3.0, "rtol": 1e-5, "atol": 1e-7, "ts": np.linspace(0.0, 3.0, 301)}
     sim = pj.Simulator(**options)
     return (lambda: pj.simulate(V=V, tau=0.01, **options)), (lambda: sim(V, 0.01))
+
+
+def switching_overhead():
+    """(the default stepper at τ > 0, Tsit5 alone): P1 at τ = 0.01 through a Simulator each, at
+    rtol 5e-4, where both meet ``switching.py``'s error target with the same steps but the
+    switch's (217 and 220 attempts; the default goes over to the α-method at 2.57 s). What the
+    switching stepper's conditionals and counts cost a step (docs/theory.md: 1.09–1.24)."""
+    import numpy as np
+
+    import peeljax as pj
+
+    options = {"t_final": 3.0, "rtol": 5e-4, "ts": np.linspace(0.0, 3.0, 301)}
+    default, tsit5 = pj.Simulator(**options), pj.Simulator(solver="tsit5", **options)
+    return (lambda: default(V, 0.01)), (lambda: tsit5(V, 0.01))
 
 
 def _p6():
@@ -195,6 +210,7 @@ CHECKS = {
     "gradient_checkpointed": lambda: gradient_through_jumps("checkpointed"),
     "p1_jump_rows": p1_jump_rows,
     "simulator_call": simulator_call,
+    "switching_overhead": switching_overhead,
     "p6_vs_diffrax": p6_vs_diffrax,
     "orbit_vs_run": orbit_vs_run,
     "fit_step": fit_step,
