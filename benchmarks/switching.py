@@ -95,7 +95,7 @@ def measure(problem, keys, run, error, attempts, casadi_run, casadi_call, timing
             print(f"  [{problem} {key}: no rung met the target]", file=sys.stderr)
             continue
         rtol, err, (_, result) = found
-        chosen[key] = {"rtol": rtol, "error": err, "attempts": attempts(result), "first_s": time.perf_counter() - started}
+        chosen[key] = {"rtol": rtol, "error": err, "attempts": ladders[key][-1][2], "first_s": time.perf_counter() - started}
         print(f"  [{problem} {key}: rtol {rtol:g}, error {err:.2g}, {chosen[key]['attempts']:.0f} attempts]", file=sys.stderr)
     found, ladders["casadi"] = calibrate(casadi_run, error)
     rtol_c, err_c, _ = found
@@ -201,6 +201,11 @@ def long_runs(keys):
     return lines + [""]
 
 
+def _rung(rtol, error, attempts):
+    """A ladder's rung as the table lists it: rtol: error (attempts, where counted)."""
+    return f"{rtol:g}: {error:.2g}" + ("" if attempts is None else f" ({attempts:.0f})")
+
+
 def table(title, attempts_label, chosen, ladders, timings, loads, per_core_devices=None):
     """The rows of ``measure``'s results (per timing: the wall time a call, its ratio to CasADi's
     (the medians') and the quartiles of the rounds' own ratios; the CPU ratio of the first timing),
@@ -226,10 +231,7 @@ def table(title, attempts_label, chosen, ladders, timings, loads, per_core_devic
             cells += f" {1e3 * np.median(wall):.2f} | {k * np.median(wall) / np.median(base):.2f} | {low:.2f}–{high:.2f} |"
         first = next(iter(timings.values()))
         lines.append(cells + f" {np.median(first[key][1]) / np.median(first['casadi'][1]):.2f} |")
-    def rung(rtol, error, attempts):
-        return f"{rtol:g}: {error:.2g}" + ("" if attempts is None else f" ({attempts:.0f})")
-
-    ladder_text = "; ".join(f"{k}: " + ", ".join(rung(*t) for t in v) for k, v in ladders.items())
+    ladder_text = "; ".join(f"{k}: " + ", ".join(_rung(*t) for t in v) for k, v in ladders.items())
     return lines + ["", "Load averages during the timing: " + ", ".join(f"{x:.1f}" for x in loads), "",
                     "Ladders (rtol: error (attempts)): " + ladder_text, ""]  # fmt: skip
 
