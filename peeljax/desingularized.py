@@ -54,6 +54,7 @@ __all__ = ["DEFAULT_TIME_SCALE", "DesingularizedDAE", "tangential_fold"]
 
 DEFAULT_TIME_SCALE = 1e-2  # ε [s]: chosen by measurement (docs/theory.md, "The DAE in pseudo-time")
 _STUCK_BAND = 1e-9  # relative: v within it of v_low marks the fully stuck tape
+_V_FLOOR = 1e-50  # × v_low: φ is evaluated at v no lower (its v-derivatives overflow below)
 
 
 class DesingularizedDAE(eqx.Module):
@@ -102,9 +103,20 @@ class DesingularizedDAE(eqx.Module):
         at the step's end (:meth:`switches`)."""
         return jnp.abs(y[3] / self._v_low() - 1.0) <= _STUCK_BAND
 
+    def _at_least_floor(self, v):
+        """v, no lower than ``_V_FLOOR``·v_low: where φ is evaluated.
+
+        A stage of a step that carries v below v_low to the stuck mode can reach v far below
+        it (log v falls at the rate 1/ε: measured 1e-162 on a window row at 0.5 m/s whose
+        branch ran down to v = 0); below ~1e-166 φ's second v-derivative (~v^(p−2), p = 0.15
+        for the paper's family) overflows and a tangent through the stage is NaN. The field
+        below the floor is the floor's, 1e-150 m/s from v = 0."""
+        return jnp.maximum(v, _V_FLOOR * self._v_low())
+
     def _phi_and_slope(self, v):
-        """φ(v, V) and φ_w = ∂φ/∂(log v) at v."""
-        return jax.jvp(lambda w: self.model.phi(jnp.exp(w), self.V), (jnp.log(v),), (jnp.ones_like(v),))
+        """φ(v, V) and φ_w = ∂φ/∂(log v) at v (at the floor below it: :meth:`_at_least_floor`)."""
+        w = jnp.log(self._at_least_floor(v))
+        return jax.jvp(lambda w: self.model.phi(jnp.exp(w), self.V), (w,), (jnp.ones_like(w),))
 
     def evaluate(self, y: Float[Array, "5"]) -> Evaluation:
         """dy/ds, J = −∂φ/∂v and Ġ = F̃·f (module docstring)."""
@@ -121,7 +133,7 @@ class DesingularizedDAE(eqx.Module):
         dt = jnp.where(regular, phi_w / safe, 1.0)
         dv = jnp.where(regular, v * G_dot / safe, 0.0)
         psi = jnp.concatenate([f * dt, jnp.stack([dv, dt])])
-        return Evaluation(psi=psi, J=-phi_w / v, drive=G_dot)
+        return Evaluation(psi=psi, J=-phi_w / self._at_least_floor(v), drive=G_dot)
 
     def __call__(self, y: Float[Array, "5"]) -> Float[Array, "5"]:
         return self.evaluate(y).psi
@@ -186,7 +198,7 @@ class DesingularizedDAE(eqx.Module):
 
     def _on_constraint(self, y):
         """u on the constraint unless the tape is fully stuck."""
-        u = self.model.stretch_for_force(y[0], self.model.phi(y[3], self.V))
+        u = self.model.stretch_for_force(y[0], self.model.phi(self._at_least_floor(y[3]), self.V))
         return y.at[2].set(jnp.where(self._stuck(y), y[2], u))
 
     def _at_velocity(self, y: Float[Array, "5"], v) -> Float[Array, "5"]:

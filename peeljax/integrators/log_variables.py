@@ -16,6 +16,12 @@ from ..homogenized import ODE
 
 __all__ = ["LogTransformedODE", "from_log", "log_mask", "to_log"]
 
+# A log component is evaluated no lower than e^−345 ≈ 1e-150 (y² ≈ 1e-300, still a normal
+# double): below ~1e-154 the quotient rule's ψ·dy/y² underflowed to 0/0. A step whose stages carry v far below the fully
+# stuck tape's marker (τ = 0, the stick branch running down to v = 0) had a NaN tangent there
+# (measured: a window row at 0.5 m/s, log v = −373 in a stage). The field below is the floor's.
+_LOG_FLOOR = -345.0
+
 
 def log_mask(n: int, log_components: tuple[int, ...]) -> Array:
     """True at the ``log_components`` of a state of n components."""
@@ -49,9 +55,9 @@ class LogTransformedODE(eqx.Module):
         return self.ode.tau
 
     def evaluate(self, z):
-        y = from_log(z, self.log_components)
-        evaluation = self.ode.evaluate(y)
         mask = log_mask(z.shape[-1], self.log_components)
+        y = from_log(jnp.where(mask, jnp.maximum(z, _LOG_FLOOR), z), self.log_components)
+        evaluation = self.ode.evaluate(y)
         psi = jnp.where(mask, evaluation.psi / jnp.where(mask, y, 1.0), evaluation.psi)  # no 0·∞ in reverse mode
         return eqx.tree_at(lambda e: e.psi, evaluation, psi)
 
