@@ -17,9 +17,10 @@ from ..homogenized import ODE
 __all__ = ["LogTransformedODE", "from_log", "log_mask", "to_log"]
 
 # A log component is evaluated no lower than e^−345 ≈ 1e-150 (y² ≈ 1e-300, still a normal
-# double): below ~1e-154 the quotient rule's ψ·dy/y² underflowed to 0/0. A step whose stages carry v far below the fully
-# stuck tape's marker (τ = 0, the stick branch running down to v = 0) had a NaN tangent there
-# (measured: a window row at 0.5 m/s, log v = −373 in a stage). The field below is the floor's.
+# double): below ~1e-154 the quotient rule's ψ·dy/y² underflowed to 0/0. A step whose stages
+# carry v far below the fully stuck tape's marker (τ = 0, the stick branch running down to
+# v = 0) had a NaN tangent there (measured: a window row at 0.5 m/s, log v = −373 in a stage).
+# The field below is the floor's.
 _LOG_FLOOR = -345.0
 
 
