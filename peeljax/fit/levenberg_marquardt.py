@@ -30,8 +30,9 @@ STOP_REASONS = {
     "gauss-newton": "converged: the Gauss-Newton step would lower chi2 by less than fit_atol "
     "(the optimum within sqrt(fit_atol) standard errors)",
     "floor": f"converged to the rough floor of chi2: a step of at most {FLOOR**0.5:g} standard errors "
-    "(|J step|^2 <= 0.25) does not lower chi2 (the window statistics jump where a slip crosses the window's edge; "
-    "a row whose derivative is too steep to use moves on its own)",
+    "(|J step|^2 <= 0.25) does not lower chi2 (an orbit's period and slip duration jump where it gains or loses a "
+    "slip per period, a row's statistics where it loses its orbit, a window statistic where a slip crosses the "
+    "window's edge; a row whose derivative is too steep to use moves on its own)",
     "bifurcation": f"converged at a bifurcation: a step of at most {FLOOR**0.5:g} standard errors crosses to another "
     "attractor of a row, where chi2 is higher (the optimum lies on the edge of its branch; see the profile intervals)",
     "loss": "converged: the last step and the Gauss-Newton step lower chi2 by less than fit_rtol (relative)",
@@ -53,8 +54,10 @@ class LevenbergMarquardt:
     * ``loss``: an accepted step lowered χ² by at most fit_rtol·χ², and the Gauss–Newton
       step would too;
     * ``floor``: a trial refused whose step moves the linearised residuals by ‖J·δ‖² ≤ ``FLOOR``
-      = 0.25, half a standard error: χ² is rough at that scale (the window statistics jump where
-      a slip crosses the window's edge) and the optimum is found to it;
+      = 0.25, half a standard error: χ² is rough at that scale and the optimum is found to it
+      (an orbit's per-slip averages jump where it gains or loses a slip per period, by 2–3 σ at
+      1 % noise, ``benchmarks/results/fit_roughness_wide_c1.md``; a row's statistics where it
+      loses its orbit; a window statistic where a slip crosses the window's edge);
     * ``max_iterations`` evaluations; ``stalled``: the damping λ past 1e9 (no descent found);
       ``nonfinite`` r or J at the start.
 
