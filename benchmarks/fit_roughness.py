@@ -19,33 +19,19 @@ from __future__ import annotations
 import argparse
 import time
 
-import equinox as eqx
 import numpy as np
 
 from fit_coverage import PROBLEMS, truth_of
 from machine import load_average, versions, write_result
-from peeljax.fit.table import table_tolerances
-from peeljax.fit.table_rows import attractor_rows
+from peeljax.fit.table import attractor_statistics
 from peeljax.measurements.statistics import STATISTICS
-from peeljax.model import PeelingModel
-from peeljax.orbits.api import DEFAULT_ORBIT_RTOL
-
-# fit_stick_slip's window options for method="orbit" (its defaults)
-WINDOW_OPTIONS = {"transient": 0.5, "window": 1.0, "n_samples": 401, "max_jumps": 4096, "max_steps": 400_000,
-                  "taper": 0.25, "tau": 0.0}  # fmt: skip
 
 
 def walk(problem: str, coefficient: str, span: float, points: int):
     """Each point's statistics (points, n, 5), which are produced, each row's kind and slips per
     period (−1: no periodic attractor), along log c ∈ [−span, span]."""
     truth, names, V = truth_of(problem)
-    rtol, atol = table_tolerances(0.0)
-    shape = (len(V), len(STATISTICS))
-    options = {**WINDOW_OPTIONS, "rtol": rtol, "atol": atol, "names": names}
-    model = eqx.tree_at(lambda m: m.adhesion, PeelingModel(), truth)
-    rows, _ = attractor_rows(model, truth, V, np.zeros(shape), np.ones(shape), np.ones(shape, bool),
-                             window_options=options, orbit_rtol=DEFAULT_ORBIT_RTOL)  # fmt: skip
-    start = rows.start()
+    start, rows, _ = attractor_statistics(truth, V, names=names, follow_lost=True)
     k = names.index(coefficient)
     zs = np.linspace(-span, span, points)
     middle = points // 2

@@ -507,13 +507,15 @@ def _profiles_if_needed(rows: TableRows, best, uncertainty, intervals, level, op
 
 
 def attractor_statistics(law: AdhesionLaw, V, *, model: PeelingModel | None = None, names=("c1",), orbit_rtol=None,
-                         window_fit_options: dict | None = None) -> tuple[Point, TableRows, list[str]]:  # fmt: skip
+                         window_fit_options: dict | None = None, follow_lost: bool = False,
+                         ) -> tuple[Point, TableRows, list[str]]:  # fmt: skip
     """The model's statistics at the pull velocities ``V`` with φ = ``law``, each row on its
     attractor as :func:`~peeljax.fit.fit_stick_slip` (``method="orbit"``) predicts it: the
     :class:`Point` at θ = 0 (``values``, ``available``, ``v_range``), the :class:`TableRows` and
     why each row has its kind. ``names``: the coefficients of the compiled orbit program (share
     it with a fit of the same ``free``); ``window_fit_options``: :func:`peeljax.fit.window_rows.build_table_fit`'s
-    for rows without a periodic attractor."""
+    for rows without a periodic attractor; ``follow_lost``: the rows' :meth:`TableRows.evaluate`
+    at another θ gives an orbit row that loses its orbit its window statistics, as a fit does."""
     model = PeelingModel() if model is None else model
     V = np.asarray(V, float).reshape(-1)
     shape = (V.size, len(STATISTICS))
@@ -522,5 +524,5 @@ def attractor_statistics(law: AdhesionLaw, V, *, model: PeelingModel | None = No
                "max_steps": 400_000, "taper": 0.25, **(window_fit_options or {}), "names": tuple(names), "tau": 0.0}  # fmt: skip
     rows, why = attractor_rows(eqx.tree_at(lambda m: m.adhesion, model, law), law, V, np.zeros(shape), np.ones(shape),
                                np.ones(shape, bool), window_options=options, orbit_rtol=orbit_rtol or DEFAULT_ORBIT_RTOL,
-                               follow_lost=False)  # fmt: skip
+                               follow_lost=follow_lost)  # fmt: skip
     return rows.start(), rows, why
