@@ -75,6 +75,7 @@ from ._files import META_KEY, json_safe, meta_array, read_meta
 from ._validation import check_positive
 from .cycles import repeat_pattern
 from .model import PAPER_ALPHA0, PeelingModel
+from .orbits.shooting import FLOOR_RESIDUAL, FLOOR_RTOL
 from .saved import register_reader
 from .solution import StopReason
 from .steady import FOLD, HOPF, steady_peeling_ends
@@ -100,11 +101,8 @@ _MAX_SLIPS = 127
 _MAX_STEPS_PER_SECOND = 60_000
 _CHUNK = 16  # lanes per compiled batch: every round's sweep is padded to it (one program)
 _IDLE_PERIOD = 1e-9  # s: the period guess of a padding lane of orbits (its runs end at once)
-# Newton's floor: a solve that ends NOT_CONVERGED with |P^k(s) − s| below _FLOOR_RESIDUAL is
-# held up by the runs' rounding, not by its start; shot again from its last iterate at
-# _FLOOR_RTOL it converges (docs/attractors.md, "Newton's floor").
-_FLOOR_RESIDUAL = 1e-6
-_FLOOR_RTOL = 1e-10
+# Newton's floor (docs/attractors.md): solves that end there are shot again at the tighter tolerance
+_FLOOR_RESIDUAL, _FLOOR_RTOL = FLOOR_RESIDUAL, FLOOR_RTOL
 _TWIN_RTOL = 1e-4  # runs of one V and k whose repeat periods agree to this refine one orbit
 
 # Per attractor: the fields of AttractorMap (float unless named in _INT_FIELDS).

@@ -41,7 +41,14 @@ from ..model import PeelingModel
 from .period import OnePeriod, one_period
 from .section import SlipSection
 
-__all__ = ["Linearised", "OrbitStatus", "Shooting", "ShootingResult", "linearised", "shoot"]
+__all__ = ["FLOOR_RESIDUAL", "FLOOR_RTOL", "Linearised", "OrbitStatus", "Shooting", "ShootingResult", "linearised", "shoot"]
+
+
+# Newton's floor (docs/attractors.md): a solve that ends NOT_CONVERGED with |P^k(z) − z| below
+# FLOOR_RESIDUAL is held up by the runs' own error through k slips, not by its start; shot again
+# from its last iterate with the runs at FLOOR_RTOL it converges.
+FLOOR_RESIDUAL = 1e-6
+FLOOR_RTOL = 1e-10
 
 
 class OrbitStatus(enum.IntEnum):
