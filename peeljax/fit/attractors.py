@@ -209,11 +209,11 @@ def shoot_rows(program: OrbitRows, theta: np.ndarray, V, attractors: list[Attrac
                            & np.all(np.isfinite(out["section"]), axis=-1) & np.isfinite(out["period"]))  # fmt: skip
     if floor.size == 0 or rtol <= FLOOR_RTOL:
         return out
-    tight = eqx.tree_at(lambda p: p.shooting, program, orbit_shooting(rtol=FLOOR_RTOL,
-                        max_iterations=int(program.shooting.max_iterations)))  # fmt: skip
+    shooting = orbit_shooting(rtol=FLOOR_RTOL, max_iterations=int(program.shooting.max_iterations))
+    tight = eqx.tree_at(lambda p: p.shooting, program, shooting)
     theta = np.broadcast_to(np.asarray(theta, float), (len(attractors), len(program.names)))
-    again = _shoot_rows(tight, theta[floor], np.asarray(V, float)[floor], [
-        dataclasses.replace(attractors[j], section=out["section"][j], period=float(out["period"][j])) for j in floor])  # fmt: skip
+    last = [dataclasses.replace(attractors[j], section=out["section"][j], period=float(out["period"][j])) for j in floor]
+    again = _shoot_rows(tight, theta[floor], np.asarray(V, float)[floor], last)
     closed = again["status"] == OrbitStatus.CONVERGED
     for name in out:
         out[name][floor[closed]] = again[name][closed]

@@ -41,7 +41,9 @@ from ..model import PeelingModel
 from .period import OnePeriod, one_period
 from .section import SlipSection
 
-__all__ = ["FLOOR_RESIDUAL", "FLOOR_RTOL", "Linearised", "OrbitStatus", "Shooting", "ShootingResult", "linearised", "shoot"]
+__all__ = [
+    "FLOOR_RESIDUAL", "FLOOR_RTOL", "Linearised", "OrbitStatus", "Shooting", "ShootingResult", "linearised", "shoot",
+]
 
 
 # Newton's floor (docs/attractors.md): a solve that ends NOT_CONVERGED with |P^k(z) − z| below
