@@ -26,6 +26,7 @@ could choose between them.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 
 import equinox as eqx
@@ -34,6 +35,7 @@ import numpy as np
 from fit_coverage import PROBLEMS, truth_of
 from machine import load_average, versions, write_result
 from peeljax import PeelingModel, simulate
+from peeljax.fit.attractors import shoot_rows
 from peeljax.fit.table import attractor_statistics
 from peeljax.orbits.section import state_after_slip
 from peeljax.measurements.statistics import STATISTICS
@@ -85,11 +87,11 @@ def stable_to(rows, points, zs, i: int, j: int, step: int) -> float:
     period, followed over the walk's points j + step, j + 2·step, … (to the walk's end)."""
     attractor, last = points[j].attractors[i], zs[j]
     for m in range(j + step, len(zs) if step > 0 else -1, step):
-        z = np.array(points[m].z, float)
-        row = rows._shoot(z, [i], [attractor])[0]
-        if int(row["status"]) != 0 or not np.max(row["multipliers"]) < 1.0:
+        row = shoot_rows(rows.program, np.asarray(points[m].z, float), rows.V[[i]], [attractor])
+        if int(row["status"][0]) != 0 or not np.max(row["multipliers"][0]) < 1.0:
             break
-        attractor, last = row["attractor"], zs[m]
+        attractor = dataclasses.replace(attractor, section=row["section"][0], period=float(row["period"][0]))
+        last = zs[m]
     return last
 
 
