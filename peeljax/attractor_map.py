@@ -75,7 +75,7 @@ from ._files import META_KEY, json_safe, meta_array, read_meta
 from ._validation import check_positive
 from .cycles import repeat_pattern
 from .model import PAPER_ALPHA0, PeelingModel
-from .orbits.shooting import FLOOR_RESIDUAL, FLOOR_RTOL
+from .orbits.shooting import FLOOR_RESIDUAL, FLOOR_RTOL, at_floor, keep_converged
 from .saved import register_reader
 from .solution import StopReason
 from .steady import FOLD, HOPF, steady_peeling_ends
@@ -370,22 +370,16 @@ def _padded_orbits(model, V, state, slips, period, orbit_rtol, max_iterations: i
     """:func:`peeljax.periodic_orbits` in chunks of ``_CHUNK`` lanes (:func:`_chunked_orbits`);
     the solves that stop at Newton's floor (NOT_CONVERGED, residual below ``_FLOOR_RESIDUAL``)
     shot again from their last iterate at ``_FLOOR_RTOL``, kept where they converge."""
-    from .orbits.shooting import OrbitStatus
 
     slips = np.asarray(slips, np.int64)
     orbits = _chunked_orbits(model, V, state, slips, period, orbit_rtol, max_iterations)
-    floor = np.flatnonzero(
-        (orbits["status"] == OrbitStatus.NOT_CONVERGED) & (orbits["residual"] < _FLOOR_RESIDUAL)
-        & np.all(np.isfinite(orbits["state"]), axis=-1) & np.isfinite(orbits["period"])
-    )  # fmt: skip
+    floor = at_floor(orbits["status"], orbits["residual"], orbits["state"], orbits["period"])
     if floor.size == 0 or orbit_rtol <= _FLOOR_RTOL:
         return orbits
     again = _chunked_orbits(
         model, V[floor], orbits["state"][floor], slips[floor], orbits["period"][floor], _FLOOR_RTOL, max_iterations,
     )  # fmt: skip
-    closed = again["status"] == OrbitStatus.CONVERGED
-    for name in orbits:
-        orbits[name][floor[closed]] = again[name][closed]
+    keep_converged(orbits, again, floor)
     return orbits
 
 

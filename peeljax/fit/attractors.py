@@ -41,7 +41,7 @@ from ..cycles import cycle_statistics
 from ..model import PeelingModel
 from ..orbits.api import PERIODS_PER_RUN, orbit_of, orbit_shooting
 from ..orbits.section import SlipSection
-from ..orbits.shooting import FLOOR_RESIDUAL, FLOOR_RTOL, OrbitStatus, Shooting
+from ..orbits.shooting import FLOOR_RTOL, OrbitStatus, Shooting, at_floor, keep_converged
 from ..simulate import simulate
 from ..solution import Solution
 from ..measurements.statistics import STATISTICS
@@ -205,8 +205,7 @@ def shoot_rows(program: OrbitRows, theta: np.ndarray, V, attractors: list[Attrac
     other step of c1 (0.05 %), its window statistics taken instead, 3.7 σ away."""
     out = _shoot_rows(program, theta, V, attractors)
     rtol = float(program.shooting.integrator.controller.rtol)
-    floor = np.flatnonzero((out["status"] == OrbitStatus.NOT_CONVERGED) & (out["residual"] < FLOOR_RESIDUAL)
-                           & np.all(np.isfinite(out["section"]), axis=-1) & np.isfinite(out["period"]))  # fmt: skip
+    floor = at_floor(out["status"], out["residual"], out["section"], out["period"])
     if floor.size == 0 or rtol <= FLOOR_RTOL:
         return out
     shooting = orbit_shooting(rtol=FLOOR_RTOL, max_iterations=int(program.shooting.max_iterations))
@@ -214,9 +213,7 @@ def shoot_rows(program: OrbitRows, theta: np.ndarray, V, attractors: list[Attrac
     theta = np.broadcast_to(np.asarray(theta, float), (len(attractors), len(program.names)))
     last = [dataclasses.replace(attractors[j], section=out["section"][j], period=float(out["period"][j])) for j in floor]
     again = _shoot_rows(tight, theta[floor], np.asarray(V, float)[floor], last)
-    closed = again["status"] == OrbitStatus.CONVERGED
-    for name in out:
-        out[name][floor[closed]] = again[name][closed]
+    keep_converged(out, again, floor)
     return out
 
 

@@ -33,6 +33,7 @@ import enum
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float, Int
 
@@ -42,7 +43,8 @@ from .period import OnePeriod, one_period
 from .section import SlipSection
 
 __all__ = [
-    "FLOOR_RESIDUAL", "FLOOR_RTOL", "Linearised", "OrbitStatus", "Shooting", "ShootingResult", "linearised", "shoot",
+    "FLOOR_RESIDUAL", "FLOOR_RTOL", "Linearised", "OrbitStatus", "Shooting", "ShootingResult", "at_floor",
+    "keep_converged", "linearised", "shoot",
 ]
 
 
@@ -81,6 +83,22 @@ _MESSAGES = {
     ),
     OrbitStatus.NO_FOLD: "phi has no fold at this V: the peeling is steady, there is no stick-slip orbit",
 }
+
+
+def at_floor(status, residual, start, period) -> np.ndarray:
+    """The indices of a batch of solves held at Newton's floor (NOT_CONVERGED, residual below
+    :data:`FLOOR_RESIDUAL`) whose last iterate ``start`` (n, d) and ``period`` are finite: those
+    to shoot again from there at :data:`FLOOR_RTOL`."""
+    return np.flatnonzero((np.asarray(status) == OrbitStatus.NOT_CONVERGED) & (np.asarray(residual) < FLOOR_RESIDUAL)
+                          & np.all(np.isfinite(start), axis=-1) & np.isfinite(period))  # fmt: skip
+
+
+def keep_converged(out: dict, again: dict, rows: np.ndarray) -> None:
+    """``out``'s arrays at ``rows`` replaced by ``again``'s (the solves shot again, in that order)
+    where those converged; in place."""
+    closed = np.asarray(again["status"]) == OrbitStatus.CONVERGED
+    for name in out:
+        out[name][rows[closed]] = again[name][closed]
 
 
 class Shooting(eqx.Module):
