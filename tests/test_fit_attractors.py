@@ -9,6 +9,8 @@ import math
 import sys
 from pathlib import Path
 
+import equinox as eqx
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -500,10 +502,12 @@ def test_a_row_held_at_newtons_floor_is_shot_again_at_the_tighter_tolerance():
 def test_where_the_tape_stops_the_rows_attractor_is_an_orbit_that_settles_slowly():
     """φ with c1 × 1.07, c3 × 0.93, c6 × 1.07 at 0.5 m/s (the tape stops after every slip; the
     table of ``benchmarks/fit_coverage.py --problem wide``): the 3 and 8 s runs of
-    ``find_attractor`` show a near repeat of 2 slips, whose orbit is unstable, and the row is
-    fitted on its window statistics (docs/fitting.md). The attractor is nevertheless periodic:
-    a 10-slip orbit with |μ₁| = 0.952, whose slip intervals a 30 s run shows repeating to 1e-3
-    (they still drift by ~1e-5 s a period)."""
+    ``find_attractor`` show a near repeat of 2 slips, whose orbit is unstable. The attractor is
+    nevertheless periodic: a 10-slip orbit with |μ₁| = 0.952 (the 5-slip orbit run twice),
+    whose slip intervals a 30 s run shows repeating to 1e-3 (they still drift by ~1e-5 s a
+    period); ``row_kinds`` finds it by shooting k = 1 … 12 from the run's last slip, and the
+    row is an orbit row of 5 slips (before, a window row: docs/fitting.md;
+    ``test_a_fits_row_follows_its_orbit_through_a_period_doubling``)."""
     import fit_coverage  # benchmarks/
 
     import peeljax as pj
@@ -519,3 +523,78 @@ def test_where_the_tape_stops_the_rows_attractor_is_an_orbit_that_settles_slowly
     mu = np.abs(np.asarray(orbit.multipliers))
     assert int(orbit.status) == 0 and 0.94 < mu.max() < 0.96, (orbit.status, mu)
     assert abs(float(orbit.period) - 1.2122578) < 1e-6  # the run's repeat: 1.21237 s, still settling
+
+
+
+@pytest.fixture(scope="module")
+def doubling():
+    """The whole-range table's truth at 0.5 m/s (the tape stops after every slip): its 5-slip
+    attractor, a multiplier −0.976, crosses −1 at log c1 ≈ −0.0004 (a period doubling)."""
+    import fit_coverage  # benchmarks/
+
+    import peeljax as pj
+
+    truth = fit_coverage.truth_of("wide")[0]
+    run = pj.simulate(PeelingModel(adhesion=truth), V=0.5, tau=0, t_final=30.0)
+    orbit = pj.periodic_orbit(PeelingModel(adhesion=truth), V=0.5, start=run, slips=5)
+    past = PeelingModel(adhesion=eqx.tree_at(lambda law: law.c1, truth, truth.c1 * np.exp(-0.001)))
+    return truth, orbit, past
+
+
+@pytest.mark.slow
+def test_past_a_period_doubling_deflated_newton_reaches_the_doubled_orbit(doubling):
+    """0.1 % of c1 past the doubling the 5-slip orbit has a multiplier below −1, and the orbit of
+    10 slips born there is the attractor (stable; an 80 s run settles on it). Newton for 10 slips
+    from beside the 5-slip orbit returns to it (it is a fixed point of P¹⁰ too); with the
+    5-slip orbit deflated away it reaches the doubled orbit, whose statistics per slip are
+    within 0.2 % of the 5-slip orbit's (continuous through the doubling)."""
+    from peeljax.orbits.api import orbit_of, orbit_shooting
+    from peeljax.orbits.section import SlipSection
+
+    _, orbit, past = doubling
+    shooting = orbit_shooting(max_iterations=40)  # (near the doubling I − M is near-singular: 16–20 iterations)
+    shoot = eqx.filter_jit(orbit_of)
+    V, t5 = jnp.asarray(0.5), jnp.asarray(3 * float(orbit.period))
+    five = shoot(shooting, past, V, orbit.section, jnp.asarray(5, jnp.int32), t5)
+    values, vectors = np.linalg.eig(np.asarray(five.monodromy))
+    m = int(np.argmax(np.abs(values)))
+    assert int(five.status) == 0 and abs(values[m].imag) < 1e-12 and values[m].real < -1.0, values
+    scale = np.asarray(SlipSection.at(past, 0.5).scale)
+    e = np.real(vectors[:, m]) / np.max(np.abs(np.real(vectors[:, m]) / scale))
+    start, ten, t10 = np.asarray(five.section) + 1e-3 * e, jnp.asarray(10, jnp.int32), 2 * t5
+    plain = shoot(shooting, past, V, jnp.asarray(start), ten, t10)
+    assert np.max(np.abs(np.asarray(plain.section) - np.asarray(five.section)) / scale) < 1e-6
+    deflated = shoot(shooting, past, V, jnp.asarray(start), ten, t10, five.section)
+    apart = np.max(np.abs(np.asarray(deflated.section) - np.asarray(five.section)) / scale)
+    assert int(deflated.status) == 0 and np.max(np.abs(deflated.multipliers)) < 1.0 and apart > 0.05, apart
+    for name in ("F_mean", "F_slip", "F_stick", "period"):
+        assert abs(float(deflated.statistics[name]) / float(five.statistics[name]) - 1) < 2e-3, name
+    # no point to avoid (NaN) is no deflation: the same bits as without
+    nan = shoot(shooting, past, V, jnp.asarray(start), ten, t10, jnp.full(2, jnp.nan))
+    np.testing.assert_array_equal(np.asarray(nan.section), np.asarray(plain.section))
+
+
+@pytest.mark.slow
+def test_a_fits_row_follows_its_orbit_through_a_period_doubling(doubling):
+    """The table's row at 0.5 m/s followed from the truth to 0.1 % of c1 past the doubling: it
+    stays an orbit row (the 10-slip orbit born there; before, the orbit was lost and the row
+    took its window statistics), the crossing is named, and its statistics are within 0.2 % of
+    the (now unstable) 5-slip orbit's there (0.12 % for the period): continuous through the
+    doubling, the difference growing with the distance to it. Back at the truth and past the
+    doubling again, the row is on its orbit, the same as the first time."""
+    from peeljax.fit.table import attractor_statistics
+
+    truth, _, _ = doubling
+    point, rows, why = attractor_statistics(truth, [0.5], names=("c1",), follow_lost=True)
+    assert rows.kinds == ["orbit"] and point.attractors[0].slips == 5, why
+    past = rows.evaluate(np.array([-0.001]), point)
+    assert 0 in past.orbits and not past.windowed and past.attractors[0].slips == 10, past.changes
+    assert [c["to"] for c in past.changes] == [10] and "period doubling" in past.changes[0]["why"]
+    five = rows._shoot(past.z, [0], [point.attractors[0]])[0]
+    assert int(five["status"]) == 0 and int(five["slips"]) == 5 and np.max(five["multipliers"]) > 1.0
+    np.testing.assert_allclose(past.values[0], five["statistics"], rtol=2e-3)
+    back = rows.evaluate(np.array([0.0]), past)  # the doubled orbit becomes the 5-slip one run twice
+    again = rows.evaluate(np.array([-0.001]), back)
+    for point in (back, again):
+        assert 0 in point.orbits and not point.windowed, point.changes
+    np.testing.assert_allclose(again.values[0], past.values[0], rtol=1e-6)

@@ -129,17 +129,18 @@ class OrbitRows(eqx.Module):
     batch: str = eqx.field(static=True, default="map")  # rows one after another (measured 7x faster than vmap)
 
     def __call__(self, theta: Float[Array, "n p"], V: Float[Array, " n"], s0: Float[Array, "n 2"],
-                 slips: Int[Array, " n"], t_max: Float[Array, " n"]) -> RowOrbits:  # fmt: skip
-        """Row i's orbit at θ_i (each row its own θ: the rows of several points in one call)."""
+                 slips: Int[Array, " n"], t_max: Float[Array, " n"], avoid: Float[Array, "n 2"]) -> RowOrbits:  # fmt: skip
+        """Row i's orbit at θ_i (each row its own θ: the rows of several points in one call);
+        ``avoid``: a section point row i's Newton is kept away from (NaN: none)."""
         if self.batch == "map":
-            return jax.lax.map(lambda row: self.row(*row), (theta, V, s0, slips, t_max))
-        return jax.vmap(self.row)(theta, V, s0, slips, t_max)
+            return jax.lax.map(lambda row: self.row(*row), (theta, V, s0, slips, t_max, avoid))
+        return jax.vmap(self.row)(theta, V, s0, slips, t_max, avoid)
 
-    def row(self, theta, V, s0, slips, t_max) -> RowOrbits:
+    def row(self, theta, V, s0, slips, t_max, avoid) -> RowOrbits:
         def quantities(th):
             law = law_from({n: th[i] for i, n in enumerate(self.names)}, self.start)
             model = eqx.tree_at(lambda m: m.adhesion, self.model, law)
-            orbit = orbit_of(self.shooting, model, V, s0, slips, t_max)
+            orbit = orbit_of(self.shooting, model, V, s0, slips, t_max, avoid)
             section = SlipSection.at(model, V)
             stats = jnp.stack([orbit.statistics[s] for s in STATISTICS])
             z = orbit.section / section.scale
@@ -152,6 +153,7 @@ class OrbitRows(eqx.Module):
             / SlipSection.at(orbit.model, V).scale, z_jacobian=d_z, slips=orbit.slips, period=orbit.period,
             status=orbit.status, multipliers=jnp.abs(orbit.multipliers), approach=orbit.approach,
             crossing=orbit.crossing, v_slip=jax.lax.stop_gradient(v_slip), residual=orbit.residual,
+            monodromy=orbit.monodromy,
         )  # fmt: skip
 
 
@@ -165,7 +167,7 @@ class RowOrbits(eqx.Module):
         slips, period: k and T; status: :class:`~peeljax.orbits.OrbitStatus`; multipliers:
             their moduli; approach, crossing: the grazing monitors (:class:`~peeljax.orbits.PeriodicOrbit`);
             v_slip: v just after the slip at the section [m/s]; residual: |P^k(z) − z| at the last
-            iterate (scaled).
+            iterate (scaled); monodromy: M = ∂P^k/∂s (2 × 2).
     """
 
     statistics: Array
@@ -181,17 +183,19 @@ class RowOrbits(eqx.Module):
     crossing: Array
     v_slip: Array
     residual: Array
+    monodromy: Array
 
 
 @eqx.filter_jit
-def _rows(program: OrbitRows, theta, V, s0, slips, t_max, mesh):
+def _rows(program: OrbitRows, theta, V, s0, slips, t_max, avoid, mesh):
     """The rows under ``shard_map`` over ``mesh`` (one row per device), or as they are (None)."""
-    return over_devices(lambda program, *row: program(*row), mesh, (program,), (theta, V, s0, slips, t_max))
+    return over_devices(lambda program, *row: program(*row), mesh, (program,), (theta, V, s0, slips, t_max, avoid))
 
 
-def shoot_rows(program: OrbitRows, theta: np.ndarray, V, attractors: list[Attractor]) -> dict[str, np.ndarray]:
+def shoot_rows(program: OrbitRows, theta: np.ndarray, V, attractors: list[Attractor], avoid=None) -> dict[str, np.ndarray]:
     """The orbits of the rows at ``V`` from their ``attractors`` at θ ((p,) for all rows, or
-    (n, p): one per row), as NumPy arrays with a leading axis over the rows.
+    (n, p): one per row), as NumPy arrays with a leading axis over the rows; ``avoid`` (n, 2):
+    a section point each row's Newton is kept away from (deflation; NaN or None: none).
 
     The rows go to the devices one each (on a CPU one device per core: the rows of a table
     run side by side), as many calls as it takes, the last padded with a repeat of its last
@@ -203,7 +207,7 @@ def shoot_rows(program: OrbitRows, theta: np.ndarray, V, attractors: list[Attrac
     the attractor map does (the same program: the tolerance is traced), and taken where it
     converges. Without it the row at 4 m/s of the whole-range table lost its orbit at every
     other step of c1 (0.05 %), its window statistics taken instead, 3.7 σ away."""
-    out = _shoot_rows(program, theta, V, attractors)
+    out = _shoot_rows(program, theta, V, attractors, avoid)
     rtol = float(program.shooting.integrator.controller.rtol)
     floor = at_floor(out["status"], out["residual"], out["section"], out["period"])
     if floor.size == 0 or rtol <= FLOOR_RTOL:
@@ -212,18 +216,19 @@ def shoot_rows(program: OrbitRows, theta: np.ndarray, V, attractors: list[Attrac
     tight = eqx.tree_at(lambda p: p.shooting, program, shooting)
     theta = np.broadcast_to(np.asarray(theta, float), (len(attractors), len(program.names)))
     last = [dataclasses.replace(attractors[j], section=out["section"][j], period=float(out["period"][j])) for j in floor]
-    again = _shoot_rows(tight, theta[floor], np.asarray(V, float)[floor], last)
+    again = _shoot_rows(tight, theta[floor], np.asarray(V, float)[floor], last, None if avoid is None else np.asarray(avoid)[floor])
     keep_converged(out, again, floor)
     return out
 
 
-def _shoot_rows(program: OrbitRows, theta: np.ndarray, V, attractors: list[Attractor]) -> dict[str, np.ndarray]:
+def _shoot_rows(program: OrbitRows, theta: np.ndarray, V, attractors: list[Attractor], avoid=None) -> dict[str, np.ndarray]:
     """:func:`shoot_rows` without the second try at Newton's floor."""
     n = len(attractors)
     theta = np.broadcast_to(np.asarray(theta, float), (n, len(program.names)))
+    avoid = np.full((n, 2), np.nan) if avoid is None else np.asarray(avoid, float).reshape(n, 2)
     lanes = [theta, np.asarray(V, float), np.stack([np.asarray(a.section, float) for a in attractors]),
              np.asarray([a.slips for a in attractors], np.int32),
-             np.asarray([PERIODS_PER_RUN * a.period for a in attractors], float)]  # fmt: skip
+             np.asarray([PERIODS_PER_RUN * a.period for a in attractors], float), avoid]  # fmt: skip
     devices = jax.local_devices()  # a fit is one process's work, even under jax.distributed
     mesh = batch_mesh(devices)
     outs = []

@@ -48,6 +48,13 @@ __all__ = ["KINDS", "MAX_ELASTICITY", "Point", "TableRows", "attractor_rows", "r
 KINDS = ("steady", "orbit", "window")
 SAME_POINT = 1e-7  # scaled section coordinates: P^d(s*) = s* (Newton's tolerance is 1e-10)
 SAME_ORBIT = 1e-5  # relative: two shootings at one θ found one orbit (its statistics to ~1e-7)
+# Past a period doubling the orbit of 2k slips is shot from the k-orbit's point moved by these
+# (scaled) along the multiplier's eigenvector, both ways, the k-orbit deflated away (measured at
+# 0.5 m/s on the whole-range table's truth: the doubled orbit lies 0.05, 0.10–0.15 and 0.16 from
+# it at 0.008, 0.06 and 0.16 % of c1 past the doubling, where Newton converged on it within 20
+# iterations from 6, 4 and 2 of these 6 starts)
+DOUBLING_STARTS = (0.001, 0.01, 0.1)
+DOUBLED_APART = 1e-6  # scaled: the doubled orbit's point is not the k-orbit's
 # |∂ log statistic / ∂ log c| beyond which a row's derivative is singular (measured on tables at
 # 0.5–4 m/s: 4–10 on rows away from a bifurcation, 141–1.6e6 near a grazing)
 MAX_ELASTICITY = 50.0
@@ -130,11 +137,39 @@ def row_kinds(model: PeelingModel, V, *, find=find_attractor, program: OrbitRows
             for j, i in enumerate(orbit):
                 reason = classify(shot, j, None, 0, None)
                 if reason:
+                    slow = _slow_attractor(program, np.zeros(len(program.names)), float(np.asarray(V, float)[i]), starts[i])
+                    if slow is not None:
+                        starts[i] = slow
+                        why[i] = f"{why[i]}, but {reason}; {slow.how}"
+                        continue
                     kinds[i], starts[i] = "window", None
                     why[i] = f"{why[i]}, but {reason}: no periodic attractor"
         _CHECKED.add(key)
     _STARTS[key] = (kinds, starts, why)
     return list(kinds), list(starts), list(why)
+
+
+SLOW_SLIPS = 12  # a slow attractor is looked for among the orbits of 1 … SLOW_SLIPS slips
+
+
+def _slow_attractor(program: OrbitRows, theta, V: float, start: Attractor) -> Attractor | None:
+    """A periodic attractor the runs did not settle on: the orbits of k = 1 … ``SLOW_SLIPS``
+    slips at θ shot (one batched call) from the run's last slip, where its near repeat's orbit
+    is unstable; the stable one nearest that point, else None. Measured on the whole-range table's
+    truth at 0.5 m/s (the tape stopping after every slip): the runs' near repeat of 2 slips is
+    an unstable orbit (multipliers 1.04·e^{±iψ}), the attractor a 5-slip orbit with a multiplier
+    −0.976, which the 3 and 8 s runs do not reach (docs/fitting.md)."""
+    per_slip = start.period / max(start.slips, 1)
+    trials = [Attractor(start.section, k, per_slip * k, start.how) for k in range(1, SLOW_SLIPS + 1)]
+    shot = shoot_rows(program, theta, np.full(len(trials), V), trials)
+    stable = [j for j in range(len(trials)) if not classify(shot, j, None, 0, None)]
+    if not stable:
+        return None
+    scale = shot["section"][stable[0]] / shot["z"][stable[0]]
+    distance = [np.max(np.abs(shot["section"][j] - start.section) / scale) for j in stable]
+    j = stable[int(np.argmin(distance))]
+    how = f"a stable orbit of {j + 1} slips shot from the run's last slip (k = 1 … {SLOW_SLIPS} tried)"
+    return Attractor(shot["section"][j], j + 1, float(shot["period"][j]), how)
 
 
 def _found_kinds(model: PeelingModel, V, find) -> tuple[list[str], list, list[str]]:
@@ -311,7 +346,7 @@ class TableRows:
             live = [j for j, a in enumerate(follow) if a is not None]
             found = dict(zip(live, self._shoot(z, [rows[j] for j in live], [follow[j] for j in live])))
             d_theta = z - (base.z if base is not None else np.zeros(p))
-            why = {} if base is None else self._not_followed(z, rows, live, follow, found, base, d_theta)
+            why, doubled = ({}, {}) if base is None else self._not_followed(z, rows, live, follow, found, base, d_theta)
             for j, i in enumerate(rows):
                 if j not in live and base is not None and i in base.windowed:
                     found_i = None  # not periodic at the point stepped from: looked for again from rest at each optimum
@@ -325,6 +360,9 @@ class TableRows:
                     found_i = None if found_i is None else self._minimal(z, i, found_i)
                 elif j not in why:
                     found_i = found[j]
+                    if j in doubled:
+                        changes.append({"row": i, "V": float(self.V[i]), "from": follow[j].slips,
+                                        "to": found_i["attractor"].slips, "why": doubled[j]})  # fmt: skip
                 else:
                     previous = base.orbits.get(i)
                     found_i = self._refind(z, i, follow[j], why[j])
@@ -375,11 +413,12 @@ class TableRows:
                                np.ones(shape, bool), **self.window_options)  # fmt: skip
 
     # -- orbits -----------------------------------------------------------------------------
-    def _not_followed(self, z, rows, live, follow, found, base: Point, d_theta) -> dict[int, str]:
+    def _not_followed(self, z, rows, live, follow, found, base: Point, d_theta) -> tuple[dict[int, str], dict[int, str]]:
         """Why the orbit shot is not the row's attractor followed from ``base`` (:func:`classify`),
         for each live row (index into ``rows``) where it is not, after Newton again from the
-        section point its derivative predicts — those rows in one batched call; ``found`` gets
-        the retries that are."""
+        section point its derivative predicts — those rows in one batched call — and past a
+        period doubling (:meth:`_doubled`); ``found`` gets the retries that are. Also returns
+        the rows that crossed a period doubling, with what happened in words."""
         why = {}
         for j in live:
             reason = classify(_as_batch(found[j]), 0, _as_batch(base.orbits.get(rows[j])), 0, d_theta)
@@ -395,13 +434,67 @@ class TableRows:
             if not classify(_as_batch(retry), 0, _as_batch(base.orbits[rows[j]]), 0, d_theta):
                 found[j] = retry
                 del why[j]
-        return why
+        doubled = self._doubled(z, {j: rows[j] for j in why}, found)
+        for j in doubled:
+            del why[j]
+        return why, doubled
 
-    def _shoot(self, z, rows: list[int], attractors: list[Attractor]) -> list[dict]:
-        """Each row's orbit from its attractor at θ = z, as a dict of that row's values."""
+    def _doubled(self, z, rows: dict[int, int], found: dict) -> dict[int, str]:
+        """The rows (``rows``: index → table row) whose orbit shot at z converged but lost its
+        stability through a multiplier real and beyond ±1 where a period doubling explains it:
+        below −1, the k-orbit has crossed one, and the orbit of 2k slips born there is the
+        attractor; above +1 with k even, the orbit may be a k/2-orbit run twice that crossed one,
+        and the orbit of k slips born there is. That orbit is shot from the k-orbit's point moved
+        along the multiplier's eigenvector (``DOUBLING_STARTS``, both ways), the point itself
+        deflated away, all in one batched call; the first start that reaches a stable orbit apart
+        from it is taken into ``found``. A supercritical doubling leaves the statistics per slip
+        continuous (the doubled orbit is the k-orbit run twice at the crossing): no restart, no
+        window statistics. Returns those rows, with what happened in words."""
+        shots, whose = [], []
+        for j, i in rows.items():
+            row = found[j]
+            if int(row["status"]) != 0:
+                continue
+            values, vectors = np.linalg.eig(np.asarray(row["monodromy"]))
+            m = int(np.argmax(np.abs(values)))
+            mu, k = values[m], int(row["slips"])
+            if abs(mu.imag) > 1e-9 * abs(mu) or abs(mu.real) <= 1.0 or (mu.real > 0 and k % 2):
+                continue
+            slips = 2 * k if mu.real < 0 else k
+            section = np.asarray(row["section"])
+            scale = section / np.asarray(row["z"])
+            e = np.real(vectors[:, m])  # (M is unscaled: its eigenvector too)
+            e = e / np.max(np.abs(e / scale))
+            if not np.all(np.isfinite(e)):
+                continue
+            period = float(row["period"]) * slips / k
+            for a in DOUBLING_STARTS:
+                for sign in (1.0, -1.0):
+                    shots.append(Attractor(section + sign * a * e, slips, period, row["attractor"].how))
+                    whose.append((j, i, section, mu.real, k))
+        if not shots:
+            return {}
+        out = self._shoot(z, [w[1] for w in whose], shots, avoid=np.stack([w[2] for w in whose]))
+        doubled = {}
+        for (j, _, _, mu, k), shot in zip(whose, out):
+            if j in doubled or classify(_as_batch(shot), 0, None, 0, None):
+                continue
+            if np.max(np.abs(shot["z"] - found[j]["z"])) <= DOUBLED_APART:
+                continue
+            slips = int(shot["slips"])
+            how = (f"a period doubling crossed (multiplier {mu:.4g} of the {k}-slip orbit): the orbit of "
+                   f"{slips} slips born there")  # fmt: skip
+            shot["attractor"] = dataclasses.replace(shot["attractor"], how=how, minimal=True)
+            found[j] = shot
+            doubled[j] = how
+        return doubled
+
+    def _shoot(self, z, rows: list[int], attractors: list[Attractor], avoid=None) -> list[dict]:
+        """Each row's orbit from its attractor at θ = z, as a dict of that row's values
+        (``avoid``: :func:`~peeljax.fit.attractors.shoot_rows`'s)."""
         if not rows:
             return []
-        out = shoot_rows(self.program, z, self.V[rows], attractors)
+        out = shoot_rows(self.program, z, self.V[rows], attractors, avoid)
         found = []
         for j, a in enumerate(attractors):
             row = {key: value[j] for key, value in out.items()}
@@ -422,7 +515,12 @@ class TableRows:
             return None
         row = self._shoot(z, [i], [found])[0]
         if classify(_as_batch(row), 0, None, 0, None):
-            return None
+            slow = _slow_attractor(self.program, z, float(self.V[i]), found)
+            if slow is None:
+                return None
+            row = self._shoot(z, [i], [slow])[0]
+            if classify(_as_batch(row), 0, None, 0, None):
+                return None
         row = self._minimal(z, i, row)
         row["attractor"] = dataclasses.replace(row["attractor"], how=f"found again ({why}): {row['attractor'].how}")
         return row

@@ -124,11 +124,13 @@ def as_orbit(model: PeelingModel, V, slips, result: ShootingResult) -> PeriodicO
     )  # fmt: skip
 
 
-def orbit_of(shooting: Shooting, model: PeelingModel, V, s0, slips, t_max) -> PeriodicOrbit:
+def orbit_of(shooting: Shooting, model: PeelingModel, V, s0, slips, t_max, avoid=None) -> PeriodicOrbit:
     """The orbit with ``slips`` slips per period shot from the section point ``s0`` (each
-    period's run bounded by ``t_max``): traceable, for ``jit``, ``vmap`` and ``lax.map``."""
+    period's run bounded by ``t_max``; ``avoid``: a section point Newton is kept away from, NaN
+    or None: none): traceable, for ``jit``, ``vmap`` and ``lax.map``."""
     scale = SlipSection.at(model, V).scale
-    result = shoot(shooting, model, V, jax.lax.stop_gradient(s0 / scale), slips, t_max)
+    avoid = None if avoid is None else jax.lax.stop_gradient(avoid / scale)
+    result = shoot(shooting, model, V, jax.lax.stop_gradient(s0 / scale), slips, t_max, avoid)
     return as_orbit(model, V, slips, result)
 
 

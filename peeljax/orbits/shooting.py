@@ -232,13 +232,21 @@ class _Newton(eqx.Module):
     diverged: Array
 
 
-def _solve(shooting: Shooting, model, V, z0, slips, t_max, theta_leaves: tuple[int, ...] = ()):
+def _solve(shooting: Shooting, model, V, z0, slips, t_max, avoid, theta_leaves: tuple[int, ...] = ()):
     """Newton's method on r(z) = 0, each iteration forward-mode passes through one period
     (:func:`linearised`: the two of z, and at the last point those of θ too). Ends at the first
     point with |r| ≤ tolerance and returns what was computed there — the period and its
     Jacobian, without another pass. Values only: nothing
     is differentiated through the iterations. Steps are limited to 0.5 in the scaled
-    coordinates; |r| growing 100× past the first residual is divergence."""
+    coordinates; |r| growing 100× past the first residual is divergence.
+
+    ``avoid`` (scaled, NaN: none) is a known fixed point deflated away (Farrell, Birkisson &
+    Funke 2015): Newton on m(z)·r(z), m = 1/|z − avoid|² + 1, whose step is the plain one times
+    τ = 1/(1 − ∇m·δ/m). Past a period doubling P^{2k} has the k-orbit as a fixed point too, and
+    plain Newton from beside it returns there: measured on the 5-slip orbit at 0.5 m/s of
+    ``benchmarks/fit_coverage.py --problem wide``, 0.008–0.16 % of c1 past its doubling, from 23
+    of 30 starts 0.003–0.3 away along the multiplier's eigenvector; deflated, 17 of 18 starts
+    0.001–0.1 away reached the doubled orbit."""
     lin = linearised(shooting, model, V, slips, t_max, theta_leaves)
     at, unravel = lin.at, lin.unravel
 
@@ -261,6 +269,7 @@ def _solve(shooting: Shooting, model, V, z0, slips, t_max, theta_leaves: tuple[i
         r_z = residual_jacobian(jac)
         step = -jnp.linalg.solve(jnp.where(jnp.isfinite(r_z), r_z, 0.0) + jnp.where(jnp.all(jnp.isfinite(r_z)), 0.0, jnp.eye(2)), r)
         step = jnp.where(jnp.all(jnp.isfinite(step)), step, 0.0)
+        step = step * _deflation(z, step, avoid)
         step = step * jnp.minimum(1.0, 0.5 / jnp.maximum(jnp.max(jnp.abs(step)), 1e-300))
         return _Newton(z, step, jac, r, period, c.iterations + 1, first, done, diverged & ~converged)
 
@@ -271,6 +280,14 @@ def _solve(shooting: Shooting, model, V, z0, slips, t_max, theta_leaves: tuple[i
     init = _Newton(z0, jnp.zeros(2), zeros[0], zeros[1], zeros[2], jnp.asarray(0), jnp.asarray(jnp.inf), jnp.asarray(False), jnp.asarray(False))
     final = jax.lax.while_loop(lambda c: ~c.done, lambda c: evaluate(c, c.z + c.step), init)
     return final, unravel, residual_jacobian(final.jac)
+
+
+def _deflation(z, step, avoid) -> Array:
+    """τ of :func:`_solve`'s deflated step at z (1 where ``avoid`` is NaN)."""
+    e = z - jnp.where(jnp.isfinite(avoid), avoid, 0.0)
+    e2 = jnp.maximum(jnp.sum(e * e), 1e-300)
+    tau = 1.0 / (1.0 + 2.0 * jnp.dot(e, step) / (e2 * (1.0 + e2)))
+    return jnp.where(jnp.all(jnp.isfinite(avoid)) & jnp.isfinite(tau), tau, 1.0)
 
 
 def _result(shooting: Shooting, model, V, newton: _Newton, r_z) -> ShootingResult:
@@ -293,8 +310,8 @@ def _result(shooting: Shooting, model, V, newton: _Newton, r_z) -> ShootingResul
 @eqx.filter_custom_jvp
 def _shoot(params, guess):
     shooting, model, V = params
-    z0, slips, t_max = guess
-    newton, _, r_z = _solve(shooting, model, V, z0, slips, t_max)
+    z0, slips, t_max, avoid = guess
+    newton, _, r_z = _solve(shooting, model, V, z0, slips, t_max, avoid)
     return _result(shooting, model, V, newton, r_z)
 
 
@@ -310,11 +327,11 @@ def _tangent_leaves(primal, tangent) -> list:
 def _shoot_jvp(primals, tangents):
     params, guess = primals
     shooting, model, V = params
-    z0, slips, t_max = guess
+    z0, slips, t_max, avoid = guess
     t_leaves = _tangent_leaves((model, V), (tangents[0][1], tangents[0][2]))
     theta_leaves = tuple(i for i, t in enumerate(t_leaves) if t is not None)
 
-    newton, unravel, r_z = _solve(shooting, model, V, z0, slips, t_max, theta_leaves)
+    newton, unravel, r_z = _solve(shooting, model, V, z0, slips, t_max, avoid, theta_leaves)
     primal = _result(shooting, model, V, newton, r_z)
     jac = newton.jac
     if theta_leaves:
@@ -333,13 +350,16 @@ def _shoot_jvp(primals, tangents):
     return primal, tangent
 
 
-def shoot(shooting: Shooting, model: PeelingModel, V, z0: Float[Array, "2"], slips, t_max) -> ShootingResult:
+def shoot(shooting: Shooting, model: PeelingModel, V, z0: Float[Array, "2"], slips, t_max,
+          avoid: Float[Array, "2"] | None = None) -> ShootingResult:  # fmt: skip
     """The periodic orbit through k = ``slips`` stick → slip events (a traced integer) nearest
     (for Newton) to the scaled section coordinates z0 (module docstring); ``t_max`` bounds
-    one period's runs.
+    one period's runs; ``avoid``: a fixed point (scaled) Newton is kept away from (deflation,
+    :func:`_solve`; None or NaN: none).
 
-    Differentiable in ``model`` and ``V`` by the implicit function theorem; z0, k and t_max
-    carry no derivative (the orbit does not depend on them).
+    Differentiable in ``model`` and ``V`` by the implicit function theorem; z0, k, t_max and
+    ``avoid`` carry no derivative (the orbit does not depend on them).
     """
-    guess = (jnp.asarray(z0, float), jnp.asarray(slips, jnp.int32), jnp.asarray(t_max, float))
+    avoid = jnp.full(2, jnp.nan) if avoid is None else jnp.asarray(avoid, float)
+    guess = (jnp.asarray(z0, float), jnp.asarray(slips, jnp.int32), jnp.asarray(t_max, float), avoid)
     return _shoot((shooting, model, jnp.asarray(V, float)), guess)
