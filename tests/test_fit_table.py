@@ -295,7 +295,8 @@ def test_the_whole_range_table_without_noise_is_fitted_to_its_truth():
     point differs between processes in the last digits, and the row at 3.5 m/s then lands on a
     coexisting 34-slip attractor and the one at 4 m/s on its window statistics). Since the rows'
     second try at Newton's floor (the row at 4 m/s keeps its orbit, 2026-12-07): χ² 9.6e-8, every
-    coefficient within 0.001 SE of the truth, converged by the Gauss–Newton test. Asserted with
+    coefficient within 0.001 SE of the truth, converged by the Gauss–Newton test; with the row at
+    0.5 m/s on its 5-slip orbit (2026-12-07, before a window row): χ² 1.8e-9, within 2e-5 SE. Asserted with
     room for another machine's last digits: within 0.2 SE, χ²/dof below 0.05."""
     import fit_coverage  # benchmarks/
 
