@@ -18,7 +18,10 @@ point θ of Levenberg–Marquardt, the periodic orbit each row is on (:mod:`peel
   crossed), or Newton jumped to another orbit with the same k (a grazing: a stick phase touched
   φ's maximum and the orbit it followed ended there) — means the step crossed a bifurcation; the
   row's attractor is then found again by a run from the old orbit's state under the trial θ
-  (the system's own response to the change), as at the start.
+  (the system's own response to the change), as at the start. Past a period doubling (a
+  multiplier through −1) the orbit of 2k slips born there is shot instead, from beside the
+  k-orbit with Newton deflated away from it (:mod:`peeljax.fit.table_rows`): no run, and the
+  statistics per slip continuous.
 
 The orbit's statistics and their Jacobian come from the implicit function theorem on the fixed
 point (:mod:`peeljax.orbits.shooting`): forward-mode passes through one period, two per Newton

@@ -7,9 +7,11 @@ predicts there depends on the attractor at V_i (:func:`row_kinds`, decided at th
   rising branch of φ): α = 0, v = V and the constraint (sac) gives the tension
   F = φ(V_i, V_i) (the lever l·sinα/L vanishes at α = 0 in either geometry). Such a row pins φ
   on its diagonal: only ``F_mean`` is predicted, any other statistic in the row is missing;
-* **orbit** — the run at V_i settles on a periodic stick-slip orbit: the five statistics over
-  one period of it, exact, and their derivatives by the implicit function theorem
-  (:mod:`peeljax.fit.attractors`, which finds and follows the orbit);
+* **orbit** — the run at V_i settles on a periodic stick-slip orbit, or, where it settles too
+  slowly, a stable orbit of 1 … ``SLOW_SLIPS`` slips is shot from its last slip: the five
+  statistics over one period of it, exact, and their derivatives by the implicit function
+  theorem (:mod:`peeljax.fit.attractors`, which finds and follows the orbit, through a period
+  doubling onto the orbit born there: :meth:`TableRows._doubled`);
 * **window** — stick-slip without a periodic attractor found (irregular, or a repeat longer
   than the runs could confirm): the run's statistics over ``[transient, transient + window]``
   (:func:`peeljax.measurements.statistics.jump_statistics`, tapered, with the cycle-to-cycle scatter
