@@ -102,8 +102,8 @@ TABLE_TRUTH = {"c1": 1.12, "c3": 1.06, "c6": 1.10}  # multipliers of the paper's
 TABLE_V = (0.8, 1.0, 1.2, 1.5, 1.8, 2.2, 2.6, 3.0)
 TABLE_WINDOW = {"transient": 0.5, "window": 1.0}  # fit_stick_slip's defaults
 # --wide: the whole stick-slip range, long orbits near grazings at 3.5-4 m/s (their derivatives
-# singular) and, with WIDE_STOPS, a tape that stops after each slip at 0.5 m/s (its 10-slip orbit,
-# |μ₁| = 0.952, settles too slowly for the rows' runs: a window row)
+# singular) and, with WIDE_STOPS, a tape that stops after each slip at 0.5 m/s (its 5-slip orbit,
+# a multiplier −0.976, settles too slowly for the rows' runs: found by shooting k = 1 … 12)
 WIDE_V = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0)
 WIDE_TRUTH = {"c1": 1.08, "c3": 0.93, "c6": 1.06}
 WIDE_STOPS = {"c1": 1.07, "c3": 0.93, "c6": 1.07}  # φ_min 116.8 N < φ(0⁺) = 125.4 N at 0.5 m/s

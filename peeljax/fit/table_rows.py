@@ -121,10 +121,12 @@ def row_kinds(model: PeelingModel, V, *, find=find_attractor, program: OrbitRows
 
     ``program`` (an :class:`~peeljax.fit.attractors.OrbitRows` whose φ at θ = 0 is the model's):
     the orbits of the runs' repeats are shot, all in one call, and a row whose orbit is not an
-    attractor becomes a window row — a near repeat of a run can be close to an orbit that has
-    lost its stability (measured: c1 × 1.07, c3 × 0.93, c6 × 1.07 at 0.5 m/s, where the tape
-    stops after every slip: a 2-slip orbit with multipliers 1.036 e^{±iψ}, while the attractor,
-    a 10-slip orbit with |μ₁| = 0.952, settles too slowly for the runs: docs/fitting.md)."""
+    attractor is looked for among the stable orbits of 1 … ``SLOW_SLIPS`` slips
+    (:func:`_slow_attractor`), else becomes a window row — a near repeat of a run can be close
+    to an orbit that has lost its stability (measured: c1 × 1.07, c3 × 0.93, c6 × 1.07 at
+    0.5 m/s, where the tape stops after every slip: a 2-slip orbit with multipliers
+    1.036 e^{±iψ}, while the attractor, a 5-slip orbit with a multiplier −0.976, settles too
+    slowly for the runs: docs/fitting.md)."""
     key = _key(model, V)
     cached = _STARTS.get(key)
     if cached is not None and (program is None or key in _CHECKED):
