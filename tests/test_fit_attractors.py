@@ -525,6 +525,36 @@ def test_where_the_tape_stops_the_rows_attractor_is_an_orbit_that_settles_slowly
     assert abs(float(orbit.period) - 1.2122578) < 1e-6  # the run's repeat: 1.21237 s, still settling
 
 
+@pytest.mark.slow
+def test_a_row_whose_runs_show_no_repeat_is_on_the_stable_orbit_shot_from_their_last_slip():
+    """A φ where a whole-range fit ended (``benchmarks/fit_coverage.py --problem wide``, draw 2's
+    optimum: c1, c3, c6 = 424.28, 121.43, 441.86) at 0.5 m/s: the 3 and 8 s runs from rest show
+    no repeat ("irregular"; still settling), yet a 120 s run reaches a periodic orbit. The row
+    is shot for k = 1 … 12 from the runs' last slip and is an orbit row on the stable 5-slip
+    orbit (|μ₁| 0.933), the orbit the 120 s run reaches. Before, it was a window row, its
+    statistics those of a window still settling (in 28 of 60 fits of that benchmark)."""
+    import fit_coverage  # benchmarks/
+
+    import peeljax as pj
+    from peeljax.fit.attractors import NoRepeat, find_attractor
+    from peeljax.fit.table import attractor_statistics
+
+    truth = fit_coverage.truth_of("wide")[0]
+    law = eqx.tree_at(lambda law: (law.c1, law.c3, law.c6), truth, (424.2834924656183, 121.4284888069769, 441.85909626655763))
+    model = PeelingModel(adhesion=law)
+    found = find_attractor(model, 0.5)
+    assert isinstance(found, NoRepeat) and "irregular" in str(found) and found.last is not None, found
+    assert 0.11 < found.last.period < 0.13  # the mean slip interval
+    point, rows, why = attractor_statistics(law, [0.5], names=("c1",), follow_lost=True)
+    assert rows.kinds == ["orbit"] and point.attractors[0].slips == 5 and "no repeat" in why[0], why
+    assert 0.92 < np.max(point.orbits[0]["multipliers"]) < 0.94
+    run = pj.simulate(model, V=0.5, tau=0, t_final=120.0)
+    reached = pj.periodic_orbit(model, V=0.5, start=run, slips=10)
+    assert int(reached.status) == 0
+    per_slip = np.array([float(reached.statistics[name]) for name in ("F_mean", "F_slip", "F_stick", "period")])
+    np.testing.assert_allclose(per_slip, point.orbits[0]["statistics"][:4], rtol=1e-6)
+
+
 
 @pytest.fixture(scope="module")
 def doubling():

@@ -8,7 +8,8 @@ point θ of Levenberg–Marquardt, the periodic orbit each row is on (:mod:`peel
   to confirm one, its near repeat (:class:`peeljax.cycles.TooFewRepeats`) gives k (stick → slip
   events per period), the period and the state at the last slip, from which Newton shoots
   (:func:`find_attractor`); a run that shows neither continues once, longer, from where it
-  ended;
+  ended, and where that one shows none either its last slip is kept (:class:`NoRepeat`), from
+  which the stable orbits of a few slips are shot (:func:`peeljax.fit.table_rows.row_kinds`);
 * **followed**: at a trial point every row is shot from the section point of the point it
   steps from, with its k (:class:`OrbitRows`: one compiled program for every row, k traced);
 * **checked** (:func:`classify`): the orbit shot is the attractor the row was on only where
@@ -50,7 +51,7 @@ from ..solution import Solution
 from ..measurements.statistics import STATISTICS
 from .parameters import law_from
 
-__all__ = ["CONTINUITY", "Attractor", "OrbitRows", "RowOrbits", "classify", "find_attractor", "steady_rows"]
+__all__ = ["CONTINUITY", "Attractor", "NoRepeat", "OrbitRows", "RowOrbits", "classify", "find_attractor", "steady_rows"]
 
 CONTINUITY = 0.25  # |Δz − ∂z/∂θ·Δθ| ≤ CONTINUITY·|∂z/∂θ·Δθ| + CONTINUITY_FLOOR: the same orbit, moved
 CONTINUITY_FLOOR = 1e-6  # scaled section coordinates (radians, units of V/R)
@@ -79,6 +80,34 @@ def _last_slip_state(sol: Solution) -> np.ndarray:
     return np.array([np.interp(t_slip, ts, ys[:, 0]), np.interp(t_slip, ts, ys[:, 1])])
 
 
+@dataclasses.dataclass(frozen=True)
+class NoRepeat:
+    """Where a row's runs showed no repeat: why, in words, and where the last run's last slip
+    was (an :class:`Attractor` of one slip whose period is the run's mean slip interval over
+    its second half; None where the run stopped early or had no two slips there), from which
+    an attractor the runs were too short to settle on can still be shot
+    (:func:`peeljax.fit.table_rows.row_kinds`)."""
+
+    why: str
+    last: Attractor | None = None
+
+    def __str__(self) -> str:
+        return self.why
+
+
+def _last_slip(sol: Solution, why: str) -> Attractor | None:
+    """The run's last slip as an :class:`Attractor` of one slip, its period the mean slip
+    interval over the run's second half (None with fewer than two slips there)."""
+    if sol.jumps is None:
+        return None
+    jumps = sol.jumps.as_numpy()
+    t_up = jumps["jump_t"][jumps["jump_up"]]
+    t_up = t_up[t_up >= 0.5 * float(sol.t_stop)]
+    if t_up.size < 2:
+        return None
+    return Attractor(_last_slip_state(sol), 1, float(np.mean(np.diff(t_up))), why)
+
+
 def _repeat_of(sol: Solution) -> tuple[int, float, str] | str:
     """(k, T, how) of a run's repeat or near repeat over its second half, else why not (str)."""
     t_stop = float(sol.t_stop)
@@ -95,21 +124,22 @@ def _repeat_of(sol: Solution) -> tuple[int, float, str] | str:
     return "no repeat in the run's second half (irregular)" if near is None else "too few slips to tell"
 
 
-def find_attractor(model: PeelingModel, V: float, y0=None, runs=RUNS) -> Attractor | str:
+def find_attractor(model: PeelingModel, V: float, y0=None, runs=RUNS) -> Attractor | NoRepeat:
     """The start of a row's orbit (module docstring): from a run of ``runs[0]`` seconds from
     ``y0`` (default: the paper's initial data), else one of ``runs[1]`` from where it ended.
-    Returns an :class:`Attractor` or, where no run shows a repeat, why not (str)."""
-    why = ""
+    Returns an :class:`Attractor` or, where no run shows a repeat, a :class:`NoRepeat` (why
+    not, and the last run's last slip)."""
+    why = NoRepeat("")
     for t_run in runs:
         sol = simulate(model, V=float(V), tau=0, t_final=float(t_run), y0=y0, rtol=RUN_RTOL, atol=1e-3 * RUN_RTOL)
         found = _repeat_of(sol)
         if not isinstance(found, str):
             k, T, how = found
             return Attractor(_last_slip_state(sol), int(k), float(T), how)
-        why = found
         valid = np.asarray(sol.valid)
         if int(sol.status) != 0 or not valid.any():
-            break
+            return NoRepeat(found)
+        why = NoRepeat(found, _last_slip(sol, found))
         y0 = np.asarray(sol.ys)[valid][-1]  # go on from where it ended
     return why
 

@@ -8,15 +8,16 @@ predicts there depends on the attractor at V_i (:func:`row_kinds`, decided at th
   F = φ(V_i, V_i) (the lever l·sinα/L vanishes at α = 0 in either geometry). Such a row pins φ
   on its diagonal: only ``F_mean`` is predicted, any other statistic in the row is missing;
 * **orbit** — the run at V_i settles on a periodic stick-slip orbit, or, where it settles too
-  slowly, a stable orbit of 1 … ``SLOW_SLIPS`` slips is shot from its last slip: the five
-  statistics over one period of it, exact, and their derivatives by the implicit function
-  theorem (:mod:`peeljax.fit.attractors`, which finds and follows the orbit, through a period
-  doubling onto the orbit born there: :meth:`TableRows._doubled`);
-* **window** — stick-slip without a periodic attractor found (irregular, or a repeat longer
-  than the runs could confirm): the run's statistics over ``[transient, transient + window]``
-  (:func:`peeljax.measurements.statistics.jump_statistics`, tapered, with the cycle-to-cycle scatter
-  added to σ), as before there were orbits. An orbit row whose attractor is not periodic at a
-  trial θ takes the same (:attr:`Point.windowed`).
+  slowly (its near repeat's orbit unstable, or no repeat shown at all), a stable orbit of
+  1 … ``SLOW_SLIPS`` slips is shot from its last slip: the five statistics over one period of
+  it, exact, and their derivatives by the implicit function theorem
+  (:mod:`peeljax.fit.attractors`, which finds and follows the orbit, through a period doubling
+  onto the orbit born there: :meth:`TableRows._doubled`);
+* **window** — stick-slip without a periodic attractor found (irregular, and no stable orbit
+  of 1 … ``SLOW_SLIPS`` slips shot from the run's last slip): the run's statistics over
+  ``[transient, transient + window]`` (:func:`peeljax.measurements.statistics.jump_statistics`,
+  tapered, with the cycle-to-cycle scatter added to σ), as before there were orbits. An orbit
+  row whose attractor is not periodic at a trial θ takes the same (:attr:`Point.windowed`).
 
 :class:`TableRows` evaluates all of them at a point θ (log coefficients, c = c_start·exp(θ)):
 the residuals r = (model − data)/σ of the measured entries (row-major), their Jacobian, the v
@@ -121,36 +122,36 @@ def row_kinds(model: PeelingModel, V, *, find=find_attractor, program: OrbitRows
 
     ``program`` (an :class:`~peeljax.fit.attractors.OrbitRows` whose φ at θ = 0 is the model's):
     the orbits of the runs' repeats are shot, all in one call, and a row whose orbit is not an
-    attractor is looked for among the stable orbits of 1 … ``SLOW_SLIPS`` slips
-    (:func:`_slow_attractor`), else becomes a window row — a near repeat of a run can be close
+    attractor, or whose runs showed no repeat (:class:`~peeljax.fit.attractors.NoRepeat`), is
+    looked for among the stable orbits of 1 … ``SLOW_SLIPS`` slips from the runs' last slip
+    (:func:`_slow_attractor`), else is a window row — a near repeat of a run can be close
     to an orbit that has lost its stability (measured: c1 × 1.07, c3 × 0.93, c6 × 1.07 at
     0.5 m/s, where the tape stops after every slip: a 2-slip orbit with multipliers
     1.036 e^{±iψ}, while the attractor, a 5-slip orbit with a multiplier −0.976, settles too
-    slowly for the runs: docs/fitting.md)."""
+    slowly for the runs; a run still settling can show no repeat at all: docs/fitting.md)."""
     key = _key(model, V)
     cached = _STARTS.get(key)
-    if cached is not None and (program is None or key in _CHECKED):
-        return tuple(list(x) for x in cached)
     if cached is None:
         cached = _found_kinds(model, V, find)
     kinds, starts, why = (list(x) for x in cached)
-    if program is not None:
+    if program is not None and key not in _CHECKED:
+        theta, V = np.zeros(len(program.names)), np.asarray(V, float)
         orbit = [i for i, kind in enumerate(kinds) if kind == "orbit"]
-        if orbit:
-            shot = shoot_rows(program, np.zeros(len(program.names)), np.asarray(V, float)[orbit], [starts[i] for i in orbit])
-            for j, i in enumerate(orbit):
-                reason = classify(shot, j, None, 0, None)
-                if reason:
-                    slow = _slow_attractor(program, np.zeros(len(program.names)), float(np.asarray(V, float)[i]), starts[i])
-                    if slow is not None:
-                        starts[i] = slow
-                        why[i] = f"{why[i]}, but {reason}; {slow.how}"
-                        continue
-                    kinds[i], starts[i] = "window", None
-                    why[i] = f"{why[i]}, but {reason}: no periodic attractor"
+        shot = shoot_rows(program, theta, V[orbit], [starts[i] for i in orbit]) if orbit else None
+        reasons = {i: classify(shot, j, None, 0, None) for j, i in enumerate(orbit)}
+        for i, kind in enumerate(kinds):
+            # a window row with a last slip: its runs may be too short for a slow attractor
+            if (kind == "orbit" and not reasons[i]) or starts[i] is None:
+                continue
+            but = f", but {reasons[i]}" if kind == "orbit" else ""
+            slow = _slow_attractor(program, theta, float(V[i]), starts[i])
+            if slow is not None:
+                kinds[i], starts[i], why[i] = "orbit", slow, f"{why[i]}{but}; {slow.how}"
+            elif kind == "orbit":
+                kinds[i], why[i] = "window", f"{why[i]}{but}: no periodic attractor"
         _CHECKED.add(key)
-    _STARTS[key] = (kinds, starts, why)
-    return list(kinds), list(starts), list(why)
+    _STARTS[key] = (kinds, starts, why)  # a window row's start: its runs' last slip (NoRepeat.last)
+    return list(kinds), [a if kind == "orbit" else None for kind, a in zip(kinds, starts)], list(why)
 
 
 SLOW_SLIPS = 12  # a slow attractor is looked for among the orbits of 1 … SLOW_SLIPS slips
@@ -159,7 +160,8 @@ SLOW_SLIPS = 12  # a slow attractor is looked for among the orbits of 1 … SLOW
 def _slow_attractor(program: OrbitRows, theta, V: float, start: Attractor) -> Attractor | None:
     """A periodic attractor the runs did not settle on: the orbits of k = 1 … ``SLOW_SLIPS``
     slips at θ shot (one batched call) from the run's last slip, where its near repeat's orbit
-    is unstable; the stable one nearest that point, else None. Measured on the whole-range table's
+    is unstable or it shows no repeat (``start``: k = 1, its period the mean slip interval);
+    the stable one nearest that point, else None. Measured on the whole-range table's
     truth at 0.5 m/s (the tape stopping after every slip): the runs' near repeat of 2 slips is
     an unstable orbit (multipliers 1.04·e^{±iψ}), the attractor a 5-slip orbit with a multiplier
     −0.976, which the 3 and 8 s runs do not reach (docs/fitting.md)."""
@@ -187,7 +189,7 @@ def _found_kinds(model: PeelingModel, V, find) -> tuple[list[str], list, list[st
         if isinstance(found, Attractor):
             kinds.append("orbit"), starts.append(found), why.append(found.how)
         else:
-            kinds.append("window"), starts.append(None), why.append(found)
+            kinds.append("window"), starts.append(getattr(found, "last", None)), why.append(str(found))
     return kinds, starts, why
 
 
@@ -509,17 +511,19 @@ class TableRows:
 
     def _refind(self, z, i: int, previous: Attractor | None, why: str) -> dict | None:
         """Row i's attractor at θ = z found again by a run from the previous orbit's state (or
-        from the paper's start), shot and checked; None where there is none."""
+        from the paper's start), shot and checked, or, where the run's repeat is not an
+        attractor or it shows none, the stable orbit :func:`_slow_attractor` shoots from its
+        last slip; None where there is none."""
         model = eqx.tree_at(lambda m: m.adhesion, self.model, self.law(z))
         y0 = None
         if previous is not None:
             y0 = state_after_slip(model, float(self.V[i]), previous.section)
         found = find_attractor(model, float(self.V[i]), y0=y0)
-        if not isinstance(found, Attractor):
-            return None
-        row = self._shoot(z, [i], [found])[0]
-        if classify(_as_batch(row), 0, None, 0, None):
-            slow = _slow_attractor(self.program, z, float(self.V[i]), found)
+        row = self._shoot(z, [i], [found])[0] if isinstance(found, Attractor) else None
+        if row is None or classify(_as_batch(row), 0, None, 0, None):
+            # the runs' repeat is not an attractor, or they showed none: a slower attractor?
+            start = found if isinstance(found, Attractor) else found.last
+            slow = None if start is None else _slow_attractor(self.program, z, float(self.V[i]), start)
             if slow is None:
                 return None
             row = self._shoot(z, [i], [slow])[0]
