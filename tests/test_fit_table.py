@@ -361,3 +361,48 @@ def test_an_interrupted_levenberg_marquardt_keeps_its_best_point(monkeypatch):
         table_module.fit_rows(Rows(), AdhesionLaw(), ("c1",), {**options, "progress": None}, scale=True,
                                intervals="linear", level=0.95)  # fmt: skip
     assert stop.value.best.final_loss < 1.0 and "interrupted" in stop.value.best.stop_reason
+
+
+def test_rounds_that_never_settle_from_rest_keep_the_round_of_least_chi2():
+    """Where rest reaches the other of two coexisting attractors at every optimum, the rounds
+    alternate between them until ``ROUNDS`` is used up; the round of least χ² is kept (not the
+    last), and the crossings say so. With records (an instrument bias that moves between
+    rounds) the last is kept."""
+    from types import SimpleNamespace
+
+    from peeljax.fit import table as table_module
+
+    floors = {"a": 1.0, "b": 3.0}  # r = (z − 1, floor): each branch's least χ² is floor²
+
+    class Rows:
+        has_instruments = False
+
+        def __init__(self):
+            self.rounds = 0
+
+        def evaluate(self, z, state):
+            r = np.array([z[0] - 1.0, floors[state.branch]])
+            return SimpleNamespace(z=z, r=r, J=np.array([[1.0], [0.0]]), v_range=np.array([0.1, 5.0]), changes=(),
+                                   branch=state.branch)  # fmt: skip
+
+        def from_rest(self, state):
+            self.rounds += 1
+            return [0]  # rest reaches the other attractor at every optimum
+
+        def forget(self, state, rows):
+            return SimpleNamespace(branch="b" if state.branch == "a" else "a")
+
+        def update_bias(self, state):
+            return 1.0
+
+    options = dict(fit_rtol=1e-12, fit_atol=1e-12, max_iterations=10, progress=None)
+    for instruments, kept in ((False, "a"), (True, "b")):
+        rows = Rows()
+        rows.has_instruments = instruments
+        start = rows.evaluate(np.zeros(1), SimpleNamespace(branch="a"))
+        crossings = []
+        run = table_module._rounds(rows, start, options, crossings, [0], [])
+        assert rows.rounds == table_module.ROUNDS  # a, b, a, b: the last on b
+        assert run.state.branch == kept and run.chi2 == pytest.approx(floors[kept] ** 2)
+        said = [c["why"] for c in crossings if c["row"] is None]
+        assert said == ([] if instruments else [said[0]]) and (instruments or "least chi2" in said[0]), crossings
