@@ -95,33 +95,25 @@ class NoRepeat:
         return self.why
 
 
-def _last_slip(sol: Solution, why: str) -> Attractor | None:
-    """The run's last slip as an :class:`Attractor` of one slip, its period the mean slip
-    interval over the run's second half (None with fewer than two slips there)."""
-    if sol.jumps is None:
-        return None
-    jumps = sol.jumps.as_numpy()
-    t_up = jumps["jump_t"][jumps["jump_up"]]
-    t_up = t_up[t_up >= 0.5 * float(sol.t_stop)]
-    if t_up.size < 2:
-        return None
-    return Attractor(_last_slip_state(sol), 1, float(np.mean(np.diff(t_up))), why)
-
-
-def _repeat_of(sol: Solution) -> tuple[int, float, str] | str:
-    """(k, T, how) of a run's repeat or near repeat over its second half, else why not (str)."""
+def _repeat_of(sol: Solution) -> tuple[int, float, str] | NoRepeat:
+    """(k, T, how) of a run's repeat or near repeat over its second half, else why not, with
+    the run's last slip where it ran to its end and slipped twice or more there."""
     t_stop = float(sol.t_stop)
     if not t_stop > 0 or sol.jumps is None:
-        return "the run ended at once"
+        return NoRepeat("the run ended at once")
     stats = cycle_statistics(sol, t_stop, transient=0.5 * t_stop)
     if stats.repeat is not None:
         return stats.repeat.events, stats.repeat.period, f"a repeat of {stats.repeat.events} slips in a {t_stop:g} s run"
-    if stats.slips == 0:
-        return "no stick → slip event in the run's second half"
     near = stats.too_few
-    if near is not None and near.events > 0:
+    if stats.slips > 0 and near is not None and near.events > 0:
         return near.events, near.period, f"a near repeat of {near.events} slips in a {t_stop:g} s run"
-    return "no repeat in the run's second half (irregular)" if near is None else "too few slips to tell"
+    if stats.slips == 0:
+        why = "no stick → slip event in the run's second half"
+    else:
+        why = "no repeat in the run's second half (irregular)" if near is None else "too few slips to tell"
+    ran = int(sol.status) == 0 and np.asarray(sol.valid).any()
+    last = Attractor(_last_slip_state(sol), 1, stats.slip_interval.mean, why) if ran and stats.slip_interval.n else None
+    return NoRepeat(why, last)
 
 
 def find_attractor(model: PeelingModel, V: float, y0=None, runs=RUNS) -> Attractor | NoRepeat:
@@ -129,19 +121,18 @@ def find_attractor(model: PeelingModel, V: float, y0=None, runs=RUNS) -> Attract
     ``y0`` (default: the paper's initial data), else one of ``runs[1]`` from where it ended.
     Returns an :class:`Attractor` or, where no run shows a repeat, a :class:`NoRepeat` (why
     not, and the last run's last slip)."""
-    why = NoRepeat("")
+    found = NoRepeat("")
     for t_run in runs:
         sol = simulate(model, V=float(V), tau=0, t_final=float(t_run), y0=y0, rtol=RUN_RTOL, atol=1e-3 * RUN_RTOL)
         found = _repeat_of(sol)
-        if not isinstance(found, str):
+        if not isinstance(found, NoRepeat):
             k, T, how = found
             return Attractor(_last_slip_state(sol), int(k), float(T), how)
         valid = np.asarray(sol.valid)
         if int(sol.status) != 0 or not valid.any():
-            return NoRepeat(found)
-        why = NoRepeat(found, _last_slip(sol, found))
+            break
         y0 = np.asarray(sol.ys)[valid][-1]  # go on from where it ended
-    return why
+    return found
 
 
 class OrbitRows(eqx.Module):
