@@ -93,6 +93,38 @@ def test_profile_across_a_bifurcation_is_a_union_with_the_jump_located():
     assert len(p.jumps) == 1 and math.log(p.jumps[0][0]) / se < 1.5 < math.log(p.jumps[0][1]) / se
 
 
+def test_a_profiles_inner_fit_stops_once_chi2_is_known_to_its_share_of_the_threshold(monkeypatch):
+    """A curved valley (residuals quadratic in the coefficients, correlated): the others' fit
+    at each grid point stops once its Gauss–Newton step would lower χ²_p by at most INNER_ATOL
+    of the threshold. The ends of the set are those of the fit run to 1e-10 within 1e-3
+    linearized half-widths, with fewer evaluations."""
+    import peeljax.fit.profile as profile_module
+
+    se = 0.01
+
+    def branch(z):
+        a, b = np.asarray(z, float) / se
+        r = [a + 0.6 * b + 0.15 * b * b, b - 0.1 * a * a + 0.2, 0.3 * a * b - 0.1, 0.5 * a - 0.4 * b]
+        J = [[1.0, 0.6 + 0.3 * b], [-0.2 * a, 1.0], [0.3 * b, 0.3 * a], [0.5, -0.4]]
+        return 0, r, np.asarray(J) / se
+
+    start = _Rows(branch).evaluate(np.zeros(2))
+    best = LevenbergMarquardt(start.z, start.r, start.J, start.v_range, fit_rtol=1e-14, fit_atol=1e-14,
+                              max_iterations=50, state=start)  # fmt: skip
+    while best.reason is None:
+        best.take(*(lambda q: (q.r, q.J, q.v_range))(start := _Rows(branch).evaluate(best.trial())), state=start)
+    ends, evaluations, share = {}, {}, profile_module.INNER_ATOL
+    for inner in (share, 0.0):
+        monkeypatch.setattr(profile_module, "INNER_ATOL", inner)
+        p = _profile(_Rows(branch), best.z, 0, se)
+        assert len(p.intervals) == 1
+        ends[inner] = np.log(p.intervals[0]) - best.z[0]
+        evaluations[inner] = p.evaluations
+    half_width = quantile(0.95, None) * se  # the linearized half-width, to the curvature's order
+    assert np.max(np.abs(ends[share] - ends[0.0])) <= 1e-3 * half_width
+    assert evaluations[share] < evaluations[0.0]
+
+
 def test_auto_profiles_only_the_coefficients_whose_interval_holds_a_bifurcation():
     """Two uncorrelated coefficients, a bifurcation at z₁ = 1 SE (inside c1's linearized
     interval) and none along c2's: ``intervals="auto"`` profiles c1 alone and keeps c2's

@@ -35,6 +35,10 @@ MAX_STEPS = 9  # at most this many grid points each way (3 linearized half-width
 BEYOND = 1.5  # stop a direction once χ²_p − χ²_min exceeds BEYOND × the threshold
 BISECTIONS = 3
 INNER_ITERATIONS = 6  # Levenberg–Marquardt evaluations of the other coefficients per grid point
+# the others' fit at a grid point stops once its Gauss–Newton step would lower χ²_p by at most this
+# share of the threshold: χ²_p is then known to that share, an end of the set to ~half of it in
+# linearized half-widths (benchmarks/results/fit_coverage.md: 1–2 evaluations a grid point, not 2–6)
+INNER_ATOL = 1e-3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,6 +82,9 @@ def profile(rows, best, j: int, *, se_log: float, threshold: float, level: float
     chi2_min = float(best.r @ best.r)
     h = threshold**0.5 * max(se_log, 1e-12) / STEPS  # √threshold = q·s: a linearized half-width
     evaluations = 0
+    # LevenbergMarquardt's Gauss–Newton test scales fit_atol by max(1, χ²/dof)
+    dof = max(best.r.size - len(others), 1)
+    inner_atol = max(fit_atol, INNER_ATOL * threshold / max(1.0, chi2_min / dof))
 
     def optimise(delta, start):
         """χ²_p at θ_j = θ̂_j + delta, the others fitted from ``start`` (a Point)."""
@@ -93,7 +100,7 @@ def profile(rows, best, j: int, *, se_log: float, threshold: float, level: float
         z0[j] = z_j
         point = rows.evaluate(z0, start)
         evaluations += 1
-        run = LevenbergMarquardt(z0[others], point.r, point.J[:, others], point.v_range, fit_rtol=fit_rtol, fit_atol=fit_atol,
+        run = LevenbergMarquardt(z0[others], point.r, point.J[:, others], point.v_range, fit_rtol=fit_rtol, fit_atol=inner_atol,
                                  max_iterations=INNER_ITERATIONS, state=point)  # fmt: skip
         while run.reason is None:
             trial = np.insert(run.trial(), j, z_j)

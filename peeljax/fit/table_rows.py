@@ -353,17 +353,25 @@ class TableRows:
             found = dict(zip(live, self._shoot(z, [rows[j] for j in live], [follow[j] for j in live])))
             d_theta = z - (base.z if base is not None else np.zeros(p))
             why, doubled = ({}, {}) if base is None else self._not_followed(z, rows, live, follow, found, base, d_theta)
+            # rows to find again (lost at the point stepped from, or not followed to z): one batched search
+            again = {i: (None, "its attractor was lost at the point stepped from") for j, i in enumerate(rows)
+                     if j not in live and not (base is not None and i in base.windowed)}  # fmt: skip
+            again.update({rows[j]: (follow[j], reason) for j, reason in why.items()})
+            refound = dict(zip(again, self._refind_rows(z, [(i, *again[i]) for i in again])))
+            minimal = {}
+            if base is None:  # the start: shot from the run's repeat, reduced to its least k
+                start = [j for j in live if not classify(_as_batch(found[j]), 0, None, 0, None)]
+                minimal = dict(zip(start, self._minimal_rows(z, [(rows[j], found[j]) for j in start])))
             for j, i in enumerate(rows):
                 if j not in live and base is not None and i in base.windowed:
                     found_i = None  # not periodic at the point stepped from: looked for again from rest at each optimum
                 elif j not in live:  # lost at the point stepped from: look for it again from rest
-                    found_i = self._refind(z, i, None, "its attractor was lost at the point stepped from")
+                    found_i = refound[i]
                     if found_i is not None:
                         changes.append({"row": i, "V": float(self.V[i]), "from": None,
                                         "to": found_i["attractor"].slips, "why": "a periodic attractor again"})  # fmt: skip
-                elif base is None:  # the start: shot from the run's repeat, reduced to its least k
-                    found_i = found[j] if not classify(_as_batch(found[j]), 0, None, 0, None) else None
-                    found_i = None if found_i is None else self._minimal(z, i, found_i)
+                elif base is None:
+                    found_i = minimal.get(j)
                 elif j not in why:
                     found_i = found[j]
                     if j in doubled:
@@ -371,7 +379,7 @@ class TableRows:
                                         "to": found_i["attractor"].slips, "why": doubled[j]})  # fmt: skip
                 else:
                     previous = base.orbits.get(i)
-                    found_i = self._refind(z, i, follow[j], why[j])
+                    found_i = refound[i]
                     # the same orbit found again (Newton had only failed from a long step): no change
                     if found_i is None or classify(_as_batch(found_i), 0, _as_batch(previous), 0, d_theta):
                         to = None if found_i is None else found_i["attractor"].slips
@@ -509,56 +517,82 @@ class TableRows:
             found.append(row)
         return found
 
-    def _refind(self, z, i: int, previous: Attractor | None, why: str) -> dict | None:
-        """Row i's attractor at θ = z found again by a run from the previous orbit's state (or
-        from the paper's start), shot and checked, or, where the run's repeat is not an
-        attractor or it shows none, the stable orbit :func:`_slow_attractor` shoots from its
-        last slip; None where there is none."""
+    def _refind_rows(self, z, requests: list[tuple[int, Attractor | None, str]]) -> list[dict | None]:
+        """Each requested row's attractor at θ = z found again (``requests``: the row, its
+        previous orbit or None, why): a run from the previous orbit's state (or from the
+        paper's start), shot and checked, or, where the run's repeat is not an attractor or it
+        shows none, the stable orbit :func:`_slow_attractor` shoots from its last slip; None
+        where there is none. The runs go one row at a time; the shots of all rows go in one
+        batched call each (the rows side by side on the devices, each row's bits its own)."""
+        if not requests:
+            return []
         model = eqx.tree_at(lambda m: m.adhesion, self.model, self.law(z))
-        y0 = None
-        if previous is not None:
-            y0 = state_after_slip(model, float(self.V[i]), previous.section)
-        found = find_attractor(model, float(self.V[i]), y0=y0)
-        row = self._shoot(z, [i], [found])[0] if isinstance(found, Attractor) else None
-        if row is None or classify(_as_batch(row), 0, None, 0, None):
+        found = []
+        for i, previous, _ in requests:
+            y0 = None if previous is None else state_after_slip(model, float(self.V[i]), previous.section)
+            found.append(find_attractor(model, float(self.V[i]), y0=y0))
+        ran = [k for k, f in enumerate(found) if isinstance(f, Attractor)]
+        shots = dict(zip(ran, self._shoot(z, [requests[k][0] for k in ran], [found[k] for k in ran])))
+        rows, slow = {}, {}
+        for k, (i, _, _) in enumerate(requests):
+            if k in shots and not classify(_as_batch(shots[k]), 0, None, 0, None):
+                rows[k] = shots[k]
+                continue
             # the runs' repeat is not an attractor, or they showed none: a slower attractor?
-            start = found if isinstance(found, Attractor) else found.last
-            slow = None if start is None else _slow_attractor(self.program, z, float(self.V[i]), start)
-            if slow is None:
-                return None
-            row = self._shoot(z, [i], [slow])[0]
-            if classify(_as_batch(row), 0, None, 0, None):
-                return None
-        row = self._minimal(z, i, row)
-        row["attractor"] = dataclasses.replace(row["attractor"], how=f"found again ({why}): {row['attractor'].how}")
-        return row
+            start = found[k] if isinstance(found[k], Attractor) else found[k].last
+            orbit = None if start is None else _slow_attractor(self.program, z, float(self.V[i]), start)
+            if orbit is not None:
+                slow[k] = orbit
+        for k, row in zip(slow, self._shoot(z, [requests[k][0] for k in slow], list(slow.values()))):
+            if not classify(_as_batch(row), 0, None, 0, None):
+                rows[k] = row
+        order = sorted(rows)
+        out = [None] * len(requests)
+        for k, row in zip(order, self._minimal_rows(z, [(requests[k][0], rows[k]) for k in order])):
+            row["attractor"] = dataclasses.replace(row["attractor"],
+                                                   how=f"found again ({requests[k][2]}): {row['attractor'].how}")  # fmt: skip
+            out[k] = row
+        return out
 
-    def _minimal(self, z, i: int, row: dict) -> dict:
-        """The orbit with its least k: a near repeat of k events may be an orbit of k/m slips run
-        m times (the same statistics per slip, other multipliers). Each proper divisor d of k,
-        smallest first, is shot from the orbit's section point: where P^d returns there (Newton
-        converged on the point itself), the orbit has d slips per period."""
-        if row["attractor"].minimal:
-            return row
-        k = int(row["slips"])
-        divisors = [d for d in range(1, k) if k % d == 0]
-        a = row["attractor"]
-        trials = self._shoot(z, [i] * len(divisors), [Attractor(a.section, d, a.period * d / k, a.how) for d in divisors])
-        for d, trial in zip(divisors, trials):  # every divisor in one batched call, the smallest that returns taken
-            if int(trial["status"]) == 0 and np.max(np.abs(trial["z"] - row["z"])) <= SAME_POINT:
-                if not classify(_as_batch(trial), 0, None, 0, None):
-                    trial["attractor"] = dataclasses.replace(trial["attractor"], how=f"{a.how}: an orbit of {d} slips",
-                                                             minimal=True)  # fmt: skip
-                    return trial
-        row["attractor"] = dataclasses.replace(a, minimal=True)
-        return row
+    def _minimal_rows(self, z, items: list[tuple[int, dict]]) -> list[dict]:
+        """Each orbit (``items``: its row and the shot) with its least k: a near repeat of k
+        events may be an orbit of k/m slips run m times (the same statistics per slip, other
+        multipliers). Each proper divisor d of k is shot from the orbit's section point, every
+        divisor of every row in one batched call: where P^d returns there (Newton converged on
+        the point itself), the orbit has d slips per period, the smallest such d taken."""
+        trials, whose = [], []
+        for k, (i, row) in enumerate(items):
+            a = row["attractor"]
+            if a.minimal:
+                continue
+            slips = int(row["slips"])
+            for d in range(1, slips):
+                if slips % d == 0:
+                    trials.append((i, Attractor(a.section, d, a.period * d / slips, a.how)))
+                    whose.append((k, d))
+        shots = self._shoot(z, [i for i, _ in trials], [a for _, a in trials])
+        out = [row for _, row in items]
+        done = set()
+        for (k, d), trial in zip(whose, shots):
+            row = items[k][1]
+            if k in done or int(trial["status"]) != 0 or np.max(np.abs(trial["z"] - row["z"])) > SAME_POINT:
+                continue
+            if not classify(_as_batch(trial), 0, None, 0, None):
+                trial["attractor"] = dataclasses.replace(trial["attractor"], how=f"{row['attractor'].how}: an orbit "
+                                                         f"of {d} slips", minimal=True)  # fmt: skip
+                out[k] = trial
+                done.add(k)
+        for k, (_, row) in enumerate(items):
+            if k not in done:
+                row["attractor"] = dataclasses.replace(row["attractor"], minimal=True)
+        return out
 
     def from_rest(self, point: Point) -> list[int]:
         """The orbit rows whose attractor reached from rest (a run from the paper's initial data,
         as a peel test starts) is not the one ``point`` follows: several attractors coexist."""
         differ = []
-        for i in self.rows["orbit"]:
-            found = self._refind(point.z, i, None, "from rest")
+        rows = self.rows["orbit"]
+        for i, found in zip(rows, self._refind_rows(point.z, [(i, None, "from rest") for i in rows])):
             followed = point.orbits.get(i)
             if found is None and followed is None:
                 continue
