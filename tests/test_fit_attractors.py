@@ -112,7 +112,8 @@ def test_a_profiles_inner_fit_stops_once_chi2_is_known_to_its_share_of_the_thres
     best = LevenbergMarquardt(start.z, start.r, start.J, start.v_range, fit_rtol=1e-14, fit_atol=1e-14,
                               max_iterations=50, state=start)  # fmt: skip
     while best.reason is None:
-        best.take(*(lambda q: (q.r, q.J, q.v_range))(start := _Rows(branch).evaluate(best.trial())), state=start)
+        point = _Rows(branch).evaluate(best.trial())
+        best.take(point.r, point.J, point.v_range, state=point)
     ends, evaluations, share = {}, {}, profile_module.INNER_ATOL
     for inner in (share, 0.0):
         monkeypatch.setattr(profile_module, "INNER_ATOL", inner)

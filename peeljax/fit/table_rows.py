@@ -360,8 +360,8 @@ class TableRows:
             refound = dict(zip(again, self._refind_rows(z, [(i, *again[i]) for i in again])))
             minimal = {}
             if base is None:  # the start: shot from the run's repeat, reduced to its least k
-                start = [j for j in live if not classify(_as_batch(found[j]), 0, None, 0, None)]
-                minimal = dict(zip(start, self._minimal_rows(z, [(rows[j], found[j]) for j in start])))
+                stable = [j for j in live if not classify(_as_batch(found[j]), 0, None, 0, None)]
+                minimal = dict(zip(stable, self._minimal_rows(z, [(rows[j], found[j]) for j in stable])))
             for j, i in enumerate(rows):
                 if j not in live and base is not None and i in base.windowed:
                     found_i = None  # not periodic at the point stepped from: looked for again from rest at each optimum
