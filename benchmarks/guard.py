@@ -7,7 +7,7 @@ medians: the gradient through 210 jumps at τ = 0 ÷ the forward run (by a tange
 ``fold="stop"`` (no jump happens: the room kept for jumps should cost nothing), P1 through
 ``simulate`` ÷ through a ``Simulator`` (one compiled program; simulate keeps a Simulator for
 options it has seen), P1 at τ = 0.01 with the default (switching) stepper ÷ with Tsit5 alone,
-P6 ÷ the compiled diffrax peer
+P1 with a user's φ class ÷ with the paper's law (the user's program traced in the process), P6 ÷ the compiled diffrax peer
 (``peers/jump_peers.py``), ``periodic_orbit(V=1.1)`` ÷ P6's 3 s run, one step of
 ``fit_adhesion`` ÷ the forward run it fits, and the compilation of P6's program ÷ that of
 diffrax's ``diffeqsolve`` (each made new, so that neither comes from a cache).
@@ -95,6 +95,23 @@ def simulator_call():
     options = {"t_final": 3.0, "rtol": 1e-5, "atol": 1e-7, "ts": np.linspace(0.0, 3.0, 301)}
     sim = pj.Simulator(**options)
     return (lambda: pj.simulate(V=V, tau=0.01, **options)), (lambda: sim(V, 0.01))
+
+
+def user_law_call():
+    """(a user's φ class, the paper's law): P1 at τ = 0.1 through a Simulator each, the user's
+    program traced in the process (a class outside peeljax is never read back from disk: its
+    code can change under its name), the paper's read back. Both come back to the host as one
+    buffer per dtype; a copy per output made the user's call 2× slower (2026-12-07)."""
+    import numpy as np
+
+    import peeljax as pj
+
+    class UsersLaw(pj.AdhesionLaw):
+        """The paper's φ under a class of the user's (defined outside peeljax)."""
+
+    options = {"t_final": 3.0, "rtol": 5e-3, "ts": np.linspace(0.0, 3.0, 301)}
+    mine, paper = pj.Simulator(pj.PeelingModel(adhesion=UsersLaw()), **options), pj.Simulator(**options)
+    return (lambda: mine(V, 0.1)), (lambda: paper(V, 0.1))
 
 
 def switching_overhead():
@@ -211,6 +228,7 @@ CHECKS = {
     "p1_jump_rows": p1_jump_rows,
     "simulator_call": simulator_call,
     "switching_overhead": switching_overhead,
+    "user_law_call": user_law_call,
     "p6_vs_diffrax": p6_vs_diffrax,
     "orbit_vs_run": orbit_vs_run,
     "fit_step": fit_step,

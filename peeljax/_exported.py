@@ -44,7 +44,7 @@ from jax import export
 
 from ._atomic import write_bytes
 
-__all__ = ["ExportedProgram", "HostOutputs", "all_arrays", "compiled", "forget", "programs_folder"]
+__all__ = ["ExportedProgram", "HostOutputs", "OutputLayout", "all_arrays", "compiled", "forget", "programs_folder"]
 
 VARIABLE = "PEELJAX_EXPORTED_PROGRAMS"
 SUBFOLDER = "exported-programs"
@@ -99,6 +99,16 @@ def _node_classes(treedef) -> set[type]:
             classes.add(data[0])
         pending.extend(node.children())
     return classes
+
+
+def _static_classes(static) -> set[type]:
+    """Every class of a node of the tree structures held in ``static`` (a program whose static
+    part is the structure of its arguments, as ``simulate``'s is, holds the model's classes there)."""
+    if isinstance(static, jax.tree_util.PyTreeDef):
+        return _node_classes(static)
+    if isinstance(static, (tuple, list)):
+        return set().union(*(_static_classes(item) for item in static))
+    return set()
 
 
 def _trusted(cls: type) -> bool:
@@ -259,7 +269,10 @@ class ExportedProgram:
     pytrees of arrays. Called with concrete arrays, the program is read from (or exported to)
     :func:`programs_folder` and run through ``jax.jit``. With tracers (under ``jax.grad``,
     ``vmap``, an outer ``jit``), where the folder is off, or where the program cannot be
-    exported, ``fallback(static, *args)`` runs instead (``fn`` compiled as before).
+    exported (a host callback; a class outside peeljax and its libraries, in the arguments or
+    in a tree structure held by ``static``), ``fallback(static, *args)`` runs instead (``fn``
+    compiled as before); with ``host_outputs``, concrete calls run ``fn`` traced in this
+    process instead, its outputs packed as an exported program's (:class:`HostOutputs`).
     """
 
     def __init__(self, name: str, fn: Callable, fallback: Callable, *, host_outputs: bool = False):
@@ -267,7 +280,7 @@ class ExportedProgram:
         self.fn = fn
         self.fallback = fallback
         self.host_outputs = host_outputs
-        self._programs: dict = {}  # signature → the exported program under jit, or None: not exportable
+        self._programs: dict = {}  # signature → the program under jit, or None: the fallback runs
         _PROGRAMS.add(self)
 
     def __call__(self, static, *args):
@@ -281,13 +294,20 @@ class ExportedProgram:
 
     def program(self, static, treedef, leaves: list):
         """The exported program under ``jax.jit``, called with the flat ``leaves`` of concrete
-        arguments (``jax.tree_util.tree_flatten(args)``), or None where ``fallback`` runs
-        instead. One ``jax.jit`` per signature: a caller compiling it ahead of time
+        arguments (``jax.tree_util.tree_flatten(args)``): with ``host_outputs``, ``fn`` traced
+        here where it is not exported; else None where ``fallback`` runs instead. One
+        ``jax.jit`` per signature: a caller compiling it ahead of time
         (``.lower(*leaves).compile()``) shares the compilation with ``__call__``."""
         signature = (static, treedef, tuple((np.shape(leaf), _dtype(leaf)) for leaf in leaves))
         program = self._programs.get(signature, False)
         if program is False:
-            program = self._programs[signature] = self._load_or_export(static, treedef, leaves)
+            program = self._load_or_export(static, treedef, leaves)
+            if program is None and self.host_outputs:  # traced in this process, its outputs packed all the same
+                program = HostOutputs(
+                    lambda *leaves: self.fn(static, *jax.tree_util.tree_unflatten(treedef, leaves)),
+                    jax.sharding.SingleDeviceSharding(_device()),
+                )
+            self._programs[signature] = program
         return program
 
     def _load_or_export(self, static, treedef, leaves):
@@ -295,7 +315,9 @@ class ExportedProgram:
         if folder is None:
             return None
         try:
-            classes = _node_classes(treedef)
+            # the static part's classes too: a user's class is keyed by its name alone, and
+            # its code can change under that name (a program read back would be stale)
+            classes = _node_classes(treedef) | _static_classes(static)
             if not all(_trusted(cls) for cls in classes):
                 raise NotExportable(f"{self.name}: a class outside peeljax and its libraries")
             path = folder / f"{_key(self.name, static, treedef, classes, leaves)}{SUFFIX}"
@@ -322,7 +344,7 @@ class ExportedProgram:
         # arrays, and one handed back in (an orbit's model) would otherwise compile it again.
         sharding = jax.sharding.SingleDeviceSharding(_device())
         if self.host_outputs:
-            return HostOutputs(exported.call, exported.out_tree, exported.out_avals, sharding)
+            return HostOutputs(exported.call, sharding, exported.out_tree, exported.out_avals)
         return jax.jit(exported.call, in_shardings=sharding)
 
     def _export(self, static, treedef, leaves, path: Path):
@@ -347,31 +369,59 @@ class ExportedProgram:
         return export.deserialize(bytearray(serialized))
 
 
-class HostOutputs:
-    """A program whose outputs come back to the host as NumPy arrays: the compiled program
-    returns one flat buffer per dtype (a few outputs instead of dozens), and each output is a
-    read-only view of its buffer, reshaped, in the program's output structure.
+class OutputLayout:
+    """Where each output of a program lies when its outputs travel as one flat buffer per
+    dtype: a few copies to the host instead of dozens (a copy per output cost ~50 µs, where a
+    short run's whole call takes ~1 ms). :meth:`pack` inside the program, :meth:`unpack` on the
+    host: each output a read-only view of its buffer, reshaped, in the output structure."""
 
+    def __init__(self, out_tree, out_avals):
+        self.tree = out_tree
+        self.dtypes = list(dict.fromkeys(np.dtype(aval.dtype) for aval in out_avals))
+        offsets = dict.fromkeys(self.dtypes, 0)
+        self.views = []  # (buffer, start, stop, shape) per output
+        for aval in out_avals:
+            buffer, size = self.dtypes.index(np.dtype(aval.dtype)), math.prod(aval.shape)
+            start = offsets[self.dtypes[buffer]]
+            offsets[self.dtypes[buffer]] = start + size
+            self.views.append((buffer, start, start + size, tuple(aval.shape)))
+
+    @classmethod
+    def packed(cls, outputs) -> tuple[tuple, OutputLayout]:
+        """(the buffers, their layout) of a program's outputs, inside the program."""
+        leaves, tree = jax.tree_util.tree_flatten(outputs)
+        layout = cls(tree, leaves)
+        return layout.pack(leaves), layout
+
+    def pack(self, leaves) -> tuple:
+        return tuple(
+            jax.numpy.concatenate([jax.numpy.ravel(o) for o in leaves if np.dtype(o.dtype) == dtype])
+            for dtype in self.dtypes
+        )
+
+    def unpack(self, buffers):
+        host = [np.asarray(buffer) for buffer in buffers]
+        leaves = [host[b][start:stop].reshape(shape) for b, start, stop, shape in self.views]
+        return jax.tree_util.tree_unflatten(self.tree, leaves)
+
+
+class HostOutputs:
+    """A program whose outputs come back to the host as NumPy arrays, packed by
+    :class:`OutputLayout`.
+
+    ``call`` is an exported program's call, with its ``out_tree`` and ``out_avals``, or a
+    function traced in this process (both None): its layout is then read off its outputs when
+    it is traced (one HostOutputs per signature: the layout is the same at every trace).
     ``lower(*leaves).compile()`` compiles ahead of time; :meth:`unpack` turns what the compiled
     program returns into the outputs, as a call does."""
 
-    def __init__(self, call: Callable, out_tree, out_avals, sharding):
-        self._tree = out_tree
-        dtypes = list(dict.fromkeys(np.dtype(aval.dtype) for aval in out_avals))
-        offsets = dict.fromkeys(dtypes, 0)
-        self._views = []  # (buffer, start, stop, shape) per output
-        for aval in out_avals:
-            buffer, size = dtypes.index(np.dtype(aval.dtype)), math.prod(aval.shape)
-            start = offsets[dtypes[buffer]]
-            offsets[dtypes[buffer]] = start + size
-            self._views.append((buffer, start, start + size, tuple(aval.shape)))
+    def __init__(self, call: Callable, sharding, out_tree=None, out_avals=None):
+        self._layout = None if out_tree is None else OutputLayout(out_tree, out_avals)
 
         def by_dtype(*leaves):
-            outputs = jax.tree_util.tree_leaves(call(*leaves))
-            return tuple(
-                jax.numpy.concatenate([jax.numpy.ravel(o) for o in outputs if np.dtype(o.dtype) == dtype])
-                for dtype in dtypes
-            )
+            buffers, layout = OutputLayout.packed(call(*leaves))
+            self._layout = self._layout or layout
+            return buffers
 
         self._jitted = jax.jit(by_dtype, in_shardings=sharding)
 
@@ -379,9 +429,7 @@ class HostOutputs:
         return self._jitted.lower(*leaves)
 
     def unpack(self, buffers):
-        host = [np.asarray(buffer) for buffer in buffers]
-        leaves = [host[b][start:stop].reshape(shape) for b, start, stop, shape in self._views]
-        return jax.tree_util.tree_unflatten(self._tree, leaves)
+        return self._layout.unpack(buffers)
 
     def __call__(self, *leaves):
         return self.unpack(self._jitted(*leaves))

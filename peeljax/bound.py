@@ -30,7 +30,7 @@ from .integrators.base import AbstractIntegrator
 from .integrators.select import DEFAULT_MAX_JUMPS, integrator_for, refuse_with_dt, resolve_max_steps
 from .model import PeelingModel
 from .run_program import (
-    FIRST_MAX_JUMPS, _bucketed, _check_memory, _finished, _first_rows, _kept_run, _packed_jit, _prepare, _run,
+    FIRST_MAX_JUMPS, _bucketed, _check_memory, _finished, _first_rows, _kept_run, _prepare, _run,
     grown_until_it_holds, is_dae,
 )  # fmt: skip
 from .solution import Solution, StopReason, is_traced
@@ -67,9 +67,9 @@ class _Program:
     sorts them on every call: the float64 scalars (the model's, φ's, the integrator's, V, τ,
     t_final) one host vector, ``template``, in which a call writes V and τ (and y0 into
     ``rest``); the other arrays (``ts``) copied to the device once. The executable is
-    ``simulate``'s own program (``simulate._kept_run``, or ``simulate._packed_jit`` where
-    programs are not kept on disk), compiled ahead of time on first use: the same computation
-    as ``simulate``'s, and one compilation for both in a process.
+    ``simulate``'s own program (``run_program._kept_run``: read back from disk, or traced in
+    this process where programs are not kept there), compiled ahead of time on first use: the
+    same computation as ``simulate``'s, and one compilation for both in a process.
     ``fast`` is False when a leaf is not an array (a diffrax solver's settings, a φ given as
     a Python function): ``simulate`` then takes ``eqx.filter_jit``, and so does the call.
     """
@@ -104,12 +104,9 @@ class _Program:
         return self.executable
 
     def _compiled(self, leaves, structure):
+        # simulate's program: read back from disk (peeljax._exported), or traced in this process
         kept = _kept_run.program((self.treedef, self.scalars), structure, leaves)
-        if kept is None:  # simulate runs _packed_jit itself (its arrays then copied to the host)
-            lowered = _packed_jit.lower(self.template, self.rest, treedef=self.treedef, scalars=self.scalars)
-            compiled = lowered.compile()
-            return lambda packed, rest: jax.device_get(compiled(packed, rest))
-        compiled = kept.lower(*leaves).compile()  # simulate's program read back from disk (peeljax._exported)
+        compiled = kept.lower(*leaves).compile()
         return lambda packed, rest: kept.unpack(compiled(packed, *rest))
 
 

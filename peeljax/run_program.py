@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._exported import ExportedProgram, all_arrays
+from ._exported import ExportedProgram, OutputLayout, all_arrays
 from ._memory import check_output_memory
 from ._validation import check_positive, check_tau, check_truncation, check_y0
 from .constrained import ConstrainedDAE
@@ -151,6 +151,8 @@ _kept_run = ExportedProgram(
     host_outputs=True,
 )
 _filter_jit = eqx.filter_jit(_integrate)
+# concrete inputs: the outputs packed (peeljax._exported.OutputLayout), the layout a static output
+_filter_jit_packed = eqx.filter_jit(lambda *args: OutputLayout.packed(_integrate(*args)))
 
 
 def _run(integrator: AbstractIntegrator, ode, y0, t_final, ts) -> Solution:
@@ -174,11 +176,12 @@ def _run(integrator: AbstractIntegrator, ode, y0, t_final, ts) -> Solution:
         packed = np.array([leaf for leaf, is_scalar in zip(leaves, scalars) if is_scalar], dtype=float)
         rest = [leaf for leaf, is_scalar in zip(leaves, scalars) if not is_scalar]
         solution = _kept_run((treedef, scalars), packed, rest)
+    elif any(isinstance(leaf, jax.core.Tracer) for leaf in leaves):
+        return _filter_jit(integrator, ode, y0, t_final, ts)
     else:
-        solution = _filter_jit(integrator, ode, y0, t_final, ts)
-    if isinstance(solution.status, np.ndarray) or is_traced(solution):  # (a kept program's are on the host)
-        return solution
-    return jax.device_get(solution)  # the host's assembly works on NumPy arrays
+        buffers, layout = _filter_jit_packed(integrator, ode, y0, t_final, ts)
+        solution = layout.unpack(buffers)
+    return solution  # concrete: on the host, where simulate's assembly works on NumPy arrays
 
 
 def _bucketed(ts: np.ndarray) -> np.ndarray:

@@ -3,6 +3,8 @@ never a crash, never a program of a class that could have changed under its name
 
 from __future__ import annotations
 
+import os
+import subprocess
 import sys
 from pathlib import Path
 
@@ -14,7 +16,7 @@ import pytest
 
 import peeljax as pj
 from peeljax import _exported
-from peeljax._exported import ExportedProgram
+from peeljax._exported import ExportedProgram, HostOutputs
 
 
 @pytest.fixture
@@ -70,7 +72,9 @@ def test_a_run_gives_the_same_bits_read_back(folder):
         patch.setattr(simulate_module._kept_run, "_programs", {})
         patch.setattr(sys.modules["peeljax.simulate"], "KEPT_SIMULATORS", 0)  # (the same options again)
         plain = pj.simulate(V=1.1, tau=0, t_final=0.3)
-        assert simulate_module._kept_run._programs == {next(iter(simulate_module._kept_run._programs)): None}
+        (traced_here,) = simulate_module._kept_run._programs.values()
+        assert isinstance(traced_here, HostOutputs)  # its outputs still one buffer per dtype
+        assert isinstance(plain.ys, np.ndarray)
     np.testing.assert_array_equal(np.asarray(sol.ys), np.asarray(plain.ys))
     np.testing.assert_array_equal(np.asarray(sol.jumps.t), np.asarray(plain.jumps.t))
 
@@ -146,6 +150,75 @@ def test_tracers_and_classes_of_the_user_run_as_before(folder):
     mine = eqx.tree_at(lambda law: law.c1, MyLaw(), jnp.asarray(400.0))
     np.testing.assert_array_equal(np.asarray(program(2.0, mine, v)["phi"]), np.asarray(_double(2.0, mine, v)["phi"]))
     assert not list(folder.glob("*"))
+
+
+class UserScale(eqx.Module):
+    """A class of the user's: this module is outside peeljax and its libraries."""
+
+    k: jax.Array
+
+
+def _unflattened_times_three(structure, k):
+    """A program whose static part is its argument's tree structure (as simulate's is)."""
+    return {"value": 3.0 * jax.tree_util.tree_unflatten(structure, [k]).k}
+
+
+def test_a_class_of_the_user_held_in_the_static_part_is_never_kept(folder):
+    """simulate's program holds the model's structure, with a user's φ class, in its static
+    part: keyed by the class's name alone, a program read back after the user edited the class
+    would be stale. It is traced in each process, its outputs packed all the same."""
+    k = jnp.asarray(2.0)
+    program = ExportedProgram(
+        "static-structure", _unflattened_times_three, jax.jit(_unflattened_times_three, static_argnums=0),
+        host_outputs=True,
+    )  # fmt: skip
+    mine = jax.tree_util.tree_structure(UserScale(k))
+    out = program(mine, k)
+    assert isinstance(out["value"], np.ndarray) and float(out["value"]) == 6.0
+    assert not list(folder.glob("*"))
+    (traced_here,) = program._programs.values()
+    assert isinstance(traced_here, HostOutputs)
+    # the same program with a structure of peeljax's classes is kept
+    theirs = jax.tree_util.tree_structure(eqx.tree_at(lambda law: law.c1, pj.AdhesionLaw(), k))
+    kept = ExportedProgram("static-structure", lambda s, x: {"value": 3.0 * x}, jax.jit(lambda s, x: 3.0 * x, static_argnums=0))
+    assert float(kept(theirs, k)["value"]) == 6.0
+    assert len(list(folder.glob("*.jaxexport"))) == 1
+
+
+_EDITED_LAW = """
+import sys
+import numpy as np
+import peeljax as pj
+
+FACTOR = float(sys.argv[1])
+
+
+class EditedLaw(pj.AdhesionLaw):
+    def _evaluate(self, v, V):
+        return FACTOR * super()._evaluate(v, V)
+
+
+sol = pj.simulate(pj.PeelingModel(adhesion=EditedLaw()), V=1.1, tau=0.1, t_final=0.2, ts=np.linspace(0, 0.2, 3))
+print(repr(float(sol.ys[-1, 3])))
+"""
+
+
+@pytest.mark.slow
+def test_a_run_follows_the_users_edit_of_its_law_class(tmp_path):
+    """The user edits their φ class (same module, same name) between two processes sharing a
+    cache: the second run is the edited law's, not the first program read back."""
+    script = tmp_path / "edited_law.py"
+    script.write_text(_EDITED_LAW)
+    shared, fresh = tmp_path / "shared-cache", tmp_path / "fresh-cache"
+
+    def v_final(factor, cache):
+        env = dict(os.environ, PEELJAX_COMPILATION_CACHE=str(cache), PYTHONPATH=str(Path(pj.__file__).parents[1]))
+        env.pop("JAX_COMPILATION_CACHE_DIR", None)
+        done = subprocess.run([sys.executable, str(script), str(factor)], env=env, capture_output=True, text=True, check=True)
+        return float(done.stdout.strip().splitlines()[-1])
+
+    before, edited = v_final(1.0, shared), v_final(1.1, shared)
+    assert edited == v_final(1.1, fresh) != before
 
 
 def test_a_program_that_cannot_be_exported_is_remembered_and_runs(folder):
