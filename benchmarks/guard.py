@@ -7,7 +7,7 @@ medians: the gradient through 210 jumps at τ = 0 ÷ the forward run (by a tange
 ``fold="stop"`` (no jump happens: the room kept for jumps should cost nothing), P1 through
 ``simulate`` ÷ through a ``Simulator`` (one compiled program; simulate keeps a Simulator for
 options it has seen), P1 at τ = 0.01 with the default (switching) stepper ÷ with Tsit5 alone,
-P1 with a user's φ class ÷ with the paper's law (the user's program traced in the process), P6 ÷ the compiled diffrax peer
+P1 with a φ module of the user's ÷ with the paper's law (the user's program traced in the process), P6 ÷ the compiled diffrax peer
 (``peers/jump_peers.py``), ``periodic_orbit(V=1.1)`` ÷ P6's 3 s run, one step of
 ``fit_adhesion`` ÷ the forward run it fits, and the compilation of P6's program ÷ that of
 diffrax's ``diffeqsolve`` (each made new, so that neither comes from a cache).
@@ -98,16 +98,23 @@ def simulator_call():
 
 
 def user_law_call():
-    """(a user's φ class, the paper's law): P1 at τ = 0.1 through a Simulator each, the user's
-    program traced in the process (a class outside peeljax is never read back from disk: its
-    code can change under its name), the paper's read back. Both come back to the host as one
-    buffer per dtype; a copy per output made the user's call 2× slower (2026-12-07)."""
+    """(a φ module of the user's, the paper's law): P1 at τ = 0.1 through a Simulator each. The
+    user's φ holds a Python float, part of the compiled program by value, and its program is
+    traced in the process (a class outside peeljax is never read back from disk: its code can
+    change under its name); the paper's is read back. Before 2026-12-07 such a φ took
+    ``eqx.filter_jit`` on every call and came back output by output: 2.65 here."""
+    import equinox as eqx
     import numpy as np
 
     import peeljax as pj
 
-    class UsersLaw(pj.AdhesionLaw):
-        """The paper's φ under a class of the user's (defined outside peeljax)."""
+    class UsersLaw(eqx.Module):
+        """The paper's φ times a Python float, a φ module of the user's (defined outside peeljax)."""
+
+        scale: float = 1.0
+
+        def __call__(self, v, V):
+            return self.scale * pj.AdhesionLaw()(v, V)
 
     options = {"t_final": 3.0, "rtol": 5e-3, "ts": np.linspace(0.0, 3.0, 301)}
     mine, paper = pj.Simulator(pj.PeelingModel(adhesion=UsersLaw()), **options), pj.Simulator(**options)

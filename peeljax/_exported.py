@@ -102,13 +102,14 @@ def _node_classes(treedef) -> set[type]:
 
 
 def _static_classes(static) -> set[type]:
-    """Every class of a node of the tree structures held in ``static`` (a program whose static
-    part is the structure of its arguments, as ``simulate``'s is, holds the model's classes there)."""
+    """Every class in ``static``: its values' and those of the nodes of the tree structures it
+    holds (a program whose static part is the structure of its arguments, as ``simulate``'s is,
+    holds the model's classes there, and its leaves that are not arrays)."""
     if isinstance(static, jax.tree_util.PyTreeDef):
         return _node_classes(static)
     if isinstance(static, (tuple, list)):
-        return set().union(*(_static_classes(item) for item in static))
-    return set()
+        return {type(static)}.union(*(_static_classes(item) for item in static))
+    return {type(static)}
 
 
 def _trusted(cls: type) -> bool:

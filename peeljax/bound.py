@@ -22,7 +22,6 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 from ._arrays import float_array
-from ._exported import all_arrays
 from ._validation import TAU_MAX, check_output_times, check_positive, check_tau, check_y0
 from .homogenized import HomogenizedODE
 from .integrators.alpha import AlphaMethod
@@ -31,7 +30,7 @@ from .integrators.select import DEFAULT_MAX_JUMPS, integrator_for, refuse_with_d
 from .model import PeelingModel
 from .run_program import (
     FIRST_MAX_JUMPS, _bucketed, _check_memory, _finished, _first_rows, _kept_run, _prepare, _run,
-    grown_until_it_holds, is_dae,
+    grown_until_it_holds, is_dae, is_host_scalar, leaf_kinds,
 )  # fmt: skip
 from .solution import Solution, StopReason, is_traced
 
@@ -70,19 +69,19 @@ class _Program:
     ``simulate``'s own program (``run_program._kept_run``: read back from disk, or traced in
     this process where programs are not kept there), compiled ahead of time on first use: the
     same computation as ``simulate``'s, and one compilation for both in a process.
-    ``fast`` is False when a leaf is not an array (a diffrax solver's settings, a φ given as
-    a Python function): ``simulate`` then takes ``eqx.filter_jit``, and so does the call.
+    A leaf that is not an array (a Python float or function of a φ of the user's, a diffrax
+    solver's settings) is part of the program's static part, by value (``leaf_kinds``).
+    ``fast`` is False where such a leaf cannot be hashed: ``simulate`` then takes
+    ``eqx.filter_jit``, and so does the call.
     """
 
     def __init__(self, integrator: AbstractIntegrator, ode, y0, t_final, ts):
         leaves, self.treedef = jax.tree_util.tree_flatten((integrator, ode, y0, t_final, ts))
-        self.fast = all_arrays(leaves)
-        self.scalars = tuple(
-            isinstance(leaf, (np.ndarray, np.generic)) and leaf.shape == () and leaf.dtype == np.float64
-            for leaf in leaves
-        )
-        packed = [leaf for leaf, is_scalar in zip(leaves, self.scalars) if is_scalar]
-        rest = [leaf for leaf, is_scalar in zip(leaves, self.scalars) if not is_scalar]
+        kinds = leaf_kinds(leaves)
+        self.fast = kinds is not None
+        self.scalars = kinds if self.fast else tuple(is_host_scalar(leaf) for leaf in leaves)
+        packed = [leaf for leaf, kind in zip(leaves, self.scalars) if kind is True]
+        rest = [leaf for leaf, kind in zip(leaves, self.scalars) if kind is False]
         self.template = np.array(packed, dtype=float)
         self.i_V = _position(packed, ode.V)
         self.i_tau = _position(packed, ode.tau) if isinstance(ode, HomogenizedODE) else None
@@ -146,8 +145,10 @@ class Simulator:
 
     A traced V, τ or y0 (inside ``jax.grad``, ``jax.vmap``, ``jax.jit``) takes ``simulate``'s
     own route (``simulate._run``) with the bound options, so gradients and batches are
-    ``simulate``'s. So does a run with a leaf that is not an array (a diffrax solver; then
-    only the option checks are saved).
+    ``simulate``'s. So does a run with a leaf that is not an array and cannot be hashed (then
+    only the option checks are saved); a leaf that is not an array but can be (a Python float
+    or function of a φ of the user's, a diffrax solver's settings) is part of the compiled
+    program, by value.
 
     Per call, the checks of ``simulate`` are saved. ``simulate`` itself keeps a ``Simulator``
     for options it sees a second time (:func:`peeljax.simulate._kept_simulator`): P1 through

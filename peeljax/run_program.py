@@ -12,14 +12,14 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._exported import ExportedProgram, OutputLayout, all_arrays
+from ._exported import ExportedProgram
 from ._memory import check_output_memory
 from ._validation import check_positive, check_tau, check_truncation, check_y0
 from .constrained import ConstrainedDAE
@@ -130,15 +130,49 @@ def _integrate_with(inputs, kind: Literal["lax", "checkpointed"] | None):
     return undefined_where_unreached(solution, inputs, reverse=getattr(integrator, "adjoint", None) == "checkpointed")
 
 
+class StaticLeaf(NamedTuple):
+    """A leaf that is not an array (a Python number or function of a φ of the user's, a diffrax
+    solver's settings): part of the program's static part, compared by value, as
+    ``eqx.filter_jit`` compares it."""
+
+    value: object
+
+
+def is_host_scalar(leaf) -> bool:
+    return isinstance(leaf, (np.ndarray, np.generic)) and leaf.shape == () and leaf.dtype == np.float64
+
+
+def leaf_kinds(leaves) -> tuple | None:
+    """Each leaf's place in a run's program: True, a float64 scalar on the host (packed into one
+    vector); False, another array (or a tracer); a :class:`StaticLeaf`, not an array. None where
+    a leaf that is not an array cannot be hashed (the run then takes ``eqx.filter_jit``)."""
+    kinds = []
+    for leaf in leaves:
+        if is_host_scalar(leaf):
+            kinds.append(True)
+        elif isinstance(leaf, (jax.Array, np.ndarray, np.generic)):
+            kinds.append(False)
+        else:
+            try:
+                hash(leaf)
+            except TypeError:
+                return None
+            kinds.append(StaticLeaf(leaf))
+    return tuple(kinds)
+
+
 def _integrate_packed(packed, rest, *, treedef, scalars):
+    """The run from its leaves sorted by :func:`leaf_kinds` (``scalars``)."""
     leaves, k, j = [], 0, 0
-    for is_scalar in scalars:
-        if is_scalar:
+    for kind in scalars:
+        if kind is True:
             leaves.append(packed[k])
             k += 1
-        else:
+        elif kind is False:
             leaves.append(rest[j])
             j += 1
+        else:
+            leaves.append(kind.value)
     return _integrate(*jax.tree_util.tree_unflatten(treedef, leaves))
 
 
@@ -151,37 +185,30 @@ _kept_run = ExportedProgram(
     host_outputs=True,
 )
 _filter_jit = eqx.filter_jit(_integrate)
-# concrete inputs: the outputs packed (peeljax._exported.OutputLayout), the layout a static output
-_filter_jit_packed = eqx.filter_jit(lambda *args: OutputLayout.packed(_integrate(*args)))
 
 
 def _run(integrator: AbstractIntegrator, ode, y0, t_final, ts) -> Solution:
-    """The compiled run, with ``jax.jit``'s C++ dispatch when every leaf is an array.
+    """The compiled run, with ``jax.jit``'s C++ dispatch.
 
     The float parameters held on the host (about 30: the model's, φ's, the integrator's)
     travel as one vector, one host-to-device copy instead of one each (a call's fixed cost is
     measured by ``benchmarks/studies/adaptive_drivers.py`` (retired: ``benchmarks/studies/README.md``));
-    the integrator's static fields (step budgets, mesh size) are in the tree's structure. A
-    leaf that is not an array (a φ given as a plain Python function, a diffrax solver's
-    settings) takes ``eqx.filter_jit`` instead.
+    the integrator's static fields (step budgets, mesh size) are in the tree's structure, and
+    so are the leaves that are not arrays (a φ of the user's with a Python float field or given
+    as a function, a diffrax solver's settings), by value, as ``eqx.filter_jit`` takes them. A
+    leaf that is not an array and cannot be hashed takes ``eqx.filter_jit`` itself.
 
     Run on concrete inputs, the solution's arrays are NumPy arrays on the host (:class:`~peeljax._exported.HostOutputs`):
     what :func:`simulate` does with them next (cut, merge, drop padding) is host work.
     """
     leaves, treedef = jax.tree_util.tree_flatten((integrator, ode, y0, t_final, ts))
-    scalars = tuple(
-        isinstance(leaf, (np.ndarray, np.generic)) and leaf.shape == () and leaf.dtype == np.float64 for leaf in leaves
-    )
-    if all_arrays(leaves):
-        packed = np.array([leaf for leaf, is_scalar in zip(leaves, scalars) if is_scalar], dtype=float)
-        rest = [leaf for leaf, is_scalar in zip(leaves, scalars) if not is_scalar]
-        solution = _kept_run((treedef, scalars), packed, rest)
-    elif any(isinstance(leaf, jax.core.Tracer) for leaf in leaves):
-        return _filter_jit(integrator, ode, y0, t_final, ts)
-    else:
-        buffers, layout = _filter_jit_packed(integrator, ode, y0, t_final, ts)
-        solution = layout.unpack(buffers)
-    return solution  # concrete: on the host, where simulate's assembly works on NumPy arrays
+    kinds = leaf_kinds(leaves)
+    if kinds is None:
+        solution = _filter_jit(integrator, ode, y0, t_final, ts)
+        return solution if is_traced(solution) else jax.device_get(solution)
+    packed = np.array([leaf for leaf, kind in zip(leaves, kinds) if kind is True], dtype=float)
+    rest = [leaf for leaf, kind in zip(leaves, kinds) if kind is False]
+    return _kept_run((treedef, kinds), packed, rest)  # concrete: NumPy arrays on the host
 
 
 def _bucketed(ts: np.ndarray) -> np.ndarray:

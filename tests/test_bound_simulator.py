@@ -15,6 +15,7 @@ import math
 import sys
 
 import diffrax
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -22,6 +23,7 @@ import pytest
 from jax import monitoring
 
 import peeljax as pj
+from peeljax import run_program
 
 # Error control with the default fold="jump": the DAE jumps 18 times on [0, 0.3 s].
 OPTIONS = {"t_final": 0.3, "rtol": 1e-5, "atol": 1e-8, "ts": np.linspace(0.0, 0.3, 31)}
@@ -136,6 +138,41 @@ def test_diffrax_solver_takes_simulates_route():
     options = {"t_final": 0.05, "rtol": 1e-5, "atol": 1e-8, "ts": np.linspace(0.0, 0.05, 6)}
     sim = pj.Simulator(solver=diffrax.Kvaerno5(), **options)
     assert_same_solution(sim(1.1, 0.05), pj.simulate(V=1.1, tau=0.05, solver=diffrax.Kvaerno5(), **options))
+
+
+# ---------------------------------------------------------------------------- a φ of the user's
+class ScaledLaw(eqx.Module):
+    """A φ of the user's with a Python float field: a leaf that is not an array."""
+
+    scale: float = 1.0
+
+    def __call__(self, v, V):
+        return self.scale * pj.AdhesionLaw()(v, V)
+
+
+def test_leaves_that_are_not_arrays_are_static_by_value_or_refused_where_unhashable():
+    scalar, array = np.float64(1.1), jnp.ones(3)
+    assert run_program.leaf_kinds([scalar, array, np.ones(2), 1.5, abs]) == (
+        True, False, False, run_program.StaticLeaf(1.5), run_program.StaticLeaf(abs),
+    )  # fmt: skip
+    assert run_program.leaf_kinds([scalar, bytearray(b"x")]) is None  # (eqx.filter_jit's route)
+
+
+def test_a_law_with_a_float_field_runs_through_the_simulators_program_as_filter_jit_ran_it():
+    """Before, such a φ took ``eqx.filter_jit`` on every call (2–3 ms of its overhead); now its
+    float is part of the compiled program's static part, by value, as filter_jit took it."""
+    options = {"t_final": 0.02, "dt": 0.002}
+    model = pj.PeelingModel(adhesion=ScaledLaw(1.05))
+    sim = pj.Simulator(model, **options)
+    assert sim._programs == {} and sim(1.1, 0.05).ys.shape == (11, 4)
+    assert sim._programs[(False, False)].fast
+    ode, y0 = run_program._prepare(model, 1.1, 0.05, None, None)
+    inputs = (sim.integrators[False], ode, y0, sim.t_final, sim._run_ts)
+    assert_same_solution(run_program._run(*inputs), jax.device_get(run_program._filter_jit(*inputs)))
+    assert_same_solution(sim(1.1, 0.05), pj.simulate(model, V=1.1, tau=0.05, **options))
+    other = pj.PeelingModel(adhesion=ScaledLaw(1.10))  # another value: another program, its own result
+    assert not np.array_equal(pj.Simulator(other, **options)(1.1, 0.05).ys, sim(1.1, 0.05).ys)
+    assert_same_solution(pj.Simulator(other, **options)(1.1, 0.05), pj.simulate(other, V=1.1, tau=0.05, **options))
 
 
 # ---------------------------------------------------------------------------- gradients, batches

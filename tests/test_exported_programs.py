@@ -185,6 +185,22 @@ def test_a_class_of_the_user_held_in_the_static_part_is_never_kept(folder):
     assert len(list(folder.glob("*.jaxexport"))) == 1
 
 
+def _paper_phi(v, V):
+    return pj.AdhesionLaw()(v, V)
+
+
+def test_a_law_given_as_a_function_runs_compiled_and_is_never_kept(folder):
+    """A φ given as a function is a leaf that is not an array: part of the program's static
+    part, by value, so that the run takes jit's dispatch; what it computes could change under
+    its name, so its program is never kept on disk."""
+    paper = pj.simulate(V=1.1, tau=0.05, t_final=0.02, dt=0.002)
+    kept = list(folder.glob("*"))
+    assert len(kept) == 1  # the paper's law: its program kept
+    sol = pj.simulate(pj.PeelingModel(adhesion=_paper_phi), V=1.1, tau=0.05, t_final=0.02, dt=0.002)
+    np.testing.assert_allclose(sol.ys, paper.ys, rtol=1e-12, atol=0)
+    assert list(folder.glob("*")) == kept
+
+
 _EDITED_LAW = """
 import sys
 import numpy as np
