@@ -305,6 +305,7 @@ class ExportedProgram:
             program = self._load_or_export(static, treedef, leaves)
             if program is None and self.host_outputs:  # traced in this process, its outputs packed all the same
                 program = HostOutputs(
+                    self.name,
                     lambda *leaves: self.fn(static, *jax.tree_util.tree_unflatten(treedef, leaves)),
                     jax.sharding.SingleDeviceSharding(_device()),
                 )
@@ -345,7 +346,7 @@ class ExportedProgram:
         # arrays, and one handed back in (an orbit's model) would otherwise compile it again.
         sharding = jax.sharding.SingleDeviceSharding(_device())
         if self.host_outputs:
-            return HostOutputs(exported.call, sharding, exported.out_tree, exported.out_avals)
+            return HostOutputs(self.name, exported.call, sharding, exported.out_tree, exported.out_avals)
         return jax.jit(exported.call, in_shardings=sharding)
 
     def _export(self, static, treedef, leaves, path: Path):
@@ -410,13 +411,13 @@ class HostOutputs:
     """A program whose outputs come back to the host as NumPy arrays, packed by
     :class:`OutputLayout`.
 
-    ``call`` is an exported program's call, with its ``out_tree`` and ``out_avals``, or a
-    function traced in this process (both None): its layout is then read off its outputs when
-    it is traced (one HostOutputs per signature: the layout is the same at every trace).
+    ``name`` names the compiled program (``jit(name)``). ``call`` is an exported program's
+    call, with its ``out_tree`` and ``out_avals``, or a function traced in this process (both
+    None): its layout is then read off its outputs when it is traced (one HostOutputs per signature: the layout is the same at every trace).
     ``lower(*leaves).compile()`` compiles ahead of time; :meth:`unpack` turns what the compiled
     program returns into the outputs, as a call does."""
 
-    def __init__(self, call: Callable, sharding, out_tree=None, out_avals=None):
+    def __init__(self, name: str, call: Callable, sharding, out_tree=None, out_avals=None):
         self._layout = None if out_tree is None else OutputLayout(out_tree, out_avals)
 
         def by_dtype(*leaves):
@@ -424,6 +425,8 @@ class HostOutputs:
             self._layout = self._layout or layout
             return buffers
 
+        # named after the program (``jit(simulate)``): profiles and compile events tell it apart
+        by_dtype.__name__ = by_dtype.__qualname__ = name
         self._jitted = jax.jit(by_dtype, in_shardings=sharding)
 
     def lower(self, *leaves):

@@ -29,7 +29,7 @@ LONG_RUN = ["simulate", "--V", "1.1", "--tau", "0", "--t-final", "5000", "--save
 
 # peeljax.cli.main with JAX's compile events on stderr: "MARK lowered" when the integration loop
 # has been lowered and XLA starts compiling it, "MARK compiled" when XLA has compiled it. The loop
-# is told by its name: its lowering time (0.2-0.5 s) overlaps the small programs' at a high load.
+# is told by its name (peeljax.run_program's kept program "simulate"): its lowering time (0.2-0.5 s) overlaps the small programs' at a high load.
 DRIVER = """
 import sys
 import peeljax
@@ -37,7 +37,7 @@ import jax.monitoring
 large = set()
 def mark(event, duration, fun_name="", **kwargs):
     event = event.rsplit("/", 1)[-1]
-    if event == "jaxpr_to_mlir_module_duration" and "integrate" in fun_name:
+    if event == "jaxpr_to_mlir_module_duration" and fun_name == "jit(simulate)":
         large.add(fun_name)
         print("MARK lowered", file=sys.stderr, flush=True)
     elif event == "backend_compile_duration" and fun_name in large:
