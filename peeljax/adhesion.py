@@ -17,6 +17,7 @@ positive, and initial states with v ≤ 0 are rejected before compilation.
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import functools
 import json
@@ -28,6 +29,7 @@ from pathlib import Path
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax.custom_derivatives import SymbolicZero
 from jaxtyping import Array, ArrayLike, Float
 
@@ -112,13 +114,28 @@ class AdhesionLaw(eqx.Module):
     p9: Float[Array, ""] = _coefficient()
 
     def __init__(self, **coefficients: ArrayLike):
-        unknown = set(coefficients) - set(COEFFICIENT_NAMES)
+        """The 14 coefficients by name (the paper's values where not given). A subclass's own
+        fields are set here too: by name, else their default (``scale: float = 1.0`` in a
+        subclass that scales ``_evaluate``)."""
+        # a subclass of a module with its own __init__ gets no dataclass __init__ (equinox):
+        # without this, its fields were never set, a flattened leaf read as equinox's `_Missing`
+        own = {field.name: field for field in _own_fields(self)}
+        unknown = set(coefficients) - set(COEFFICIENT_NAMES) - set(own)
         if unknown:
-            raise ValueError(
-                f"AdhesionLaw: unknown coefficient(s) {sorted(unknown)}; the names are {list(COEFFICIENT_NAMES)}"
-            )
+            names = [*COEFFICIENT_NAMES, *own]
+            raise ValueError(f"{type(self).__name__}: unknown coefficient(s) {sorted(unknown)}; the names are {names}")
         for name in COEFFICIENT_NAMES:
             setattr(self, name, coefficients.get(name, PAPER_COEFFICIENTS[name]))
+        for name, field in own.items():
+            if name in coefficients:
+                value = coefficients[name]
+            elif field.default is not dataclasses.MISSING:
+                value = field.default
+            elif field.default_factory is not dataclasses.MISSING:
+                value = field.default_factory()
+            else:
+                raise TypeError(f"{type(self).__name__}: field {name!r} has no default; pass {name}=...")
+            setattr(self, name, value)
 
     def __call__(self, v: ArrayLike, V: ArrayLike) -> Array:
         """φ(v, V) (eq. ``sac``); v^p is 0 for v ≤ 0 (see the module docstring)."""
@@ -253,6 +270,39 @@ def _looks_like_coefficient(key) -> bool:
     if re.fullmatch(r"[a-z]\d+", squeezed):
         return True
     return bool(difflib.get_close_matches(key.lower(), COEFFICIENT_NAMES, n=1, cutoff=0.75))
+
+
+def in_a_file(phi) -> bool:
+    """Whether a file of data holds φ: an :class:`AdhesionLaw` itself, its 14 coefficients. A
+    subclass's ``_evaluate`` and a callable are code, which files never hold (read back as the
+    paper's family, a subclass would be another law under the same coefficients)."""
+    return type(phi) is AdhesionLaw
+
+
+def law_settings(phi) -> dict | str:
+    """φ as JSON-able settings (a sweep compares them when it resumes): the 14 coefficients; a
+    subclass adds its class and its own fields; a callable is named by its class."""
+    if not isinstance(phi, AdhesionLaw):
+        return f"callable {type(phi).__qualname__}"
+    settings = phi.coefficients()
+    if type(phi) is not AdhesionLaw:
+        settings |= {"class": type(phi).__qualname__}
+        settings |= {field.name: _json_value(getattr(phi, field.name)) for field in _own_fields(phi)}
+    return settings
+
+
+def _own_fields(law: AdhesionLaw) -> list[dataclasses.Field]:
+    """A subclass's fields beside the 14 coefficients."""
+    return [field for field in dataclasses.fields(law) if field.name not in COEFFICIENT_NAMES]
+
+
+def _json_value(value):
+    """A field's value as JSON: numbers and arrays as lists, anything else by its repr (a
+    function's holds its address: a sweep resumed in another process refuses it, the safe side)."""
+    try:
+        return np.asarray(value, dtype=float).tolist()
+    except (TypeError, ValueError):
+        return repr(value)
 
 
 def as_adhesion(phi: AdhesionLaw | Callable | None) -> AdhesionLaw | Callable:

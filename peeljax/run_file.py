@@ -15,7 +15,7 @@ import numpy as np
 
 from ._atomic import write_npz, write_text
 from ._files import META_KEY, STATE_UNITS, json_safe, meta_array
-from .adhesion import AdhesionLaw
+from .adhesion import in_a_file
 from .model import PeelingModel
 
 __all__ = ["RUN_UNITS", "TEXT_COLUMNS", "run_arrays", "write_run", "write_run_text"]
@@ -55,9 +55,10 @@ def run_arrays(
     ``after_jump``, where the solution has it). Scalars: status, status_code (the
     :class:`~peeljax.StopReason`), reason, t_stop, V, tau (0: the DAE itself), dt (the uniform
     step; NaN with error control), t_final, rho, rtol and atol (NaN where they do not apply),
-    geometry, method (the stepper that ran), method_option, phi_json (the 14 coefficients, ""
-    for a callable φ), stats_json (strict JSON: NaN is null) and meta_json (kind "run", the
-    units, the peeljax version). A run with a jump record also has jump_t [s], jump_up,
+    geometry, method (the stepper that ran), method_option, phi_json (the 14 coefficients; ""
+    for a callable φ or a subclass of AdhesionLaw, code, which the file does not hold),
+    stats_json (strict JSON: NaN is null) and meta_json (kind "run", the units, the peeljax
+    version). A run with a jump record also has jump_t [s], jump_up,
     jump_v_before, jump_v_after [m/s], jump_G [N] (and jump_F [N]), one entry per jump, and the
     scalars fold, max_jumps and transient [s].
     """
@@ -66,7 +67,7 @@ def run_arrays(
     valid = np.asarray(solution.valid, dtype=bool)
     tension = np.asarray(model.tension(ys[:, 2], ys[:, 0]), dtype=float)
     adhesion = model.adhesion
-    phi_json = json.dumps(adhesion.coefficients()) if isinstance(adhesion, AdhesionLaw) else ""
+    phi_json = json.dumps(adhesion.coefficients()) if in_a_file(adhesion) else ""
     stats = {key: np.asarray(value).tolist() for key, value in solution.stats.items()}
     ts = np.asarray(solution.ts, dtype=float)
     after_jump = getattr(solution, "after_jump", None)
@@ -141,7 +142,7 @@ def write_run_text(path: str | os.PathLike, solution, **run) -> None:
         f"# peeljax run: V = {_cell(arrays['V'])} m/s, tau = {_cell(arrays['tau'])} s, {arrays['status']} "
         f"({arrays['reason']}), t_stop = {_cell(arrays['t_stop'])} s, method {arrays['method']}"
     )
-    phi = str(arrays["phi_json"]) or "a Python function"
+    phi = str(arrays["phi_json"]) or "not in this file: a Python function or a subclass of AdhesionLaw"
     cells = [[_cell(x) for x in column] for column in columns[:-1]] + [["1" if x else "0" for x in columns[-1]]]
     lines = [settings, f"# phi: {phi}", header, *(",".join(row) for row in zip(*cells))]
     write_text(path, "\n".join(lines) + "\n")

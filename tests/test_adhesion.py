@@ -93,6 +93,51 @@ def test_unknown_coefficient_raises():
         AdhesionLaw(c1=1.0, c10=2.0)
 
 
+class ScaledLaw(AdhesionLaw):
+    """A user's law: the paper's φ scaled, with a field of its own (a float and an array)."""
+
+    scale: float = 1.0
+    shift: jax.Array = eqx.field(default=0.0, converter=jnp.asarray)
+
+    def _evaluate(self, v, V):
+        return self.scale * super()._evaluate(v, V) + self.shift
+
+
+def test_a_subclass_sets_its_own_fields_by_name_or_default():
+    """Before: AdhesionLaw's __init__ set the 14 coefficients only, so a subclass's own field was
+    refused by name and never set (flattened as equinox's `_Missing`, unreachable by tree_at)."""
+    law = ScaledLaw(scale=1.1, c1=420.0)
+    assert law.scale == 1.1 and law.c1 == 420.0 and float(law.shift) == 0.0
+    expected = 1.1 * AdhesionLaw(c1=420.0)(0.5, 1.1)
+    assert float(law(0.5, 1.1)) == pytest.approx(float(expected), rel=1e-15)
+    assert ScaledLaw().scale == 1.0
+    assert "_Missing" not in str(jax.tree_util.tree_structure(law))
+    assert eqx.tree_at(lambda m: m.scale, law, 1.2).scale == 1.2
+    # an array field of the user's is differentiated like a coefficient
+    assert float(jax.grad(lambda m: m(0.5, 1.1))(ScaledLaw(shift=2.0)).shift) == 1.0
+    with pytest.raises(ValueError, match=r"ScaledLaw: unknown coefficient\(s\) \['scal'\].*'c1'.*'scale', 'shift'"):
+        ScaledLaw(scal=1.1)
+
+
+def test_a_subclass_field_without_a_default_must_be_given():
+    class Shifted(AdhesionLaw):
+        shift: float
+
+    assert Shifted(shift=3.0).shift == 3.0
+    with pytest.raises(TypeError, match="Shifted: field 'shift' has no default; pass shift="):
+        Shifted()
+
+
+def test_a_subclass_with_a_field_runs_as_a_function_of_the_same_law():
+    law = ScaledLaw(scale=1.1)
+    run = pj.simulate(pj.PeelingModel(adhesion=law), V=1.1, tau=0.1, t_final=0.2)
+    same = pj.simulate(pj.PeelingModel(adhesion=lambda v, V: 1.1 * AdhesionLaw()(v, V)), V=1.1, tau=0.1, t_final=0.2)
+    unscaled = pj.simulate(pj.PeelingModel(adhesion=ScaledLaw()), V=1.1, tau=0.1, t_final=0.2)
+    # the same law, another program (its coefficients constants): round-off apart, at rtol 1e-6
+    np.testing.assert_allclose(np.asarray(run.ys), np.asarray(same.ys), rtol=1e-8, atol=1e-12)
+    assert not np.allclose(np.asarray(run.ys), np.asarray(unscaled.ys), rtol=1e-3)
+
+
 # ---------------------------------------------------------------------- values and shape
 @pytest.mark.parametrize("V", [1.1, 2.0, 4.0, 8.0])
 def test_phi_equals_the_formula_written_out(V):

@@ -228,6 +228,30 @@ def test_solution_save_writes_what_simulate_out_writes(tmp_path):
         solution.save(tmp_path / "x.npz", tau=0.0)
 
 
+def test_a_law_that_is_code_is_not_written_as_the_papers_family(tmp_path):
+    """A subclass of AdhesionLaw is code (its _evaluate): a run's file names no coefficients
+    for it, as for a function, and a sweep's settings hold its class and fields. Before, the
+    file held its 14 coefficients and was read back as the paper's φ, another law."""
+    from peeljax.adhesion import in_a_file, law_settings
+
+    class ScaledLaw(pj.AdhesionLaw):
+        scale: float = 1.0
+
+        def _evaluate(self, v, V):
+            return self.scale * super()._evaluate(v, V)
+
+    law = ScaledLaw(scale=1.1)
+    assert in_a_file(pj.AdhesionLaw()) and not in_a_file(law) and not in_a_file(lambda v, V: v)
+    _solution().save(tmp_path / "run.npz", model=pj.PeelingModel(adhesion=law), V=2.0, tau=0.05, t_final=0.1)
+    with np.load(tmp_path / "run.npz", allow_pickle=False) as data:
+        assert str(data["phi_json"]) == ""
+    assert pj.load(tmp_path / "run.npz").model is None  # φ is not in the file
+    settings = law_settings(law)
+    assert settings["class"] == "test_a_law_that_is_code_is_not_written_as_the_papers_family.<locals>.ScaledLaw"
+    assert settings["scale"] == 1.1 and settings["c1"] == 400.0
+    assert law_settings(ScaledLaw(scale=1.2)) != settings and law_settings(pj.AdhesionLaw()) == pj.AdhesionLaw().coefficients()
+
+
 # ---------------------------------------------------------------------------- atomic writes
 class _FullDisk:
     """``open`` whose files take ``room`` bytes and then fail as a full disk does."""

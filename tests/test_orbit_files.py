@@ -88,6 +88,13 @@ def test_what_a_file_cannot_hold_is_refused():
     callable_phi = pj.PeelingModel(adhesion=lambda v, V: pj.AdhesionLaw()(v, V))
     with pytest.raises(ValueError, match="callable, which a file cannot hold"):
         orbit_arrays(_orbit(callable_phi))
+
+    class ScaledLaw(pj.AdhesionLaw):
+        def _evaluate(self, v, V):
+            return 1.1 * super()._evaluate(v, V)
+
+    with pytest.raises(ValueError, match="a subclass of AdhesionLaw, which a file cannot hold"):
+        orbit_arrays(_orbit(pj.PeelingModel(adhesion=ScaledLaw())))
     batch = jax_stack([_orbit(), _orbit()])
     with pytest.raises(ValueError, match="one orbit per file"):
         orbit_arrays(batch)

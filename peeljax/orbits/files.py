@@ -67,7 +67,7 @@ import numpy as np
 
 from .._atomic import write_npz
 from .._files import META_KEY, json_safe, meta_array, read_meta
-from ..adhesion import AdhesionLaw
+from ..adhesion import AdhesionLaw, in_a_file
 from ..cycles import STATISTICS
 from ..model import GEOMETRIES, PeelingModel
 from ..solution import StopReason
@@ -118,10 +118,11 @@ def orbit_arrays(orbit, settings: dict | None = None) -> dict[str, np.ndarray]:
     if np.ndim(orbit.V) != 0:
         raise ValueError("save: one orbit per file; take one orbit out of the batch and save it")
     model = orbit.model
-    if not isinstance(model.adhesion, AdhesionLaw):
+    if not in_a_file(model.adhesion):
+        what = "a subclass of AdhesionLaw" if isinstance(model.adhesion, AdhesionLaw) else "a Python callable"
         raise ValueError(
-            "save: the orbit's adhesion law is a Python callable, which a file cannot hold (files are data, "
-            "never code); use an AdhesionLaw to save it"
+            f"save: the orbit's adhesion law is {what}, which a file cannot hold (files are data, never code); "
+            "use an AdhesionLaw to save it"
         )
     dtypes = {"f": np.float64, "i": np.int64, "c": np.complex128}
     arrays = {name: np.asarray(getattr(orbit, name), dtypes[kind]) for name, (_, kind) in _FIELDS.items()}

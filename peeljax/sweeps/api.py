@@ -23,7 +23,7 @@ from jaxtyping import ArrayLike, Bool, Float, Int
 from .._files import read_meta
 from .._memory import check_output_memory
 from .._validation import check_choice, check_truncation
-from ..adhesion import AdhesionLaw
+from ..adhesion import AdhesionLaw, law_settings
 from ..integrators.alpha import AlphaMethod
 
 from ..model import PeelingModel
@@ -254,7 +254,7 @@ class SweepResult:
 # ---------------------------------------------------------------------------- inputs
 def _model_settings(model: PeelingModel) -> dict:
     adhesion = model.adhesion
-    phi = adhesion.coefficients() if isinstance(adhesion, AdhesionLaw) else f"callable {type(adhesion).__qualname__}"
+    phi = law_settings(adhesion)
     return {name: float(getattr(model, name)) for name in ("R", "I", "k", "l")} | {
         "geometry": model.geometry,
         "phi": phi,
