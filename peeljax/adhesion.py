@@ -119,14 +119,14 @@ class AdhesionLaw(eqx.Module):
         subclass that scales ``_evaluate``)."""
         # a subclass of a module with its own __init__ gets no dataclass __init__ (equinox):
         # without this, its fields were never set, a flattened leaf read as equinox's `_Missing`
-        own = {field.name: field for field in _own_fields(self)}
+        own = _own_fields(type(self))
         unknown = set(coefficients) - set(COEFFICIENT_NAMES) - set(own)
         if unknown:
             names = [*COEFFICIENT_NAMES, *own]
             raise ValueError(f"{type(self).__name__}: unknown coefficient(s) {sorted(unknown)}; the names are {names}")
         for name in COEFFICIENT_NAMES:
             setattr(self, name, coefficients.get(name, PAPER_COEFFICIENTS[name]))
-        for name, field in own.items():
+        for name, field in own.items():  # none in AdhesionLaw itself
             if name in coefficients:
                 value = coefficients[name]
             elif field.default is not dataclasses.MISSING:
@@ -287,13 +287,15 @@ def law_settings(phi) -> dict | str:
     settings = phi.coefficients()
     if type(phi) is not AdhesionLaw:
         settings |= {"class": type(phi).__qualname__}
-        settings |= {field.name: _json_value(getattr(phi, field.name)) for field in _own_fields(phi)}
+        settings |= {name: _json_value(getattr(phi, name)) for name in _own_fields(type(phi))}
     return settings
 
 
-def _own_fields(law: AdhesionLaw) -> list[dataclasses.Field]:
-    """A subclass's fields beside the 14 coefficients."""
-    return [field for field in dataclasses.fields(law) if field.name not in COEFFICIENT_NAMES]
+@functools.cache
+def _own_fields(cls: type) -> dict[str, dataclasses.Field]:
+    """A subclass's fields beside the 14 coefficients, by name; once per class (read at every
+    construction: ``dataclasses.fields`` doubled the cost of ``AdhesionLaw()``)."""
+    return {field.name: field for field in dataclasses.fields(cls) if field.name not in COEFFICIENT_NAMES}
 
 
 def _json_value(value):
