@@ -157,7 +157,17 @@ class AdhesionLaw(eqx.Module):
         return {name: float(getattr(self, name)) for name in COEFFICIENT_NAMES}
 
     def to_json(self, path: str | Path | None = None, **extra) -> str:
-        """The coefficients as a JSON object (keys ``c1, p1, …, p9``), plus ``extra`` keys."""
+        """The coefficients as a JSON object (keys ``c1, p1, …, p9``), plus ``extra`` keys.
+
+        Raises ``TypeError`` for a subclass: its ``_evaluate`` is code, which a file of
+        coefficients cannot hold (read back, it would be the paper's family, another law)."""
+        if not in_a_file(self):
+            raise TypeError(
+                f"{type(self).__qualname__}.to_json: a subclass of AdhesionLaw is code (its _evaluate), which a JSON "
+                "file of coefficients cannot hold: read back, the file would be the paper's family with these "
+                "coefficients, another law. Keep the subclass in your own code; "
+                "AdhesionLaw(**law.coefficients()).to_json(path) writes the paper's family on purpose"
+            )
         text = json.dumps({**self.coefficients(), **extra}, indent=2)
         if path is not None:
             write_text(path, text + "\n")
@@ -177,6 +187,12 @@ class AdhesionLaw(eqx.Module):
         """
         if not isinstance(data, dict):
             raise ValueError(f"{source}: expected a JSON object of coefficients, got {type(data).__name__}")
+        law = data.get(LAW_KEY, AdhesionLaw.__qualname__)
+        if law != AdhesionLaw.__qualname__:
+            raise ValueError(
+                f"{source}: the coefficients of {str(law)[:60]!r}, a subclass of AdhesionLaw (code, not in the file): "
+                "read as the paper's family they would be another law; build that class from them in Python"
+            )
         unknown = [key for key in data if key not in COEFFICIENT_NAMES and _looks_like_coefficient(key)]
         if unknown:
             raise ValueError(
@@ -270,6 +286,9 @@ def _looks_like_coefficient(key) -> bool:
     if re.fullmatch(r"[a-z]\d+", squeezed):
         return True
     return bool(difflib.get_close_matches(key.lower(), COEFFICIENT_NAMES, n=1, cutoff=0.75))
+
+
+LAW_KEY = "law"  # a file of coefficients that belong to a subclass names it here (never read as the family)
 
 
 def in_a_file(phi) -> bool:

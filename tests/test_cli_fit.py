@@ -29,24 +29,32 @@ def simulated(tmp_path_factory):
 
 
 @pytest.mark.slow
-def test_fit_a_simulate_file_end_to_end(simulated):
-    """simulate --out → fit --data: fitted.json readable by --phi, loss falls, plot written."""
+def test_fit_a_simulate_file_and_a_csv_end_to_end(simulated):
+    """simulate --out → fit --data run.npz --data peel_V=1.1.csv (the same run's t, F, v as text, V
+    in the name), both in one fit: fitted.json readable by --phi, loss falls, plot written. (One
+    compiled fit serves both readers: each such fit compiles for minutes on 2 cores.)"""
     folder, npz = simulated
+    with np.load(npz) as data:
+        rows = np.column_stack([data["t"], data["F"], data["v"]])
+    csv = folder / "peel_V=1.1.csv"
+    csv.write_text("# t [s], F [N], v [m/s]\nt,F,v\n" + "\n".join(",".join(repr(float(x)) for x in row) for row in rows))
     out, png = folder / "fitted.json", folder / "fit.png"
     code, stdout, err = run_cli(
-        ["fit", "--data", str(npz), "--out", str(out), "--free", "c1", "--steps", "25", "--optimizer", "lbfgs",
-         "--plot", str(png), "--json", "--no-progress"]
+        ["fit", "--data", str(npz), "--data", str(csv), "--out", str(out), "--free", "c1", "--steps", "25",
+         "--optimizer", "lbfgs", "--plot", str(png), "--json", "--no-progress"]
     )  # fmt: skip
     assert code == 0, err
+    assert "to 2 run(s) (V = 1.1, 1.1)" in err
     summary = json.loads(stdout)
     record = json.loads(out.read_text())
     assert set(COEFFICIENT_NAMES) <= set(record)
-    assert record["settings"]["tau"] == pytest.approx(0.1)  # taken from the data file
+    assert record["settings"]["data"] == [str(npz), str(csv)]
+    assert record["settings"]["V"] == [1.1, 1.1]
+    assert record["settings"]["tau"] == pytest.approx(0.1)  # taken from the .npz file (the text has none)
     assert record["settings"]["dt"] is None  # error control (the default), not the data's spacing
     assert record["settings"]["rtol"] == 1e-6
     assert len(record["loss_history"]) == summary["steps"] + 1 and 1 <= summary["steps"] <= 25
-    # Noise-free data from c1 = 440 (the start, the paper's 400, is 10 % off): L-BFGS must find
-    # it. Measured: c1 = 440.000, the loss from 0.58 to 0.0000 (5 decimals) within 10 iterations.
+    # Noise-free data from c1 = 440 (the start, the paper's 400, is 10 % off): L-BFGS must find it.
     assert record["c1"] == pytest.approx(440.0, rel=1e-4)
     assert record["final_loss"] < 1e-6 * record["initial_loss"]
     assert record["start"]["c1"] == 400.0

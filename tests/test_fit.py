@@ -77,23 +77,6 @@ def test_fit_input_errors():
         pj.fit_adhesion(obs, learning_rate=0.0)
 
 
-@pytest.mark.slow
-def test_fit_with_error_control_recovers_a_coefficient():
-    """fit_adhesion(rtol=…): the model runs with error control and reverse mode through its
-    checkpointed loop, met at the observation times; from data made by c1 = 440 (start: the
-    paper's 400) L-BFGS finds c1."""
-    true = pj.AdhesionLaw(c1=440.0)
-    ts = np.linspace(0.0, 0.5, 51)
-    sol = pj.simulate(pj.PeelingModel(adhesion=true), V=1.1, tau=0.1, t_final=0.5, ts=ts, rtol=1e-8, atol=1e-11)
-    obs = pj.Observation(V=1.1, t=np.asarray(sol.ts), v=np.asarray(sol.v))
-    result = pj.fit_adhesion(
-        obs, tau=0.1, free=["c1"], optimizer="lbfgs", steps=25, progress=False, rtol=1e-8, atol=1e-11
-    )
-    assert float(result.adhesion.c1) == pytest.approx(440.0, rel=1e-6)
-    assert result.final_loss < 1e-6 * result.initial_loss
-    assert result.settings["rtol"] == 1e-8
-
-
 def test_fit_tolerances_are_checked():
     obs = pj.Observation(V=1.1, t=np.linspace(0, 0.2, 5), v=np.ones(5))
     with pytest.raises(ValueError, match="rtol"):

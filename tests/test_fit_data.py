@@ -713,38 +713,6 @@ def test_cli_refuses_text_without_V_and_bad_files(tmp_path, no_fit):
     assert_refused(code, stderr, "--data", "tau.npz", "field 'tau'", stdout=stdout)
 
 
-@pytest.mark.slow
-def test_cli_fits_a_csv_force_record_end_to_end(tmp_path):
-    """simulate --out → a CSV with t, F, v (V in the name) → peeljax fit --data run.csv: the loss falls."""
-    import json
-
-    from peeljax import AdhesionLaw
-
-    phi, npz = tmp_path / "true.json", tmp_path / "run.npz"
-    AdhesionLaw(c1=440.0).to_json(phi)
-    code, _, err = run_cli(
-        ["simulate", "--t-final", "0.2", "--save-dt", "0.01", "--tau", "0.1", "--V", "1.1", "--phi", str(phi), "--out", str(npz)]
-    )  # fmt: skip
-    assert code == 0, err
-    with np.load(npz) as data:
-        rows = np.column_stack([data["t"], data["F"], data["v"]])
-    csv = tmp_path / "peel_V=1.1.csv"
-    csv.write_text(
-        "# t [s], F [N], v [m/s]\nt,F,v\n" + "\n".join(",".join(repr(float(x)) for x in row) for row in rows)
-    )
-    out = tmp_path / "fitted.json"
-    code, _, err = run_cli(
-        ["fit", "--data", str(csv), "--out", str(out), "--tau", "0.1", "--free", "c1", "--steps", "15",
-         "--optimizer", "lbfgs", "--json", "--no-progress"]
-    )  # fmt: skip
-    assert code == 0, err
-    record = json.loads(out.read_text())
-    assert record["settings"]["data"] == [str(csv)]
-    # noise-free data from c1 = 440, the start (the paper's 400) 10 % off
-    assert record["final_loss"] < 1e-4 * record["initial_loss"]
-    assert record["c1"] == pytest.approx(440.0, rel=1e-3)
-
-
 def test_the_old_module_peeljax_fit_data_warns_on_use_and_re_exports_the_same_names():
     import importlib
 

@@ -252,18 +252,14 @@ def test_hidden_truth_table_of_three_coefficients_is_recovered():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("problem", ["grazing", "stops"])
-def test_a_table_across_the_whole_stick_slip_range_is_recovered(problem):
-    """``benchmarks/fit_acceptance.py --wide``: 8 V in 0.5–4 m/s, three coefficients 6–8 % off,
-    1 % noise, the defaults. "grazing": the orbits at 3.5–4 m/s pass close to a grazing (their
+def test_a_table_across_the_whole_stick_slip_range_is_recovered():
+    """``benchmarks/fit_acceptance.py --wide grazing``: 8 V in 0.5–4 m/s, three coefficients 6–8 %
+    off, 1 % noise, the defaults. The orbits at 3.5–4 m/s pass close to a grazing (their
     derivatives singular, named in the rows and left out of the steps; before, the fit stopped
-    at its start, every coefficient 6–8 % off). "stops": besides, the tape stops after every
-    slip at 0.5 m/s, and its attractor there (a 5-slip orbit, multiplier −0.976) settles too
-    slowly for the rows' runs: it is found by shooting k = 1 … 12 from the run's last slip, and
-    followed through the period doubling 0.04 % of c1 below the truth (before, the row was a
-    window row; before that, the synthetic table's row was empty). Every coefficient within
-    2 % and 4 standard errors, χ²/dof below 2, no statistic missing; the row at 0.5 m/s an orbit
-    row at the start.
+    at its start, every coefficient 6–8 % off). Every coefficient within 2 % and 4 standard
+    errors, χ²/dof below 2, no statistic missing. The table where besides the tape stops after
+    every slip at 0.5 m/s (``--wide stops``) is fitted without noise below, and its noisy fit
+    is the benchmark's (docs/fitting.md); its test here was cut for CI's time.
 
     4, not 3: these fits end on χ²'s rough floor (docs/fitting.md), where the point they stop
     at follows the last bits of the machine's arithmetic. The same code and draw passed at 3
@@ -271,25 +267,21 @@ def test_a_table_across_the_whole_stick_slip_range_is_recovered(problem):
     the intervals' coverage over 60 draws is ``benchmarks/results/fit_coverage_wide.md``'s."""
     import fit_acceptance  # benchmarks/
 
-    truth = fit_acceptance.WIDE_TRUTH if problem == "grazing" else fit_acceptance.WIDE_STOPS
-    out = fit_acceptance.run_table(V=fit_acceptance.WIDE_V, multipliers=truth)
+    out = fit_acceptance.run_table(V=fit_acceptance.WIDE_V, multipliers=fit_acceptance.WIDE_TRUTH)
     result, truth = out["result"], out["truth"]
     u = result.uncertainty
     for name, value, se in zip(u.names, u.values, u.standard_errors):
         true = float(getattr(truth, name))
         assert abs(value / true - 1) < 0.02 and abs(value - true) < 4 * se, (name, value, true, se)
     assert result.converged and result.chi2_dof < 2.0 and not result.missing, result.summary()
-    if problem == "stops":  # the truth's row at 0.5 m/s is on its periodic attractor
-        from peeljax.fit.table import attractor_statistics
-
-        point, rows, why = attractor_statistics(truth, [0.5])
-        assert rows.kinds == ["orbit"] and point.attractors[0].slips == 5, why
 
 
 @pytest.mark.slow
 def test_the_whole_range_table_without_noise_is_fitted_to_its_truth():
     """The whole-range table of ``benchmarks/fit_coverage.py --problem wide`` without noise (σ 1 %
-    of each value): χ² is 0 at the truth. Before the step beyond a branch's edge the fit stopped
+    of each value), at ``fit_acceptance.WIDE_STOPS``: the tape stops after every slip at 0.5 m/s,
+    where the row's attractor is a 5-slip orbit found by shooting and followed through a period
+    doubling (``tests/test_fit_attractors.py``). χ² is 0 at the truth. Before the step beyond a branch's edge the fit stopped
     at χ² 1.25, c1 0.87 standard errors short of the truth. Since, measured: χ² 0.14 and
     c1 0.30 SE short (2026-11-28), and χ² 6.93, c1 1.00 SE short (2026-12-04, twice: the end
     point differs between processes in the last digits, and the row at 3.5 m/s then lands on a
@@ -310,7 +302,7 @@ def test_the_whole_range_table_without_noise_is_fitted_to_its_truth():
     u = result.uncertainty
     for name, value, se in zip(u.names, u.values, u.standard_errors):
         assert abs(value - float(getattr(truth, name))) < 0.2 * se, (name, value, se, result.summary())
-    assert result.converged and result.chi2_dof < 0.05, result.summary()
+    assert result.converged and result.chi2_dof < 0.05 and not result.missing, result.summary()
 
 
 def test_an_interrupted_levenberg_marquardt_keeps_its_best_point(monkeypatch):

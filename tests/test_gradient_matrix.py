@@ -7,8 +7,8 @@ the slips). The parameters: a coefficient of φ (c1), V, τ and the spool's radi
 derivative is taken of a tight run (rtol 1e-9; the derivative of a run at a looser tolerance is
 that run's, off by the run's own error) and compared with central differences of runs at rtol
 1e-10 at two steps h and h/4 that agree with each other (the difference is shown stable before it
-is trusted). Reverse mode is checked against forward mode on the same run (at rtol 1e-6), for
-the α-method and Tsit5, at a checkpoint layout where Tsit5's reverse-mode run passes an impasse. Both
+is trusted). Reverse mode is checked against forward mode on the same run (at rtol 1e-6) with the default stepper, which
+takes Tsit5 throughout that run, at a checkpoint layout where its reverse-mode run passes an impasse. Both
 used to fail: Tsit5's reverse mode was NaN after its second jump (a rejected attempt that
 overflowed got a zero cotangent, and 0·inf = NaN in its pullback), and an impasse the step
 passed rather than approached (decided by round-off, so by the program's layout) was
@@ -17,8 +17,8 @@ state's. ``fold="follow"`` and ``"stop"`` have a cell before the first slip (0.1
 past it ``stop`` has stopped and ``follow`` has followed a singular passage, where the
 derivatives are NaN (no derivative exists: ``tests/test_undefined_derivatives.py``); at
 τ ≥ 0.01 nothing jumps in 0.3 s, and the policies are the ``jump`` cells.
-All are ``slow``, as is the smallest cell, ``tests/test_jumps.py::test_gradients_through_fold_jumps_match_central_differences``
-(a program through fold jumps in reverse mode compiles for ~2 minutes); the fast tier checks the
+All are ``slow`` (a program through fold jumps in reverse mode compiles for ~2 minutes; the
+cell τ = 1e-3 holds what issue 42 found wrong, the sign of the jump times' d/dV); the fast tier checks the
 mechanism of the NaN fix, ``tests/test_cotangents.py``. Orbit statistics (τ = 0) are checked in ``tests/test_orbits.py``.
 """
 
@@ -149,10 +149,11 @@ def test_gradient_matrix_other_fold_policies(fold):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("solver, max_steps", [(None, 400_000), ("tsit5", 400_000)])
-def test_reverse_mode_is_forward_mode(solver, max_steps):
-    """τ = 1e-3 with 14 jumps, every quantity and parameter. Tsit5 with 400 000 steps at most keeps
-    every step's carry (no recomputation) and passes the 8th jump's impasse in its reverse-mode
-    run where the forward-mode run stops short of it (with 20 000, 199 checkpoints, it does not:
-    the same derivatives, measured once, not kept as a test for its 2 minutes)."""
-    _modes_agree(1e-3, solver, max_steps=max_steps)
+def test_reverse_mode_is_forward_mode():
+    """τ = 1e-3 with 14 jumps, every quantity and parameter, with the default stepper ("auto"),
+    which takes Tsit5 on all 419 steps of this run (and its 455 rejected attempts; measured from
+    the run's stats): Tsit5's pullback through rejected attempts and jumps, in the default's
+    program. With 400 000 steps at most the reverse-mode loop keeps every step's carry (no
+    recomputation). The same check on ``solver="tsit5"``'s own program (254 s in CI on 2 cores)
+    passed in CI until 2026-12-07, when it was dropped to keep CI within its 90 minutes."""
+    _modes_agree(1e-3, None, max_steps=400_000)

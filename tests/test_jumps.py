@@ -276,24 +276,6 @@ def test_bad_jump_input_is_rejected_before_compilation(no_compilation, kwargs, n
 
 
 @pytest.mark.slow
-def test_gradients_through_fold_jumps_match_central_differences():
-    """The derivative through a run of the homogenized ODE with fold jumps (τ = 1e-3, 6 jumps in
-    0.25 s), forward mode: d/dV of the jump times and of v at the end against central
-    differences of tight runs (issue 42: the jump times' derivative had the wrong sign). The
-    whole matrix, reverse mode included, is tests/test_gradient_matrix.py (slow)."""
-
-    def quantities(V, rtol):
-        sol = pj.simulate(V=V, tau=1e-3, t_final=0.25, ts=jnp.array([0.0, 0.25]), rtol=rtol, max_jumps=16, adjoint="forward")
-        return jnp.concatenate([sol.jumps.t[:6], jnp.log(sol.ys[-1:, 3])])
-
-    assert np.all(np.isfinite(quantities(1.1, 1e-8)))
-    derivative = np.asarray(jax.jvp(lambda V: quantities(V, 1e-8), (1.1,), (1.0,))[1])
-    h = 1e-4
-    difference = (np.asarray(quantities(1.1 + h, 1e-10)) - np.asarray(quantities(1.1 - h, 1e-10))) / (2 * h)
-    np.testing.assert_allclose(derivative, difference, rtol=2e-3)
-
-
-@pytest.mark.slow
 def test_sweep_lanes_jump_as_simulate_does():
     """Each lane of a τ = 0 sweep takes the jumps of the same run alone (forward-mode loop) and
     keeps the last ``max_jumps`` of them (a ring buffer, 64 by default), in time order."""

@@ -22,7 +22,7 @@ import numpy as np
 
 from .._atomic import write_text
 from .._files import json_safe
-from ..adhesion import AdhesionLaw
+from ..adhesion import LAW_KEY, AdhesionLaw, in_a_file
 from .levenberg_marquardt import CONVERGED, STOP_REASONS, LevenbergMarquardt, missing_entries
 from .parameters import law_from
 from ..measurements.statistics import STATISTICS
@@ -79,13 +79,15 @@ class FitResult:
         return self.initial_loss / self.final_loss if self.final_loss > 0 else math.inf
 
     def to_dict(self) -> dict:
-        """The 14 coefficients at top level (``AdhesionLaw.from_dict`` reads them) and the rest."""
+        """The 14 coefficients at top level (``AdhesionLaw.from_dict`` reads them) and the rest; a
+        fitted subclass of AdhesionLaw is named under ``"law"``, and ``from_dict`` then refuses the file."""
         return {
             **self.adhesion.coefficients(), "start": self.start.coefficients(), "free": list(self.free),
             "loss_history": [float(x) for x in self.loss_history], "initial_loss": self.initial_loss,
             "final_loss": self.final_loss, "loss_reduction": self.loss_reduction, "gradient_norm": self.gradient_norm,
             "steps": self.steps, "stopped_early": self.stopped_early, "v_range": list(self.v_range),
             "t_stop": list(self.t_stop), "wall_time_s": self.wall_time_s, "settings": self.settings,
+            **({} if in_a_file(self.adhesion) else {LAW_KEY: type(self.adhesion).__qualname__}),
             **({} if not self.stop_reason else {"stop_reason": self.stop_reason}),
             **({} if self.uncertainty is None else {"uncertainty": self.uncertainty.as_dict()}),
             **({} if self.residuals is None else {"residuals": [float(x) for x in self.residuals]}),
