@@ -18,14 +18,19 @@ SHORT = ["--t-final", "0.2", "--save-dt", "0.01", "--tau", "0.1"]
 
 @pytest.fixture(scope="module")
 def simulated(tmp_path_factory):
-    """A short run with a perturbed φ written by ``peeljax simulate --out``."""
+    """A short run with a perturbed φ written by ``peeljax simulate --out``, and its t, F, v as a
+    CSV text record (V in the name): the fits below take both files (one compiled fit for both)."""
     folder = tmp_path_factory.mktemp("fit_cli")
     phi = folder / "true.json"
     AdhesionLaw(c1=440.0).to_json(phi)
     npz = folder / "observed.npz"
     code, _, err = run_cli(["simulate", *SHORT, "--V", "1.1", "--phi", str(phi), "--out", str(npz)])
     assert code == 0, err
-    return folder, npz
+    with np.load(npz) as data:
+        rows = np.column_stack([data["t"], data["F"], data["v"]])
+    csv = folder / "peel_V=1.1.csv"
+    csv.write_text("# t [s], F [N], v [m/s]\nt,F,v\n" + "\n".join(",".join(repr(float(x)) for x in row) for row in rows))
+    return folder, npz, csv
 
 
 @pytest.mark.slow
@@ -33,11 +38,7 @@ def test_fit_a_simulate_file_and_a_csv_end_to_end(simulated):
     """simulate --out → fit --data run.npz --data peel_V=1.1.csv (the same run's t, F, v as text, V
     in the name), both in one fit: fitted.json readable by --phi, loss falls, plot written. (One
     compiled fit serves both readers: each such fit compiles for minutes on 2 cores.)"""
-    folder, npz = simulated
-    with np.load(npz) as data:
-        rows = np.column_stack([data["t"], data["F"], data["v"]])
-    csv = folder / "peel_V=1.1.csv"
-    csv.write_text("# t [s], F [N], v [m/s]\nt,F,v\n" + "\n".join(",".join(repr(float(x)) for x in row) for row in rows))
+    folder, npz, csv = simulated
     out, png = folder / "fitted.json", folder / "fit.png"
     code, stdout, err = run_cli(
         ["fit", "--data", str(npz), "--data", str(csv), "--out", str(out), "--free", "c1", "--steps", "25",
@@ -225,12 +226,13 @@ def test_a_record_too_short_to_determine_a_coefficient_says_so_and_what_length_w
 def test_an_interrupted_fit_writes_its_best_iterate_so_far(simulated, monkeypatch, capsys):
     """Ctrl-C after a few iterations of ``fit --data``: exit 130, --out holds the best iterate so
     far (a file --phi reads, its stop_reason saying so), and the line on stderr says what it holds.
-    Slow: beside the end-to-end fit above, whose compiled update it shares (the same data, free
+    Slow: beside the end-to-end fit above, whose compiled update it shares (the same two files, free
     set and optimizer, L-BFGS: JAX's compilation cache hands it over, its compilation being
-    nearly all of either test's time; the default optimizer, Adam, compiled a second program)."""
+    nearly all of either test's time; the default optimizer, Adam, compiled a second program;
+    with one file of the two it compiled its own, 154 s in CI)."""
     from peeljax.fit import trajectory
 
-    folder, npz = simulated
+    folder, npz, csv = simulated
     real, calls = trajectory._update, []
 
     def interrupted_on_the_third(*args, **kwargs):
@@ -241,8 +243,8 @@ def test_an_interrupted_fit_writes_its_best_iterate_so_far(simulated, monkeypatc
 
     monkeypatch.setattr(trajectory, "_update", interrupted_on_the_third)
     out = folder / "interrupted.json"
-    code = run_cli(["fit", "--data", str(npz), "--out", str(out), "--free", "c1", "--steps", "10", "--optimizer", "lbfgs",
-                    "--no-progress"])[0]  # fmt: skip
+    code = run_cli(["fit", "--data", str(npz), "--data", str(csv), "--out", str(out), "--free", "c1", "--steps", "10",
+                    "--optimizer", "lbfgs", "--no-progress"])[0]  # fmt: skip
     assert code == 130
     record = json.loads(out.read_text())
     assert record["stop_reason"] == "interrupted after 1 iterations" and len(record["loss_history"]) == 2
